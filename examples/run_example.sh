@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# End-to-end example: set up .venv, then run each pipeline stage into examples/out/.
+# To add a stage, append another `step` call at the end.
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+
+bash scripts/bootstrap.sh
+export PATH="$PWD/.venv/bin:$PATH"
+
+OUT=examples/out
+mkdir -p "$OUT"
+
+step() {  # step "heading" command args...
+    echo
+    echo "== $1"
+    shift
+    echo "\$ $*"
+    "$@"
+}
+
+step "synth: synthetic pebbles BTF" \
+    usdbtf synth pebbles -o "$OUT/pebbles_raw" --sampling small --size 64 --seed 1
+step "compress" \
+    usdbtf compress "$OUT/pebbles_raw" -o "$OUT/pebbles_c" --k 32
+step "decompress" \
+    usdbtf decompress "$OUT/pebbles_c" -o "$OUT/pebbles_recon"
+step "info: sizes and errors" \
+    usdbtf info "$OUT/pebbles_c"
+# Later stages (planned), e.g.:
+# step "package" usdbtf package "$OUT/pebbles_c" -o "$OUT/pebbles.usda"
+# step "render"  usdbtf render  "$OUT/pebbles.usda" -o "$OUT/pebbles.png"
+
+echo
+echo "done: outputs in $OUT/"

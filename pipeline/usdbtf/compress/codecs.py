@@ -1,0 +1,116 @@
+"""How coefficient textures and the basis are stored on disk.
+
+Every stored image holds integers (or half floats) plus a per-channel affine
+de-quantisation ``value = stored * scale + bias``, recorded in the metadata, so a
+renderer (or UsdUVTexture's scale/bias) can undo it.
+
+Codecs
+------
+``jxl``   (default) uniform-step integers, lossless JPEG XL: within ~15% of the
+          entropy of the quantised symbols, which is where the bytes go.
+``png``   the same integers, lossless PNG: larger, readable everywhere.
+``exr``   half floats, ZIP: no quantisation beyond half precision.
+``jpeg``  the paper: each texture min-max scaled to [0, 1], 8-bit JPEG (quality 90,
+          4:4:4); basis min-max scaled per vector into one uncompressed 8-bit TIFF.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import BTFError
+from ..imageio import read_image, write_image
+
+__all__ = ["Codec", "CODECS", "get_codec", "Stored", "quantize_uniform", "quantize_minmax"]
+
+
+@dataclass(frozen=True)
+class Stored:
+    """Integers (or halves) ready to write, with their de-quantisation.
+
+    pixels : (H, W, C) storage array (uint8, uint16 or float16).
+    scale, bias : (C,) float64, ``value = pixels * scale + bias``.
+    """
+
+    pixels: np.ndarray
+    scale: np.ndarray
+    bias: np.ndarray
+
+    def values(self) -> np.ndarray:
+        """(H, W, C) float32 de-quantised values, computed exactly as every reader does."""
+        return (self.pixels.astype(np.float32) * self.scale.astype(np.float32)
+                + self.bias.astype(np.float32))
+
+
+def quantize_uniform(values: np.ndarray, step) -> Stored:
+    """Round ``values`` (H, W, C) to multiples of ``step`` (scalar or (C,)), stored as unsigned ints.
+
+    The integer range decides the bit depth: 8-bit when every channel fits in
+    256 levels, else 16-bit.  Raises BTFError if a channel needs more than 16 bits.
+    """
+    step = np.broadcast_to(np.asarray(step, np.float64), (values.shape[-1],))
+    q = np.rint(values / step.astype(np.float32)).astype(np.int64)
+    lo = q.reshape(-1, q.shape[-1]).min(axis=0)
+    hi = q.reshape(-1, q.shape[-1]).max(axis=0)
+    span = int((hi - lo).max())
+    if span >= 2**16:
+        raise BTFError(f"quantisation step too fine: {span + 1} levels do not fit in 16 bits")
+    dtype = np.uint8 if span < 256 else np.uint16
+    return Stored((q - lo).astype(dtype), step.copy(), lo * step)
+
+
+def quantize_minmax(values: np.ndarray, *, per_channel: bool, bits: int = 8) -> Stored:
+    """The paper's scaling: map [min, max] to the full integer range (jointly or per channel)."""
+    flat = values.reshape(-1, values.shape[-1]).astype(np.float64)
+    lo, hi = flat.min(axis=0), flat.max(axis=0)
+    if not per_channel:
+        lo, hi = np.full_like(lo, lo.min()), np.full_like(hi, hi.max())
+    top = 2**bits - 1
+    scale = np.where(hi > lo, (hi - lo) / top, 1.0)
+    q = np.rint((flat - lo) / scale).clip(0, top)
+    dtype = np.uint8 if bits == 8 else np.uint16
+    return Stored(q.astype(dtype).reshape(values.shape), scale, lo)
+
+
+@dataclass(frozen=True)
+class Codec:
+    """A file format for stored textures.  ``attributes`` are OIIO writer options."""
+
+    name: str
+    ext: str
+    attributes: dict
+    basis_ext: str
+    basis_attributes: dict
+    lossless: bool
+
+    def write(self, path: Path, stored: Stored, color_space: str, *, basis: bool = False) -> int:
+        """Write ``stored.pixels``; returns bytes on disk."""
+        return write_image(path, stored.pixels, color_space=color_space,
+                           attributes=self.basis_attributes if basis else self.attributes)
+
+    @staticmethod
+    def read(path: Path, channels: int | None = None) -> np.ndarray:
+        """Stored integers/halves back, (H, W, C)."""
+        pixels, _ = read_image(path)
+        if channels == 1:
+            pixels = pixels[:, :, :1]
+        return pixels
+
+
+_JXL = {"jpegxl:distance": 0.0, "jpegxl:effort": 2}
+CODECS = {
+    "jxl": Codec("jxl", "jxl", _JXL, "jxl", _JXL, True),
+    "png": Codec("png", "png", {"png:compressionLevel": 6}, "png", {"png:compressionLevel": 6}, True),
+    "exr": Codec("exr", "exr", {"compression": "zip"}, "exr", {"compression": "zip"}, True),
+    "jpeg": Codec("jpeg", "jpg", {"Compression": "jpeg:90", "jpeg:subsampling": "4:4:4"}, "tif",
+                  {"compression": "none"}, False),
+}
+
+
+def get_codec(name: str) -> Codec:
+    try:
+        return CODECS[name]
+    except KeyError:
+        raise BTFError(f"unknown codec {name!r}; choose from {', '.join(CODECS)}") from None

@@ -1,0 +1,228 @@
+"""The compressed BTF: basis + coefficient textures + a small metadata file.
+
+Folder layout (``btf-compressed/1``)::
+
+    btf-compressed.json     metadata (below)
+    basis.<ext>             S x k single-channel image: row s = sample s, column i = basis vector i
+    coeff/c000.<ext> ...    one H x W x 3 texture per basis vector, energy order (c000 first)
+    error_curve.csv/.png    percent error vs k (diagnostics, not counted in the stored bytes)
+
+Reconstruction (equation 2 of Koudelka et al. 2003, with a colour matrix)::
+
+    U[s, i]    = basis[s, i] * basis_scale[i] + basis_bias[i]
+    c_i(x, y)  = coeff_i[y, x, :] * coeff_scale[i, :] + coeff_bias[i, :]
+    I_s(x, y)  = color_matrix @ sum_i U[s, i] * c_i(x, y)          (working space, linear)
+
+``color_matrix`` is the 3x3 that takes the stored (decorrelated) coefficient
+channels to working-space RGB: identity for the paper solver.
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..atomic import atomic_dir
+from ..errors import BTFError
+from ..sampling import Sampling
+from .codecs import Codec, Stored, get_codec
+
+__all__ = ["FORMAT", "METADATA", "CompressedBTF", "write_compressed", "write_textures", "write_metadata",
+           "metadata_document", "read_compressed", "reconstruct", "folder_bytes"]
+
+FORMAT = "btf-compressed/1"
+METADATA = "btf-compressed.json"
+
+
+@dataclass
+class CompressedBTF:
+    """A BTF as a basis and coefficient textures.
+
+    Attributes
+    ----------
+    sampling : Sampling, S directions (one per basis row).
+    basis : Stored, pixels (S, k, 1).
+    coefficients : list of k Stored, pixels (H, W, 3), energy order.
+    color_matrix : (3, 3) float64, stored channels -> working-space RGB.
+    codec : str, how the textures are stored.
+    working_space : OCIO name of the space reconstructions are in.
+    source : dict, the input's "color_space", "bit_depth", "path" (decompress writes this encoding).
+    info : dict, everything else recorded in the metadata (solver, errors, bytes, provenance...).
+    """
+
+    sampling: Sampling
+    width: int
+    height: int
+    basis: Stored
+    coefficients: list
+    color_matrix: np.ndarray
+    codec: str
+    working_space: str
+    source: dict
+    interpolated: np.ndarray | None = None
+    ocio_config: str | None = None
+    info: dict = field(default_factory=dict)
+
+    @property
+    def k(self) -> int:
+        return len(self.coefficients)
+
+    @property
+    def n_samples(self) -> int:
+        return len(self.sampling)
+
+    def basis_values(self, k: int | None = None) -> np.ndarray:
+        """(S, k) float32 de-quantised basis."""
+        k = self.k if k is None else k
+        b = self.basis
+        return (b.pixels[:, :k, 0].astype(np.float32) * b.scale[:k].astype(np.float32)
+                + b.bias[:k].astype(np.float32))
+
+    def coefficient_values(self, k: int | None = None) -> np.ndarray:
+        """(k, H, W, 3) float32 de-quantised coefficient textures."""
+        k = self.k if k is None else k
+        out = np.empty((k, self.height, self.width, 3), np.float32)
+        for i in range(k):
+            out[i] = self.coefficients[i].values()
+        return out
+
+
+def reconstruct(cbtf: CompressedBTF, indices=slice(None), *, k: int | None = None,
+                coefficients: np.ndarray | None = None) -> np.ndarray:
+    """Working-space images of samples ``indices`` from the first ``k`` basis vectors.
+
+    Returns (n, H, W, 3) float32.  ``coefficients`` (k, H, W, 3) may be passed to
+    avoid de-quantising the textures again when reconstructing many chunks.
+    """
+    k = cbtf.k if k is None else min(k, cbtf.k)
+    idx = np.atleast_1d(np.arange(cbtf.n_samples)[indices])
+    coeff = cbtf.coefficient_values(k) if coefficients is None else coefficients[:k]
+    rows = cbtf.basis_values(k)[idx]                                  # (n, k)
+    flat = rows @ coeff.reshape(k, -1)                                # (n, H*W*3)
+    img = flat.reshape(len(idx), cbtf.height, cbtf.width, 3)
+    m = np.asarray(cbtf.color_matrix, np.float32)
+    if not np.array_equal(m, np.eye(3, dtype=np.float32)):
+        img = img @ m.T
+    return img
+
+
+def _floats(a) -> list:
+    return [float(x) for x in np.asarray(a, np.float64).ravel()]
+
+
+def write_textures(cbtf: CompressedBTF, folder: Path) -> dict:
+    """Write basis and coefficient textures into an existing folder; returns byte counts.
+
+    Lossy codecs are read back so ``cbtf`` then holds exactly what any reader sees.
+    """
+    codec = get_codec(cbtf.codec)
+    (folder / "coeff").mkdir(exist_ok=True)
+    basis_name = f"basis.{codec.basis_ext}"
+    basis_bytes = codec.write(folder / basis_name, cbtf.basis, "data", basis=True)
+    coeff_bytes = []
+    for i, stored in enumerate(cbtf.coefficients):
+        name = f"coeff/c{i:03d}.{codec.ext}"
+        coeff_bytes.append(codec.write(folder / name, stored, "data"))
+        if not codec.lossless:
+            cbtf.coefficients[i] = Stored(Codec.read(folder / name), stored.scale, stored.bias)
+    if not codec.lossless:
+        cbtf.basis = Stored(Codec.read(folder / basis_name, channels=1), cbtf.basis.scale, cbtf.basis.bias)
+    sizes = {"basis": basis_bytes, "coefficients": int(sum(coeff_bytes)),
+             "payload": basis_bytes + int(sum(coeff_bytes)), "per_coefficient": coeff_bytes}
+    cbtf.info["bytes"] = sizes
+    return sizes
+
+
+def metadata_document(cbtf: CompressedBTF) -> dict:
+    """The JSON document describing ``cbtf`` (file names follow :func:`write_textures`)."""
+    codec = get_codec(cbtf.codec)
+    doc = {
+        "format": FORMAT,
+        "usdbtf_version": __version__,
+        "width": cbtf.width, "height": cbtf.height, "k": cbtf.k, "n_samples": cbtf.n_samples,
+        "codec": cbtf.codec,
+        "working_space": cbtf.working_space,
+        "ocio_config": cbtf.ocio_config,
+        "source": cbtf.source,
+        "color_matrix": [_floats(r) for r in cbtf.color_matrix],
+        "basis": {"file": f"basis.{codec.basis_ext}", "scale": _floats(cbtf.basis.scale),
+                  "bias": _floats(cbtf.basis.bias), "bit_depth": str(cbtf.basis.pixels.dtype)},
+        "coefficients": [{"file": f"coeff/c{i:03d}.{codec.ext}", "scale": _floats(s.scale), "bias": _floats(s.bias),
+                          "bit_depth": str(s.pixels.dtype)} for i, s in enumerate(cbtf.coefficients)],
+        "samples": {"view": [_floats(v) for v in cbtf.sampling.view],
+                    "light": [_floats(v) for v in cbtf.sampling.light],
+                    "interpolated": [int(i) for i in np.flatnonzero(cbtf.interpolated)]
+                    if cbtf.interpolated is not None else []},
+    }
+    doc.update({key: v for key, v in cbtf.info.items() if key not in doc})
+    return doc
+
+
+def write_metadata(cbtf: CompressedBTF, folder: Path) -> int:
+    text = json.dumps(metadata_document(cbtf), indent=1) + "\n"
+    (folder / METADATA).write_text(text)
+    return len(text)
+
+
+def write_compressed(cbtf: CompressedBTF, folder) -> dict:
+    """Write the whole folder atomically; returns the byte counts."""
+    with atomic_dir(folder) as tmp:
+        sizes = write_textures(cbtf, tmp)
+        sizes["metadata"] = write_metadata(cbtf, tmp)
+    return sizes
+
+
+def _require(doc, key, path):
+    if key not in doc:
+        raise BTFError(f"{path}: missing {key!r}")
+    return doc[key]
+
+
+def read_compressed(folder) -> CompressedBTF:
+    """Open a compressed BTF folder (reads every texture; they are small)."""
+    folder = Path(folder)
+    path = folder / METADATA
+    if not path.is_file():
+        raise BTFError(f"{path}: not a compressed BTF (metadata file missing)")
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise BTFError(f"{path}: unreadable metadata ({exc})") from None
+    if doc.get("format") != FORMAT:
+        raise BTFError(f"{path}: format {doc.get('format')!r} is not {FORMAT!r}")
+    codec = get_codec(_require(doc, "codec", path))
+    samples = _require(doc, "samples", path)
+    sampling = Sampling(np.asarray(samples["view"]), np.asarray(samples["light"]))
+    b = _require(doc, "basis", path)
+    basis_px = Codec.read(folder / b["file"], channels=1)
+    k = int(_require(doc, "k", path))
+    if basis_px.shape[:2] != (len(sampling), k):
+        raise BTFError(f"{folder / b['file']}: basis is {basis_px.shape[1]}x{basis_px.shape[0]}, "
+                       f"expected {k} columns x {len(sampling)} rows")
+    basis = Stored(basis_px, np.asarray(b["scale"]), np.asarray(b["bias"]))
+    coeffs = []
+    W, H = int(doc["width"]), int(doc["height"])
+    for entry in _require(doc, "coefficients", path):
+        px = Codec.read(folder / entry["file"])
+        if px.shape[:2] != (H, W):
+            raise BTFError(f"{folder / entry['file']}: texture is {px.shape[1]}x{px.shape[0]}, expected {W}x{H}")
+        coeffs.append(Stored(px, np.asarray(entry["scale"]), np.asarray(entry["bias"])))
+    if len(coeffs) != k:
+        raise BTFError(f"{path}: lists {len(coeffs)} coefficient textures for k = {k}")
+    interp = np.zeros(len(sampling), bool)
+    interp[np.asarray(samples.get("interpolated", []), int)] = True
+    known = {"format", "usdbtf_version", "width", "height", "k", "n_samples", "codec", "working_space",
+             "ocio_config", "source", "color_matrix", "basis", "coefficients", "samples"}
+    info = {key: v for key, v in doc.items() if key not in known}
+    info["usdbtf_version"] = doc.get("usdbtf_version")
+    return CompressedBTF(sampling, W, H, basis, coeffs, np.asarray(doc["color_matrix"], np.float64), codec.name,
+                         doc["working_space"], doc.get("source", {}), interp, doc.get("ocio_config"), info)
+
+
+def folder_bytes(folder) -> int:
+    """Bytes of every file under ``folder``."""
+    return sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(folder) for f in fs)

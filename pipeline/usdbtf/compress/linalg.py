@@ -1,0 +1,80 @@
+"""Basis fitting and projection: functions over chunks of the data matrix.
+
+The data matrix X is S x m (rows = samples, columns = pixel channels): column
+``3 t + c`` is channel c of texel t, the apparent BRDF of that texel.  Functions
+take and return plain arrays so each can run unchanged on a distributed engine.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["fix_signs", "exact_basis", "randomized_basis", "orthonormalize"]
+
+
+def fix_signs(u: np.ndarray) -> np.ndarray:
+    """Sign convention: flip each column of ``u`` (S, k) so its largest-magnitude entry
+    (first one on ties) is positive.  Returns the (k,) signs applied (in place)."""
+    idx = np.argmax(np.abs(u), axis=0)
+    signs = np.sign(u[idx, np.arange(u.shape[1])])
+    signs[signs == 0] = 1
+    u *= signs.astype(u.dtype)
+    return signs
+
+
+def orthonormalize(y: np.ndarray) -> np.ndarray:
+    """Orthonormal basis of the columns of ``y`` (S, l), float32 (reduced QR)."""
+    q, _ = np.linalg.qr(y)
+    return q
+
+
+def exact_basis(x: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Top-k left singular vectors of ``x`` (S, m) by an exact float64 eigensolve.
+
+    Uses whichever Gram matrix is smaller (m x m or S x S).
+    Returns U (S, k) float32 with signs fixed, and the singular values (k,) float64.
+    """
+    x64 = x.astype(np.float64)
+    s_rows, m = x64.shape
+    if m <= s_rows:
+        evals, v = np.linalg.eigh(x64.T @ x64)
+        order = np.argsort(evals)[::-1][:k]
+        sv = np.sqrt(np.maximum(evals[order], 0.0))
+        keep = sv > sv[0] * 1e-12 if len(sv) else np.zeros(0, bool)
+        u = (x64 @ v[:, order[keep]]) / sv[keep]
+        # Re-orthonormalise: the Gram route loses orthogonality for tiny singular values.
+        u, r = np.linalg.qr(u)
+        u *= np.sign(np.diag(r))
+    else:
+        evals, u = np.linalg.eigh(x64 @ x64.T)
+        order = np.argsort(evals)[::-1][:k]
+        sv = np.sqrt(np.maximum(evals[order], 0.0))
+        keep = sv > sv[0] * 1e-12 if len(sv) else np.zeros(0, bool)
+        u = u[:, order[keep]]
+    u = np.ascontiguousarray(u, dtype=np.float32)
+    fix_signs(u)
+    return u, sv[keep]
+
+
+def randomized_basis(x: np.ndarray, k: int, *, oversample: int = 16, power_iterations: int = 1,
+                     seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Top-k left singular vectors of ``x`` (S, m) by randomized SVD (Halko et al. 2011).
+
+    ``power_iterations`` passes of X X^T sharpen the spectrum; each costs two GEMMs of
+    X with an (m, k + oversample) panel.  The small core SVD runs in float64.
+    Returns U (S, k) float32 with signs fixed, singular values (k,) float64.
+    """
+    s_rows, m = x.shape
+    l = min(k + oversample, s_rows, m)
+    rng = np.random.default_rng(seed)
+    omega = rng.standard_normal((m, l), dtype=np.float32)
+    q = orthonormalize(x @ omega)
+    for _ in range(power_iterations):
+        z = orthonormalize(x.T @ q)
+        q = orthonormalize(x @ z)
+    b = (q.T @ x).astype(np.float64)                 # (l, m)
+    evals, ub = np.linalg.eigh(b @ b.T)              # (l, l): cheap
+    order = np.argsort(evals)[::-1][:k]
+    sv = np.sqrt(np.maximum(evals[order], 0.0))
+    u = np.ascontiguousarray(q.astype(np.float64) @ ub[:, order], dtype=np.float32)
+    fix_signs(u)
+    return u, sv

@@ -1,0 +1,55 @@
+"""Error metrics, accumulated over chunks so they never need the whole BTF at once.
+
+* percent error (the paper's): 100 * sum|orig - recon| / sum(orig)
+* RMSE, and PSNR = 20 log10(peak / RMSE)
+
+Both on the input's encoded values (normalised to [0, 1] for integer files,
+peak 1) and in scene-linear working space (peak 1.0 = diffuse white).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["ErrorSums", "error_report"]
+
+
+@dataclass
+class ErrorSums:
+    """Running sums for one domain.  ``add`` takes equally shaped arrays (any shape)."""
+
+    abs_err: float = 0.0
+    total: float = 0.0
+    sq_err: float = 0.0
+    count: int = 0
+
+    def add(self, orig: np.ndarray, recon: np.ndarray) -> None:
+        o = np.asarray(orig, np.float64).ravel()
+        d = o - np.asarray(recon, np.float64).ravel()
+        self.abs_err += float(np.abs(d).sum())
+        self.total += float(o.sum())
+        self.sq_err += float(d @ d)
+        self.count += o.size
+
+    @property
+    def percent(self) -> float:
+        return 100.0 * self.abs_err / self.total if self.total > 0 else float("nan")
+
+    @property
+    def rmse(self) -> float:
+        return float(np.sqrt(self.sq_err / self.count)) if self.count else float("nan")
+
+    def psnr(self, peak: float = 1.0) -> float:
+        r = self.rmse
+        return float(20 * np.log10(peak / r)) if r > 0 else float("inf")
+
+    def report(self) -> dict:
+        return {"percent": self.percent, "rmse": self.rmse, "psnr_db": self.psnr()}
+
+
+def error_report(linear: ErrorSums, encoded: ErrorSums | None = None) -> dict:
+    out = {"linear": linear.report()}
+    if encoded is not None:
+        out["encoded"] = encoded.report()
+    return out

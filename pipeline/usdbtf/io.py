@@ -1,0 +1,52 @@
+"""One entry point for every BTF input format: :func:`open_btf`.
+
+Accepted inputs
+---------------
+* a btf-manifest/1 folder (one holding ``btf.json``) or the ``btf.json`` file itself
+  -> :func:`usdbtf.manifest.read_manifest`;
+* a UBO2003 / UTIA / ATRIUM zip archive, or a folder of ``tv###_pv###`` view folders
+  (directly or under one top-level folder) -> :func:`usdbtf.ubo.read_ubo`.
+"""
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+
+from . import manifest, ubo
+from .errors import BTFError
+from .model import BTF
+
+__all__ = ["open_btf", "ACCEPTED"]
+
+ACCEPTED = ("a btf-manifest/1 folder (with btf.json) or its btf.json file; "
+            "a UBO2003-layout .zip archive; or a folder of tv###_pv### view folders (UBO2003 layout)")
+
+
+def open_btf(path, *, color_space: str | None = None, **kw) -> BTF:
+    """Open any supported BTF input as a streaming :class:`~usdbtf.model.BTF`.
+
+    Parameters
+    ----------
+    path : folder, ``btf.json`` file or ``.zip`` archive (see the module docstring).
+    color_space : override of the files' encoding; UBO data only (a manifest declares
+        its own, and a conflicting override would silently mis-decode it).
+    kw : ``ocio_config``, ``working_space`` -- passed to the reader.
+
+    Raises BTFError naming ``path`` when it does not exist or is none of the accepted formats.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise BTFError(f"{p}: no such file or folder")
+    is_manifest = (p.is_dir() and (p / manifest.MANIFEST).is_file()) or (p.is_file() and p.suffix.lower() == ".json")
+    if is_manifest:
+        if color_space is not None:
+            raise BTFError(f"{p}: a manifest declares its own color_space; the override {color_space!r} "
+                           "applies to UBO2003 data only")
+        return manifest.read_manifest(p, **kw)
+    # A file named .zip goes to the UBO reader even when damaged, so the error says "corrupt zip".
+    if p.is_file() and (p.suffix.lower() == ".zip" or zipfile.is_zipfile(p)):
+        return ubo.read_ubo(p, color_space=color_space, **kw)
+    if p.is_dir() and ubo.is_ubo(p):
+        return ubo.read_ubo(p, color_space=color_space, **kw)
+    kind = "folder" if p.is_dir() else "file"
+    raise BTFError(f"{p}: unrecognised BTF input ({kind}); accepted: {ACCEPTED}")

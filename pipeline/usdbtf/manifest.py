@@ -1,0 +1,181 @@
+"""The btf-manifest/1 format: a folder with ``btf.json`` and one image per sample.
+
+``btf.json``::
+
+    {"format": "btf-manifest/1", "color_space": "<OCIO name>", "width": W, "height": H,
+     "samples": [{"image": "<file>", "view": [theta, phi], "light": [theta, phi]}, ...]}
+
+Angles in degrees; images in any format OpenImageIO reads; extra keys are kept
+(per sample, e.g. ``"interpolated": true``; top level, e.g. ``"physical_size_m"``).
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+
+from . import colour
+from .atomic import atomic_dir
+from .errors import BTFError
+from .imageio import numpy_dtype, write_image
+from .model import BTF, FileBTF, validate_sampling
+from .sampling import Sampling
+
+__all__ = ["FORMAT", "MANIFEST", "read_manifest", "write_manifest", "encode_for_file", "FORMAT_ATTRIBUTES"]
+
+FORMAT = "btf-manifest/1"
+MANIFEST = "btf.json"
+_RESERVED = {"format", "color_space", "width", "height", "samples"}
+
+# Writer options per file extension: fast lossless PNG (the zlib level barely changes size on
+# noisy texture data, but level 9 is 10x slower to write), lossless zip EXR.
+FORMAT_ATTRIBUTES = {
+    "png": {"png:compressionLevel": 3},
+    "exr": {"compression": "zip"},
+    "tif": {"compression": "zip"},
+    "jpg": {"Compression": "jpeg:95"},
+}
+
+
+def _angle_pair(value, key, label, path):
+    if (not isinstance(value, (list, tuple)) or len(value) != 2
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
+        raise BTFError(f"{path}: sample {label}: {key!r} must be [theta, phi] in degrees, got {value!r}")
+    return [float(value[0]), float(value[1])]
+
+
+def read_manifest(folder, *, ocio_config: str | None = None, working_space: str = colour.WORKING_SPACE) -> FileBTF:
+    """Open a manifest folder as a streaming :class:`FileBTF` (pixels are read on demand)."""
+    folder = Path(folder)
+    path = folder / MANIFEST if folder.is_dir() else folder
+    folder = path.parent
+    if not path.is_file():
+        raise BTFError(f"{path}: manifest not found")
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise BTFError(f"{path}: not a readable JSON manifest ({exc})") from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise BTFError(f"{path}: \"format\" must be {FORMAT!r}, got {doc.get('format') if isinstance(doc, dict) else doc!r}")
+    for key in ("width", "height"):
+        if not isinstance(doc.get(key), int) or isinstance(doc.get(key), bool) or doc[key] <= 0:
+            raise BTFError(f"{path}: {key!r} must be a positive integer, got {doc.get(key)!r}")
+    space = doc.get("color_space")
+    if not isinstance(space, str) or not space:
+        raise BTFError(f"{path}: \"color_space\" must name an OCIO colour space")
+    try:
+        space = colour.resolve_space(space, ocio_config)
+    except BTFError as exc:
+        raise BTFError(f"{path}: {exc}") from None
+    samples = doc.get("samples")
+    if not isinstance(samples, list) or not samples:
+        raise BTFError(f"{path}: \"samples\" is empty or missing; a BTF needs at least one sample")
+    views, lights, paths, names, interp = [], [], [], [], []
+    for i, s in enumerate(samples):
+        label = f"#{i}"
+        if not isinstance(s, dict) or not isinstance(s.get("image"), str):
+            raise BTFError(f"{path}: sample {label} needs an \"image\" file name")
+        label = f"#{i} ({s['image']})"
+        views.append(_angle_pair(s.get("view"), "view", label, path))
+        lights.append(_angle_pair(s.get("light"), "light", label, path))
+        paths.append(os.fspath(folder / s["image"]))
+        names.append(s["image"])
+        interp.append(bool(s.get("interpolated", False)))
+    sampling = Sampling(np.array(views), np.array(lights))
+    validate_sampling(sampling, [f"{path.name} sample #{i} ({n})" for i, n in enumerate(names)])
+    extra = {k: v for k, v in doc.items() if k not in _RESERVED}
+    btf = FileBTF.probe(paths, sampling, space, width=doc["width"], height=doc["height"], names=names,
+                        interpolated=np.array(interp), ocio_config=ocio_config, working_space=working_space,
+                        metadata=extra)
+    return btf
+
+
+def encode_for_file(linear: np.ndarray, processor: colour.Processor, bit_depth: str) -> np.ndarray:
+    """Working-space float (..., 3) -> file values in ``processor.dst`` at ``bit_depth``.
+
+    Integer depths clip to [0, 1] and round to nearest; float depths are stored as is.
+    """
+    enc = processor.apply(linear)
+    dtype = numpy_dtype(bit_depth)
+    if np.dtype(dtype).kind == "u":
+        top = np.iinfo(dtype).max
+        return np.rint(np.clip(enc, 0.0, 1.0) * top).astype(dtype)
+    return enc.astype(dtype)
+
+
+def _sample_file(i: int, view, light, ext: str) -> str:
+    return f"{i:05d}_tv{view[0]:05.1f}_pv{view[1]:05.1f}_tl{light[0]:05.1f}_pl{light[1]:05.1f}.{ext}"
+
+
+def write_manifest(folder, sampling: Sampling, images: Iterable[np.ndarray], *, color_space: str,
+                   bit_depth: str = "uint8", ext: str = "png", array_space: str = colour.WORKING_SPACE,
+                   ocio_config: str | None = None, interpolated=None, metadata: dict | None = None,
+                   attributes: dict | None = None) -> Path:
+    """Write a manifest folder atomically.
+
+    Parameters
+    ----------
+    images : iterable of S arrays (H, W, 3), float, scene-linear in ``array_space``, in sample order.
+    color_space : OCIO space the files are encoded in (e.g. "sRGB Encoded Rec.709 (sRGB)" for 8-bit).
+    bit_depth : "uint8", "uint16", "half" or "float".
+    ext : file extension, picks the OIIO writer.
+    interpolated : optional (S,) bool, marks filled samples.
+    metadata : extra top-level keys (e.g. {"physical_size_m": [0.05, 0.05]}).
+    """
+    space = colour.resolve_space(color_space, ocio_config)
+    proc = colour.processor(array_space, space, ocio_config)
+    attrs = dict(FORMAT_ATTRIBUTES.get(ext, {}), **(attributes or {}))
+    interpolated = np.zeros(len(sampling), bool) if interpolated is None else np.asarray(interpolated, bool)
+    entries = []
+    width = height = None
+    with atomic_dir(folder) as tmp:
+        count = 0
+        for i, img in enumerate(images):
+            if i >= len(sampling):
+                raise BTFError(f"more images than the {len(sampling)} samples of the sampling")
+            img = np.asarray(img)
+            if img.ndim != 3 or img.shape[2] != 3:
+                raise BTFError(f"sample #{i}: expected an (H, W, 3) image, got {img.shape}")
+            if width is None:
+                height, width = img.shape[:2]
+            elif img.shape[:2] != (height, width):
+                raise BTFError(f"sample #{i}: image is {img.shape[1]}x{img.shape[0]}, expected {width}x{height}")
+            if not np.isfinite(img).all():
+                raise BTFError(f"sample #{i}: pixel values include NaN or Inf")
+            name = _sample_file(i, sampling.view[i], sampling.light[i], ext)
+            write_image(tmp / name, encode_for_file(img, proc, bit_depth), color_space=space, attributes=attrs)
+            entry = {"image": name, "view": [float(x) for x in sampling.view[i]],
+                     "light": [float(x) for x in sampling.light[i]]}
+            if interpolated[i]:
+                entry["interpolated"] = True
+            entries.append(entry)
+            count += 1
+        if count != len(sampling):
+            raise BTFError(f"got {count} images for {len(sampling)} samples")
+        doc = {"format": FORMAT, "color_space": space, "width": width, "height": height}
+        doc.update(metadata or {})
+        doc["samples"] = entries
+        (tmp / MANIFEST).write_text(json.dumps(doc, indent=1) + "\n")
+    return Path(folder)
+
+
+def write_btf(folder, btf: BTF, **kw) -> Path:
+    """Write any BTF (streamed in sample chunks) as a manifest folder; defaults keep its encoding."""
+    kw.setdefault("color_space", btf.color_space)
+    kw.setdefault("bit_depth", btf.bit_depth)
+    kw.setdefault("ext", "png" if kw["bit_depth"] in ("uint8", "uint16") else "exr")
+    kw.setdefault("metadata", btf.metadata)
+    kw.setdefault("interpolated", btf.interpolated)
+
+    def images():
+        for _, chunk in btf.iter_chunks(64):
+            yield from chunk
+
+    return write_manifest(folder, btf.sampling, images(), array_space=btf.working_space,
+                          ocio_config=btf.ocio_config, **kw)
+
+
+__all__.append("write_btf")

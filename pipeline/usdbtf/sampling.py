@@ -1,0 +1,99 @@
+"""Direction sets: which (view, light) pairs a BTF is sampled at.
+
+Angles are degrees at this interface: ``theta`` from the surface normal, ``phi``
+the azimuth in the sample's tangent frame (x = image right, y = image up on the
+rectified sample, z = normal).  Samples are ordered view-major: all lights of
+view 0, then all lights of view 1, ...
+
+Presets
+-------
+``paper``  90 views x 120 lights (Koudelka et al. 2003): views on 5 polar rings
+           (10, 25, 40, 55, 70 deg) x 18 azimuths at 20 deg; lights on 5 rings
+           (15, 30, 45, 60, 75 deg) x 24 azimuths at 15 deg.  The paper gives the
+           step sizes and counts, not the ring placement; these rings are ours.
+``ubo81``  the Bonn UBO2003 set used for both view and light: rings at
+           0/15/30/45/60/75 deg with 1/6/12/18/20/24 azimuths (81 x 81 samples).
+``small``  13 views x 13 lights (rings 0/30/60 with 1/6/6 azimuths).
+``tiny``   4 views x 6 lights, for unit tests.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Sampling", "rings", "cross", "preset", "PRESETS", "to_vectors"]
+
+
+@dataclass(frozen=True)
+class Sampling:
+    """A list of (view, light) direction pairs.
+
+    Attributes
+    ----------
+    view, light : (S, 2) float64 arrays, degrees, columns (theta, phi).
+    """
+
+    view: np.ndarray
+    light: np.ndarray
+
+    def __post_init__(self):
+        view = np.asarray(self.view, dtype=np.float64).reshape(-1, 2)
+        light = np.asarray(self.light, dtype=np.float64).reshape(-1, 2)
+        if view.shape != light.shape:
+            raise ValueError(f"view and light lists differ in length: {len(view)} vs {len(light)}")
+        object.__setattr__(self, "view", view)
+        object.__setattr__(self, "light", light)
+
+    def __len__(self) -> int:
+        return len(self.view)
+
+    def subset(self, indices) -> "Sampling":
+        """The samples at ``indices`` (any numpy index), same order."""
+        return Sampling(self.view[indices], self.light[indices])
+
+
+def rings(thetas, counts, phi_offset=0.0) -> np.ndarray:
+    """Directions on polar rings: ring r has ``counts[r]`` equally spaced azimuths.
+
+    Returns (N, 2) degrees.  A ring at theta == 0 must have count 1 (the pole).
+    """
+    out = []
+    for theta, count in zip(thetas, counts):
+        if theta == 0 and count != 1:
+            raise ValueError("the pole (theta = 0) has a single direction")
+        for m in range(count):
+            out.append((float(theta), (phi_offset + 360.0 * m / count) % 360.0))
+    return np.asarray(out, dtype=np.float64)
+
+
+def cross(views: np.ndarray, lights: np.ndarray) -> Sampling:
+    """Every light for every view, view-major."""
+    views = np.asarray(views, dtype=np.float64).reshape(-1, 2)
+    lights = np.asarray(lights, dtype=np.float64).reshape(-1, 2)
+    return Sampling(np.repeat(views, len(lights), axis=0), np.tile(lights, (len(views), 1)))
+
+
+_UBO_RINGS = ((0, 15, 30, 45, 60, 75), (1, 6, 12, 18, 20, 24))
+
+PRESETS = {
+    "paper": lambda: cross(rings((10, 25, 40, 55, 70), (18,) * 5), rings((15, 30, 45, 60, 75), (24,) * 5)),
+    "ubo81": lambda: cross(rings(*_UBO_RINGS), rings(*_UBO_RINGS)),
+    "small": lambda: cross(rings((0, 30, 60), (1, 6, 6)), rings((0, 30, 60), (1, 6, 6), phi_offset=30.0)),
+    "tiny": lambda: cross(rings((0, 45), (1, 3)), rings((20, 60), (3, 3), phi_offset=30.0)),
+}
+
+
+def preset(name: str) -> Sampling:
+    """A named sampling (see module docstring)."""
+    try:
+        return PRESETS[name]()
+    except KeyError:
+        raise ValueError(f"unknown sampling preset {name!r}; choose from {', '.join(PRESETS)}") from None
+
+
+def to_vectors(directions_deg: np.ndarray) -> np.ndarray:
+    """(N, 2) degrees (theta, phi) -> (N, 3) unit vectors in the tangent frame."""
+    d = np.radians(np.asarray(directions_deg, dtype=np.float64).reshape(-1, 2))
+    st = np.sin(d[:, 0])
+    return np.stack([st * np.cos(d[:, 1]), st * np.sin(d[:, 1]), np.cos(d[:, 0])], axis=1)
