@@ -131,7 +131,6 @@ def run_solver(cli, data: Path, out: Path, extra_args: list, repeats: int, pss_i
         "bytes": {key: doc["bytes"][key] for key in ("payload", "basis", "coefficients")},
         "metadata_bytes": (out / "btf-compressed.json").stat().st_size,
         "folder_bytes": dir_bytes(out),
-        "internal_timings_last_run": doc.get("timings"),
         "choice": doc.get("choice"),
         "held_out_estimate": doc.get("estimated_error"),
         "output": str(out),
@@ -153,23 +152,33 @@ def full_error(orig, folder: Path) -> dict:
     """Full-data errors of the stored representation (every sample, every texel)."""
     from usdbtf.compress import read_compressed
     from usdbtf.compress.decompress import compare
-    from usdbtf.compress.format import reconstruct
+    from usdbtf.compress.format import reconstruct, working_coefficients
 
     t = time.perf_counter()
     cbtf = read_compressed(folder)
-    coeff = cbtf.coefficient_values()   # de-quantise once, reuse for every chunk
+    coeff = working_coefficients(cbtf)   # de-quantise (and colour-transform) once, reuse per chunk
     rep = compare(orig, lambda sel: reconstruct(cbtf, sel, coefficients=coeff), None)
     rep["seconds"] = time.perf_counter() - t
     return rep
 
 
 # -- report ------------------------------------------------------------------------------------
-def verdict(values, limit, fmt) -> str:
+def verdict(values, limit, fmt, failed=()) -> str:
     vals = [v for v in values if v is not None and np.isfinite(v)]
+    worst = f"worst {fmt(max(vals))}" if vals else "no data"
+    if failed:
+        return f"≤ {fmt(limit)}: **FAIL** (no result for {', '.join(failed)}; {worst} of the rest)"
     if not vals:
         return "n/a"
-    worst = max(vals)
-    return f"≤ {fmt(limit)}: **{'PASS' if worst <= limit else 'FAIL'}** (worst {fmt(worst)})"
+    return f"≤ {fmt(limit)}: **{'PASS' if max(vals) <= limit else 'FAIL'}** ({worst})"
+
+
+def failed_presets(results: dict) -> list:
+    return [p for p, r in results.items() if any("error" in r.get(k, {"error": "not run"}) for k in ("paper", "default"))]
+
+
+def _ratio(x: float) -> str:
+    return f"{x:.1f} : 1" if x < 100 else f"{x:.0f} : 1"
 
 
 def markdown_table(results: dict, gemm: dict) -> str:
@@ -184,7 +193,9 @@ def markdown_table(results: dict, gemm: dict) -> str:
             if s is None:
                 continue
             if "error" in s:
-                rows.append([preset, key, "FAILED"] + [""] * (len(head) - 3))
+                lines = [x for x in s["error"].strip().splitlines() if x.strip()] or ["?"]
+                why = lines[-1].replace("|", "\\|")
+                rows.append([preset, key, f"FAILED: {why}"] + [""] * (len(head) - 3))
                 continue
             fe = s.get("full_error", {})
             lin, enc = fe.get("linear", {}), fe.get("encoded", {})
@@ -198,35 +209,34 @@ def markdown_table(results: dict, gemm: dict) -> str:
                 m_all.append(s["peak_memory_bytes"])
             rows.append([
                 preset, f"{s.get('solver') or key} ({s['codec']})", str(s["k"]), f"{s['bytes']['payload']:,} B",
-                f"{r['input']['raw_bytes'] / s['bytes']['payload']:.0f} : 1",
+                _ratio(r["input"]["raw_bytes"] / s["bytes"]["payload"]),
                 f"{lin.get('percent', float('nan')):.3f}", f"{enc.get('percent', float('nan')):.3f}",
                 f"{lin.get('rmse', float('nan')):.5f}", f"{lin.get('psnr_db', float('nan')):.2f}",
                 f"{enc.get('psnr_db', float('nan')):.2f}", ratio, f"{s['wall_s_median']:.2f}", f"{tr:.1f}",
                 f"{fmt_bytes(s['max_rss_bytes'])} / {fmt_bytes(s['peak_tree_pss_bytes'])}"])
+    failed = failed_presets(results)
     tgt = ["**targets**", "rsvd", "", "", "", "", "", "", "", "",
-           verdict(q_all, TARGETS["quality_ratio"], lambda v: f"{v:.2f}"), "",
-           verdict(s_all, TARGETS["speed_ratio"], lambda v: f"{v:.1f}"),
-           verdict(m_all, TARGETS["memory_bytes"], fmt_bytes)]
+           verdict(q_all, TARGETS["quality_ratio"], lambda v: f"{v:.2f}", failed), "",
+           verdict(s_all, TARGETS["speed_ratio"], lambda v: f"{v:.1f}", failed),
+           verdict(m_all, TARGETS["memory_bytes"], fmt_bytes, failed)]
     lines = ["| " + " | ".join(head) + " |", "|" + "|".join("---" for _ in head) + "|"]
     lines += ["| " + " | ".join(row) + " |" for row in rows + [tgt]]
     return "\n".join(lines)
 
 
 def target_summary(results: dict) -> dict:
-    q = [r.get("quality_ratio_linear") for r in results.values()]
-    s = [r.get("speed_ratio") for r in results.values()]
-    m = [r["default"]["peak_memory_bytes"] for r in results.values() if "error" not in r.get("default", {"error": 1})]
-    failed = [p for p, r in results.items() if "error" in r.get("paper", {}) or "error" in r.get("default", {"error": 1})]
+    """Worst value and pass/fail per criterion; a preset whose compress failed fails every criterion."""
+    failed = failed_presets(results)
+    ok = [r for p, r in results.items() if p not in failed]
 
     def one(vals, limit):
         vals = [v for v in vals if v is not None]
-        if not vals or failed:
-            return {"limit": limit, "worst": max(vals) if vals else None, "pass": False}
-        return {"limit": limit, "worst": max(vals), "pass": max(vals) <= limit}
+        worst = max(vals) if vals else None
+        return {"limit": limit, "worst": worst, "pass": bool(vals) and not failed and worst <= limit}
 
-    return {"quality_ratio_linear": one(q, TARGETS["quality_ratio"]),
-            "speed_ratio": one(s, TARGETS["speed_ratio"]),
-            "peak_memory_bytes": one(m, TARGETS["memory_bytes"]),
+    return {"quality_ratio_linear": one([r.get("quality_ratio_linear") for r in ok], TARGETS["quality_ratio"]),
+            "speed_ratio": one([r.get("speed_ratio") for r in ok], TARGETS["speed_ratio"]),
+            "peak_memory_bytes": one([r["default"]["peak_memory_bytes"] for r in ok], TARGETS["memory_bytes"]),
             "failed_presets": failed}
 
 
@@ -323,7 +333,7 @@ def main(argv=None) -> int:
         f" compression ratio = raw / payload (payload = basis + coefficient texture files; metadata JSON not counted)")
     say(f"- timed compress runs per solver: {args.repeats} (median quoted); CLI: {' '.join(cli)}")
     if not paper_scale:
-        say("- NOTE: not paper scale (sampling paper, 128x128): the targets row is indicative only")
+        say("- NOTE: not paper scale (= sampling paper, size 128): the targets row is indicative only")
 
     say("")
     say("## baseline: float32 GEMM in this process")
@@ -381,12 +391,13 @@ def main(argv=None) -> int:
         default = r["default"] = run_solver(cli, data, out_root / name / "default", ["--max-bytes", str(budget)],
                                             args.repeats, args.pss_interval)
         write_json(json_path, doc)
-        if "error" in default:
-            continue
-        say(f"    -> k {default['k']}, payload {default['bytes']['payload']:,} B")
+        if "error" not in default:
+            say(f"    -> k {default['k']}, payload {default['bytes']['payload']:,} B")
 
         orig = open_btf(data)
         for key, s in (("paper", paper), ("default", default)):
+            if "error" in s:
+                continue
             s["full_error"] = full_error(orig, Path(s["output"]))
             lin, enc = s["full_error"]["linear"], s["full_error"]["encoded"]
             say(f"  full-data error {key:7s}: {lin['percent']:.3f} % lin, {enc['percent']:.3f} % enc, "
@@ -394,6 +405,10 @@ def main(argv=None) -> int:
             s["compression_ratio_raw"] = raw_bytes / s["bytes"]["payload"]
             s["compression_ratio_png"] = inp["png_bytes"] / s["bytes"]["payload"]
             s["time_over_gemm"] = s["wall_s_median"] / gemm["median_s"]
+        if "error" in default:
+            say("  => default solver FAILED: no ratios for this preset")
+            write_json(json_path, doc)
+            continue
         r["quality_ratio_linear"] = default["full_error"]["linear"]["percent"] / paper["full_error"]["linear"]["percent"]
         r["quality_ratio_encoded"] = (default["full_error"]["encoded"]["percent"]
                                       / paper["full_error"]["encoded"]["percent"])

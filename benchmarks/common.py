@@ -13,8 +13,10 @@ Definitions used by every benchmark
 wall time      ``time.perf_counter()`` around the whole subprocess: interpreter start,
                imports, file decoding, everything the user waits for.
 peak RSS       the kernel's high-water mark of resident memory (``ru_maxrss`` from
-               ``wait4`` on the child).  Linux reports the maximum over the child and
-               every descendant it reaped (e.g. a process pool's workers), not their sum.
+               ``wait4`` on the command, run under a ~10 MB wrapper process so it does
+               not inherit the benchmark's own peak; see ``_WRAPPER``).  Linux reports
+               the maximum over the command and every descendant it reaped (e.g. a
+               process pool's workers), not their sum.
 peak tree PSS  sampled every ``pss_interval`` seconds: the sum of ``Pss`` over the child
                and all its live descendants (``/proc/<pid>/smaps_rollup``), i.e. the
                memory the whole process tree holds with shared pages counted once.  A
@@ -116,7 +118,7 @@ def _rollup_kb(pid: int) -> tuple[int, int]:
 
 
 class _TreeSampler(threading.Thread):
-    """Samples the summed PSS/RSS of a process tree until stopped."""
+    """Samples the summed PSS/RSS of the descendants of ``pid`` (not ``pid`` itself) until stopped."""
 
     def __init__(self, pid: int, interval: float):
         super().__init__(daemon=True)
@@ -129,7 +131,7 @@ class _TreeSampler(threading.Thread):
 
     def run(self):
         while self.available:
-            pids = _descendants(self.pid)
+            pids = _descendants(self.pid)[1:]      # the tree below the wrapper process
             vals = [_rollup_kb(p) for p in pids]
             live = sum(1 for r, _ in vals if r)
             self.peak_rss_sum_kb = max(self.peak_rss_sum_kb, sum(r for r, _ in vals))
@@ -158,6 +160,7 @@ class RunResult:
     peak_tree_rss_sum_bytes: int | None = None
     peak_tree_processes: int | None = None
     pss_samples: int = 0
+    outer_wall_s: float | None = None
     stdout: str = ""
     stderr: str = ""
     extra: dict = field(default_factory=dict)
@@ -176,48 +179,80 @@ class RunResult:
         return d
 
 
+# Runs the measured command for run_measured.  Why a separate small process: on exec, Linux
+# folds the high-water RSS of the address space being replaced into the new program's
+# ru_maxrss, and Python starts children with vfork/posix_spawn, so a child started directly
+# from a big benchmark process (e.g. one holding a 2 GB GEMM operand) would report at least the
+# benchmark's own peak.  This wrapper (python -I -S, ~10 MB) spawns the command instead, so the
+# floor is the wrapper's size; it times the command and reports wait4's rusage.
+_WRAPPER = r"""
+import os, sys, time
+out, cmd = sys.argv[1], sys.argv[2:]
+t = time.perf_counter()
+try:
+    pid = os.posix_spawnp(cmd[0], cmd, os.environ)
+except OSError as exc:
+    sys.stderr.write(f"cannot run {cmd[0]}: {exc}\n")
+    sys.exit(127)
+while True:
+    try:
+        _, status, ru = os.wait4(pid, 0)
+        break
+    except InterruptedError:
+        pass
+wall = time.perf_counter() - t
+with open(out, "w") as fh:
+    fh.write(f"{wall!r} {status} {ru.ru_maxrss} {ru.ru_utime!r} {ru.ru_stime!r}\n")
+code = os.waitstatus_to_exitcode(status)
+sys.exit(code if code >= 0 else 128 - code)
+"""
+
+
 def run_measured(cmd, *, cwd=None, env=None, pss_interval: float = 0.2) -> RunResult:
     """Run ``cmd`` (list) and measure wall time, CPU time, peak RSS and sampled peak tree PSS.
 
-    The child is reaped with ``os.wait4`` so its rusage is exactly this child's (plus the
-    descendants it reaped), independent of any other child this process has had.
-    stdout/stderr go to temporary files (no pipe can fill up) and are returned as text.
-    ``pss_interval`` 0 disables the /proc sampler (it costs a few ms of CPU per sample).
+    The command runs under a tiny wrapper process (see ``_WRAPPER``) that reaps it with
+    ``os.wait4``: the rusage is exactly this command's (plus the descendants it reaped), and
+    the wall time excludes the wrapper's own start.  stdout/stderr go to temporary files (no
+    pipe can fill up) and are returned as text.  ``pss_interval`` 0 disables the /proc sampler
+    (it costs a few ms of CPU per sample).
     """
     cmd = [os.fspath(c) for c in cmd]
-    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err:
+    with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err, \
+            tempfile.NamedTemporaryFile("r", suffix=".rusage") as res:
         t0 = time.perf_counter()
-        proc = subprocess.Popen(cmd, cwd=cwd, env=env, stdout=out, stderr=err, stdin=subprocess.DEVNULL)
+        proc = subprocess.Popen([sys.executable, "-I", "-S", "-c", _WRAPPER, res.name, *cmd], cwd=cwd, env=env,
+                                stdout=out, stderr=err, stdin=subprocess.DEVNULL)
         sampler = _TreeSampler(proc.pid, pss_interval) if pss_interval > 0 else None
         if sampler is not None:
             sampler.start()
         try:
-            while True:
-                try:
-                    _, status, ru = os.wait4(proc.pid, 0)
-                    break
-                except InterruptedError:
-                    continue
+            proc.wait()
         except BaseException:
             proc.kill()
             proc.wait()
             raise
         finally:
-            wall = time.perf_counter() - t0
+            outer = time.perf_counter() - t0
             if sampler is not None:
                 sampler.stop()
-        proc.returncode = os.waitstatus_to_exitcode(status)  # reaped already: keep Popen from waiting
         out.seek(0)
         err.seek(0)
         stdout = out.read().decode(errors="replace")
         stderr = err.read().decode(errors="replace")
+        fields = res.read().split()
+    if len(fields) == 5:
+        wall, maxrss_kb, user, system = float(fields[0]), int(fields[2]), float(fields[3]), float(fields[4])
+    else:                                    # the wrapper itself failed: no measurement
+        wall, maxrss_kb, user, system = outer, 0, float("nan"), float("nan")
     use = sampler is not None and sampler.available and sampler.samples > 0
-    return RunResult(cmd=cmd, returncode=proc.returncode, wall_s=wall, user_s=ru.ru_utime, sys_s=ru.ru_stime,
-                     max_rss_bytes=int(ru.ru_maxrss) * 1024,          # Linux: kilobytes
+    return RunResult(cmd=cmd, returncode=proc.returncode, wall_s=wall, user_s=user, sys_s=system,
+                     max_rss_bytes=maxrss_kb * 1024,          # Linux: kilobytes
                      peak_tree_pss_bytes=sampler.peak_pss_kb * 1024 if use else None,
                      peak_tree_rss_sum_bytes=sampler.peak_rss_sum_kb * 1024 if use else None,
                      peak_tree_processes=sampler.peak_processes if use else None,
-                     pss_samples=sampler.samples if sampler else 0, stdout=stdout, stderr=stderr)
+                     pss_samples=sampler.samples if sampler else 0, outer_wall_s=outer,
+                     stdout=stdout, stderr=stderr)
 
 
 def cli_command(name: str = "usdbtf") -> list:

@@ -26,6 +26,12 @@ step "decompress" \
     usdbtf decompress "$OUT/pebbles_c" -o "$OUT/pebbles_recon"
 step "info: sizes and errors" \
     usdbtf info "$OUT/pebbles_c"
+step "error: full-data metrics of the reconstruction" \
+    usdbtf error "$OUT/pebbles_raw" "$OUT/pebbles_recon"
+step "paper solver, same data (the 2003 baseline)" \
+    usdbtf compress "$OUT/pebbles_raw" -o "$OUT/pebbles_paper" --solver paper --k 32
+step "figure: originals vs reconstructions" \
+    .venv/bin/python examples/figure.py "$OUT/pebbles_raw" "$OUT/pebbles_c" -o "$OUT/pebbles_sheet.png"
 # Later stages (planned), e.g.:
 # step "package" usdbtf package "$OUT/pebbles_c" -o "$OUT/pebbles.usda"
 # step "render"  usdbtf render  "$OUT/pebbles.usda" -o "$OUT/pebbles.png"

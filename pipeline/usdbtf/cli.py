@@ -100,6 +100,10 @@ def cmd_error(args) -> int:
     pos = np.asarray(pos)
     order = {int(o): n for n, o in enumerate(pos)}
     wanted = parse_samples(args.samples, orig.n_samples) if args.samples else np.sort(pos)
+    missing = [int(w) for w in wanted if int(w) not in order]
+    if missing:
+        raise BTFError(f"{args.reconstruction}: has no reconstruction of original sample {missing[0]} "
+                       f"({orig.names[missing[0]]})")
     report = compare(orig, lambda sel: other.read_samples([order[int(s)] for s in sel]), wanted)
     print(json.dumps(report, indent=1))
     return 0
@@ -120,7 +124,8 @@ def cmd_info(args) -> int:
         print(f"  samples     {c.n_samples}  ({c.width}x{c.height} texels)")
         print(f"  k           {c.k}")
         print(f"  bytes       payload {b.get('payload', '?')} (basis {b.get('basis', '?')}, coefficients "
-              f"{b.get('coefficients', '?')}), metadata {b.get('metadata', '?')}, folder {folder_bytes(path)}")
+              f"{b.get('coefficients', '?')}), metadata {(path / METADATA).stat().st_size}, "
+              f"folder {folder_bytes(path)}")
         if est:
             print(f"  error       {est['percent']:.3f} % (paper's metric), RMSE {est['rmse']:.5f}, "
                   f"PSNR {est['psnr_db']:.2f} dB  [held-out texels, scene-linear]")
@@ -199,7 +204,7 @@ def main(argv=None) -> int:
     try:
         return args.func(args)
     except BTFError as exc:
-        print(f"usdbtf {args.command}: error: {exc}", file=sys.stderr)
+        print(f"usdbtf {args.command}: error: {' '.join(str(exc).split())}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print(f"usdbtf {args.command}: interrupted", file=sys.stderr)

@@ -43,13 +43,19 @@ class ImageInfo:
     color_space: str
 
 
+def _one_line(text: str) -> str:
+    """OIIO/libpng messages can span lines; errors here are one line."""
+    return " ".join(str(text).split())
+
+
 def _open(path) -> "oiio.ImageInput":
     path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise BTFError(f"{path}: image file not found")
     inp = oiio.ImageInput.open(path)
     if inp is None:
-        raise BTFError(f"{path}: cannot read image ({oiio.geterror() or 'unknown format'})")
+        msg = oiio.geterror()
+        if not os.path.isfile(path):  # checked only on failure: a stat per image adds up over 10^4 images
+            raise BTFError(f"{path}: image file not found")
+        raise BTFError(f"{path}: cannot read image ({_one_line(msg) or 'unknown format'})")
     return inp
 
 
@@ -97,8 +103,9 @@ def read_image(path, *, expect: tuple[int, int] | None = None, rows: tuple[int, 
         else:
             y0, y1 = rows
             data = inp.read_scanlines(0, 0, y0, y1, 0, 0, nch, info.bit_depth)
-        if data is None:
-            raise BTFError(f"{path}: image data is corrupt or truncated ({inp.geterror() or oiio.geterror()})")
+        if data is None or inp.has_error:
+            # libjpeg fills a truncated file with grey and only flags the error: check the flag too.
+            raise BTFError(f"{path}: image data is corrupt or truncated ({_one_line(inp.geterror() or oiio.geterror())})")
     finally:
         inp.close()
     data = np.asarray(data)

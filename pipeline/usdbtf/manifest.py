@@ -31,11 +31,11 @@ MANIFEST = "btf.json"
 _RESERVED = {"format", "color_space", "width", "height", "samples"}
 
 # Writer options per file extension: fast lossless PNG (the zlib level barely changes size on
-# noisy texture data, but level 9 is 10x slower to write), lossless zip EXR.
+# noisy texture data, but level 9 is 10x slower to write), lossless zip EXR, raw TIFF.
 FORMAT_ATTRIBUTES = {
     "png": {"png:compressionLevel": 3},
     "exr": {"compression": "zip"},
-    "tif": {"compression": "zip"},
+    "tif": {"compression": "none"},   # uncompressed: ~5x faster to decode than PNG, 1.7x the bytes
     "jpg": {"Compression": "jpeg:95"},
 }
 

@@ -20,22 +20,26 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
+from .. import __version__, colour
 from ..atomic import atomic_dir
 from ..errors import BTFError
 from ..model import BTF
 from . import ratedist
 from .codecs import Stored, get_codec, quantize_minmax, quantize_uniform
 from .curve import error_curve, write_curve
-from .format import CompressedBTF, reconstruct, write_metadata, write_textures
+from .format import CompressedBTF, working_coefficients, write_metadata, write_textures
 from .linalg import exact_basis, randomized_basis
-from .load import load_encoded
+from .load import BlockedData, load_encoded
 from .metrics import ErrorSums
 
 __all__ = ["Options", "compress", "compress_to_folder", "SOLVERS"]
 
 SOLVERS = ("rsvd", "paper")
 _DEFAULT_K = 150
+# With a byte or error target, rate-distortion may keep more components than the paper's
+# 150: low-energy coefficients cost few bits once entropy coded (measured: at the paper's
+# bytes, pebbles 9.1 % error at k <= 150, 8.0 % at k <= 300).
+_BUDGET_K = 300
 _GAUSS_L1_OVER_RMS = float(np.sqrt(2 / np.pi))  # E|e| / rms(e) for Gaussian errors
 
 
@@ -72,13 +76,13 @@ class Options:
 
 
 class _Decoded:
-    """Encoded data (S, P, 3) plus the decode split into per-channel curves (applied to
-    data chunks) and a 3x3 matrix (applied to the much smaller coefficients instead)."""
+    """Stored data (block-major, see :mod:`.load`) plus the decode split into per-channel
+    curves (applied to data blocks) and a 3x3 matrix (applied to the much smaller
+    coefficients instead: it commutes with the projection)."""
 
-    def __init__(self, btf: BTF, encoded: np.ndarray):
+    def __init__(self, btf: BTF, stored: BlockedData):
         self.btf = btf
-        self.enc = encoded.reshape(btf.n_samples, btf.n_pixels, 3)
-        self.flat = encoded.reshape(btf.n_samples, -1)          # (S, 3P) view, channels interleaved
+        self.stored = stored
         dec = btf.integer_decoder
         if dec is not None and dec.exact:
             self.curves = dec.decode_curves
@@ -88,17 +92,27 @@ class _Decoded:
             self.matrix = None
 
     def block(self, a: int, b: int) -> np.ndarray:
-        """Texels a..b of every sample after the curves: (S, 3 (b - a)) float32, no gather."""
-        return self.curves(self.flat[:, 3 * a:3 * b])
+        """Texels a..b (inside one storage block) after the curves: (S, 3 (b - a)) float32."""
+        return self.curves(self.stored.span(a, b))
 
-    def columns(self, texels) -> np.ndarray:
-        """(S, n, 3) float32 after the curves, for texel indices or a slice."""
-        return self.curves(self.enc[:, texels, :])
+    def blocks(self, chunk: int):
+        """Yield (a, b) texel ranges covering every texel, none crossing a storage block."""
+        P, B = self.stored.n_pixels, self.stored.block
+        for start in range(0, P, B):
+            end = min(start + B, P)
+            for a in range(start, end, chunk):
+                yield a, min(a + chunk, end)
+
+    def _to_working(self, x: np.ndarray) -> np.ndarray:
+        return x @ self.matrix.T if self.matrix is not None else x
 
     def working(self, texels) -> np.ndarray:
-        """(S, n, 3) float32 in the working space."""
-        x = self.columns(texels)
-        return x @ self.matrix.T if self.matrix is not None else x
+        """(S, n, 3) float32 working-space values of arbitrary texels."""
+        return self._to_working(self.curves(self.stored.texels(texels)))
+
+    def working_samples(self, rows) -> np.ndarray:
+        """(n, P, 3) float32 working-space values of whole samples."""
+        return self._to_working(self.curves(self.stored.samples(rows)))
 
 
 _RUN = 64  # texels per contiguous run of the rsvd fitting sample (whole cache lines, cheap to gather)
@@ -125,11 +139,13 @@ def _fit_texels(btf: BTF, opts: Options) -> np.ndarray:
 
 
 def _gather_columns(data: "_Decoded", texels: np.ndarray) -> np.ndarray:
-    """(S, 3 n) float32 after the curves, assembling contiguous runs of ``texels`` blockwise."""
-    breaks = np.flatnonzero(np.diff(texels) != 1) + 1
+    """(S, 3 n) float32 after the curves for sorted ``texels``, decoding each run of
+    consecutive texels (split at storage-block edges) as one block."""
+    texels = np.asarray(texels)
+    breaks = np.flatnonzero((np.diff(texels) != 1) | (texels[1:] % data.stored.block == 0)) + 1
     starts = np.r_[0, breaks]
     ends = np.r_[breaks, len(texels)]
-    out = np.empty((data.flat.shape[0], 3 * len(texels)), np.float32)
+    out = np.empty((data.stored.n_samples, 3 * len(texels)), np.float32)
     for s0, e0 in zip(starts, ends):
         out[:, 3 * s0:3 * e0] = data.block(int(texels[s0]), int(texels[e0 - 1]) + 1)
     return out
@@ -143,20 +159,38 @@ def _eval_texels(btf: BTF, fit: np.ndarray, opts: Options) -> np.ndarray:
     return np.sort(rng.choice(rest, size=min(opts.eval_texels, len(rest)), replace=False))
 
 
+def _colour_gram(x: np.ndarray, group: int = 8) -> np.ndarray:
+    """3x3 sum of x x^T over all RGB triples of ``x`` (..., 3 n), float64.
+
+    BLAS is slow at 3 x 3 outputs; grouping ``group`` texels per row gives a 24 x 24
+    Gram (4x faster), whose diagonal 3 x 3 blocks sum to the answer.
+    """
+    flat = x.reshape(-1)
+    n = flat.size // (3 * group) * (3 * group)
+    y = flat[:n].reshape(-1, 3 * group)
+    g = (y.T @ y).astype(np.float64)
+    out = sum(g[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i in range(group))
+    rest = flat[n:].reshape(-1, 3).astype(np.float64)
+    return out + rest.T @ rest
+
+
 def _project(data: _Decoded, u: np.ndarray, chunk: int) -> tuple[np.ndarray, float]:
-    """Coefficients (k, P, 3) = U^T X over texel chunks, and ||X||^2 (after curves)."""
-    S, P, _ = data.enc.shape
+    """Coefficients (k, P, 3) = U^T X over texel blocks, and ||X||^2 in the working space.
+
+    The energy comes from the 3x3 colour Gram matrix G = sum x x^T of the curve-decoded
+    data, so the working-space matrix A applies exactly: ||X A^T||^2 = trace(A G A^T).
+    """
     k = u.shape[1]
+    P = data.stored.n_pixels
     coeff = np.empty((k, P, 3), np.float32)
-    energy = 0.0
+    gram = np.zeros((3, 3))
     ut = np.ascontiguousarray(u.T)
-    for a in range(0, P, chunk):
-        b = min(a + chunk, P)
+    for a, b in data.blocks(chunk):
         x = data.block(a, b)
         coeff[:, a:b, :] = (ut @ x).reshape(k, b - a, 3)
-        flat = x.ravel()
-        energy += float(np.dot(flat, flat))
-    return coeff, energy
+        gram += _colour_gram(x)
+    m = data.matrix.astype(np.float64) if data.matrix is not None else np.eye(3)
+    return coeff, float(np.trace(m @ gram @ m.T))
 
 
 def _colour_decorrelation(coeff: np.ndarray) -> np.ndarray:
@@ -192,21 +226,24 @@ def _basis_steps(step: float, energy: np.ndarray, u: np.ndarray) -> np.ndarray:
 
 
 def _build(data, u, coeff, k, step, opts, codec_name, color_matrix) -> CompressedBTF:
+    """Quantise the first k components for ``codec_name``: half floats for exr, the paper's
+    min-max 8-bit scaling for the paper solver or jpeg, else the uniform step ``step``."""
     btf = data.btf
-    if opts.solver == "paper":
+    textures = [coeff[i].reshape(btf.height, btf.width, 3) for i in range(k)]
+    if codec_name == "exr":
+        basis = Stored(u[:, :k, None].astype(np.float16), np.ones(k), np.zeros(k))
+        coeffs = [Stored(t.astype(np.float16), np.ones(3), np.zeros(3)) for t in textures]
+    elif opts.solver == "paper" or codec_name == "jpeg":
         basis = _quantize_basis_minmax(u[:, :k])
-        coeffs = [quantize_minmax(coeff[i].reshape(btf.height, btf.width, 3), per_channel=False) for i in range(k)]
+        coeffs = [quantize_minmax(t, per_channel=False) for t in textures]
     else:
         energy = np.einsum("kpc,kpc->k", coeff[:k], coeff[:k], dtype=np.float64)
         basis = _quantize_basis_columns(u[:, :k], _basis_steps(step, energy, u[:, :k]))
-        coeffs = [quantize_uniform(coeff[i].reshape(btf.height, btf.width, 3), step) for i in range(k)]
-        if codec_name == "exr":
-            basis = Stored(u[:, :k, None].astype(np.float16), np.ones(k), np.zeros(k))
-            coeffs = [Stored(coeff[i].reshape(btf.height, btf.width, 3).astype(np.float16), np.ones(3), np.zeros(3))
-                      for i in range(k)]
+        coeffs = [quantize_uniform(t, step) for t in textures]
     return CompressedBTF(
         sampling=btf.sampling, width=btf.width, height=btf.height, basis=basis, coefficients=coeffs,
-        color_matrix=color_matrix, codec=codec_name, working_space=btf.working_space,
+        color_matrix=color_matrix, codec=codec_name,
+        working_space=colour.resolve_space(btf.working_space, btf.ocio_config),
         source={"color_space": btf.color_space, "bit_depth": btf.bit_depth,
                 "path": str(btf.metadata.get("_path", ""))},
         interpolated=btf.interpolated, ocio_config=btf.ocio_config)
@@ -216,10 +253,8 @@ def _evaluate(cbtf: CompressedBTF, truth: np.ndarray, texels: np.ndarray, k: int
     """Error of the stored representation on held-out texels, working space.
     truth : (S, n, 3) working-space values at ``texels``."""
     k = cbtf.k if k is None else k
-    coeff = np.stack([cbtf.coefficients[i].values().reshape(-1, 3)[texels] for i in range(k)])  # (k, n, 3)
+    coeff = working_coefficients(cbtf, k).reshape(k, -1, 3)[:, texels]     # (k, n, 3)
     rec = (cbtf.basis_values(k) @ coeff.reshape(k, -1)).reshape(truth.shape)
-    m = np.asarray(cbtf.color_matrix, np.float32)
-    rec = rec @ m.T
     sums = ErrorSums()
     sums.add(truth, rec)
     return sums
@@ -237,15 +272,16 @@ def compress_to_folder(btf: BTF, out, opts: Options | None = None, *, log=None) 
     timings = {}
     codec_name = opts.codec or ("jpeg" if opts.solver == "paper" else "jxl")
 
-    encoded = load_encoded(btf, workers=opts.workers)
-    data = _Decoded(btf, encoded)
+    stored = load_encoded(btf, workers=opts.workers)
+    data = _Decoded(btf, stored)
     timings["load_s"] = time.perf_counter() - t0
-    say(f"loaded {btf.n_samples} samples of {btf.width}x{btf.height} ({encoded.nbytes / 2**20:.0f} MiB) "
+    say(f"loaded {btf.n_samples} samples of {btf.width}x{btf.height} ({stored.nbytes / 2**20:.0f} MiB) "
         f"in {timings['load_s']:.2f} s")
 
     S, P = btf.n_samples, btf.n_pixels
     k_cap = min(S, 3 * P)
-    k_fit = min(opts.k or _DEFAULT_K, k_cap)
+    budgeted = opts.max_bytes is not None or opts.target_error is not None
+    k_fit = min(opts.k or (_BUDGET_K if budgeted and opts.solver == "rsvd" else _DEFAULT_K), k_cap)
     fit = _fit_texels(btf, opts)
     t = time.perf_counter()
     x_fit = _gather_columns(data, fit)
@@ -255,6 +291,10 @@ def compress_to_folder(btf: BTF, out, opts: Options | None = None, *, log=None) 
         u, sv = randomized_basis(x_fit, min(k_fit, x_fit.shape[1]), oversample=opts.oversample,
                                  power_iterations=opts.power_iterations, seed=opts.seed)
     del x_fit
+    if len(sv) == 0 or not sv[0] > 0:
+        raise BTFError(f"{btf.metadata.get('_path') or 'input BTF'}: every pixel is zero; there is nothing to compress")
+    rank = int(np.count_nonzero(sv > sv[0] * 1e-6))  # drop directions that carry no signal
+    u, sv = u[:, :rank], sv[:rank]
     k_fit = u.shape[1]
     timings["fit_s"] = time.perf_counter() - t
     say(f"basis: {k_fit} vectors from {len(fit)} texels ({opts.solver}) in {timings['fit_s']:.2f} s")
@@ -263,14 +303,11 @@ def compress_to_folder(btf: BTF, out, opts: Options | None = None, *, log=None) 
     coeff, total_energy = _project(data, u, opts.chunk_texels)
     if data.matrix is not None:
         coeff = coeff @ data.matrix.T  # curves-space -> working space, exact (linear in the coefficients)
-        total_energy = None            # recomputed below in the working space
     timings["project_s"] = time.perf_counter() - t
 
     evalt = _eval_texels(btf, fit, opts)
+    held_out = not np.isin(evalt, fit).any()
     truth = data.working(evalt)
-    if total_energy is None:
-        # ||X_ws||^2 estimated from the held-out texels (exact energy would need another pass).
-        total_energy = float(np.einsum("snc,snc->", truth, truth, dtype=np.float64)) * P / len(evalt)
 
     if opts.solver == "paper":
         color_matrix = np.eye(3)
@@ -291,17 +328,21 @@ def compress_to_folder(btf: BTF, out, opts: Options | None = None, *, log=None) 
             "choice": choice,
             "singular_values": [float(s) for s in sv],
             "estimated_error": {"linear": sums.report(), "texels": int(len(evalt)),
-                                "note": "held-out texels (not used in the fit), all samples, working space"},
+                                "note": ("held-out texels (not used in the fit)" if held_out else
+                                         "all texels (the image is smaller than the fitting sample: in-sample)")
+                                + ", all samples, working space"},
             "error_curve": {"file": "error_curve.csv", "plot": "error_curve.png"},
             "provenance": {"tool": "usdbtf", "version": __version__, "solver": opts.solver, "seed": opts.seed,
                            "source": str(btf.metadata.get("_path", "")), "options": _opts_dict(opts)},
-            "timings": {k_: round(v, 4) for k_, v in timings.items()},
         })
         cbtf.info.update(opts.extra)
-        cbtf.info["bytes"]["metadata"] = write_metadata(cbtf, tmp)
+        write_metadata(cbtf, tmp)
         write_curve(curve, tmp)
-    say(f"k = {cbtf.k}, {cbtf.info['bytes']['payload']} bytes, held-out error "
-        f"{sums.percent:.3f} % ({timings['total_s']:.2f} s)")
+    # Timings stay out of the files: same inputs and seed give byte-identical folders.
+    cbtf.info["timings"] = {k_: round(v, 4) for k_, v in timings.items()}
+    say(f"k = {cbtf.k}, {cbtf.info['bytes']['payload']} bytes, estimated error {sums.percent:.3f} % "
+        f"({timings['total_s']:.2f} s: " + ", ".join(f"{k_[:-2]} {v:.2f}" for k_, v in timings.items()
+                                                      if k_ != "total_s") + ")")
     return cbtf
 
 
@@ -309,56 +350,88 @@ def _opts_dict(opts: Options) -> dict:
     return {k: v for k, v in opts.__dict__.items() if k not in ("extra", "workers")}
 
 
+def _encode(data, u, coeff, k, step, opts, codec_name, color_matrix, tmp):
+    """Quantise the first k components at ``step`` and write them into ``tmp`` (replacing
+    any earlier attempt).  Returns (CompressedBTF, byte counts)."""
+    cbtf = _build(data, u, coeff, k, step, opts, codec_name, color_matrix)
+    if (tmp / "coeff").exists():
+        for old in (tmp / "coeff").glob("*"):
+            old.unlink()
+    return cbtf, write_textures(cbtf, tmp)
+
+
+def _fit_k_to_budget(sizes: dict, k: int, budget: int) -> int:
+    """Largest k' <= k whose measured textures fit ``budget`` (basis bytes pro rata)."""
+    per = np.cumsum(sizes["per_coefficient"]) + sizes["basis"] * np.arange(1, k + 1) / k
+    fits = np.flatnonzero(per <= 0.995 * budget)
+    return int(fits[-1]) + 1 if len(fits) else 0
+
+
 def _choose_and_store(data, u, coeff, total_energy, truth, evalt, opts, codec_name, color_matrix, tmp, say):
-    """Pick (k, step), write textures into ``tmp``; returns (CompressedBTF, choice dict)."""
+    """Pick (k, step) by rate-distortion, write textures into ``tmp``; returns (CompressedBTF, choice)."""
     btf = data.btf
     k_fit = u.shape[1]
     if opts.solver == "paper" or codec_name in ("exr", "jpeg"):
         return _choose_by_k_only(data, u, coeff, truth, evalt, opts, codec_name, color_matrix, tmp)
     table = ratedist.rd_table(coeff, u, total_energy, seed=opts.seed)
-    N = truth.size * btf.n_pixels / len(evalt)
-    mean_x = float(truth.mean())
-    factor = 1.0
-    choice = {}
-    for attempt in range(3):
-        if opts.max_bytes is not None:
+    predicted_err = table.curves(1.0)[1]
+    steps = list(table.steps)
+
+    last = {}
+
+    def encode(k, step, attempt):
+        cbtf, sizes = _encode(data, u, coeff, k, step, opts, codec_name, color_matrix, tmp)
+        say(f"  try {attempt}: k = {k}, step = {step:.4g}, {sizes['payload']} bytes")
+        last.update(k=k, step=step)
+        return cbtf, sizes
+
+    if opts.max_bytes is not None:
+        # The entropy model is calibrated by real encodes (codec factor); an attempt over
+        # budget is cut back to the components that fit, so every attempt is feasible.
+        factor, best, attempt = 1.0, None, 0
+        while attempt < 3:
+            attempt += 1
             k, step = ratedist.choose_for_bytes(table, opts.max_bytes, factor)
-            if opts.k:
-                k = min(k, opts.k)
-        elif opts.target_error is not None:
-            rms_target = opts.target_error / 100.0 * mean_x / _GAUSS_L1_OVER_RMS
-            k, step = ratedist.choose_for_error(table, rms_target**2 * N * choice.get("error_scale", 1.0), factor)
-        else:
-            k = min(opts.k or _DEFAULT_K, k_fit)
-            step = ratedist.choose_for_k(table, k)
-        cbtf = _build(data, u, coeff, k, step, opts, codec_name, color_matrix)
-        for old in list((tmp / "coeff").glob("*")) if (tmp / "coeff").exists() else []:
-            old.unlink()
-        sizes = write_textures(cbtf, tmp)
-        predicted = table.curves(factor)[0][k, list(table.steps).index(step)]
-        choice = dict(choice, k=k, step=step, predicted_bytes=float(predicted), bytes=sizes["payload"],
-                      attempts=attempt + 1)
-        say(f"  try {attempt + 1}: k = {k}, step = {step:.4g}, {sizes['payload']} bytes "
-            f"(predicted {predicted:.0f})")
-        if opts.max_bytes is not None:
-            if sizes["payload"] <= opts.max_bytes:
-                # Within budget; if well under, one more round with the measured codec factor.
-                if sizes["payload"] > 0.95 * opts.max_bytes or attempt >= 2:
-                    break
+            k = min(k, opts.k or k)
+            predicted = table.curves(factor)[0][k, steps.index(step)]
+            cbtf, sizes = encode(k, step, attempt)
             factor *= sizes["payload"] / max(predicted, 1.0)
-            continue
-        if opts.target_error is not None:
-            err = _evaluate(cbtf, truth, evalt).percent
-            choice["estimated_percent"] = err
-            if err <= opts.target_error or attempt == 2:
+            if sizes["payload"] > opts.max_bytes:
+                k = _fit_k_to_budget(sizes, k, opts.max_bytes)
+                if k == 0:
+                    continue
+            candidate = (predicted_err[k, steps.index(step)], k, step)
+            if best is None or candidate[0] < best[0]:
+                best = candidate
+            if sizes["payload"] <= opts.max_bytes and sizes["payload"] > 0.95 * opts.max_bytes:
                 break
-            choice["error_scale"] = choice.get("error_scale", 1.0) * (opts.target_error / err) ** 2
-            factor *= sizes["payload"] / max(predicted, 1.0)
-            continue
-        break
-    if opts.max_bytes is not None and cbtf.info["bytes"]["payload"] > opts.max_bytes:
-        raise BTFError(f"cannot meet --max-bytes {opts.max_bytes}: smallest result is "
-                       f"{cbtf.info['bytes']['payload']} bytes")
+        if best is None:
+            raise BTFError(f"cannot meet --max-bytes {opts.max_bytes}: even one basis vector does not fit")
+        _, k, step = best
+        if (last["k"], last["step"]) != (k, step) or sizes["payload"] > opts.max_bytes:
+            cbtf, sizes = encode(k, step, attempt + 1)
+        if sizes["payload"] > opts.max_bytes:  # a trimmed re-encode can still miss by a few bytes
+            k = _fit_k_to_budget(sizes, k, opts.max_bytes)
+            cbtf, sizes = encode(k, step, attempt + 2)
+        choice = {"mode": "max_bytes", "k": k, "step": step, "bytes": sizes["payload"], "codec_factor": factor}
+    elif opts.target_error is not None:
+        N = truth.size * btf.n_pixels / len(evalt)
+        rms_target = opts.target_error / 100.0 * float(truth.mean()) / _GAUSS_L1_OVER_RMS
+        scale, factor = 1.0, 1.0
+        for attempt in range(1, 4):
+            k, step = ratedist.choose_for_error(table, rms_target**2 * N * scale, factor)
+            cbtf, sizes = encode(k, step, attempt)
+            err = _evaluate(cbtf, truth, evalt).percent
+            if err <= opts.target_error:
+                break
+            scale *= (opts.target_error / err) ** 2   # the L1/RMS ratio of these errors differs from Gaussian
+        choice = {"mode": "target_error", "k": k, "step": step, "bytes": sizes["payload"],
+                  "estimated_percent": err}
+    else:
+        k = min(opts.k or _DEFAULT_K, k_fit)
+        step = ratedist.choose_for_k(table, k)
+        cbtf, sizes = encode(k, step, 1)
+        choice = {"mode": "k", "k": k, "step": step, "bytes": sizes["payload"]}
     return cbtf, choice
 
 

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .format import working_coefficients
+
 __all__ = ["error_curve", "write_curve", "plot_curve", "curve_samples"]
 
 
@@ -22,26 +24,19 @@ def error_curve(cbtf, data, seed: int = 0) -> dict:
     "rmse": [...], "samples": [...]}.
     """
     rows = curve_samples(cbtf.n_samples)
-    truth = _rows_working(data, rows)                                    # (r, P, 3)
+    truth = data.working_samples(rows)                                   # (r, P, 3)
     basis = cbtf.basis_values()[rows]                                    # (r, k)
-    m = np.asarray(cbtf.color_matrix, np.float32)
+    coeff = working_coefficients(cbtf).reshape(cbtf.k, -1, 3)            # (k, P, 3)
     acc = np.zeros_like(truth)
     total = float(truth.sum(dtype=np.float64))
     ks, pct, rmse = [], [], []
     for i in range(cbtf.k):
-        c = cbtf.coefficients[i].values().reshape(-1, 3)                 # (P, 3)
-        acc += basis[:, i, None, None] * c[None]
-        diff = truth - acc @ m.T
+        acc += basis[:, i, None, None] * coeff[i][None]
+        diff = truth - acc
         ks.append(i + 1)
         pct.append(100.0 * float(np.abs(diff).sum(dtype=np.float64)) / total if total > 0 else float("nan"))
         rmse.append(float(np.sqrt(np.mean(diff.astype(np.float64) ** 2))))
     return {"k": ks, "percent": pct, "rmse": rmse, "samples": rows.tolist()}
-
-
-def _rows_working(data, rows):
-    enc = data.enc[rows]                                                 # (r, P, 3)
-    x = data.curves(enc)
-    return x @ data.matrix.T if data.matrix is not None else x
 
 
 def write_curve(curve: dict, folder: Path) -> None:
@@ -55,21 +50,48 @@ def write_curve(curve: dict, folder: Path) -> None:
 
 
 def plot_curve(curves: dict, path, title: str = "Percent error vs number of basis vectors") -> None:
-    """One line per entry of ``curves`` (label -> curve dict), like the paper's Fig. 3."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    """A line plot like the paper's Fig. 3, one line per entry of ``curves`` (label -> curve).
 
-    fig, ax = plt.subplots(figsize=(5, 3.4), dpi=110)
-    for label, c in curves.items():
-        ax.plot(c["k"], c["percent"], label=label, lw=1.4)
-    ax.set_xlabel("number of basis vectors k")
-    ax.set_ylabel("percent error")
-    ax.set_title(title, fontsize=9)
-    ax.grid(alpha=0.3)
-    ax.set_ylim(bottom=0)
-    if len(curves) > 1:
-        ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    Drawn with OpenCV (already loaded for decoding) and written through OpenImageIO:
+    importing matplotlib would cost more than compressing a small BTF.
+    """
+    import cv2
+
+    from ..imageio import write_image
+
+    W, H, left, right, top, bottom = 640, 420, 70, 20, 40, 55
+    img = np.full((H, W, 3), 255, np.uint8)
+    kmax = max(max(c["k"]) for c in curves.values())
+    ymax = max(max(c["percent"]) for c in curves.values()) * 1.05 or 1.0
+    px = lambda k: int(round(left + (W - left - right) * (k - 1) / max(kmax - 1, 1)))
+    py = lambda v: int(round(H - bottom - (H - top - bottom) * v / ymax))
+    grey, black = (200, 200, 200), (0, 0, 0)
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    for tick in _ticks(ymax):
+        cv2.line(img, (left, py(tick)), (W - right, py(tick)), grey, 1)
+        cv2.putText(img, f"{tick:g}", (8, py(tick) + 4), font, 0.4, black, 1, cv2.LINE_AA)
+    for tick in _ticks(kmax):
+        if tick >= 1:
+            cv2.line(img, (px(tick), top), (px(tick), H - bottom), grey, 1)
+            cv2.putText(img, f"{tick:g}", (px(tick) - 10, H - bottom + 18), font, 0.4, black, 1, cv2.LINE_AA)
+    cv2.rectangle(img, (left, top), (W - right, H - bottom), black, 1)
+    colours = [(31, 119, 180), (214, 39, 40), (44, 160, 44), (148, 103, 189)]  # RGB
+    for n, (label, c) in enumerate(curves.items()):
+        pts = np.array([[px(k), py(v)] for k, v in zip(c["k"], c["percent"])], np.int32)
+        cv2.polylines(img, [pts], False, colours[n % 4], 2, cv2.LINE_AA)
+        if len(curves) > 1:
+            cv2.putText(img, label, (W - right - 200, top + 18 + 16 * n), font, 0.45, colours[n % 4], 1, cv2.LINE_AA)
+    cv2.putText(img, title, (left, 25), font, 0.5, black, 1, cv2.LINE_AA)
+    cv2.putText(img, "number of basis vectors k", (W // 2 - 90, H - 15), font, 0.45, black, 1, cv2.LINE_AA)
+    cv2.putText(img, "% error", (8, top - 10), font, 0.45, black, 1, cv2.LINE_AA)
+    write_image(path, img, color_space="sRGB Encoded Rec.709 (sRGB)")
+
+
+def _ticks(top: float) -> list:
+    """About five round tick values in [0, top]."""
+    if top <= 0:
+        return [0.0]
+    raw = top / 5
+    mag = 10 ** np.floor(np.log10(raw))
+    step = min((m * mag for m in (1, 2, 5, 10) if m * mag >= raw), default=raw)
+    return [float(v) for v in np.arange(0, top + 1e-9, step)]

@@ -7,7 +7,7 @@ from .. import colour
 from ..errors import BTFError
 from ..manifest import encode_for_file, write_manifest
 from ..model import BTF
-from .format import CompressedBTF, reconstruct
+from .format import CompressedBTF, reconstruct, working_coefficients
 from .metrics import ErrorSums
 
 __all__ = ["parse_samples", "decompress_to_folder", "compare"]
@@ -39,7 +39,7 @@ def decompress_to_folder(cbtf: CompressedBTF, out, *, samples: np.ndarray | None
                          chunk: int = 128):
     """Write the reconstruction of ``samples`` as a manifest in the source's colour space and bit depth."""
     idx = np.arange(cbtf.n_samples) if samples is None else np.asarray(samples)
-    coeff = cbtf.coefficient_values(k)
+    coeff = working_coefficients(cbtf, k)
     space = cbtf.source.get("color_space") or cbtf.working_space
     depth = cbtf.source.get("bit_depth") or "half"
 

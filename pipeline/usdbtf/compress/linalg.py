@@ -35,11 +35,13 @@ def exact_basis(x: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """
     x64 = x.astype(np.float64)
     s_rows, m = x64.shape
+    if not np.any(x64):
+        return np.zeros((s_rows, 0), np.float32), np.zeros(0)
     if m <= s_rows:
         evals, v = np.linalg.eigh(x64.T @ x64)
         order = np.argsort(evals)[::-1][:k]
         sv = np.sqrt(np.maximum(evals[order], 0.0))
-        keep = sv > sv[0] * 1e-12 if len(sv) else np.zeros(0, bool)
+        keep = sv > sv[0] * 1e-12 if len(sv) and sv[0] > 0 else np.zeros(len(sv), bool)
         u = (x64 @ v[:, order[keep]]) / sv[keep]
         # Re-orthonormalise: the Gram route loses orthogonality for tiny singular values.
         u, r = np.linalg.qr(u)
@@ -48,7 +50,7 @@ def exact_basis(x: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
         evals, u = np.linalg.eigh(x64 @ x64.T)
         order = np.argsort(evals)[::-1][:k]
         sv = np.sqrt(np.maximum(evals[order], 0.0))
-        keep = sv > sv[0] * 1e-12 if len(sv) else np.zeros(0, bool)
+        keep = sv > sv[0] * 1e-12 if len(sv) and sv[0] > 0 else np.zeros(len(sv), bool)
         u = u[:, order[keep]]
     u = np.ascontiguousarray(u, dtype=np.float32)
     fix_signs(u)

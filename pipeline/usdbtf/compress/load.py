@@ -2,10 +2,14 @@
 
 Compression makes two passes over the data (fit a basis, then project every
 pixel).  Decoding ~10,000 image files is as expensive as one of those passes,
-so the stored values (uint8/uint16/half) are decoded once into a shared array
-of the file's own type -- 0.53 GB for the paper's 90 x 120 x 128^2 8-bit set,
-a quarter of its float32 size -- and converted to scene-linear float32 chunk
-by chunk as each pass needs it.
+so the stored values (uint8/uint16/half) are decoded once -- 0.53 GB for the
+paper's 90 x 120 x 128^2 8-bit set, a quarter of its float32 size -- and turned
+into scene-linear float32 block by block as each pass needs it.
+
+Layout: texels are cut into blocks of ``block`` consecutive texels, and the data
+is stored block-major, (n_blocks, S, 3 * block).  A pass over a block of the data
+matrix (all samples x a range of texels) then reads one contiguous region instead
+of S strided rows, which on 4 KiB-page shared memory costs a TLB miss per row.
 """
 from __future__ import annotations
 
@@ -13,19 +17,71 @@ import mmap
 import multiprocessing as mp
 import os
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..errors import BTFError
 from ..model import BTF, FileBTF
 
-__all__ = ["load_encoded", "default_workers"]
+__all__ = ["BlockedData", "load_encoded", "default_workers", "DEFAULT_BLOCK"]
 
+DEFAULT_BLOCK = 1024
 _STATE: dict = {}  # per-worker-process handles (set by the pool initializer in the forked child)
 
 
 def default_workers() -> int:
     return max(1, min(8, len(os.sched_getaffinity(0))))
+
+
+@dataclass
+class BlockedData:
+    """Stored values of a whole BTF, block-major.
+
+    blocks : (n_blocks, S, 3 * block) array in the storage dtype; the last block is
+             zero-padded past texel P.
+    n_pixels : P, texels per image.
+    """
+
+    blocks: np.ndarray
+    n_pixels: int
+    block: int
+
+    @property
+    def n_samples(self) -> int:
+        return self.blocks.shape[1]
+
+    @property
+    def nbytes(self) -> int:
+        return self.blocks.nbytes
+
+    def put(self, i: int, image: np.ndarray) -> None:
+        """Store sample i from an (H, W, 3) image."""
+        flat = image.reshape(-1)
+        B3 = 3 * self.block
+        for blk in range(self.blocks.shape[0]):
+            seg = flat[blk * B3:(blk + 1) * B3]
+            self.blocks[blk, i, :len(seg)] = seg
+
+    def span(self, a: int, b: int) -> np.ndarray:
+        """Stored values of texels a..b (within one block): (S, 3 (b - a)) view."""
+        blk, off = divmod(a, self.block)
+        if b - 1 >= (blk + 1) * self.block:
+            raise ValueError(f"texels {a}..{b} cross a block boundary")
+        return self.blocks[blk, :, 3 * off:3 * (b - blk * self.block)]
+
+    def texels(self, idx: np.ndarray) -> np.ndarray:
+        """Stored values of arbitrary texels: (S, n, 3) (a gather; for small n)."""
+        idx = np.asarray(idx)
+        blk, off = np.divmod(idx, self.block)
+        view = self.blocks.reshape(self.blocks.shape[0], self.n_samples, self.block, 3)
+        return np.ascontiguousarray(view[blk, :, off, :].transpose(1, 0, 2))
+
+    def samples(self, rows) -> np.ndarray:
+        """Stored values of whole samples: (n, P, 3)."""
+        view = self.blocks.reshape(self.blocks.shape[0], self.n_samples, self.block, 3)[:, rows]
+        n = view.shape[1]
+        return np.ascontiguousarray(view.transpose(1, 0, 2, 3)).reshape(n, -1, 3)[:, :self.n_pixels]
 
 
 def _init(btf, out):
@@ -36,39 +92,41 @@ def _read_range(start: int, stop: int):
     btf, out = _STATE["btf"], _STATE["out"]
     try:
         for i in range(start, stop):
-            out[i] = btf.read_one(i)
+            out.put(i, btf.read_one(i))
     except BTFError as exc:
         return str(exc)
     return None
 
 
-def load_encoded(btf: BTF, *, workers: int | None = None) -> np.ndarray:
-    """All stored values, (S, H, W, 3) in the storage dtype (uint8, uint16, float16 or float32).
+def load_encoded(btf: BTF, *, workers: int | None = None, block: int = DEFAULT_BLOCK) -> BlockedData:
+    """All stored values of ``btf`` (uint8, uint16, float16 or float32), block-major.
 
     File-backed BTFs are read by ``workers`` forked processes (OpenImageIO's Python
     binding holds the GIL while decoding, so threads do not help) straight into an
-    anonymous shared mapping that the returned array owns: no copy, no named segment
-    to clean up.
+    anonymous shared mapping that the returned arrays own: no copy, nothing to clean up.
     """
     dtype = np.dtype({"uint8": np.uint8, "uint16": np.uint16, "half": np.float16, "float": np.float32}[btf.bit_depth])
-    shape = btf.shape
+    S, P = btf.n_samples, btf.n_pixels
+    block = max(1, min(block, P))
+    shape = (-(-P // block), S, 3 * block)
     workers = workers or default_workers()
-    if not isinstance(btf, FileBTF) or workers == 1 or btf.n_samples < 64:
-        out = np.empty(shape, dtype)
-        for start in range(0, btf.n_samples, 256):
-            sl = slice(start, min(start + 256, btf.n_samples))
-            out[sl] = btf.read_encoded(sl)
-        return out
+    parallel = isinstance(btf, FileBTF) and workers > 1 and S >= 64
+    if not parallel:
+        data = BlockedData(np.zeros(shape, dtype), P, block)
+        for start in range(0, S, 256):
+            chunk = btf.read_encoded(slice(start, min(start + 256, S)))
+            for n, img in enumerate(chunk):
+                data.put(start + n, img)
+        return data
     nbytes = int(np.prod(shape)) * dtype.itemsize
-    # MAP_POPULATE: fault the pages in now, in bulk; otherwise the parent later takes one
-    # ~25 us shared-memory fault per 4 KiB page on first touch (~3 s at paper scale).
+    # MAP_POPULATE: fault the pages in now, in bulk, rather than one trap per page later.
     flags = mmap.MAP_SHARED | mmap.MAP_ANONYMOUS | getattr(mmap, "MAP_POPULATE", 0)
-    out = np.frombuffer(mmap.mmap(-1, nbytes, flags=flags), dtype).reshape(shape)
-    bounds = np.linspace(0, btf.n_samples, workers * 8 + 1).astype(int)
+    data = BlockedData(np.frombuffer(mmap.mmap(-1, nbytes, flags=flags), dtype).reshape(shape), P, block)
+    bounds = np.linspace(0, S, workers * 8 + 1).astype(int)
     # fork: the workers inherit ``btf`` and the mapping; nothing is pickled but the index ranges.
     with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"), initializer=_init,
-                             initargs=(btf, out)) as pool:
+                             initargs=(btf, data)) as pool:
         for err in pool.map(_read_range, bounds[:-1], bounds[1:]):
             if err:
                 raise BTFError(err)
-    return out
+    return data

@@ -24,12 +24,20 @@ class ErrorSums:
     sq_err: float = 0.0
     count: int = 0
 
-    def add(self, orig: np.ndarray, recon: np.ndarray) -> None:
-        o = np.asarray(orig, np.float64).ravel()
-        d = o - np.asarray(recon, np.float64).ravel()
-        self.abs_err += float(np.abs(d).sum())
-        self.total += float(o.sum())
-        self.sq_err += float(d @ d)
+    def add(self, orig: np.ndarray, recon: np.ndarray, chunk: int = 1 << 20) -> None:
+        """Accumulate over equally shaped arrays.  Differences are taken at the inputs'
+        precision (float32 data stays float32) and summed in float64 per ~1M-value chunk,
+        so large arrays never get a float64 copy."""
+        dtype = np.result_type(orig, recon, np.float32)   # float32 data stays float32
+        o = np.ascontiguousarray(orig, dtype).reshape(-1)
+        r = np.ascontiguousarray(recon, dtype).reshape(-1)
+        if o.shape != r.shape:
+            raise ValueError(f"shapes differ: {np.shape(orig)} vs {np.shape(recon)}")
+        for a in range(0, o.size, chunk):
+            d = (o[a:a + chunk] - r[a:a + chunk]).astype(np.float64)
+            self.abs_err += float(np.abs(d).sum())
+            self.sq_err += float(d @ d)
+        self.total += float(o.sum(dtype=np.float64))
         self.count += o.size
 
     @property

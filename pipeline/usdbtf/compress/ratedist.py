@@ -153,11 +153,19 @@ def choose_for_error(table: RDTable, max_sqerr: float, factor: float) -> tuple[i
 
 def choose_for_k(table: RDTable, k: int, quant_fraction: float = 0.1) -> float:
     """Largest step whose added quantisation error stays within ``quant_fraction`` of the
-    truncation error at ``k`` (so quantisation never dominates what k already costs)."""
-    _, err = table.curves(1.0)
-    trunc = err[k, :] - (np.cumsum(table.coeff_sqerr + table.basis_sqerr[None, :], 0)[k - 1])
-    added = err[k, :] - trunc
-    ok = np.isfinite(added) & (added <= quant_fraction * np.maximum(trunc, 1e-30))
-    if not ok.any():
-        return float(table.steps[-1])
-    return float(table.steps[np.flatnonzero(ok)[0]])
+    truncation error at ``k`` (so quantisation never dominates what k already costs).
+
+    At full rank the truncation error is ~0; the budget then has a floor of 1e-6 of the
+    total energy (60 dB below the signal), and only steps that fit 16 bits are eligible.
+    """
+    bytes_, err = table.curves(1.0)
+    kept = np.cumsum(table.coeff_sqerr + table.basis_sqerr[None, :], 0)[k - 1]
+    trunc = err[k, :] - kept
+    total = float(table.energy.sum() + table.residual)
+    added = kept
+    allowed = quant_fraction * np.maximum(trunc, 1e-6 * total)
+    finite = np.isfinite(bytes_[k, :])
+    ok = finite & (added <= allowed)
+    if ok.any():
+        return float(table.steps[np.flatnonzero(ok)[0]])
+    return float(table.steps[np.flatnonzero(finite)[-1]]) if finite.any() else float(table.steps[0])
