@@ -46,11 +46,13 @@ def say(msg: str = "") -> None:
 
 
 # -- inputs ------------------------------------------------------------------------------------
-def dataset_dir(workdir: Path, preset: str, sampling: str, size: int, seed: int) -> Path:
-    return workdir / f"{preset}-{sampling}-{size}-seed{seed}"
+def dataset_dir(workdir: Path, preset: str, sampling: str, size: int, seed: int, fmt: str = "png") -> Path:
+    return workdir / f"{preset}-{sampling}-{size}-seed{seed}" if fmt == "png" else \
+        workdir / f"{preset}-{sampling}-{size}-seed{seed}-{fmt}"
 
 
-def cached_dataset_ok(folder: Path, preset: str, sampling: str, size: int, seed: int, n_samples: int) -> bool:
+def cached_dataset_ok(folder: Path, preset: str, sampling: str, size: int, seed: int, n_samples: int,
+                      fmt: str = "png") -> bool:
     """A complete dataset (btf.json is written last, atomically) from the same synth parameters."""
     path = folder / "btf.json"
     if not path.is_file():
@@ -66,14 +68,15 @@ def cached_dataset_ok(folder: Path, preset: str, sampling: str, size: int, seed:
     samples = doc.get("samples", [])
     return (doc.get("width") == size and doc.get("height") == size and len(samples) == n_samples
             and doc.get("color_space", "").startswith("sRGB")
-            and all(s["image"].endswith(".png") and (folder / s["image"]).is_file() for s in samples))
+            and all(s["image"].endswith("." + fmt) and (folder / s["image"]).is_file() for s in samples))
 
 
-def ensure_dataset(cli, workdir, preset, sampling, size, seed, n_samples) -> dict:
-    folder = dataset_dir(workdir, preset, sampling, size, seed)
-    cmd = [*cli, "synth", preset, "-o", folder, "--sampling", sampling, "--size", str(size), "--seed", str(seed)]
-    info = {"folder": str(folder), "synth_command": " ".join(map(str, cmd))}
-    if cached_dataset_ok(folder, preset, sampling, size, seed, n_samples):
+def ensure_dataset(cli, workdir, preset, sampling, size, seed, n_samples, fmt="png") -> dict:
+    folder = dataset_dir(workdir, preset, sampling, size, seed, fmt)
+    cmd = [*cli, "synth", preset, "-o", folder, "--sampling", sampling, "--size", str(size), "--seed", str(seed),
+           "--format", fmt]
+    info = {"folder": str(folder), "synth_command": " ".join(map(str, cmd)), "format": fmt}
+    if cached_dataset_ok(folder, preset, sampling, size, seed, n_samples, fmt):
         info.update(cached=True, synth_seconds=None)
         say(f"  input: cached {folder}")
         return info
@@ -188,7 +191,7 @@ def markdown_table(results: dict, gemm: dict) -> str:
     rows = []
     q_all, s_all, m_all = [], [], []
     for preset, r in results.items():
-        for key in ("paper", "default"):
+        for key in ("paper", "default", "plain"):
             s = r.get(key)
             if s is None:
                 continue
@@ -204,11 +207,12 @@ def markdown_table(results: dict, gemm: dict) -> str:
                 ratio = f"{r['quality_ratio_linear']:.3f}, {r['quality_ratio_encoded']:.3f}"
                 q_all.append(r["quality_ratio_linear"])
             tr = s["wall_s_median"] / gemm["median_s"]
-            if key == "default":
+            if key in ("default", "plain"):
                 s_all.append(tr)
                 m_all.append(s["peak_memory_bytes"])
+            label = {"plain": "rsvd, plain k=150"}.get(key, s.get("solver") or key)
             rows.append([
-                preset, f"{s.get('solver') or key} ({s['codec']})", str(s["k"]), f"{s['bytes']['payload']:,} B",
+                preset, f"{label} ({s['codec']})", str(s["k"]), f"{s['bytes']['payload']:,} B",
                 _ratio(r["input"]["raw_bytes"] / s["bytes"]["payload"]),
                 f"{lin.get('percent', float('nan')):.3f}", f"{enc.get('percent', float('nan')):.3f}",
                 f"{lin.get('rmse', float('nan')):.5f}", f"{lin.get('psnr_db', float('nan')):.2f}",
@@ -236,6 +240,7 @@ def target_summary(results: dict) -> dict:
 
     return {"quality_ratio_linear": one([r.get("quality_ratio_linear") for r in ok], TARGETS["quality_ratio"]),
             "speed_ratio": one([r.get("speed_ratio") for r in ok], TARGETS["speed_ratio"]),
+            "speed_ratio_plain": one([r.get("plain", {}).get("time_over_gemm") for r in ok], TARGETS["speed_ratio"]),
             "peak_memory_bytes": one([r["default"]["peak_memory_bytes"] for r in ok], TARGETS["memory_bytes"]),
             "failed_presets": failed}
 
@@ -283,6 +288,8 @@ def parse_args(argv=None):
                    help="where generated datasets are cached and reused (default benchmarks/out/data)")
     p.add_argument("--quick", action="store_true", help="= --sampling small --size 64 --repeats 1 (explicit flags win)")
     p.add_argument("--seed", type=int, default=0, help="synth seed (default 0)")
+    p.add_argument("--format", default="png", choices=["png", "tif"],
+                   help="input image files: png (default) or tif (uncompressed: ~5x cheaper to decode)")
     p.add_argument("--k", type=int, default=150, help="paper solver's k, and the GEMM basis width (default 150)")
     p.add_argument("--pss-interval", type=float, default=0.2,
                    help="seconds between /proc samples of the compress process tree's PSS (0: off)")
@@ -327,7 +334,7 @@ def main(argv=None) -> int:
     say(format_machine(machine))
     say("")
     say("## inputs")
-    say(f"- sampling '{args.sampling}' = {n_samples} samples, {size}x{size} texels, 8-bit sRGB PNG, synth seed "
+    say(f"- sampling '{args.sampling}' = {n_samples} samples, {size}x{size} texels, 8-bit sRGB {args.format.upper()}, synth seed "
         f"{args.seed}; presets {', '.join(args.presets)}")
     say(f"- raw size S*H*W*3 bytes at 8 bit = {n_samples}*{size}*{size}*3 = {raw_bytes:,} B ({fmt_bytes(raw_bytes)});"
         f" compression ratio = raw / payload (payload = basis + coefficient texture files; metadata JSON not counted)")
@@ -368,7 +375,7 @@ def main(argv=None) -> int:
     for preset in args.presets:
         say("")
         say(f"## {preset}")
-        inp = ensure_dataset(cli, args.workdir, preset, args.sampling, size, args.seed, n_samples)
+        inp = ensure_dataset(cli, args.workdir, preset, args.sampling, size, args.seed, n_samples, args.format)
         data = Path(inp["folder"])
         inp.update(raw_bytes=raw_bytes, png_bytes=dir_bytes(data), n_samples=n_samples, width=size, height=size)
         warm = warm_page_cache(data)
@@ -393,6 +400,14 @@ def main(argv=None) -> int:
         write_json(json_path, doc)
         if "error" not in default:
             say(f"    -> k {default['k']}, payload {default['bytes']['payload']:,} B")
+
+        say("  default solver, plain `usdbtf compress IN -o OUT` (k = 150, speed row):")
+        plain = r["plain"] = run_solver(cli, data, out_root / name / "plain", [], args.repeats, args.pss_interval)
+        if "error" not in plain:
+            plain["time_over_gemm"] = plain["wall_s_median"] / gemm["median_s"]
+            say(f"    -> k {plain['k']}, payload {plain['bytes']['payload']:,} B, {plain['wall_s_median']:.2f} s "
+                f"= {plain['time_over_gemm']:.1f} x GEMM")
+        write_json(json_path, doc)
 
         orig = open_btf(data)
         for key, s in (("paper", paper), ("default", default)):

@@ -171,7 +171,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--max-bytes", type=int, metavar="B", help="byte budget for basis + coefficient textures")
     c.add_argument("--codec", choices=sorted(CODECS), help="texture storage (default jxl; paper solver: jpeg)")
     c.add_argument("--seed", type=int, default=0)
-    c.add_argument("--fit-texels", type=int, default=2048, help="rsvd: texels sampled to fit the basis")
+    c.add_argument("--fit-texels", type=int, help="rsvd: texels sampled to fit the basis "
+                   "(default 2048; 4096 with --max-bytes or --target-error)")
     c.add_argument("--power-iterations", type=int, default=1, help="rsvd: power iterations")
     c.add_argument("--region", type=int, help="paper: side of the central fitting region in texels")
     c.add_argument("--workers", type=int, help="decode processes (default: CPU count)")

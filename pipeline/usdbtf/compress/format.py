@@ -184,6 +184,8 @@ def write_textures(cbtf: CompressedBTF, folder: Path) -> dict:
     """Write basis and coefficient textures into an existing folder; returns byte counts.
 
     Lossy codecs are read back so ``cbtf`` then holds exactly what any reader sees.
+    Encoding is serial on purpose: forked encoders deadlock in OpenEXR's global thread
+    pool once the parent process has used it.
     """
     codec = get_codec(cbtf.codec)
     (folder / "coeff").mkdir(exist_ok=True)
@@ -191,14 +193,13 @@ def write_textures(cbtf: CompressedBTF, folder: Path) -> dict:
     layout = basis_layout(cbtf.sampling, cbtf.k, cbtf.codec)
     cbtf.info["basis_layout"] = layout
     image = Stored(basis_to_image(cbtf.basis.pixels, layout), cbtf.basis.scale, cbtf.basis.bias)
+    names = [f"coeff/c{i:03d}.{codec.ext}" for i in range(cbtf.k)]
     basis_bytes = codec.write(folder / basis_name, image, "data", basis=True)
-    coeff_bytes = []
-    for i, stored in enumerate(cbtf.coefficients):
-        name = f"coeff/c{i:03d}.{codec.ext}"
-        coeff_bytes.append(codec.write(folder / name, stored, "data"))
-        if not codec.lossless:
-            cbtf.coefficients[i] = Stored(Codec.read(folder / name), stored.scale, stored.bias)
+    coeff_bytes = [codec.write(folder / n, st, "data") for n, st in zip(names, cbtf.coefficients)]
     if not codec.lossless:
+        for i, name in enumerate(names):
+            stored = cbtf.coefficients[i]
+            cbtf.coefficients[i] = Stored(Codec.read(folder / name), stored.scale, stored.bias)
         back = image_to_basis(Codec.read(folder / basis_name, channels=1), layout, cbtf.k)
         cbtf.basis = Stored(back, cbtf.basis.scale, cbtf.basis.bias)
     sizes = {"basis": basis_bytes, "coefficients": int(sum(coeff_bytes)),
@@ -233,17 +234,26 @@ def metadata_document(cbtf: CompressedBTF) -> dict:
     return doc
 
 
+_SIZE_MARK = -987654321  # unique placeholder for the metadata file's own size
+
+
 def write_metadata(cbtf: CompressedBTF, folder: Path) -> int:
-    """Write the metadata file; its own size is recorded in it (``bytes.metadata``)."""
+    """Write the metadata file; its own size is recorded in it (``bytes.metadata``).
+
+    Encoded once with a placeholder that is then replaced by the final size (the JSON
+    for 10^4 sample directions is ~0.7 MB: encoding it twice would cost ~0.15 s).
+    """
     sizes = cbtf.info.setdefault("bytes", {})
-    sizes["metadata"] = 0
-    for _ in range(4):  # the size's digit count can change the size: iterate to a fixed point
-        text = json.dumps(metadata_document(cbtf), indent=1) + "\n"
-        if len(text.encode()) == sizes["metadata"]:
-            break
-        sizes["metadata"] = len(text.encode())
+    sizes["metadata"] = _SIZE_MARK
+    text = json.dumps(metadata_document(cbtf), indent=1) + "\n"
+    base = len(text.encode()) - len(str(_SIZE_MARK))
+    size = base + 1
+    while len(str(size)) + base != size:  # the number's own digits count too
+        size = base + len(str(size))
+    text = text.replace(str(_SIZE_MARK), str(size), 1)
+    sizes["metadata"] = size
     (folder / METADATA).write_text(text)
-    return sizes["metadata"]
+    return size
 
 
 def write_compressed(cbtf: CompressedBTF, folder) -> dict:

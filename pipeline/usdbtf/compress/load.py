@@ -58,10 +58,12 @@ class BlockedData:
     def put(self, i: int, image: np.ndarray) -> None:
         """Store sample i from an (H, W, 3) image."""
         flat = image.reshape(-1)
-        B3 = 3 * self.block
-        for blk in range(self.blocks.shape[0]):
-            seg = flat[blk * B3:(blk + 1) * B3]
-            self.blocks[blk, i, :len(seg)] = seg
+        nb, _, B3 = self.blocks.shape
+        full = min(nb, flat.size // B3)
+        self.blocks[:full, i, :] = flat[:full * B3].reshape(full, B3)   # one copy, not one per block
+        if full < nb:
+            tail = flat[full * B3:]
+            self.blocks[full, i, :tail.size] = tail
 
     def span(self, a: int, b: int) -> np.ndarray:
         """Stored values of texels a..b (within one block): (S, 3 (b - a)) view."""
@@ -69,13 +71,6 @@ class BlockedData:
         if b - 1 >= (blk + 1) * self.block:
             raise ValueError(f"texels {a}..{b} cross a block boundary")
         return self.blocks[blk, :, 3 * off:3 * (b - blk * self.block)]
-
-    def texels(self, idx: np.ndarray) -> np.ndarray:
-        """Stored values of arbitrary texels: (S, n, 3) (a gather; for small n)."""
-        idx = np.asarray(idx)
-        blk, off = np.divmod(idx, self.block)
-        view = self.blocks.reshape(self.blocks.shape[0], self.n_samples, self.block, 3)
-        return np.ascontiguousarray(view[blk, :, off, :].transpose(1, 0, 2))
 
     def samples(self, rows) -> np.ndarray:
         """Stored values of whole samples: (n, P, 3)."""
@@ -85,7 +80,19 @@ class BlockedData:
 
 
 def _init(btf, out):
+    import OpenImageIO as oiio
+
+    oiio.attribute("threads", 1)  # OIIO's pool threads do not exist in a forked child
     _STATE.update(btf=btf, out=out)
+
+
+# OpenEXR keeps a process-wide thread pool that a forked child inherits without its
+# threads: reading EXR in a forked worker can deadlock.  Those formats decode serially.
+_NO_FORK_EXTENSIONS = (".exr", ".sxr", ".mxr")
+
+
+def _forkable(btf: BTF) -> bool:
+    return not any(str(p).lower().endswith(_NO_FORK_EXTENSIONS) for p in btf.paths)
 
 
 def _read_range(start: int, stop: int):
@@ -110,7 +117,7 @@ def load_encoded(btf: BTF, *, workers: int | None = None, block: int = DEFAULT_B
     block = max(1, min(block, P))
     shape = (-(-P // block), S, 3 * block)
     workers = workers or default_workers()
-    parallel = isinstance(btf, FileBTF) and workers > 1 and S >= 64
+    parallel = isinstance(btf, FileBTF) and workers > 1 and S >= 64 and _forkable(btf)
     if not parallel:
         data = BlockedData(np.zeros(shape, dtype), P, block)
         for start in range(0, S, 256):

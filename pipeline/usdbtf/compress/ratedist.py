@@ -86,13 +86,15 @@ def _rate_and_error(values: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, 
     return bits, err
 
 
-def rd_table(coeff: np.ndarray, basis: np.ndarray, total_energy: float, *, n_steps: int = 40,
-             subsample: int = 4096, seed: int = 0) -> RDTable:
+def rd_table(coeff: np.ndarray, basis: np.ndarray, total_energy: float | None, *, n_steps: int = 40,
+             subsample: int = 2048, seed: int = 0) -> RDTable:
     """Build the table.
 
     coeff : (k, P, 3) float32 coefficients (decorrelated channels), energy-ordered.
     basis : (S, k) float32 orthonormal basis.
-    total_energy : sum of squares of the whole data matrix (for the out-of-basis residual).
+    total_energy : sum of squares of the whole data matrix, for the out-of-basis residual;
+        None when unknown (the residual is then 0: a constant offset that does not change
+        which (k, step) a byte budget or a fixed k picks).
     """
     k, P, _ = coeff.shape
     S = basis.shape[0]
@@ -116,7 +118,7 @@ def rd_table(coeff: np.ndarray, basis: np.ndarray, total_energy: float, *, n_ste
         b, _ = _rate_and_error(basis[:, i].astype(np.float64) * sigma, steps)
         bb[i] = b / 8
     basis_err = S * steps**2 / 12.0                                 # per component, independent of i
-    residual = max(float(total_energy - energy.sum()), 0.0)
+    residual = 0.0 if total_energy is None else max(float(total_energy - energy.sum()), 0.0)
     return RDTable(steps, cb, bb, ce, basis_err, energy, residual)
 
 
