@@ -809,3 +809,41 @@ def test_read_compressed_missing_key(good_folder, tmp_path):
     (f / METADATA).write_text(json.dumps(doc))
     with pytest.raises(BTFError, match=METADATA):
         read_compressed(f)
+
+
+# ---------------------------------------------------------------- streaming (memory-bounded) path
+
+
+@pytest.mark.parametrize("solver", ["rsvd", "paper"])
+def test_streaming_source_matches_in_memory(small32, tmp_path, solver):
+    """memory_budget=0 streams the files twice instead of holding them: same choice of k,
+    same bytes up to float summation order, same reconstruction to float32 rounding."""
+    btf = read_manifest(small32)
+    mem = compress_to_folder(btf, tmp_path / "mem", Options(solver=solver, k=12))
+    streamed = compress_to_folder(btf, tmp_path / "str", Options(solver=solver, k=12, memory_budget=0))
+    assert streamed.k == mem.k == 12
+    assert abs(streamed.info["bytes"]["payload"] - mem.info["bytes"]["payload"]) <= 0.01 * mem.info["bytes"]["payload"]
+    a, b = reconstruct(read_compressed(tmp_path / "mem")), reconstruct(read_compressed(tmp_path / "str"))
+    assert np.abs(a - b).max() <= 0.02 * np.abs(a).max()
+    assert full_percent(btf, streamed) == pytest.approx(full_percent(btf, mem), rel=0.02)
+
+
+def test_streaming_source_holds_only_requested_columns(small32):
+    from usdbtf.compress.source import StreamingSource, stored_bytes
+    btf = read_manifest(small32)
+    texels = np.arange(64, 128)
+    src = StreamingSource(btf, [texels], [0, 5], workers=1, chunk=16)
+    assert src.nbytes < stored_bytes(btf)
+    want = btf.decode(btf.read_encoded(slice(None))).reshape(btf.n_samples, -1, 3)[:, texels]
+    got = src.to_working(src.columns(texels)).reshape(btf.n_samples, -1, 3)
+    assert np.allclose(got, want, atol=1e-6)
+    with pytest.raises(ValueError):
+        src.columns(np.arange(3))
+
+
+def test_curve_points():
+    from usdbtf.compress.curve import curve_ks
+    assert curve_ks(5).tolist() == [1, 2, 3, 4, 5]
+    ks = curve_ks(300)
+    assert ks[0] == 1 and ks[-1] == 300 and (np.diff(ks) > 0).all() and len(ks) <= 50
+    assert ks[:20].tolist() == list(range(1, 21))

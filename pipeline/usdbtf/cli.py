@@ -57,7 +57,8 @@ def cmd_compress(args) -> int:
     btf.metadata["_path"] = str(args.input)
     opts = Options(solver=args.solver, k=args.k, target_error=args.target_error, max_bytes=args.max_bytes,
                    codec=args.codec, seed=args.seed, fit_texels=args.fit_texels,
-                   power_iterations=args.power_iterations, region=args.region, workers=args.workers)
+                   power_iterations=args.power_iterations, region=args.region, workers=args.workers,
+                   memory_budget=args.memory_budget * 1e9)
     extra = {key: v for key, v in btf.metadata.items() if not key.startswith("_")}
     opts.extra = {"source_metadata": extra} if extra else {}
     compress_to_folder(btf, args.output, opts, log=_log(args.quiet))
@@ -176,6 +177,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--power-iterations", type=int, default=1, help="rsvd: power iterations")
     c.add_argument("--region", type=int, help="paper: side of the central fitting region in texels")
     c.add_argument("--workers", type=int, help="decode processes (default: CPU count)")
+    c.add_argument("--memory-budget", type=float, default=1.0, metavar="GB",
+                   help="hold the stored values in memory up to this size, else stream them from disk "
+                        "twice (default 1.0)")
     c.set_defaults(func=cmd_compress)
 
     d = sub.add_parser("decompress", help="write the reconstruction as a manifest folder")

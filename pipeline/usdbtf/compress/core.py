@@ -14,6 +14,7 @@ Two solvers share one pipeline (load -> fit basis -> project -> store -> evaluat
 """
 from __future__ import annotations
 
+import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,10 +27,10 @@ from ..errors import BTFError
 from ..model import BTF
 from . import ratedist
 from .codecs import Stored, get_codec, quantize_minmax, quantize_uniform
-from .curve import error_curve, write_curve
-from .format import CompressedBTF, working_coefficients, write_metadata, write_textures
+from .curve import curve_samples, error_curve, write_curve
+from .format import CompressedBTF, truncate_written, working_coefficients, write_basis, write_metadata, write_textures
 from .linalg import exact_basis, randomized_basis
-from .load import BlockedData, load_encoded
+from .source import choose_source
 from .metrics import ErrorSums
 
 __all__ = ["Options", "compress", "compress_to_folder", "SOLVERS"]
@@ -59,6 +60,7 @@ class Options:
     oversample: int = 16
     region: int | None = None             # paper: side of the central square region (texels)
     chunk_texels: int = 1024              # projection chunk (memory: S * 3 * chunk * 4 bytes)
+    memory_budget: float = 1.0e9          # hold stored values in memory up to this many bytes, else stream
     eval_texels: int = 1024               # held-out texels for error estimates
     workers: int | None = None
     extra: dict = field(default_factory=dict)
@@ -73,45 +75,6 @@ class Options:
         if self.max_bytes is not None and self.max_bytes <= 0:
             raise BTFError(f"--max-bytes must be positive, got {self.max_bytes}")
         get_codec(self.codec or ("jpeg" if self.solver == "paper" else "jxl"))
-
-
-class _Decoded:
-    """Stored data (block-major, see :mod:`.load`) plus the decode split into per-channel
-    curves (applied to data blocks) and a 3x3 matrix (applied to the much smaller
-    coefficients instead: it commutes with the projection)."""
-
-    def __init__(self, btf: BTF, stored: BlockedData):
-        self.btf = btf
-        self.stored = stored
-        dec = btf.integer_decoder
-        if dec is not None and dec.exact:
-            self.curves = dec.decode_curves
-            self.matrix = dec.matrix
-        else:
-            self.curves = lambda block: btf.decode(block.reshape(block.shape[0], -1, 3)).reshape(block.shape)
-            self.matrix = None
-
-    def block(self, a: int, b: int) -> np.ndarray:
-        """Texels a..b (inside one storage block) after the curves: (S, 3 (b - a)) float32."""
-        return self.curves(self.stored.span(a, b))
-
-    def blocks(self, chunk: int):
-        """Yield (a, b) texel ranges covering every texel, none crossing a storage block."""
-        P, B = self.stored.n_pixels, self.stored.block
-        for start in range(0, P, B):
-            end = min(start + B, P)
-            for a in range(start, end, chunk):
-                yield a, min(a + chunk, end)
-
-    def to_working(self, x: np.ndarray) -> np.ndarray:
-        """(..., 3 n) or (..., 3) curve-decoded values -> working space."""
-        if self.matrix is None:
-            return x
-        return (x.reshape(-1, 3) @ self.matrix.T).reshape(x.shape)
-
-    def working_samples(self, rows) -> np.ndarray:
-        """(n, P, 3) float32 working-space values of whole samples."""
-        return self.to_working(self.curves(self.stored.samples(rows)))
 
 
 _RUN = 64  # texels per contiguous run of the rsvd fitting sample (whole cache lines, cheap to gather)
@@ -143,19 +106,6 @@ def _fit_texels(btf: BTF, opts: Options) -> np.ndarray:
     return _runs(btf.n_pixels, n_runs, np.random.default_rng(opts.seed))
 
 
-def _gather_columns(data: "_Decoded", texels: np.ndarray) -> np.ndarray:
-    """(S, 3 n) float32 after the curves for sorted ``texels``: runs of consecutive texels
-    (split at storage-block edges) are copied as stored values, then decoded in one call."""
-    texels = np.asarray(texels)
-    breaks = np.flatnonzero((np.diff(texels) != 1) | (texels[1:] % data.stored.block == 0)) + 1
-    starts = np.r_[0, breaks]
-    ends = np.r_[breaks, len(texels)]
-    raw = np.empty((data.stored.n_samples, 3 * len(texels)), data.stored.blocks.dtype)
-    for s0, e0 in zip(starts, ends):
-        raw[:, 3 * s0:3 * e0] = data.stored.span(int(texels[s0]), int(texels[e0 - 1]) + 1)
-    return data.curves(raw)
-
-
 def _runs(n_pixels: int, count: int, rng, exclude: np.ndarray | None = None) -> np.ndarray:
     """Sorted texel indices of ``count`` random runs of _RUN texels (whole runs only),
     avoiding runs listed in ``exclude`` (run indices)."""
@@ -175,44 +125,6 @@ def _eval_texels(btf: BTF, fit: np.ndarray, opts: Options) -> np.ndarray:
     if free <= 0 or len(fit) == btf.n_pixels:
         return np.arange(btf.n_pixels)
     return _runs(btf.n_pixels, max(1, opts.eval_texels // _RUN), np.random.default_rng(opts.seed + 1), exclude=used)
-
-
-def _colour_gram(x: np.ndarray, group: int = 8) -> np.ndarray:
-    """3x3 sum of x x^T over all RGB triples of ``x`` (..., 3 n), float64.
-
-    BLAS is slow at 3 x 3 outputs; grouping ``group`` texels per row gives a 24 x 24
-    Gram (4x faster), whose diagonal 3 x 3 blocks sum to the answer.
-    """
-    flat = x.reshape(-1)
-    n = flat.size // (3 * group) * (3 * group)
-    y = flat[:n].reshape(-1, 3 * group)
-    g = (y.T @ y).astype(np.float64)
-    out = sum(g[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i in range(group))
-    rest = flat[n:].reshape(-1, 3).astype(np.float64)
-    return out + rest.T @ rest
-
-
-def _project(data: _Decoded, u: np.ndarray, chunk: int, energy: bool = True) -> tuple[np.ndarray, float | None]:
-    """Coefficients (k, P, 3) = U^T X over texel blocks, and ||X||^2 in the working space
-    (None unless ``energy``: only an error target needs it).
-
-    The energy comes from the 3x3 colour Gram matrix G = sum x x^T of the curve-decoded
-    data, so the working-space matrix A applies exactly: ||X A^T||^2 = trace(A G A^T).
-    """
-    k = u.shape[1]
-    P = data.stored.n_pixels
-    coeff = np.empty((k, P, 3), np.float32)
-    gram = np.zeros((3, 3))
-    ut = np.ascontiguousarray(u.T)
-    for a, b in data.blocks(chunk):
-        x = data.block(a, b)
-        coeff[:, a:b, :] = (ut @ x).reshape(k, b - a, 3)
-        if energy:
-            gram += _colour_gram(x)
-    if not energy:
-        return coeff, None
-    m = data.matrix.astype(np.float64) if data.matrix is not None else np.eye(3)
-    return coeff, float(np.trace(m @ gram @ m.T))
 
 
 def _colour_decorrelation(coeff: np.ndarray) -> np.ndarray:
@@ -294,19 +206,20 @@ def compress_to_folder(btf: BTF, out, opts: Options | None = None, *, log=None) 
     timings = {}
     codec_name = opts.codec or ("jpeg" if opts.solver == "paper" else "jxl")
 
-    stored = load_encoded(btf, workers=opts.workers)
-    data = _Decoded(btf, stored)
+    fit = _fit_texels(btf, opts)
+    evalt = _eval_texels(btf, fit, opts)
+    data = choose_source(btf, [fit, evalt], curve_samples(btf.n_samples), memory_budget=opts.memory_budget,
+                         workers=opts.workers)
     timings["load_s"] = time.perf_counter() - t0
-    say(f"loaded {btf.n_samples} samples of {btf.width}x{btf.height} ({stored.nbytes / 2**20:.0f} MiB) "
+    say(f"loaded {btf.n_samples} samples of {btf.width}x{btf.height} ({data.kind}, {data.nbytes / 2**20:.0f} MiB) "
         f"in {timings['load_s']:.2f} s")
 
     S, P = btf.n_samples, btf.n_pixels
     k_cap = min(S, 3 * P)
     budgeted = opts.max_bytes is not None or opts.target_error is not None
     k_fit = min(opts.k or (_BUDGET_K if budgeted and opts.solver == "rsvd" else _DEFAULT_K), k_cap)
-    fit = _fit_texels(btf, opts)
     t = time.perf_counter()
-    x_fit = _gather_columns(data, fit)
+    x_fit = data.columns(fit)
     if opts.solver == "paper":
         u, sv = exact_basis(x_fit, k_fit)
     else:
@@ -322,14 +235,13 @@ def compress_to_folder(btf: BTF, out, opts: Options | None = None, *, log=None) 
     say(f"basis: {k_fit} vectors from {len(fit)} texels ({opts.solver}) in {timings['fit_s']:.2f} s")
 
     t = time.perf_counter()
-    coeff, total_energy = _project(data, u, opts.chunk_texels, energy=opts.target_error is not None)
+    coeff, total_energy = data.project(u, chunk=opts.chunk_texels, energy=opts.target_error is not None)
     if data.matrix is not None:
         coeff = coeff @ data.matrix.T  # curves-space -> working space, exact (linear in the coefficients)
     timings["project_s"] = time.perf_counter() - t
 
-    evalt = _eval_texels(btf, fit, opts)
     held_out = not np.isin(evalt, fit).any()
-    truth = data.to_working(_gather_columns(data, evalt)).reshape(btf.n_samples, len(evalt), 3)
+    truth = data.to_working(data.columns(evalt)).reshape(btf.n_samples, len(evalt), 3)
     if total_energy is None:
         # Energy outside the basis, estimated on the held-out texels (both terms on the same
         # texels, so the estimate is consistent), plus the exact energy inside it.
@@ -396,6 +308,26 @@ def _fit_k_to_budget(sizes: dict, k: int, budget: int) -> int:
     return int(fits[-1]) + 1 if len(fits) else 0
 
 
+def _probe_codec_factors(table, data, u, coeff, k, step, opts, codec_name, color_matrix, tmp) -> tuple[float, float]:
+    """Measured bytes / entropy-model bytes for coefficient textures and for the basis,
+    from encoding ~12 textures spread over the first k and the k-column basis."""
+    j = list(table.steps).index(step)
+    probe = np.unique(np.linspace(0, k - 1, min(k, 12)).round().astype(int))
+    cbtf = _build(data, u, coeff, k, step, opts, codec_name, color_matrix)
+    codec = get_codec(codec_name)
+    folder = tmp / "probe"
+    folder.mkdir(exist_ok=True)
+    try:
+        coeff_bytes = sum(codec.write(folder / f"p{i}.{codec.ext}", cbtf.coefficients[i], "data") for i in probe)
+        basis_bytes = write_basis(cbtf, folder)
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+    overhead = len(probe) * ratedist.FILE_OVERHEAD_BYTES  # the model adds it unscaled
+    fc = max(coeff_bytes - overhead, 1.0) / max(float(table.coeff_bytes[probe, j].sum()), 1.0)
+    fb = basis_bytes / max(float(table.basis_bytes[:k, j].sum()), 1.0)
+    return float(fc), float(fb)
+
+
 def _choose_and_store(data, u, coeff, total_energy, truth, evalt, opts, codec_name, color_matrix, tmp, say):
     """Pick (k, step) by rate-distortion, write textures into ``tmp``; returns (CompressedBTF, choice)."""
     btf = data.btf
@@ -415,34 +347,27 @@ def _choose_and_store(data, u, coeff, total_energy, truth, evalt, opts, codec_na
         return cbtf, sizes
 
     if opts.max_bytes is not None:
-        # The entropy model is calibrated by real encodes (codec factor); an attempt over
-        # budget is cut back to the components that fit, so every attempt is feasible.
-        factor, best, attempt = 1.0, None, 0
-        while attempt < 3:
-            attempt += 1
-            k, step = ratedist.choose_for_bytes(table, opts.max_bytes, factor)
-            k = min(k, opts.k or k)
-            predicted = table.curves(factor)[0][k, steps.index(step)]
-            cbtf, sizes = encode(k, step, attempt)
-            factor *= sizes["payload"] / max(predicted, 1.0)
-            if sizes["payload"] > opts.max_bytes:
-                k = _fit_k_to_budget(sizes, k, opts.max_bytes)
-                if k == 0:
-                    continue
-            candidate = (predicted_err[k, steps.index(step)], k, step)
-            if best is None or candidate[0] < best[0]:
-                best = candidate
-            if sizes["payload"] <= opts.max_bytes and sizes["payload"] > 0.95 * opts.max_bytes:
-                break
-        if best is None:
-            raise BTFError(f"cannot meet --max-bytes {opts.max_bytes}: even one basis vector does not fit")
-        _, k, step = best
-        if (last["k"], last["step"]) != (k, step) or sizes["payload"] > opts.max_bytes:
-            cbtf, sizes = encode(k, step, attempt + 1)
-        if sizes["payload"] > opts.max_bytes:  # a trimmed re-encode can still miss by a few bytes
-            k = _fit_k_to_budget(sizes, k, opts.max_bytes)
-            cbtf, sizes = encode(k, step, attempt + 2)
-        choice = {"mode": "max_bytes", "k": k, "step": step, "bytes": sizes["payload"], "codec_factor": factor}
+        budget = opts.max_bytes
+        k, step = ratedist.choose_for_bytes(table, budget, 1.0)
+        # Calibrate the entropy model on a probe encode (a dozen textures + the basis),
+        # then encode once; if still over budget, drop trailing components (energy order:
+        # only the basis image is rewritten).
+        fc, fb = _probe_codec_factors(table, data, u, coeff, min(k, opts.k or k), step, opts, codec_name,
+                                      color_matrix, tmp)
+        k, step = ratedist.choose_for_bytes(table, 0.995 * budget, fc, fb)
+        k = min(k, opts.k or k)
+        cbtf, sizes = encode(k, step, 1)
+        while sizes["payload"] > budget:
+            k2 = _fit_k_to_budget(sizes, k, budget)
+            if k2 == 0 or k2 == k:
+                k2 = k - 1
+            if k2 < 1:
+                raise BTFError(f"cannot meet --max-bytes {budget}: even one basis vector does not fit")
+            cbtf, sizes = truncate_written(cbtf, k2, tmp)
+            say(f"  trimmed to k = {k2}: {sizes['payload']} bytes")
+            k = k2
+        choice = {"mode": "max_bytes", "k": k, "step": step, "bytes": sizes["payload"],
+                  "codec_factor": {"coefficients": fc, "basis": fb}}
     elif opts.target_error is not None:
         N = truth.size * btf.n_pixels / len(evalt)
         rms_target = opts.target_error / 100.0 * float(truth.mean()) / _GAUSS_L1_OVER_RMS

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -41,7 +41,7 @@ from .codecs import Codec, Stored, get_codec
 
 __all__ = ["FORMAT", "METADATA", "CompressedBTF", "write_compressed", "write_textures", "write_metadata",
            "metadata_document", "read_compressed", "reconstruct", "working_coefficients", "folder_bytes", "basis_layout",
-           "basis_to_image", "image_to_basis", "cross_layout"]
+           "basis_to_image", "image_to_basis", "cross_layout", "truncate", "truncate_written", "write_basis"]
 
 FORMAT = "btf-compressed/1"
 METADATA = "btf-compressed.json"
@@ -189,23 +189,54 @@ def write_textures(cbtf: CompressedBTF, folder: Path) -> dict:
     """
     codec = get_codec(cbtf.codec)
     (folder / "coeff").mkdir(exist_ok=True)
-    basis_name = f"basis.{codec.basis_ext}"
-    layout = basis_layout(cbtf.sampling, cbtf.k, cbtf.codec)
-    cbtf.info["basis_layout"] = layout
-    image = Stored(basis_to_image(cbtf.basis.pixels, layout), cbtf.basis.scale, cbtf.basis.bias)
     names = [f"coeff/c{i:03d}.{codec.ext}" for i in range(cbtf.k)]
-    basis_bytes = codec.write(folder / basis_name, image, "data", basis=True)
     coeff_bytes = [codec.write(folder / n, st, "data") for n, st in zip(names, cbtf.coefficients)]
     if not codec.lossless:
         for i, name in enumerate(names):
             stored = cbtf.coefficients[i]
             cbtf.coefficients[i] = Stored(Codec.read(folder / name), stored.scale, stored.bias)
-        back = image_to_basis(Codec.read(folder / basis_name, channels=1), layout, cbtf.k)
-        cbtf.basis = Stored(back, cbtf.basis.scale, cbtf.basis.bias)
+    return _record_sizes(cbtf, write_basis(cbtf, folder), coeff_bytes)
+
+
+def _record_sizes(cbtf: CompressedBTF, basis_bytes: int, coeff_bytes: list) -> dict:
     sizes = {"basis": basis_bytes, "coefficients": int(sum(coeff_bytes)),
-             "payload": basis_bytes + int(sum(coeff_bytes)), "per_coefficient": coeff_bytes}
+             "payload": basis_bytes + int(sum(coeff_bytes)), "per_coefficient": list(coeff_bytes)}
     cbtf.info["bytes"] = sizes
     return sizes
+
+
+def write_basis(cbtf: CompressedBTF, folder: Path) -> int:
+    """Write the basis image (layout per :func:`basis_layout`); returns its bytes."""
+    codec = get_codec(cbtf.codec)
+    basis_name = f"basis.{codec.basis_ext}"
+    layout = basis_layout(cbtf.sampling, cbtf.k, cbtf.codec)
+    cbtf.info["basis_layout"] = layout
+    image = Stored(basis_to_image(cbtf.basis.pixels, layout), cbtf.basis.scale, cbtf.basis.bias)
+    size = codec.write(folder / basis_name, image, "data", basis=True)
+    if not codec.lossless:
+        back = image_to_basis(Codec.read(folder / basis_name, channels=1), layout, cbtf.k)
+        cbtf.basis = Stored(back, cbtf.basis.scale, cbtf.basis.bias)
+    return size
+
+
+def truncate(cbtf: CompressedBTF, k: int) -> CompressedBTF:
+    """The first ``k`` components (coefficients are energy-ordered, so this is a level of detail)."""
+    if not 1 <= k <= cbtf.k:
+        raise BTFError(f"cannot keep {k} of {cbtf.k} basis vectors")
+    b = cbtf.basis
+    basis = Stored(np.ascontiguousarray(b.pixels[:, :k]), b.scale[:k], b.bias[:k])
+    return replace(cbtf, basis=basis, coefficients=list(cbtf.coefficients[:k]), info=dict(cbtf.info))
+
+
+def truncate_written(cbtf: CompressedBTF, k: int, folder: Path) -> tuple[CompressedBTF, dict]:
+    """Truncate a representation already written into ``folder``: drop the trailing
+    coefficient files and rewrite only the basis image."""
+    sizes = cbtf.info["bytes"]
+    codec = get_codec(cbtf.codec)
+    for i in range(k, cbtf.k):
+        (folder / f"coeff/c{i:03d}.{codec.ext}").unlink()
+    out = truncate(cbtf, k)
+    return out, _record_sizes(out, write_basis(out, folder), sizes["per_coefficient"][:k])
 
 
 def metadata_document(cbtf: CompressedBTF) -> dict:

@@ -16,7 +16,7 @@ import numpy as np
 
 __all__ = ["RDTable", "rd_table", "choose_for_bytes", "choose_for_error", "choose_for_k"]
 
-_FILE_OVERHEAD_BYTES = 120  # header + container of one small lossless image
+FILE_OVERHEAD_BYTES = 120  # header + container of one small lossless image
 
 
 def _entropy_bits(q: np.ndarray) -> float:
@@ -43,12 +43,16 @@ class RDTable:
     energy: np.ndarray
     residual: float
 
-    def curves(self, factor: float):
-        """bytes (k+1, J) and sqerr (k+1, J) of keeping the first 0..k components."""
-        per_bytes = factor * (self.coeff_bytes + self.basis_bytes) + 2 * _FILE_OVERHEAD_BYTES
+    def curves(self, factor: float, basis_factor: float | None = None):
+        """bytes (k+1, J) and sqerr (k+1, J) of keeping the first 0..k components.
+
+        ``factor`` (and ``basis_factor``, default the same) scale the entropy estimates to
+        what the codec really writes (measured by :func:`..core` on a probe encode)."""
+        basis_factor = factor if basis_factor is None else basis_factor
+        per_bytes = factor * self.coeff_bytes + basis_factor * self.basis_bytes + FILE_OVERHEAD_BYTES
         per_err = self.coeff_sqerr + self.basis_sqerr[None, :]
         k, J = per_bytes.shape
-        bytes_ = np.vstack([np.full((1, J), _FILE_OVERHEAD_BYTES), _FILE_OVERHEAD_BYTES + np.cumsum(per_bytes, 0)])
+        bytes_ = np.vstack([np.full((1, J), FILE_OVERHEAD_BYTES), FILE_OVERHEAD_BYTES + np.cumsum(per_bytes, 0)])
         dropped = np.concatenate([np.cumsum(self.energy[::-1])[::-1], [0.0]])  # energy of components >= k
         err = np.vstack([np.zeros((1, J)), np.cumsum(per_err, 0)]) + dropped[:, None] + self.residual
         return bytes_, err
@@ -129,9 +133,10 @@ def _best(bytes_, err, feasible):
     return int(kk), int(j)
 
 
-def choose_for_bytes(table: RDTable, max_bytes: float, factor: float) -> tuple[int, float]:
+def choose_for_bytes(table: RDTable, max_bytes: float, factor: float,
+                     basis_factor: float | None = None) -> tuple[int, float]:
     """(k, step) with least squared error within ``max_bytes``."""
-    bytes_, err = table.curves(factor)
+    bytes_, err = table.curves(factor, basis_factor)
     feasible = bytes_ <= max_bytes
     feasible[0] = False
     if not feasible.any():
