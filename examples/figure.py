@@ -1,6 +1,7 @@
 """Side-by-side sheet: measured (synthetic) samples vs their reconstruction from a compressed BTF.
 
     python examples/figure.py RAW_MANIFEST COMPRESSED -o sheet.png [--samples 0,40,...]
+    python examples/figure.py --readme [WORKDIR]     # regenerates docs/result.png
 
 Rows: original, reconstruction, |difference| x 4.  Columns: (view, light) samples.
 Colours go working space -> sRGB through OCIO, the file is written through OIIO.
@@ -40,7 +41,30 @@ def sheet(raw, cbtf, indices, *, scale: int = 2) -> np.ndarray:
     return np.vstack(rows)
 
 
+def readme_figure(workdir, out, presets=("pebbles", "ridged_fabric", "fuzzy_moss"), samples=(20, 75, 130, 160)):
+    """The README picture: for each preset, originals over reconstructions (default solver, k = 48)."""
+    from pathlib import Path
+
+    from usdbtf.cli import main as usdbtf
+
+    workdir = Path(workdir)
+    rows = []
+    for preset in presets:
+        raw, comp = workdir / f"{preset}_raw", workdir / f"{preset}_c"
+        usdbtf(["synth", preset, "-o", str(raw), "--sampling", "small", "--size", "96", "--seed", "3", "-q"])
+        usdbtf(["compress", str(raw), "-o", str(comp), "--k", "48", "-q"])
+        rows.append(sheet(open_btf(raw), read_compressed(comp), np.array(samples))[:2 * (96 * 2 + 22)])
+    write_image(out, np.vstack(rows), color_space="sRGB Encoded Rec.709 (sRGB)")
+    print(f"wrote {out}")
+
+
 def main(argv=None):
+    import sys
+
+    argv = sys.argv[1:] if argv is None else argv
+    if argv and argv[0] == "--readme":
+        readme_figure(argv[1] if len(argv) > 1 else "examples/out/figure", "docs/result.png")
+        return
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("raw")
     p.add_argument("compressed")

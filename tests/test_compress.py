@@ -199,7 +199,8 @@ def test_error_sums_formula_over_chunks():
     rmse = np.sqrt(np.mean((o - r) ** 2))
     assert sums.rmse == pytest.approx(rmse, rel=1e-12)
     assert sums.psnr() == pytest.approx(20 * np.log10(1 / rmse), rel=1e-12)
-    assert ErrorSums().report()["percent"] != ErrorSums().report()["percent"]   # NaN when empty
+    assert ErrorSums().report()["percent"] is None        # undefined when empty: JSON null, not NaN
+    assert np.isnan(ErrorSums().percent)
 
 
 def test_compare_percent_formula_on_scaled_reconstruction():

@@ -54,13 +54,22 @@ def validate_sampling(sampling: Sampling, names: Sequence[str]) -> Sampling:
     return Sampling(canon[:, :2], canon[:, 2:])
 
 
-def check_finite(pixels: np.ndarray, what: str) -> None:
-    """Raise BTFError naming ``what`` if ``pixels`` holds NaN, Inf or negative values."""
-    if pixels.dtype.kind == "f":
-        if not np.isfinite(pixels).all():
-            raise BTFError(f"{what}: pixel values include NaN or Inf")
-        if (pixels < 0).any():
-            raise BTFError(f"{what}: pixel values include negative numbers (radiance must be >= 0)")
+def check_finite(pixels: np.ndarray, what: str, names: Sequence[str] | None = None) -> None:
+    """Raise BTFError if ``pixels`` holds NaN, Inf or negative values.
+
+    The message names ``what``, and when ``names`` labels the first axis (one name per
+    sample) also the first offending sample.
+    """
+    if pixels.dtype.kind != "f":
+        return
+    for bad, problem in ((~np.isfinite(pixels), "NaN or Inf"),
+                         (pixels < 0, "negative numbers (radiance must be >= 0)")):
+        if bad.any():
+            where = ""
+            if names is not None and pixels.ndim >= 1 and len(names) == pixels.shape[0]:
+                first = int(np.argmax(bad.reshape(pixels.shape[0], -1).any(axis=1)))
+                where = f" sample {names[first]}"
+            raise BTFError(f"{what}{where}: pixel values include {problem}")
 
 
 @dataclass
@@ -122,12 +131,17 @@ class BTF:
                                           self.working_space, self.ocio_config)
         return None
 
-    def decode(self, encoded: np.ndarray, what: str = "") -> np.ndarray:
-        """Stored encoding (..., 3) -> float32 working space (..., 3)."""
+    def decode(self, encoded: np.ndarray, what: str = "", names: Sequence[str] | None = None) -> np.ndarray:
+        """Stored encoding (..., 3) -> float32 working space (..., 3).
+
+        ``names`` labels the first axis for error messages (default: this BTF's sample
+        names when the first axis has one entry per sample)."""
         dec = self.integer_decoder
         if dec is not None:
             return dec.decode(encoded)
-        check_finite(encoded, what or "image")
+        if names is None and encoded.ndim >= 1 and encoded.shape[0] == self.n_samples:
+            names = self.names
+        check_finite(encoded, what or "BTF", names)
         return colour.processor(self.color_space, self.working_space, self.ocio_config).apply(encoded)
 
     # -- pixel access (subclasses implement read_encoded) ------------------
@@ -163,7 +177,7 @@ class ArrayBTF(BTF):
         data = np.asarray(data, dtype=np.float32)
         if data.ndim != 4 or data.shape[-1] != 3 or data.shape[0] != len(sampling):
             raise BTFError(f"expected (S={len(sampling)}, H, W, 3) pixels, got {data.shape}")
-        check_finite(data, "in-memory BTF")
+        check_finite(data, "in-memory BTF", [f"#{i}" for i in range(len(data))])
         kw.setdefault("working_space", colour.WORKING_SPACE)
         return cls(sampling=sampling, width=data.shape[2], height=data.shape[1], color_space=kw["working_space"],
                    bit_depth="float", data=data, **kw)

@@ -9,7 +9,8 @@ Codecs
 ``jxl``   (default) uniform-step integers, lossless JPEG XL: within ~15% of the
           entropy of the quantised symbols, which is where the bytes go.
 ``png``   the same integers, lossless PNG: larger, readable everywhere.
-``exr``   half floats, ZIP: no quantisation beyond half precision.
+``exr``   half floats with a power-of-two scale per channel, ZIP: no quantisation beyond
+          half precision (11 significant bits), any magnitude float32 holds.
 ``jpeg``  the paper: each texture min-max scaled to [0, 1], 8-bit JPEG (quality 90,
           4:4:4); basis min-max scaled per vector into one uncompressed 8-bit TIFF.
 """
@@ -23,7 +24,7 @@ import numpy as np
 from ..errors import BTFError
 from ..imageio import read_image, write_image
 
-__all__ = ["Codec", "CODECS", "get_codec", "Stored", "quantize_uniform", "quantize_minmax"]
+__all__ = ["Codec", "CODECS", "get_codec", "Stored", "quantize_uniform", "quantize_minmax", "quantize_half"]
 
 
 @dataclass(frozen=True)
@@ -72,6 +73,19 @@ def quantize_minmax(values: np.ndarray, *, per_channel: bool, bits: int = 8) -> 
     q = np.rint((flat - lo) / scale).clip(0, top)
     dtype = np.uint8 if bits == 8 else np.uint16
     return Stored(q.astype(dtype).reshape(values.shape), scale, lo)
+
+
+def quantize_half(values: np.ndarray) -> Stored:
+    """Half floats with a power-of-two scale per channel (exact to apply and undo).
+
+    Each channel's largest magnitude lands in [2^14, 2^15), inside half's range (max 65504)
+    and far from its subnormals: HDR data neither overflows nor flushes to zero.
+    """
+    flat = values.reshape(-1, values.shape[-1]).astype(np.float64)
+    peak = np.abs(flat).max(axis=0)
+    exponent = np.where(peak > 0, np.floor(np.log2(np.where(peak > 0, peak, 1.0))) - 14, 0)
+    scale = np.exp2(exponent)
+    return Stored((values / scale.astype(np.float32)).astype(np.float16), scale, np.zeros_like(scale))
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,7 @@ from ..atomic import atomic_dir
 from ..errors import BTFError
 from ..model import BTF
 from . import ratedist
-from .codecs import Stored, get_codec, quantize_minmax, quantize_uniform
+from .codecs import Stored, get_codec, quantize_half, quantize_minmax, quantize_uniform
 from .curve import curve_samples, error_curve, write_curve
 from .format import CompressedBTF, truncate_written, working_coefficients, write_basis, write_metadata, write_textures
 from .linalg import exact_basis, randomized_basis
@@ -165,8 +165,9 @@ def _build(data, u, coeff, k, step, opts, codec_name, color_matrix) -> Compresse
     btf = data.btf
     textures = [coeff[i].reshape(btf.height, btf.width, 3) for i in range(k)]
     if codec_name == "exr":
-        basis = Stored(u[:, :k, None].astype(np.float16), np.ones(k), np.zeros(k))
-        coeffs = [Stored(t.astype(np.float16), np.ones(3), np.zeros(3)) for t in textures]
+        st = quantize_half(u[None, :, :k])                                # channels = basis columns
+        basis = Stored(st.pixels[0][:, :, None], st.scale, st.bias)
+        coeffs = [quantize_half(t) for t in textures]
     elif opts.solver == "paper" or codec_name == "jpeg":
         basis = _quantize_basis_minmax(u[:, :k])
         coeffs = [quantize_minmax(t, per_channel=False) for t in textures]
@@ -227,7 +228,11 @@ def compress_to_folder(btf: BTF, out, opts: Options | None = None, *, log=None) 
                                  power_iterations=opts.power_iterations, seed=opts.seed)
     del x_fit
     if len(sv) == 0 or not sv[0] > 0:
-        raise BTFError(f"{btf.metadata.get('_path') or 'input BTF'}: every pixel is zero; there is nothing to compress")
+        where = btf.metadata.get("_path") or "input BTF"
+        if len(fit) < btf.n_pixels:
+            raise BTFError(f"{where}: the {len(fit)} texels the basis is fitted on are all zero "
+                           f"({'central region: try --region' if opts.solver == 'paper' else 'try --fit-texels'})")
+        raise BTFError(f"{where}: every pixel is zero; there is nothing to compress")
     rank = int(np.count_nonzero(sv > sv[0] * 1e-6))  # drop directions that carry no signal
     u, sv = u[:, :rank], sv[:rank]
     k_fit = u.shape[1]

@@ -276,7 +276,7 @@ def write_metadata(cbtf: CompressedBTF, folder: Path) -> int:
     """
     sizes = cbtf.info.setdefault("bytes", {})
     sizes["metadata"] = _SIZE_MARK
-    text = json.dumps(metadata_document(cbtf), indent=1) + "\n"
+    text = json.dumps(metadata_document(cbtf), indent=1, allow_nan=False) + "\n"
     base = len(text.encode()) - len(str(_SIZE_MARK))
     size = base + 1
     while len(str(size)) + base != size:  # the number's own digits count too

@@ -32,9 +32,10 @@ def orthonormalize(y: np.ndarray) -> np.ndarray:
     q = y
     try:
         for _ in range(2):
-            g = (q.T @ q).astype(np.float64)
+            q64 = q.astype(np.float64)   # the Gram in float64: float32 overflows past ~1e19
+            g = q64.T @ q64
             r = np.linalg.cholesky(g).T                       # upper: g = r^T r
-            q = np.linalg.solve(r.T, q.T.astype(np.float64)).T.astype(np.float32)
+            q = np.linalg.solve(r.T, q64.T).T.astype(np.float32)
         return np.ascontiguousarray(q)
     except np.linalg.LinAlgError:
         return np.linalg.qr(y)[0]

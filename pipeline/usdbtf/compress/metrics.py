@@ -53,7 +53,10 @@ class ErrorSums:
         return float(20 * np.log10(peak / r)) if r > 0 else float("inf")
 
     def report(self) -> dict:
-        return {"percent": self.percent, "rmse": self.rmse, "psnr_db": self.psnr()}
+        """percent, rmse, psnr_db; a non-finite value (PSNR of an exact result, anything of an
+        empty sum) is None, so reports stay strict JSON."""
+        out = {"percent": self.percent, "rmse": self.rmse, "psnr_db": self.psnr()}
+        return {k: (v if np.isfinite(v) else None) for k, v in out.items()}
 
 
 def error_report(linear: ErrorSums, encoded: ErrorSums | None = None) -> dict:

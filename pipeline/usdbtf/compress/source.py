@@ -45,8 +45,8 @@ def colour_gram(x: np.ndarray, group: int = 8) -> np.ndarray:
     """
     flat = x.reshape(-1)
     n = flat.size // (3 * group) * (3 * group)
-    y = flat[:n].reshape(-1, 3 * group)
-    g = (y.T @ y).astype(np.float64)
+    y = flat[:n].reshape(-1, 3 * group).astype(np.float64)   # float32 sums overflow on HDR data
+    g = y.T @ y
     out = sum(g[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i in range(group))
     rest = flat[n:].reshape(-1, 3).astype(np.float64)
     return out + rest.T @ rest
