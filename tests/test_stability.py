@@ -765,3 +765,20 @@ def test_property_full_k_jxl_round_trip_within_recorded_step(tmp_path_factory, x
     assert all(np.all(np.asarray(s.scale) == step) for s in r.coefficients)
     err2 = ((rec.astype(np.float64) - x) ** 2).sum()
     assert err2 <= 1e-6 * (x.astype(np.float64) ** 2).sum()
+
+
+def test_no_metadata_bloat_in_compact_codecs(tmp_path):
+    """The fixed timestamp that keeps EXR/TIFF deterministic must not add an EXIF block to
+    JPEG / JPEG XL / PNG textures (it would inflate every stored byte count)."""
+    from usdbtf.imageio import write_image
+    px = np.random.default_rng(1).integers(0, 255, (32, 32, 3)).astype(np.uint8)
+    for ext in ("jpg", "jxl", "png"):
+        size = write_image(tmp_path / f"a.{ext}", px, color_space="data")
+        spec = oiio.ImageInput.open(str(tmp_path / f"a.{ext}")).spec()
+        assert spec.get_string_attribute("DateTime", "") == "", ext
+        plain = tmp_path / f"plain.{ext}"           # the same pixels, OIIO with no extra attributes
+        out = oiio.ImageOutput.create(str(plain))
+        out.open(str(plain), oiio.ImageSpec(32, 32, 3, "uint8"))
+        out.write_image(px)
+        out.close()
+        assert size <= plain.stat().st_size + 64, (ext, size, plain.stat().st_size)

@@ -17,6 +17,7 @@ from .errors import BTFError
 __all__ = ["ImageInfo", "read_info", "read_image", "write_image", "BIT_DEPTHS", "numpy_dtype"]
 
 FIXED_DATETIME = "1970:01:01 00:00:00"
+_TIMESTAMPED = {".exr", ".sxr", ".mxr", ".tif", ".tiff"}
 
 # Bit depths usdbtf reads and writes, by OIIO type name.
 BIT_DEPTHS = {"uint8": np.uint8, "uint16": np.uint16, "half": np.float16, "float": np.float32}
@@ -135,8 +136,10 @@ def write_image(path, pixels: np.ndarray, *, color_space: str, attributes: dict 
     spec = oiio.ImageSpec(pixels.shape[1], pixels.shape[0], pixels.shape[2], type_name)
     spec.attribute("oiio:ColorSpace", color_space)
     # OIIO stamps the current time into EXR/TIFF headers; a fixed stamp keeps outputs
-    # byte-identical for identical inputs (the project's determinism rule).
-    spec.attribute("DateTime", FIXED_DATETIME)
+    # byte-identical for identical inputs (the project's determinism rule).  Only there:
+    # elsewhere the attribute would add an EXIF block (~300-450 bytes a JPEG/JPEG XL file).
+    if path.suffix.lower() in _TIMESTAMPED:
+        spec.attribute("DateTime", FIXED_DATETIME)
     for key, value in (attributes or {}).items():
         spec.attribute(key, value)
     out = oiio.ImageOutput.create(str(path))
