@@ -184,6 +184,11 @@ def _ratio(x: float) -> str:
     return f"{x:.1f} : 1" if x < 100 else f"{x:.0f} : 1"
 
 
+def _num(value, fmt: str) -> str:
+    """A table cell: the number, or an em dash where it was not measured (speed-only rows)."""
+    return "\u2014" if value is None else format(value, fmt)
+
+
 def markdown_table(results: dict, gemm: dict) -> str:
     head = ["preset", "solver", "k", "payload", "raw : payload", "% err lin", "% err enc", "RMSE lin",
             "PSNR lin dB", "PSNR enc dB", "err ratio rsvd/paper (lin, enc)", "compress s (median)",
@@ -206,7 +211,7 @@ def markdown_table(results: dict, gemm: dict) -> str:
             if key == "default" and r.get("quality_ratio_linear") is not None:
                 ratio = f"{r['quality_ratio_linear']:.3f}, {r['quality_ratio_encoded']:.3f}"
                 q_all.append(r["quality_ratio_linear"])
-            tr = s["wall_s_median"] / gemm["median_s"]
+            tr = s["wall_s_median"] / r.get("gemm", gemm)["median_s"]
             if key in ("default", "plain"):
                 s_all.append(tr)
                 m_all.append(s["peak_memory_bytes"])
@@ -214,9 +219,9 @@ def markdown_table(results: dict, gemm: dict) -> str:
             rows.append([
                 preset, f"{label} ({s['codec']})", str(s["k"]), f"{s['bytes']['payload']:,} B",
                 _ratio(r["input"]["raw_bytes"] / s["bytes"]["payload"]),
-                f"{lin.get('percent', float('nan')):.3f}", f"{enc.get('percent', float('nan')):.3f}",
-                f"{lin.get('rmse', float('nan')):.5f}", f"{lin.get('psnr_db', float('nan')):.2f}",
-                f"{enc.get('psnr_db', float('nan')):.2f}", ratio, f"{s['wall_s_median']:.2f}", f"{tr:.1f}",
+                _num(lin.get("percent"), ".3f"), _num(enc.get("percent"), ".3f"),
+                _num(lin.get("rmse"), ".5f"), _num(lin.get("psnr_db"), ".2f"),
+                _num(enc.get("psnr_db"), ".2f"), ratio, f"{s['wall_s_median']:.2f}", f"{tr:.1f}",
                 f"{fmt_bytes(s['max_rss_bytes'])} / {fmt_bytes(s['peak_tree_pss_bytes'])}"])
     failed = failed_presets(results)
     tgt = ["**targets**", "rsvd", "", "", "", "", "", "", "", "",
@@ -384,6 +389,11 @@ def main(argv=None) -> int:
             f"{warm['seconds']:.2f} s; PNG input {fmt_bytes(inp['png_bytes'])}")
         r = results[preset] = {"input": inp}
         name = data.name
+        # The baseline again, next to this preset's timed runs: a machine shared with other
+        # work drifts, and a ratio is only honest when both sides saw the same machine.
+        gemm_p = r["gemm"] = gemm_baseline(n_samples, size * size, k_gemm)
+        say(f"  GEMM baseline for this preset: median {gemm_p['median_s'] * 1e3:.2f} ms "
+            f"(min {gemm_p['min_s'] * 1e3:.2f}, max {gemm_p['max_s'] * 1e3:.2f})")
 
         say("  paper solver:")
         paper = r["paper"] = run_solver(cli, data, out_root / name / "paper", ["--solver", "paper", "--k", str(args.k)],
@@ -404,7 +414,7 @@ def main(argv=None) -> int:
         say("  default solver, plain `usdbtf compress IN -o OUT` (k = 150, speed row):")
         plain = r["plain"] = run_solver(cli, data, out_root / name / "plain", [], args.repeats, args.pss_interval)
         if "error" not in plain:
-            plain["time_over_gemm"] = plain["wall_s_median"] / gemm["median_s"]
+            plain["time_over_gemm"] = plain["wall_s_median"] / gemm_p["median_s"]
             say(f"    -> k {plain['k']}, payload {plain['bytes']['payload']:,} B, {plain['wall_s_median']:.2f} s "
                 f"= {plain['time_over_gemm']:.1f} x GEMM")
         write_json(json_path, doc)
@@ -419,7 +429,7 @@ def main(argv=None) -> int:
                 f"PSNR {lin['psnr_db']:.2f} / {enc['psnr_db']:.2f} dB ({s['full_error']['seconds']:.1f} s)")
             s["compression_ratio_raw"] = raw_bytes / s["bytes"]["payload"]
             s["compression_ratio_png"] = inp["png_bytes"] / s["bytes"]["payload"]
-            s["time_over_gemm"] = s["wall_s_median"] / gemm["median_s"]
+            s["time_over_gemm"] = s["wall_s_median"] / gemm_p["median_s"]
         if "error" in default:
             say("  => default solver FAILED: no ratios for this preset")
             write_json(json_path, doc)
