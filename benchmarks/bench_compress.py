@@ -99,7 +99,6 @@ def gemm_baseline(n_samples: int, n_pixels: int, k: int) -> dict:
     flops = 2.0 * n_samples * k * n_pixels * 3
     res.update(shape_x=list(x.shape), shape_u=list(u.shape), dtype="float32", expression="U.T @ X",
                gflops_per_s=flops / res["median_s"] / 1e9, x_bytes=int(x.nbytes))
-    del x, u
     return res
 
 

@@ -17,7 +17,6 @@ from __future__ import annotations
 import shutil
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -340,8 +339,6 @@ def _choose_and_store(data, u, coeff, total_energy, truth, evalt, opts, codec_na
     if opts.solver == "paper" or codec_name in ("exr", "jpeg"):
         return _choose_by_k_only(data, u, coeff, truth, evalt, opts, codec_name, color_matrix, tmp)
     table = ratedist.rd_table(coeff, u, total_energy, seed=opts.seed)
-    predicted_err = table.curves(1.0)[1]
-    steps = list(table.steps)
 
     last = {}
 
