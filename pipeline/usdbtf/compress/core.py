@@ -305,10 +305,11 @@ def _encode(data, u, coeff, k, step, opts, codec_name, color_matrix, tmp):
     return cbtf, write_textures(cbtf, tmp)
 
 
-def _fit_k_to_budget(sizes: dict, k: int, budget: int) -> int:
-    """Largest k' <= k whose measured textures fit ``budget`` (basis bytes pro rata)."""
+def _fit_k_to_budget(sizes: dict, k: int, budget: int, margin: float = 0.995) -> int:
+    """Largest k' <= k whose measured textures fit ``margin * budget`` (basis bytes pro rata);
+    0 when not even one does.  The margin leaves room for the basis re-encode's rounding."""
     per = np.cumsum(sizes["per_coefficient"]) + sizes["basis"] * np.arange(1, k + 1) / k
-    fits = np.flatnonzero(per <= 0.995 * budget)
+    fits = np.flatnonzero(per <= margin * budget)
     return int(fits[-1]) + 1 if len(fits) else 0
 
 
@@ -399,13 +400,11 @@ def _choose_by_k_only(data, u, coeff, truth, evalt, opts, codec_name, color_matr
     sizes = write_textures(cbtf, tmp)
     choice = {"k": k}
     if opts.max_bytes is not None:
-        per = np.asarray(sizes["per_coefficient"])
-        basis_per_k = sizes["basis"] / k
-        total = np.cumsum(per) + basis_per_k * np.arange(1, k + 1)
-        fits = np.flatnonzero(total <= opts.max_bytes)
-        if len(fits) == 0:
-            raise BTFError(f"cannot meet --max-bytes {opts.max_bytes}: one basis vector already needs {total[0]:.0f} bytes")
-        k = int(fits[-1]) + 1
+        # Min-max storage does not depend on k: dropping trailing components is exact here.
+        k = _fit_k_to_budget(sizes, k, opts.max_bytes, margin=1.0)
+        if k == 0:
+            one = sizes["per_coefficient"][0] + sizes["basis"] / cbtf.k
+            raise BTFError(f"cannot meet --max-bytes {opts.max_bytes}: one basis vector already needs {one:.0f} bytes")
     elif opts.target_error is not None:
         lo, hi = 1, k
         while lo < hi:  # smallest k meeting the target on held-out texels (error falls with k)
@@ -416,10 +415,7 @@ def _choose_by_k_only(data, u, coeff, truth, evalt, opts, codec_name, color_matr
                 lo = mid + 1
         k = lo
     if k != cbtf.k:
-        for f in (tmp / "coeff").glob("*"):
-            f.unlink()
-        cbtf = _build(data, u, coeff, k, 0.0, opts, codec_name, color_matrix)
-        write_textures(cbtf, tmp)
+        cbtf, _ = truncate_written(cbtf, k, tmp)
         choice["k"] = k
     return cbtf, choice
 

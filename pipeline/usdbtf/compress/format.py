@@ -180,6 +180,16 @@ def image_to_basis(image: np.ndarray, layout: dict, k: int) -> np.ndarray:
     return np.ascontiguousarray(tiles[:k].T)[:, :, None]
 
 
+def coefficient_file(codec: Codec, i: int) -> str:
+    """Relative path of coefficient texture ``i``."""
+    return f"coeff/c{i:03d}.{codec.ext}"
+
+
+def basis_file(codec: Codec) -> str:
+    """Relative path of the basis image."""
+    return f"basis.{codec.basis_ext}"
+
+
 def write_textures(cbtf: CompressedBTF, folder: Path) -> dict:
     """Write basis and coefficient textures into an existing folder; returns byte counts.
 
@@ -189,7 +199,7 @@ def write_textures(cbtf: CompressedBTF, folder: Path) -> dict:
     """
     codec = get_codec(cbtf.codec)
     (folder / "coeff").mkdir(exist_ok=True)
-    names = [f"coeff/c{i:03d}.{codec.ext}" for i in range(cbtf.k)]
+    names = [coefficient_file(codec, i) for i in range(cbtf.k)]
     coeff_bytes = [codec.write(folder / n, st, "data") for n, st in zip(names, cbtf.coefficients)]
     if not codec.lossless:
         for i, name in enumerate(names):
@@ -208,9 +218,8 @@ def _record_sizes(cbtf: CompressedBTF, basis_bytes: int, coeff_bytes: list) -> d
 def write_basis(cbtf: CompressedBTF, folder: Path) -> int:
     """Write the basis image (layout per :func:`basis_layout`); returns its bytes."""
     codec = get_codec(cbtf.codec)
-    basis_name = f"basis.{codec.basis_ext}"
+    basis_name = basis_file(codec)
     layout = basis_layout(cbtf.sampling, cbtf.k, cbtf.codec)
-    cbtf.info["basis_layout"] = layout
     image = Stored(basis_to_image(cbtf.basis.pixels, layout), cbtf.basis.scale, cbtf.basis.bias)
     size = codec.write(folder / basis_name, image, "data", basis=True)
     if not codec.lossless:
@@ -234,7 +243,7 @@ def truncate_written(cbtf: CompressedBTF, k: int, folder: Path) -> tuple[Compres
     sizes = cbtf.info["bytes"]
     codec = get_codec(cbtf.codec)
     for i in range(k, cbtf.k):
-        (folder / f"coeff/c{i:03d}.{codec.ext}").unlink()
+        (folder / coefficient_file(codec, i)).unlink()
     out = truncate(cbtf, k)
     return out, _record_sizes(out, write_basis(out, folder), sizes["per_coefficient"][:k])
 
@@ -251,17 +260,17 @@ def metadata_document(cbtf: CompressedBTF) -> dict:
         "ocio_config": cbtf.ocio_config,
         "source": cbtf.source,
         "color_matrix": [_floats(r) for r in cbtf.color_matrix],
-        "basis": {"file": f"basis.{codec.basis_ext}", "scale": _floats(cbtf.basis.scale),
+        "basis": {"file": basis_file(codec), "scale": _floats(cbtf.basis.scale),
                   "bias": _floats(cbtf.basis.bias), "bit_depth": str(cbtf.basis.pixels.dtype),
-                  "layout": cbtf.info.get("basis_layout") or basis_layout(cbtf.sampling, cbtf.k, cbtf.codec)},
-        "coefficients": [{"file": f"coeff/c{i:03d}.{codec.ext}", "scale": _floats(s.scale), "bias": _floats(s.bias),
+                  "layout": basis_layout(cbtf.sampling, cbtf.k, cbtf.codec)},
+        "coefficients": [{"file": coefficient_file(codec, i), "scale": _floats(s.scale), "bias": _floats(s.bias),
                           "bit_depth": str(s.pixels.dtype)} for i, s in enumerate(cbtf.coefficients)],
         "samples": {"view": [_floats(v) for v in cbtf.sampling.view],
                     "light": [_floats(v) for v in cbtf.sampling.light],
                     "interpolated": [int(i) for i in np.flatnonzero(cbtf.interpolated)]
                     if cbtf.interpolated is not None else []},
     }
-    doc.update({key: v for key, v in cbtf.info.items() if key not in doc and key != "basis_layout"})
+    doc.update({key: v for key, v in cbtf.info.items() if key not in doc})
     return doc
 
 
