@@ -1,0 +1,32 @@
+"""``usdbtf decompress``: write the reconstruction as a manifest folder."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import BTFError
+from . import log
+
+ORDER = 30
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("decompress", help="write the reconstruction as a manifest folder")
+    p.add_argument("input", type=Path, help="compressed BTF folder")
+    p.add_argument("-o", "--output", required=True, type=Path)
+    p.add_argument("--samples", help="indices to write, e.g. 0-99,200 (default all)")
+    p.add_argument("--k", type=int, help="use only the first k basis vectors")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..compress import read_compressed
+    from ..compress.decompress import decompress_to_folder, parse_samples
+
+    cbtf = read_compressed(args.input)
+    idx = parse_samples(args.samples, cbtf.n_samples)
+    if args.k is not None and not (1 <= args.k <= cbtf.k):
+        raise BTFError(f"--k must be in 1..{cbtf.k} for {args.input}")
+    decompress_to_folder(cbtf, args.output, samples=idx, k=args.k)
+    log(args.quiet)(f"wrote {len(idx)} reconstructed samples (k = {args.k or cbtf.k}) to {args.output}")
+    return 0
