@@ -32,9 +32,13 @@ step "paper solver, same data (the 2003 baseline)" \
     usdbtf compress "$OUT/pebbles_raw" -o "$OUT/pebbles_paper" --solver paper --k 32
 step "figure: originals vs reconstructions" \
     .venv/bin/python examples/figure.py "$OUT/pebbles_raw" "$OUT/pebbles_c" -o "$OUT/pebbles_sheet.png"
-# Later stages (planned), e.g.:
-# step "package" usdbtf package "$OUT/pebbles_c" -o "$OUT/pebbles.usda"
-# step "render"  usdbtf render  "$OUT/pebbles.usda" -o "$OUT/pebbles.png"
+
+# -- capture -> rectify -> compress on the simulated rig (issue 4) --
+
+# -- package as a USD asset (issue 3) --
+
+# -- quilt / unwrap / render (issue 5) --
+
 
 echo
 echo "done: outputs in $OUT/"
