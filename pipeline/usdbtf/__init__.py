@@ -2,6 +2,14 @@
 
 Stages, one module each, all speaking the :class:`usdbtf.model.BTF` data model:
 ``synth`` (procedural BTFs), ``manifest``/``ubo`` (readers and writers),
-``compress`` (apparent-BRDF basis + coefficient textures), ...
+``compress`` (apparent-BRDF basis + coefficient textures), ``usd`` (the BtfMaterialAPI
+schema, packaging, reading assets back), ...
+
+Importing the package registers the usdBtf USD plugin, so it must happen before the
+process first uses USD's schema registry (see :mod:`usdbtf.usd.plugin`).
 """
 __version__ = "0.1.0"
+
+from .usd.plugin import register as _register_usd_plugin
+
+_register_usd_plugin()

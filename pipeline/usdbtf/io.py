@@ -16,7 +16,7 @@ from . import manifest, ubo
 from .errors import BTFError
 from .model import BTF
 
-__all__ = ["open_btf", "ACCEPTED"]
+__all__ = ["open_btf", "open_compressed", "ACCEPTED"]
 
 ACCEPTED = ("a btf-manifest/1 folder (with btf.json) or its btf.json file; "
             "a UBO2003-layout .zip archive; or a folder of tv###_pv### view folders (UBO2003 layout)")
@@ -50,3 +50,19 @@ def open_btf(path, *, color_space: str | None = None, **kw) -> BTF:
         return ubo.read_ubo(p, color_space=color_space, **kw)
     kind = "folder" if p.is_dir() else "file"
     raise BTFError(f"{p}: unrecognised BTF input ({kind}); accepted: {ACCEPTED}")
+
+
+def open_compressed(path, *, material: str | None = None, lod: str | None = None):
+    """A :class:`~usdbtf.compress.format.CompressedBTF` from a compressed folder or a
+    packaged USD asset (.usda/.usdc/.usd/.usdz; ``material`` picks one of several BTF
+    materials, ``lod`` a level-of-detail variant)."""
+    p = Path(path)
+    from .usd.read import USD_SUFFIXES, load_btf
+
+    if p.suffix.lower() in USD_SUFFIXES:
+        return load_btf(p, material=material, lod=lod)
+    if material is not None or lod is not None:
+        raise BTFError(f"{p}: --material and --lod apply to USD assets only")
+    from .compress.format import read_compressed
+
+    return read_compressed(p)

@@ -11,19 +11,21 @@ ORDER = 30
 
 def add_parser(sub) -> None:
     p = sub.add_parser("decompress", help="write the reconstruction as a manifest folder")
-    p.add_argument("input", type=Path, help="compressed BTF folder")
+    p.add_argument("input", type=Path, help="compressed BTF folder or packaged USD asset (.usda/.usdz)")
     p.add_argument("-o", "--output", required=True, type=Path)
     p.add_argument("--samples", help="indices to write, e.g. 0-99,200 (default all)")
     p.add_argument("--k", type=int, help="use only the first k basis vectors")
+    p.add_argument("--material", help="USD assets: prim path of the BTF material (when there are several)")
+    p.add_argument("--lod", help="USD assets: lod variant to read, e.g. k16")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    from ..compress import read_compressed
     from ..compress.decompress import decompress_to_folder, parse_samples
+    from ..io import open_compressed
 
-    cbtf = read_compressed(args.input)
+    cbtf = open_compressed(args.input, material=args.material, lod=args.lod)
     idx = parse_samples(args.samples, cbtf.n_samples)
     if args.k is not None and not (1 <= args.k <= cbtf.k):
         raise BTFError(f"--k must be in 1..{cbtf.k} for {args.input}")

@@ -1,0 +1,217 @@
+"""Baselines the benchmark measures next to ``usdbtf compress``, as commands of their own.
+
+Each baseline stores the fitted samples of a BTF its own way; the benchmark times the
+command as a subprocess (like ``usdbtf compress``) and then reads what it wrote back:
+
+``jpeg``      every image as its own JPEG (quality 90, 4:2:0 chroma: what people do today).
+              Writes the JPEGs and a btf-manifest/1 ``btf.json`` naming them.
+``pca-view``  per-view PCA: each view's images (all its lights) compressed on their own by
+              ``usdbtf compress`` (rsvd, k per view), one folder per view.  Same quantiser
+              and codec as the global basis, so only the factorisation differs.
+``video``     the image sequence (view-major: the lights of view 0, then of view 1, ...) as
+              one H.265 video (ffmpeg + libx265, constant quality ``crf``, 4:4:4 chroma).
+
+Run as ``python -m usdbtf.bench.baselines KIND INPUT OUTPUT [options]``; the output folder is
+written atomically.  INPUT is any BTF :func:`usdbtf.io.open_btf` reads, with 8-bit files for
+``jpeg`` and ``video``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import shutil
+import subprocess
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from ..atomic import atomic_dir
+from ..errors import BTFError
+
+__all__ = ["ffmpeg_x265", "encode_jpeg", "encode_pca_view", "encode_video", "decode_video", "VIEW_FOLDER",
+           "VIDEO_FILE", "main"]
+
+VIEW_FOLDER = "view{:04d}"
+VIDEO_FILE = "video.mp4"
+_JPEG = {"Compression": "jpeg:{q}", "jpeg:subsampling": "4:2:0"}
+_STATE: dict = {}
+
+
+def ffmpeg_x265() -> tuple[str | None, str]:
+    """(path of an ffmpeg that has the libx265 encoder, or None; why not)."""
+    exe = shutil.which("ffmpeg")
+    if exe is None:
+        return None, "ffmpeg not found on PATH (Debian: apt-get install ffmpeg)"
+    try:
+        enc = subprocess.run([exe, "-hide_banner", "-encoders"], capture_output=True, text=True, timeout=30).stdout
+    except (OSError, subprocess.SubprocessError) as exc:
+        return None, f"{exe} does not run ({exc})"
+    if "libx265" not in enc:
+        return None, f"{exe} has no libx265 encoder"
+    return exe, ""
+
+
+def _require_8bit(btf, kind: str) -> None:
+    if btf.bit_depth != "uint8":
+        raise BTFError(f"{btf.metadata.get('_path', 'input')}: the {kind} baseline takes 8-bit images, "
+                       f"got {btf.bit_depth}")
+
+
+# -- jpeg -----------------------------------------------------------------------------------
+def _jpeg_init(btf, folder, quality):
+    import OpenImageIO as oiio
+
+    oiio.attribute("threads", 1)  # OIIO's pool threads do not exist in a forked child
+    _STATE.update(btf=btf, folder=folder, quality=quality)
+
+
+def _jpeg_range(bounds) -> list:
+    from ..imageio import write_image
+
+    btf, folder, q = _STATE["btf"], _STATE["folder"], _STATE["quality"]
+    attrs = {key: v.format(q=q) for key, v in _JPEG.items()}
+    names = []
+    for i in range(*bounds):
+        name = f"{i:05d}.jpg"
+        write_image(folder / name, btf.read_one(i), color_space=btf.color_space, attributes=attrs)
+        names.append(name)
+    return names
+
+
+def encode_jpeg(btf, out: Path, quality: int = 90, workers: int | None = None) -> Path:
+    """Every sample of ``btf`` (8-bit) as a JPEG file + a manifest naming them."""
+    from ..compress.load import default_workers
+
+    _require_8bit(btf, "jpeg")
+    S = btf.n_samples
+    workers = workers or default_workers()
+    bounds = np.linspace(0, S, workers * 8 + 1).astype(int)
+    ranges = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+    with atomic_dir(out) as tmp:
+        if workers > 1 and S >= 64:
+            with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"), initializer=_jpeg_init,
+                                     initargs=(btf, tmp, quality)) as pool:
+                names = [n for part in pool.map(_jpeg_range, ranges) for n in part]
+        else:
+            _STATE.update(btf=btf, folder=tmp, quality=quality)
+            names = [n for r in ranges for n in _jpeg_range(r)]
+        samples = [{"image": n, "view": [float(x) for x in v], "light": [float(x) for x in l]}
+                   for n, v, l in zip(names, btf.sampling.view, btf.sampling.light)]
+        doc = {"format": "btf-manifest/1", "color_space": btf.color_space, "width": btf.width,
+               "height": btf.height, "jpeg_quality": quality, "samples": samples}
+        (tmp / "btf.json").write_text(json.dumps(doc, indent=1) + "\n")
+    return out
+
+
+# -- per-view PCA ---------------------------------------------------------------------------
+def encode_pca_view(btf, out: Path, k: int, codec: str = "jxl", seed: int = 0) -> Path:
+    """Each view's samples compressed on their own (rsvd, ``k`` vectors), one folder per view."""
+    from ..compress import Options, compress_to_folder
+    from ..compress.format import cross_layout
+    from .datasets import subset_btf
+
+    cross = cross_layout(btf.sampling)
+    if cross is None:
+        raise BTFError("per-view PCA needs a view x light sampling (every light for every view)")
+    V, L = cross
+    with atomic_dir(out) as tmp:
+        for v in range(V):
+            view = subset_btf(btf, np.arange(v * L, (v + 1) * L))
+            compress_to_folder(view, tmp / VIEW_FOLDER.format(v), Options(k=k, codec=codec, seed=seed))
+        (tmp / "views.json").write_text(json.dumps({"views": V, "lights": L, "k": k, "codec": codec}) + "\n")
+    return out
+
+
+# -- video ----------------------------------------------------------------------------------
+def encode_video(btf, out: Path, crf: int = 28, preset: str = "medium") -> Path:
+    """The samples in order as one H.265 video (rgb24 frames in, yuv444p coded)."""
+    exe, why = ffmpeg_x265()
+    if exe is None:
+        raise BTFError(why)
+    _require_8bit(btf, "video")
+    cmd = [exe, "-hide_banner", "-v", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24",
+           "-s", f"{btf.width}x{btf.height}", "-framerate", "30", "-i", "-",
+           "-c:v", "libx265", "-preset", preset, "-crf", str(crf), "-pix_fmt", "yuv444p",
+           "-x265-params", "log-level=error", "-tag:v", "hvc1"]
+    with atomic_dir(out) as tmp:
+        proc = subprocess.Popen([*cmd, str(tmp / VIDEO_FILE)], stdin=subprocess.PIPE, stderr=subprocess.PIPE)
+        try:
+            for start in range(0, btf.n_samples, 64):
+                block = btf.read_encoded(slice(start, min(start + 64, btf.n_samples)))
+                proc.stdin.write(np.ascontiguousarray(block).tobytes())
+            proc.stdin.close()
+        except BrokenPipeError:
+            pass
+        err = proc.stderr.read().decode(errors="replace")
+        if proc.wait() != 0:
+            raise BTFError(f"ffmpeg failed (exit {proc.returncode}): {' '.join(err.split())[-500:]}")
+        (tmp / "video.json").write_text(json.dumps({"frames": btf.n_samples, "width": btf.width,
+                                                    "height": btf.height, "crf": crf, "preset": preset}) + "\n")
+    return out
+
+
+def decode_video(folder: Path, keep) -> dict:
+    """Frames ``keep`` (indices) of the stored video as {index: (H, W, 3) uint8}, streamed
+    (only the kept frames are held)."""
+    exe, why = ffmpeg_x265()
+    if exe is None:
+        raise BTFError(why)
+    meta = json.loads((Path(folder) / "video.json").read_text())
+    W, H, n = meta["width"], meta["height"], meta["frames"]
+    keep = set(int(i) for i in keep)
+    frame_bytes = W * H * 3
+    cmd = [exe, "-hide_banner", "-v", "error", "-i", str(Path(folder) / VIDEO_FILE), "-f", "rawvideo",
+           "-pix_fmt", "rgb24", "-fps_mode", "passthrough", "-"]
+    out, count = {}, 0
+    with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL) as proc:
+        while True:
+            buf = proc.stdout.read(frame_bytes)
+            if len(buf) < frame_bytes:
+                break
+            if count in keep:
+                out[count] = np.frombuffer(buf, np.uint8).reshape(H, W, 3)
+            count += 1
+    if count != n:
+        raise BTFError(f"{folder / VIDEO_FILE}: decoded {count} frames, expected {n}")
+    return out
+
+
+# -- command line ---------------------------------------------------------------------------
+def main(argv=None) -> int:
+    from ..io import open_btf
+
+    p = argparse.ArgumentParser(prog="python -m usdbtf.bench.baselines", description=__doc__.split("\n\n")[0])
+    sub = p.add_subparsers(dest="kind", required=True)
+    j = sub.add_parser("jpeg", help="every image as JPEG")
+    j.add_argument("--quality", type=int, default=90)
+    j.add_argument("--workers", type=int)
+    v = sub.add_parser("pca-view", help="per-view PCA (usdbtf compress per view)")
+    v.add_argument("--k", type=int, required=True)
+    v.add_argument("--codec", default="jxl")
+    x = sub.add_parser("video", help="the image sequence as an H.265 video")
+    x.add_argument("--crf", type=int, default=28)
+    x.add_argument("--preset", default="medium")
+    for s in (j, v, x):
+        s.add_argument("input", type=Path)
+        s.add_argument("output", type=Path)
+    args = p.parse_args(argv)
+    try:
+        btf = open_btf(args.input)
+        btf.metadata["_path"] = str(args.input)
+        if args.kind == "jpeg":
+            encode_jpeg(btf, args.output, args.quality, args.workers)
+        elif args.kind == "pca-view":
+            encode_pca_view(btf, args.output, args.k, args.codec)
+        else:
+            encode_video(btf, args.output, args.crf, args.preset)
+    except BTFError as exc:
+        print(f"baselines {args.kind}: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

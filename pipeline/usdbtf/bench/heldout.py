@@ -1,0 +1,87 @@
+"""Held-out directions: which samples a method does not see, and how it predicts them.
+
+Split
+-----
+:func:`split_lights` holds out whole light directions: every sample lit from one of the
+chosen lights (``fraction`` of them, picked with a seeded generator) is held out, every
+other sample is fitted.  The fitted samples then still form a complete view x light grid,
+so a method stores them exactly as it would a full measurement (the compressed basis keeps
+its tiled layout); the held-out samples are what a renderer asks for between the measured
+light directions.
+
+Prediction
+----------
+A held-out sample (v, l) is predicted from the ``neighbours`` fitted samples nearest to it
+in direction space, distance = angle(v, v') + angle(l, l') (radians), weighted by inverse
+distance squared and normalised.  For a factorised representation this interpolates the
+basis rows (the sample-dependent factor), which by linearity equals blending the
+neighbours' reconstructions; image-based baselines blend their decoded neighbours.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..compress.format import cross_layout
+from ..sampling import Sampling, to_vectors
+
+__all__ = ["split_lights", "neighbour_weights", "blend_rows"]
+
+
+def split_lights(sampling: Sampling, fraction: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(fitted indices, held-out indices), both sorted.
+
+    With a view x light sampling, ``round(fraction * L)`` light directions (at least 1, at
+    most L - 1) are held out for every view; otherwise ``round(fraction * S)`` random samples.
+    ``fraction`` 0 holds out nothing.
+    """
+    S = len(sampling)
+    if fraction <= 0:
+        return np.arange(S), np.zeros(0, int)
+    rng = np.random.default_rng(seed)
+    cross = cross_layout(sampling)
+    if cross is not None and cross[1] > 1:
+        V, L = cross
+        n = int(np.clip(round(fraction * L), 1, L - 1))
+        lights = np.sort(rng.choice(L, size=n, replace=False))
+        held = (np.arange(V)[:, None] * L + lights[None, :]).ravel()
+    else:
+        n = int(np.clip(round(fraction * S), 1, S - 1))
+        held = np.sort(rng.choice(S, size=n, replace=False))
+    fitted = np.setdiff1d(np.arange(S), held)
+    return fitted, np.sort(held)
+
+
+def _angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(n, m) angles in radians between unit vectors a (n, 3) and b (m, 3)."""
+    return np.arccos(np.clip(a @ b.T, -1.0, 1.0))
+
+
+def neighbour_weights(fitted: Sampling, query: Sampling, neighbours: int = 4, power: float = 2.0,
+                      chunk: int = 512) -> tuple[np.ndarray, np.ndarray]:
+    """Interpolation of ``query`` directions from ``fitted`` ones.
+
+    Returns (idx (Q, n) int, indices into ``fitted``; w (Q, n) float64, rows summing to 1),
+    n = min(neighbours, len(fitted)).  Nearest first; ties broken by the lower index, so the
+    result is deterministic.  A query equal to a fitted direction gets weight 1 on it.
+    """
+    n = min(neighbours, len(fitted))
+    fv, fl = to_vectors(fitted.view), to_vectors(fitted.light)
+    qv, ql = to_vectors(query.view), to_vectors(query.light)
+    idx = np.empty((len(query), n), int)
+    w = np.empty((len(query), n))
+    for a in range(0, len(query), chunk):
+        b = min(a + chunk, len(query))
+        d = _angles(qv[a:b], fv) + _angles(ql[a:b], fl)                     # (q, S_fit)
+        near = np.argsort(d, axis=1, kind="stable")[:, :n]
+        dn = np.take_along_axis(d, near, axis=1)
+        exact = dn[:, :1] <= 1e-9
+        inv = 1.0 / np.maximum(dn, 1e-9) ** power
+        inv = np.where(exact, (np.arange(n) == 0).astype(float), inv)
+        idx[a:b], w[a:b] = near, inv / inv.sum(axis=1, keepdims=True)
+    return idx, w
+
+
+def blend_rows(rows: np.ndarray, idx: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(Q, ...) weighted sums of ``rows[idx]``: rows (S, ...), idx and w (Q, n)."""
+    picked = rows[idx]                                                       # (Q, n, ...)
+    return np.einsum("qn,qn...->q...", w.astype(rows.dtype), picked)

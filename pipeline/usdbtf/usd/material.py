@@ -1,0 +1,209 @@
+"""BtfMaterialAPI <-> :class:`~usdbtf.compress.format.CompressedBTF`.
+
+:func:`author_btf` writes a compressed BTF's description onto a UsdShade.Material
+(the textures themselves are files the caller has placed); :func:`read_btf` builds
+the same CompressedBTF back from a composed prim, from any stage that references the
+asset, so ``reconstruct(read_btf(prim))`` equals ``reconstruct(read_compressed(folder))``
+bit for bit.
+"""
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..colour import usd_color_space
+from ..compress.codecs import Codec, Stored
+from ..compress.format import CompressedBTF, basis_layout, image_to_basis
+from ..errors import BTFError
+from ..sampling import Sampling
+from .plugin import API_SCHEMA, require_schema
+
+SCHEMA_VERSION = 1
+NS = "btf:"
+SCHEMA_VERSION_ATTR = NS + "schemaVersion"
+
+
+def _attr(prim, name: str):
+    return prim.GetAttribute(NS + name)
+
+
+def _set(prim, name: str, value) -> None:
+    """Author a schema attribute (its type comes from the schema definition)."""
+    attr = _attr(prim, name)
+    if not attr:
+        raise BTFError(f"{prim.GetPath()}: {NS + name} is not a {API_SCHEMA} attribute")
+    attr.Set(value)
+
+
+def author_btf(material, cbtf: CompressedBTF, basis: str, coefficients: list[str], *,
+               physical_size: tuple[float, float] | None = None, error_curve: list | None = None) -> None:
+    """Apply BtfMaterialAPI to ``material`` (a Material prim) and author ``cbtf``'s description.
+
+    basis, coefficients : asset paths (relative to the layer being edited) of the
+        basis image and the k coefficient textures, energy order.
+    physical_size : (width, height) of the tile in metres.
+    error_curve : [(k, percent), ...] measured reconstruction errors.
+    """
+    from pxr import Gf, Sdf, Usd, Vt
+
+    require_schema()
+    if not material.ApplyAPI(API_SCHEMA):
+        raise BTFError(f"{material.GetPath()}: cannot apply {API_SCHEMA} (only Material prims can hold a BTF)")
+    k = cbtf.k
+    if len(coefficients) != k:
+        raise ValueError(f"{len(coefficients)} coefficient paths for k = {k}")
+    layout = basis_layout(cbtf.sampling, k, cbtf.codec)
+    _set(material, "schemaVersion", SCHEMA_VERSION)
+    _set(material, "basis", Sdf.AssetPath(basis))
+    _set(material, "basisLayout", layout["kind"])
+    if layout["kind"] == "tiles":
+        _set(material, "basisTile", Gf.Vec2i(layout["views"], layout["lights"]))
+        _set(material, "basisGrid", Gf.Vec2i(*layout["grid"]))
+    _set(material, "basisScale", Vt.DoubleArray([float(x) for x in cbtf.basis.scale]))
+    _set(material, "basisBias", Vt.DoubleArray([float(x) for x in cbtf.basis.bias]))
+    _set(material, "basisCount", k)
+    _set(material, "coefficients", Sdf.AssetPathArray([Sdf.AssetPath(p) for p in coefficients]))
+    _set(material, "coefficientScale", Vt.Vec3dArray([Gf.Vec3d(*map(float, c.scale)) for c in cbtf.coefficients]))
+    _set(material, "coefficientBias", Vt.Vec3dArray([Gf.Vec3d(*map(float, c.bias)) for c in cbtf.coefficients]))
+    sv = cbtf.info.get("singular_values")
+    if sv:
+        _set(material, "singularValues", Vt.DoubleArray([float(x) for x in sv[:k]]))
+    _set(material, "colorMatrix", Gf.Matrix3d(*[float(x) for x in np.asarray(cbtf.color_matrix).ravel()]))
+    _set(material, "resolution", Gf.Vec2i(cbtf.width, cbtf.height))
+    _set(material, "viewDirections", Vt.Vec2dArray([Gf.Vec2d(*map(float, v)) for v in cbtf.sampling.view]))
+    _set(material, "lightDirections", Vt.Vec2dArray([Gf.Vec2d(*map(float, v)) for v in cbtf.sampling.light]))
+    if cbtf.interpolated is not None and cbtf.interpolated.any():
+        _set(material, "interpolatedSamples", Vt.IntArray([int(i) for i in np.flatnonzero(cbtf.interpolated)]))
+    _set(material, "colorSpace", cbtf.working_space)
+    _set(material, "ocioConfig", cbtf.ocio_config or "ocio://default")
+    if cbtf.source.get("color_space"):
+        _set(material, "source:colorSpace", str(cbtf.source["color_space"]))
+    if cbtf.source.get("bit_depth"):
+        _set(material, "source:bitDepth", str(cbtf.source["bit_depth"]))
+    if physical_size:
+        _set(material, "physicalSize", Gf.Vec2f(*map(float, physical_size)))
+    if error_curve:
+        _set(material, "errorCurve:k", Vt.IntArray([int(kk) for kk, _ in error_curve]))
+        _set(material, "errorCurve:percent", Vt.FloatArray([float(p) for _, p in error_curve]))
+    prov = cbtf.info.get("provenance", {})
+    _set(material, "provenance:source", str(prov.get("source", cbtf.source.get("path", ""))))
+    if cbtf.info.get("solver") in ("rsvd", "paper"):
+        _set(material, "provenance:solver", cbtf.info["solver"])
+    _set(material, "provenance:codec", cbtf.codec)
+    _set(material, "provenance:version", __version__)
+    # The reconstructed values' colour space, for USD (inherited by everything below).
+    usd_space = usd_color_space(cbtf.working_space, cbtf.ocio_config)
+    if usd_space:
+        Usd.ColorSpaceAPI.Apply(material).CreateColorSpaceNameAttr(usd_space)
+
+
+# -- reading ---------------------------------------------------------------
+def btf_materials(stage) -> list:
+    """Every prim on ``stage`` with BtfMaterialAPI applied, in traversal order."""
+    require_schema()
+    return [p for p in stage.Traverse() if p.HasAPI(API_SCHEMA)]
+
+
+def _get(prim, name: str, required: bool = True):
+    attr = _attr(prim, name)
+    value = attr.Get() if attr else None
+    if value is None and required:
+        raise BTFError(f"{prim.GetPath()}: {NS + name} is not authored")
+    return value
+
+
+def _read_asset(prim, asset, what: str) -> np.ndarray:
+    """Stored pixels of an asset-valued attribute, read through Ar (so usdz members work)."""
+    from pxr import Ar
+
+    where = f"{prim.GetStage().GetRootLayer().identifier}: {prim.GetPath()}.{NS}{what}"
+    resolved = asset.resolvedPath
+    if not resolved:
+        raise BTFError(f"{where}: texture {asset.path!r} does not resolve (missing file?)")
+    if "[" not in resolved and Path(resolved).is_file():
+        return Codec.read(Path(resolved))
+    # A file inside a package (pkg.usdz[textures/c000.png]): OIIO reads files, so
+    # copy the member's bytes out through Ar first.
+    handle = Ar.GetResolver().OpenAsset(Ar.ResolvedPath(resolved))
+    if handle is None:
+        raise BTFError(f"{where}: cannot open texture {asset.path!r} ({resolved})")
+    suffix = Path(resolved.rstrip("]").split("[")[-1]).suffix
+    with tempfile.TemporaryDirectory(prefix="usdbtf-asset-") as tmp:
+        path = Path(tmp) / f"texture{suffix}"
+        path.write_bytes(bytes(handle.GetBuffer()))
+        return Codec.read(path)
+
+
+def read_btf(material, *, k: int | None = None) -> CompressedBTF:
+    """The CompressedBTF described by a BtfMaterialAPI prim (composed values: a LOD
+    variant's btf:basisCount applies).  ``k`` keeps fewer basis vectors still."""
+    require_schema()
+    path = material.GetPath()
+    if not material.HasAPI(API_SCHEMA):
+        raise BTFError(f"{path}: has no {API_SCHEMA}")
+    version = _get(material, "schemaVersion")
+    if version != SCHEMA_VERSION:
+        raise BTFError(f"{path}: {SCHEMA_VERSION_ATTR} = {version}, this usdbtf ({__version__}) reads version "
+                       f"{SCHEMA_VERSION} only")
+    coeff_assets = list(_get(material, "coefficients"))
+    scales = np.asarray(_get(material, "coefficientScale"), np.float64).reshape(-1, 3)
+    biases = np.asarray(_get(material, "coefficientBias"), np.float64).reshape(-1, 3)
+    bscale = np.asarray(_get(material, "basisScale"), np.float64)
+    bbias = np.asarray(_get(material, "basisBias"), np.float64)
+    listed = len(coeff_assets)
+    count = int(_get(material, "basisCount") or listed)
+    k = min(count, listed) if k is None else k
+    if not 1 <= k <= min(listed, len(scales), len(biases), len(bscale), len(bbias)):
+        raise BTFError(f"{path}: basis count {k} does not match {listed} coefficient textures, "
+                       f"{len(scales)} scales, {len(bscale)} basis scales")
+    view = np.asarray(_get(material, "viewDirections"), np.float64).reshape(-1, 2)
+    light = np.asarray(_get(material, "lightDirections"), np.float64).reshape(-1, 2)
+    if len(view) != len(light) or not len(view):
+        raise BTFError(f"{path}: {len(view)} view and {len(light)} light directions")
+    sampling = Sampling(view, light)
+    width, height = (int(x) for x in _get(material, "resolution"))
+    kind = str(_get(material, "basisLayout"))
+    if kind == "tiles":
+        views, lights = (int(x) for x in _get(material, "basisTile"))
+        layout = {"kind": "tiles", "views": views, "lights": lights,
+                  "grid": [int(x) for x in _get(material, "basisGrid")]}
+        if views * lights != len(sampling):
+            raise BTFError(f"{path}: basis tiles of {views} x {lights} do not hold {len(sampling)} samples")
+    else:
+        layout = {"kind": "columns"}
+    image = _read_asset(material, _get(material, "basis"), "basis")[:, :, :1]
+    rows, cols = ((layout["grid"][0] * layout["views"], layout["grid"][1] * layout["lights"])
+                  if kind == "tiles" else (len(sampling), None))
+    if image.shape[0] != rows or (cols is not None and image.shape[1] != cols) or \
+            (cols is None and image.shape[1] < k):
+        raise BTFError(f"{path}: basis image is {image.shape[1]}x{image.shape[0]}, which does not fit "
+                       f"{len(sampling)} samples x {k} vectors ({kind} layout)")
+    basis = Stored(image_to_basis(image, layout, k), bscale[:k], bbias[:k])
+    coefficients = []
+    for i in range(k):
+        px = _read_asset(material, coeff_assets[i], f"coefficients[{i}]")
+        if px.shape[:2] != (height, width):
+            raise BTFError(f"{path}: coefficient texture {coeff_assets[i].path} is {px.shape[1]}x{px.shape[0]}, "
+                           f"btf:resolution says {width}x{height}")
+        coefficients.append(Stored(px, scales[i], biases[i]))
+    interp = np.zeros(len(sampling), bool)
+    flagged = _get(material, "interpolatedSamples", required=False)
+    if flagged:
+        interp[np.asarray(flagged, int)] = True
+    info = {"provenance": {"source": _get(material, "provenance:source", required=False),
+                           "solver": _get(material, "provenance:solver", required=False),
+                           "version": _get(material, "provenance:version", required=False)},
+            "material": str(path)}
+    sv = _get(material, "singularValues", required=False)
+    if sv:
+        info["singular_values"] = [float(x) for x in sv][:k]
+    matrix = np.asarray(_get(material, "colorMatrix"), np.float64).reshape(3, 3)
+    source = {"color_space": _get(material, "source:colorSpace", required=False),
+              "bit_depth": _get(material, "source:bitDepth", required=False)}
+    return CompressedBTF(sampling, width, height, basis, coefficients, matrix,
+                         str(_get(material, "provenance:codec", required=False) or "png"),
+                         str(_get(material, "colorSpace")), {key: v for key, v in source.items() if v}, interp,
+                         _get(material, "ocioConfig", required=False), info)
