@@ -36,6 +36,12 @@ step "figure: originals vs reconstructions" \
 # -- capture -> rectify -> compress on the simulated rig (issue 4) --
 
 # -- package as a USD asset (issue 3) --
+step "package: USD asset (swatch, LOD variants, usdz) checked by every UsdValidation validator" \
+    usdbtf package "$OUT/pebbles_c" -o "$OUT/asset/pebbles.usda" --usdz
+step "inspect the asset" \
+    usdbtf inspect "$OUT/asset/pebbles.usda" --validate
+step "decompress from the asset (equals decompress of the folder, bit for bit)" \
+    usdbtf decompress "$OUT/asset/pebbles.usdz" -o "$OUT/pebbles_from_asset" --lod full
 
 # -- quilt / unwrap / render (issue 5) --
 

@@ -19,6 +19,8 @@ import pytest
 
 from usdbtf import colour, synth
 from usdbtf.cli import main
+
+from cli_helpers import bad_input, ok, run  # noqa: E402
 from usdbtf.compress import read_compressed, reconstruct
 from usdbtf.compress.decompress import compare
 from usdbtf.compress.format import METADATA
@@ -28,31 +30,6 @@ from usdbtf.sampling import preset
 SRGB = "sRGB Encoded Rec.709 (sRGB)"
 LIN709 = "Linear Rec.709 (sRGB)"
 ROOT = Path(__file__).resolve().parent.parent
-
-
-def run(capsys, *argv) -> tuple[int, str, str]:
-    """main(argv) in-process; returns (status, stdout, stderr)."""
-    capsys.readouterr()
-    code = main([str(a) for a in argv])
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def ok(capsys, *argv) -> str:
-    code, out, err = run(capsys, *argv)
-    assert code == 0, err
-    return out
-
-
-def bad_input(capsys, *argv, names: str) -> str:
-    """The command must exit 2 with exactly one stderr line that names ``names``."""
-    code, out, err = run(capsys, *argv)
-    assert code == 2, (code, err)
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    assert lines[0].startswith("usdbtf ") and ": error: " in lines[0]
-    assert names in lines[0], lines[0]
-    return lines[0]
 
 
 def copy_tree(src: Path, dst: Path) -> Path:

@@ -5,7 +5,7 @@ import numpy as np
 
 from .material import NS, btf_materials
 from .package import LOD_VARIANT_SET
-from .read import open_stage
+from .read import find_material, open_stage
 
 
 def asset_bytes(asset) -> int:
@@ -52,6 +52,8 @@ def describe(path) -> str:
     """Multi-line summary of every BTF material reachable from ``path``."""
     stage = open_stage(path)
     prims = btf_materials(stage)
+    if not prims:
+        find_material(stage)   # raises, naming the composition error that hid them if any
     lines = [f"{path}: {len(prims)} BTF material(s); metersPerUnit "
              f"{stage.GetMetadata('metersPerUnit')}, upAxis {stage.GetMetadata('upAxis')}"]
     errors = stage.GetCompositionErrors()
