@@ -288,3 +288,19 @@ def test_no_physical_size_is_a_clear_error(src, tmp_path, capsys):
     meta.write_text(meta.read_text().replace('"physical_size_m"', '"no_size"'))
     bad_input(capsys, "package", c, "-o", tmp_path / "o" / "a.usda", names="--physical-size")
     ok(capsys, "package", c, "-o", tmp_path / "o" / "a.usda", "--physical-size", "0.1", "0.1", "-q")
+
+
+@pytest.mark.parametrize("alpha", [0.2, 0.7])
+def test_roughness_fit_recovers_a_flat_ggx_surface(alpha, tmp_path):
+    """A flat synthetic surface with GGX alpha: the fitted preview roughness is sqrt(alpha)."""
+    from usdbtf import synth
+    from usdbtf.compress.core import compress
+
+    n = 8
+    material = synth.Material(np.zeros((n, n), np.float32), np.full((n, n, 3), 0.5, np.float32),
+                              np.full((n, n), 0.04, np.float32), np.full((n, n), alpha, np.float32))
+    sampling = preset("small")
+    data = colour.processor("Linear Rec.709 (sRGB)", "scene_linear").apply(synth.render_all(material, sampling))
+    cbtf = compress(ArrayBTF.from_linear(sampling, data), tmp_path / "c", k=4, codec="exr")
+    roughness, residual = pkg.preview.fit_roughness(cbtf)
+    assert abs(roughness - alpha ** 0.5) <= 0.05 and residual < 0.05
