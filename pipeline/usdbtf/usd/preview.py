@@ -32,26 +32,32 @@ def coefficient_rows(cbtf: CompressedBTF, y0: int, y1: int) -> np.ndarray:
     return out @ m.T
 
 
-def albedo_samples(cbtf: CompressedBTF, max_light_theta: float = 60.0) -> np.ndarray:
+def albedo_samples(cbtf: CompressedBTF, max_light_theta: float = 60.0, most: int = 48) -> np.ndarray:
     """Indices of the samples the albedo is estimated from: the view ring nearest the
-    normal, lights no lower than ``max_light_theta`` degrees."""
+    normal, lights no lower than ``max_light_theta`` degrees; at most ``most`` of them,
+    evenly spread (a median over ~50 lights is as robust as over 1000, and 20x cheaper)."""
     view_theta = cbtf.sampling.view[:, 0]
     near = view_theta <= view_theta.min() + 1e-6
     sel = np.flatnonzero(near & (cbtf.sampling.light[:, 0] <= max_light_theta))
-    return sel if len(sel) else np.flatnonzero(near)
+    sel = sel if len(sel) else np.flatnonzero(near)
+    if len(sel) > most:
+        sel = sel[np.linspace(0, len(sel) - 1, most).round().astype(int)]
+    return sel
 
 
 def mean_albedo(cbtf: CompressedBTF, *, white_level: float = 1.0, rows_per_chunk: int = 64) -> np.ndarray:
     """(H, W, 3) float32 working-space albedo estimate, streamed over texel rows."""
     sel = albedo_samples(cbtf)
     cos_l = np.maximum(np.cos(np.radians(cbtf.sampling.light[sel, 0])), 0.1).astype(np.float32)
-    basis = cbtf.basis_values()[sel]                                       # (n, k)
+    # Divide by cos once, in the basis rows: (k, n), so each texel's n values come out
+    # contiguous and the median runs along the last axis.
+    rows = (cbtf.basis_values()[sel] / cos_l[:, None]).T
     out = np.empty((cbtf.height, cbtf.width, 3), np.float32)
     for y0 in range(0, cbtf.height, rows_per_chunk):
         y1 = min(y0 + rows_per_chunk, cbtf.height)
-        c = coefficient_rows(cbtf, y0, y1)
-        images = (basis @ c.reshape(cbtf.k, -1)).reshape(len(sel), y1 - y0, cbtf.width, 3)
-        out[y0:y1] = np.median(images / cos_l[:, None, None, None], axis=0)
+        c = coefficient_rows(cbtf, y0, y1)                                   # (k, h, W, 3)
+        per_texel = c.reshape(cbtf.k, -1).T @ rows                           # (h*W*3, n)
+        out[y0:y1] = np.median(per_texel, axis=1).reshape(y1 - y0, cbtf.width, 3)
     return np.clip(out / white_level, 0.0, 1.0)
 
 
