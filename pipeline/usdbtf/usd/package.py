@@ -34,7 +34,7 @@ from ..compress.codecs import Codec
 from ..compress.format import METADATA, CompressedBTF, basis_file, coefficient_file, read_compressed
 from ..errors import BTFError
 from ..imageio import write_image
-from . import geometry, preview
+from . import geometry, preview, storm  # storm: issue 7 (Hydra preview); importing it registers its Sdr shader def
 from .material import author_btf
 from .validate import validate_layer
 
@@ -173,6 +173,8 @@ def _write_payload(path: Path, root: str, cbtf: CompressedBTF, mesh: geometry.Me
     author_btf(material.GetPrim(), cbtf, f"./{textures_rel}/{basis}", [f"./{textures_rel}/{c}" for c in coeffs],
                physical_size=physical_size, error_curve=curve)
     _author_preview(stage, material, textures_rel, roughness)
+    # Issue 7 hook: Storm glslfx preview (render context "glslfx") + GPU textures in <textures>/gpu/.
+    storm.author_gpu_preview(stage, material, cbtf, path.parent / textures_rel, textures_rel)
     prim = geometry.author_mesh(stage, f"/{root}/geo/{_prim_name(mesh.name)}", mesh)
     UsdShade.MaterialBindingAPI.Apply(prim).Bind(material)
     stage.GetRootLayer().Save()

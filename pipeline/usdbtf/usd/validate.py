@@ -10,6 +10,9 @@ def validation_issues(path, *, severities=("Error",)) -> list[str]:
     from pxr import UsdValidation
 
     from .read import open_usd, usd_warnings_silenced
+    from .storm import register_shader_definitions
+
+    register_shader_definitions()   # so ShaderSdrCompliance knows the plugin's UsdBtfSurface
 
     with usd_warnings_silenced():   # what USD would print, the validators report below
         stage = open_usd(path, composition_errors=False)

@@ -1,0 +1,82 @@
+"""``usdbtf preview``: the asset's real-time (Storm/MaterialX) shader, run headless on OpenGL.
+
+Reads the GPU textures the packaged asset's Storm network names, draws them with the
+shared GLSL (Mesa llvmpipe through EGL, no display needed) and writes the image like
+``usdbtf render`` does; ``--compare`` also renders the CPU reference and prints the PSNR.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from . import log
+
+ORDER = 82
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("preview", help="headless OpenGL render of a packaged asset's real-time (Storm) shader")
+    p.add_argument("asset", type=Path, help="packaged USD asset (.usda; the one `usdbtf package` wrote)")
+    p.add_argument("-o", "--output", required=True, type=Path, help="output .exr (working colour space)")
+    p.add_argument("--mesh", type=Path, help="mesh with texture coordinates (default: the asset's own)")
+    p.add_argument("--swatch", action="store_true", help="the flat patch, one pixel per texel")
+    p.add_argument("--view", metavar="THETA,PHI", help="swatch: view direction in degrees")
+    p.add_argument("--light", action="append", default=[], metavar="SPEC",
+                   help="as for `usdbtf render`: swatch THETA,PHI; mesh point:X,Y,Z[:I] or dir:X,Y,Z[:I]")
+    p.add_argument("--camera", metavar="SPEC", help='"eye=X,Y,Z target=X,Y,Z [up=X,Y,Z] [fov=DEG]"')
+    p.add_argument("--size", type=int, nargs=2, default=(512, 512), metavar=("W", "H"), help="frame size")
+    p.add_argument("--lod", help="level of detail (a variant of the asset's lod set, e.g. k16)")
+    p.add_argument("--compare", action="store_true",
+                   help="also render with the CPU reference renderer (bilinear, no shadows) and print the PSNR")
+    p.add_argument("--no-png", action="store_true", help="write only the EXR")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    import numpy as np
+
+    from ..errors import BTFError
+    from ..gpu.headless import HeadlessRenderer, psnr
+    from ..render import RenderOptions, Renderer, auto_camera, parse_camera, parse_light, write_render
+    from ..render.assets import render_mesh_from_file
+    from ..usd.read import load_btf
+    from ..usd.storm import layout_from_asset
+    from .render import _angles
+
+    say = log(args.quiet)
+    W, H = args.size
+    if not (1 <= W <= 16384 and 1 <= H <= 16384):
+        raise BTFError(f"--size must be in 1..16384, got {W} {H}")
+    layout, wrap, k = layout_from_asset(args.asset, lod=args.lod)
+    gl = HeadlessRenderer(layout, wrap=wrap)
+    reference = None
+    cbtf = load_btf(args.asset, lod=args.lod)
+    cpu = Renderer(cbtf, RenderOptions(k=min(k, cbtf.k), shadows=False, filter="bilinear", wrap=wrap)) \
+        if args.compare else None
+    if args.swatch:
+        if args.mesh is not None or args.camera is not None or len(args.light) != 1:
+            raise BTFError("--swatch renders the flat patch: one --light THETA,PHI, no --mesh or --camera")
+        view, light = _angles(args.view, "view"), _angles(args.light[0], "light")
+        image = gl.swatch(view, light)
+        if cpu is not None:
+            reference = cpu.swatch(view, light)
+        what = f"swatch, view {view}, light {light}"
+    else:
+        if not args.light:
+            raise BTFError("give at least one --light")
+        mesh = render_mesh_from_file(args.mesh if args.mesh is not None else args.asset)
+        lights = [parse_light(spec) for spec in args.light]
+        camera = parse_camera(args.camera, W, H) if args.camera else auto_camera(mesh.corners, W, H)
+        image = gl.render(mesh, camera, lights)
+        if cpu is not None:
+            reference = cpu.render(mesh, camera, lights)
+        what = f"{W}x{H} frame, {len(lights)} light(s)"
+    info = write_render(args.output, image, cbtf.working_space,
+                        png_path=None if args.no_png else args.output.with_suffix(".png"), config=cbtf.ocio_config)
+    say(f"preview (k = {k}) {what} -> {info['exr']}")
+    if reference is not None:
+        mask = None if args.swatch else (image[..., 3] > 0) & (reference[..., 3] > 0)
+        value = psnr(np.asarray(image)[..., :3], np.asarray(reference)[..., :3], mask)
+        print(f"PSNR vs CPU renderer: {value:.2f} dB")
+    return 0
+

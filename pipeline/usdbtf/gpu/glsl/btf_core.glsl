@@ -1,0 +1,217 @@
+// usdbtf BTF evaluation: equation 2 of Koudelka et al. 2003 at arbitrary view and light
+// directions, the GPU twin of usdbtf.render (hemisphere.py, shading.py, texture.py).
+//
+//   I(x, v, l) = M * sum_j w_j(v, l) * sum_i U[s_j, i] * c_i(x)
+//
+// s_j runs over the 3 x 3 samples of the view triangle and the light triangle that
+// enclose the local directions (barycentric weights w_j, triangles found on the disc of
+// the azimuthal equidistant projection p = theta / 90deg * (cos phi, sin phi)), U is the
+// basis, c_i the coefficient textures, M the colour matrix.  Outside the measured region
+// a direction takes the nearest boundary point; lights there fade with cos(theta).
+//
+// Everything but the coefficients lives in one RGBA float texture, "tables", addressed
+// as a 1-D array of texels (row-major, width = the texture's width).  Layout, written by
+// usdbtf.gpu.tables:
+//   texel 0        (width, V, L, G)          G = stored basis groups (4 vectors per texel)
+//   texel 1        (K, basisOffset, viewHemisphere, lightHemisphere)
+//   texel 2        (dequantOffset, matrixOffset, 0, 0)
+//   basis          basisOffset + (view * L + light) * G + g: vectors 4g..4g+3 of that sample
+//   hemisphere h   h+0 (origin.x, origin.y, cell, grid)   h+1 (candidateTexels, triangles,
+//                  boundaryEdges, 0)   h+2 (gridOffset, triangleOffset, boundaryOffset, 0)
+//                  grid cell (x, y): candidateTexels texels of 4 triangle ids (-1 = none)
+//                  triangle t: (a.x, a.y, i0, i1) (inv00, inv01, inv10, inv11) (i2, 0, 0, 0)
+//                  boundary e: (a.x, a.y, b.x, b.y) (i0, i1, 0, 0)
+//   dequant        pack p: dequantOffset + 2p = scale, + 2p + 1 = bias (stored = t * scale + bias)
+//   matrix         matrixOffset + r: row r of M
+// Coefficient pack p = 3 g + c holds colour channel c of vectors 4g..4g+3, sampled at st.
+//
+// Environments (Storm glslfx, MaterialX genglsl, the headless harness) include this text
+// unchanged and supply: the tables sampler, the packs sampled at st, the frame, the lights.
+
+#ifndef BTF_MAX_GROUPS
+#define BTF_MAX_GROUPS 8
+#endif
+#define BTF_MAX_PACKS (3 * BTF_MAX_GROUPS)
+#define BTF_HALF_PI 1.5707963267948966
+// Query points this close outside a triangle (disc units) still count as inside:
+// float32 rounding on shared edges and on the outermost ring.
+#define BTF_INSIDE_EPS 1e-5
+
+vec4 btfFetch(sampler2D tables, int address)
+{
+    int width = textureSize(tables, 0).x;
+    return texelFetch(tables, ivec2(address % width, address / width), 0);
+}
+
+// Azimuthal equidistant projection of a tangent-frame direction (z = normal).
+vec2 btfProject(vec3 d)
+{
+    float rho = length(d.xy);
+    float theta = atan(rho, d.z);
+    return rho > 0.0 ? d.xy * (theta / BTF_HALF_PI / rho) : vec2(0.0);
+}
+
+// Orthonormal frame as the CPU renderer builds it: the normal, the tangent made
+// perpendicular to it, bitangent = N x T flipped to agree with the given bitangent.
+mat3 btfFrame(vec3 normal, vec3 tangent, vec3 bitangent)
+{
+    vec3 n = normalize(normal);
+    vec3 t = normalize(tangent - n * dot(tangent, n));
+    vec3 b = cross(n, t);
+    if (dot(b, bitangent) < 0.0) {
+        b = -b;
+    }
+    return mat3(t, b, n);
+}
+
+// A direction in the frame's coordinates (x = tangent, y = bitangent, z = normal).
+vec3 btfLocal(mat3 frame, vec3 d)
+{
+    return vec3(dot(d, frame[0]), dot(d, frame[1]), dot(d, frame[2]));
+}
+
+// The measured samples enclosing local direction d on hemisphere table h: indices,
+// weights (summing to 1) and the polar angle (degrees) of the point interpolated.
+void btfLookup(sampler2D tables, int h, vec3 d, out ivec3 index, out vec3 weight, out float thetaUsed)
+{
+    vec4 h0 = btfFetch(tables, h);
+    vec4 h1 = btfFetch(tables, h + 1);
+    vec4 h2 = btfFetch(tables, h + 2);
+    vec2 q = btfProject(d);
+    int grid = int(h0.w);
+    int candidateTexels = int(h1.x);
+    index = ivec3(0);
+    weight = vec3(1.0, 0.0, 0.0);
+    thetaUsed = length(q) * 90.0;
+    float best = -1e30;
+    if (int(h1.y) > 0) {
+        ivec2 cell = ivec2(floor((q - h0.xy) / h0.z));
+        if (all(greaterThanEqual(cell, ivec2(0))) && all(lessThan(cell, ivec2(grid)))) {
+            int base = int(h2.x) + (cell.y * grid + cell.x) * candidateTexels;
+            for (int c = 0; c < candidateTexels; ++c) {
+                vec4 ids = btfFetch(tables, base + c);
+                for (int j = 0; j < 4; ++j) {
+                    int t = int(ids[j]);
+                    if (t < 0) {
+                        continue;
+                    }
+                    int at = int(h2.y) + 3 * t;
+                    vec4 a = btfFetch(tables, at);
+                    vec4 inv = btfFetch(tables, at + 1);
+                    vec2 rel = q - a.xy;
+                    vec2 uv = vec2(inv.x * rel.x + inv.y * rel.y, inv.z * rel.x + inv.w * rel.y);
+                    vec3 bary = vec3(1.0 - uv.x - uv.y, uv.x, uv.y);
+                    float score = min(bary.x, min(bary.y, bary.z));
+                    if (score > best) {
+                        best = score;
+                        index = ivec3(int(a.z), int(a.w), int(btfFetch(tables, at + 2).x));
+                        weight = bary;
+                    }
+                }
+            }
+        }
+    }
+    if (best >= -BTF_INSIDE_EPS) {
+        weight = max(weight, vec3(0.0));
+        weight /= weight.x + weight.y + weight.z;
+        return;
+    }
+    // Outside the triangulated region: the nearest point of its boundary.
+    float nearest = 1e30;
+    int edges = int(h1.z);
+    for (int e = 0; e < edges; ++e) {
+        vec4 ab = btfFetch(tables, int(h2.z) + 2 * e);
+        vec4 ids = btfFetch(tables, int(h2.z) + 2 * e + 1);
+        vec2 along = ab.zw - ab.xy;
+        float len2 = dot(along, along);
+        float t = len2 > 0.0 ? clamp(dot(q - ab.xy, along) / len2, 0.0, 1.0) : 0.0;
+        vec2 p = ab.xy + t * along;
+        float d2 = dot(q - p, q - p);
+        if (d2 < nearest) {
+            nearest = d2;
+            index = ivec3(int(ids.x), int(ids.y), 0);
+            weight = vec3(1.0 - t, t, 0.0);
+            thetaUsed = length(p) * 90.0;
+        }
+    }
+}
+
+// Measured images include the light's foreshortening; beyond the outermost measured
+// ring the boundary value is scaled by cos(theta_l) / cos(theta_boundary).
+float btfLightFade(vec3 l, float thetaUsed)
+{
+    float cosQ = l.z / max(length(l), 1e-30);
+    float cosB = cos(radians(thetaUsed));
+    return cosQ < cosB ? max(cosQ, 0.0) / max(cosB, 1e-12) : 1.0;
+}
+
+// rows += scale * sum of the 9 weighted basis rows of (view triangle) x (light triangle).
+void btfAccumulate(sampler2D tables, ivec3 viewIndex, vec3 viewWeight, ivec3 lightIndex, vec3 lightWeight,
+                   float scale, inout vec4 rows[BTF_MAX_GROUPS])
+{
+    vec4 h0 = btfFetch(tables, 0);
+    int lights = int(h0.z);
+    int groups = int(h0.w);
+    int basis = int(btfFetch(tables, 1).y);
+    for (int a = 0; a < 3; ++a) {
+        for (int b = 0; b < 3; ++b) {
+            float w = viewWeight[a] * lightWeight[b] * scale;
+            if (w == 0.0) {
+                continue;
+            }
+            int base = basis + (viewIndex[a] * lights + lightIndex[b]) * groups;
+            for (int g = 0; g < BTF_MAX_GROUPS; ++g) {
+                if (g >= groups) {
+                    break;
+                }
+                rows[g] += w * btfFetch(tables, base + g);
+            }
+        }
+    }
+}
+
+// Adds one light (local direction l, irradiance scale) to rows.
+void btfAddLight(sampler2D tables, ivec3 viewIndex, vec3 viewWeight, vec3 l, float scale,
+                 inout vec4 rows[BTF_MAX_GROUPS])
+{
+    if (scale <= 0.0) {
+        return;
+    }
+    ivec3 lightIndex;
+    vec3 lightWeight;
+    float thetaUsed;
+    btfLookup(tables, int(btfFetch(tables, 1).w), l, lightIndex, lightWeight, thetaUsed);
+    btfAccumulate(tables, viewIndex, viewWeight, lightIndex, lightWeight * btfLightFade(l, thetaUsed), scale, rows);
+}
+
+// The view triangle of local view direction v.
+void btfViewLookup(sampler2D tables, vec3 v, out ivec3 viewIndex, out vec3 viewWeight)
+{
+    float unused;
+    btfLookup(tables, int(btfFetch(tables, 1).z), v, viewIndex, viewWeight, unused);
+}
+
+// Working-space colour: the blended rows dotted with the first k coefficients.
+vec3 btfResolve(sampler2D tables, vec4 rows[BTF_MAX_GROUPS], vec4 packs[BTF_MAX_PACKS], int k)
+{
+    vec4 h2 = btfFetch(tables, 2);
+    int dequant = int(h2.x);
+    int matrix = int(h2.y);
+    k = min(k, int(btfFetch(tables, 1).x));
+    vec3 stored = vec3(0.0);
+    for (int g = 0; g < BTF_MAX_GROUPS; ++g) {
+        if (4 * g >= k) {
+            break;
+        }
+        vec4 mask = vec4(greaterThan(ivec4(k), ivec4(4 * g) + ivec4(0, 1, 2, 3)));
+        vec4 r = rows[g] * mask;
+        for (int c = 0; c < 3; ++c) {
+            int p = 3 * g + c;
+            vec4 value = packs[p] * btfFetch(tables, dequant + 2 * p) + btfFetch(tables, dequant + 2 * p + 1);
+            stored[c] += dot(r, value);
+        }
+    }
+    return vec3(dot(btfFetch(tables, matrix).xyz, stored),
+                dot(btfFetch(tables, matrix + 1).xyz, stored),
+                dot(btfFetch(tables, matrix + 2).xyz, stored));
+}

@@ -1,0 +1,393 @@
+"""One GLSL source, three shaders: Storm glslfx, MaterialX genglsl, the headless harness.
+
+``glsl/btf_core.glsl`` is the only hand-written shading code (equation 2 with the CPU
+renderer's hemisphere interpolation).  This module assembles it, unchanged, with a thin
+environment-specific wrapper for each consumer:
+
+* :func:`storm_glslfx` -> ``plugin/usdBtf/resources/shaders/UsdBtfSurface.glslfx``: the Storm
+  surface shader (``surfaceShader(Peye, Neye, ...)``, lights from ``GetLightSource(i)``);
+* :func:`shader_defs_usda` -> ``plugin/usdBtf/resources/shaderDefs.usda``: its Sdr definition
+  (``info:implementationSource = "sourceAsset"``, ``info:glslfx:sourceAsset``);
+* :func:`materialx_impl` / :func:`materialx_defs` -> ``plugin/usdBtf/resources/materialx/``:
+  the ``usdbtf_bsdf`` nodedef, its genglsl implementation, and the ``usdbtf_surface``
+  node graph that feeds it from image nodes;
+* :func:`harness_fragment` / :data:`HARNESS_VERTEX`: the headless OpenGL check (gpu.headless).
+
+The plugin files are generated and committed; ``python -m usdbtf.gpu.shaders`` rewrites
+them and ``--check`` reports stale ones (the tests check byte identity).
+"""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from .tables import MAX_GROUPS, MAX_PACKS
+
+__all__ = ["SHADER_ID", "INPUTS", "PRIMVARS", "core_source", "pack_name", "storm_glslfx", "shader_defs_usda",
+           "materialx_impl", "materialx_defs", "harness_fragment", "HARNESS_VERTEX", "plugin_files",
+           "write_plugin_files", "stale_plugin_files"]
+
+SHADER_ID = "UsdBtfSurface"
+MTLX_BSDF = "usdbtf_bsdf"
+MTLX_SURFACE = "usdbtf_surface"
+GLSL_DIR = Path(__file__).resolve().parent / "glsl"
+#: Primvars the Storm shader reads (texture coordinates, the packaged tangent frame).
+PRIMVARS = ("st", "tangents", "bitangents")
+
+
+def pack_name(p: int) -> str:
+    """Shader input of coefficient pack ``p`` (3 g + c)."""
+    return f"pack{p:02d}"
+
+
+# (name, Sdf type, glslfx default, doc) of the Storm shader's inputs, in order.
+INPUTS = ([("basisCount", "int", 0, "Basis vectors to use; 0 = all the tables hold (a LOD uses fewer)."),
+           ("exposure", "float", 1.0, "Multiplier on the result (Storm light units differ from the capture's)."),
+           ("tables", "float", 0.0, "The tables texture (basis, hemisphere lookups, de-quantisation); "
+                                    "connect a UsdUVTexture, read with texelFetch.")]
+          + [(pack_name(p), "float", 0.0, f"Coefficient pack {p}: channel {'RGB'[p % 3]} of basis vectors "
+                                          f"{4 * (p // 3)}..{4 * (p // 3) + 3} (all 4 texture channels are read).")
+             for p in range(MAX_PACKS)])
+
+
+def core_source() -> str:
+    """The shared GLSL (functions only, no #version), with the group limit fixed."""
+    text = (GLSL_DIR / "btf_core.glsl").read_text()
+    return f"#define BTF_MAX_GROUPS {MAX_GROUPS}\n" + text
+
+
+def _lines(template: str, count: int = MAX_PACKS) -> str:
+    return "".join(template.format(p=p, name=pack_name(p)) for p in range(count))
+
+
+# ------------------------------------------------------------------ Storm
+_STORM_SURFACE = """\
+// Storm's view of the tangent frame: the packaged primvars:tangents / bitangents when the
+// mesh has them (object space -> eye space), else the frame of dP/dst from screen-space
+// derivatives (the same axes: +s = image right, +t = image up).
+mat3 usdBtfFrame(vec3 Peye, vec3 Neye, vec2 st)
+{{
+    mat3 tbn = ComputeTBNMatrix(Peye, Neye, st);
+    vec3 tangent = tbn[0];
+    vec3 bitangent = tbn[1];
+#if defined(HD_HAS_tangents) && defined(HD_HAS_bitangents) && defined(HD_HAS_transform)
+    MAT4 toEye = GetWorldToViewMatrix() * ApplyInstanceTransform(HdGet_transform());
+    vec3 t = vec3(toEye * vec4(HdGet_tangents().xyz, 0.0));
+    vec3 b = vec3(toEye * vec4(HdGet_bitangents().xyz, 0.0));
+    if (dot(t, t) > 0.0 && dot(b, b) > 0.0) {{    // a fallback (absent primvar) reads zero
+        tangent = t;
+        bitangent = b;
+    }}
+#endif
+    return btfFrame(Neye, tangent, bitangent);
+}}
+
+vec4
+surfaceShader(vec4 Peye, vec3 Neye, vec4 color, vec4 patchCoord)
+{{
+    vec3 c = vec3(0.0);
+    // Storm defines HD_HAS_<input> for every input, HD_HAS_COORD_<input> only for those
+    // bound to a texture: the latter says a sampler exists.
+#if defined(HD_HAS_COORD_tables) && defined(HD_HAS_st)
+    vec2 st = HdGet_st().xy;
+    mat3 frame = usdBtfFrame(Peye.xyz, Neye, st);
+    int k = HdGet_basisCount() > 0 ? HdGet_basisCount() : {all_k};
+    vec4 packs[BTF_MAX_PACKS];
+{packs}
+    ivec3 viewIndex;
+    vec3 viewWeight;
+    btfViewLookup(HdGetSampler_tables(), btfLocal(frame, normalize(-Peye.xyz)), viewIndex, viewWeight);
+#if NUM_LIGHTS > 0
+    for (int i = 0; i < NUM_LIGHTS; ++i) {{
+        LightSource light = GetLightSource(i);
+        if (light.isIndirectLight) {{
+            continue;
+        }}
+        vec3 l = (light.position.w == 0.0) ? normalize(light.position.xyz)
+                                           : normalize((light.position - Peye).xyz);
+        float intensity = lightDistanceAttenuation(Peye, i) * lightSpotAttenuation(l, i);
+#if USE_SHADOWS
+        intensity *= light.hasShadow ? shadowing(/*lightIndex=*/i, Peye) : 1.0;
+#endif
+        // One light at a time: a light's colour multiplies its whole contribution.
+        vec4 rows[BTF_MAX_GROUPS];
+        for (int g = 0; g < BTF_MAX_GROUPS; ++g) {{
+            rows[g] = vec4(0.0);
+        }}
+        btfAddLight(HdGetSampler_tables(), viewIndex, viewWeight, btfLocal(frame, l), intensity, rows);
+        c += light.diffuse.rgb * btfResolve(HdGetSampler_tables(), rows, packs, k);
+    }}
+#endif
+    c *= HdGet_exposure();
+#endif
+    return ApplyColorOverrides(vec4(c, 1.0));
+}}
+"""
+
+
+def storm_glslfx() -> str:
+    """The Storm surface shader (glslfx) around the shared core."""
+    config = {
+        "attributes": {name: {"type": "vec2" if name == "st" else "vec3"} for name in PRIMVARS},
+        "parameters": {name: {"default": default, "documentation": doc} for name, _, default, doc in INPUTS},
+        "parameterOrder": [name for name, *_ in INPUTS],
+        "techniques": {"default": {"surfaceShader": {"source": ["SurfaceHelpers.TangentSpace", "UsdBtf.Core",
+                                                                "UsdBtf.Surface"]}}},
+    }
+    packs = _lines("    packs[{p}] = vec4(0.0);\n#ifdef HD_HAS_COORD_{name}\n"
+                   "    packs[{p}] = texture(HdGetSampler_{name}(), st);\n#endif\n").rstrip("\n")
+    surface = _STORM_SURFACE.format(packs=packs, all_k=4 * MAX_GROUPS)
+    return ("-- glslfx version 0.1\n\n"
+            "// usdbtf: measured BTF (Koudelka et al. 2003) preview for Hydra Storm.\n"
+            "// GENERATED by usdbtf.gpu.shaders from pipeline/usdbtf/gpu/glsl/btf_core.glsl; do not edit.\n\n"
+            "#import $TOOLS/hdSt/shaders/surfaceHelpers.glslfx\n\n"
+            "-- configuration\n" + json.dumps(config, indent=4) + "\n\n"
+            "-- glsl UsdBtf.Core\n\n" + core_source() + "\n\n"
+            "-- glsl UsdBtf.Surface\n\n" + surface)
+
+
+def shader_defs_usda() -> str:
+    """Sdr definition of the Storm shader (what UsdPreviewSurface's shaderDefs.usda is to it)."""
+    lines = ["#usda 1.0",
+             "(",
+             '    doc = """GENERATED by usdbtf.gpu.shaders; do not edit.',
+             "    Sdr definition of the usdbtf Storm preview shader: usdbtf.usd.storm registers it",
+             "    with Sdr (UsdShade.ShaderDefUtils), Storm finds the glslfx through",
+             '    PXR_SDR_FS_PLUGIN_SEARCH_PATHS=<plugin>/usdBtf/resources/shaders."""',
+             ")",
+             "",
+             f'def Shader "{SHADER_ID}" (',
+             '    doc = "Measured BTF (Koudelka et al. 2003): equation 2 per light, for Hydra Storm."',
+             "    sdrMetadata = {",
+             f'        string primvars = "{"|".join(PRIMVARS)}"',
+             '        token role = "surface"',
+             "    }",
+             ")",
+             "{",
+             f'    uniform token info:id = "{SHADER_ID}"',
+             '    uniform token info:implementationSource = "sourceAsset"',
+             f"    uniform asset info:glslfx:sourceAsset = @./shaders/{SHADER_ID}.glslfx@",
+             ""]
+    for name, kind, default, doc in INPUTS:
+        value = repr(default) if kind == "float" else str(default)
+        lines += [f"    {kind} inputs:{name} = {value} (", f'        doc = "{doc}"', "    )"]
+    lines += ["", "    token outputs:surface (", "        sdrMetadata = {",
+              '            string renderType = "terminal surface"', "        }", "    )", "}", ""]
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------ MaterialX
+_MTLX_FUNCTION = """\
+// MaterialX genglsl implementation of ND_{bsdf}: called once per light with
+// closureData.L / .V (world space, towards the light / the eye); the response is the
+// measured BTF value, which already holds the light's foreshortening.  No environment
+// term: the measurement has no such thing.
+void mx_{bsdf}(ClosureData closureData, sampler2D tables, {pack_args}, int basisCount, float weight,
+               vec3 normal, vec3 tangent, vec3 bitangent, inout BSDF bsdf)
+{{
+    bsdf.throughput = vec3(0.0);
+    bsdf.response = vec3(0.0);
+    if (closureData.closureType != CLOSURE_TYPE_REFLECTION || weight <= 0.0) {{
+        return;
+    }}
+    mat3 frame = btfFrame(normal, tangent, bitangent);
+    vec4 packs[BTF_MAX_PACKS] = vec4[BTF_MAX_PACKS]({pack_list});
+    ivec3 viewIndex;
+    vec3 viewWeight;
+    btfViewLookup(tables, btfLocal(frame, closureData.V), viewIndex, viewWeight);
+    vec4 rows[BTF_MAX_GROUPS];
+    for (int g = 0; g < BTF_MAX_GROUPS; ++g) {{
+        rows[g] = vec4(0.0);
+    }}
+    btfAddLight(tables, viewIndex, viewWeight, btfLocal(frame, closureData.L), 1.0, rows);
+    int k = basisCount > 0 ? basisCount : {all_k};
+    bsdf.response = weight * closureData.occlusion * btfResolve(tables, rows, packs, k);
+}}
+"""
+
+
+def materialx_impl() -> str:
+    """genglsl source of ND_usdbtf_bsdf (the shared core plus the closure wrapper)."""
+    names = [pack_name(p) for p in range(MAX_PACKS)]
+    return ("// GENERATED by usdbtf.gpu.shaders from pipeline/usdbtf/gpu/glsl/btf_core.glsl; do not edit.\n"
+            '#include "pbrlib/genglsl/lib/mx_closure_type.glsl"\n\n' + core_source() + "\n"
+            + _MTLX_FUNCTION.format(bsdf=MTLX_BSDF, pack_args=", ".join(f"vec4 {n}" for n in names),
+                                    pack_list=", ".join(names), all_k=4 * MAX_GROUPS))
+
+
+def materialx_defs() -> str:
+    """The nodedefs, the genglsl implementation element and the usdbtf_surface graph."""
+    packs = [pack_name(p) for p in range(MAX_PACKS)]
+    doc = "Measured BTF (Koudelka et al. 2003), equation 2 per light; textures written by usdbtf package."
+    out = ['<?xml version="1.0"?>',
+           "<!-- GENERATED by usdbtf.gpu.shaders; do not edit. Put this folder on PXR_MTLX_PLUGIN_SEARCH_PATHS"
+           " (Hydra) or a MaterialX library search path. -->",
+           '<materialx version="1.39">',
+           f'  <nodedef name="ND_{MTLX_BSDF}" node="{MTLX_BSDF}" nodegroup="pbr" doc="{doc}">',
+           '    <input name="tables" type="filename" uniform="true" />']
+    out += [f'    <input name="{n}" type="vector4" value="0, 0, 0, 0" />' for n in packs]
+    out += ['    <input name="basisCount" type="integer" value="0" uniform="true" />',
+            '    <input name="weight" type="float" value="1.0" />',
+            '    <input name="normal" type="vector3" defaultgeomprop="Nworld" />',
+            '    <input name="tangent" type="vector3" defaultgeomprop="Tworld" />',
+            '    <input name="bitangent" type="vector3" defaultgeomprop="Bworld" />',
+            '    <output name="out" type="BSDF" />',
+            "  </nodedef>",
+            f'  <implementation name="IM_{MTLX_BSDF}_genglsl" nodedef="ND_{MTLX_BSDF}" '
+            f'file="genglsl/mx_{MTLX_BSDF}.glsl" function="mx_{MTLX_BSDF}" target="genglsl" />',
+            f'  <nodedef name="ND_{MTLX_SURFACE}" node="{MTLX_SURFACE}" nodegroup="pbr" '
+            f'doc="{doc} The packs are sampled at the texcoord, the tables read texel by texel.">',
+            '    <input name="tables" type="filename" uniform="true" />']
+    out += [f'    <input name="{n}" type="filename" uniform="true" />' for n in packs]
+    out += ['    <input name="basisCount" type="integer" value="0" uniform="true" />',
+            '    <input name="texcoord" type="vector2" defaultgeomprop="UV0" />',
+            '    <output name="out" type="surfaceshader" />',
+            "  </nodedef>",
+            f'  <nodegraph name="NG_{MTLX_SURFACE}" nodedef="ND_{MTLX_SURFACE}">']
+    for n in packs:
+        out += [f'    <image name="{n}" type="vector4">',
+                f'      <input name="file" type="filename" interfacename="{n}" />',
+                '      <input name="texcoord" type="vector2" interfacename="texcoord" />',
+                "    </image>"]
+    out += [f'    <{MTLX_BSDF} name="btf" type="BSDF">',
+            '      <input name="tables" type="filename" interfacename="tables" />']
+    out += [f'      <input name="{n}" type="vector4" nodename="{n}" />' for n in packs]
+    out += ['      <input name="basisCount" type="integer" interfacename="basisCount" />',
+            f"    </{MTLX_BSDF}>",
+            '    <surface name="surface" type="surfaceshader">',
+            '      <input name="bsdf" type="BSDF" nodename="btf" />',
+            "    </surface>",
+            '    <output name="out" type="surfaceshader" nodename="surface" />',
+            "  </nodegraph>",
+            "</materialx>", ""]
+    return "\n".join(out)
+
+
+# ------------------------------------------------------------------ headless harness
+HARNESS_VERTEX = """\
+#version 330
+in vec4 aClip;
+in vec3 aP;
+in vec3 aN;
+in vec3 aT;
+in vec3 aB;
+in vec2 aSt;
+out vec3 vP;
+out vec3 vN;
+out vec3 vT;
+out vec3 vB;
+out vec2 vSt;
+void main()
+{
+    gl_Position = aClip;
+    vP = aP;
+    vN = aN;
+    vT = aT;
+    vB = aB;
+    vSt = aSt;
+}
+"""
+
+HARNESS_MAX_LIGHTS = 8
+
+_HARNESS_MAIN = """\
+uniform sampler2D uTables;
+{samplers}
+uniform int uBasisCount;
+uniform vec4 uEye;                       // w = 1: eye position; w = 0: direction towards the eye
+uniform int uLightCount;
+uniform vec4 uLight[{max_lights}];               // w = 1: point light position; w = 0: direction towards it
+uniform float uIntensity[{max_lights}];          // irradiance relative to the capture light (point: / d^2)
+in vec3 vP;
+in vec3 vN;
+in vec3 vT;
+in vec3 vB;
+in vec2 vSt;
+out vec4 fragColor;
+
+void main()
+{{
+    mat3 frame = btfFrame(vN, vT, vB);
+    vec4 packs[BTF_MAX_PACKS];
+{packs}
+    vec3 toEye = uEye.w > 0.5 ? normalize(uEye.xyz - vP) : normalize(uEye.xyz);
+    ivec3 viewIndex;
+    vec3 viewWeight;
+    btfViewLookup(uTables, btfLocal(frame, toEye), viewIndex, viewWeight);
+    vec4 rows[BTF_MAX_GROUPS];
+    for (int g = 0; g < BTF_MAX_GROUPS; ++g) {{
+        rows[g] = vec4(0.0);
+    }}
+    for (int i = 0; i < uLightCount; ++i) {{
+        vec3 d = uLight[i].w > 0.5 ? uLight[i].xyz - vP : uLight[i].xyz;
+        float scale = uIntensity[i];
+        if (uLight[i].w > 0.5) {{
+            scale /= max(dot(d, d), 1e-30);
+        }}
+        btfAddLight(uTables, viewIndex, viewWeight, btfLocal(frame, normalize(d)), scale, rows);
+    }}
+    fragColor = vec4(btfResolve(uTables, rows, packs, uBasisCount), 1.0);
+}}
+"""
+
+
+def harness_fragment() -> str:
+    """Fragment shader of the headless harness: the core lit by white point/distant lights,
+    exactly the CPU renderer's light model."""
+    return ("#version 330\n" + core_source() + "\n"
+            + _HARNESS_MAIN.format(samplers=_lines("uniform sampler2D u{name};\n").rstrip("\n"),
+                                   packs=_lines("    packs[{p}] = texture(u{name}, vSt);\n").rstrip("\n"),
+                                   max_lights=HARNESS_MAX_LIGHTS))
+
+
+# ------------------------------------------------------------------ plugin files
+def plugin_files() -> dict[str, str]:
+    """Relative path under ``plugin/usdBtf/resources`` -> generated text."""
+    return {f"shaders/{SHADER_ID}.glslfx": storm_glslfx(),
+            "shaderDefs.usda": shader_defs_usda(),
+            "materialx/usdbtf_defs.mtlx": materialx_defs(),
+            f"materialx/genglsl/mx_{MTLX_BSDF}.glsl": materialx_impl()}
+
+
+def _resources(plugin: Path | None) -> Path:
+    from ..usd.plugin import plugin_dir
+
+    return (plugin or plugin_dir()) / "usdBtf" / "resources"
+
+
+def stale_plugin_files(plugin: Path | None = None) -> list[str]:
+    """Generated plugin files that are missing or differ from a fresh generation."""
+    root = _resources(plugin)
+    return [rel for rel, text in plugin_files().items()
+            if not (root / rel).is_file() or (root / rel).read_text() != text]
+
+
+def write_plugin_files(plugin: Path | None = None) -> list[Path]:
+    """(Re)write the generated plugin files; returns the paths written."""
+    from ..atomic import atomic_file
+
+    root = _resources(plugin)
+    written = []
+    for rel, text in plugin_files().items():
+        path = root / rel
+        with atomic_file(path) as tmp:
+            tmp.write_text(text)
+        written.append(path)
+    return written
+
+
+def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv == ["--check"]:
+        stale = stale_plugin_files()
+        for rel in stale:
+            print(f"stale: plugin/usdBtf/resources/{rel} (run python -m usdbtf.gpu.shaders)", file=sys.stderr)
+        return 1 if stale else 0
+    for path in write_plugin_files():
+        print(path)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,187 @@
+"""GPU layout of a compressed BTF: one float "tables" texture and RGBA coefficient packs.
+
+The layout is documented texel by texel at the top of ``glsl/btf_core.glsl`` (the shader
+that reads it); this module writes it.  Pure arrays in, arrays out:
+
+* ``tables`` (R, TABLE_WIDTH, 4) float32: a header, the basis rows (sample-major, 4 basis
+  vectors per texel), a point-location table for the view and for the light hemisphere
+  (the triangulations of :mod:`usdbtf.render.hemisphere`, so the GPU interpolates exactly as
+  the CPU renderer does), the de-quantisation of every pack and the colour matrix;
+* ``packs`` 3 * ceil(k / 4) arrays (H, W, 4): pack ``p = 3 g + c`` holds colour channel
+  ``c`` of basis vectors ``4g .. 4g+3`` as the stored integer codes (uint8/uint16) or halves,
+  so a pack written as PNG/EXR reproduces the compressed values exactly.  Energy order
+  makes a level of detail of k' vectors the first ``3 * ceil(k' / 4)`` packs.
+
+At most ``4 * MAX_GROUPS`` basis vectors reach the GPU (the texture budget, see
+:data:`MAX_GROUPS`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..compress.format import CompressedBTF, cross_layout
+from ..errors import BTFError
+
+__all__ = ["MAX_GROUPS", "MAX_PACKS", "TABLE_WIDTH", "GpuLayout", "gpu_layout", "pack_count", "HemisphereTable"]
+
+#: Groups of 4 basis vectors the shaders handle: 8 groups = k <= 32 = 24 coefficient
+#: textures, which with the tables texture stays inside the 32 texture units of a
+#: fragment shader without bindless textures (GL_MAX_TEXTURE_IMAGE_UNITS is 32 on
+#: current desktop GPUs and on Mesa llvmpipe).
+MAX_GROUPS = 8
+MAX_PACKS = 3 * MAX_GROUPS
+TABLE_WIDTH = 512
+_GRID = 32
+_HEADER = 3
+#: Largest code of each storage type: what a GPU's normalised read divides by.
+_MAX_CODE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0, np.dtype(np.float16): 1.0}
+
+
+def pack_count(k: int) -> int:
+    """Coefficient packs (RGBA textures) holding the first ``k`` basis vectors."""
+    return 3 * -(-min(k, 4 * MAX_GROUPS) // 4)
+
+
+@dataclass
+class GpuLayout:
+    """tables : (R, TABLE_WIDTH, 4) float32.  packs : list of (H, W, 4) arrays (uint8,
+    uint16 or float16), see the module docstring.  k : basis vectors on the GPU."""
+
+    tables: np.ndarray
+    packs: list
+    k: int
+
+
+class _Texels:
+    """Appends RGBA texels to a 1-D table; returns the address of each block."""
+
+    def __init__(self):
+        self.blocks: list[np.ndarray] = [np.zeros((_HEADER, 4), np.float32)]
+        self.size = _HEADER
+
+    def add(self, texels) -> int:
+        block = np.asarray(texels, np.float32).reshape(-1, 4)
+        address = self.size
+        self.blocks.append(block)
+        self.size += len(block)
+        return address
+
+    def image(self) -> np.ndarray:
+        flat = np.concatenate(self.blocks)
+        rows = -(-len(flat) // TABLE_WIDTH)
+        out = np.zeros((rows * TABLE_WIDTH, 4), np.float32)
+        out[:len(flat)] = flat
+        return out.reshape(rows, TABLE_WIDTH, 4)
+
+
+@dataclass
+class HemisphereTable:
+    """Point location over one triangulated hemisphere, as texels (see btf_core.glsl)."""
+
+    origin: np.ndarray        # (2,) disc coordinates of the grid's corner
+    cell: float               # cell size, disc units
+    candidates: np.ndarray    # (grid, grid, 4 * texels) triangle ids, -1 = none
+    triangles: np.ndarray     # (T, 3, 4) texels per triangle
+    boundary: np.ndarray      # (E, 2, 4) texels per boundary edge
+
+    @classmethod
+    def from_triangulation(cls, tri) -> "HemisphereTable":
+        """From a :class:`usdbtf.render.hemisphere.Triangulation`."""
+        pts, tris = tri.points, tri.triangles
+        origin = pts.min(axis=0) - 1e-6
+        cell = (float(np.max(pts.max(axis=0) - origin)) + 2e-6) / _GRID
+        lists = [[[] for _ in range(_GRID)] for _ in range(_GRID)]
+        corners = pts[tris]                                           # (T, 3, 2)
+        if len(tris):
+            lo = np.floor((corners.min(axis=1) - origin) / cell).astype(int).clip(0, _GRID - 1)
+            hi = np.floor((corners.max(axis=1) - origin) / cell).astype(int).clip(0, _GRID - 1)
+            for t, ((x0, y0), (x1, y1)) in enumerate(zip(lo, hi)):
+                for gy in range(y0, y1 + 1):
+                    for gx in range(x0, x1 + 1):
+                        lists[gy][gx].append(t)
+        depth = max(1, max(len(c) for row in lists for c in row))
+        width = 4 * -(-depth // 4)
+        candidates = np.full((_GRID, _GRID, width), -1.0, np.float32)
+        for gy in range(_GRID):
+            for gx in range(_GRID):
+                candidates[gy, gx, :len(lists[gy][gx])] = lists[gy][gx]
+        texels = np.zeros((len(tris), 3, 4), np.float64)
+        if len(tris):
+            a = corners[:, 0]
+            inverse = np.linalg.inv(np.stack([corners[:, 1] - a, corners[:, 2] - a], axis=2))   # (T, 2, 2)
+            texels[:, 0] = np.c_[a, tris[:, 0], tris[:, 1]]
+            texels[:, 1] = inverse.reshape(-1, 4)
+            texels[:, 2, 0] = tris[:, 2]
+        edges = tri.boundary if len(tri.boundary) else np.zeros((1, 2), np.int64)   # one direction: a point
+        bound = np.zeros((len(edges), 2, 4), np.float64)
+        bound[:, 0] = np.c_[pts[edges[:, 0]], pts[edges[:, 1]]]
+        bound[:, 1, :2] = edges
+        return cls(origin, cell, candidates, texels, bound)
+
+    def write(self, table: _Texels) -> int:
+        """Append to ``table``; returns the address of this hemisphere's header."""
+        grid_at = table.add(self.candidates)
+        tri_at = table.add(self.triangles) if len(self.triangles) else table.size
+        bound_at = table.add(self.boundary)
+        return table.add([[self.origin[0], self.origin[1], self.cell, _GRID],
+                          [self.candidates.shape[2] // 4, len(self.triangles), len(self.boundary), 0],
+                          [grid_at, tri_at, bound_at, 0]])
+
+
+def _pack(cbtf: CompressedBTF, k: int) -> tuple[list, np.ndarray, np.ndarray]:
+    """Coefficient packs plus per-pack (scale, bias) (P, 4) for normalised GPU reads."""
+    packs, scales, biases = [], [], []
+    for g in range(-(-k // 4)):
+        layers = cbtf.coefficients[4 * g:min(4 * g + 4, k)]
+        dtypes = {np.dtype(st.pixels.dtype) for st in layers}
+        dtype = np.dtype(np.float16) if np.dtype(np.float16) in dtypes else \
+            np.dtype(np.uint16) if np.dtype(np.uint16) in dtypes else np.dtype(np.uint8)
+        if not dtypes <= set(_MAX_CODE) or (np.dtype(np.float16) in dtypes and len(dtypes) > 1):
+            raise BTFError(f"coefficient textures {4 * g}..{4 * g + len(layers) - 1}: cannot pack storage types "
+                           f"{sorted(str(d) for d in dtypes)} into one texture")
+        for c in range(3):
+            pix = np.zeros((cbtf.height, cbtf.width, 4), dtype)
+            scale, bias = np.zeros(4), np.zeros(4)
+            for j, st in enumerate(layers):
+                pix[:, :, j] = st.pixels[:, :, c]
+                scale[j], bias[j] = float(st.scale[c]) * _MAX_CODE[dtype], float(st.bias[c])
+            packs.append(pix)
+            scales.append(scale)
+            biases.append(bias)
+    return packs, np.asarray(scales), np.asarray(biases)
+
+
+def gpu_layout(cbtf: CompressedBTF, k: int | None = None) -> GpuLayout:
+    """The tables texture and coefficient packs for the first ``k`` (default all, at most
+    ``4 * MAX_GROUPS``) basis vectors of ``cbtf``, which must sample every light at every view."""
+    from ..render.hemisphere import Triangulation   # OpenCV: imported only when needed
+
+    layout = cross_layout(cbtf.sampling)
+    if layout is None:
+        raise BTFError("the GPU preview needs every light at every view (a V x L sampling, view-major); "
+                       f"this BTF's {cbtf.n_samples} samples are not")
+    V, L = layout
+    k = min(cbtf.k if k is None else k, 4 * MAX_GROUPS)
+    groups = -(-k // 4)
+    views = Triangulation.from_directions(cbtf.sampling.view[::L], "view directions")
+    lights = Triangulation.from_directions(cbtf.sampling.light[:L], "light directions")
+    basis = np.zeros((V * L, groups * 4), np.float32)
+    basis[:, :k] = cbtf.basis_values(k)
+    packs, scales, biases = _pack(cbtf, k)
+
+    table = _Texels()
+    basis_at = table.add(basis)
+    view_at = HemisphereTable.from_triangulation(views).write(table)
+    light_at = HemisphereTable.from_triangulation(lights).write(table)
+    dequant_at = table.add(np.stack([scales, biases], axis=1))
+    matrix_at = table.add(np.c_[np.asarray(cbtf.color_matrix, np.float64), np.zeros(3)])
+    image = table.image()
+    flat = image.reshape(-1, 4)
+    flat[0] = [TABLE_WIDTH, V, L, groups]
+    flat[1] = [k, basis_at, view_at, light_at]
+    flat[2] = [dequant_at, matrix_at, 0, 0]
+    if table.size >= 2**24:
+        raise BTFError(f"GPU tables need {table.size} texels; addresses must stay below 2^24 (float precision)")
+    return GpuLayout(image, packs, k)
