@@ -67,6 +67,21 @@ step "decompress from the asset (equals decompress of the folder, bit for bit)" 
     usdbtf decompress "$OUT/asset/pebbles.usdz" -o "$OUT/pebbles_from_asset" --lod full
 
 # -- quilt / unwrap / render (issue 5) --
+step "quilt: a tileable 256² texture from the 64² sample, matching in coefficient space" \
+    usdbtf quilt "$OUT/pebbles_c" -o "$OUT/pebbles_q256" --size 256 256 --tileable --seed 1
+step "render: the measured swatch at a measured (view, light) (equals decompress of that sample)" \
+    usdbtf render "$OUT/pebbles_c" --swatch --view 30,0 --light 60,90 -o "$OUT/swatch.exr"
+step "mesh: a generated torus knot (OBJ with normals)" \
+    .venv/bin/python examples/shapes.py torus_knot -o "$OUT/knot.obj" --scale 0.6
+step "unwrap: xatlas charts at the sample's texel density, tangent frames, USD geometry layer" \
+    usdbtf unwrap "$OUT/knot.obj" -o "$OUT/knot_uv" --btf "$OUT/pebbles_c"
+step "quilt into the knot's atlas (every chart filled, borders matched, gutters padded)" \
+    usdbtf quilt "$OUT/pebbles_c" --atlas "$OUT/knot_uv/mesh.usda" -o "$OUT/knot_btf" --seed 1
+step "render: the knot under a near point light with cast shadows (EXR + sRGB PNG)" \
+    usdbtf render "$OUT/knot_btf" --mesh "$OUT/knot_uv/mesh.usda" --light point:-0.05,0.07,0.06:0.01 \
+    --size 320 320 -o "$OUT/knot.exr"
+step "figure: three materials on a sphere, a cylinder and a torus knot, two lights (small; full: README)" \
+    .venv/bin/python examples/fig5.py -o "$OUT/fig5_small.png" --workdir "$OUT/fig5" --size 64 --k 24 --tile 160
 
 # -- Hydra preview: Storm shader / MaterialX, checked headless (issue 7) --
 step "preview: the asset's real-time shader on headless OpenGL vs the CPU renderer (PSNR)" \

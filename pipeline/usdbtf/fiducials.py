@@ -35,7 +35,7 @@ import numpy as np
 from .errors import BTFError
 
 __all__ = ["FORMAT", "Board", "make_board", "load_board", "parse_board", "board_image", "Detection",
-           "detect_markers", "refine_corners", "fit_homography", "apply_homography", "to_cv", "from_cv", "marker_corner_points"]
+           "detection_grey", "detect_markers", "refine_corners", "fit_homography", "apply_homography", "to_cv", "from_cv", "marker_corner_points"]
 
 FORMAT = "usdbtf-board/1"
 
@@ -276,14 +276,11 @@ class Detection:
 def _detector(board: Board):
     import cv2
     params = cv2.aruco.DetectorParameters()
-    # Sub-pixel corners: each corner is refined on the grey image (cornerSubPix) within a
-    # small window, which matters at grazing views where markers are a few pixels wide.
+    # ArUco's sub-pixel pass (cornerSubPix) gives refine_corners a start within ~1 px
+    # even at grazing views; without it ~10% of corners there start too far off.
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
-    params.cornerRefinementWinSize = 4
     params.cornerRefinementMaxIterations = 50
     params.cornerRefinementMinAccuracy = 0.01
-    # Foreshortened markers are thin: accept small perimeters.
-    params.minMarkerPerimeterRate = 0.01
     refine = cv2.aruco.RefineParameters()
     return cv2.aruco.ArucoDetector(board.aruco_dictionary(), params, refine)
 
@@ -294,15 +291,31 @@ def _cv_board(board: Board):
     return cv2.aruco.Board(list(obj), board.aruco_dictionary(), board.ids.astype(np.int32))
 
 
-def detect_markers(grey: np.ndarray, board: Board) -> Detection:
-    """Find the board's markers in an 8-bit grey frame (H, W) uint8.
+def detection_grey(luminance: np.ndarray) -> np.ndarray:
+    """Linear luminance (H, W) -> 8-bit grey for the marker detector.
 
-    Runs ArUco detection with sub-pixel corner refinement, then looks again for board
-    markers the first pass missed near where the board layout predicts them.  Ids not on
-    the board are dropped.
+    Auto-exposed (the 99th percentile maps to 255) and gamma 1/2.2 encoded, so frames lit
+    from grazing angles, which are dim, still give the detector full contrast.
     """
-    if grey.dtype != np.uint8 or grey.ndim != 2:
-        raise ValueError(f"expected an (H, W) uint8 image, got {grey.shape} {grey.dtype}")
+    lum = np.asarray(luminance, np.float32)
+    top = float(np.percentile(lum, 99.0))
+    if not np.isfinite(top) or top <= 0:
+        return np.zeros(lum.shape, np.uint8)
+    return (255.0 * np.power(np.clip(lum / top, 0.0, 1.0), 1.0 / 2.2) + 0.5).astype(np.uint8)
+
+
+def detect_markers(luminance: np.ndarray, board: Board, *, refine: bool = True) -> Detection:
+    """Find the board's markers in a frame given as linear luminance (H, W) float32.
+
+    ArUco detection (with its sub-pixel corner pass) on an auto-exposed 8-bit copy, a
+    second look for board markers the first pass missed near where the layout predicts
+    them, then edge-fit corner refinement on the linear image (:func:`refine_corners`).
+    Ids not on the board, and ids seen twice, are dropped.
+    """
+    lum = np.asarray(luminance, np.float32)
+    if lum.ndim != 2:
+        raise ValueError(f"expected an (H, W) luminance image, got shape {lum.shape}")
+    grey = detection_grey(lum)
     det = _detector(board)
     corners, ids, rejected = det.detectMarkers(grey)
     if ids is not None and len(ids) >= 4 and len(rejected):
@@ -316,10 +329,13 @@ def detect_markers(grey: np.ndarray, board: Board) -> Detection:
     uniq, counts = np.unique(ids[keep], return_counts=True)
     keep &= ~np.isin(ids, uniq[counts > 1])
     order = np.argsort(ids[keep], kind="stable")
-    return Detection(ids[keep][order], from_cv(corners[keep][order]))
+    found = from_cv(corners[keep][order])
+    if refine:
+        found = refine_corners(lum, found)
+    return Detection(ids[keep][order], found)
 
 
-def refine_corners(luminance: np.ndarray, corners: np.ndarray, *, samples: int = 12) -> np.ndarray:
+def refine_corners(luminance: np.ndarray, corners: np.ndarray, *, samples: int = 12, passes: int = 2) -> np.ndarray:
     """Sub-pixel marker corners from straight-edge fits, (n, 4, 2) frame pixels.
 
     ArUco's own refinement (cornerSubPix on an L-shaped corner) is biased by a few
@@ -333,9 +349,19 @@ def refine_corners(luminance: np.ndarray, corners: np.ndarray, *, samples: int =
         the gradient centroid towards the dark side).
     corners : (n, 4, 2) initial corners (corner-origin frame pixels), clockwise.
     A corner whose fit is degenerate or moves more than 1.5 px keeps its initial value.
+    ``passes`` repeats the fit from the previous pass's corners (sampling along better
+    edges); the second pass matters at grazing views.
     """
+    start = np.asarray(corners, np.float64)
+    c = start.copy()
+    for _ in range(passes):
+        c = _refine_pass(luminance, c, samples)
+    moved = np.linalg.norm(c - start, axis=2) <= 1.5
+    return np.where(moved[..., None], c, start)
+
+
+def _refine_pass(luminance: np.ndarray, c: np.ndarray, samples: int) -> np.ndarray:
     import cv2
-    c = np.asarray(corners, np.float64)
     if len(c) == 0:
         return c.copy()
     nxt = np.roll(c, -1, axis=1)
@@ -343,8 +369,12 @@ def refine_corners(luminance: np.ndarray, corners: np.ndarray, *, samples: int =
     length = np.linalg.norm(edge, axis=2, keepdims=True)
     tangent = edge / np.maximum(length, 1e-9)
     normal = np.stack([-tangent[..., 1], tangent[..., 0]], axis=-1)
-    # Stay inside the marker's black border (1/6 of a 4x4 marker) and the white gap outside.
-    reach = np.clip(0.12 * length, 0.75, 3.0)                   # (n, 4, 1) px
+    # Search no further than the black border reaches inwards: the border of a 4x4..6x6
+    # marker is 1/6..1/8 of its height across that edge (area / edge length), and a grazing
+    # view shrinks that height.
+    area = 0.5 * np.abs(np.sum(c[..., 0] * nxt[..., 1] - nxt[..., 0] * c[..., 1], axis=1))
+    height = area[:, None, None] / np.maximum(length, 1e-9)
+    reach = np.clip(0.1 * height, 0.6, 3.0)                     # (n, 4, 1) px
     t = np.linspace(0.2, 0.8, samples)
     base = c[:, :, None, :] + t[None, None, :, None] * edge[:, :, None, :]        # (n, 4, m, 2)
     steps = np.linspace(-1.0, 1.0, 17)
@@ -356,8 +386,12 @@ def refine_corners(luminance: np.ndarray, corners: np.ndarray, *, samples: int =
     prof = cv2.remap(np.ascontiguousarray(luminance, np.float32), mx, my, cv2.INTER_LINEAR,
                      borderMode=cv2.BORDER_REPLICATE).reshape(pts.shape[:-1]).astype(np.float64)
     grad = np.abs(np.diff(prof, axis=-1))
-    grad = np.where(grad >= 0.25 * grad.max(axis=-1, keepdims=True), grad, 0.0)  # ignore noise far from the edge
     mid = 0.5 * (offs[..., 1:] + offs[..., :-1])
+    # Only the strongest edge along each normal: +-1.6 px around the gradient peak (a
+    # blurred step is about 2 px wide; further out lie the marker's inner bits).
+    peak = np.take_along_axis(np.broadcast_to(mid, grad.shape), np.argmax(grad, axis=-1)[..., None], axis=-1)
+    near = np.abs(mid - peak) <= 1.6
+    grad = np.where(near & (grad >= 0.2 * grad.max(axis=-1, keepdims=True)), grad, 0.0)
     wsum = grad.sum(axis=-1)
     d = (grad * mid).sum(axis=-1) / np.maximum(wsum, 1e-12)                       # (n, 4, m)
     edge_pts = base + d[..., None] * normal[:, :, None, :]

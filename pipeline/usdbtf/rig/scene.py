@@ -31,10 +31,12 @@ from ..synth import IRRADIANCE
 from .kinematics import rotation
 
 __all__ = ["Camera", "frame_homography", "texture_homography", "render_frame", "vignetting", "add_sensor_noise",
-           "PAPER_WHITE", "INK_BLACK"]
+           "draw_arm", "PAPER_WHITE", "INK_BLACK", "ARM_GREY"]
 
 PAPER_WHITE = 0.86
 INK_BLACK = 0.04
+#: Radiance of the (matte black, unlit from the front) robot arm where it hides the view.
+ARM_GREY = 0.01
 
 
 @dataclass(frozen=True)
@@ -48,8 +50,8 @@ class Camera:
     read_noise, shot_noise : sensor noise, see the module docstring; 0 disables.
     """
 
-    width: int = 1280
-    height: int = 960
+    width: int = 1600
+    height: int = 1200
     focal_px: float = 4000.0
     distance_m: float = 1.0
     vignetting: float = 1.0
@@ -104,13 +106,50 @@ def _warp(src: np.ndarray, h: np.ndarray, size: tuple[int, int], nearest: bool =
     return cv2.warpPerspective(src, to_cv(h), size, flags=flags, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
 
+def _project(camera: Camera, points: np.ndarray, scale: float):
+    """Lab points (n, 3) -> (frame pixels (n, 2) corner origin, depth (n,)), times ``scale``."""
+    depth = camera.distance_m - points[:, 2]
+    uv = np.stack([camera.width / 2.0 + camera.focal_px * points[:, 0] / depth,
+                   camera.height / 2.0 - camera.focal_px * points[:, 1] / depth], axis=1)
+    return uv * scale, depth
+
+
+def draw_arm(frame: np.ndarray, arm_deg, camera: Camera, geometry, scale: float = 1.0) -> np.ndarray:
+    """Paint the light arm (the capsules of :class:`usdbtf.rig.plan.ArmGeometry`) into ``frame``.
+
+    Only parts between the sample and the camera are drawn (those are what can hide the
+    sample; the rest is behind it or outside the view).  ``scale`` is the frame's
+    supersampling factor.
+    """
+    import cv2
+    from ..sampling import to_vectors
+    d = to_vectors(np.asarray(arm_deg, np.float64).reshape(1, 2))[0]
+    led = geometry.led_distance_m * d
+    wrist = (geometry.led_distance_m + geometry.wrist_m) * d
+    shoulder = np.asarray(geometry.shoulder_m, np.float64)
+    for a, b, radius in ((led, wrist, geometry.link_radius_m), (wrist, shoulder, geometry.link_radius_m),
+                         (led, led, geometry.led_radius_m)):
+        pts = np.linspace(a, b, 96)
+        pts = pts[(pts[:, 2] > 0) & (pts[:, 2] < camera.distance_m - 0.05)]
+        if len(pts) == 0:
+            continue
+        uv, depth = _project(camera, pts, scale)
+        for (u, v), z in zip(uv, depth):
+            r = camera.focal_px * radius / z * scale
+            if -r < u < frame.shape[1] + r and -r < v < frame.shape[0] + r:
+                cv2.circle(frame, (int(round(u * 16 - 8)), int(round(v * 16 - 8))), int(round(r * 16)),
+                           (ARM_GREY,) * 3, thickness=-1, lineType=cv2.LINE_AA, shift=4)
+    return frame
+
+
 def render_frame(board: Board, texture: np.ndarray, head_deg, light_deg, camera: Camera, *,
-                 supersample: int = 2, board_albedo: np.ndarray | None = None) -> np.ndarray:
+                 supersample: int = 2, board_albedo: np.ndarray | None = None, arm=None) -> np.ndarray:
     """The noiseless, unvignetted radiance the camera sees, (H, W, 3) float32 linear Rec.709.
 
     texture : (N, N, 3) rectified BTF sample for this view and light (synth radiance).
     light_deg : (theta, phi) of the light in the sample frame (shades the paper).
     board_albedo : (Hb, Wb) float32 paper reflectance (default from the board image).
+    arm : optional (arm_deg, ArmGeometry): draw the light arm where it is in front of the sample.
     """
     import cv2
     ss = int(supersample)
@@ -126,6 +165,8 @@ def render_frame(board: Board, texture: np.ndarray, head_deg, light_deg, camera:
     sample = _warp(np.ascontiguousarray(texture, np.float32), h_tex, size, nearest=True)
     inside = _warp(np.ones((n, n), np.float32), h_tex, size, nearest=True)[..., None]
     frame = paper[..., None] * (1.0 - inside) + sample * inside
+    if arm is not None:
+        frame = draw_arm(np.ascontiguousarray(frame), arm[0], camera, arm[1], float(ss))
     if ss > 1:
         frame = cv2.resize(frame, (camera.width, camera.height), interpolation=cv2.INTER_AREA)
     return frame.astype(np.float32)

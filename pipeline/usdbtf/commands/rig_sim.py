@@ -1,0 +1,86 @@
+"""``usdbtf rig-sim``: a simulated rig controller on a pty or a TCP socket."""
+from __future__ import annotations
+
+from pathlib import Path
+
+ORDER = 4
+
+
+def _size(text: str) -> tuple[int, int]:
+    import argparse
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, got {text!r}") from None
+    if w < 64 or h < 64:
+        raise argparse.ArgumentTypeError("frames must be at least 64x64")
+    return w, h
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("rig-sim", help="simulated rig: serves the rig protocol, photographs a synthetic sample",
+                       description="Serves the usdbtf-rig/1 protocol (docs/rig-protocol.md). Prints the port "
+                                   "(a pty path or socket://host:port) as the first line on stdout, then runs "
+                                   "until killed. Frames go to --frames as <tag>.tif (16-bit sRGB) and latest.tif.")
+    link = p.add_mutually_exclusive_group()
+    link.add_argument("--pty", action="store_true", help="serve on a pseudo-terminal (the default)")
+    link.add_argument("--listen", metavar="HOST:PORT", help="serve on TCP instead (port 0 picks a free one)")
+    p.add_argument("--link", metavar="PATH", help="pty only: a symlink to the pty, kept pointing at it when the "
+                                                   "link is cut and a new pty opens")
+    p.add_argument("--port-file", metavar="PATH", help="also write the port to this file")
+    p.add_argument("--frames", type=Path, required=True, help="folder for the rendered frames")
+    p.add_argument("--material", default="pebbles", help="synth material: pebbles, ridged_fabric, fuzzy_moss")
+    p.add_argument("--texture-size", type=int, default=128, help="texels per side of the sample (default 128)")
+    p.add_argument("--seed", type=int, default=0, help="material, noise and fault seed")
+    p.add_argument("--board", type=Path, help="board.json (default: the standard board of `usdbtf board`)")
+    p.add_argument("--frame-size", type=_size, default=(1600, 1200), metavar="WxH", help="default 1600x1200")
+    p.add_argument("--fill", type=float, default=0.62, help="board height / frame height head-on (default 0.62)")
+    p.add_argument("--vignetting", type=float, default=1.0, help="lens falloff strength, 0 = none (default 1)")
+    p.add_argument("--read-noise", type=float, default=0.001, help="sensor read noise, std dev (default 0.001)")
+    p.add_argument("--shot-noise", type=float, default=1e-4, help="sensor shot-noise variance per unit signal")
+    p.add_argument("--fault-rate", type=float, default=0.0, help="probability a reply is lost or garbled (default 0)")
+    p.add_argument("--drop-every", type=int, default=0, metavar="N", help="cut the link after every N-th request")
+    p.add_argument("--reset-on-drop", action="store_true", help="forget positions when the link is cut")
+    p.add_argument("--speed", type=float, default=0.0, metavar="DEG_S", help="motion speed, 0 = instant")
+    p.add_argument("-q", "--quiet", action="store_true")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from .. import synth
+    from ..errors import BTFError
+    from ..fiducials import load_board, make_board
+    from ..rig import sim
+    from ..rig.scene import Camera
+
+    if not 0.0 <= args.fault_rate < 1.0:
+        raise BTFError(f"--fault-rate must be in [0, 1), got {args.fault_rate}")
+    if args.link and args.listen:
+        raise BTFError("--link applies to --pty only")
+    log = (lambda msg: None) if args.quiet else sim.stderr_log
+    board = load_board(args.board) if args.board else make_board()
+    try:
+        material = synth.make_material(args.material, args.texture_size, args.seed)
+    except ValueError as exc:
+        raise BTFError(str(exc)) from None
+    w, h = args.frame_size
+    camera = Camera.framing(board, w, h, fill=args.fill, vignetting=args.vignetting, read_noise=args.read_noise,
+                            shot_noise=args.shot_noise)
+    renderer = sim.SceneRenderer(material, board, camera, args.frames, seed=args.seed)
+    rig = sim.RigSimulator(renderer, fault_rate=args.fault_rate, seed=args.seed, drop_every=args.drop_every,
+                           reset_on_drop=args.reset_on_drop, speed_deg_s=args.speed, log=log)
+    import signal
+    import sys
+    # Killed politely (SIGTERM), clean up as on Ctrl-C: close the link, remove the --link symlink.
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+    log(f"rig-sim: {args.material} {args.texture_size}^2 in a {len(board.ids)}-marker board, frames "
+        f"{w}x{h} -> {args.frames}")
+    if args.listen:
+        host, _, port = args.listen.rpartition(":")
+        try:
+            sim.serve_socket(rig, host or "127.0.0.1", int(port), port_file=args.port_file, log=log)
+        except (ValueError, OSError) as exc:
+            raise BTFError(f"--listen {args.listen}: {exc}") from None
+    else:
+        sim.serve_pty(rig, link=args.link, port_file=args.port_file, log=log)
+    return 0

@@ -1,0 +1,306 @@
+"""Rectification: camera frames of a sample in a fiducial board -> an N x N BTF.
+
+Per frame (pure core, :func:`rectify_frame`):
+
+1. decode the frame to scene-linear (OCIO, the RAW manifest's declared colour space ->
+   the working space) and divide by the flat field when the capture recorded one;
+2. find the board's ArUco markers, refine their corners to sub-pixel accuracy and fit a
+   board -> frame homography with RANSAC (:mod:`usdbtf.fiducials`);
+3. warp the board's sample window to an N x N fronto-parallel image: each output texel
+   is the mean of the frame over the texel's footprint (supersampled bicubic lookups,
+   then a box filter), so a frame finer than the output is not aliased.
+
+A frame is *rejected* (reported, and treated as missing rather than guessed) when it
+shows fewer than ``min_markers`` board markers, when the RANSAC fit leaves a mean inlier
+residual above ``max_residual_px``, or when the window is not entirely inside the frame.
+
+Folder level (:func:`rectify_capture`): every sample of the capture plan ends up in the
+output manifest, in plan order; obstructed and rejected samples are filled from their
+neighbours (:mod:`usdbtf.fill`) and marked ``"interpolated": true``.  Rectified texels
+are staged in a memory-mapped scratch file, so memory stays at a few frames whatever
+the sampling.
+"""
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import BTFError
+from .fiducials import Board, apply_homography, detect_markers, fit_homography, make_board, parse_board, to_cv
+from .fill import combine, plan_fill
+from .imageio import read_image
+from .manifest import MANIFEST, read_manifest, write_manifest
+from .sampling import Sampling
+
+__all__ = ["FrameResult", "rectify_frame", "warp_window", "window_homography", "luminance", "RectifyOptions",
+           "rectify_capture", "read_raw_plan", "RawPlan"]
+
+
+@dataclass
+class FrameResult:
+    """Outcome of one frame.
+
+    image : (N, N, 3) float32 working space, or None when rejected.
+    homography : (3, 3) board -> frame pixels, or None.
+    markers : number of board markers found.
+    residual_px : mean distance of inlier corners from the fitted homography, frame pixels.
+    reason : why the frame was rejected ("" when it was not).
+    """
+
+    image: np.ndarray | None
+    homography: np.ndarray | None
+    markers: int
+    residual_px: float
+    reason: str = ""
+
+
+def luminance(linear: np.ndarray) -> np.ndarray:
+    """(H, W, 3) -> (H, W) float32 mean of the channels (enough to find black-on-white markers)."""
+    return np.asarray(linear, np.float32).mean(axis=2)
+
+
+def window_homography(h_board: np.ndarray, board: Board, size: int) -> np.ndarray:
+    """3x3: output texel coordinates (corner origin, N x N) -> frame pixels."""
+    x0, y0, x1, y1 = board.sample_rect
+    tex = np.array([[(x1 - x0) / size, 0.0, x0], [0.0, (y1 - y0) / size, y0], [0.0, 0.0, 1.0]])
+    return h_board @ tex
+
+
+def _footprint(h_tex: np.ndarray, size: int) -> float:
+    """Largest frame-pixel length of one texel edge over the window (its corners and centre)."""
+    pts = np.array([[0, 0], [size, 0], [0, size], [size, size], [size / 2, size / 2]], np.float64)
+    base = apply_homography(h_tex, pts)
+    step_x = apply_homography(h_tex, pts + [1.0, 0.0]) - base
+    step_y = apply_homography(h_tex, pts + [0.0, 1.0]) - base
+    return float(max(np.linalg.norm(step_x, axis=1).max(), np.linalg.norm(step_y, axis=1).max()))
+
+
+def warp_window(linear: np.ndarray, h_tex: np.ndarray, size: int, max_supersample: int = 6,
+                interpolation: str = "cubic") -> np.ndarray:
+    """Resample the frame under the window to (N, N, 3) float32 texel means.
+
+    h_tex : texel -> frame homography (:func:`window_homography`).  Each texel is looked up
+    on an s x s grid (s = frame pixels per texel, rounded up, at most ``max_supersample``)
+    with bicubic interpolation and averaged.  Bicubic rather than bilinear: at grazing
+    views a texel spans barely one frame pixel, and bilinear's extra blur costs 2-3 dB
+    there.  Its small overshoot at edges is clipped at 0 (radiance is not negative).
+    ``interpolation="linear"`` is kept for comparison (benchmarks/bench_rectify.py).
+    """
+    import cv2
+    mode = {"cubic": cv2.INTER_CUBIC, "linear": cv2.INTER_LINEAR}[interpolation]
+    ss = int(np.clip(np.ceil(_footprint(h_tex, size)), 1, max_supersample))
+    sub = h_tex @ np.diag([1.0 / ss, 1.0 / ss, 1.0])
+    big = cv2.warpPerspective(np.ascontiguousarray(linear, np.float32), to_cv(sub), (size * ss, size * ss),
+                              flags=mode | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
+    if ss > 1:
+        big = big.reshape(size, ss, size, ss, 3).mean(axis=(1, 3), dtype=np.float64).astype(np.float32)
+    return np.maximum(big, 0.0)
+
+
+def rectify_frame(linear: np.ndarray, board: Board, size: int, *, min_markers: int = 4,
+                  max_residual_px: float = 1.0) -> FrameResult:
+    """Rectify one scene-linear frame (H, W, 3) float32 (already flat-fielded)."""
+    det = detect_markers(luminance(linear), board)
+    if len(det) < min_markers:
+        return FrameResult(None, None, len(det), float("nan"),
+                           f"too few markers ({len(det)} of {len(board.ids)} found, need {min_markers})")
+    h, inliers, resid = fit_homography(board, det)
+    if h is None or inliers.sum() < 4 * min_markers:
+        return FrameResult(None, None, len(det), float("nan"), "no consistent homography (RANSAC)")
+    mean_resid = float(resid[inliers].mean())
+    if mean_resid > max_residual_px:
+        return FrameResult(None, h, len(det), mean_resid,
+                           f"poor fit (mean corner residual {mean_resid:.2f} px > {max_residual_px} px)")
+    h_tex = window_homography(h, board, size)
+    corners = apply_homography(h_tex, np.array([[0, 0], [size, 0], [size, size], [0, size]], np.float64))
+    height, width = linear.shape[:2]
+    if (corners < 0).any() or (corners[:, 0] > width).any() or (corners[:, 1] > height).any():
+        return FrameResult(None, h, len(det), mean_resid, "sample window not entirely inside the frame")
+    return FrameResult(warp_window(linear, h_tex, size), h, len(det), mean_resid)
+
+
+# ------------------------------------------------------------------ RAW capture folders
+
+
+@dataclass
+class RawPlan:
+    """What a RAW capture folder holds.
+
+    sampling : the full capture plan (every sample the rig was asked for), plan order.
+    frame_of : dict plan index -> index into the RAW manifest's samples (captured frames).
+    missing : dict plan index -> reason ("obstructed", ...).
+    flat_field : path of the flat-field gain image, or None.
+    board : the board recorded at capture, or None.
+    metadata : the RAW manifest's extra top-level keys.
+    """
+
+    sampling: Sampling
+    frame_of: dict
+    missing: dict
+    flat_field: Path | None
+    board: Board | None
+    metadata: dict = field(default_factory=dict)
+
+
+def read_raw_plan(raw) -> tuple["object", RawPlan]:
+    """Open a RAW capture folder: (FileBTF of its frames, RawPlan).
+
+    A plain manifest (no ``raw_capture`` key) is accepted too: its samples are the plan.
+    """
+    raw = Path(raw)
+    frames = read_manifest(raw)
+    path = raw / MANIFEST if raw.is_dir() else raw
+    doc = json.loads(path.read_text())
+    info = doc.get("raw_capture")
+    if info is None:
+        return frames, RawPlan(frames.sampling, {i: i for i in range(frames.n_samples)}, {}, None, None, {})
+    where = f"{path}"
+    try:
+        view = np.asarray(info["plan"]["view"], np.float64).reshape(-1, 2)
+        light = np.asarray(info["plan"]["light"], np.float64).reshape(-1, 2)
+        sampling = Sampling(view, light)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise BTFError(f"{where}: \"raw_capture.plan\" must hold view and light lists ({exc})") from None
+    frame_of = {}
+    for k, s in enumerate(doc["samples"]):
+        idx = s.get("index")
+        if isinstance(idx, bool) or not isinstance(idx, int) or not 0 <= idx < len(sampling) or idx in frame_of:
+            raise BTFError(f"{where}: sample #{k} ({s.get('image')}) needs a unique plan \"index\" in "
+                           f"[0, {len(sampling)}), got {idx!r}")
+        frame_of[idx] = k
+    missing = {}
+    for m in doc.get("missing", []):
+        idx = m.get("index") if isinstance(m, dict) else None
+        if isinstance(idx, bool) or not isinstance(idx, int) or not 0 <= idx < len(sampling) or idx in frame_of:
+            raise BTFError(f"{where}: \"missing\" entry {m!r} needs a plan \"index\" not also captured")
+        missing[idx] = str(m.get("reason", "missing"))
+    absent = set(range(len(sampling))) - set(frame_of) - set(missing)
+    if absent:
+        raise BTFError(f"{where}: plan samples {sorted(absent)[:5]} are neither captured nor listed as missing "
+                       "(the capture is incomplete; re-run usdbtf capture to finish it)")
+    flat = info.get("flat_field")
+    flat_path = raw / flat if isinstance(flat, str) else None
+    board = parse_board(info["board"], f"{where} raw_capture.board") if isinstance(info.get("board"), dict) else None
+    return frames, RawPlan(sampling, frame_of, missing, flat_path, board, info)
+
+
+def read_flat(path: Path, shape: tuple[int, int]) -> np.ndarray:
+    """The flat-field gain (H, W) float32 (1 = no falloff), checked against the frame size."""
+    pixels, info = read_image(path, expect=(shape[1], shape[0]))
+    gain = np.asarray(pixels, np.float32).mean(axis=2)
+    if not np.isfinite(gain).all() or gain.min() <= 0:
+        raise BTFError(f"{path}: flat-field gain must be finite and > 0 everywhere")
+    return gain
+
+
+@dataclass
+class RectifyOptions:
+    """size: output N; min_markers / max_residual_px: rejection rules; fill: interpolate
+    missing samples (else refuse when any is missing); workers: processes (1 = in this one);
+    color_space / bit_depth / ext: how the output files are stored."""
+
+    size: int = 128
+    min_markers: int = 4
+    max_residual_px: float = 1.0
+    fill: bool = True
+    workers: int = 1
+    color_space: str = "ACEScg"
+    bit_depth: str = "half"
+    ext: str = "exr"
+
+
+# One frame per task.  Worker state is set once per process (the frames' decoder, board,
+# flat field) so tasks only carry an index.
+_STATE: dict = {}
+
+
+def _init_worker(frames, board, gain, opts):
+    _STATE.update(frames=frames, board=board, gain=gain, opts=opts)
+
+
+def _rectify_one(k: int) -> FrameResult:
+    frames, board, gain, opts = _STATE["frames"], _STATE["board"], _STATE["gain"], _STATE["opts"]
+    linear = frames.read_samples([k])[0]
+    if gain is not None:
+        linear = linear / gain[..., None]
+    return rectify_frame(linear, board, opts.size, min_markers=opts.min_markers, max_residual_px=opts.max_residual_px)
+
+
+def rectify_capture(raw, out, opts: RectifyOptions, *, board: Board | None = None, log=lambda msg: None,
+                    progress=None) -> dict:
+    """Rectify a RAW capture folder into a manifest folder ``out`` (written atomically).
+
+    board : the fiducial board; default the one recorded in the capture, else the
+        standard board of :func:`usdbtf.fiducials.make_board`.
+    progress : optional callable(done, total) after each frame.
+    Returns the report dict also stored under ``"rectify"`` in the output manifest.
+    """
+    frames, plan = read_raw_plan(raw)
+    board = board or plan.board or make_board()
+    gain = read_flat(plan.flat_field, (frames.height, frames.width)) if plan.flat_field else None
+    n, size = len(plan.sampling), opts.size
+    rejected, residuals = {}, []
+    order = sorted(plan.frame_of)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=f".{out.name}.scratch-", dir=out.parent) as scratch:
+        texels = np.lib.format.open_memmap(os.path.join(scratch, "texels.npy"), mode="w+", dtype=np.float32,
+                                           shape=(n, size, size, 3))
+        available = np.zeros(n, bool)
+        tasks = [plan.frame_of[i] for i in order]
+        if opts.workers > 1 and len(tasks) > 1:
+            pool = ProcessPoolExecutor(opts.workers, initializer=_init_worker, initargs=(frames, board, gain, opts))
+            results = pool.map(_rectify_one, tasks, chunksize=4)
+        else:
+            pool = None
+            _init_worker(frames, board, gain, opts)
+            results = map(_rectify_one, tasks)
+        try:
+            for done, (i, res) in enumerate(zip(order, results), start=1):
+                if res.image is None:
+                    rejected[i] = res.reason
+                    log(f"rectify: rejected {frames.names[plan.frame_of[i]]}: {res.reason}")
+                else:
+                    texels[i] = res.image
+                    available[i] = True
+                    residuals.append(res.residual_px)
+                if progress:
+                    progress(done, len(order))
+        finally:
+            if pool is not None:
+                pool.shutdown(cancel_futures=True)
+        missing = dict(plan.missing)
+        missing.update(rejected)
+        if missing and not opts.fill:
+            raise BTFError(f"{raw}: {len(missing)} samples are missing ({len(rejected)} rejected frames); "
+                           "rectify without --no-fill to interpolate them")
+        if not available.any():
+            raise BTFError(f"{raw}: no frame could be rectified (first problem: {next(iter(rejected.values()), 'none')})")
+        fills = {f.target: f for f in plan_fill(plan.sampling, available)}
+
+        def images():
+            for i in range(n):
+                if available[i]:
+                    yield texels[i]
+                else:
+                    f = fills[i]
+                    yield combine(f, texels[f.sources])
+
+        report = {"size": size, "frames": len(order), "rectified": int(available.sum()),
+                  "rejected": [{"index": i, "reason": r} for i, r in sorted(rejected.items())],
+                  "obstructed": sorted(i for i, r in plan.missing.items() if r == "obstructed"),
+                  "interpolated": int((~available).sum()),
+                  "mean_corner_residual_px": float(np.mean(residuals)) if residuals else None,
+                  "max_corner_residual_px": float(np.max(residuals)) if residuals else None,
+                  "board": board.to_json()}
+        meta = {"physical_size_m": list(board.window_size_m), "rectify": report}
+        write_manifest(out, plan.sampling, images(), color_space=opts.color_space, bit_depth=opts.bit_depth,
+                       ext=opts.ext, interpolated=~available, metadata=meta)
+        del texels
+    return report
