@@ -1,0 +1,47 @@
+"""``usdbtf unwrap``: a mesh -> USD geometry layer with an xatlas atlas at the sample's texel density."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from . import log
+
+ORDER = 54
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("unwrap", help="mesh -> USD geometry layer with an atlas at the sample's texel density")
+    p.add_argument("mesh", type=Path, help="OBJ/PLY/STL/GLB/glTF/OFF or USD mesh")
+    p.add_argument("-o", "--output", required=True, type=Path,
+                   help="output folder (mesh.usda, charts.png, unwrap.json)")
+    density = p.add_mutually_exclusive_group(required=True)
+    density.add_argument("--btf", type=Path, metavar="COMPRESSED",
+                         help="compressed BTF whose physical_size_m sets the texel density")
+    density.add_argument("--texels-per-metre", type=float, metavar="D", help="texel density directly")
+    p.add_argument("--keep-uvs", action="store_true",
+                   help="keep the mesh's texture coordinates when they are usable (else unwrap)")
+    p.add_argument("--max-resolution", type=int, default=4096, help="atlas side cap in texels (default 4096)")
+    p.add_argument("--padding", type=int, default=4, help="gutter texels between charts (default 4)")
+    p.add_argument("--meters-per-unit", type=float, help="scale of the mesh's units (default: the file's, else 1)")
+    p.add_argument("--up-axis", choices=["Y", "Z"], help="up axis to declare (default: the file's, else Y)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from ..errors import BTFError
+    from ..unwrap import UnwrapOptions, texel_density, unwrap_to_folder
+
+    if args.btf is not None:
+        from ..compress import read_compressed
+
+        density = texel_density(read_compressed(args.btf), str(args.btf))
+    else:
+        density = args.texels_per_metre
+        if not (density and density > 0):
+            raise BTFError(f"--texels-per-metre must be positive, got {density}")
+    if args.meters_per_unit is not None and not args.meters_per_unit > 0:
+        raise BTFError(f"--meters-per-unit must be positive, got {args.meters_per_unit}")
+    opts = UnwrapOptions(keep_uvs=args.keep_uvs, max_resolution=args.max_resolution, padding=args.padding,
+                         meters_per_unit=args.meters_per_unit, up_axis=args.up_axis)
+    unwrap_to_folder(args.mesh, args.output, texels_per_metre=density, opts=opts, log=log(args.quiet))
+    return 0

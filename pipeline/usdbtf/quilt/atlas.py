@@ -1,0 +1,278 @@
+"""Quilting straight into a mesh's texture atlas.
+
+Charts are quilted one at a time, each on its own canvas covering its bounding box, with
+blocks only where the chart (plus its one-texel rim) is.  Chart borders are seamed as far as
+quilting allows: before a chart is quilted, the triangles across its border that belong to
+charts already done are *unfolded* into its texture space (rotated about the shared edge
+into the chart's plane, two rings deep) and their quilted texels placed on the canvas as
+fixed "ghost" texels.  Block matching then sees what lies across the border on the
+surface, so the chart grows to continue its neighbours, and the ghosts stay in the chart's
+rim (the texels just outside its triangles that bilinear filtering reads), so at the border
+itself the texture is the neighbour's continued (measured: the squared difference across
+chart borders falls 2-3x, see tests/test_quilt_atlas.py).  (The tangent frames on the two
+sides still differ by the charts' relative rotation: no atlas can avoid that.)  Charts are
+visited breadth-first over the chart adjacency graph from the largest, so every chart but
+the first of each connected piece has a done neighbour.
+
+Afterwards every gutter texel copies its nearest chart texel (Voronoi fill), so bilinear and
+mip filtering near chart edges never read unrelated data.
+"""
+from __future__ import annotations
+
+import time
+
+import cv2
+import numpy as np
+
+from ..compress.format import CompressedBTF
+from ..errors import BTFError
+from ..render.raster import pixel_barycentrics, rasterize
+from ..unwrap.layer import UnwrappedMesh
+from ..unwrap.meshes import weld
+from .core import Quilt, QuiltOptions, prepare_source, quilt_record
+from .engine import Grid, grid_for, place_blocks
+from .seams import pair_error, seam_error_all_samples
+
+__all__ = ["quilt_atlas", "face_neighbours", "chart_border_error"]
+
+_RINGS = 2
+
+
+def face_neighbours(faces_welded: np.ndarray) -> np.ndarray:
+    """(F, 3) face across edge i (corners i, i+1) of each face, -1 on boundaries.
+
+    faces_welded : (F, 3) vertex ids welded by position (so split seams still connect).
+    Non-manifold edges pair their first two faces.
+    """
+    F = len(faces_welded)
+    a = faces_welded
+    edges = np.stack([a, np.roll(a, -1, axis=1)], axis=2).reshape(-1, 2)          # (3F, 2)
+    key = np.sort(edges, axis=1)
+    order = np.lexsort((np.arange(3 * F), key[:, 1], key[:, 0]))
+    ks = key[order]
+    same = (ks[1:] == ks[:-1]).all(axis=1)
+    out = np.full(3 * F, -1, np.int64)
+    first = order[:-1][same]
+    second = order[1:][same]
+    keep = out[first] < 0                                 # a third face on the edge is ignored
+    out[first[keep]] = second[keep] // 3
+    out[second[keep]] = first[keep] // 3
+    return out.reshape(F, 3)
+
+
+def _unfold(a2, b2, anchor2, pa, pb, pr):
+    """2-D position of vertex r of triangle (a, b, r) unfolded across edge a-b, on the side
+    opposite ``anchor2``, with the edge's own scale (a similarity of the 3-D triangle)."""
+    e = pb - pa
+    e2 = b2 - a2
+    len3, len2 = np.linalg.norm(e), np.linalg.norm(e2)
+    if len3 < 1e-15 or len2 < 1e-12:
+        return None
+    along = float(np.dot(pr - pa, e)) / len3 ** 2
+    height = np.linalg.norm((pr - pa) - along * e) / len3
+    perp = np.array([-e2[1], e2[0]])
+    side = np.sign(perp @ (anchor2 - a2)) or 1.0
+    return a2 + along * e2 - side * height * perp
+
+
+def _ghost_triangles(c, face_chart, done_chart, neighbours, welded, points, corner_xy):
+    """Triangles of done charts across chart c's border, unfolded into c's texel space.
+
+    welded : (F, 3) welded vertex ids per face; points : (V, 3) position per welded id.
+    Returns (unfolded (n, 3, 2) in the neighbour face's corner order, their face ids (n,),
+    ring (n,) 1 or 2)."""
+    out_xy, out_face, out_ring = [], [], []
+    seen = set()
+    frontier = []
+    for f in np.flatnonzero(face_chart == c):
+        for i in range(3):
+            g = neighbours[f, i]
+            if g >= 0 and face_chart[g] != c and done_chart[face_chart[g]]:
+                frontier.append((f, corner_xy[f], g))
+    for ring in range(1, _RINGS + 1):
+        nxt = []
+        for f, f_xy, g in frontier:
+            if g in seen:
+                continue
+            wf, wg = welded[f], welded[g]
+            shared = [v for v in wg if v in wf]
+            if len(shared) != 2:
+                continue
+            ia, ib = (int(np.flatnonzero(wf == v)[0]) for v in shared)
+            ja, jb = (int(np.flatnonzero(wg == v)[0]) for v in shared)
+            jr = 3 - ja - jb
+            anchor = f_xy[3 - ia - ib]
+            r2 = _unfold(f_xy[ia], f_xy[ib], anchor, points[wg[ja]], points[wg[jb]], points[wg[jr]])
+            if r2 is None:
+                continue
+            g_xy = np.empty((3, 2))
+            g_xy[ja], g_xy[jb], g_xy[jr] = f_xy[ia], f_xy[ib], r2
+            seen.add(g)
+            out_xy.append(g_xy)
+            out_face.append(g)
+            out_ring.append(ring)
+            for i in range(3):
+                h = neighbours[g, i]
+                if h >= 0 and h not in seen and face_chart[h] != c and done_chart[face_chart[h]]:
+                    nxt.append((g, g_xy, h))
+        frontier = nxt
+    if not out_xy:
+        return np.zeros((0, 3, 2)), np.zeros(0, np.int64), np.zeros(0)
+    return np.asarray(out_xy), np.asarray(out_face, np.int64), np.asarray(out_ring, np.float64)
+
+
+def _chart_order(charts: np.ndarray, face_chart: np.ndarray, neighbours: np.ndarray) -> list[int]:
+    """Breadth-first over chart adjacency, from the largest chart (texels) of each connected piece."""
+    n = int(face_chart.max()) + 1
+    size = np.bincount(charts[charts >= 0].ravel(), minlength=n)
+    adj = [set() for _ in range(n)]
+    f, i = np.nonzero(neighbours >= 0)
+    for a, b in zip(face_chart[f], face_chart[neighbours[f, i]]):
+        if a != b:
+            adj[a].add(int(b))
+    order, seen = [], np.zeros(n, bool)
+    for start in np.argsort(-size, kind="stable"):
+        if seen[start]:
+            continue
+        queue = [int(start)]
+        seen[start] = True
+        while queue:
+            c = queue.pop(0)
+            order.append(c)
+            for d in sorted(adj[c], key=lambda d: (-size[d], d)):
+                if not seen[d]:
+                    seen[d] = True
+                    queue.append(d)
+    return order
+
+
+def quilt_atlas(cbtf: CompressedBTF, layer: UnwrappedMesh, charts: np.ndarray, opts: QuiltOptions | None = None,
+                *, ghosts: bool = True, log=None) -> Quilt:
+    """Quilt ``cbtf`` into the atlas of ``layer`` (chart map ``charts`` (H, W), -1 = gutter)."""
+    say = log or (lambda msg: None)
+    opts = (opts or QuiltOptions()).resolved(cbtf)
+    if opts.tileable:
+        raise BTFError("--tileable does not apply to an atlas")
+    H, W = int(layer.atlas["height"]), int(layer.atlas["width"])
+    if charts.shape != (H, W):
+        raise BTFError(f"chart map is {charts.shape[1]}x{charts.shape[0]}, the atlas {W}x{H}")
+    t0 = time.perf_counter()
+    source = prepare_source(cbtf, opts)
+    rng = np.random.default_rng(opts.seed)
+    welded_ids = weld(layer.points)
+    welded = welded_ids[layer.faces]
+    welded_points = np.zeros((int(welded_ids.max()) + 1, 3))
+    welded_points[welded_ids] = layer.points
+    neighbours = face_neighbours(welded)
+    corner_xy = layer.corner_texels()
+    face_chart = layer.face_chart
+    n_charts = int(face_chart.max()) + 1
+    done = np.zeros(n_charts, bool)
+    positions = np.full((H, W), -1, np.int32)
+    blocks = ghost_texels = 0
+    for c in _chart_order(charts, face_chart, neighbours):
+        domain = charts == c
+        if not domain.any():
+            done[c] = True
+            continue
+        ys, xs = np.nonzero(domain)
+        y0, x0 = int(ys.min()), int(xs.min())
+        grid = grid_for(int(xs.max()) - x0 + 1, int(ys.max()) - y0 + 1, opts.block, opts.overlap)
+        gh, gw = grid.shape
+        local_domain = np.zeros((gh, gw), bool)
+        h, w = min(gh, H - y0), min(gw, W - x0)
+        local_domain[:h, :w] = domain[y0:y0 + h, x0:x0 + w]
+        canvas = np.full((gh, gw), -1, np.int32)
+        if ghosts:
+            ghost_texels += _place_ghosts(canvas, c, (y0, x0), positions, face_chart, done, neighbours,
+                                          welded, welded_points, corner_xy)
+        active = np.array([[local_domain[y:y + opts.block, x:x + opts.block].any() for x in grid.xs]
+                           for y in grid.ys])
+        # Ghosts are kept where they fall in the chart's rim (texels just outside its triangles
+        # that filtering reads): there the texture continues the neighbour's exactly.
+        write = local_domain & (canvas < 0)
+        blocks += place_blocks(canvas, Grid(grid.ys, grid.xs, grid.shape, False, active), source,
+                               tolerance=opts.tolerance, rng=rng, domain=write)
+        region = positions[y0:y0 + h, x0:x0 + w]
+        region[local_domain[:h, :w]] = canvas[:h, :w][local_domain[:h, :w]]
+        done[c] = True
+    valid = charts >= 0
+    positions = _fill_gutters(positions, valid)
+    seconds = time.perf_counter() - t0
+    seam = seam_error_all_samples(positions, source.image, cbtf.width, cbtf.n_samples, labels=charts)
+    border = chart_border_error(positions, layer, neighbours, source.image, cbtf.width, cbtf.n_samples)
+    say(f"atlas {W}x{H}: {n_charts} charts, {blocks} blocks, {ghost_texels} ghost texels, "
+        f"seam error {seam:.4g} (inside charts), {border:.4g} (across chart borders)")
+    record = quilt_record(cbtf, opts, W, H, blocks=blocks, seam=seam, seconds=seconds,
+                          atlas={"charts": n_charts, "ghost_texels": int(ghost_texels), "ghosts": bool(ghosts),
+                                 "chart_border_error": border, "coverage": float(valid.mean()),
+                                 "texels_per_metre": layer.atlas.get("texels_per_metre")})
+    return Quilt(positions, valid, opts, record)
+
+
+def _place_ghosts(canvas, c, origin, positions, face_chart, done, neighbours, welded, points, corner_xy) -> int:
+    """Put the unfolded neighbours' quilted texels on chart c's canvas (outside c's own
+    triangles); returns how many texels were placed."""
+    tri_xy, tri_face, ring = _ghost_triangles(c, face_chart, done, neighbours, welded, points, corner_xy)
+    if not len(tri_xy):
+        return 0
+    y0, x0 = origin
+    gh, gw = canvas.shape
+    local = tri_xy - np.array([x0, y0], np.float64)
+    raster = rasterize(local, np.repeat(ring[:, None], 3, axis=1), gw, gh)
+    own = rasterize(corner_xy[face_chart == c] - np.array([x0, y0], np.float64), None, gw, gh).tri >= 0
+    idx, t, bary = pixel_barycentrics(local, raster.tri)
+    keep = ~own.ravel()[idx]
+    idx, t, bary = idx[keep], t[keep], bary[keep]
+    src_xy = np.einsum("nk,nkd->nd", bary, corner_xy[tri_face[t]])
+    H, W = positions.shape
+    sx = np.clip(np.floor(src_xy[:, 0]).astype(np.int64), 0, W - 1)
+    sy = np.clip(np.floor(src_xy[:, 1]).astype(np.int64), 0, H - 1)
+    values = positions[sy, sx]
+    ok = values >= 0
+    canvas.ravel()[idx[ok]] = values[ok]
+    return int(ok.sum())
+
+
+def _fill_gutters(positions: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Every texel outside the charts copies the position of its nearest chart texel."""
+    filled = positions >= 0
+    if filled.all() or not filled.any():
+        return positions
+    dist, labels = cv2.distanceTransformWithLabels((~filled).astype(np.uint8), cv2.DIST_L2, 5,
+                                                   labelType=cv2.DIST_LABEL_PIXEL)
+    owners = np.flatnonzero(filled.ravel())
+    return positions.ravel()[owners[labels.ravel() - 1]].reshape(positions.shape).astype(np.int32)
+
+
+def chart_border_error(positions: np.ndarray, layer: UnwrappedMesh, neighbours: np.ndarray,
+                       image_features: np.ndarray, source_width: int, n_samples: int) -> float:
+    """Mean squared image difference across chart borders on the surface: along every mesh edge
+    whose two faces lie in different charts, points one texel apart are looked up on both
+    sides (each face's own texture coordinates, nearest texel), all samples averaged."""
+    corner_xy = layer.corner_texels()
+    f, i = np.nonzero(neighbours >= 0)
+    g = neighbours[f, i]
+    cross = (layer.face_chart[f] != layer.face_chart[g]) & (f < g)
+    f, i, g = f[cross], i[cross], g[cross]
+    if not len(f):
+        return 0.0
+    welded = weld(layer.points)[layer.faces]
+    a_f, b_f = corner_xy[f, i], corner_xy[f, (i + 1) % 3]
+    va, vb = welded[f, i], welded[f, (i + 1) % 3]
+    # The same two vertices in g (its corner order may differ).
+    ja = np.argmax(welded[g] == va[:, None], axis=1)
+    jb = np.argmax(welded[g] == vb[:, None], axis=1)
+    a_g, b_g = corner_xy[g, ja], corner_xy[g, jb]
+    n = np.maximum(1, np.ceil(np.linalg.norm(b_f - a_f, axis=1)).astype(np.int64))
+    edge = np.repeat(np.arange(len(f)), n)
+    t = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n) + 0.5) / np.repeat(n, n)
+    H, W = positions.shape
+
+    def lookup(a, b):
+        p = a[edge] + t[:, None] * (b[edge] - a[edge])
+        x = np.clip(np.floor(p[:, 0]).astype(np.int64), 0, W - 1)
+        y = np.clip(np.floor(p[:, 1]).astype(np.int64), 0, H - 1)
+        return positions[y, x]
+
+    return pair_error(image_features, lookup(a_f, b_f), lookup(a_g, b_g), n_samples)

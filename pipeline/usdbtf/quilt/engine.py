@@ -1,0 +1,184 @@
+"""Image quilting (Efros & Freeman 2001) on a canvas of source positions.
+
+The canvas is a position map: for every output texel, the flat index ``y * Ws + x`` of the
+source texel it copies (-1 while empty).  Blocks are placed in raster order over a grid;
+each is the source block whose features best match what is already on the canvas under
+the block (any filled texel, including fixed "ghost" texels a caller put there), chosen at
+random among those within ``tolerance`` of the best, then cut into its placed neighbours
+along minimum-error paths.  Working on positions, not values, means one pass decides the
+output of every coefficient texture (and every (view, light) image) at once.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import BTFError
+from .cut import keep_old_mask
+from .matcher import Matcher
+
+__all__ = ["Source", "Grid", "grid_for", "place_blocks", "default_block", "default_overlap"]
+
+# Relative FFT round-off below which two overlap errors count as equal (float32 spectra).
+_ERROR_FLOOR = 1e-5
+
+
+@dataclass
+class Source:
+    """The sample being quilted, as features.
+
+    match : (Hs*Ws, C) float32 matching features; image : (Hs*Ws, D) float32 features whose
+    squared distance is the image-space error (boundary cuts); matcher : FFT matcher over
+    ``match`` for blocks of side ``block``.
+    """
+
+    height: int
+    width: int
+    block: int
+    match: np.ndarray
+    image: np.ndarray
+    matcher: Matcher
+
+    @classmethod
+    def build(cls, match: np.ndarray, image: np.ndarray, block: int) -> "Source":
+        """match : (Hs, Ws, C); image : (Hs*Ws, D)."""
+        h, w, c = match.shape
+        if block > min(h, w):
+            raise BTFError(f"block size {block} is larger than the {w}x{h} source")
+        return cls(h, w, block, np.ascontiguousarray(match.reshape(-1, c)), image, Matcher(match, block))
+
+
+@dataclass
+class Grid:
+    """Block corners ``ys`` x ``xs`` on a canvas of ``shape``; ``active[r, c]`` says whether block
+    (r, c) is placed; ``torus`` wraps blocks around the canvas edges (tileable output)."""
+
+    ys: np.ndarray
+    xs: np.ndarray
+    shape: tuple[int, int]
+    torus: bool = False
+    active: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.active is None:
+            self.active = np.ones((len(self.ys), len(self.xs)), bool)
+
+
+def default_block(source_width: int, source_height: int) -> int:
+    """A quarter of the sample's shorter side, within 8..64 texels."""
+    return int(np.clip(min(source_width, source_height) // 4, 8, 64))
+
+
+def default_overlap(block: int) -> int:
+    """One sixth of the block, as Efros & Freeman suggest, at least 2 texels."""
+    return max(2, int(round(block / 6)))
+
+
+def grid_for(width: int, height: int, block: int, overlap: int, *, torus: bool = False) -> Grid:
+    """A block grid covering a width x height output.
+
+    Plain: corners every ``block - overlap`` texels; the canvas is grown to fit the last
+    block (crop it to width x height afterwards).  Torus: ``n = ceil(size / step)`` corners
+    spread evenly over the size, so the last block overlaps the first by >= ``overlap``.
+    """
+    step = block - overlap
+    if step < 1:
+        raise BTFError(f"overlap {overlap} must be smaller than the block size {block}")
+
+    def corners(size):
+        if torus:
+            n = max(2, -(-size // step))
+            return (np.arange(n) * size) // n
+        n = max(1, -(-(size - overlap) // step))
+        return np.arange(n) * step
+
+    if torus and min(width, height) < 2 * block:
+        raise BTFError(f"--tileable needs an output of at least two blocks per side ({2 * block} texels), "
+                       f"got {width}x{height}")
+    ys, xs = corners(height), corners(width)
+    shape = (height, width) if torus else (int(ys[-1]) + block, int(xs[-1]) + block)
+    return Grid(ys, xs, shape, torus)
+
+
+def _choose(err: np.ndarray, tolerance: float, rng) -> int:
+    """Flat index of a random candidate within ``tolerance`` of the best error."""
+    flat = err.ravel()
+    best = float(flat.min())
+    limit = best * (1.0 + tolerance) + _ERROR_FLOOR * float(flat.mean())
+    near = np.flatnonzero(flat <= limit)
+    return int(near[rng.integers(len(near))])
+
+
+def _overlaps(grid: Grid, done: np.ndarray, r: int, c: int, block: int) -> tuple[int, int, int, int]:
+    """Overlap widths (left, top, right, bottom) with already placed grid neighbours."""
+    ys, xs = grid.ys, grid.xs
+    left = int(xs[c - 1] + block - xs[c]) if c > 0 and done[r, c - 1] else 0
+    top = int(ys[r - 1] + block - ys[r]) if r > 0 and done[r - 1, c] else 0
+    right = bottom = 0
+    if grid.torus and c == len(xs) - 1 and done[r, 0]:
+        right = int(xs[c] + block - grid.shape[1])
+    if grid.torus and r == len(ys) - 1 and done[0, c]:
+        bottom = int(ys[r] + block - grid.shape[0])
+    return left, top, right, bottom
+
+
+def place_blocks(pos: np.ndarray, grid: Grid, source: Source, *, tolerance: float, rng,
+                 domain: np.ndarray | None = None) -> int:
+    """Quilt the active blocks of ``grid`` into ``pos`` in place; returns how many were placed.
+
+    pos : (Hc, Wc) int32 canvas of source flat indices, -1 = empty.  Texels already >= 0 are
+          matched against but never cut into (ghosts); only blocks placed here are cut.
+    domain : (Hc, Wc) bool, the texels blocks may write (default all).
+    """
+    B = source.block
+    ar = np.arange(B)
+    n_cand_x = source.matcher.n_candidates[1]
+    n_cand = source.matcher.n_candidates[0] * n_cand_x
+    placed = np.zeros(pos.shape, bool)
+    done = np.zeros(grid.active.shape, bool)
+    count = 0
+    for r, y in enumerate(grid.ys):
+        for c, x in enumerate(grid.xs):
+            if not grid.active[r, c]:
+                continue
+            rows = (y + ar) % pos.shape[0] if grid.torus else y + ar
+            cols = (x + ar) % pos.shape[1] if grid.torus else x + ar
+            at = np.ix_(rows, cols)
+            old = pos[at]
+            filled = old >= 0
+            if filled.any():
+                template = source.match[np.where(filled, old, 0)]
+                pick = _choose(source.matcher.errors(template, filled), tolerance, rng)
+            else:
+                pick = int(rng.integers(n_cand))
+            sy, sx = divmod(pick, n_cand_x)
+            new = ((sy + ar)[:, None] * source.width + (sx + ar)[None, :]).astype(np.int32)
+            was_placed = placed[at]
+            widths = _overlaps(grid, done, r, c, B)
+            keep = np.zeros((B, B), bool)
+            if any(widths) and was_placed.any():
+                err = np.zeros((B, B), np.float32)
+                strip = was_placed & _strip_mask(B, widths)
+                d = source.image[new[strip]] - source.image[old[strip]]
+                err[strip] = np.einsum("nd,nd->n", d, d)
+                keep = keep_old_mask(err, widths) & was_placed
+            write = ~keep if domain is None else ~keep & domain[at]
+            pos[at] = np.where(write, new, old)
+            placed[at] |= write
+            done[r, c] = True
+            count += 1
+    return count
+
+
+def _strip_mask(block: int, widths: tuple[int, int, int, int]) -> np.ndarray:
+    """(B, B) bool: the texels inside any overlap strip."""
+    left, top, right, bottom = widths
+    m = np.zeros((block, block), bool)
+    m[:, :left] = True
+    m[:top, :] = True
+    if right:
+        m[:, block - right:] = True
+    if bottom:
+        m[block - bottom:, :] = True
+    return m

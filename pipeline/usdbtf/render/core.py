@@ -1,0 +1,208 @@
+"""The CPU reference renderer: a mesh with a compressed BTF under point and distant lights.
+
+Inputs are plain: a :class:`~usdbtf.compress.format.CompressedBTF`, a
+:class:`~usdbtf.render.scene.RenderMesh` (triangles with positions, normals, tangent frames
+and st per corner), a :class:`~usdbtf.render.scene.Camera` and lights.  Per visible pixel:
+
+1. rasterise (z-buffer, back faces culled), perspective-correct barycentrics; triangles
+   reaching behind the camera are dropped, not clipped (keep the camera outside the mesh);
+2. interpolate position, normal, tangent, bitangent, st; orthonormalise the frame
+   (x = tangent = image right, y = image up, z = normal, the rectified sample's axes);
+3. local view and light directions in that frame; for each light its irradiance scale
+   (1/d^2 for point lights) and shadow-map visibility;
+4. equation 2: 3 view x 3 light basis rows blended (:mod:`.shading`), then one dot with the
+   k coefficients, filtered bilinearly or trilinearly over mip levels (:mod:`.texture`).
+
+Output: (H, W, 4) float32 RGBA in the BTF's working colour space (alpha = coverage).
+Pixels are shaded in chunks on a thread pool (numpy releases the GIL in the heavy parts);
+each chunk writes its own pixels, so the result does not depend on the thread count.
+
+:func:`render_swatch` renders the measured patch itself: flat, orthographic, one pixel per
+texel, one distant light -- the same shading path with constant directions.
+"""
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..compress.format import CompressedBTF
+from ..errors import BTFError
+from .hemisphere import directions_to_vectors
+from .raster import barycentrics, rasterize
+from .scene import Camera, Light, RenderMesh
+from .shading import BasisInterpolator
+from .shadows import ShadowMap
+from .texture import CoefficientTexture
+
+__all__ = ["RenderOptions", "Renderer", "render", "render_swatch"]
+
+
+@dataclass
+class RenderOptions:
+    """k : basis vectors used (default all); shadows : cast shadows; filter : "mip" (trilinear)
+    or "bilinear"; wrap : texture wrap "repeat"/"clamp" (default repeat for a tileable quilt,
+    else clamp); shadow_resolution : texels per side (default: the frame's larger side);
+    threads; chunk : pixels per task."""
+
+    k: int | None = None
+    shadows: bool = True
+    filter: str = "mip"
+    wrap: str | None = None
+    shadow_resolution: int | None = None
+    threads: int = 2
+    chunk: int = 16384
+
+    def validate(self, cbtf: CompressedBTF) -> None:
+        if self.k is not None and not 1 <= self.k <= cbtf.k:
+            raise BTFError(f"--k must be in 1..{cbtf.k}, got {self.k}")
+        if self.filter not in ("mip", "bilinear"):
+            raise BTFError(f"filter must be 'mip' or 'bilinear', got {self.filter!r}")
+        if self.wrap not in (None, "repeat", "clamp"):
+            raise BTFError(f"wrap must be 'repeat' or 'clamp', got {self.wrap!r}")
+
+
+def default_wrap(cbtf: CompressedBTF) -> str:
+    """Repeat for a tileable quilt (it wraps seamlessly), clamp otherwise."""
+    q = cbtf.info.get("quilt") or {}
+    return "repeat" if (q.get("options") or {}).get("tileable") else "clamp"
+
+
+class Renderer:
+    """Everything that depends on the BTF only (texture, basis, triangulations): build once,
+    render many frames."""
+
+    def __init__(self, cbtf: CompressedBTF, opts: RenderOptions | None = None):
+        self.opts = opts or RenderOptions()
+        self.opts.validate(cbtf)
+        k = self.opts.k or cbtf.k
+        self.cbtf = cbtf
+        self.interp = BasisInterpolator(cbtf, k)
+        self.texture = CoefficientTexture(cbtf, k, self.opts.wrap or default_wrap(cbtf))
+
+    # -- swatch ------------------------------------------------------------------------
+    def swatch(self, view_deg, light_deg, intensity: float = 1.0) -> np.ndarray:
+        """(H, W, 3) float32 working-space image of the flat patch, one pixel per texel."""
+        H, W = self.texture.height, self.texture.width
+        j, i = np.meshgrid(np.arange(W), np.arange(H))
+        st = np.stack([(j.ravel() + 0.5) / W, 1.0 - (i.ravel() + 0.5) / H], axis=1)
+        view = self.interp.view_weights(directions_to_vectors([view_deg]))
+        light = self.interp.light_weights(directions_to_vectors([light_deg]))
+        rows = self.interp.accumulate(np.zeros((1, self.interp.k), np.float32), view, light, intensity)
+        out = self._shade_chunks(len(st), lambda sl: self.texture.shade(np.repeat(rows, sl.stop - sl.start, 0), st[sl]))
+        return out.reshape(H, W, 3)
+
+    # -- mesh --------------------------------------------------------------------------
+    def render(self, mesh: RenderMesh, camera: Camera, lights: list[Light]) -> np.ndarray:
+        """(H, W, 4) float32 RGBA, working space."""
+        if not lights:
+            raise BTFError("give at least one --light")
+        front = _front_facing(mesh, camera.eye)
+        xy, depth = camera.project(mesh.corners)
+        near = 1e-6 * max(float(np.ptp(mesh.corners.reshape(-1, 3), axis=0).max()), 1e-9)
+        keep = front & (depth > near).all(axis=1)
+        tris = np.flatnonzero(keep)
+        raster = rasterize(xy[tris], -1.0 / depth[tris], camera.width, camera.height)
+        pix = np.flatnonzero(raster.tri.ravel() >= 0)
+        image = np.zeros((camera.height, camera.width, 4), np.float32)
+        if not len(pix):
+            return image
+        tri = tris[raster.tri.ravel()[pix]]
+        py, px = np.divmod(pix, camera.width)
+        res = self.opts.shadow_resolution or max(camera.width, camera.height)
+        shadow_maps = [ShadowMap(mesh.corners, light, res) if self.opts.shadows else None
+                       for light in lights]
+
+        def task(sl):
+            return self._shade_pixels(mesh, camera, lights, shadow_maps, tri[sl], xy[tri[sl]], depth[tri[sl]],
+                                      px[sl] + 0.5, py[sl] + 0.5)
+
+        rgb = self._shade_chunks(len(pix), task)
+        flat = image.reshape(-1, 4)
+        flat[pix, :3] = rgb
+        flat[pix, 3] = 1.0
+        return image
+
+    def _shade_chunks(self, n: int, fn) -> np.ndarray:
+        step = self.opts.chunk
+        slices = [slice(a, min(a + step, n)) for a in range(0, n, step)]
+        if self.opts.threads > 1 and len(slices) > 1:
+            with ThreadPoolExecutor(self.opts.threads) as pool:
+                parts = list(pool.map(fn, slices))
+        else:
+            parts = [fn(sl) for sl in slices]
+        return np.concatenate(parts) if parts else np.zeros((0, 3), np.float32)
+
+    def _shade_pixels(self, mesh, camera, lights, shadow_maps, tri, tri_xy, tri_depth, x, y) -> np.ndarray:
+        b = _perspective_weights(tri_xy, tri_depth, x, y)
+        p = np.einsum("nk,nkd->nd", b, mesh.corners[tri])
+        normal, tangent, bitangent = _frame(b, mesh, tri)
+        st = np.einsum("nk,nkd->nd", b, mesh.st[tri])
+        lod = self._lod(tri_xy, tri_depth, mesh.st[tri], st, x, y) if self.opts.filter == "mip" else None
+        to_eye = camera.eye - p
+        to_eye /= np.linalg.norm(to_eye, axis=1, keepdims=True)
+        frame = np.stack([tangent, bitangent, normal], axis=1)                   # (n, 3, 3) rows
+        view = self.interp.view_weights(np.einsum("nij,nj->ni", frame, to_eye))
+        rows = np.zeros((len(tri), self.interp.k), np.float32)
+        for light, smap in zip(lights, shadow_maps):
+            to_light, scale = light.at(p)
+            if smap is not None:
+                scale = scale * smap.visibility(p, normal)
+            lit = np.flatnonzero(scale > 0)
+            if not len(lit):
+                continue
+            lw = self.interp.light_weights(np.einsum("nij,nj->ni", frame[lit], to_light[lit]))
+            sub = np.zeros((len(lit), self.interp.k), np.float32)
+            self.interp.accumulate(sub, (view[0][lit], view[1][lit]), lw, scale[lit])
+            rows[lit] += sub
+        return self.texture.shade(rows, st, lod)
+
+    def _lod(self, tri_xy, tri_depth, tri_st, st, x, y) -> np.ndarray:
+        """log2 of the texel footprint of one pixel: st at the next pixel right and below,
+        from the same triangle's (extended) interpolation."""
+        size = np.array([self.texture.width, self.texture.height], np.float64)
+        dx = (np.einsum("nk,nkd->nd", _perspective_weights(tri_xy, tri_depth, x + 1, y), tri_st) - st) * size
+        dy = (np.einsum("nk,nkd->nd", _perspective_weights(tri_xy, tri_depth, x, y + 1), tri_st) - st) * size
+        foot = np.maximum(np.hypot(dx[:, 0], dx[:, 1]), np.hypot(dy[:, 0], dy[:, 1]))
+        return np.log2(np.maximum(foot, 1e-12))
+
+
+def _perspective_weights(tri_xy, tri_depth, x, y) -> np.ndarray:
+    """(n, 3) perspective-correct barycentrics at pixel points (x, y)."""
+    b = barycentrics(tri_xy, x, y) / tri_depth
+    return b / b.sum(axis=1, keepdims=True)
+
+
+def _frame(b, mesh: RenderMesh, tri):
+    """Orthonormal (normal, tangent, bitangent) per point: the interpolated normal, the tangent
+    made perpendicular to it, bitangent = normal x tangent (flipped for mirrored texture)."""
+    n = np.einsum("nk,nkd->nd", b, mesh.normals[tri])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    t = np.einsum("nk,nkd->nd", b, mesh.tangents[tri])
+    t -= n * np.einsum("nd,nd->n", t, n)[:, None]
+    t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-300)
+    bt = np.cross(n, t)
+    given = np.einsum("nk,nkd->nd", b, mesh.bitangents[tri])
+    bt *= np.where(np.einsum("nd,nd->n", bt, given) < 0, -1.0, 1.0)[:, None]
+    return n, t, bt
+
+
+def _front_facing(mesh: RenderMesh, eye: np.ndarray) -> np.ndarray:
+    """(T,) triangles facing the eye; a triangle's side is the one its vertex normals point to
+    (so the result does not depend on the winding order)."""
+    c = mesh.corners
+    g = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
+    g *= np.where(np.einsum("td,td->t", g, mesh.normals.sum(axis=1)) < 0, -1.0, 1.0)[:, None]
+    return np.einsum("td,td->t", g, eye - c[:, 0]) > 0
+
+
+def render(cbtf: CompressedBTF, mesh: RenderMesh, camera: Camera, lights: list[Light],
+           opts: RenderOptions | None = None) -> np.ndarray:
+    """One frame: (H, W, 4) float32 RGBA, working space (see module docstring)."""
+    return Renderer(cbtf, opts).render(mesh, camera, lights)
+
+
+def render_swatch(cbtf: CompressedBTF, view_deg, light_deg, opts: RenderOptions | None = None) -> np.ndarray:
+    """(H, W, 3) float32: the flat patch at (view, light) degrees, one pixel per texel."""
+    return Renderer(cbtf, opts).swatch(view_deg, light_deg)

@@ -1,0 +1,198 @@
+"""``usdbtf unwrap`` and quilting into its atlas.
+
+The USD geometry layer (a real stage: defaultPrim, units, face-varying st, normals, tangent
+frames that follow the texture's axes), atlas size from the sample's texel density, kept
+texture coordinates, USD input, determinism, bad input; then ``usdbtf quilt --atlas``: every
+chart filled, gutters padded from the nearest chart, chart borders matched across.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+from pxr import Usd, UsdGeom, UsdValidation, Vt
+
+from cli_helpers import bad_input, ok, run
+from quilt_render_data import pebbles, work  # noqa: F401 (fixtures)
+from quilt_render_data import PHYSICAL_SIZE, SIZE, plane_with_uv, write_obj, write_sphere
+from usdbtf.compress import read_compressed
+from usdbtf.quilt import QuiltOptions, read_position_map
+from usdbtf.quilt.atlas import quilt_atlas
+from usdbtf.unwrap import read_chart_map, read_layer
+from usdbtf.unwrap.frames import uv_gradients
+
+DENSITY = SIZE / PHYSICAL_SIZE          # 960 texels per metre
+
+
+@pytest.fixture(scope="module")
+def sphere_uv(work, pebbles):
+    """An icosphere (r = 3 cm) unwrapped at the pebbles sample's density (through --btf)."""
+    import contextlib
+    import io
+
+    out = work / "sphere_uv"
+    with contextlib.redirect_stderr(io.StringIO()):
+        from usdbtf.cli import main
+        assert main(["unwrap", str(write_sphere(work / "sphere.obj")), "-o", str(out), "--btf", str(pebbles)]) == 0
+    return out
+
+
+def test_layer_is_a_valid_usd_mesh_with_sample_frames(sphere_uv):
+    stage = Usd.Stage.Open(str(sphere_uv / "mesh.usda"))
+    assert UsdGeom.GetStageMetersPerUnit(stage) == 1.0 and UsdGeom.GetStageUpAxis(stage) == "Y"
+    root = stage.GetDefaultPrim()
+    assert root and Usd.ModelAPI(root).GetKind() == "component"
+    mesh = UsdGeom.Mesh(root.GetChild("mesh"))
+    api = UsdGeom.PrimvarsAPI(mesh)
+    st = api.GetPrimvar("st")
+    assert st.GetInterpolation() == UsdGeom.Tokens.faceVarying and st.IsIndexed()
+    assert api.GetPrimvar("tangents").GetInterpolation() == UsdGeom.Tokens.faceVarying
+    validators = UsdValidation.ValidationRegistry().GetOrLoadAllValidators()
+    errors = [e for e in UsdValidation.ValidationContext(validators).Validate(stage) if not e.HasNoError()]
+    assert not [e for e in errors if e.GetType() == UsdValidation.ValidationErrorType.Error], \
+        [e.GetMessage() for e in errors]
+    layer = read_layer(sphere_uv / "mesh.usda")
+    # Points on the sphere, in metres.
+    np.testing.assert_allclose(np.linalg.norm(layer.points, axis=1), 0.03, rtol=1e-5)
+    # Frames: orthonormal, right-handed with the normal, tangent along +s and bitangent along +t.
+    t, b = layer.tangents, layer.bitangents
+    n = np.zeros_like(t)
+    n[layer.corner.ravel()] = layer.normals[layer.faces.ravel()]
+    np.testing.assert_allclose(np.linalg.norm(t, axis=1), 1, atol=1e-5)
+    np.testing.assert_allclose(np.einsum("ij,ij->i", t, n), 0, atol=1e-5)
+    np.testing.assert_allclose(np.cross(n, t), b, atol=1e-5)
+    ds, dt, area = uv_gradients(layer.points[layer.faces], layer.st[layer.corner])
+    assert (area > 0).all()                                      # no mirrored or degenerate charts
+    t_face, b_face = t[layer.corner].mean(axis=1), b[layer.corner].mean(axis=1)
+    cos_t = np.einsum("ij,ij->i", t_face, ds) / np.linalg.norm(ds, axis=1) / np.linalg.norm(t_face, axis=1)
+    cos_b = np.einsum("ij,ij->i", b_face, dt) / np.linalg.norm(dt, axis=1) / np.linalg.norm(b_face, axis=1)
+    assert np.median(cos_t) > 0.99 and cos_t.min() > 0.7
+    assert np.median(cos_b) > 0.99 and cos_b.min() > 0.7
+
+
+def test_atlas_texel_density_is_the_samples(sphere_uv):
+    record = json.loads((sphere_uv / "unwrap.json").read_text())
+    assert record["atlas"]["texels_per_metre"] == pytest.approx(DENSITY)
+    layer = read_layer(sphere_uv / "mesh.usda")
+    _, _, area_uv = uv_gradients(layer.points[layer.faces], layer.corner_texels())
+    area_3d = 4 * np.pi * 0.03 ** 2
+    # Texture area (texels) over surface area (m^2) is the density squared, up to distortion.
+    assert abs(area_uv).sum() / area_3d == pytest.approx(DENSITY ** 2, rel=0.1)
+    W, H = layer.atlas["width"], layer.atlas["height"]
+    assert area_3d * DENSITY ** 2 < W * H < 3 * area_3d * DENSITY ** 2   # packing overhead only
+
+
+def test_keep_uvs_keeps_good_ones_and_refuses_bad_ones(work, capsys):
+    points, faces, uv = plane_with_uv(0.1, n=3)
+    good = write_obj(work / "plane.obj", points, faces, uv)
+    ok(capsys, "unwrap", good, "-o", work / "plane_kept", "--texels-per-metre", 500, "--keep-uvs", "-q")
+    layer = read_layer(work / "plane_kept" / "mesh.usda")
+    assert json.loads((work / "plane_kept" / "unwrap.json").read_text())["atlas"]["method"] == "kept"
+    np.testing.assert_allclose(layer.st[layer.corner], uv[faces], atol=1e-6)   # same triangles, same st
+    assert layer.atlas["width"] == layer.atlas["height"] == 50                 # 0.1 m x 500 texels/m
+    # Two separate quads, both mapped onto the whole texture: overlapping charts.
+    quad = np.array([[0, 0, 0], [0.1, 0, 0], [0.1, 0.1, 0], [0, 0.1, 0]])
+    two = np.concatenate([quad, quad + [0.2, 0, 0]])
+    tris = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+    square = np.array([[0, 0], [1, 0], [1, 1], [0, 1.0]])
+    bad = write_obj(work / "folded.obj", two, tris, np.concatenate([square, square]))
+    code, _, err = run(capsys, "unwrap", bad, "-o", work / "folded_uv", "--texels-per-metre", 500, "--keep-uvs")
+    assert code == 0 and "not keeping the mesh's texture coordinates: texture charts overlap" in err
+    assert json.loads((work / "folded_uv" / "unwrap.json").read_text())["atlas"]["method"] == "xatlas"
+
+
+def test_usd_input_units_and_up_axis(work, capsys):
+    path = work / "quad_cm.usda"
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageMetersPerUnit(stage, 0.01)
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    mesh = UsdGeom.Mesh.Define(stage, "/quad")
+    mesh.CreatePointsAttr(Vt.Vec3fArray([(0, 0, 0), (10, 0, 0), (10, 10, 0), (0, 10, 0)]))
+    mesh.CreateFaceVertexCountsAttr([4])
+    mesh.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    stage.SetDefaultPrim(mesh.GetPrim())
+    stage.GetRootLayer().Save()
+    ok(capsys, "unwrap", path, "-o", work / "quad_uv", "--texels-per-metre", 400, "-q")
+    layer = read_layer(work / "quad_uv" / "mesh.usda")
+    assert layer.up_axis == "Z" and len(layer.faces) == 2                   # quad fan-triangulated
+    np.testing.assert_allclose(layer.points.max(axis=0), [0.1, 0.1, 0], atol=1e-7)  # centimetres -> metres
+    assert 40 <= layer.atlas["width"] <= 60
+
+
+def test_unwrap_is_deterministic(work, capsys):
+    sphere = write_sphere(work / "det_sphere.obj", subdivisions=2)
+    for name in ("a", "b"):
+        ok(capsys, "unwrap", sphere, "-o", work / f"det_{name}", "--texels-per-metre", 2000, "-q")
+    for name in ("mesh.usda", "charts.png", "unwrap.json"):
+        assert (work / "det_a" / name).read_bytes() == (work / "det_b" / name).read_bytes(), name
+
+
+def test_unwrap_bad_input(work, pebbles, capsys):
+    out = work / "bad_unwrap"
+    bad_input(capsys, "unwrap", work / "none.obj", "-o", out, "--texels-per-metre", 100, names="none.obj")
+    (work / "garbage.ply").write_bytes(b"ply\nformat nonsense\n")
+    bad_input(capsys, "unwrap", work / "garbage.ply", "-o", out, "--texels-per-metre", 100, names="garbage.ply")
+    flat = write_obj(work / "flat.obj", np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.0]]), np.array([[0, 1, 2]]))
+    bad_input(capsys, "unwrap", flat, "-o", out, "--texels-per-metre", 100, names="zero surface area")
+    sphere = write_sphere(work / "s.obj", subdivisions=1)
+    bad_input(capsys, "unwrap", sphere, "-o", out, "--texels-per-metre", -3, names="--texels-per-metre")
+    no_size = work / "no_size_c"
+    shutil.copytree(pebbles, no_size)
+    doc = json.loads((no_size / "btf-compressed.json").read_text())
+    doc.pop("source_metadata")
+    (no_size / "btf-compressed.json").write_text(json.dumps(doc))
+    bad_input(capsys, "unwrap", sphere, "-o", out, "--btf", no_size, names="physical_size_m")
+    assert not out.exists()
+
+
+# ------------------------------------------------------------------ quilting into the atlas
+
+
+@pytest.fixture(scope="module")
+def atlas_quilt(work, pebbles, sphere_uv):
+    out = work / "sphere_q"
+    from usdbtf.cli import main
+    assert main(["quilt", str(pebbles), "--atlas", str(sphere_uv / "mesh.usda"), "-o", str(out), "--seed", "4",
+                 "--block", "12", "-q"]) == 0
+    return out
+
+
+def test_every_chart_filled_and_gutters_padded(atlas_quilt, sphere_uv, pebbles):
+    charts = read_chart_map(sphere_uv / "mesh.usda")
+    cbtf = read_compressed(atlas_quilt)
+    assert (cbtf.width, cbtf.height) == (charts.shape[1], charts.shape[0])
+    x, y = read_position_map(atlas_quilt)
+    from usdbtf.imageio import read_image
+    px, _ = read_image(atlas_quilt / "quilt_positions.exr")
+    np.testing.assert_array_equal(px[..., 2] == 1, charts >= 0)             # synthesised = chart texels
+    assert x.min() >= 0 and x.max() < SIZE and y.min() >= 0 and y.max() < SIZE
+    # Gutter texels next to a chart copy a neighbouring chart texel (filtering never reads garbage).
+    pos = y * SIZE + x
+    gutter = np.argwhere(charts < 0)
+    checked = 0
+    for gy, gx in gutter[:: max(1, len(gutter) // 400)]:
+        ny, nx = slice(max(gy - 1, 0), gy + 2), slice(max(gx - 1, 0), gx + 2)
+        if (charts[ny, nx] >= 0).any():
+            assert pos[gy, gx] in pos[ny, nx][charts[ny, nx] >= 0]
+            checked += 1
+    assert checked > 20
+    doc = json.loads((atlas_quilt / "btf-compressed.json").read_text())
+    assert doc["quilt"]["atlas"]["charts"] == int(charts.max()) + 1
+    assert doc["source_metadata"]["physical_size_m"] == pytest.approx([charts.shape[1] / DENSITY,
+                                                                      charts.shape[0] / DENSITY])
+
+
+def test_chart_borders_match_their_neighbours(pebbles, sphere_uv):
+    cbtf = read_compressed(pebbles)
+    layer = read_layer(sphere_uv / "mesh.usda")
+    charts = read_chart_map(sphere_uv / "mesh.usda", layer)
+    opts = QuiltOptions(block=12, seed=4)
+    with_ghosts = quilt_atlas(cbtf, layer, charts, opts).record
+    without = quilt_atlas(cbtf, layer, charts, opts, ghosts=False).record
+    border, border_plain = with_ghosts["atlas"]["chart_border_error"], without["atlas"]["chart_border_error"]
+    assert with_ghosts["atlas"]["ghost_texels"] > 0
+    assert border < 0.7 * border_plain, (border, border_plain)
+    # ... and seamed about as well as quilting seams inside a chart.
+    assert border < 2.0 * with_ghosts["seam_error"]["all_samples_mean"]
