@@ -67,7 +67,8 @@ def write_quilted(cbtf: CompressedBTF, q: Quilt, out, *, source_folder=None, log
     ``bytes`` record.  ``source_folder`` (the compressed input) is recorded, and its error-curve
     files are copied when present (they describe the same basis)."""
     say = log or (lambda msg: None)
-    codec = get_codec(cbtf.codec)
+    # Quilts are large (1024^2+ x k textures): encode time, not bytes, is what matters here.
+    codec = get_codec(cbtf.codec).fastest()
     H, W = q.positions.shape
     flat = q.positions.ravel()
     record = copy.deepcopy(q.record)
