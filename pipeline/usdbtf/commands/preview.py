@@ -9,6 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from . import log
+from .render import add_scene_arguments
 
 ORDER = 82
 
@@ -16,14 +17,7 @@ ORDER = 82
 def add_parser(sub) -> None:
     p = sub.add_parser("preview", help="headless OpenGL render of a packaged asset's real-time (Storm) shader")
     p.add_argument("asset", type=Path, help="packaged USD asset (.usda; the one `usdbtf package` wrote)")
-    p.add_argument("-o", "--output", required=True, type=Path, help="output .exr (working colour space)")
-    p.add_argument("--mesh", type=Path, help="mesh with texture coordinates (default: the asset's own)")
-    p.add_argument("--swatch", action="store_true", help="the flat patch, one pixel per texel")
-    p.add_argument("--view", metavar="THETA,PHI", help="swatch: view direction in degrees")
-    p.add_argument("--light", action="append", default=[], metavar="SPEC",
-                   help="as for `usdbtf render`: swatch THETA,PHI; mesh point:X,Y,Z[:I] or dir:X,Y,Z[:I]")
-    p.add_argument("--camera", metavar="SPEC", help='"eye=X,Y,Z target=X,Y,Z [up=X,Y,Z] [fov=DEG]"')
-    p.add_argument("--size", type=int, nargs=2, default=(512, 512), metavar=("W", "H"), help="frame size")
+    add_scene_arguments(p, mesh_help="mesh with texture coordinates (default: the asset's own)")
     p.add_argument("--lod", help="level of detail (a variant of the asset's lod set, e.g. k16)")
     p.add_argument("--compare", action="store_true",
                    help="also render with the CPU reference renderer (bilinear, no shadows) and print the PSNR")

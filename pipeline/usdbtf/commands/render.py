@@ -8,11 +8,10 @@ from . import log
 ORDER = 80
 
 
-def add_parser(sub) -> None:
-    p = sub.add_parser("render", help="CPU reference render of a BTF on a mesh, or the flat measured swatch")
-    p.add_argument("asset", type=Path, help="compressed BTF folder (or packaged USD asset)")
+def add_scene_arguments(p, *, mesh_help: str) -> None:
+    """Output, mesh/swatch, view, lights, camera and frame size: shared with ``usdbtf preview``."""
     p.add_argument("-o", "--output", required=True, type=Path, help="output .exr (working colour space)")
-    p.add_argument("--mesh", type=Path, help="`usdbtf unwrap` layer or a mesh with texture coordinates")
+    p.add_argument("--mesh", type=Path, help=mesh_help)
     p.add_argument("--swatch", action="store_true", help="the flat patch, orthographic, one pixel per texel")
     p.add_argument("--view", metavar="THETA,PHI", help="swatch: view direction in degrees")
     p.add_argument("--light", action="append", default=[], metavar="SPEC",
@@ -22,6 +21,12 @@ def add_parser(sub) -> None:
                    "(default: frame the mesh)")
     p.add_argument("--size", type=int, nargs=2, default=(512, 512), metavar=("W", "H"),
                    help="frame size (default 512 512)")
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("render", help="CPU reference render of a BTF on a mesh, or the flat measured swatch")
+    p.add_argument("asset", type=Path, help="compressed BTF folder (or packaged USD asset)")
+    add_scene_arguments(p, mesh_help="`usdbtf unwrap` layer or a mesh with texture coordinates")
     p.add_argument("--k", type=int, help="use only the first k basis vectors")
     p.add_argument("--no-shadows", action="store_true", help="no cast shadows")
     p.add_argument("--filter", choices=["mip", "bilinear"], default="mip", help="coefficient filtering (default mip)")
