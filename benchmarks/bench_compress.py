@@ -32,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from common import (OUT, REPO, cli_command, dir_bytes, fmt_bytes, format_machine, machine_info, median,
-                    run_measured, time_call, timestamp, warm_page_cache, write_json)
+from common import (OUT, REPO, cli_command, dir_bytes, fmt_bytes, format_machine, machine_info, run_repeated,
+                    time_call, timestamp, warm_page_cache, write_json)
 
 PRESETS = ("pebbles", "ridged_fabric", "fuzzy_moss")
 TARGETS = {"quality_ratio": 0.7, "speed_ratio": 3.0, "memory_bytes": 2e9}
@@ -46,46 +46,15 @@ def say(msg: str = "") -> None:
 
 
 # -- inputs ------------------------------------------------------------------------------------
-def dataset_dir(workdir: Path, preset: str, sampling: str, size: int, seed: int, fmt: str = "png") -> Path:
-    return workdir / f"{preset}-{sampling}-{size}-seed{seed}" if fmt == "png" else \
-        workdir / f"{preset}-{sampling}-{size}-seed{seed}-{fmt}"
+def ensure_dataset(workdir, preset, sampling, size, seed, n_samples, fmt="png") -> dict:
+    """The cached synthetic input (generated as `usdbtf synth` would; see usdbtf.bench.datasets)."""
+    from usdbtf.bench.datasets import ensure_dataset as ensure
 
-
-def cached_dataset_ok(folder: Path, preset: str, sampling: str, size: int, seed: int, n_samples: int,
-                      fmt: str = "png") -> bool:
-    """A complete dataset (btf.json is written last, atomically) from the same synth parameters."""
-    path = folder / "btf.json"
-    if not path.is_file():
-        return False
-    try:
-        doc = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError):
-        return False
-    syn = doc.get("synthetic", {})
-    want = {"preset": preset, "sampling": sampling, "size": size, "seed": seed}
-    if any(syn.get(k) != v for k, v in want.items()):
-        return False
-    samples = doc.get("samples", [])
-    return (doc.get("width") == size and doc.get("height") == size and len(samples) == n_samples
-            and doc.get("color_space", "").startswith("sRGB")
-            and all(s["image"].endswith("." + fmt) and (folder / s["image"]).is_file() for s in samples))
-
-
-def ensure_dataset(cli, workdir, preset, sampling, size, seed, n_samples, fmt="png") -> dict:
-    folder = dataset_dir(workdir, preset, sampling, size, seed, fmt)
-    cmd = [*cli, "synth", preset, "-o", folder, "--sampling", sampling, "--size", str(size), "--seed", str(seed),
-           "--format", fmt]
-    info = {"folder": str(folder), "synth_command": " ".join(map(str, cmd)), "format": fmt}
-    if cached_dataset_ok(folder, preset, sampling, size, seed, n_samples, fmt):
-        info.update(cached=True, synth_seconds=None)
-        say(f"  input: cached {folder}")
-        return info
-    say(f"  input: generating {folder} ...")
-    r = run_measured(cmd, pss_interval=0)
-    if r.returncode != 0:
-        raise SystemExit(f"synth failed (exit {r.returncode}):\n{r.stderr[-3000:]}")
-    info.update(cached=False, synth_seconds=r.wall_s)
-    say(f"  input: generated in {r.wall_s:.1f} s")
+    info = ensure(workdir, preset, sampling, size, seed, fmt, say=say)
+    if info["n_samples"] != n_samples:
+        raise SystemExit(f"{info['folder']}: {info['n_samples']} samples, expected {n_samples}")
+    info["synth_command"] = (f"usdbtf synth {preset} -o {info['folder']} --sampling {sampling} --size {size} "
+                             f"--seed {seed} --format {fmt}")
     return info
 
 
@@ -106,29 +75,23 @@ def gemm_baseline(n_samples: int, n_pixels: int, k: int) -> dict:
 def run_solver(cli, data: Path, out: Path, extra_args: list, repeats: int, pss_interval: float) -> dict:
     cmd = [*cli, "compress", data, "-o", out, *extra_args]
     say(f"    $ {' '.join(map(str, cmd))}")
-    runs = []
-    for i in range(repeats):
-        r = run_measured(cmd, pss_interval=pss_interval)
-        runs.append(r)
-        if r.returncode != 0:
-            say(f"    run {i + 1}: FAILED (exit {r.returncode})\n" + r.stderr[-3000:])
-            return {"command": " ".join(map(str, cmd)), "error": r.stderr[-3000:], "runs": [x.to_dict() for x in runs]}
+    outputs = []
+
+    def after(i, r):
         doc = json.loads((out / "btf-compressed.json").read_text())
-        r.extra.update(k=doc["k"], payload=doc["bytes"]["payload"])
+        outputs.append((doc["k"], doc["bytes"]["payload"]))
         say(f"    run {i + 1}/{repeats}: {r.wall_s:.2f} s wall, peak RSS {fmt_bytes(r.max_rss_bytes)}, "
             f"tree PSS {fmt_bytes(r.peak_tree_pss_bytes)}; k {doc['k']}, {doc['bytes']['payload']:,} B")
-    if len({(x.extra["k"], x.extra["payload"]) for x in runs}) > 1:
+
+    res = run_repeated(cmd, repeats, pss_interval=pss_interval, on_run=after)
+    res.pop("stderr")
+    if "error" in res:
+        say(f"    run {len(res['runs'])}: FAILED\n" + res["error"])
+        return {key: res[key] for key in ("command", "error", "runs")}
+    if len(set(outputs)) > 1:
         say("    WARNING: repeats gave different (k, payload); the last run's output is evaluated")
-    res = {
-        "command": " ".join(map(str, cmd)),
-        "runs": [x.to_dict() for x in runs],
-        "wall_s_samples": [x.wall_s for x in runs],
-        "wall_s_median": median(x.wall_s for x in runs),
-        "user_s_median": median(x.user_s for x in runs),
-        "sys_s_median": median(x.sys_s for x in runs),
-        "max_rss_bytes": max(x.max_rss_bytes for x in runs),
-        "peak_tree_pss_bytes": max((x.peak_tree_pss_bytes or 0) for x in runs) or None,
-        "peak_memory_bytes": max(x.peak_memory_bytes for x in runs),
+    doc = json.loads((out / "btf-compressed.json").read_text())
+    res.update({
         "k": doc["k"], "codec": doc["codec"], "solver": doc.get("solver"),
         "bytes": {key: doc["bytes"][key] for key in ("payload", "basis", "coefficients")},
         "metadata_bytes": (out / "btf-compressed.json").stat().st_size,
@@ -137,7 +100,7 @@ def run_solver(cli, data: Path, out: Path, extra_args: list, repeats: int, pss_i
         "held_out_estimate": doc.get("estimated_error"),
         "output": str(out),
         "error_curve": read_curve(out / "error_curve.csv"),
-    }
+    })
     return res
 
 
@@ -152,14 +115,12 @@ def read_curve(path: Path) -> dict:
 
 def full_error(orig, folder: Path) -> dict:
     """Full-data errors of the stored representation (every sample, every texel)."""
-    from usdbtf.compress import read_compressed
+    from usdbtf.bench.methods import CompressedReconstruction
     from usdbtf.compress.decompress import compare
-    from usdbtf.compress.format import reconstruct, working_coefficients
 
     t = time.perf_counter()
-    cbtf = read_compressed(folder)
-    coeff = working_coefficients(cbtf)   # de-quantise (and colour-transform) once, reuse per chunk
-    rep = compare(orig, lambda sel: reconstruct(cbtf, sel, coefficients=coeff), None)
+    rec = CompressedReconstruction(folder)   # de-quantises (and colour-transforms) once, reused per chunk
+    rep = compare(orig, rec.fitted, None)
     rep["seconds"] = time.perf_counter() - t
     return rep
 
@@ -379,7 +340,7 @@ def main(argv=None) -> int:
     for preset in args.presets:
         say("")
         say(f"## {preset}")
-        inp = ensure_dataset(cli, args.workdir, preset, args.sampling, size, args.seed, n_samples, args.format)
+        inp = ensure_dataset(args.workdir, preset, args.sampling, size, args.seed, n_samples, args.format)
         data = Path(inp["folder"])
         inp.update(raw_bytes=raw_bytes, png_bytes=dir_bytes(data), n_samples=n_samples, width=size, height=size)
         warm = warm_page_cache(data)

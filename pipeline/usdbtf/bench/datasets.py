@@ -26,7 +26,7 @@ from ..model import FileBTF
 from ..sampling import Sampling, preset as sampling_preset
 
 __all__ = ["dataset_dir", "cached_dataset_ok", "ensure_dataset", "synthesize", "first_views", "write_subset",
-           "subset_btf", "SRGB", "PHYSICAL_SIZE_M"]
+           "subset_btf", "compressed", "SRGB", "PHYSICAL_SIZE_M"]
 
 SRGB = "sRGB Encoded Rec.709 (sRGB)"
 LINEAR_709 = "Linear Rec.709 (sRGB)"
@@ -135,3 +135,20 @@ def subset_btf(btf: FileBTF, indices) -> FileBTF:
                    color_space=btf.color_space, bit_depth=btf.bit_depth, names=[btf.names[i] for i in idx],
                    interpolated=btf.interpolated[idx], working_space=btf.working_space, ocio_config=btf.ocio_config,
                    metadata=dict(btf.metadata), paths=[btf.paths[i] for i in idx])
+
+
+def compressed(cli: list, source: Path, out: Path, k: int):
+    """``usdbtf compress SOURCE -o OUT --k K`` (untimed: an input of another benchmark), reused
+    when OUT already holds a result; returns it read back (:class:`CompressedBTF`)."""
+    import subprocess
+
+    from ..compress import read_compressed
+    from ..errors import BTFError
+
+    out = Path(out)
+    if not (out / "btf-compressed.json").is_file():
+        res = subprocess.run([*cli, "compress", str(source), "-o", str(out), "--k", str(k), "-q"],
+                             capture_output=True, text=True)
+        if res.returncode != 0:
+            raise BTFError(f"usdbtf compress {source} failed: {' '.join(res.stderr.split())[-500:]}")
+    return read_compressed(out)

@@ -13,9 +13,15 @@ Prediction
 ----------
 A held-out sample (v, l) is predicted from the ``neighbours`` fitted samples nearest to it
 in direction space, distance = angle(v, v') + angle(l, l') (radians), weighted by inverse
-distance squared and normalised.  For a factorised representation this interpolates the
-basis rows (the sample-dependent factor), which by linearity equals blending the
-neighbours' reconstructions; image-based baselines blend their decoded neighbours.
+distance squared and normalised.  The images include the light's foreshortening
+(cos theta_l), so what is interpolated is image / cos theta_l: neighbour j's weight is
+multiplied by cos theta_l(query) / cos theta_l(j).  Without it a light below the fitted ones
+(e.g. a held-out 60 deg ring between 30 deg lights) is predicted as bright as its
+neighbours: on the 13 x 13 ``small`` sampling that doubles the held-out error of the
+original images (76 % -> 40 % with it); on the paper's sampling it changes little.  For a
+factorised representation this interpolates the basis rows (the sample-dependent factor),
+which by linearity equals blending the neighbours' reconstructions; image-based baselines
+blend their decoded neighbours.
 """
 from __future__ import annotations
 
@@ -57,12 +63,14 @@ def _angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def neighbour_weights(fitted: Sampling, query: Sampling, neighbours: int = 4, power: float = 2.0,
-                      chunk: int = 512) -> tuple[np.ndarray, np.ndarray]:
+                      foreshortening: bool = True, chunk: int = 512) -> tuple[np.ndarray, np.ndarray]:
     """Interpolation of ``query`` directions from ``fitted`` ones.
 
-    Returns (idx (Q, n) int, indices into ``fitted``; w (Q, n) float64, rows summing to 1),
+    Returns (idx (Q, n) int, indices into ``fitted``; w (Q, n) float64),
     n = min(neighbours, len(fitted)).  Nearest first; ties broken by the lower index, so the
-    result is deterministic.  A query equal to a fitted direction gets weight 1 on it.
+    result is deterministic.  Before the foreshortening factor (module docstring) each row
+    sums to 1; after it, sum_j w_j cos theta_l(j) = cos theta_l(query).  A query equal to a
+    fitted direction gets weight 1 on it.
     """
     n = min(neighbours, len(fitted))
     fv, fl = to_vectors(fitted.view), to_vectors(fitted.light)
@@ -78,6 +86,9 @@ def neighbour_weights(fitted: Sampling, query: Sampling, neighbours: int = 4, po
         inv = 1.0 / np.maximum(dn, 1e-9) ** power
         inv = np.where(exact, (np.arange(n) == 0).astype(float), inv)
         idx[a:b], w[a:b] = near, inv / inv.sum(axis=1, keepdims=True)
+    if foreshortening:
+        cos_f = np.maximum(np.cos(np.radians(fitted.light[:, 0])), 1e-3)
+        w *= np.cos(np.radians(query.light[:, 0]))[:, None] / cos_f[idx]
     return idx, w
 
 

@@ -19,8 +19,8 @@ import numpy as np
 
 from .heldout import blend_rows
 
-__all__ = ["Method", "Reconstruction", "CompressedReconstruction", "compress_methods", "baseline_methods",
-           "FAMILIES"]
+__all__ = ["Method", "Reconstruction", "CompressedReconstruction", "ManifestReconstruction", "compress_methods",
+           "baseline_methods", "FAMILIES"]
 
 # family -> (table label, the parameter it sweeps, is it a baseline)
 FAMILIES = {
@@ -66,8 +66,9 @@ class CompressedReconstruction(Reconstruction):
         return (rows @ self.coeff.reshape(c.k, -1)).reshape(len(rows), c.height, c.width, 3)
 
 
-class _ManifestReconstruction(Reconstruction):
-    """Stored images listed by a manifest (the JPEG baseline)."""
+class ManifestReconstruction(Reconstruction):
+    """Images listed by a manifest: the JPEG baseline's files, or the input itself (the
+    reference that shows how well held-out samples can be predicted at all)."""
 
     def __init__(self, folder: Path):
         from ..io import open_btf
@@ -163,7 +164,7 @@ class Method:
         if self.family in ("rsvd", "paper"):
             return CompressedReconstruction(out)
         if self.family == "jpeg":
-            return _ManifestReconstruction(out)
+            return ManifestReconstruction(out)
         if self.family == "pca-view":
             return _PerViewReconstruction(out)
         return _VideoReconstruction(out, fitted_btf, needed)

@@ -15,7 +15,7 @@ import numpy as np
 from ..atomic import atomic_file
 
 __all__ = ["Column", "markdown_table", "write_csv", "pareto_mask", "loglog_slope", "pooled_loglog_slope",
-           "affine_fit", "plot_tradeoffs", "plot_scaling"]
+           "affine_fit", "plot_tradeoffs", "plot_scaling", "plot_sweep"]
 
 DASH = "\u2014"
 
@@ -106,15 +106,31 @@ def _pyplot():
     return plt
 
 
+def _log_axes(ax, plain_x: bool = True) -> None:
+    """Log-log axes labelled with plain numbers (0.5, 20) rather than powers of ten (x too
+    unless ``plain_x`` is False, e.g. for byte counts spanning decades)."""
+    from matplotlib.ticker import FormatStrFormatter
+
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    for axis, name in ((ax.yaxis, "y"), (ax.xaxis, "x") if plain_x else (None, None)):
+        if axis is not None:
+            axis.set_major_formatter(FormatStrFormatter("%g"))
+            axis.set_minor_formatter(FormatStrFormatter("%g"))
+            ax.tick_params(axis=name, which="minor", labelsize=7)
+    ax.grid(alpha=0.3, which="both")
+
+
 def _save(fig, path: Path) -> Path:
     with atomic_file(path) as tmp:
         fig.savefig(tmp, format="png")
     return Path(path)
 
 
-def plot_tradeoffs(rows: list, path: Path, title: str) -> Path:
+def plot_tradeoffs(rows: list, path: Path, title: str, held_floor: float | None = None) -> Path:
     """2 x 2 panels: (fitted, held-out) percent error against (wall time, stored bytes),
-    one line per method label through its sweep, Pareto fronts as dashed black steps."""
+    one line per method label through its sweep, Pareto fronts as dashed black steps;
+    ``held_floor`` (the held-out error of the original images) as a grey line."""
     plt = _pyplot()
     fig, axes = plt.subplots(2, 2, figsize=(12, 8.5), dpi=100)
     labels = list(dict.fromkeys(r["method"] for r in rows))
@@ -137,12 +153,12 @@ def plot_tradeoffs(rows: list, path: Path, title: str) -> Path:
                 order = np.argsort(x[front])
                 ax.step(x[front][order], y[front][order], where="post", ls="--", color="k", lw=1, label="Pareto front")
                 ax.scatter(x[front], y[front], s=90, facecolors="none", edgecolors="k", lw=1)
-            ax.set_xscale("log")
-            ax.set_yscale("log")
+            if ri == 1 and held_floor is not None:
+                ax.axhline(held_floor, color="0.5", lw=1, ls=":", label="held-out floor (original images)")
+            _log_axes(ax, plain_x=(x_key == "wall_s"))
             ax.set_xlabel(x_name)
             ax.set_ylabel(f"percent error, {err_name}")
-            ax.grid(alpha=0.3, which="both")
-    handles, names = axes[0, 0].get_legend_handles_labels()
+    handles, names = max((ax.get_legend_handles_labels() for ax in axes[:, 0]), key=lambda hn: len(hn[0]))
     fig.legend(handles, names, loc="lower center", ncol=min(6, len(names)), fontsize=8)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout(rect=(0, 0.08, 1, 0.97))
@@ -158,21 +174,50 @@ def plot_scaling(rows: list, path: Path, title: str) -> Path:
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.8), dpi=100)
     modes = list(dict.fromkeys(r["mode"] for r in rows))
     cmap = plt.get_cmap("tab10")
-    for ax, key, name in ((axes[0], "wall_s", "wall time, s (median)"), (axes[1], "peak_mem_bytes", "peak memory, bytes")):
+    for ax, key, name, scale in ((axes[0], "wall_s", "wall time, s (median)", 1.0),
+                                 (axes[1], "peak_mem_bytes", "peak memory, MB", 1e-6)):
         for m, mode in enumerate(modes):
             for n, S in enumerate(sorted({r["samples"] for r in rows})):
                 mine = sorted((r for r in rows if r["mode"] == mode and r["samples"] == S and r.get(key)),
                               key=lambda r: r["values"])
                 if mine:
-                    ax.plot([r["values"] for r in mine], [r[key] for r in mine], marker="os^Dv"[m % 5],
+                    ax.plot([r["values"] for r in mine], [r[key] * scale for r in mine], marker="os^Dv"[m % 5],
                             ls="-" if m == 0 else "--", color=cmap(n % 10), label=f"{mode}, S = {S}")
-        ax.set_xscale("log")
-        ax.set_yscale("log")
+        _log_axes(ax, plain_x=False)
         ax.set_xlabel("samples x texels (S P)")
         ax.set_ylabel(name)
-        ax.grid(alpha=0.3, which="both")
     axes[0].legend(fontsize=7)
     fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    out = _save(fig, path)
+    plt.close(fig)
+    return out
+
+
+def plot_sweep(rows: list, path: Path, *, x: str, y: str, series: str, point: str, xlabel: str, ylabel: str,
+               title: str, references: dict | None = None) -> Path:
+    """One log-log panel: a line per value of ``series`` through its points (annotated with
+    ``point``), the Pareto front of all rows dashed, ``references`` {label: (x, y)} as crosses."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(8, 5.5), dpi=100)
+    cmap = plt.get_cmap("tab10")
+    for n, value in enumerate(dict.fromkeys(r[series] for r in rows)):
+        mine = [r for r in rows if r[series] == value]
+        ax.plot([r[x] for r in mine], [r[y] for r in mine], marker="o", color=cmap(n % 10), label=f"{series} {value}")
+        for r in mine:
+            ax.annotate(f"{point} {r[point]}", (r[x], r[y]), fontsize=6, xytext=(3, 3), textcoords="offset points")
+    for n, (label, (rx, ry)) in enumerate((references or {}).items()):
+        ax.scatter([rx], [ry], marker="x", s=50, color=cmap(n % 10), label=label)
+    if rows:
+        xs, ys = np.array([r[x] for r in rows], float), np.array([r[y] for r in rows], float)
+        front = pareto_mask(xs, ys)
+        order = np.argsort(xs[front])
+        ax.step(xs[front][order], ys[front][order], where="post", ls="--", color="k", lw=1, label="Pareto front")
+    _log_axes(ax)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.legend(fontsize=7)
+    ax.set_title(title, fontsize=9)
     fig.tight_layout()
     out = _save(fig, path)
     plt.close(fig)
