@@ -27,7 +27,8 @@ from ..model import BTF
 from . import ratedist
 from .codecs import Stored, get_codec, quantize_half, quantize_minmax, quantize_uniform
 from .curve import curve_samples, error_curve, write_curve
-from .format import CompressedBTF, truncate_written, working_coefficients, write_basis, write_metadata, write_textures
+from .format import (CompressedBTF, truncate_written, working_coefficient_texels, working_coefficients, write_basis,
+                     write_metadata, write_textures)
 from .linalg import exact_basis, randomized_basis
 from .source import choose_source
 from .metrics import ErrorSums
@@ -126,10 +127,27 @@ def _eval_texels(btf: BTF, fit: np.ndarray, opts: Options) -> np.ndarray:
     return _runs(btf.n_pixels, max(1, opts.eval_texels // _RUN), np.random.default_rng(opts.seed + 1), exclude=used)
 
 
+def _colour_gram(coeff: np.ndarray) -> np.ndarray:
+    """3x3 float64 sum of c c^T over every texel and component of ``coeff`` (k, P, 3),
+    one component at a time (a float64 copy of the whole array would be 2x its size)."""
+    gram = np.zeros((3, 3))
+    for plane in coeff:
+        flat = plane.astype(np.float64)
+        gram += flat.T @ flat
+    return gram
+
+
+def _apply_colour(coeff: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """``coeff @ m`` for (k, P, 3) coefficients, in place, one component at a time."""
+    m = m.astype(np.float32)
+    for i in range(len(coeff)):
+        coeff[i] = coeff[i] @ m
+    return coeff
+
+
 def _colour_decorrelation(coeff: np.ndarray) -> np.ndarray:
     """Orthonormal 3x3 R (columns = colour principal axes, largest first, signs fixed)."""
-    flat = coeff.reshape(-1, 3).astype(np.float64)
-    cov = flat.T @ flat
+    cov = _colour_gram(coeff)
     evals, vecs = np.linalg.eigh(cov)
     vecs = vecs[:, np.argsort(evals)[::-1]]
     vecs *= np.sign(vecs[np.argmax(np.abs(vecs), axis=0), [0, 1, 2]])
@@ -187,7 +205,7 @@ def _evaluate(cbtf: CompressedBTF, truth: np.ndarray, texels: np.ndarray, k: int
     """Error of the stored representation on held-out texels, working space.
     truth : (S, n, 3) working-space values at ``texels``."""
     k = cbtf.k if k is None else k
-    coeff = working_coefficients(cbtf, k).reshape(k, -1, 3)[:, texels]     # (k, n, 3)
+    coeff = working_coefficient_texels(cbtf, texels, k)                     # (k, n, 3)
     rec = (cbtf.basis_values(k) @ coeff.reshape(k, -1)).reshape(truth.shape)
     sums = ErrorSums()
     sums.add(truth, rec)
@@ -241,7 +259,7 @@ def compress_to_folder(btf: BTF, out, opts: Options | None = None, *, log=None) 
     t = time.perf_counter()
     coeff, total_energy = data.project(u, chunk=opts.chunk_texels, energy=opts.target_error is not None)
     if data.matrix is not None:
-        coeff = coeff @ data.matrix.T  # curves-space -> working space, exact (linear in the coefficients)
+        _apply_colour(coeff, data.matrix.T)  # curves-space -> working space, exact (linear in the coefficients)
     timings["project_s"] = time.perf_counter() - t
 
     held_out = not np.isin(evalt, fit).any()
@@ -258,7 +276,7 @@ def compress_to_folder(btf: BTF, out, opts: Options | None = None, *, log=None) 
         color_matrix = np.eye(3)
     else:
         color_matrix = _colour_decorrelation(coeff)
-        coeff = coeff @ color_matrix.astype(np.float32)   # c' = R^T c for each texel
+        _apply_colour(coeff, color_matrix)   # c' = R^T c for each texel
 
     t = time.perf_counter()
     with atomic_dir(out) as tmp:

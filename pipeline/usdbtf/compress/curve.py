@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .format import working_coefficients
+from .format import working_coefficient_texels
 
 __all__ = ["error_curve", "write_curve", "plot_curve", "curve_samples", "curve_ks"]
 
@@ -23,7 +23,7 @@ def curve_ks(k: int, count: int = 48) -> np.ndarray:
     return np.unique(np.r_[head, tail, k]).astype(int)
 
 
-def error_curve(cbtf, data, seed: int = 0) -> dict:
+def error_curve(cbtf, data, seed: int = 0, *, texels_per_block: int = 16384) -> dict:
     """Percent error (paper's metric, working space) vs k at :func:`curve_ks` points up to cbtf.k.
 
     Measured over all texels of ``curve_samples`` (the paper plots one view/light pair;
@@ -32,16 +32,24 @@ def error_curve(cbtf, data, seed: int = 0) -> dict:
     "rmse": [...], "samples": [...]}.
     """
     rows = curve_samples(cbtf.n_samples)
-    truth = data.working_samples(rows).reshape(len(rows), -1)           # (r, 3P)
+    truth = data.working_samples(rows)                                   # (r, P, 3)
     basis = cbtf.basis_values()[rows]                                    # (r, k)
-    coeff = working_coefficients(cbtf).reshape(cbtf.k, -1)               # (k, 3P)
     total = float(truth.sum(dtype=np.float64))
     ks = curve_ks(cbtf.k)
-    pct, rmse = [], []
-    for k in ks:
-        diff = (truth - basis[:, :k] @ coeff[:k]).astype(np.float64)
-        pct.append(100.0 * float(np.abs(diff).sum()) / total if total > 0 else float("nan"))
-        rmse.append(float(np.sqrt(np.mean(diff ** 2))))
+    abs_sum, sq_sum = np.zeros(len(ks)), np.zeros(len(ks))
+    P = cbtf.width * cbtf.height
+    # Over blocks of texels, so only a block of the k coefficient textures is decoded at a time.
+    for t0 in range(0, P, texels_per_block):
+        t1 = min(t0 + texels_per_block, P)
+        coeff = working_coefficient_texels(cbtf, slice(t0, t1)).reshape(cbtf.k, -1)   # (k, 3 n)
+        part = truth[:, t0:t1].reshape(len(rows), -1)
+        for j, k in enumerate(ks):
+            diff = (part - basis[:, :k] @ coeff[:k]).astype(np.float64)
+            abs_sum[j] += np.abs(diff).sum()
+            sq_sum[j] += np.square(diff).sum()
+    count = truth.size
+    pct = [100.0 * float(a) / total if total > 0 else float("nan") for a in abs_sum]
+    rmse = [float(np.sqrt(q / count)) for q in sq_sum]
     return {"k": ks.tolist(), "percent": pct, "rmse": rmse, "samples": rows.tolist()}
 
 

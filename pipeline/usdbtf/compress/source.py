@@ -19,6 +19,7 @@ U^T X chunk by chunk).  ``choose_source`` picks by a memory budget.
 """
 from __future__ import annotations
 
+import collections
 import multiprocessing as mp
 from concurrent.futures import ProcessPoolExecutor
 
@@ -27,6 +28,10 @@ import numpy as np
 from ..errors import BTFError
 from ..model import BTF, FileBTF
 from .load import BlockedData, _forkable, _init, default_workers, load_encoded
+
+#: Bytes of decoded float32 samples the streaming source holds per chunk.
+CHUNK_BYTES = 128e6
+_TEXELS_PER_GEMM = 16384
 
 __all__ = ["InMemorySource", "StreamingSource", "choose_source", "stored_bytes", "colour_gram"]
 
@@ -145,9 +150,11 @@ class StreamingSource(_Source):
 
     kind = "streaming"
 
-    def __init__(self, btf: BTF, keep_texels: list, keep_rows, *, workers: int | None = None, chunk: int = 256):
+    def __init__(self, btf: BTF, keep_texels: list, keep_rows, *, workers: int | None = None,
+                 chunk: int | None = None, chunk_bytes: float = CHUNK_BYTES):
         super().__init__(btf)
-        self.chunk = chunk
+        # Samples per chunk from a byte size, not a count: 256 samples are 0.8 GB of float32 at 512^2.
+        self.chunk = chunk or int(max(1, min(256, chunk_bytes // (btf.n_pixels * 3 * 4))))
         self.workers = workers or default_workers()
         S = btf.n_samples
         self._kept = [(np.asarray(t), np.empty((S, 3 * len(t)), np.float32)) for t in keep_texels]
@@ -170,13 +177,25 @@ class StreamingSource(_Source):
         if isinstance(btf, FileBTF) and self.workers > 1 and _forkable(btf) and len(bounds) > 1:
             with ProcessPoolExecutor(self.workers, mp_context=mp.get_context("fork"), initializer=_init,
                                      initargs=(btf, None)) as pool:
-                for (a, _), block in zip(bounds, pool.map(_read_chunk, bounds)):
-                    if isinstance(block, str):
-                        raise BTFError(block)
-                    yield a, block
+                # At most workers + 1 chunks in flight: pool.map would queue every decoded
+                # chunk in this process when the consumer is slower than the decoders.
+                pending = collections.deque()
+                for bound in bounds:
+                    pending.append((bound[0], pool.submit(_read_chunk, bound)))
+                    if len(pending) > self.workers:
+                        yield self._checked(*pending.popleft())
+                while pending:
+                    yield self._checked(*pending.popleft())
         else:
             for a, b in bounds:
                 yield a, btf.read_encoded(slice(a, b))
+
+    @staticmethod
+    def _checked(first: int, future):
+        block = future.result()
+        if isinstance(block, str):
+            raise BTFError(block)
+        return first, block
 
     def columns(self, texels: np.ndarray) -> np.ndarray:
         for t, dest in self._kept:
@@ -189,9 +208,13 @@ class StreamingSource(_Source):
         k, P = u.shape[1], self.btf.n_pixels
         acc = np.zeros((k, 3 * P), np.float32)
         gram = np.zeros((3, 3))
+        step = 3 * _TEXELS_PER_GEMM
         for s0, block in self._chunks():
             x = self.curves(block.reshape(len(block), -1))
-            acc += u[s0:s0 + len(block)].T @ x
+            uc = np.ascontiguousarray(u[s0:s0 + len(block)].T)
+            # Column blocks: the product's temporary is k x step, not another k x 3P.
+            for c0 in range(0, 3 * P, step):
+                acc[:, c0:c0 + step] += uc @ x[:, c0:c0 + step]
             if energy:
                 gram += colour_gram(x)
         return acc.reshape(k, P, 3), (self._energy(gram) if energy else None)
