@@ -3,8 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .material import NS, btf_materials
-from .package import LOD_VARIANT_SET
+from .material import LOD_VARIANT_SET, NS, btf_materials
 from .read import find_material, open_stage
 
 

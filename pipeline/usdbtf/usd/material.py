@@ -24,6 +24,8 @@ from .plugin import API_SCHEMA, require_schema
 SCHEMA_VERSION = 1
 NS = "btf:"
 SCHEMA_VERSION_ATTR = NS + "schemaVersion"
+#: Variant set on a packaged asset's root prim choosing how many basis vectors to use.
+LOD_VARIANT_SET = "lod"
 
 
 def _attr(prim, name: str):

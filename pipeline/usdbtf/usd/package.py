@@ -34,12 +34,11 @@ from ..compress.codecs import Codec
 from ..compress.format import METADATA, CompressedBTF, basis_file, coefficient_file, read_compressed
 from ..errors import BTFError
 from ..imageio import write_image
-from . import geometry, preview, storm  # storm: issue 7 (Hydra preview); importing it registers its Sdr shader def
-from .material import author_btf
+from . import geometry, preview, storm  # storm: issue 7 (Hydra preview)
+from .material import LOD_VARIANT_SET, author_btf
 from .validate import validate_layer
 
 MATERIAL = "BtfMaterial"
-LOD_VARIANT_SET = "lod"
 FULL_LOD = "full"
 #: Extensions every USD consumer (and the usdz spec) reads; others are re-encoded.
 _PORTABLE = {".png", ".jpg", ".jpeg", ".exr"}

@@ -15,21 +15,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..compress.format import CompressedBTF
+from ..compress.format import CompressedBTF, working_coefficient_texels
 from ..sampling import to_vectors
 
 #: Albedo texture: display-referred 8-bit sRGB, what UsdUVTexture decodes with sourceColorSpace "sRGB".
 ALBEDO_SPACE = "sRGB Encoded Rec.709 (sRGB)"
 _ROUGHNESS_GRID = np.round(np.linspace(0.05, 1.0, 39), 4)
-
-
-def coefficient_rows(cbtf: CompressedBTF, y0: int, y1: int) -> np.ndarray:
-    """(k, y1 - y0, W, 3) float32 working-space coefficients of texel rows y0..y1."""
-    m = np.asarray(cbtf.color_matrix, np.float32)
-    out = np.empty((cbtf.k, y1 - y0, cbtf.width, 3), np.float32)
-    for i, st in enumerate(cbtf.coefficients):
-        out[i] = st.pixels[y0:y1].astype(np.float32) * st.scale.astype(np.float32) + st.bias.astype(np.float32)
-    return out @ m.T
 
 
 def albedo_samples(cbtf: CompressedBTF, max_light_theta: float = 60.0, most: int = 48) -> np.ndarray:
@@ -55,7 +46,7 @@ def mean_albedo(cbtf: CompressedBTF, *, white_level: float = 1.0, rows_per_chunk
     out = np.empty((cbtf.height, cbtf.width, 3), np.float32)
     for y0 in range(0, cbtf.height, rows_per_chunk):
         y1 = min(y0 + rows_per_chunk, cbtf.height)
-        c = coefficient_rows(cbtf, y0, y1)                                   # (k, h, W, 3)
+        c = working_coefficient_texels(cbtf, slice(y0 * cbtf.width, y1 * cbtf.width))   # (k, h*W, 3)
         per_texel = c.reshape(cbtf.k, -1).T @ rows                           # (h*W*3, n)
         out[y0:y1] = np.median(per_texel, axis=1).reshape(y1 - y0, cbtf.width, 3)
     return np.clip(out / white_level, 0.0, 1.0)

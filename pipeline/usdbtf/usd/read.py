@@ -21,8 +21,7 @@ import numpy as np
 
 from ..compress.format import CompressedBTF, reconstruct
 from ..errors import BTFError
-from .material import btf_materials, read_btf
-from .package import LOD_VARIANT_SET
+from .material import LOD_VARIANT_SET, btf_materials, read_btf
 
 USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 

@@ -309,8 +309,3 @@ def layout_from_asset(asset, *, lod: str | None = None):
         wrap = pack_wrap
     k = int(shader.GetInput("basisCount").Get())
     return GpuLayout(np.asarray(tables, np.float32), packs, k), wrap, k
-
-
-# Validating an asset needs the definition in Sdr, in any process: usd.read (which every
-# validation path imports) imports usd.package, which imports this module.
-register_shader_definitions()
