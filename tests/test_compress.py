@@ -833,7 +833,7 @@ def test_streaming_source_holds_only_requested_columns(small32):
     from usdbtf.compress.source import StreamingSource, stored_bytes
     btf = read_manifest(small32)
     texels = np.arange(64, 128)
-    src = StreamingSource(btf, [texels], [0, 5], workers=1, chunk=16)
+    src = StreamingSource(btf, [texels], [0, 5], workers=1, chunk_bytes=1)
     assert src.nbytes < stored_bytes(btf)
     want = btf.decode(btf.read_encoded(slice(None))).reshape(btf.n_samples, -1, 3)[:, texels]
     got = src.to_working(src.columns(texels)).reshape(btf.n_samples, -1, 3)

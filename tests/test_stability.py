@@ -55,7 +55,7 @@ from usdbtf import colour, synth
 from usdbtf.compress import Options, compress_to_folder, read_compressed, reconstruct
 from usdbtf.compress import codecs as codecs_mod
 from usdbtf.compress.linalg import exact_basis, randomized_basis
-from usdbtf.compress.source import InMemorySource, StreamingSource
+from usdbtf.compress.source import InMemorySource, StreamingSource, tile_samples
 from usdbtf.errors import BTFError
 from usdbtf.manifest import read_manifest, write_manifest
 from usdbtf.model import ArrayBTF
@@ -462,14 +462,18 @@ def small_png(tmp_path_factory) -> Path:
 
 
 @pytest.mark.parametrize("source", ["file-8bit", "array-float"])
-def test_projection_accumulation_order_within_dot_product_bound(small_png, source):
-    """U^T X by texel chunks of 1, 7, 64, 1024 (in memory) and by sample chunks of 1, 16,
-    256 (streaming): each result is a float32 sum of S products in some order, so each is
-    within gamma_S |U|^T |X| of the exact (float64) product, gamma_S = S 2^-24 / (1 - S 2^-24),
-    and any two within twice that."""
+def test_projection_is_within_dot_product_bound_and_independent_of_chunks(small_png, source):
+    """U^T X in memory and streamed in chunks of 1, 2 and all projection tiles: each result
+    is a float32 sum of S products, so within gamma_S |U|^T |X| of the exact (float64)
+    product, gamma_S = S 2^-24 / (1 - S 2^-24); and all of them sum the same fixed tiles in
+    the same order, so they are bit-identical.  A plane projected on fewer vectors (ks)
+    gets the same leading coefficients within the bound (a narrower GEMM may sum in another
+    order) and zeros after."""
     file_btf = read_manifest(small_png)
     btf = file_btf if source == "file-8bit" else ArrayBTF.from_linear(file_btf.sampling, file_btf.read_samples(slice(None)))
     P, S = btf.n_pixels, btf.n_samples
+    tile = tile_samples(btf)
+    assert tile < S
     mem = InMemorySource(btf, workers=1)
     x = mem.columns(np.arange(P)).astype(np.float64)                       # (S, 3P), curve-decoded
     u, _ = randomized_basis(mem.columns(np.arange(P)), 10, seed=0)
@@ -477,16 +481,20 @@ def test_projection_accumulation_order_within_dot_product_bound(small_png, sourc
     exact = (u64.T @ x).reshape(10, P, 3)
     gamma = S * U32 / (1 - S * U32)
     bound = gamma * (np.abs(u64).T @ np.abs(x)).reshape(10, P, 3)
-    results = {f"memory chunk {c}": mem.project(u, chunk=c)[0] for c in (1, 7, 64, 1024)}
-    for c in (1, 16, 256):
-        src = StreamingSource(btf, [np.arange(P)], [0], workers=1, chunk=c)
-        results[f"streaming chunk {c}"] = src.project(u)[0]
+    results = {"memory": mem.project(u, np.eye(3), (10, 10, 10))[0]}
+    per_tile = tile * P * 3 * np.dtype(btf.read_encoded(0).dtype).itemsize
+    for tiles in (1, 2, 1000):
+        src = StreamingSource(btf, [np.arange(P)], [0], workers=1, chunk_bytes=tiles * per_tile)
+        assert src.chunk == min(tiles, 1000) * tile
+        results[f"streaming, {tiles} tile(s) per chunk"] = src.project(u, np.eye(3), (10, 10, 10))[0]
     for name, coeff in results.items():
         assert coeff.dtype == np.float32
         assert np.all(np.abs(coeff - exact) <= bound), name
-    base = results["memory chunk 1024"]
-    for name, coeff in results.items():
-        assert np.all(np.abs(coeff.astype(np.float64) - base) <= 2 * bound), name
+        assert np.array_equal(coeff, results["memory"]), name
+    fewer = mem.project(u, np.eye(3), (10, 4, 0))[0]
+    assert np.array_equal(fewer[:, :, 0], results["memory"][:, :, 0])
+    assert np.all(np.abs(fewer[:4, :, 1] - exact[:4, :, 1]) <= bound[:4, :, 1])
+    assert not fewer[4:, :, 1].any() and not fewer[:, :, 2].any()
 
 
 # ---------------------------------------------------------------- sign / order convention, determinism
@@ -561,41 +569,36 @@ def test_two_runs_byte_identical(two_runs, solver, codec, kw):
     assert differing(a, b) == []
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "InMemorySource.project computes U^T X as one float32 sgemm per texel chunk; OpenBLAS "
-    "sums a column's S products in an order that depends on the GEMM's width and the "
-    "column's place in it (edge tiles, thread split), so chunk_texels changes the last bits "
-    "of some coefficients (all within gamma_S, see test_projection_accumulation_order_...). "
-    "The basis fit is unaffected; what follows from the coefficients changes: the 3x3 colour "
-    "decorrelation (metadata color_matrix, then every exr texture), the coefficient energies "
-    "and with them the rate-distortion step (jxl: recorded step / scale / bias, a few codes, "
-    "the error curve)"))
 @pytest.mark.parametrize("codec", ["jxl", "exr"])
-def test_chunk_texels_do_not_change_output(tmp_path, fixed_exr_dates, codec):
-    """chunk_texels 64 and 7 vs the default 1024, at full k (fine quantisation): byte-identical
-    folders (the metadata compared without the recorded chunk_texels option)."""
-    btf = pebbles("tiny", 20)
+def test_chunk_sizes_do_not_change_output(tmp_path, fixed_exr_dates, codec):
+    """In memory, and streamed in chunks of one projection tile, of two tiles and of all
+    samples: byte-identical folders at full k (fine quantisation; the metadata compared
+    without the recorded memory options)."""
+    s = _sampling_312()
+    btf = ArrayBTF.from_linear(s, synth.render_all(synth.make_material("pebbles", 8, 0), s))
+    tile = tile_samples(btf)
+    assert tile < len(s), "the sampling must span several projection tiles"
+    per_sample = btf.n_pixels * 3 * 4
+    runs = {"mem": {}, "one": {"memory_budget": 0, "chunk_bytes": tile * per_sample},
+            "two": {"memory_budget": 0, "chunk_bytes": 2 * tile * per_sample},
+            "all": {"memory_budget": 0, "chunk_bytes": 1e12}}
     outs = {}
-    for chunk in (1024, 64, 7):
-        compress_to_folder(btf, tmp_path / str(chunk), Options(codec=codec, chunk_texels=chunk))
-        outs[chunk] = comparable_files(tmp_path / str(chunk), drop_options=["chunk_texels"])
-    diffs = {chunk: differing(outs[1024], f) for chunk, f in outs.items() if chunk != 1024}
-    assert diffs == {64: [], 7: []}
+    for name, kw in runs.items():
+        compress_to_folder(btf, tmp_path / name, Options(codec=codec, **kw))
+        outs[name] = comparable_files(tmp_path / name, drop_options=["memory_budget", "chunk_bytes"])
+    assert {name: differing(outs["mem"], f) for name, f in outs.items() if name != "mem"} == \
+        {"one": [], "two": [], "all": []}
 
 
 def _sampling_312():
-    """13 views x 24 lights: more samples than StreamingSource's 256-sample chunk."""
+    """13 views x 24 lights: more samples than one projection tile (128)."""
     return cross(rings((0, 30, 60), (1, 6, 6)), rings((15, 45, 75), (8, 8, 8)))
 
 
 @pytest.mark.parametrize("codec", ["jxl", "exr"])
 @pytest.mark.parametrize("sampling", [
     "small",
-    pytest.param("312", marks=pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-        "StreamingSource.project accumulates U_c^T X_c over 256-sample chunks in float32 "
-        "(acc += ...), the in-memory source sums all S samples in one sgemm: with S > 256 the "
-        "coefficients differ in the last bits, hence the colour matrix and every exr texture "
-        "(jxl at full k: some textures and the error curve)"))),
+    "312",
 ])
 def test_streaming_matches_in_memory_byte_for_byte(tmp_path, fixed_exr_dates, sampling, codec):
     """memory_budget=0 (stream the input twice) vs in memory, at full k: byte-identical

@@ -59,8 +59,8 @@ class Options:
     power_iterations: int = 1
     oversample: int = 16
     region: int | None = None             # paper: side of the central square region (texels)
-    chunk_texels: int = 1024              # projection chunk (memory: S * 3 * chunk * 4 bytes)
     memory_budget: float = 1.0e9          # hold stored values in memory up to this many bytes, else stream
+    chunk_bytes: float = 128e6            # streaming: stored bytes per chunk (rounded to whole projection tiles)
     eval_texels: int = 1024               # held-out texels for error estimates
     workers: int | None = None
     extra: dict = field(default_factory=dict)
@@ -154,6 +154,26 @@ def _colour_decorrelation(coeff: np.ndarray) -> np.ndarray:
     return vecs
 
 
+#: A colour plane's component is projected while zeroing it would add more than this
+#: fraction of one component's quantisation noise (n step^2 / 12), estimated on the sample.
+_PLANE_TOLERANCE = 0.01
+
+
+def _planes_in_use(sampled: np.ndarray, step: float) -> tuple[int, int, int]:
+    """Per decorrelated colour plane, how many leading components to project.
+
+    A coefficient c rounds to zero when |c| < step / 2; zeroing one that would round away
+    adds step (2 |c| - step) to the squared error.  Plane j keeps components up to the last
+    one where that excess, averaged over the sampled texels (k, n, 3), passes
+    _PLANE_TOLERANCE step^2 / 12; later ones are (almost) all zero once quantised.
+    """
+    excess = np.maximum(2.0 * np.abs(sampled) / step - 1.0, 0.0).mean(axis=1)      # (k, 3), in step^2
+    used = excess > _PLANE_TOLERANCE / 12.0
+    ks = [int(np.flatnonzero(used[:, j])[-1]) + 1 if used[:, j].any() else 0 for j in range(3)]
+    ks[0] = max(ks[0], 1)
+    return tuple(ks)
+
+
 def _quantize_basis_columns(u: np.ndarray, steps: np.ndarray) -> Stored:
     """Uniform per-column steps; 16-bit when any column needs more than 256 levels."""
     q = np.rint(u / steps.astype(np.float32)).astype(np.int64)
@@ -170,7 +190,9 @@ def _quantize_basis_minmax(u: np.ndarray) -> Stored:
 
 def _basis_steps(step: float, energy: np.ndarray, u: np.ndarray) -> np.ndarray:
     sigma = np.sqrt(np.maximum(energy, 1e-300))
-    steps = step / sigma
+    # A column whose coefficients are all zero needs no precision: cap its step at its span.
+    colspan = u.max(axis=0) - u.min(axis=0)
+    steps = np.minimum(step / sigma, np.where(colspan > 0, colspan, 1.0))
     # Keep every column within 16 bits (only binds for huge dynamic range).
     span = (u.max(axis=0) - u.min(axis=0)) / steps
     return np.where(span >= 2**16 - 2, (u.max(axis=0) - u.min(axis=0)) / (2**16 - 2), steps)
@@ -227,7 +249,7 @@ def compress_to_folder(btf: BTF, out, opts: Options | None = None, *, log=None) 
     fit = _fit_texels(btf, opts)
     evalt = _eval_texels(btf, fit, opts)
     data = choose_source(btf, [fit, evalt], curve_samples(btf.n_samples), memory_budget=opts.memory_budget,
-                         workers=opts.workers)
+                         workers=opts.workers, chunk_bytes=opts.chunk_bytes)
     timings["load_s"] = time.perf_counter() - t0
     say(f"loaded {btf.n_samples} samples of {btf.width}x{btf.height} ({data.kind}, {data.nbytes / 2**20:.0f} MiB) "
         f"in {timings['load_s']:.2f} s")
@@ -241,9 +263,9 @@ def compress_to_folder(btf: BTF, out, opts: Options | None = None, *, log=None) 
     if opts.solver == "paper":
         u, sv = exact_basis(x_fit, k_fit)
     else:
-        u, sv = randomized_basis(x_fit, min(k_fit, x_fit.shape[1]), oversample=opts.oversample,
-                                 power_iterations=opts.power_iterations, seed=opts.seed)
-    del x_fit
+        u, sv, c_fit = randomized_basis(x_fit, min(k_fit, x_fit.shape[1]), oversample=opts.oversample,
+                                        power_iterations=opts.power_iterations, seed=opts.seed,
+                                        return_coefficients=True)
     if len(sv) == 0 or not sv[0] > 0:
         where = btf.metadata.get("_path") or "input BTF"
         if len(fit) < btf.n_pixels:
@@ -252,36 +274,45 @@ def compress_to_folder(btf: BTF, out, opts: Options | None = None, *, log=None) 
         raise BTFError(f"{where}: every pixel is zero; there is nothing to compress")
     rank = int(np.count_nonzero(sv > sv[0] * 1e-6))  # drop directions that carry no signal
     u, sv = u[:, :rank], sv[:rank]
+    c_fit = u.T @ x_fit if opts.solver == "paper" else c_fit[:rank]     # (k, 3 n) curve space
+    del x_fit
     k_fit = u.shape[1]
     timings["fit_s"] = time.perf_counter() - t
     say(f"basis: {k_fit} vectors from {len(fit)} texels ({opts.solver}) in {timings['fit_s']:.2f} s")
 
-    t = time.perf_counter()
-    coeff, total_energy = data.project(u, chunk=opts.chunk_texels, energy=opts.target_error is not None)
-    if data.matrix is not None:
-        _apply_colour(coeff, data.matrix.T)  # curves-space -> working space, exact (linear in the coefficients)
-    timings["project_s"] = time.perf_counter() - t
-
+    # Colour and (for a plain k) the quantisation step, from the sampled texels' coefficients,
+    # before the projection: then the projection can skip what the step would zero out.
     held_out = not np.isin(evalt, fit).any()
-    truth = data.to_working(data.columns(evalt)).reshape(btf.n_samples, len(evalt), 3)
-    if total_energy is None:
-        # Energy outside the basis, estimated on the held-out texels (both terms on the same
-        # texels, so the estimate is consistent), plus the exact energy inside it.
-        t2 = truth.reshape(btf.n_samples, -1)
-        inside = u.T @ t2
-        resid = float(np.einsum("ij,ij->", t2, t2, dtype=np.float64) - np.einsum("ij,ij->", inside, inside, dtype=np.float64))
-        total_energy = float(np.einsum("kpc,kpc->", coeff, coeff, dtype=np.float64)) + max(resid, 0.0) * P / len(evalt)
+    truth = data.to_working(data.columns(evalt)).reshape(S, len(evalt), 3)
+    c_eval = (u.T @ truth.reshape(S, -1)).reshape(k_fit, len(evalt), 3)
+    sampled = np.concatenate([data.to_working(c_fit).reshape(k_fit, -1, 3), c_eval], axis=1)
+    # Energy outside the basis, estimated on the held-out texels.
+    outside = float(np.einsum("ij,ij->", truth.reshape(S, -1), truth.reshape(S, -1), dtype=np.float64)
+                    - np.einsum("kpc,kpc->", c_eval, c_eval, dtype=np.float64))
+    outside = max(outside, 0.0) * P / len(evalt)
+    color_matrix = np.eye(3) if opts.solver == "paper" else _colour_decorrelation(sampled)
+    _apply_colour(sampled, color_matrix)
+    step = None
+    ks = (k_fit,) * 3
+    if not budgeted and opts.solver != "paper" and codec_name not in ("exr", "jpeg"):
+        k = min(opts.k or _DEFAULT_K, k_fit)
+        inside = float(np.einsum("kpc,kpc->", sampled, sampled, dtype=np.float64)) * P / sampled.shape[1]
+        table = ratedist.rd_table(sampled[:k], u[:, :k], inside + outside, n_texels=P, seed=opts.seed, rates=False)
+        step = ratedist.choose_for_k(table, k)
+        ks = _planes_in_use(sampled[:k], step)
+    del sampled, c_fit, c_eval
 
-    if opts.solver == "paper":
-        color_matrix = np.eye(3)
-    else:
-        color_matrix = _colour_decorrelation(coeff)
-        _apply_colour(coeff, color_matrix)   # c' = R^T c for each texel
+    t = time.perf_counter()
+    coeff, total_energy = data.project(u, data.working_mix(color_matrix.T), ks, energy=opts.target_error is not None)
+    timings["project_s"] = time.perf_counter() - t
+    if total_energy is None:
+        total_energy = float(np.einsum("kpc,kpc->", coeff, coeff, dtype=np.float64)) + outside
 
     t = time.perf_counter()
     with atomic_dir(out) as tmp:
         cbtf, choice = _choose_and_store(data, u, coeff, total_energy, truth, evalt, opts, codec_name,
-                                         color_matrix, tmp, say)
+                                         color_matrix, tmp, say, step)
+        choice["planes"] = list(ks)
         timings["store_s"] = time.perf_counter() - t
         sums = _evaluate(cbtf, truth, evalt)
         curve = error_curve(cbtf, data, opts.seed)
@@ -351,12 +382,21 @@ def _probe_codec_factors(table, data, u, coeff, k, step, opts, codec_name, color
     return float(fc), float(fb)
 
 
-def _choose_and_store(data, u, coeff, total_energy, truth, evalt, opts, codec_name, color_matrix, tmp, say):
-    """Pick (k, step) by rate-distortion, write textures into ``tmp``; returns (CompressedBTF, choice)."""
+def _choose_and_store(data, u, coeff, total_energy, truth, evalt, opts, codec_name, color_matrix, tmp, say,
+                      step=None):
+    """Pick (k, step) by rate-distortion, write textures into ``tmp``; returns (CompressedBTF, choice).
+    ``step``: already chosen (a plain k, from the sampled texels)."""
     btf = data.btf
     k_fit = u.shape[1]
     if opts.solver == "paper" or codec_name in ("exr", "jpeg"):
         return _choose_by_k_only(data, u, coeff, truth, evalt, opts, codec_name, color_matrix, tmp)
+    if step is not None:
+        # Components no colour plane was projected on are all zero: not worth a file.
+        in_use = np.flatnonzero(np.abs(coeff).max(axis=(1, 2)) > 0)
+        k = min(opts.k or _DEFAULT_K, k_fit, int(in_use[-1]) + 1 if len(in_use) else 1)
+        cbtf, sizes = _encode(data, u, coeff, k, step, opts, codec_name, color_matrix, tmp)
+        say(f"  k = {k}, step = {step:.4g}, {sizes['payload']} bytes")
+        return cbtf, {"mode": "k", "k": k, "step": step, "bytes": sizes["payload"]}
     table = ratedist.rd_table(coeff, u, total_energy, seed=opts.seed)
 
     last = {}
@@ -402,11 +442,6 @@ def _choose_and_store(data, u, coeff, total_energy, truth, evalt, opts, codec_na
             scale *= (opts.target_error / err) ** 2   # the L1/RMS ratio of these errors differs from Gaussian
         choice = {"mode": "target_error", "k": k, "step": step, "bytes": sizes["payload"],
                   "estimated_percent": err}
-    else:
-        k = min(opts.k or _DEFAULT_K, k_fit)
-        step = ratedist.choose_for_k(table, k)
-        cbtf, sizes = encode(k, step, 1)
-        choice = {"mode": "k", "k": k, "step": step, "bytes": sizes["payload"]}
     return cbtf, choice
 
 

@@ -24,10 +24,17 @@ import numpy as np
 from ..errors import BTFError
 from ..model import BTF, FileBTF
 
-__all__ = ["BlockedData", "load_encoded", "default_workers", "DEFAULT_BLOCK"]
+__all__ = ["BlockedData", "load_encoded", "default_workers", "texel_blocks", "DEFAULT_BLOCK"]
 
 DEFAULT_BLOCK = 1024
 _STATE: dict = {}  # per-worker-process handles (set by the pool initializer in the forked child)
+
+
+def texel_blocks(n_pixels: int, block: int = DEFAULT_BLOCK) -> list[tuple[int, int]]:
+    """(a, b) texel ranges of the storage blocks: ``block`` texels each (all of them when the
+    image is smaller), the last one short."""
+    block = max(1, min(block, n_pixels))
+    return [(a, min(a + block, n_pixels)) for a in range(0, n_pixels, block)]
 
 
 def default_workers() -> int:

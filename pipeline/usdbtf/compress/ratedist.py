@@ -59,68 +59,98 @@ class RDTable:
 
 
 _HIGH_RATE_BITS = 6.0  # past this entropy a uniform quantiser follows H = h - log2(step), err = step^2/12
+_MAX_BINS = 2**24      # histogram bins counted at once; rows with wider spans are counted one by one
 
 
-def _rate_and_error(values: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Entropy (bits, whole array) and squared error of quantising ``values`` (n,) at each step.
+def _entropy_rows(q: np.ndarray) -> np.ndarray:
+    """Zero-order entropy (bits, whole row) of each row of integer symbols ``q`` (r, n):
+    one bincount over all rows, each shifted into its own range of bins."""
+    r, n = q.shape
+    shifted = q - q.min(axis=1, keepdims=True)
+    span = shifted.max(axis=1) + 1
+    if int(span.sum()) > _MAX_BINS:
+        return np.array([_entropy_bits(row) for row in q])
+    offsets = np.concatenate([[0], np.cumsum(span)[:-1]])
+    counts = np.bincount((shifted + offsets[:, None]).ravel(), minlength=int(span.sum()))
+    row = np.repeat(np.arange(r), span)
+    used = counts > 0
+    p = counts[used] / n
+    return np.bincount(row[used], weights=-p * np.log2(p), minlength=r) * n
 
-    Steps run coarse -> fine.  Exact bincounts are taken until the entropy passes
-    ``_HIGH_RATE_BITS`` per symbol; finer steps use the high-rate laws (each halving of
-    the step adds one bit per symbol, error = n step^2 / 12), which are accurate there
-    and keep this table cheap (a handful of bincounts per channel instead of ~40).
+
+def _rate_and_error(values: np.ndarray, steps: np.ndarray, rates: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Entropy (bits, whole row) and squared error of quantising each row of ``values``
+    (r, n) at each step: two (r, J) arrays.
+
+    Steps run coarse -> fine.  A row's exact histograms are taken until its entropy passes
+    ``_HIGH_RATE_BITS`` per symbol; finer steps use the high-rate laws (each halving of the
+    step adds one bit per symbol, error = n step^2 / 12), which are accurate there and keep
+    this table cheap.  All rows still measured exactly share one histogram per step.
+    Without ``rates`` only the errors are measured (bits are 0, or inf past 16 bits), and a
+    row goes high-rate once it spans more than 2^6 steps.
     """
-    n = values.size
-    bits = np.empty(len(steps))
-    err = np.empty(len(steps))
-    exact_until = len(steps)
+    r, n = values.shape
+    J = len(steps)
+    bits, err = np.zeros((r, J)), np.zeros((r, J))
+    last = np.full(r, -1)                                   # each row's last exactly measured step
+    active = np.arange(r)
     for j, d in enumerate(steps):
-        q = np.rint(values / d).astype(np.int64)
-        bits[j] = _entropy_bits(q)
-        err[j] = float(((values - q * d) ** 2).sum())
-        if bits[j] > _HIGH_RATE_BITS * n:
-            exact_until = j + 1
+        if active.size == 0:
             break
-    if exact_until < len(steps):
-        ref = exact_until - 1
-        finer = steps[exact_until:]
-        bits[exact_until:] = bits[ref] + n * np.log2(steps[ref] / finer)
-        err[exact_until:] = n * finer**2 / 12.0
-    span = (values.max() - values.min()) / steps if n else np.zeros(len(steps))
-    bits[span >= 2**16 - 1] = np.inf          # would need more than 16 bits per sample
+        v = values[active]
+        q = np.rint(v / d).astype(np.int64)
+        err[active, j] = ((v - q * d) ** 2).sum(axis=1)
+        last[active] = j
+        if rates:
+            bits[active, j] = _entropy_rows(q)
+            active = active[bits[active, j] <= _HIGH_RATE_BITS * n]
+        else:
+            active = active[q.max(axis=1) - q.min(axis=1) <= 2**_HIGH_RATE_BITS]
+    ref = np.maximum(last, 0)
+    finer = np.arange(J)[None, :] > last[:, None]
+    if rates:
+        bits = np.where(finer, bits[np.arange(r), ref][:, None] + n * np.log2(steps[ref][:, None] / steps[None, :]), bits)
+    err = np.where(finer, n * steps[None, :] ** 2 / 12.0, err)
+    if n:
+        span = (values.max(axis=1) - values.min(axis=1))[:, None] / steps[None, :]
+        bits[span >= 2**16 - 1] = np.inf          # would need more than 16 bits per sample
     return bits, err
 
 
-def rd_table(coeff: np.ndarray, basis: np.ndarray, total_energy: float | None, *, n_steps: int = 40,
-             subsample: int = 2048, seed: int = 0) -> RDTable:
+def rd_table(coeff: np.ndarray, basis: np.ndarray, total_energy: float | None, *, n_texels: int | None = None,
+             n_steps: int = 40, subsample: int = 2048, seed: int = 0, rates: bool = True) -> RDTable:
     """Build the table.
 
-    coeff : (k, P, 3) float32 coefficients (decorrelated channels), energy-ordered.
+    coeff : (k, n, 3) float32 coefficients (decorrelated channels), energy-ordered, of all
+        ``n_texels`` texels (default) or of a sample of them (energies and bytes are scaled
+        up by n_texels / n).
     basis : (S, k) float32 orthonormal basis.
     total_energy : sum of squares of the whole data matrix, for the out-of-basis residual;
         None when unknown (the residual is then 0: a constant offset that does not change
         which (k, step) a byte budget or a fixed k picks).
+    rates : estimate bytes (entropies); without, only errors (enough for :func:`choose_for_k`).
     """
-    k, P, _ = coeff.shape
+    k, n, _ = coeff.shape
+    n_texels = n if n_texels is None else n_texels
     S = basis.shape[0]
-    energy = np.einsum("kpc,kpc->k", coeff, coeff, dtype=np.float64)
-    rms0 = np.sqrt(energy[0] / (3 * P)) if k else 1.0
+    energy = np.einsum("kpc,kpc->k", coeff, coeff, dtype=np.float64) * (n_texels / max(n, 1))
+    rms0 = np.sqrt(energy[0] / (3 * n_texels)) if k else 1.0
     steps = rms0 * 2.0 ** (-np.arange(n_steps) / 2.0 - 1.0)
     rng = np.random.default_rng(seed)
-    sub = np.sort(rng.choice(P, size=min(P, subsample), replace=False))
-    scale = P / len(sub)
-    cb = np.zeros((k, n_steps))
-    ce = np.zeros((k, n_steps))
-    bb = np.zeros((k, n_steps))
-    for i in range(k):
-        c = coeff[i, sub].astype(np.float64)                       # (n, 3)
-        for ch in range(3):
-            b, e = _rate_and_error(c[:, ch], steps)
-            cb[i] += scale * b / 8
-            ce[i] += scale * e
-        sigma = np.sqrt(energy[i])
-        # Basis column i is quantised with step / sigma_i: the same table, rescaled.
-        b, _ = _rate_and_error(basis[:, i].astype(np.float64) * sigma, steps)
-        bb[i] = b / 8
+    sub = np.sort(rng.choice(n, size=min(n, subsample), replace=False))
+    scale = n_texels / len(sub)
+    rows = coeff[:, sub].astype(np.float64).transpose(0, 2, 1).reshape(3 * k, len(sub))
+    b, e = _rate_and_error(rows, steps, rates)
+    cb = scale * b.reshape(k, 3, n_steps).sum(axis=1) / 8
+    ce = scale * e.reshape(k, 3, n_steps).sum(axis=1)
+    # Basis column i is quantised with step / sigma_i: the same table, rescaled.
+    sigma = np.sqrt(energy)
+    scaled = (basis.astype(np.float64) * sigma[None, :]).T                 # (k, S)
+    if rates:
+        bb = _rate_and_error(scaled, steps)[0] / 8
+    else:   # only whether a column still fits 16 bits
+        span = (scaled.max(axis=1) - scaled.min(axis=1))[:, None] / steps[None, :]
+        bb = np.where(span >= 2**16 - 1, np.inf, 0.0)
     basis_err = S * steps**2 / 12.0                                 # per component, independent of i
     residual = 0.0 if total_energy is None else max(float(total_energy - energy.sum()), 0.0)
     return RDTable(steps, cb, bb, ce, basis_err, energy, residual)
@@ -174,5 +204,11 @@ def choose_for_k(table: RDTable, k: int, quant_fraction: float = 0.1) -> float:
     finite = np.isfinite(bytes_[k, :])
     ok = finite & (added <= allowed)
     if ok.any():
-        return float(table.steps[np.flatnonzero(ok)[0]])
+        # Between grid steps: the added error grows as step^2 (high rate), so scale the
+        # coarsest passing step up to the budget, without passing the next coarser grid step.
+        j = int(np.flatnonzero(ok)[0])
+        step = float(table.steps[j])
+        if added[j] > 0 and j > 0:
+            step = min(step * float(np.sqrt(allowed[j] / added[j])), float(table.steps[j - 1]))
+        return step
     return float(table.steps[np.flatnonzero(finite)[-1]]) if finite.any() else float(table.steps[0])

@@ -4,18 +4,24 @@ Both sources answer the same three questions, so the solver does not care which 
 
 * ``columns(texels)``      -> (S, 3 n) float32, curve-decoded values of some texels (the fit,
                               the held-out evaluation set);
-* ``project(u, energy)``   -> coefficients (k, P, 3) = U^T X for every texel (+ ||X||^2);
+* ``project(u, mix, ks)``  -> coefficients (k, P, 3) of every texel (+ ||X||^2), see
+                              :class:`TileProjector`;
 * ``working_samples(rows)``-> (r, P, 3) float32 working-space images (the error curve).
 
 Values are "curve-decoded": integer codes through the per-channel curve of the OCIO
-decode; the 3x3 primaries matrix (``matrix``) is left to the caller, who applies it to the
-k coefficient textures (exact: it commutes with the projection) instead of to S x P pixels.
+decode; the 3x3 primaries matrix (``matrix``) is left to the caller, who folds it into the
+colour ``mix`` of the projection instead of applying it to S x P pixels.
 
 :class:`InMemorySource` decodes every file once into a block-major array of the stored
 type (0.53 GB for 90 x 120 samples at 128^2, 8 bit) and makes passes over it.
 :class:`StreamingSource` never holds more than a chunk of samples: it decodes the files
 twice (pass 1 keeps only the requested texel columns and sample rows; pass 2 accumulates
-U^T X chunk by chunk).  ``choose_source`` picks by a memory budget.
+the projection chunk by chunk).  ``choose_source`` picks by a memory budget.
+
+Both project through the same fixed tiles (:func:`tile_samples` samples x one
+:data:`~.load.DEFAULT_BLOCK`-texel block, summed in sample order), so the coefficients
+-- and every file written from them -- are bit-identical whichever source, chunk size or
+memory budget was used.
 """
 from __future__ import annotations
 
@@ -27,34 +33,90 @@ import numpy as np
 
 from ..errors import BTFError
 from ..model import BTF, FileBTF
-from .load import BlockedData, _forkable, _init, default_workers, load_encoded
+from .load import BlockedData, _forkable, _init, default_workers, load_encoded, texel_blocks
 
-#: Bytes of decoded float32 samples the streaming source holds per chunk.
+#: Bytes of stored values the streaming source holds per chunk (whole projection tiles).
 CHUNK_BYTES = 128e6
-_TEXELS_PER_GEMM = 16384
+#: A projection tile holds at most this many samples, fewer when that many samples of stored
+#: values would pass _TILE_ROW_BYTES (the streaming source must hold a whole tile's samples).
+_MAX_TILE_SAMPLES = 128
+_TILE_ROW_BYTES = 64e6
 
-__all__ = ["InMemorySource", "StreamingSource", "choose_source", "stored_bytes", "colour_gram"]
+__all__ = ["InMemorySource", "StreamingSource", "TileProjector", "choose_source", "stored_bytes", "tile_samples"]
+
+
+def _itemsize(btf: BTF) -> int:
+    return {"uint8": 1, "uint16": 2, "half": 2, "float": 4}[btf.bit_depth]
 
 
 def stored_bytes(btf: BTF) -> int:
     """Bytes the stored values of ``btf`` take in their own type."""
-    item = {"uint8": 1, "uint16": 2, "half": 2, "float": 4}[btf.bit_depth]
-    return btf.n_samples * btf.n_pixels * 3 * item
+    return btf.n_samples * btf.n_pixels * 3 * _itemsize(btf)
 
 
-def colour_gram(x: np.ndarray, group: int = 8) -> np.ndarray:
-    """3x3 sum of x x^T over all RGB triples of ``x`` (..., 3 n), float64.
+def tile_samples(btf: BTF) -> int:
+    """Samples per projection tile: 128, halved (down to 8) while 128 samples of stored
+    values would pass 64 MB.  A function of the data's shape only, never of the source,
+    so every source sums the same tiles."""
+    per_sample = btf.n_pixels * 3 * _itemsize(btf)
+    t = _MAX_TILE_SAMPLES
+    while t > 8 and t * per_sample > _TILE_ROW_BYTES:
+        t //= 2
+    return t
 
-    BLAS is slow at 3 x 3 outputs; grouping ``group`` texels per row gives a 24 x 24
-    Gram (4x faster), whose diagonal 3 x 3 blocks sum to the answer.
+
+class TileProjector:
+    """Coefficients of every texel, accumulated tile by tile.
+
+    Y is the curve-decoded data with the 3x3 colour ``mix`` applied to each texel
+    (y = mix @ x: the decode's primaries matrix and the colour decorrelation in one), split
+    into colour planes j = 0, 1, 2.  Plane j is projected on the first ``ks[j]`` basis
+    vectors only, C_j = U[:, :k_j]^T Y_j: decorrelated chroma planes need far fewer vectors
+    than luminance, and the vectors they do not need are never computed (their coefficients
+    are zero).
+
+    A tile is ``tile`` consecutive samples x one texel block.  Every tile is one GEMM of a
+    fixed shape on contiguous operands, and each texel block sums its tiles in sample order
+    starting from zero: the float32 result does not depend on how a source chunks its reads.
+
+    u : (S, k) float32 basis; mix : (3, 3); ks : three ints <= k; curves : stored -> float32.
     """
-    flat = x.reshape(-1)
-    n = flat.size // (3 * group) * (3 * group)
-    y = flat[:n].reshape(-1, 3 * group).astype(np.float64)   # float32 sums overflow on HDR data
-    g = y.T @ y
-    out = sum(g[3 * i:3 * i + 3, 3 * i:3 * i + 3] for i in range(group))
-    rest = flat[n:].reshape(-1, 3).astype(np.float64)
-    return out + rest.T @ rest
+
+    def __init__(self, u: np.ndarray, mix: np.ndarray, ks, curves, tile: int, *, energy: bool = False):
+        S = u.shape[0]
+        self.k = u.shape[1]
+        self.ks = [int(kj) for kj in ks]
+        self.mix = np.ascontiguousarray(mix, dtype=np.float32)
+        self.curves = curves
+        self.tile = tile
+        # Per-tile basis panels (k_j, t), contiguous: the same GEMM operands in every source.
+        self.panels = [[np.ascontiguousarray(u[s0:s0 + tile, :kj].T) for s0 in range(0, S, tile)]
+                       for kj in self.ks]
+        self.energy = 0.0 if energy else None
+
+    def zeros(self, n: int) -> list[np.ndarray]:
+        """Accumulators of one texel block of n texels: (k_j, n) float32 per plane."""
+        return [np.zeros((kj, n), np.float32) for kj in self.ks]
+
+    def add(self, acc: list, s0: int, raw: np.ndarray) -> None:
+        """Add the tile of samples s0.. to a texel block's accumulators ``acc``.
+
+        raw : (t, 3 n) stored values of the block's texels (rows may be strided), t <= tile.
+        """
+        t, n = raw.shape[0], raw.shape[1] // 3
+        x = self.curves(raw)
+        y = np.matmul(self.mix, x.reshape(-1, 3).T)                  # (3, t n): planar
+        if self.energy is not None:
+            self.energy += float(np.einsum("ij,ij->", y, y, dtype=np.float64))
+        tile = s0 // self.tile
+        for j, kj in enumerate(self.ks):
+            if kj:
+                acc[j] += self.panels[j][tile] @ y[j].reshape(t, n)
+
+    def store(self, acc: list, coeff: np.ndarray, a: int, b: int) -> None:
+        """Write a block's accumulators into ``coeff`` (k, P, 3) at texels a..b."""
+        for j, kj in enumerate(self.ks):
+            coeff[:kj, a:b, j] = acc[j]
 
 
 class _Source:
@@ -76,9 +138,14 @@ class _Source:
             return x
         return (x.reshape(-1, 3) @ self.matrix.T).reshape(x.shape)
 
-    def _energy(self, gram: np.ndarray) -> float:
-        m = self.matrix.astype(np.float64) if self.matrix is not None else np.eye(3)
-        return float(np.trace(m @ gram @ m.T))
+    def working_mix(self, colour: np.ndarray) -> np.ndarray:
+        """The projection's colour mix: ``colour`` (3, 3, acting on working-space RGB) after
+        the decode's primaries matrix."""
+        m = np.eye(3) if self.matrix is None else self.matrix.astype(np.float64)
+        return np.asarray(colour, np.float64) @ m
+
+    def _projector(self, u, mix, ks, energy) -> TileProjector:
+        return TileProjector(u, mix, ks, self.curves, tile_samples(self.btf), energy=energy)
 
 
 class InMemorySource(_Source):
@@ -102,28 +169,18 @@ class InMemorySource(_Source):
             raw[:, 3 * s0:3 * e0] = self.stored.span(int(texels[s0]), int(texels[e0 - 1]) + 1)
         return self.curves(raw)
 
-    def _ranges(self, chunk: int):
-        """(a, b) texel ranges covering every texel, none crossing a storage block."""
-        P, B = self.stored.n_pixels, self.stored.block
-        for start in range(0, P, B):
-            end = min(start + B, P)
-            for a in range(start, end, chunk):
-                yield a, min(a + chunk, end)
-
-    def project(self, u: np.ndarray, *, chunk: int = 1024, energy: bool = False):
-        """Coefficients (k, P, 3) = U^T X over texel blocks, and ||X||^2 in the working space
-        (None unless ``energy``).  The energy comes from the 3x3 colour Gram of the curve-
-        decoded data, so the matrix A applies exactly: ||X A^T||^2 = trace(A G A^T)."""
-        k, P = u.shape[1], self.stored.n_pixels
-        coeff = np.empty((k, P, 3), np.float32)
-        gram = np.zeros((3, 3))
-        ut = np.ascontiguousarray(u.T)
-        for a, b in self._ranges(chunk):
-            x = self.curves(self.stored.span(a, b))
-            coeff[:, a:b, :] = (ut @ x).reshape(k, b - a, 3)
-            if energy:
-                gram += colour_gram(x)
-        return coeff, (self._energy(gram) if energy else None)
+    def project(self, u: np.ndarray, mix: np.ndarray, ks, *, energy: bool = False):
+        """Coefficients (k, P, 3) (see :class:`TileProjector`) and, if ``energy``, ||Y||^2
+        (the working-space energy when ``mix`` is the working matrix times an orthogonal one)."""
+        proj = self._projector(u, mix, ks, energy)
+        coeff = np.zeros((u.shape[1], self.stored.n_pixels, 3), np.float32)
+        for a, b in texel_blocks(self.stored.n_pixels, self.stored.block):
+            raw = self.stored.span(a, b)
+            acc = proj.zeros(b - a)
+            for s0 in range(0, self.stored.n_samples, proj.tile):
+                proj.add(acc, s0, raw[s0:s0 + proj.tile])
+            proj.store(acc, coeff, a, b)
+        return coeff, proj.energy
 
     def working_samples(self, rows) -> np.ndarray:
         """(n, P, 3) float32 working-space images of samples ``rows``."""
@@ -151,10 +208,11 @@ class StreamingSource(_Source):
     kind = "streaming"
 
     def __init__(self, btf: BTF, keep_texels: list, keep_rows, *, workers: int | None = None,
-                 chunk: int | None = None, chunk_bytes: float = CHUNK_BYTES):
+                 chunk_bytes: float = CHUNK_BYTES):
         super().__init__(btf)
-        # Samples per chunk from a byte size, not a count: 256 samples are 0.8 GB of float32 at 512^2.
-        self.chunk = chunk or int(max(1, min(256, chunk_bytes // (btf.n_pixels * 3 * 4))))
+        # Whole projection tiles per chunk, as many as fit ``chunk_bytes`` of stored values.
+        tile = tile_samples(btf)
+        self.chunk = tile * int(max(1, chunk_bytes // (tile * btf.n_pixels * 3 * _itemsize(btf))))
         self.workers = workers or default_workers()
         S = btf.n_samples
         self._kept = [(np.asarray(t), np.empty((S, 3 * len(t)), np.float32)) for t in keep_texels]
@@ -203,21 +261,24 @@ class StreamingSource(_Source):
                 return dest
         raise ValueError("StreamingSource.columns: texels were not requested up front")
 
-    def project(self, u: np.ndarray, *, chunk: int = 0, energy: bool = False):
-        """Second pass: coefficients accumulated as sum over sample chunks of U_c^T X_c."""
-        k, P = u.shape[1], self.btf.n_pixels
-        acc = np.zeros((k, 3 * P), np.float32)
-        gram = np.zeros((3, 3))
-        step = 3 * _TEXELS_PER_GEMM
+    def project(self, u: np.ndarray, mix: np.ndarray, ks, *, energy: bool = False):
+        """Second pass: the same tiles as :meth:`InMemorySource.project`, chunk by chunk."""
+        proj = self._projector(u, mix, ks, energy)
+        blocks = texel_blocks(self.btf.n_pixels)
+        accs = [proj.zeros(b - a) for a, b in blocks]
         for s0, block in self._chunks():
-            x = self.curves(block.reshape(len(block), -1))
-            uc = np.ascontiguousarray(u[s0:s0 + len(block)].T)
-            # Column blocks: the product's temporary is k x step, not another k x 3P.
-            for c0 in range(0, 3 * P, step):
-                acc[:, c0:c0 + step] += uc @ x[:, c0:c0 + step]
-            if energy:
-                gram += colour_gram(x)
-        return acc.reshape(k, P, 3), (self._energy(gram) if energy else None)
+            flat = block.reshape(len(block), -1)
+            for t0 in range(0, len(block), proj.tile):
+                rows = flat[t0:t0 + proj.tile]
+                for (a, b), acc in zip(blocks, accs):
+                    proj.add(acc, s0 + t0, rows[:, 3 * a:3 * b])
+        # Block by block, freeing each accumulator as it is copied: the peak stays near
+        # one set of coefficients (np.zeros pages are committed only when written).
+        coeff = np.zeros((u.shape[1], self.btf.n_pixels, 3), np.float32)
+        for n, (a, b) in enumerate(blocks):
+            proj.store(accs[n], coeff, a, b)
+            accs[n] = None
+        return coeff, proj.energy
 
     def working_samples(self, rows) -> np.ndarray:
         try:
@@ -226,8 +287,10 @@ class StreamingSource(_Source):
             raise ValueError("StreamingSource.working_samples: rows were not requested up front") from None
 
 
-def choose_source(btf: BTF, keep_texels: list, keep_rows, *, memory_budget: float, workers=None) -> _Source:
-    """In memory when the stored values fit ``memory_budget`` bytes, else streamed."""
+def choose_source(btf: BTF, keep_texels: list, keep_rows, *, memory_budget: float, workers=None,
+                  chunk_bytes: float = CHUNK_BYTES) -> _Source:
+    """In memory when the stored values fit ``memory_budget`` bytes, else streamed in chunks
+    of about ``chunk_bytes`` stored bytes.  Either gives bit-identical projections."""
     if stored_bytes(btf) <= memory_budget:
         return InMemorySource(btf, workers=workers)
-    return StreamingSource(btf, keep_texels, keep_rows, workers=workers)
+    return StreamingSource(btf, keep_texels, keep_rows, workers=workers, chunk_bytes=chunk_bytes)
