@@ -127,6 +127,29 @@ def _eval_texels(btf: BTF, fit: np.ndarray, opts: Options) -> np.ndarray:
     return _runs(btf.n_pixels, max(1, opts.eval_texels // _RUN), np.random.default_rng(opts.seed + 1), exclude=used)
 
 
+#: Fitted texels whose norms span more than this get equalising fit weights: an energy-
+#: weighted float32 fit cannot see a region below ~1e-6 of the brightest (its singular
+#: values fall under the rank cut, and its terms under float32 rounding of the sums).
+_HDR_NORM_RANGE = 1e6
+
+
+def _fit_weights(x: np.ndarray) -> np.ndarray | None:
+    """Column weights (3 n,) float32 for the fit of ``x`` (S, 3 n): ||x_t||^-1/2 per texel
+    when the nonzero texel norms span more than _HDR_NORM_RANGE, else None.
+
+    The square root halves the dynamic range in log terms (1e-4..1e4 data: 1e8 -> 1e4 in
+    norm): a dark region with a BRDF of its own then gets basis directions, while bright
+    texels still weigh more, as the paper's absolute error metric wants.
+    """
+    x3 = x.reshape(x.shape[0], -1, 3)
+    norms = np.sqrt(np.einsum("stc,stc->t", x3, x3, dtype=np.float64))
+    pos = norms[norms > 0]
+    if len(pos) == 0 or pos.max() <= _HDR_NORM_RANGE * pos.min():
+        return None
+    w = np.where(norms > 0, 1.0 / np.sqrt(np.maximum(norms, pos.min())), 1.0)
+    return np.repeat(w, 3).astype(np.float32)
+
+
 def _colour_gram(coeff: np.ndarray) -> np.ndarray:
     """3x3 float64 sum of c c^T over every texel and component of ``coeff`` (k, P, 3),
     one component at a time (a float64 copy of the whole array would be 2x its size)."""
@@ -263,9 +286,13 @@ def compress_to_folder(btf: BTF, out, opts: Options | None = None, *, log=None) 
     if opts.solver == "paper":
         u, sv = exact_basis(x_fit, k_fit)
     else:
-        u, sv, c_fit = randomized_basis(x_fit, min(k_fit, x_fit.shape[1]), oversample=opts.oversample,
-                                        power_iterations=opts.power_iterations, seed=opts.seed,
-                                        return_coefficients=True)
+        weights = _fit_weights(x_fit)
+        u, sv, c_fit = randomized_basis(x_fit if weights is None else x_fit * weights, min(k_fit, x_fit.shape[1]),
+                                        oversample=opts.oversample, power_iterations=opts.power_iterations,
+                                        seed=opts.seed, return_coefficients=True)
+        if weights is not None:
+            c_fit /= weights             # U^T (X W) = (U^T X) W
+            say(f"texel norms span more than {_HDR_NORM_RANGE:g}: basis fitted with weights ||x_t||^-1/2")
     if len(sv) == 0 or not sv[0] > 0:
         where = btf.metadata.get("_path") or "input BTF"
         if len(fit) < btf.n_pixels:
