@@ -463,8 +463,8 @@ def test_projection_is_within_dot_product_bound_and_independent_of_chunks(small_
     is a float32 sum of S products, so within gamma_S |U|^T |X| of the exact (float64)
     product, gamma_S = S 2^-24 / (1 - S 2^-24); and all of them sum the same fixed tiles in
     the same order, so they are bit-identical.  A plane projected on fewer vectors (ks)
-    gets the same leading coefficients within the bound (a narrower GEMM may sum in another
-    order) and zeros after."""
+    gets the same leading coefficients within the bound (a narrower or planar GEMM may sum in
+    another order) and zeros after."""
     file_btf = read_manifest(small_png)
     btf = file_btf if source == "file-8bit" else ArrayBTF.from_linear(file_btf.sampling, file_btf.read_samples(slice(None)))
     P, S = btf.n_pixels, btf.n_samples
@@ -488,7 +488,7 @@ def test_projection_is_within_dot_product_bound_and_independent_of_chunks(small_
         assert np.all(np.abs(coeff - exact) <= bound), name
         assert np.array_equal(coeff, results["memory"]), name
     fewer = mem.project(u, np.eye(3), (10, 4, 0))[0]
-    assert np.array_equal(fewer[:, :, 0], results["memory"][:, :, 0])
+    assert np.all(np.abs(fewer[:, :, 0] - exact[:, :, 0]) <= bound[:, :, 0])
     assert np.all(np.abs(fewer[:4, :, 1] - exact[:4, :, 1]) <= bound[:4, :, 1])
     assert not fewer[4:, :, 1].any() and not fewer[:, :, 2].any()
 

@@ -60,7 +60,7 @@ class Options:
     oversample: int = 16
     region: int | None = None             # paper: side of the central square region (texels)
     memory_budget: float = 1.0e9          # hold stored values in memory up to this many bytes, else stream
-    chunk_bytes: float = 128e6            # streaming: stored bytes per chunk (rounded to whole projection tiles)
+    chunk_bytes: float = 64e6             # streaming: stored bytes per chunk (rounded to whole projection tiles)
     eval_texels: int = 1024               # held-out texels for error estimates
     workers: int | None = None
     extra: dict = field(default_factory=dict)
