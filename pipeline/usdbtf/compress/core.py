@@ -301,7 +301,7 @@ def compress_to_folder(btf: BTF, out, opts: Options | None = None, *, log=None) 
         raise BTFError(f"{where}: every pixel is zero; there is nothing to compress")
     rank = int(np.count_nonzero(sv > sv[0] * 1e-6))  # drop directions that carry no signal
     u, sv = u[:, :rank], sv[:rank]
-    c_fit = u.T @ x_fit if opts.solver == "paper" else c_fit[:rank]     # (k, 3 n) curve space
+    c_fit = None if opts.solver == "paper" else c_fit[:rank]     # (k, 3 n) curve space; the paper needs none
     del x_fit
     k_fit = u.shape[1]
     timings["fit_s"] = time.perf_counter() - t
@@ -312,7 +312,7 @@ def compress_to_folder(btf: BTF, out, opts: Options | None = None, *, log=None) 
     held_out = not np.isin(evalt, fit).any()
     truth = data.to_working(data.columns(evalt)).reshape(S, len(evalt), 3)
     c_eval = (u.T @ truth.reshape(S, -1)).reshape(k_fit, len(evalt), 3)
-    sampled = np.concatenate([data.to_working(c_fit).reshape(k_fit, -1, 3), c_eval], axis=1)
+    sampled = c_eval if c_fit is None else np.concatenate([data.to_working(c_fit).reshape(k_fit, -1, 3), c_eval], axis=1)
     # Energy outside the basis, estimated on the held-out texels.
     outside = float(np.einsum("ij,ij->", truth.reshape(S, -1), truth.reshape(S, -1), dtype=np.float64)
                     - np.einsum("kpc,kpc->", c_eval, c_eval, dtype=np.float64))
