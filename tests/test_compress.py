@@ -21,7 +21,7 @@ from usdbtf import synth
 from usdbtf.compress import Options, compress_to_folder, read_compressed, reconstruct, write_compressed
 from usdbtf.compress.curve import curve_samples
 from usdbtf.compress.decompress import compare, decompress_to_folder, parse_samples
-from usdbtf.compress.format import METADATA
+from usdbtf.compress.format import METADATA, truncate
 from usdbtf.compress.linalg import exact_basis, fix_signs, randomized_basis
 from usdbtf.compress.metrics import ErrorSums
 from usdbtf.errors import BTFError
@@ -670,10 +670,14 @@ def test_error_curve_files(small32, tmp_path):
     assert np.isfinite(pct).all() and (pct > 0).all()
     assert pct[-1] < 0.6 * pct[0]
     assert (np.diff(pct) <= 0.05 * pct[:-1]).all(), pct          # decreasing, up to small wiggles
-    # The last point is the stored representation's error on the curve's samples.
+    # Every point is the error of the stored representation cut to its first k components,
+    # on the curve's samples (the curve updates its residual incrementally; this does not).
     rows_idx = curve_samples(btf.n_samples)
-    want = compare(btf, lambda sel: reconstruct(c, sel), rows_idx)["linear"]["percent"]
-    assert pct[-1] == pytest.approx(want, rel=1e-4)
+    rmse = np.array([float(r["rmse_linear"]) for r in rows])
+    for k, p, e in zip(range(1, 11), pct, rmse):
+        want = compare(btf, lambda sel: reconstruct(truncate(c, k), sel), rows_idx)["linear"]
+        assert p == pytest.approx(want["percent"], rel=1e-4), k
+        assert e == pytest.approx(want["rmse"], rel=1e-4), k
     spec = image_spec(out / "error_curve.png")
     assert spec.width > 100 and spec.height > 100
     doc = json.loads((out / METADATA).read_text())
@@ -848,3 +852,16 @@ def test_curve_points():
     ks = curve_ks(300)
     assert ks[0] == 1 and ks[-1] == 300 and (np.diff(ks) > 0).all() and len(ks) <= 50
     assert ks[:20].tolist() == list(range(1, 21))
+
+
+@pytest.mark.parametrize("shape", [(7, 3), (4, 5, 3), (6, 3 * 11), (0, 3)])
+def test_mix_rgb_matches_matmul(shape):
+    # The OpenCV transform behind to_working and the colour rotation: rgb @ M^T per colour,
+    # for (..., 3) colours and (rows, 3 n) interleaved blocks alike.
+    rng = np.random.default_rng(1)
+    x = rng.uniform(-2, 5, shape).astype(np.float32)
+    m = rng.normal(0, 1, (3, 3))
+    got = colour.mix_rgb(x, m)
+    want = (x.reshape(-1, 3).astype(np.float64) @ m.T).reshape(shape)
+    assert got.shape == shape and got.dtype == np.float32
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-5 * max(1.0, float(np.abs(want).max(initial=0))))

@@ -24,7 +24,7 @@ from .errors import BTFError
 
 __all__ = [
     "DEFAULT_CONFIG", "WORKING_SPACE", "get_config", "resolve_space", "Processor", "processor",
-    "IntegerDecoder", "integer_decoder", "usd_color_space",
+    "IntegerDecoder", "integer_decoder", "usd_color_space", "mix_rgb",
 ]
 
 DEFAULT_CONFIG = "ocio://default"
@@ -133,9 +133,24 @@ class IntegerDecoder:
         if not self.exact:
             return self.proc.apply(codes.astype(np.float32) / float(2**self.bits - 1))
         lin = self.decode_curves(codes)
-        if self.matrix is not None:
-            lin = lin @ self.matrix.T
-        return lin
+        return lin if self.matrix is None else mix_rgb(lin, self.matrix)
+
+
+def mix_rgb(rgb: np.ndarray, matrix: np.ndarray) -> np.ndarray:
+    """``rgb @ matrix.T`` for (..., 3) float32 colours (or a (rows, 3 n) interleaved block):
+    a new float32 array of the same shape.
+
+    OpenCV's SIMD ``transform`` is ~4x faster than numpy's matmul with an inner dimension
+    of 3 (0.03 s against 0.10 s for 33 M values); both are exact per element up to float32
+    rounding, and each is deterministic.
+    """
+    import cv2  # lazily, like decode_curves: plain colour queries need no OpenCV
+
+    x = np.ascontiguousarray(rgb, np.float32)
+    m = np.asarray(matrix, np.float32)
+    if x.size == 0 or x.size // 3 >= 2**31:
+        return (x.reshape(-1, 3) @ m.T).reshape(x.shape)
+    return cv2.transform(x.reshape(-1, 1, 3), m).reshape(x.shape)
 
 
 @functools.lru_cache(maxsize=32)

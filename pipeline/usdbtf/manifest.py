@@ -17,7 +17,7 @@ from typing import Iterable
 
 import numpy as np
 
-from . import colour
+from . import colour, jsontext
 from .atomic import atomic_dir
 from .errors import BTFError
 from .imageio import numpy_dtype, write_image
@@ -158,7 +158,7 @@ def write_manifest(folder, sampling: Sampling, images: Iterable[np.ndarray], *, 
         doc = {"format": FORMAT, "color_space": space, "width": width, "height": height}
         doc.update(metadata or {})
         doc["samples"] = entries
-        (tmp / MANIFEST).write_text(json.dumps(doc, indent=1) + "\n")
+        (tmp / MANIFEST).write_text(jsontext.dumps(doc) + "\n")
     return Path(folder)
 
 

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import jsontext
 from ..atomic import atomic_dir
 from ..errors import BTFError
 
@@ -102,7 +103,7 @@ def encode_jpeg(btf, out: Path, quality: int = 90, workers: int | None = None) -
                    for n, v, l in zip(names, btf.sampling.view, btf.sampling.light)]
         doc = {"format": "btf-manifest/1", "color_space": btf.color_space, "width": btf.width,
                "height": btf.height, "jpeg_quality": quality, "samples": samples}
-        (tmp / "btf.json").write_text(json.dumps(doc, indent=1) + "\n")
+        (tmp / "btf.json").write_text(jsontext.dumps(doc) + "\n")
     return out
 
 

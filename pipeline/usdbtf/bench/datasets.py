@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
+from .. import __version__, jsontext
 from ..atomic import atomic_dir
 from ..compress.format import cross_layout
 from ..model import FileBTF
@@ -124,7 +124,7 @@ def write_subset(source: Path, indices, dest: Path, **extra) -> Path:
     out.update(extra)
     out["samples"] = [dict(samples[int(i)], image=f"{rel}/{samples[int(i)]['image']}") for i in indices]
     with atomic_dir(dest) as tmp:
-        (tmp / "btf.json").write_text(json.dumps(out, indent=1) + "\n")
+        (tmp / "btf.json").write_text(jsontext.dumps(out) + "\n")
     return dest
 
 

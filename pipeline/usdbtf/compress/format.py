@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
+from .. import __version__, jsontext
 from ..atomic import atomic_dir
 from ..errors import BTFError
 from ..sampling import Sampling
@@ -148,7 +148,7 @@ def working_coefficient_texels(cbtf: CompressedBTF, texels, k: int | None = None
 
 
 def _floats(a) -> list:
-    return [float(x) for x in np.asarray(a, np.float64).ravel()]
+    return np.asarray(a, np.float64).ravel().tolist()
 
 
 def cross_layout(sampling: Sampling) -> tuple[int, int] | None:
@@ -283,8 +283,8 @@ def metadata_document(cbtf: CompressedBTF) -> dict:
                   "layout": basis_layout(cbtf.sampling, cbtf.k, cbtf.codec)},
         "coefficients": [{"file": coefficient_file(codec, i), "scale": _floats(s.scale), "bias": _floats(s.bias),
                           "bit_depth": str(s.pixels.dtype)} for i, s in enumerate(cbtf.coefficients)],
-        "samples": {"view": [_floats(v) for v in cbtf.sampling.view],
-                    "light": [_floats(v) for v in cbtf.sampling.light],
+        "samples": {"view": np.asarray(cbtf.sampling.view, np.float64).tolist(),
+                    "light": np.asarray(cbtf.sampling.light, np.float64).tolist(),
                     "interpolated": [int(i) for i in np.flatnonzero(cbtf.interpolated)]
                     if cbtf.interpolated is not None else []},
     }
@@ -303,7 +303,7 @@ def write_metadata(cbtf: CompressedBTF, folder: Path) -> int:
     """
     sizes = cbtf.info.setdefault("bytes", {})
     sizes["metadata"] = _SIZE_MARK
-    text = json.dumps(metadata_document(cbtf), indent=1, allow_nan=False) + "\n"
+    text = jsontext.dumps(metadata_document(cbtf)) + "\n"
     base = len(text.encode()) - len(str(_SIZE_MARK))
     size = base + 1
     while len(str(size)) + base != size:  # the number's own digits count too

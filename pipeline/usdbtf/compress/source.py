@@ -32,6 +32,7 @@ from concurrent.futures import ProcessPoolExecutor
 import cv2
 import numpy as np
 
+from .. import colour
 from ..errors import BTFError
 from ..model import BTF, FileBTF
 from .load import BlockedData, _forkable, _init, default_workers, load_encoded, texel_blocks
@@ -153,9 +154,7 @@ class _Source:
 
     def to_working(self, x: np.ndarray) -> np.ndarray:
         """(..., 3 n) or (..., 3) curve-decoded values -> working space."""
-        if self.matrix is None:
-            return x
-        return (x.reshape(-1, 3) @ self.matrix.T).reshape(x.shape)
+        return x if self.matrix is None else colour.mix_rgb(x, self.matrix)
 
     def working_mix(self, colour: np.ndarray) -> np.ndarray:
         """The projection's colour mix: ``colour`` (3, 3, acting on working-space RGB) after

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import colour
+from .. import colour, jsontext
 from ..atomic import atomic_file
 from ..errors import BTFError
 from ..imageio import read_info, write_image
@@ -278,6 +278,6 @@ def _write_manifest(raw, plan, journal, first, flat, board, extra, driver) -> di
     doc = {"format": FORMAT, "color_space": first["color_space"], "width": first["width"], "height": first["height"],
            "raw_capture": info, "missing": missing, "samples": samples}
     with atomic_file(raw / MANIFEST) as tmp:
-        tmp.write_text(json.dumps(doc, indent=1) + "\n")
+        tmp.write_text(jsontext.dumps(doc) + "\n")
     return {"shots": len(samples), "missing": len(missing), "resumed": journal.resumed, "reconnects": driver.reconnects,
             "resends": driver.resends, "manifest": str(raw / MANIFEST)}
