@@ -1,13 +1,20 @@
-"""Minimum-of-N timings of compress's steps after the decode, in one process.
+"""Where plain ``usdbtf compress`` spends its time, step by step, against the GEMM baseline.
 
-Min-of-N is robust against a shared, busy machine (the noise only adds time), so this is
-the tool for before/after comparisons of single steps; whole-run claims still come from
-bench_compress.py / ab_compress.sh.
+Each step of a default compress (rsvd, jxl, k = 150) is timed on its own in one process:
+minimum and median of N runs, wall and CPU seconds (this process + its decode workers).
+The float32 GEMM U^T X of issue 2's speed target is timed the same way, so every row also
+reads as a fraction of it.  Min-of-N is robust on a shared, busy machine (noise only adds
+time): use this for before/after comparisons of single steps; whole-run claims come from
+bench_compress.py and ab_compress.sh.
 
-    .venv/bin/python benchmarks/micro_compress_steps.py benchmarks/out/data/pebbles-paper-128-seed0-tif
+    .venv/bin/python benchmarks/micro_compress_steps.py benchmarks/out/data/pebbles-paper-128-seed0-tif [N]
+
+The rows in the "floor" group are what any compressor of this design must do (decode every
+file, fit a basis, project every texel); the others are this tool's own work after that.
 """
 from __future__ import annotations
 
+import resource
 import sys
 import tempfile
 import time
@@ -15,21 +22,31 @@ from pathlib import Path
 
 import numpy as np
 
-from common import format_machine, machine_info
-from usdbtf.io import open_btf
+from bench_compress import gemm_baseline
+from common import format_machine, machine_info, median
 from usdbtf.compress import core
 from usdbtf.compress.curve import curve_samples, error_curve
 from usdbtf.compress.format import write_metadata, write_textures
+from usdbtf.compress.linalg import randomized_basis
 from usdbtf.compress.source import choose_source
+from usdbtf.io import open_btf
 
 
-def best(fn, n):
-    times = []
+def _cpu() -> float:
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def measure(fn, n: int) -> dict:
+    """min / median wall s and median CPU s of ``fn()`` over n runs (after one warm-up)."""
+    fn()
+    walls, cpus = [], []
     for _ in range(n):
-        t = time.perf_counter()
+        c, t = _cpu(), time.perf_counter()
         fn()
-        times.append(time.perf_counter() - t)
-    return min(times), float(np.median(times))
+        walls.append(time.perf_counter() - t)
+        cpus.append(_cpu() - c)
+    return {"min": min(walls), "median": median(walls), "cpu": median(cpus)}
 
 
 def main(argv):
@@ -41,26 +58,50 @@ def main(argv):
         cbtf = core.compress_to_folder(btf, Path(tmp) / "c", opts)
         fit = core._fit_texels(btf, opts)
         evalt = core._eval_texels(btf, fit, opts)
-        data = choose_source(btf, [fit, evalt], curve_samples(btf.n_samples), memory_budget=opts.memory_budget)
+        rows = curve_samples(btf.n_samples)
+
+        def load():
+            return choose_source(btf, [fit, evalt], rows, memory_budget=opts.memory_budget)
+
+        data = load()
         x_fit = data.columns(fit)
         truth = data.to_working(data.columns(evalt)).reshape(btf.n_samples, len(evalt), 3)
+        k = cbtf.k
+        u = cbtf.basis_values(k)
+        mix = data.working_mix(np.asarray(cbtf.color_matrix).T)
+        planes = cbtf.info["choice"]["planes"]
         out = Path(tmp) / "w"
         out.mkdir()
-        steps = {
-            "columns(fit)": lambda: data.columns(fit),
+        floor = {
+            f"load: decode {btf.n_samples} files ({data.kind})": load,
+            "columns(fit texels)": lambda: data.columns(fit),
+            f"fit: randomized basis, {x_fit.shape[1]} columns": lambda: randomized_basis(
+                x_fit, k, oversample=opts.oversample, power_iterations=opts.power_iterations, seed=opts.seed,
+                return_coefficients=True),
+            f"project: planes {planes}": lambda: data.project(u, mix, planes),
+        }
+        rest = {
             "fit weights": lambda: core._fit_weights(x_fit),
-            "truth (eval texels, working)": lambda: data.to_working(data.columns(evalt)),
+            "truth (evaluation texels, working)": lambda: data.to_working(data.columns(evalt)),
             "evaluate (held-out error)": lambda: core._evaluate(cbtf, truth, evalt),
             "error curve": lambda: error_curve(cbtf, data, opts.seed),
+            "write textures (jxl)": lambda: write_textures(cbtf, out),
             "write metadata": lambda: write_metadata(cbtf, out),
-            "write textures": lambda: write_textures(cbtf, out),
         }
-        print(f"input: {path} ({btf.n_samples} samples, {btf.width}x{btf.height}); "
-              f"{len(fit)} fit texels, {len(evalt)} evaluation texels; {n} runs per step")
-        print(f"{'step':32s} {'min s':>8s} {'median s':>9s}")
-        for name, fn in steps.items():
-            lo, med = best(fn, n)
-            print(f"{name:32s} {lo:8.3f} {med:9.3f}")
+        gemm = gemm_baseline(btf.n_samples, btf.n_pixels, 150)
+        print(f"input: {path} ({btf.n_samples} samples, {btf.width}x{btf.height}); {len(fit)} fit texels, "
+              f"{len(evalt)} evaluation texels; k {k}; {n} runs per step after one warm-up")
+        print(f"baseline: float32 U.T @ X, X {tuple(gemm['shape_x'])}, U {tuple(gemm['shape_u'])}: "
+              f"min {gemm['min_s']:.3f} s, median {gemm['median_s']:.3f} s")
+        print(f"\n| step | min s | median s | CPU s (median) | min / GEMM min |\n|---|---|---|---|---|")
+        for group, steps in (("floor", floor), ("rest", rest)):
+            total = 0.0
+            for name, fn in steps.items():
+                m = measure(fn, n)
+                total += m["min"]
+                print(f"| {name} | {m['min']:.3f} | {m['median']:.3f} | {m['cpu']:.2f} | "
+                      f"{m['min'] / gemm['min_s']:.2f} |")
+            print(f"| **sum of the {group} steps** | {total:.3f} | | | {total / gemm['min_s']:.2f} |")
 
 
 if __name__ == "__main__":
