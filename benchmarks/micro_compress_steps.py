@@ -14,39 +14,20 @@ file, fit a basis, project every texel); the others are this tool's own work aft
 """
 from __future__ import annotations
 
-import resource
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
 from bench_compress import gemm_baseline
-from common import format_machine, machine_info, median
+from common import format_machine, machine_info, time_call
 from usdbtf.compress import core
 from usdbtf.compress.curve import curve_samples, error_curve
 from usdbtf.compress.format import write_metadata, write_textures
 from usdbtf.compress.linalg import randomized_basis
 from usdbtf.compress.source import choose_source
 from usdbtf.io import open_btf
-
-
-def _cpu() -> float:
-    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
-    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
-
-
-def measure(fn, n: int) -> dict:
-    """min / median wall s and median CPU s of ``fn()`` over n runs (after one warm-up)."""
-    fn()
-    walls, cpus = [], []
-    for _ in range(n):
-        c, t = _cpu(), time.perf_counter()
-        fn()
-        walls.append(time.perf_counter() - t)
-        cpus.append(_cpu() - c)
-    return {"min": min(walls), "median": median(walls), "cpu": median(cpus)}
 
 
 def main(argv):
@@ -93,14 +74,14 @@ def main(argv):
               f"{len(evalt)} evaluation texels; k {k}; {n} runs per step after one warm-up")
         print(f"baseline: float32 U.T @ X, X {tuple(gemm['shape_x'])}, U {tuple(gemm['shape_u'])}: "
               f"min {gemm['min_s']:.3f} s, median {gemm['median_s']:.3f} s")
-        print(f"\n| step | min s | median s | CPU s (median) | min / GEMM min |\n|---|---|---|---|---|")
+        print("\n| step | min s | median s | CPU s (median) | min / GEMM min |\n|---|---|---|---|---|")
         for group, steps in (("floor", floor), ("rest", rest)):
             total = 0.0
             for name, fn in steps.items():
-                m = measure(fn, n)
-                total += m["min"]
-                print(f"| {name} | {m['min']:.3f} | {m['median']:.3f} | {m['cpu']:.2f} | "
-                      f"{m['min'] / gemm['min_s']:.2f} |")
+                m = time_call(fn, repeats=n, warmup=1)
+                total += m["min_s"]
+                print(f"| {name} | {m['min_s']:.3f} | {m['median_s']:.3f} | {m['cpu_median_s']:.2f} | "
+                      f"{m['min_s'] / gemm['min_s']:.2f} |")
             print(f"| **sum of the {group} steps** | {total:.3f} | | | {total / gemm['min_s']:.2f} |")
 
 

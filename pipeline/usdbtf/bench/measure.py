@@ -21,6 +21,7 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -30,7 +31,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-__all__ = ["REPO", "default_out", "median", "time_call", "run_measured", "run_repeated", "RunResult", "cli_command",
+__all__ = ["REPO", "default_out", "median", "time_call", "cpu_seconds", "run_measured", "run_repeated", "RunResult", "cli_command",
            "warm_page_cache", "dir_bytes", "timestamp", "write_json", "fmt_bytes"]
 
 
@@ -57,17 +58,26 @@ def median(values) -> float:
 def time_call(fn, repeats: int = 5, warmup: int = 1) -> dict:
     """Time ``fn()`` in this process: ``warmup`` untimed calls, then ``repeats`` timed ones.
 
-    Returns {"median_s", "min_s", "max_s", "samples_s", "warmup"}.
+    Returns {"median_s", "min_s", "max_s", "samples_s", "cpu_median_s", "cpu_samples_s",
+    "warmup"}; CPU seconds are user + system of this process and of children it reaped
+    (decode workers), so CPU / wall shows how many cores a step kept busy.
     """
     for _ in range(warmup):
         fn()
-    samples = []
+    samples, cpu = [], []
     for _ in range(repeats):
-        t = time.perf_counter()
+        c, t = cpu_seconds(), time.perf_counter()
         fn()
         samples.append(time.perf_counter() - t)
+        cpu.append(cpu_seconds() - c)
     return {"median_s": median(samples), "min_s": min(samples), "max_s": max(samples),
-            "samples_s": samples, "warmup": warmup}
+            "samples_s": samples, "cpu_median_s": median(cpu), "cpu_samples_s": cpu, "warmup": warmup}
+
+
+def cpu_seconds() -> float:
+    """User + system CPU seconds of this process and its reaped children so far."""
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
 
 
 # -- subprocesses ------------------------------------------------------------------------------
