@@ -1,8 +1,62 @@
-"""One exception type for bad input, so every CLI can print one clear line and exit non-zero."""
+"""The exceptions every stage raises, and the exit status each one means on the command line.
+
+Pipelines must be able to tell a wrong command line from a bad asset from a full disk, so
+each kind of failure has its own class and its own documented exit status (the BSD
+``sysexits.h`` values that build systems and farm schedulers already know):
+
+======================  ======  ===========================================================
+class                   status  meaning
+======================  ======  ===========================================================
+(argparse)                   2  usage: an unknown option or a value of the wrong form
+:class:`UsageError`          2  usage: options that contradict each other or are out of range
+:class:`BTFError`           65  bad input data (``EX_DATAERR``): a damaged, inconsistent or
+                                unsupported file; the message names the file and sample/key
+:class:`OutputRefused`      73  the output cannot be created or may not be replaced
+                                (``EX_CANTCREAT``): it exists and is not usdbtf's, it is the
+                                input, another process is writing it, ...
+:class:`IOFailure`          74  an operating-system error while reading or writing
+                                (``EX_IOERR``): disk full, permission denied, read-only ...
+(anything else)              1  an internal error: a bug; rerun with ``--debug``
+======================  ======  ===========================================================
+
+Every message names the file, sample or option at fault; the CLI prints it as one line,
+``usdbtf CMD: error: <message>``.
+"""
 from __future__ import annotations
 
-__all__ = ["BTFError"]
+__all__ = ["BTFError", "UsageError", "OutputRefused", "IOFailure",
+           "EXIT_OK", "EXIT_USAGE", "EXIT_DATA", "EXIT_CANT_CREATE", "EXIT_IO", "EXIT_INTERNAL"]
+
+EXIT_OK = 0
+EXIT_INTERNAL = 1
+EXIT_USAGE = 2
+EXIT_DATA = 65
+EXIT_CANT_CREATE = 73
+EXIT_IO = 74
 
 
 class BTFError(Exception):
-    """Bad input or an impossible request.  The message names the file or sample at fault."""
+    """Bad input data or an impossible request.  The message names the file or sample at fault."""
+
+    exit_code = EXIT_DATA
+
+
+class UsageError(BTFError):
+    """Command-line options that are well-formed but out of range or contradictory."""
+
+    exit_code = EXIT_USAGE
+
+
+class OutputRefused(BTFError):
+    """The output path may not be written: it exists and is not a previous usdbtf output of
+    the same kind (or ``--force`` was not given), it is or contains the input, another
+    process holds its lock, ..."""
+
+    exit_code = EXIT_CANT_CREATE
+
+
+class IOFailure(BTFError):
+    """An operating-system error reading or writing a named path (disk full, permission
+    denied, read-only file system, a folder where a file was expected)."""
+
+    exit_code = EXIT_IO
