@@ -105,6 +105,17 @@ def test_split_corners_splits_points_only_at_seams():
     assert per_vertex.split_corners() is per_vertex
 
 
+def test_polygons_come_back_for_writers():
+    """A quad, a triangle and a pentagon, fan-triangulated: polygons() restores their corners."""
+    polygons = [[0, 1, 2, 3], [4, 5, 6], [7, 8, 9, 10, 11]]
+    fans = [[p[0], p[i], p[i + 1]] for p in polygons for i in range(1, len(p) - 1)]
+    mesh = Mesh(np.random.default_rng(0).random((12, 3)), fans, face_sizes=[4, 3, 5])
+    counts, ids = mesh.polygons()
+    assert counts.tolist() == [4, 3, 5] and mesh.triangles.ravel()[ids].tolist() == list(range(12))
+    with pytest.raises(BTFError, match="face sizes"):
+        Mesh(mesh.points, fans, face_sizes=[3, 3, 3])
+
+
 def test_smooth_normals_are_unit_where_faces_cancel():
     """Both sides of a sheet share its vertices: the area-weighted sum is zero there."""
     points = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0.0]])

@@ -170,14 +170,12 @@ class Mesh:
         F = len(self.triangles)
         if self.face_sizes is None:
             return np.full(F, 3, np.int64), np.arange(3 * F)
-        ids = []
-        t = 0
-        for c in self.face_sizes:
-            # Fan (0, i, i + 1): the first triangle gives three corners, every other its last.
-            ids.extend((3 * t, 3 * t + 1, 3 * t + 2))
-            ids.extend(3 * (t + np.arange(1, c - 2)) + 2)
-            t += c - 2
-        return self.face_sizes.copy(), np.asarray(ids, np.int64)
+        # Fan (0, i, i + 1): corners 0-2 of a polygon are its first triangle's, corner k >= 3 is
+        # the last corner of its triangle k - 2.
+        sizes = self.face_sizes
+        first_tri = np.repeat(np.cumsum(sizes - 2) - (sizes - 2), sizes)
+        k = np.arange(int(sizes.sum())) - np.repeat(np.cumsum(sizes) - sizes, sizes)
+        return sizes.copy(), np.where(k < 3, 3 * first_tri + k, 3 * (first_tri + k - 2) + 2)
 
     # -- derived meshes ----------------------------------------------------------------
     def split_corners(self) -> "Mesh":
