@@ -11,6 +11,7 @@ import pytest
 from rig_helpers import ENV, USDBTF, Sim, run_capture, tree_bytes
 
 from usdbtf import colour, synth
+from usdbtf.camera import Camera
 from usdbtf.cli import main
 from usdbtf.fiducials import apply_homography, detect_markers, load_board, make_board
 from usdbtf.fill import combine, plan_fill, spherical_weights
@@ -18,7 +19,7 @@ from usdbtf.imageio import read_image, write_image
 from usdbtf.manifest import read_manifest
 from usdbtf.rectify import rectify_frame, window_homography
 from usdbtf.rig import kinematics as K
-from usdbtf.rig.scene import Camera, add_sensor_noise, frame_homography, render_frame, vignetting
+from usdbtf.rig.scene import add_sensor_noise, frame_homography, render_frame, vignetting
 from usdbtf.sampling import Sampling, preset, to_vectors
 
 LIN709 = "Linear Rec.709 (sRGB)"

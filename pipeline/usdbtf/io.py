@@ -57,7 +57,8 @@ def open_compressed(path, *, material: str | None = None, lod: str | None = None
     packaged USD asset (.usda/.usdc/.usd/.usdz; ``material`` picks one of several BTF
     materials, ``lod`` a level-of-detail variant)."""
     p = Path(path)
-    from .usd.read import USD_SUFFIXES, load_btf
+    from .usd.read import load_btf
+    from .usdstage import USD_SUFFIXES
 
     if p.suffix.lower() in USD_SUFFIXES:
         return load_btf(p, material=material, lod=lod)

@@ -43,10 +43,9 @@ def run(args) -> int:
                         tileable=args.tileable)
     if args.atlas is not None:
         from ..quilt.atlas import quilt_atlas
-        from ..unwrap import read_chart_map, read_layer
+        from ..unwrap import read_unwrap
 
-        layer = read_layer(args.atlas)
-        q = quilt_atlas(cbtf, layer, read_chart_map(args.atlas, layer), opts, ghosts=not args.no_ghosts, log=say)
+        q = quilt_atlas(cbtf, read_unwrap(args.atlas), opts, ghosts=not args.no_ghosts, log=say)
         q.record["atlas"]["layer"] = str(args.atlas)
     else:
         if args.no_ghosts:

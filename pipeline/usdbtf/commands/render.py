@@ -52,12 +52,36 @@ def _angles(text: str | None, what: str):
     return theta, phi
 
 
+def open_asset(asset: Path):
+    """The compressed BTF of ASSET: a ``btf-compressed/1`` folder (an original or a quilt) or a
+    packaged USD asset (.usda/.usdc/.usd/.usdz, read back through :func:`usdbtf.io.open_compressed`)."""
+    from ..compress.format import METADATA
+    from ..errors import BTFError
+    from ..io import open_compressed
+    from ..usdstage import USD_SUFFIXES
+
+    if (asset.is_dir() and (asset / METADATA).is_file()) or (asset.suffix.lower() in USD_SUFFIXES and asset.is_file()):
+        return open_compressed(asset)
+    raise BTFError(f"{asset}: not a compressed BTF folder (no {METADATA}) or a USD asset")
+
+
+def scene_mesh(asset: Path, mesh: Path | None):
+    """The mesh to render: ``--mesh`` (an unwrap layer, whose stored frames are used, or any mesh
+    file with texture coordinates), else a USD asset's own Mesh; None for a folder without --mesh."""
+    from ..mesh import load_mesh
+    from ..usdstage import USD_SUFFIXES
+
+    if mesh is None and asset.suffix.lower() not in USD_SUFFIXES:
+        return None
+    return load_mesh(mesh if mesh is not None else asset, need_uv=True)
+
+
 def run(args) -> int:
     import time
 
+    from ..camera import auto_camera, parse_camera
     from ..errors import BTFError
-    from ..render import RenderOptions, Renderer, auto_camera, parse_camera, parse_light, write_render
-    from ..render.assets import resolve_asset
+    from ..render import RenderOptions, parse_light, render, render_swatch, write_render
 
     say = log(args.quiet)
     t0 = time.perf_counter()
@@ -77,8 +101,8 @@ def run(args) -> int:
         if len(args.light) != 1:
             raise BTFError("--swatch needs exactly one --light THETA,PHI")
         view, light = _angles(args.view, "view"), _angles(args.light[0], "light")
-        cbtf, _ = resolve_asset(args.asset)
-        image = Renderer(cbtf, opts).swatch(view, light)
+        cbtf = open_asset(args.asset)
+        result = render_swatch(cbtf, view, light, opts)
         what = f"swatch {cbtf.width}x{cbtf.height}, view {view}, light {light}"
     else:
         if args.view is not None:
@@ -87,16 +111,17 @@ def run(args) -> int:
         if not lights:
             raise BTFError("give at least one --light point:X,Y,Z[:I] or dir:X,Y,Z[:I]")
         camera = parse_camera(args.camera, W, H) if args.camera else None
-        cbtf, mesh = resolve_asset(args.asset, args.mesh)
+        cbtf = open_asset(args.asset)
+        mesh = scene_mesh(args.asset, args.mesh)
         if mesh is None:
             raise BTFError("give --mesh (an unwrap layer or a mesh with texture coordinates), or --swatch")
-        camera = camera or auto_camera(mesh.corners, W, H)
-        renderer = Renderer(cbtf, opts)
-        image = renderer.render(mesh, camera, lights)
-        what = f"{W}x{H} frame, {len(mesh.corners)} triangles, {len(lights)} light(s)"
+        for note in mesh.notes:
+            say(f"{mesh.source}: {note}")
+        camera = camera or auto_camera(mesh.corner(), W, H)
+        result = render(cbtf, mesh, camera, lights, opts)
+        what = f"{W}x{H} frame, {len(mesh.triangles)} triangles, {len(lights)} light(s)"
     png = None if args.no_png else (args.png or args.output.with_suffix(".png"))
-    info = write_render(args.output, image, cbtf.working_space, png_path=png, display=args.display,
-                        view=args.display_view, config=cbtf.ocio_config)
+    info = write_render(result, args.output, png_path=png, display=args.display, view=args.display_view)
     say(f"rendered {what} in {time.perf_counter() - t0:.2f} s -> {info['exr']}"
         + (f" and {info['png']} ({info['display']} / {info['view']})" if info["png"] else ""))
     return 0

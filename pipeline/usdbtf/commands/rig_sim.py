@@ -51,7 +51,7 @@ def run(args) -> int:
     from ..errors import BTFError
     from ..fiducials import load_board, make_board
     from ..rig import sim
-    from ..rig.scene import Camera
+    from ..camera import Camera
 
     if not 0.0 <= args.fault_rate < 1.0:
         raise BTFError(f"--fault-rate must be in [0, 1), got {args.fault_rate}")

@@ -351,7 +351,7 @@ def plugin_files() -> dict[str, str]:
 
 
 def _resources(plugin: Path | None) -> Path:
-    from ..usd.plugin import plugin_dir
+    from ..resources import plugin_dir
 
     return (plugin or plugin_dir()) / "usdBtf" / "resources"
 

@@ -49,10 +49,11 @@ def to_display(rgba: np.ndarray, working_space: str, *, display=None, view=None,
     return np.clip(np.rint(np.clip(out, 0.0, 1.0) * 255.0), 0, 255).astype(np.uint8)
 
 
-def write_render(exr_path, image: np.ndarray, working_space: str, *, png_path=None, display=None, view=None,
-                 config=None) -> dict:
-    """Write ``image`` (H, W, 3|4) float32 working space as EXR (and the PNG, if a path is given).
+def write_render(result, exr_path, *, png_path=None, display=None, view=None) -> dict:
+    """Write ``result`` (a :class:`~usdbtf.render.core.RenderResult`: (H, W, 3|4) float32 in its
+    working space) as EXR (and the PNG through an OCIO display view, if a path is given).
     Returns {"exr", "png", "display", "view"}."""
+    image, working_space, config = result.image, result.working_space, result.ocio_config
     exr_path = Path(exr_path)
     if exr_path.suffix.lower() != ".exr":
         raise BTFError(f"{exr_path}: the render is written as OpenEXR; name it *.exr")

@@ -34,7 +34,10 @@ from ..compress.codecs import Codec
 from ..compress.format import METADATA, CompressedBTF, basis_file, coefficient_file, read_compressed
 from ..errors import BTFError
 from ..imageio import write_image
-from . import geometry, preview, storm  # storm: issue 7 (Hydra preview)
+from ..mesh import Mesh, load_mesh
+from ..mesh.author import author_mesh
+from . import preview, storm  # storm: issue 7 (Hydra preview)
+from .lods import default_lods
 from .material import LOD_VARIANT_SET, author_btf
 from .validate import validate_layer
 
@@ -42,15 +45,6 @@ MATERIAL = "BtfMaterial"
 FULL_LOD = "full"
 #: Extensions every USD consumer (and the usdz spec) reads; others are re-encoded.
 _PORTABLE = {".png", ".jpg", ".jpeg", ".exr"}
-
-
-def default_lods(k: int) -> list[int]:
-    """Levels of detail for ``k`` vectors: k, then halvings down to no fewer than 4."""
-    levels, n = [], k // 2
-    while n >= 4 and len(levels) < 3:
-        levels.append(n)
-        n //= 2
-    return levels
 
 
 def _portable_copy(src: Path, dst_no_ext: Path) -> str:
@@ -158,7 +152,7 @@ def _write_albedo(cbtf: CompressedBTF, path: Path, white_level: float) -> None:
     write_image(path, (np.clip(srgb, 0, 1) * 255 + 0.5).astype(np.uint8), color_space=preview.ALBEDO_SPACE)
 
 
-def _write_payload(path: Path, root: str, cbtf: CompressedBTF, mesh: geometry.MeshData, textures_rel: str,
+def _write_payload(path: Path, root: str, cbtf: CompressedBTF, mesh: Mesh, textures_rel: str,
                    basis: str, coeffs: list[str], *, physical_size, curve, roughness: float) -> None:
     from pxr import Kind, Usd, UsdGeom, UsdShade
 
@@ -174,7 +168,7 @@ def _write_payload(path: Path, root: str, cbtf: CompressedBTF, mesh: geometry.Me
     _author_preview(stage, material, textures_rel, roughness)
     # Issue 7 hook: Storm glslfx preview (render context "glslfx") + GPU textures in <textures>/gpu/.
     storm.author_gpu_preview(stage, material, cbtf, path.parent / textures_rel, textures_rel)
-    prim = geometry.author_mesh(stage, f"/{root}/geo/{_prim_name(mesh.name)}", mesh)
+    prim = author_mesh(stage, f"/{root}/geo/{_prim_name(mesh.name)}", mesh)
     UsdShade.MaterialBindingAPI.Apply(prim).Bind(material)
     stage.GetRootLayer().Save()
 
@@ -242,7 +236,7 @@ def package(compressed, out, *, mesh=None, usdz: bool = False, lods: list[int] |
     bad = [n for n in levels if not 1 <= n < cbtf.k]
     if bad:
         raise BTFError(f"--lod {bad[0]} is outside 1..{cbtf.k} (the asset's k)")
-    shape = geometry.load_mesh(mesh) if mesh else geometry.swatch(*size)
+    shape = load_mesh(mesh, need_uv=True).compacted().with_normals() if mesh else Mesh.swatch(*size)
     white = float((cbtf.info.get("source_metadata") or {}).get("white_level", 1.0))
     curve = error_curve(compressed, cbtf)
     roughness, _ = preview.fit_roughness(cbtf)

@@ -10,22 +10,10 @@ silently unknown for the life of the process; ``import usdbtf`` therefore calls
 """
 from __future__ import annotations
 
-import os
-from pathlib import Path
-
 from ..errors import BTFError
+from ..resources import plugin_dir
 
 API_SCHEMA = "BtfMaterialAPI"
-ENV_PLUGIN_DIR = "USDBTF_PLUGIN_DIR"
-
-
-def plugin_dir() -> Path:
-    """The folder to put on ``PXR_PLUGINPATH_NAME``: ``$USDBTF_PLUGIN_DIR``, else the
-    project's ``plugin/`` (source checkouts and editable installs)."""
-    override = os.environ.get(ENV_PLUGIN_DIR)
-    if override:
-        return Path(override)
-    return Path(__file__).resolve().parents[3] / "plugin"
 
 
 def register() -> bool:

@@ -165,13 +165,14 @@ def author_gpu_preview(stage, material, cbtf: CompressedBTF, textures_dir: Path,
                        levels: list[int] | None = None) -> bool:
     """Write the GPU textures into ``textures_dir/gpu`` and author the Storm shader network
     in ``material`` (a UsdShade.Material on ``stage``, whose layer sits next to
-    ``textures_rel``).  levels : the asset's LOD basis counts (default: package.default_lods).
+    ``textures_rel``).  levels : the asset's LOD basis counts (default: lods.default_lods).
     Returns False (and authors nothing) for a BTF whose sampling is not every light at
     every view, which the preview cannot interpolate."""
     from pxr import Sdf, UsdShade
 
     from ..compress.format import cross_layout
-    from .package import LOD_VARIANT_SET, default_lods
+    from .lods import default_lods
+    from .material import LOD_VARIANT_SET
 
     if cross_layout(cbtf.sampling) is None:
         return False
