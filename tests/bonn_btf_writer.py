@@ -30,7 +30,7 @@ def f32(values) -> bytes:
     return np.asarray(values, "<f4").tobytes()
 
 
-def meta_block(*, version: int = 4, channels=("R", "G", "B"), cosine_flag: int = 0, ppmm: float = 10.0,
+def meta_block(*, version: int = 4, channel_names=("R", "G", "B"), cosine_flag: int = 0, ppmm: float = 10.0,
                xml: bytes = b"<measurement/>", setup: bytes = b"test rig", size_delta: int = 0) -> bytes:
     """The meta-data block; ``size_delta`` corrupts its size field."""
     body = u32(version) + setup.ljust(80, b"\0") + b"camera".ljust(80, b"\0") + b"led".ljust(80, b"\0")
@@ -40,7 +40,7 @@ def meta_block(*, version: int = 4, channels=("R", "G", "B"), cosine_flag: int =
     if version > 2:
         body += u32(len(xml)) + xml
     if version > 3:
-        body += u32(len(channels)) + b"".join(u32(len(c)) + c.encode() for c in channels)
+        body += u32(len(channel_names)) + b"".join(u32(len(c)) + c.encode() for c in channel_names)
     return u32(len(body) + 4 + size_delta) + body
 
 

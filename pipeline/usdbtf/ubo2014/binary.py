@@ -189,6 +189,8 @@ def read_meta(cur: Cursor, h: BonnHeader) -> None:
         if n == 0 or n * 4 > size:
             raise cur.fail(block, f"channel count {n} is impossible in a {size}-byte block")
         h.channel_names = [cur.text(cur.u32(block), f"{block} (channel names)") for _ in range(n)]
+        if n != 3:  # multispectral BTFs exist; usdbtf's data model is RGB
+            raise cur.fail(block, f"{n} channels ({', '.join(h.channel_names)}); only RGB (3 channels) is supported")
     if cur.pos - start != size:
         raise cur.fail(block, f"declares {size} bytes but its fields take {cur.pos - start} "
                               f"(meta-data version {h.meta_version})")

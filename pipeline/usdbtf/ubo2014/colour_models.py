@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..colour import mix_rgb
 from ..errors import BTFError
 
 __all__ = ["MODEL_NAMES", "DRR_EPS", "YUV_TO_RGB", "YCOCG_TO_RGB", "undecorrelate", "restore_dynamic_range",
@@ -87,11 +86,11 @@ def undecorrelate(values: np.ndarray, model: int, *, mean=None, matrix=None, eps
         return v
     if model == 3:
         # btflib: values * T (a row vector times the stored matrix), then + mean.
-        out = mix_rgb(v, np.asarray(matrix, np.float64).T)
+        out = _mix(v, np.asarray(matrix, np.float64).T)
         out += np.asarray(mean, np.float32)
         return out
     if model == 4:
-        return mix_rgb(v, YCOCG_TO_RGB)
+        return _mix(v, YCOCG_TO_RGB)
     if model in (5, 6):
         return _spectral(v, linear=model == 6)
     if model == 12:
@@ -107,7 +106,22 @@ def undecorrelate(values: np.ndarray, model: int, *, mean=None, matrix=None, eps
             chroma[...] = np.sign(chroma) * np.exp(np.abs(chroma) + np.float32(np.log(eps)))
         elif model == 11:
             v[..., 1:] *= (y + np.float32(eps))[..., None]
-    return mix_rgb(v, YUV_TO_RGB)
+    return _mix(v, YUV_TO_RGB)
+
+
+def _mix(v: np.ndarray, matrix) -> np.ndarray:
+    """``matrix @ rgb`` per texel, as separate float32 multiplies and adds in a fixed order.
+
+    Not OpenCV's ``transform``: its SIMD body and scalar tail round differently, so a
+    texel's value would depend on how many texels were converted with it."""
+    m = np.asarray(matrix, np.float32)
+    out = np.empty(v.shape, np.float32)
+    for i in range(3):
+        acc = v[..., 0] * m[i, 0]
+        acc += v[..., 1] * m[i, 1]
+        acc += v[..., 2] * m[i, 2]
+        out[..., i] = acc
+    return out
 
 
 def _spectral(v: np.ndarray, *, linear: bool) -> np.ndarray:

@@ -129,13 +129,37 @@ class Factorisation:
         return self._float[key]
 
     def expand(self, samples: np.ndarray, t0: int, t1: int) -> np.ndarray:
-        """(n, t1 - t0, nC) float32 channel values of ``samples`` over texels t0..t1."""
-        out = np.empty((len(samples), t1 - t0, len(self.channels)), np.float32)
-        for c in range(len(self.channels)):
-            a = self.float32(c, "samples")[samples]
-            b = self.float32(c, "texels")[t0:t1]
-            out[..., c] = a @ b.T
+        """(n, t1 - t0, nC) float32 channel values of ``samples`` over texels t0..t1.
+
+        Products are computed on fixed, aligned tiles (:data:`SAMPLE_TILE` samples x
+        :data:`TEXEL_TILE` texels) whatever the request, so a value does not depend on
+        which other samples or rows were asked for with it: any chunking of a pass over
+        the data reads bit-identical values."""
+        nc = len(self.channels)
+        out = np.empty((len(samples), t1 - t0, nc), np.float32)
+        n_samples = self.channels[0].samples.shape[0]
+        for j, rows, local in _tiles_of(samples, SAMPLE_TILE):
+            s0, s1 = j * SAMPLE_TILE, min((j + 1) * SAMPLE_TILE, n_samples)
+            for a in range(t0 - t0 % TEXEL_TILE, t1, TEXEL_TILE):
+                b = min(a + TEXEL_TILE, self.channels[0].texels.shape[0])
+                lo, hi = max(a, t0), min(b, t1)
+                for c in range(nc):
+                    tile = self.float32(c, "samples")[s0:s1] @ self.float32(c, "texels")[a:b].T
+                    out[rows, lo - t0:hi - t0, c] = tile[local, lo - a:hi - a]
         return out
+
+
+#: Fixed tile sizes of every product (see :meth:`Factorisation.expand`).
+SAMPLE_TILE = 32
+TEXEL_TILE = 4096
+
+
+def _tiles_of(samples: np.ndarray, size: int):
+    """Yield (tile j, positions in ``samples`` that fall in it, their offsets in the tile)."""
+    tiles = samples // size
+    for j in np.unique(tiles):
+        rows = np.flatnonzero(tiles == j)
+        yield int(j), rows, samples[rows] - j * size
 
 
 class FactorDecoder:
@@ -249,23 +273,24 @@ class PVFDecoder:
         self.over_texels = over_texels
 
     def channels(self, samples: np.ndarray, t0: int, t1: int) -> np.ndarray:
-        nc = self.nc
+        # Per view and fixed texel tile, every light at once: fixed GEMM shapes, so values do
+        # not depend on the request (as in Factorisation.expand).
+        nc, nl = self.nc, self.nl
         out = np.empty((len(samples), t1 - t0, nc), np.float32)
-        v_of, l_of = np.divmod(samples, self.nl)
-        for v in np.unique(v_of):
-            where = np.flatnonzero(v_of == v)
-            lights = l_of[where]
+        for v, rows, lights in _tiles_of(samples, nl):
             _, mean, comp, weights, _ = self.views[v]
-            if self.over_texels:
-                rows = (lights[:, None] * nc + np.arange(nc)).reshape(-1)           # (m nC) rows of C
-                vals = weights[t0:t1].astype(np.float32) @ comp[rows].astype(np.float32).T
-                vals += mean[rows].astype(np.float32)
-                out[where] = vals.reshape(t1 - t0, len(lights), nc).transpose(1, 0, 2)
-            else:
-                block = comp[nc * t0:nc * t1].astype(np.float32)                  # (nC T', k)
-                vals = block @ weights[lights].astype(np.float32).T              # (nC T', m)
-                vals += mean[nc * t0:nc * t1, None].astype(np.float32)
-                out[where] = vals.reshape(t1 - t0, nc, len(lights)).transpose(2, 0, 1)
+            n_texels = (len(weights) if self.over_texels else len(comp) // nc)
+            for a in range(t0 - t0 % TEXEL_TILE, t1, TEXEL_TILE):
+                b = min(a + TEXEL_TILE, n_texels)
+                lo, hi = max(a, t0), min(b, t1)
+                if self.over_texels:   # C rows c + nC l; weights over texels
+                    vals = weights[a:b].astype(np.float32) @ comp.astype(np.float32).T + mean.astype(np.float32)
+                    vals = vals.reshape(b - a, nl, nc).transpose(1, 0, 2)
+                else:                  # C rows c + nC t; weights over lights
+                    vals = comp[nc * a:nc * b].astype(np.float32) @ weights.astype(np.float32).T
+                    vals += mean[nc * a:nc * b, None].astype(np.float32)
+                    vals = vals.reshape(b - a, nc, nl).transpose(2, 0, 1)
+                out[rows, lo - t0:hi - t0] = vals[lights, lo - a:hi - a]
         return out
 
     def check_finite(self, cur: Cursor) -> None:

@@ -46,8 +46,8 @@ def bonn_to_tangent_degrees(angles_rad: np.ndarray) -> np.ndarray:
         i = int(np.argmax(bad))
         raise BTFError(f"direction {i}: theta {theta[i]:.4f} deg is below the horizon")
     theta = np.minimum(theta, 90.0)
-    phi[theta < 1e-9] = 0.0
-    return np.stack([theta, np.where(phi >= 360.0, 0.0, phi)], axis=1)
+    phi[(theta < 1e-9) | (phi > 360.0 - 1e-9)] = 0.0  # the pole's azimuth, and 2 pi - rounding
+    return np.stack([theta, phi], axis=1)
 
 
 def _available_bytes() -> int | None:
@@ -194,9 +194,6 @@ def read_ubo2014(path, *, color_space: str | None = None, ocio_config: str | Non
     header = BonnHeader(sig, fmt, flag)
     decoder = PARSERS[fmt](cur, header)
     where = f"{path}: direction table"
-    if header.n_channels != 3:
-        raise BTFError(f"{path}: meta data block: {header.n_channels} channels ({', '.join(header.channel_names)}); "
-                       "only RGB (3 channels) is supported")
     for name, table in (("views", header.views), ("lights", header.lights)):
         if not np.isfinite(table).all():
             raise BTFError(f"{where}: {name} hold NaN or Inf")
