@@ -44,7 +44,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import BTFError
 from .binary import (BonnHeader, Cursor, read_common_header, read_directions, read_meta, read_rotations,
                      read_size)
 from .colour_models import check_model
