@@ -66,82 +66,92 @@ def check_model(model: int, where: str) -> None:
                        f"{', '.join(f'{k} {v}' for k, v in MODEL_NAMES.items())})")
 
 
-def undecorrelate(values: np.ndarray, model: int, *, mean=None, matrix=None, eps: float = DRR_EPS) -> np.ndarray:
+def undecorrelate(values: np.ndarray, model: int, *, mean=None, matrix=None, eps: float = DRR_EPS,
+                  axis: int = -1) -> np.ndarray:
     """Decoded channels -> RGB, btflib's ``undecorrelate``.
 
     Parameters
     ----------
-    values : (..., 3) float32 decoded channel values (modified in place where possible).
+    values : float32 decoded channel values, the 3 channels along ``axis`` (modified in place
+        where possible).  Planar data (``axis=0``, each channel contiguous) is the fast layout.
     model : int, the file's ``color_model``.
     mean : (3,) the file's ``color_mean`` (model 3 only).
     matrix : (3, 3) the file's colour transformation matrix as stored, row-major (model 3 only).
 
     Returns
     -------
-    (..., 3) float32 linear RGB (not clamped).
+    float32 linear RGB, same shape and channel axis (not clamped).
     """
     check_model(model, "colour model")
-    v = np.asarray(values, np.float32)
+    v = np.moveaxis(np.asarray(values, np.float32), axis, 0)   # v[c]: channel plane c
     if model == 0:
-        return v
-    if model == 3:
+        out = v
+    elif model == 3:
         # btflib: values * T (a row vector times the stored matrix), then + mean.
         out = _mix(v, np.asarray(matrix, np.float64).T)
-        out += np.asarray(mean, np.float32)
-        return out
-    if model == 4:
-        return _mix(v, YCOCG_TO_RGB)
-    if model in (5, 6):
-        return _spectral(v, linear=model == 6)
-    if model == 12:
+        for c in range(3):
+            out[c] += np.float32(mean[c])
+    elif model == 4:
+        out = _mix(v, YCOCG_TO_RGB)
+    elif model in (5, 6):
+        out = _spectral(v, linear=model == 6)
+    elif model == 12:
         np.exp(v, out=v)
         v -= np.float32(eps)
-        return v
-    if model in (9, 10, 11):
-        y = v[..., 0]
-        np.exp(y, out=y)
-        y -= np.float32(eps)
+        out = v
+    else:  # 1, 9, 10, 11: YUV after the luminance / chroma transforms
+        if model in (9, 10, 11):
+            np.exp(v[0], out=v[0])
+            v[0] -= np.float32(eps)
         if model == 10:
-            chroma = v[..., 1:]
-            chroma[...] = np.sign(chroma) * np.exp(np.abs(chroma) + np.float32(np.log(eps)))
+            for c in (1, 2):
+                v[c] = np.sign(v[c]) * np.exp(np.abs(v[c]) + np.float32(np.log(eps)))
         elif model == 11:
-            v[..., 1:] *= (y + np.float32(eps))[..., None]
-    return _mix(v, YUV_TO_RGB)
+            scale = v[0] + np.float32(eps)
+            v[1] *= scale
+            v[2] *= scale
+        out = _mix(v, YUV_TO_RGB)
+    return np.moveaxis(out, 0, axis)
 
 
 def _mix(v: np.ndarray, matrix) -> np.ndarray:
-    """``matrix @ rgb`` per texel, as separate float32 multiplies and adds in a fixed order.
+    """``matrix @ rgb`` on channel planes v[0..2], as separate float32 multiplies and adds in
+    a fixed order (zero coefficients skipped).
 
     Not OpenCV's ``transform``: its SIMD body and scalar tail round differently, so a
     texel's value would depend on how many texels were converted with it."""
     m = np.asarray(matrix, np.float32)
     out = np.empty(v.shape, np.float32)
     for i in range(3):
-        acc = v[..., 0] * m[i, 0]
-        acc += v[..., 1] * m[i, 1]
-        acc += v[..., 2] * m[i, 2]
-        out[..., i] = acc
+        acc = out[i]
+        terms = [j for j in range(3) if m[i, j] != 0]
+        if not terms:
+            acc[...] = 0
+            continue
+        np.multiply(v[terms[0]], m[i, terms[0]], out=acc)
+        for j in terms[1:]:
+            acc += v[j] * m[i, j]
     return out
 
 
 def _spectral(v: np.ndarray, *, linear: bool) -> np.ndarray:
     """btflib's models 5 and 6, literally (channel 0 carries the sum, the others ratios)."""
     v = v.copy()
-    n = v.shape[-1]
+    n = v.shape[0]
     if not linear:
-        first = np.ones(v.shape[:-1], np.float32)
-        total = v[..., 0].copy()
+        first = np.ones(v.shape[1:], np.float32)
+        total = v[0].copy()
         for c in range(1, n):
-            first -= v[..., c]
-            v[..., c] *= total
-        v[..., 0] = first * total
+            first -= v[c]
+            v[c] *= total
+        v[0] = first * total
         return v
     div = np.float32(1.0 / n)
-    total = v[..., 0] / div
-    v[..., 0] = total
+    total = v[0] / div
+    v[0] = total
     for c in range(1, n):
-        v[..., 0] -= v[..., c] * div
-        v[..., c] = total + v[..., c] * total
+        v[0] -= v[c] * div
+        v[c] = total + v[c] * total
     return v
 
 

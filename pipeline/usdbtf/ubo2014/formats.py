@@ -3,7 +3,8 @@
 Each ``parse_*`` reads a format's header and block table from a :class:`~.binary.Cursor`
 (checking every count against the file size and the header) and returns a decoder whose
 ``channels(samples, t0, t1)`` multiplies out the stored channel values of some samples
-over texels ``t0 .. t1`` -- before the colour model is inverted.  Nothing large is read at
+over texels ``t0 .. t1`` -- before the colour model is inverted -- as channel planes
+(nC, n, t1 - t0) float32: the colour model then runs on contiguous planes.  Nothing large is read at
 parse time: blocks are memory-mapped views.
 
 Index conventions (cgbonn/btflib ``decode_*_texture.m``; 0-based here):
@@ -128,14 +129,14 @@ class Factorisation:
         return self._float[key]
 
     def expand(self, samples: np.ndarray, t0: int, t1: int) -> np.ndarray:
-        """(n, t1 - t0, nC) float32 channel values of ``samples`` over texels t0..t1.
+        """(nC, n, t1 - t0) float32 channel planes of ``samples`` over texels t0..t1.
 
         Products are computed on fixed, aligned tiles (:data:`SAMPLE_TILE` samples x
         :data:`TEXEL_TILE` texels) whatever the request, so a value does not depend on
         which other samples or rows were asked for with it: any chunking of a pass over
         the data reads bit-identical values."""
         nc = len(self.channels)
-        out = np.empty((len(samples), t1 - t0, nc), np.float32)
+        out = np.empty((nc, len(samples), t1 - t0), np.float32)
         n_samples = self.channels[0].samples.shape[0]
         for j, rows, local in _tiles_of(samples, SAMPLE_TILE):
             s0, s1 = j * SAMPLE_TILE, min((j + 1) * SAMPLE_TILE, n_samples)
@@ -144,7 +145,7 @@ class Factorisation:
                 lo, hi = max(a, t0), min(b, t1)
                 for c in range(nc):
                     tile = self.float32(c, "samples")[s0:s1] @ self.float32(c, "texels")[a:b].T
-                    out[rows, lo - t0:hi - t0, c] = tile[local, lo - a:hi - a]
+                    out[c, rows, lo - t0:hi - t0] = tile[local, lo - a:hi - a]
         return out
 
 
@@ -275,7 +276,7 @@ class PVFDecoder:
         # Per view and fixed texel tile, every light at once: fixed GEMM shapes, so values do
         # not depend on the request (as in Factorisation.expand).
         nc, nl = self.nc, self.nl
-        out = np.empty((len(samples), t1 - t0, nc), np.float32)
+        out = np.empty((nc, len(samples), t1 - t0), np.float32)
         for v, rows, lights in _tiles_of(samples, nl):
             _, mean, comp, weights, _ = self.views[v]
             n_texels = (len(weights) if self.over_texels else len(comp) // nc)
@@ -284,12 +285,12 @@ class PVFDecoder:
                 lo, hi = max(a, t0), min(b, t1)
                 if self.over_texels:   # C rows c + nC l; weights over texels
                     vals = weights[a:b].astype(np.float32) @ comp.astype(np.float32).T + mean.astype(np.float32)
-                    vals = vals.reshape(b - a, nl, nc).transpose(1, 0, 2)
+                    vals = vals.reshape(b - a, nl, nc).transpose(2, 1, 0)              # (nC, nL, texels)
                 else:                  # C rows c + nC t; weights over lights
                     vals = comp[nc * a:nc * b].astype(np.float32) @ weights.astype(np.float32).T
                     vals += mean[nc * a:nc * b, None].astype(np.float32)
-                    vals = vals.reshape(b - a, nc, nl).transpose(2, 0, 1)
-                out[rows, lo - t0:hi - t0] = vals[lights, lo - a:hi - a]
+                    vals = vals.reshape(b - a, nc, nl).transpose(1, 2, 0)              # (nC, nL, texels)
+                out[:, rows, lo - t0:hi - t0] = vals[:, lights, lo - a:hi - a]
         return out
 
     def check_finite(self, cur: Cursor) -> None:
@@ -361,7 +362,7 @@ class BDIDecoder:
     def channels(self, samples: np.ndarray, t0: int, t1: int) -> np.ndarray:
         v_idx, l_idx = np.divmod(samples, self.nl)
         nc = self.chunks[0].shape[-1]
-        out = np.zeros((len(samples), t1 - t0, nc), np.float32)
+        out = np.zeros((nc, len(samples), t1 - t0), np.float32)
         if self.storage is None:
             present = np.arange(t0, t1)
             s0, count = t0, t1 - t0
@@ -370,14 +371,14 @@ class BDIDecoder:
             if present.size == 0:
                 return out
             s0, count = int(self.storage[present[0]]), len(present)
-        got = np.empty((count, len(samples), nc), np.float32)
+        got = np.empty((count, len(samples), nc), np.float32)   # ABRDF-major, as stored
         pos = 0
         while pos < count:
             j, off = divmod(s0 + pos, self.per_chunk)
             n = min(count - pos, self.chunks[j].shape[0] - off)
             got[pos:pos + n] = self.chunks[j][off:off + n][:, v_idx, l_idx, :]
             pos += n
-        out[:, present - t0, :] = got.transpose(1, 0, 2)
+        out[:, :, present - t0] = got.transpose(2, 1, 0)
         return out
 
     def check_finite(self, cur: Cursor) -> None:

@@ -111,19 +111,22 @@ class UBO2014BTF(BTF):
         if have is not None and need > have:
             raise BTFError(f"{self.source}: expanding {n} samples x {h} rows needs about {need / 1e9:.1f} GB "
                            f"of memory, {have / 1e9:.1f} GB is available; read fewer samples or rows at a time")
-        values = self.decoder.channels(idx, y0 * w, y1 * w)
-        rgb = self._to_rgb(values, idx)
+        planes = self._to_rgb(self.decoder.channels(idx, y0 * w, y1 * w), idx)   # (3, n, h W)
+        rgb = np.empty((n, h * w, 3), np.float32)
+        for c in range(3):
+            rgb[..., c] = planes[c]
         return rgb.reshape(n, h, w, 3)
 
-    def _to_rgb(self, values: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    def _to_rgb(self, planes: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """Channel planes (3, n, T') -> linear RGB planes: colour model, dynamic range, cosine, clamp."""
         f = self.factors
         if f is not None:
-            values = undecorrelate(values, f.color_model, mean=f.color_mean, matrix=f.color_matrix)
-            values = restore_dynamic_range(values, f.dynamic_range_reduction)
+            planes = undecorrelate(planes, f.color_model, mean=f.color_mean, matrix=f.color_matrix, axis=0)
+            planes = restore_dynamic_range(planes, f.dynamic_range_reduction)
         if self.header.cosine_flag:
-            values /= self._cos_light[idx % self.header.n_lights][:, None, None]
-        np.maximum(values, 0.0, out=values)  # NaN stays NaN, and decode() reports it
-        return values
+            planes /= self._cos_light[idx % self.header.n_lights][None, :, None]
+        np.maximum(planes, 0.0, out=planes)  # NaN stays NaN, and decode() reports it
+        return planes
 
     @property
     def _cos_light(self) -> np.ndarray:
