@@ -150,8 +150,8 @@ class Factorisation:
 
 
 #: Fixed tile sizes of every product (see :meth:`Factorisation.expand`).
-SAMPLE_TILE = 32
-TEXEL_TILE = 4096
+SAMPLE_TILE = 128
+TEXEL_TILE = 8192
 
 
 def _tiles_of(samples: np.ndarray, size: int):
