@@ -21,9 +21,9 @@ The datasets that use it, and where each convention comes from
 ---------------------------------------------------------------
 * **UBO2003** (Bonn): 81 views x 81 lights (rings 0/15/30/45/60/75 deg with
   1/6/12/18/20/24 azimuths), 256 x 256 8-bit sRGB JPEGs named
-  ``tv030_pv030/00008 tl000 pl000 tv030 pv030.jpg`` (an index, then the angles; the
-  Bonn BTF database's download page and ``/work``'s landscape notes; btf-extractor's
-  ``ubo2003.py`` parses the same names).
+  ``tv030_pv030/00008 tl000 pl000 tv030 pv030.jpg`` (an index, then the angles: the
+  archives on the Bonn BTF database's UBO2003 download page; btf-extractor's ``ubo2003.py``
+  parses the same names, by position from the end).
 * **UTIA** (Prague, btf.utia.cas.cz, "Data description"): file names follow Bonn's
   with underscores and no index, ``tv000_pv000/tl000_pl000_tv000_pv000.png``; images
   are "PNG (colour space sRGB 8-bits/channel) or HDR OpenEXR (colour space XYZ (illum.
