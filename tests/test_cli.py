@@ -134,8 +134,8 @@ def test_compress_decompress_error_info_chain(capsys, src, compressed, work):
     assert f"{c.info['estimated_error']['linear']['percent']:.3f} %" in info
     assert SRGB in info
     info_src = ok(capsys, "info", src)
-    assert "BTF, 24 samples of 32x32, uint8 " + SRGB in info_src
-    assert "views 4, lights 6, interpolated 0" in info_src
+    assert "btf-manifest/1 BTF, 4 views x 6 lights = 24 samples of 32x32 texels" in info_src
+    assert "colour      uint8 " + SRGB in info_src and "interpolated 0" in info_src
 
 
 def test_progress_goes_to_stderr_and_quiet_silences_it(capsys, src, tmp_path):

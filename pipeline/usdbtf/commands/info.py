@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 
 ORDER = 50
 
@@ -38,7 +40,41 @@ def run(args) -> int:
     from ..io import open_btf
 
     btf = open_btf(path)
-    print(f"{path}: BTF, {btf.n_samples} samples of {btf.width}x{btf.height}, {btf.bit_depth} {btf.color_space}")
-    print(f"  views {len({tuple(v) for v in btf.sampling.view})}, lights {len({tuple(v) for v in btf.sampling.light})}, "
-          f"interpolated {int(btf.interpolated.sum())}")
+    for line in describe_btf(path, btf):
+        print(line)
     return 0
+
+
+def _count(directions) -> int:
+    return len({tuple(np.round(d, 6)) for d in directions})
+
+
+def describe_btf(path, btf) -> list[str]:
+    """The lines ``usdbtf info`` prints for an input BTF: format, directions, size, colour;
+    for Bonn ``.btf`` files also the signature, colour model and component counts."""
+    nv, nl = _count(btf.sampling.view), _count(btf.sampling.light)
+    grid = f"{nv} views x {nl} lights" if nv * nl == btf.n_samples else f"{nv} views, {nl} lights"
+    fmt = btf.metadata.get("format") or "btf-manifest/1"
+    lines = [f"{path}: {fmt} BTF, {grid} = {btf.n_samples} samples of {btf.width}x{btf.height} texels"]
+    describe = getattr(btf, "describe", None)
+    d = describe() if describe else {}
+    if "signature" in d:
+        lines[0] += f" (signature {d['signature']})"
+    lines.append(f"  colour      {btf.bit_depth} {btf.color_space}"
+                 + (f", stored as colour model {d['color_model']} ({d['color_model_name']})" if d else ""))
+    if d.get("components") is not None:
+        per = "view" if d["format"] == "PVF" else "channel"
+        counts = ", ".join(f"{per} {i}: {k}" for i, k in enumerate(d["components"]))
+        lines.append(f"  components  {counts}  ({d['scalar']} floats)")
+    if d:
+        extra = [f"{d['file_bytes']} bytes" if d.get("file_bytes") is not None else None,
+                 f"{d['ppmm']:g} px/mm" if d["ppmm"] > 0 else None,
+                 f"cosine flag {'on' if d['cosine_flag'] else 'off'}", f"{d['rotations']} rotations",
+                 "dynamic-range reduction on" if d.get("dynamic_range_reduction") else None,
+                 f"{d['stored_texels']} stored texels" if "stored_texels" in d else None]
+        lines.append("  file        " + "; ".join(e for e in extra if e))
+    ignored = getattr(btf, "ignored", None)
+    if ignored:
+        lines.append(f"  ignored     {len(ignored)} member(s) that are not samples, e.g. {ignored[0]!r}")
+    lines.append(f"  interpolated {int(btf.interpolated.sum())}")
+    return lines
