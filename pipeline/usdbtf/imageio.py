@@ -6,13 +6,14 @@ conversion lives in :mod:`usdbtf.colour`.
 from __future__ import annotations
 
 import os
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import OpenImageIO as oiio
 
-from .errors import BTFError
+from .errors import BTFError, IOFailure, UsageError
 
 __all__ = ["ImageInfo", "read_info", "read_image", "write_image", "BIT_DEPTHS", "numpy_dtype"]
 
@@ -119,12 +120,18 @@ def read_image(path, *, expect: tuple[int, int] | None = None, rows: tuple[int, 
     return data, info
 
 
-def write_image(path, pixels: np.ndarray, *, color_space: str, attributes: dict | None = None) -> int:
+def write_image(path, pixels: np.ndarray, *, color_space: str, attributes: dict | None = None,
+                allow_non_finite: bool = False) -> int:
     """Write ``pixels`` (H, W, C) as-is (its dtype is the file's bit depth) and return the file size.
 
     ``color_space`` is recorded as ``oiio:ColorSpace`` (and in the file's own colour
     metadata where the format has some).  Format options go in ``attributes``, e.g.
     ``{"Compression": "jpeg:90"}`` or ``{"png:compressionLevel": 9}``.
+
+    Float pixels must be finite: nothing non-finite is ever written (a NaN here comes from
+    bad input that slipped through, and is reported as such).  ``allow_non_finite`` is for
+    tests that craft damaged input files.  Failures of the writer
+    itself (permission, disk full) raise :class:`~usdbtf.errors.IOFailure`.
     """
     path = Path(path)
     pixels = np.ascontiguousarray(pixels)
@@ -133,6 +140,10 @@ def write_image(path, pixels: np.ndarray, *, color_space: str, attributes: dict 
     type_name = {np.dtype(v): k for k, v in BIT_DEPTHS.items()}.get(pixels.dtype)
     if type_name is None:
         raise BTFError(f"{path}: cannot write pixel type {pixels.dtype}")
+    if pixels.dtype.kind == "f" and not allow_non_finite and not np.isfinite(pixels).all():
+        bad = np.argwhere(~np.isfinite(pixels))[0]
+        raise BTFError(f"{path}: refusing to write NaN or infinite values (first at pixel x={bad[1]}, y={bad[0]}, "
+                       f"channel {bad[2]}); an input holds non-finite data")
     spec = oiio.ImageSpec(pixels.shape[1], pixels.shape[0], pixels.shape[2], type_name)
     spec.attribute("oiio:ColorSpace", color_space)
     # OIIO stamps the current time into EXR/TIFF headers; a fixed stamp keeps outputs
@@ -144,12 +155,25 @@ def write_image(path, pixels: np.ndarray, *, color_space: str, attributes: dict 
         spec.attribute(key, value)
     out = oiio.ImageOutput.create(str(path))
     if out is None:
-        raise BTFError(f"{path}: no image writer for this file type ({oiio.geterror()})")
+        raise UsageError(f"{path}: no image writer for this file type ({_one_line(oiio.geterror())})")
     try:
         if not out.open(str(path), spec):
-            raise BTFError(f"{path}: cannot open for writing ({out.geterror()})")
+            raise IOFailure(f"{path}: cannot open for writing ({_one_line(out.geterror()) or _os_reason(path)})")
         if not out.write_image(pixels):
-            raise BTFError(f"{path}: write failed ({out.geterror()})")
+            raise IOFailure(f"{path}: write failed ({_one_line(out.geterror()) or _os_reason(path)})")
     finally:
-        out.close()
+        if not out.close():
+            problem = _one_line(out.geterror())
+            if problem and sys.exc_info()[0] is None:
+                raise IOFailure(f"{path}: write failed ({problem})")
     return path.stat().st_size
+
+
+def _os_reason(path: Path) -> str:
+    """Why a file cannot be written, when the writer did not say."""
+    folder = path.parent
+    if not folder.is_dir():
+        return "its folder does not exist"
+    if not os.access(folder, os.W_OK):
+        return "permission denied"
+    return "unknown error"

@@ -6,6 +6,8 @@ from pathlib import Path
 
 from ..errors import BTFError
 
+from ._args import add_outside_paths_flag
+
 ORDER = 40
 
 
@@ -14,6 +16,7 @@ def add_parser(sub) -> None:
     p.add_argument("original", type=Path)
     p.add_argument("reconstruction", type=Path)
     p.add_argument("--samples", help="restrict to these original sample indices")
+    add_outside_paths_flag(p)
     p.set_defaults(func=run)
 
 

@@ -4,12 +4,15 @@ from __future__ import annotations
 from pathlib import Path
 
 
+from ._args import add_outside_paths_flag
+
 ORDER = 50
 
 
 def add_parser(sub) -> None:
     p = sub.add_parser("info", help="summarise a BTF or a compressed BTF")
     p.add_argument("path", type=Path)
+    add_outside_paths_flag(p)
     p.set_defaults(func=run)
 
 
@@ -38,7 +41,12 @@ def run(args) -> int:
     from ..io import open_btf
 
     btf = open_btf(path)
-    print(f"{path}: BTF, {btf.n_samples} samples of {btf.width}x{btf.height}, {btf.bit_depth} {btf.color_space}")
+    # The size of the image files themselves (a manifest's declared size is checked against them).
+    from ..imageio import read_info
+
+    first = read_info(btf.paths[0]) if getattr(btf, "paths", None) else None
+    w, h = (first.width, first.height) if first else (btf.width, btf.height)
+    print(f"{path}: BTF, {btf.n_samples} samples of {w}x{h}, {btf.bit_depth} {btf.color_space}")
     print(f"  views {len({tuple(v) for v in btf.sampling.view})}, lights {len({tuple(v) for v in btf.sampling.light})}, "
           f"interpolated {int(btf.interpolated.sum())}")
     return 0
