@@ -51,7 +51,7 @@ from . import outputs
 from .errors import BTFError, IOFailure, OutputRefused, os_error_message
 
 __all__ = ["Policy", "output_policy", "current_policy", "check_output", "claim", "atomic_dir", "atomic_file",
-           "atomic_group", "scratch_dir", "umask", "TMP_TAG", "LOCK_TAG"]
+           "atomic_group", "scratch_dir", "umask", "interrupt", "TMP_TAG", "LOCK_TAG"]
 
 TMP_TAG = ".usdbtf-tmp-"
 LOCK_TAG = ".usdbtf-lock"
@@ -172,14 +172,13 @@ def check_output(target, *, folder: bool, kind: str | None = None, what: str = "
         found = outputs.identify(target) if kind is None else (kind if outputs.is_kind(target, kind) else None)
     if kind in outputs.RESUMABLE_KINDS and found == kind:
         return "resume"
-    if not policy.force:
-        raise OutputRefused(f"{target}: exists; pass --force to replace a previous usdbtf {kind or what} "
-                            "(nothing else is ever replaced)")
     if found is None:
         other = outputs.identify(target) if kind is not None else None
         why = (f"is a {other}, not a {kind}" if other else
                f"is not a usdbtf {kind or 'output'} (not written by usdbtf, or holding other files)")
-        raise OutputRefused(f"{target}: {why}; not replaced, even with --force")
+        raise OutputRefused(f"{target}: exists and {why}; not replaced, even with --force")
+    if not policy.force:
+        raise OutputRefused(f"{target}: exists; pass --force to replace this previous usdbtf {found}")
     return "replace"
 
 
@@ -279,34 +278,67 @@ def claim(target, *, folder: bool, kind: str | None = None, what: str = "output"
     target = Path(target)
     state = check_output(target, folder=folder, kind=kind, what=what)
     real = _real(target if target.name not in ("", ".", "..") else Path(os.path.realpath(target)))
-    held = _HELD.get(real)
-    made = []
+    made, held = [], None
     try:
-        if held is None:
-            try:
-                made = _make_parents(real.parent)
-                lock = _Lock(real)
-                lock.acquire(target)
-            except OSError as exc:
-                raise IOFailure(os_error_message(exc, target)) from None
-            _HELD[real] = held = lock
+        # SIGTERM/SIGINT wait while the lock and the registry change, so that every lock
+        # file taken is released by the finally below.
+        with _signals_deferred():
+            held = _HELD.get(real)
+            if held is None:
+                try:
+                    made = _make_parents(real.parent)
+                    lock = _Lock(real)
+                    lock.acquire(target)
+                except OSError as exc:
+                    raise IOFailure(os_error_message(exc, target)) from None
+                _HELD[real] = held = lock
+            held.count += 1
+        if held.count == 1:
             try:
                 _cleanup_stale(real)
             except OSError as exc:
                 raise IOFailure(os_error_message(exc, target)) from None
             # Re-check now that we hold the lock (another writer may have just finished).
             state = check_output(target, folder=folder, kind=kind, what=what)
-        held.count += 1
-        try:
-            yield state
-        finally:
-            held.count -= 1
-            if held.count == 0:
-                del _HELD[real]
-                held.release()
+        yield state
     except BaseException:
         _remove_made(made)
         raise
+    finally:
+        if held is not None:
+            with _signals_deferred():
+                held.count -= 1
+                if held.count == 0:
+                    del _HELD[real]
+                    held.release()
+
+
+_CRITICAL = {"depth": 0, "pending": None}
+
+
+@contextlib.contextmanager
+def _signals_deferred():
+    """A short critical section (taking or releasing a lock, committing an output): an
+    interruption that :func:`interrupt` is asked to deliver meanwhile is raised when the
+    outermost section ends, so no lock or half-moved output is left behind."""
+    _CRITICAL["depth"] += 1
+    try:
+        yield
+    finally:
+        _CRITICAL["depth"] -= 1
+        pending = _CRITICAL["pending"]
+        if _CRITICAL["depth"] == 0 and pending is not None:
+            _CRITICAL["pending"] = None
+            raise pending
+
+
+def interrupt(exc: BaseException) -> None:
+    """Raise ``exc`` now, or when the current critical section ends (for signal handlers:
+    the CLI turns SIGTERM and SIGINT into exceptions through this)."""
+    if _CRITICAL["depth"]:
+        _CRITICAL["pending"] = _CRITICAL["pending"] or exc
+        return
+    raise exc
 
 
 # ----------------------------------------------------------------------------- staging
@@ -394,16 +426,21 @@ def _staged(real_dir: Path, names: list[str], shown_dir: Path, check=None):
     """Yield a staging folder's ``new/`` beside the outputs ``names`` in ``real_dir``;
     commit when the block succeeds (after ``check(new)``), remove it when it fails."""
     main = shown_dir / names[0]
+    staging = None
     try:
-        staging = _new_staging(real_dir, names[0])
-    except OSError as exc:
-        raise IOFailure(os_error_message(exc, main)) from None
-    try:
+        with _signals_deferred():
+            try:
+                staging = _new_staging(real_dir, names[0])
+            except OSError as exc:
+                raise IOFailure(os_error_message(exc, main)) from None
         yield staging / "new"
         if check is not None:
             check(staging / "new")
-        _commit(staging, real_dir, [n for n in names if os.path.lexists(staging / "new" / n)])
+        with _signals_deferred():        # a commit, once started, is finished
+            _commit(staging, real_dir, [n for n in names if os.path.lexists(staging / "new" / n)])
     except BaseException as exc:
+        if staging is None:
+            raise
         if not (staging / _READY).exists():
             shutil.rmtree(staging, ignore_errors=True)
         # else: the commit itself failed half-way; the next claim of the output finishes it.

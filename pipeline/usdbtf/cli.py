@@ -19,8 +19,8 @@ from pathlib import Path
 from . import __version__
 from .commands import command_modules
 from .commands._args import OUTSIDE_PATHS_HELP
-from .errors import EXIT_CANT_CREATE, EXIT_DATA, EXIT_INTERNAL, EXIT_IO, EXIT_OK, EXIT_USAGE, BTFError, \
-    os_error_message
+from .errors import EXIT_CANT_CREATE, EXIT_DATA, EXIT_INTERNAL, EXIT_IO, EXIT_OK, EXIT_USAGE, OS_ERROR_WORDS, \
+    BTFError, os_error_message
 
 EXIT_BAD_INPUT = EXIT_DATA   # kept for callers of the old name
 
@@ -83,6 +83,14 @@ def describe(exc: BaseException) -> tuple[int, str]:
         return exc.exit_code, _one_line(exc)
     if isinstance(exc, OSError):
         return EXIT_IO, _one_line(os_error_message(exc))
+    if type(exc).__module__.startswith("pxr"):
+        # A USD (Tf) error that no reader turned into a BTFError: USD reports a bad layer
+        # or a failed write this way.
+        from .usd.read import tf_message
+
+        text = tf_message(exc)
+        status = EXIT_IO if any(w in text for w in OS_ERROR_WORDS) else EXIT_DATA
+        return status, f"USD: {text}"
     if isinstance(exc, MemoryError):
         return EXIT_IO, ("out of memory: the machine cannot hold what this command needs "
                          "(use smaller inputs or options, or a larger machine)")
@@ -107,8 +115,10 @@ def _outputs_claimed(args):
 
     module = getattr(args, "_module", None)
     declared = list(module.outputs(args)) if module is not None and hasattr(module, "outputs") else []
-    out_paths = {Path(p) for p, _ in declared}
-    inputs = [p for key, v in vars(args).items() if not key.startswith("_") for p in _paths(v) if p not in out_paths]
+    # Every path argument except the outputs (OUTPUT_ARGS: their argument names) is an input.
+    output_args = set(getattr(module, "OUTPUT_ARGS", ("output",)))
+    inputs = [p for key, v in vars(args).items() if not key.startswith("_") and key not in output_args
+              for p in _paths(v)]
     with output_policy(force=getattr(args, "force", False), inputs=inputs), contextlib.ExitStack() as stack:
         if getattr(args, "allow_outside_paths", False):
             from .manifest import outside_paths_allowed
@@ -124,26 +134,38 @@ class Terminated(KeyboardInterrupt):
 
 
 @contextlib.contextmanager
-def _sigterm_raises():
+def _signals_raise():
+    """SIGTERM and SIGINT become exceptions (Terminated, KeyboardInterrupt), delivered
+    through :func:`usdbtf.atomic.interrupt` so that a lock or a commit in progress is
+    finished first."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    from .atomic import interrupt
 
-    def handler(signum, frame):
-        raise Terminated()
+    def on_term(signum, frame):
+        interrupt(Terminated())
 
-    old = signal.signal(signal.SIGTERM, handler)
+    def on_int(signum, frame):
+        interrupt(KeyboardInterrupt())
+
+    old = {signal.SIGTERM: signal.signal(signal.SIGTERM, on_term), signal.SIGINT: signal.signal(signal.SIGINT, on_int)}
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, old)
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args, extra = parser.parse_known_args(argv)
+    if extra:      # reported by the command's own parser, so the line names the command
+        sub = next(a for a in parser._actions if a.dest == "command").choices[args.command]
+        sub.error(f"unrecognized arguments: {' '.join(extra)}")
     debug = getattr(args, "debug", False)
     try:
-        with _sigterm_raises(), _outputs_claimed(args):
+        with _signals_raise(), _outputs_claimed(args):
             return args.func(args)
     except Terminated:
         print(f"usdbtf {args.command}: terminated", file=sys.stderr)

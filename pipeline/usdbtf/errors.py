@@ -26,7 +26,12 @@ Every message names the file, sample or option at fault; the CLI prints it as on
 from __future__ import annotations
 
 __all__ = ["BTFError", "UsageError", "OutputRefused", "IOFailure", "error_for_status", "os_error_message",
-           "EXIT_OK", "EXIT_USAGE", "EXIT_DATA", "EXIT_CANT_CREATE", "EXIT_IO", "EXIT_INTERNAL"]
+           "OS_ERROR_WORDS", "EXIT_OK", "EXIT_USAGE", "EXIT_DATA", "EXIT_CANT_CREATE", "EXIT_IO", "EXIT_INTERNAL"]
+
+#: Words of operating-system errors inside the messages of libraries that do not raise
+#: OSError (USD's Tf errors, image writers): such a failure is an I/O error, status 74.
+OS_ERROR_WORDS = ("File too large", "No space left", "Permission denied", "Read-only file system", "Is a directory",
+                  "Disk quota exceeded")
 
 EXIT_OK = 0
 EXIT_INTERNAL = 1

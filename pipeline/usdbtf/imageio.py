@@ -57,8 +57,13 @@ def _open(path) -> "oiio.ImageInput":
     inp = oiio.ImageInput.open(path)
     if inp is None:
         msg = oiio.geterror()
-        if not os.path.isfile(path):  # checked only on failure: a stat per image adds up over 10^4 images
+        # Checked only on failure: a stat per image adds up over 10^4 images.
+        if os.path.isdir(path):
+            raise IOFailure(f"{path}: is a folder, not an image file")
+        if not os.path.isfile(path):
             raise BTFError(f"{path}: image file not found")
+        if not os.access(path, os.R_OK):
+            raise IOFailure(f"{path}: permission denied")
         raise BTFError(f"{path}: cannot read image ({_one_line(msg) or 'unknown format'})")
     return inp
 
@@ -153,6 +158,7 @@ def write_image(path, pixels: np.ndarray, *, color_space: str, attributes: dict 
         spec.attribute("DateTime", FIXED_DATETIME)
     for key, value in (attributes or {}).items():
         spec.attribute(key, value)
+    _check_room(path, pixels.nbytes)
     out = oiio.ImageOutput.create(str(path))
     if out is None:
         raise UsageError(f"{path}: no image writer for this file type ({_one_line(oiio.geterror())})")
@@ -166,7 +172,44 @@ def write_image(path, pixels: np.ndarray, *, color_space: str, attributes: dict 
             problem = _one_line(out.geterror())
             if problem and sys.exc_info()[0] is None:
                 raise IOFailure(f"{path}: write failed ({problem})")
-    return path.stat().st_size
+    size = path.stat().st_size
+    _check_written(path, size)
+    return size
+
+
+def _room(folder: Path) -> tuple[int | None, int | None]:
+    """(bytes free on ``folder``'s file system, this process's file size limit), None when unknown."""
+    import resource
+
+    try:
+        st = os.statvfs(folder)
+        free = st.f_bavail * st.f_frsize
+    except OSError:
+        free = None
+    limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+    return free, (None if limit == resource.RLIM_INFINITY else limit)
+
+
+def _check_room(path: Path, raw_bytes: int) -> None:
+    """Refuse a write that cannot fit: some image writers (libpng, small OpenEXR files)
+    do not report a full disk and leave a truncated file, and libjpeg exits the process.
+    The bound is the raw pixel size plus the formats' worst-case overhead."""
+    need = int(raw_bytes * 1.02) + 65536
+    free, limit = _room(path.parent)
+    if free is not None and free < need:
+        raise IOFailure(f"{path}: no space left on the device (needs up to {need} bytes, {free} free)")
+    if limit is not None and limit < need:
+        raise IOFailure(f"{path}: file size limit exceeded (needs up to {need} bytes, the limit is {limit})")
+
+
+def _check_written(path: Path, size: int) -> None:
+    """A file that ends exactly at the size limit, or a file system left with no room, may
+    hold a truncated image the writer did not report."""
+    free, limit = _room(path.parent)
+    if limit is not None and size >= limit:
+        raise IOFailure(f"{path}: file size limit exceeded (the file reached the limit of {limit} bytes)")
+    if free == 0:
+        raise IOFailure(f"{path}: no space left on the device (the file may be truncated)")
 
 
 def _os_reason(path: Path) -> str:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
-import json
 import os
 from pathlib import Path, PurePosixPath
 from typing import Iterable
@@ -96,12 +95,9 @@ def read_manifest(folder, *, ocio_config: str | None = None, working_space: str 
     folder = Path(folder)
     path = folder / MANIFEST if folder.is_dir() else folder
     folder = path.parent
-    if not path.is_file():
+    if not os.path.lexists(path):
         raise BTFError(f"{path}: manifest not found")
-    try:
-        doc = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise BTFError(f"{path}: not a readable JSON manifest ({exc})") from None
+    doc = jsontext.load(path, "JSON manifest")
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise BTFError(f"{path}: \"format\" must be {FORMAT!r}, got {doc.get('format') if isinstance(doc, dict) else doc!r}")
     for key in ("width", "height"):

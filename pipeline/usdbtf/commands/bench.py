@@ -4,6 +4,8 @@ from __future__ import annotations
 from pathlib import Path
 
 ORDER = 90
+#: Arguments that name outputs (every other path argument is an input).
+OUTPUT_ARGS = ("out",)
 
 
 def _ints(text: str) -> tuple:

@@ -7,6 +7,8 @@ from . import log
 from ._args import float_in, int_in
 
 ORDER = 3
+#: Arguments that name outputs (every other path argument is an input).
+OUTPUT_ARGS = ("output", "json")
 #: Largest board image side (pixels).
 MAX_SIDE = 32768
 

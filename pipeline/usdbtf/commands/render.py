@@ -7,6 +7,8 @@ from . import log
 from ._args import MAX_FRAME_SIDE, WORKERS, int_in
 
 ORDER = 80
+#: Arguments that name outputs (every other path argument is an input).
+OUTPUT_ARGS = ("output", "png")
 #: Bytes per frame pixel the renderer holds (RGBA float, depth, triangle ids, barycentrics,
 #: interpolated frames and directions, shadow-map lookups).
 BYTES_PER_PIXEL = 160

@@ -7,6 +7,8 @@ from pathlib import Path
 from ._args import SEED, float_in, int_in
 
 ORDER = 4
+#: Arguments that name outputs (every other path argument is an input).
+OUTPUT_ARGS = ("frames", "port_file", "link")
 #: Largest simulated frame side (pixels).
 MAX_FRAME = 8192
 

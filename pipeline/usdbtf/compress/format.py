@@ -26,7 +26,6 @@ channels to working-space RGB: identity for the paper solver.
 """
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -344,12 +343,9 @@ def read_compressed(folder) -> CompressedBTF:
 
     folder = Path(folder)
     path = folder / METADATA
-    if not path.is_file():
+    if not os.path.lexists(path):
         raise BTFError(f"{path}: not a compressed BTF (metadata file missing)")
-    try:
-        doc = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise BTFError(f"{path}: unreadable metadata ({' '.join(str(exc).split())})") from None
+    doc = jsontext.load(path, "compressed-BTF metadata file")
     meta = check_metadata(doc, folder, path)
     k, layout, S = meta.k, meta.layout, len(meta.sampling)
     want = (layout["views"] * layout["grid"][0], layout["lights"] * layout["grid"][1]) \

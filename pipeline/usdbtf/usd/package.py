@@ -24,6 +24,7 @@ a previous asset (and replaces nothing else).
 """
 from __future__ import annotations
 
+import contextlib
 import csv
 import shutil
 from pathlib import Path
@@ -163,11 +164,29 @@ def _write_albedo(cbtf: CompressedBTF, path: Path, white_level: float) -> None:
     write_image(path, (np.clip(srgb, 0, 1) * 255 + 0.5).astype(np.uint8), color_space=preview.ALBEDO_SPACE)
 
 
+@contextlib.contextmanager
+def _usd_write(path: Path):
+    """USD's write failures (Tf errors) as usdbtf errors naming ``path``: an operating-system
+    problem (disk full, permission) is an IOFailure, anything else bad data."""
+    from pxr import Tf
+
+    from ..errors import OS_ERROR_WORDS, IOFailure
+    from .read import tf_message
+
+    try:
+        yield
+    except Tf.ErrorException as exc:
+        text = tf_message(exc)
+        cls = IOFailure if any(w in text for w in OS_ERROR_WORDS) else BTFError
+        raise cls(f"{path}: cannot write the USD layer ({text})") from None
+
+
 def _write_payload(path: Path, root: str, cbtf: CompressedBTF, mesh: geometry.MeshData, textures_rel: str,
                    basis: str, coeffs: list[str], *, physical_size, curve, roughness: float) -> None:
     from pxr import Kind, Usd, UsdGeom, UsdShade
 
-    stage = Usd.Stage.CreateNew(str(path))
+    with _usd_write(path):
+        stage = Usd.Stage.CreateNew(str(path))
     _stage_metadata(stage.GetRootLayer(), root)
     asset = UsdGeom.Xform.Define(stage, f"/{root}")
     Usd.ModelAPI(asset).SetKind(Kind.Tokens.component)
@@ -182,13 +201,15 @@ def _write_payload(path: Path, root: str, cbtf: CompressedBTF, mesh: geometry.Me
     prim = geometry.author_mesh(stage, f"/{root}/geo/{_prim_name(mesh.name)}", mesh)
     UsdShade.MaterialBindingAPI.Apply(prim).Bind(material)
     stage.GetRootLayer().customLayerData = usd_marker()
-    stage.GetRootLayer().Save()
+    with _usd_write(path):
+        stage.GetRootLayer().Save()
 
 
 def _write_root(path: Path, root: str, payload_name: str, coeffs_abs: list[str], levels: list[int], k: int) -> None:
     from pxr import Kind, Sdf, Usd, UsdGeom
 
-    stage = Usd.Stage.CreateNew(str(path))
+    with _usd_write(path):
+        stage = Usd.Stage.CreateNew(str(path))
     _stage_metadata(stage.GetRootLayer(), root)
     prim = UsdGeom.Xform.Define(stage, f"/{root}").GetPrim()
     Usd.ModelAPI(prim).SetKind(Kind.Tokens.component)
@@ -213,7 +234,8 @@ def _write_root(path: Path, root: str, payload_name: str, coeffs_abs: list[str],
                 Sdf.AssetPathArray([Sdf.AssetPath(p) for p in coeffs_abs[:n]]))
     vset.SetVariantSelection(FULL_LOD)
     stage.GetRootLayer().customLayerData = usd_marker()
-    stage.GetRootLayer().Save()
+    with _usd_write(path):
+        stage.GetRootLayer().Save()
 
 
 def asset_pieces(out, *, usdz: bool = False) -> list[tuple[str, bool, str]]:
@@ -287,6 +309,8 @@ def make_usdz(root_layer: Path, usdz: Path) -> Path:
     """Package ``root_layer`` and everything it references into ``usdz`` (variants and payloads kept)."""
     from pxr import Sdf, UsdUtils
 
-    if not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(root_layer)), str(usdz)):
+    with _usd_write(usdz):
+        made = UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(root_layer)), str(usdz))
+    if not made:
         raise BTFError(f"{usdz}: usdz packaging failed")
     return usdz
