@@ -206,20 +206,24 @@ def test_hostile_file_names_in_a_scene_build_and_run_nothing(tmp_path, data):
     assert build(scene)["ran"] == []                     # content signatures still work
 
 
-def test_scene_whose_asset_is_the_scene_is_refused(case, data):
+@pytest.mark.parametrize("asset,sublayer,names", [
+    ("./scene.usda", None, ["scene.usda", "btf:build:asset", "a layer of the scene"]),   # the scene itself
+    ("./captures/a.usda", None, ["captures", "the source"]),                             # inside the source
+    ("./x.usda", "./x_payload.usda", ["x_payload.usda", "a layer of the scene"]),        # a piece over a sublayer
+])
+def test_scene_outputs_over_the_scene_or_its_source_are_refused(case, data, asset, sublayer, names):
+    from pxr import Sdf
+
     folder = case.work / "scene"
     folder.mkdir()
     src = copy(data / "src", folder / "captures")
-    scene = _scene(folder, src, "./scene.usda", "--k 4")
-    case(["build", scene, "-q"], code=REFUSED, names=["scene.usda", "btf:build:asset"])
-
-
-def test_scene_asset_inside_its_source_is_refused(case, data):
-    folder = case.work / "scene"
-    folder.mkdir()
-    src = copy(data / "src", folder / "captures")
-    scene = _scene(folder, src, "./captures/a.usda", "--k 4")
-    case(["build", scene, "-q"], code=REFUSED, names=["captures", "the source"])
+    scene = _scene(folder, src, asset, "--k 4")
+    if sublayer:
+        (folder / sublayer).write_text("#usda 1.0\n")
+        layer = Sdf.Layer.FindOrOpen(str(scene))
+        layer.subLayerPaths.append(sublayer)
+        layer.Save()
+    case(["build", scene, "-q"], code=REFUSED, names=names)
 
 
 def test_scene_asset_over_a_foreign_file_is_refused_even_with_force(case, data):
@@ -350,6 +354,13 @@ def test_outputs_that_are_inputs_or_the_working_directory(case, data, argv, name
     (w / "lnk").symlink_to(w / "c")
     argv = [str(a).replace("WORK", str(w)) for a in argv]
     case(argv, code=REFUSED, names=names)
+
+
+def test_failure_removes_the_folders_it_made_for_the_output(case, data):
+    case(["compress", case.work / "missing", "-o", case.work / "new" / "deeper" / "out", "-q"], code=DATA,
+         names="missing")
+    case(["decompress", data / "c", "-o", case.work / "new" / "d", "--k", 99, "-q"], code=USAGE, names="--k")
+    assert not (case.work / "new").exists()
 
 
 def test_decompress_into_a_photo_folder_deletes_nothing(case, data):
@@ -591,6 +602,14 @@ def test_nan_vertex_in_a_package_mesh(case, data):
     line = case(["package", data / "c", "-o", case.work / "a.usda", "--mesh", mesh, "-q"], code=DATA, names=[])
     # Refused by the mesh reader (naming the file) or, failing that, by the publish gate.
     assert "nan.obj" in line or ("a_payload.usda" in line and "non-finite" in line), line
+
+
+def test_inspect_validate_reports_non_finite_numbers(case, data):
+    asset = copy(data / "asset", case.work / "asset")
+    payload = asset / "a_payload.usda"
+    payload.write_text(payload.read_text().replace("point3f[] points = [(-0.025", "point3f[] points = [(nan", 1))
+    line = case(["inspect", asset / "a.usda", "--validate"], code=DATA, names=["a.usda", "fails validation"])
+    assert "NonFiniteValue" in line and "points" in line
 
 
 def test_write_image_refuses_non_finite_pixels(tmp_path):

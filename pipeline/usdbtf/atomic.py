@@ -51,7 +51,7 @@ from . import outputs
 from .errors import BTFError, IOFailure, OutputRefused, os_error_message
 
 __all__ = ["Policy", "output_policy", "current_policy", "check_output", "claim", "atomic_dir", "atomic_file",
-           "atomic_group", "scratch_dir", "umask", "interrupt", "TMP_TAG", "LOCK_TAG"]
+           "atomic_group", "scratch_dir", "umask", "interrupt", "related", "TMP_TAG", "LOCK_TAG"]
 
 TMP_TAG = ".usdbtf-tmp-"
 LOCK_TAG = ".usdbtf-lock"
@@ -114,8 +114,10 @@ def _real(path: Path) -> Path:
     return Path(os.path.realpath(path.parent)) / path.name
 
 
-def _related(a: Path, b: Path) -> str | None:
-    """How output ``a`` relates to path ``b``: "is", "is inside", "contains", or None."""
+def related(a, b) -> str | None:
+    """How path ``a`` relates to path ``b`` once symbolic links are resolved: "is", "is
+    inside", "contains", or None."""
+    a, b = Path(os.path.realpath(a)), Path(os.path.realpath(b))
     if a == b:
         return "is"
     if b in a.parents:
@@ -145,7 +147,7 @@ def check_output(target, *, folder: bool, kind: str | None = None, what: str = "
         raise OutputRefused(f"{target}: is the working directory{inside}; name a new {what}")
     for paths, role in ((policy.inputs, "the input"), (policy.protect, "")):
         for p in paths:
-            rel = _related(real, Path(os.path.realpath(p)))
+            rel = related(real, p)
             if rel is not None:
                 thing = f"the input {p}" if role else f"{p}, which this command reads"
                 raise OutputRefused(f"{target}: {rel} {thing}; choose another {what} path")
@@ -301,9 +303,7 @@ def claim(target, *, folder: bool, kind: str | None = None, what: str = "output"
             # Re-check now that we hold the lock (another writer may have just finished).
             state = check_output(target, folder=folder, kind=kind, what=what)
         yield state
-    except BaseException:
-        _remove_made(made)
-        raise
+        made = []                      # kept: the output is in them
     finally:
         if held is not None:
             with _signals_deferred():
@@ -311,6 +311,7 @@ def claim(target, *, folder: bool, kind: str | None = None, what: str = "output"
                 if held.count == 0:
                     del _HELD[real]
                     held.release()
+        _remove_made(made)             # after the lock file is gone, so they can be empty
 
 
 _CRITICAL = {"depth": 0, "pending": None}

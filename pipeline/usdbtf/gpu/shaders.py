@@ -371,7 +371,7 @@ def write_plugin_files(plugin: Path | None = None) -> list[Path]:
     written = []
     for rel, text in plugin_files().items():
         path = root / rel
-        with atomic_file(path) as tmp:
+        with atomic_file(path, owner_checked=True) as tmp:     # generated files of the plugin
             tmp.write_text(text)
         written.append(path)
     return written

@@ -46,7 +46,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..atomic import atomic_file
+from ..atomic import atomic_file, related
 from ..compress.format import METADATA as COMPRESSED_METADATA
 from ..errors import BTFError, OutputRefused, error_for_status
 from .material import NS
@@ -167,27 +167,16 @@ def _bound_materials(stage) -> dict[str, list[str]]:
     return bound
 
 
-def _overlap(a: Path, b: Path) -> str | None:
-    a, b = Path(os.path.realpath(a)), Path(os.path.realpath(b))
-    if a == b:
-        return "is"
-    if b in a.parents:
-        return "is inside"
-    if a in b.parents:
-        return "contains"
-    return None
-
-
 def _check_outputs(scene: Path, path: str, recipe: Recipe, protected: list[Path]) -> None:
     """The recipe's outputs must leave the scene's layers and the source alone."""
     for out in recipe.outputs():
         for p in protected:
-            rel = _overlap(out, p)
+            rel = related(out, p)
             if rel:
                 raise OutputRefused(f"{scene}: {path}: {NS}build:asset: {out} {rel} {p}, a layer of the scene "
                                     "being built; choose another asset path")
         if out != recipe.source:
-            rel = _overlap(out, recipe.source)
+            rel = related(out, recipe.source)
             if rel:
                 raise OutputRefused(f"{scene}: {path}: {NS}build:asset: {out} {rel} the source {recipe.source}; "
                                     "choose another asset path")

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["non_finite_values"]
+__all__ = ["non_finite_values", "non_finite_in_stage"]
 
 
 def _bad(value) -> bool:
@@ -28,10 +28,32 @@ def _bad(value) -> bool:
 
 
 def non_finite_values(layer_path) -> list[str]:
-    """Attribute paths of ``layer_path`` whose default or time-sample values hold NaN or Inf."""
+    """Attribute paths of the layer file ``layer_path`` whose default or time-sample values
+    hold NaN or Inf."""
     from pxr import Sdf
 
-    layer = Sdf.Layer.OpenAsAnonymous(str(Path(layer_path)))
+    return _in_layer(Sdf.Layer.OpenAsAnonymous(str(Path(layer_path))))
+
+
+def non_finite_in_stage(path) -> list[str]:
+    """"<layer>: <attribute path>" for every non-finite value in any layer the stage at
+    ``path`` uses (payloads loaded, usdz packages included)."""
+    from .read import open_usd, usd_warnings_silenced
+
+    with usd_warnings_silenced():
+        stage = open_usd(path, composition_errors=False)
+    found = []
+    for layer in stage.GetUsedLayers():
+        if layer.anonymous:
+            continue
+        name = Path(layer.realPath or layer.identifier).name
+        found += [f"{name}: {attr}" for attr in _in_layer(layer)]
+    return found
+
+
+def _in_layer(layer) -> list[str]:
+    from pxr import Sdf
+
     found = []
 
     def visit(path):
