@@ -967,3 +967,28 @@ def test_usd_syntax_error_and_wrong_inputs(case, data):
          code=DATA, names=str(data / "c"))
     case(["render", data / "src", "--swatch", "--view", "0,0", "--light", "30,0", "-o", case.work / "r.exr", "-q"],
          code=DATA, names="src")
+
+
+# ------------------------------------------------------------------ 10. the recognisers follow the formats
+
+
+def test_output_markers_match_the_formats(data):
+    """usdbtf.outputs knows each format's marker without importing the writers: the names
+    must stay those the writers use, and every fresh output must be recognised."""
+    from usdbtf import fiducials, manifest, outputs
+    from usdbtf.compress import format as fmt
+    from usdbtf.quilt import folder as quilt_folder
+    from usdbtf.rig import capture
+    from usdbtf.unwrap import core as unwrap_core
+
+    assert (outputs._MANIFEST_FILE, outputs.MANIFEST) == (manifest.MANIFEST, manifest.FORMAT)
+    assert (outputs._COMPRESSED_FILE, outputs.COMPRESSED) == (fmt.METADATA, fmt.FORMAT)
+    assert outputs._COMPRESSED_EXTRAS == {quilt_folder.POSITION_MAP, *quilt_folder._CURVE_FILES}
+    assert outputs._UNWRAP_FILES == {unwrap_core.LAYER, unwrap_core.CHARTS, unwrap_core.RECORD}
+    assert outputs.BOARD == fiducials.FORMAT
+    assert outputs._CAPTURE_FILES.fullmatch(capture.JOURNAL) and outputs._CAPTURE_FILES.fullmatch(capture.FLAT_FILE)
+    expected = {"src": outputs.MANIFEST, "c": outputs.COMPRESSED, "uv": outputs.UNWRAP, "r.exr": outputs.RENDER,
+                "r.png": outputs.RENDER, "board.png": outputs.BOARD_IMAGE, "board.json": outputs.BOARD,
+                "asset/a.usda": outputs.ASSET, "asset/a_payload.usda": outputs.ASSET,
+                "asset/a_textures": outputs.ASSET_TEXTURES, "sphere.obj": None}
+    assert {name: outputs.identify(data / name) for name in expected} == expected

@@ -11,10 +11,10 @@ The policy (one set of rules for every command):
   same kind, recognised by :func:`usdbtf.outputs.identify`.  An empty folder counts as
   absent.
 * Never replaced, even with force: an input of the command, a folder that contains an
-  input or lies inside one, the working directory (or a folder containing it), a
-  protected path (the scene ``build`` reads), a file where a folder goes or a folder
-  where a file goes, a symbolic link, or anything :func:`~usdbtf.outputs.identify` does
-  not recognise as the same kind.
+  input or lies inside one, the working directory (or a folder containing it), a file
+  where a folder goes or a folder where a file goes, a symbolic link, or anything
+  :func:`~usdbtf.outputs.identify` does not recognise as the same kind.  (``build``
+  protects the scene and its layers itself: :mod:`usdbtf.usd.build`.)
 * Write beside, then swap.  New content is written in a staging folder
   ``.<name>.usdbtf-tmp-<pid>-<random>/new/<name>`` beside the output.  When it is
   complete a ``READY`` file listing the names is written, then each old output is moved
@@ -68,21 +68,19 @@ class Policy:
     force : replace a previous usdbtf output of the same kind (library default True; the
         CLI sets it from ``--force``).
     inputs : paths the command reads; an output may not be, contain or lie inside one.
-    protect : further paths treated like inputs (e.g. the scene being built).
     """
 
     force: bool = True
     inputs: tuple = ()
-    protect: tuple = ()
 
 
 _POLICY: contextvars.ContextVar[Policy] = contextvars.ContextVar("usdbtf_output_policy", default=Policy())
 
 
 @contextlib.contextmanager
-def output_policy(*, force: bool = True, inputs=(), protect=()):
+def output_policy(*, force: bool = True, inputs=()):
     """Set the :class:`Policy` for the writes inside the ``with`` block."""
-    token = _POLICY.set(Policy(bool(force), tuple(Path(p) for p in inputs), tuple(Path(p) for p in protect)))
+    token = _POLICY.set(Policy(bool(force), tuple(Path(p) for p in inputs)))
     try:
         yield
     finally:
@@ -145,12 +143,10 @@ def check_output(target, *, folder: bool, kind: str | None = None, what: str = "
     if real == cwd or real in cwd.parents:
         inside = "" if real == cwd else " (or a folder containing it)"
         raise OutputRefused(f"{target}: is the working directory{inside}; name a new {what}")
-    for paths, role in ((policy.inputs, "the input"), (policy.protect, "")):
-        for p in paths:
-            rel = related(real, p)
-            if rel is not None:
-                thing = f"the input {p}" if role else f"{p}, which this command reads"
-                raise OutputRefused(f"{target}: {rel} {thing}; choose another {what} path")
+    for p in policy.inputs:
+        rel = related(real, p)
+        if rel is not None:
+            raise OutputRefused(f"{target}: {rel} the input {p}; choose another {what} path")
     for parent in real.parents:
         if os.path.lexists(parent):
             if not parent.is_dir():
@@ -292,7 +288,10 @@ def claim(target, *, folder: bool, kind: str | None = None, what: str = "output"
                     lock = _Lock(real)
                     lock.acquire(target)
                 except OSError as exc:
-                    raise IOFailure(os_error_message(exc, target)) from None
+                    where = Path(os.fsdecode(exc.filename)) if exc.filename is not None else real.parent
+                    if where.name.endswith(LOCK_TAG):
+                        where = where.parent
+                    raise IOFailure(f"{target}: cannot write in {where}: {exc.strerror or exc}") from None
                 _HELD[real] = held = lock
             held.count += 1
         if held.count == 1:
@@ -515,7 +514,7 @@ def atomic_file(target, *, kind: str | None = None, owner_checked: bool = False)
         return
     if target.is_dir() or target.is_symlink():
         raise OutputRefused(f"{target}: is a folder or a link; not replaced")
-    with output_policy(force=True, inputs=current_policy().inputs, protect=current_policy().protect), \
+    with output_policy(force=True, inputs=current_policy().inputs), \
             claim(target, folder=False, kind=outputs.OWNED):
         with _staged(_real(target).parent, [target.name], target.parent) as new:
             yield new / target.name

@@ -1,6 +1,7 @@
 """``usdbtf bench``: benchmarks of run time against error (see :mod:`usdbtf.bench`)."""
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 ORDER = 90
@@ -107,4 +108,11 @@ def run(args) -> int:
                             command=_command_line(args))
     except ValueError as exc:
         raise UsageError(str(exc)) from None
-    return 0 if doc["status"] == "ok" else 1
+    if doc["status"] != "ok":
+        failed = sorted(name for name, sec in doc.get("sections", {}).items() if isinstance(sec, dict) and
+                        sec.get("error"))
+        # A section that fails is a failed measurement (a bug or the machine), not bad input: status 1.
+        print(f"usdbtf bench: error: section(s) {', '.join(failed) or '?'} failed; see {doc.get('out')}/report.md",
+              file=sys.stderr)
+        return 1
+    return 0
