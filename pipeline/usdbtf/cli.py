@@ -41,7 +41,7 @@ traceback of any error."""
 
 FORCE_HELP = ("replace an existing output, if it is a previous usdbtf output of the same kind (never "
               "anything else); the old one stays until the new one is complete")
-DEBUG_HELP = "print the traceback of an error (after the one-line message)"
+DEBUG_HELP = "also print the traceback of an error (above its one-line message)"
 
 
 class Parser(argparse.ArgumentParser):
