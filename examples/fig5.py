@@ -75,8 +75,9 @@ def main(argv=None) -> int:
     for preset in PRESETS:
         raw, comp = work / f"{preset}_raw", work / f"{preset}_c"
         if not (comp / "btf-compressed.json").is_file():
-            run("synth", preset, "-o", raw, "--sampling", args.sampling, "--size", args.size, "--seed", args.seed, "-q")
-            run("compress", raw, "-o", comp, "--k", args.k, "-q")
+            run("synth", preset, "-o", raw, "--sampling", args.sampling, "--size", args.size, "--seed", args.seed, "-q",
+                "--force")
+            run("compress", raw, "-o", comp, "--k", args.k, "-q", "--force")
         cbtf = read_compressed(comp)
         row = []
         for shape, (scale, closer) in SHAPES.items():
@@ -84,7 +85,7 @@ def main(argv=None) -> int:
             if not (uv / "mesh.usda").is_file():
                 points, faces, normals = shapes.SHAPES[shape]()
                 obj = shapes.write_obj(work / f"{shape}.obj", points * scale, faces, normals)
-                run("unwrap", obj, "-o", uv, "--btf", comp, "-q")
+                run("unwrap", obj, "-o", uv, "--btf", comp, "-q", "--force")
             unwrapped = read_unwrap(uv / "mesh.usda")
             q = quilt_atlas(cbtf, unwrapped, QuiltOptions(seed=args.seed))
             renderer = Renderer(quilted_btf(cbtf, q), RenderOptions(threads=2))

@@ -14,7 +14,7 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 
-from cli_helpers import bad_input, ok
+from cli_helpers import bad_input, bad_usage, ok
 from quilt_render_data import pebbles, work  # noqa: F401 (fixtures)
 from quilt_render_data import PHYSICAL_SIZE, plane_with_uv, write_sphere
 from usdbtf import colour
@@ -285,16 +285,16 @@ def test_render_a_packaged_usd_asset_like_its_folder(work, sphere_quilt, capsys)
 
 def test_render_bad_input(work, pebbles, capsys):
     out = work / "bad.exr"
-    bad_input(capsys, "render", pebbles, "--swatch", "--light", "30,0", "-o", out, names="--view")
-    bad_input(capsys, "render", pebbles, "--swatch", "--view", "95,0", "--light", "30,0", "-o", out, names="--view")
-    bad_input(capsys, "render", pebbles, "--swatch", "--view", "0,0", "--light", "x", "-o", out, names="--light")
-    bad_input(capsys, "render", pebbles, "--swatch", "--view", "0,0", "--light", "30,0", "-o", work / "bad.png",
+    bad_usage(capsys, "render", pebbles, "--swatch", "--light", "30,0", "-o", out, names="--view")
+    bad_usage(capsys, "render", pebbles, "--swatch", "--view", "95,0", "--light", "30,0", "-o", out, names="--view")
+    bad_usage(capsys, "render", pebbles, "--swatch", "--view", "0,0", "--light", "x", "-o", out, names="--light")
+    bad_usage(capsys, "render", pebbles, "--swatch", "--view", "0,0", "--light", "30,0", "-o", work / "bad.png",
               names="bad.png")
     sphere = write_sphere(work / "plain.obj", subdivisions=1)
     bad_input(capsys, "render", pebbles, "--mesh", sphere, "--light", "point:1,1,1", "-o", out,
               names="no texture coordinates")
-    bad_input(capsys, "render", pebbles, "--mesh", sphere, "--light", "spot:1,1,1", "-o", out, names="spot:1,1,1")
-    bad_input(capsys, "render", pebbles, "--mesh", sphere, "--camera", "eye=0,0,1", "--light", "dir:0,0,1", "-o", out,
+    bad_usage(capsys, "render", pebbles, "--mesh", sphere, "--light", "spot:1,1,1", "-o", out, names="spot:1,1,1")
+    bad_usage(capsys, "render", pebbles, "--mesh", sphere, "--camera", "eye=0,0,1", "--light", "dir:0,0,1", "-o", out,
               names="--camera")
     bad_input(capsys, "render", work / "nowhere", "--swatch", "--view", "0,0", "--light", "30,0", "-o", out,
               names="nowhere")

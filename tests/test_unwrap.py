@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from pxr import Usd, UsdGeom, UsdValidation, Vt
 
-from cli_helpers import bad_input, ok, run
+from cli_helpers import bad_input, bad_usage, ok, run
 from quilt_render_data import pebbles, work  # noqa: F401 (fixtures)
 from quilt_render_data import PHYSICAL_SIZE, SIZE, plane_with_uv, write_obj, write_sphere
 from usdbtf.compress import read_compressed
@@ -137,7 +137,9 @@ def test_unwrap_bad_input(work, pebbles, capsys):
     flat = write_obj(work / "flat.obj", np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.0]]), np.array([[0, 1, 2]]))
     bad_input(capsys, "unwrap", flat, "-o", out, "--texels-per-metre", 100, names="zero surface area")
     sphere = write_sphere(work / "s.obj", subdivisions=1)
-    bad_input(capsys, "unwrap", sphere, "-o", out, "--texels-per-metre", -3, names="--texels-per-metre")
+    bad_usage(capsys, "unwrap", sphere, "-o", out, "--texels-per-metre", -3, names="--texels-per-metre")
+    bad_usage(capsys, "unwrap", sphere, "-o", out, "--texels-per-metre", "1e12", names="--texels-per-metre")
+    bad_usage(capsys, "unwrap", sphere, "-o", out, "--texels-per-metre", "nan", names="--texels-per-metre")
     no_size = work / "no_size_c"
     shutil.copytree(pebbles, no_size)
     doc = json.loads((no_size / "btf-compressed.json").read_text())

@@ -15,7 +15,7 @@ import pytest
 import usdbtf  # noqa: F401  (registers the schema plugin first)
 from pxr import Sdf, Usd, UsdGeom, UsdShade
 
-from cli_helpers import bad_input, ok
+from cli_helpers import bad_input, bad_usage, ok, refused
 from usdbtf import colour
 from usdbtf.cli import main
 from usdbtf.compress import read_compressed, reconstruct
@@ -277,9 +277,14 @@ def test_failed_package_leaves_previous_asset_intact(compressed, work, tmp_path,
     out = tmp_path / "keep" / "pebbles.usda"
     ok(capsys, "package", compressed, "-o", out, "-q")
     before = {p: p.read_bytes() for p in out.parent.rglob("*") if p.is_file()}
-    bad_input(capsys, "package", compressed, "-o", out, "--lod", "999", names="--lod 999")
+    bad_usage(capsys, "package", compressed, "-o", out, "--lod", "999", "--force", names="--lod 999")
     after = {p: p.read_bytes() for p in out.parent.rglob("*") if p.is_file()}
     assert after == before
+    # A previous asset is replaced only with --force (and then only once the new one is complete).
+    refused(capsys, "package", compressed, "-o", out, "-q", names="--force")
+    ok(capsys, "package", compressed, "-o", out, "-q", "--force")
+    assert sorted(p.name for p in out.parent.iterdir()) == ["pebbles.usda", "pebbles_payload.usda",
+                                                            "pebbles_textures"]
 
 
 def test_no_physical_size_is_a_clear_error(src, tmp_path, capsys):

@@ -17,6 +17,12 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run)
 
 
+def outputs(args):
+    """None declared here: the scene names them, and :func:`usdbtf.usd.build.build` checks them
+    (``--force`` is still offered: it lets a build replace outputs it did not write before)."""
+    return []
+
+
 def run(args) -> int:
     from ..usd.build import build, plan
 
@@ -27,5 +33,5 @@ def run(args) -> int:
         for path in report["without_recipe"]:
             print(f"{path}: bound, no recipe")
         return 0
-    build(args.scene, log=log(args.quiet))
+    build(args.scene, force=args.force, log=log(args.quiet))
     return 0

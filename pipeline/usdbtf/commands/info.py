@@ -6,12 +6,15 @@ from pathlib import Path
 import numpy as np
 
 
+from ._args import add_outside_paths_flag
+
 ORDER = 50
 
 
 def add_parser(sub) -> None:
     p = sub.add_parser("info", help="summarise a BTF or a compressed BTF")
     p.add_argument("path", type=Path)
+    add_outside_paths_flag(p)
     p.set_defaults(func=run)
 
 
@@ -49,13 +52,26 @@ def _count(directions) -> int:
     return len({tuple(np.round(d, 6)) for d in directions})
 
 
+def _image_size(btf) -> tuple[int, int]:
+    """The size of the image files themselves when the samples are files on disk (a
+    manifest's declared size is checked against them), else the reader's size."""
+    from ..imageio import read_info
+
+    paths = getattr(btf, "paths", None)
+    if paths and Path(paths[0]).is_file():
+        first = read_info(paths[0])
+        return first.width, first.height
+    return btf.width, btf.height
+
+
 def describe_btf(path, btf) -> list[str]:
     """The lines ``usdbtf info`` prints for an input BTF: format, directions, size, colour;
     for Bonn ``.btf`` files also the signature, colour model and component counts."""
     nv, nl = _count(btf.sampling.view), _count(btf.sampling.light)
     grid = f"{nv} views x {nl} lights" if nv * nl == btf.n_samples else f"{nv} views, {nl} lights"
     fmt = btf.metadata.get("format") or "btf-manifest/1"
-    lines = [f"{path}: {fmt} BTF, {grid} = {btf.n_samples} samples of {btf.width}x{btf.height} texels"]
+    w, h = _image_size(btf)
+    lines = [f"{path}: {fmt} BTF, {grid} = {btf.n_samples} samples of {w}x{h} texels"]
     describe = getattr(btf, "describe", None)
     d = describe() if describe else {}
     if "signature" in d:

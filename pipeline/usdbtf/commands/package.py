@@ -4,6 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from . import log
+from ._args import float_in
 
 ORDER = 60
 
@@ -18,15 +19,20 @@ def add_parser(sub) -> None:
                    "(AR viewers read only PNG/JPEG textures: compress with --codec png or jpeg for those)")
     p.add_argument("--lod", help="basis counts of the lod variants besides 'full', e.g. 64,16 "
                    "(default: halvings of k down to 4)")
-    p.add_argument("--physical-size", type=float, nargs=2, metavar=("W", "H"),
+    p.add_argument("--physical-size", type=float_in(0, 1e4, lo_open=True), nargs=2, metavar=("W", "H"),
                    help="tile size in metres (default: the source's physical_size_m)")
     p.add_argument("--no-validate", action="store_true", help="skip the UsdValidation check before publishing")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 
 
+def outputs(args):
+    from ..usd.package import asset_pieces
+    return [(args.output.parent / name, kind) for name, _, kind in asset_pieces(args.output, usdz=args.usdz)]
+
+
 def run(args) -> int:
-    from ..errors import BTFError
+    from ..errors import UsageError
     from ..usd.package import package
 
     lods = None
@@ -34,7 +40,7 @@ def run(args) -> int:
         try:
             lods = [int(x) for x in args.lod.split(",") if x.strip()]
         except ValueError:
-            raise BTFError(f"--lod {args.lod!r}: expected comma-separated integers") from None
+            raise UsageError(f"--lod {args.lod!r}: expected comma-separated integers") from None
     package(args.input, args.output, mesh=args.mesh, usdz=args.usdz, lods=lods,
             physical_size=tuple(args.physical_size) if args.physical_size else None,
             validate=not args.no_validate, log=log(args.quiet))

@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from . import log
-from .render import add_scene_arguments
+from .render import add_scene_arguments, render_outputs
 
 ORDER = 82
 
@@ -26,34 +26,36 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run)
 
 
+outputs = render_outputs
+
+
 def run(args) -> int:
     import numpy as np
 
     from ..camera import auto_camera, parse_camera
-    from ..errors import BTFError
+    from ..errors import UsageError
     from ..gpu.headless import HeadlessRenderer, psnr
     from ..render import RenderOptions, Renderer, RenderResult, parse_light, write_render
     from ..usd.read import load_btf
     from ..usd.storm import layout_from_asset
-    from .render import _angles, scene_mesh
+    from .render import _angles, check_frame_args, parsed, scene_mesh
 
     say = log(args.quiet)
     W, H = args.size
-    if not (1 <= W <= 16384 and 1 <= H <= 16384):
-        raise BTFError(f"--size must be in 1..16384, got {W} {H}")
+    check_frame_args(args)
     # Every argument and the mesh are checked before the GPU context is made.
     if args.swatch:
         if args.mesh is not None or args.camera is not None or len(args.light) != 1:
-            raise BTFError("--swatch renders the flat patch: one --light THETA,PHI, no --mesh or --camera")
+            raise UsageError("--swatch renders the flat patch: one --light THETA,PHI, no --mesh or --camera")
         view, light = _angles(args.view, "view"), _angles(args.light[0], "light")
     else:
         if not args.light:
-            raise BTFError("give at least one --light")
-        lights = [parse_light(spec) for spec in args.light]
-        camera = parse_camera(args.camera, W, H) if args.camera else None
+            raise UsageError("give at least one --light")
+        lights = [parsed(parse_light, spec) for spec in args.light]
+        camera = parsed(lambda text: parse_camera(text, W, H), args.camera) if args.camera else None
         mesh = scene_mesh(args.asset, args.mesh)
         if mesh is None:
-            raise BTFError(f"{args.asset}: not a USD asset; give --mesh")
+            raise UsageError(f"{args.asset}: not a USD asset; give --mesh")
         camera = camera or auto_camera(mesh.corner(), W, H)
     layout, wrap, k = layout_from_asset(args.asset, lod=args.lod)
     gl = HeadlessRenderer(layout, wrap=wrap)

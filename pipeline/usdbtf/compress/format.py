@@ -26,7 +26,6 @@ channels to working-space RGB: identity for the paper solver.
 """
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -36,6 +35,7 @@ import numpy as np
 from .. import __version__, jsontext
 from ..atomic import atomic_dir
 from ..errors import BTFError
+from ..outputs import COMPRESSED as COMPRESSED_KIND
 from ..sampling import Sampling
 from .codecs import Codec, Stored, get_codec
 
@@ -316,68 +316,50 @@ def write_metadata(cbtf: CompressedBTF, folder: Path) -> int:
 
 def write_compressed(cbtf: CompressedBTF, folder) -> dict:
     """Write the whole folder atomically; returns the byte counts."""
-    with atomic_dir(folder) as tmp:
+    with atomic_dir(folder, kind=COMPRESSED_KIND) as tmp:
         sizes = write_textures(cbtf, tmp)
         write_metadata(cbtf, tmp)
     return sizes
 
 
-def _require(doc, key, path):
-    if key not in doc:
-        raise BTFError(f"{path}: missing {key!r}")
-    return doc[key]
+def _read_texture(entry, shape: tuple[int, int], channels: int | None = None) -> np.ndarray:
+    """A stored texture's pixels, checked against the expected (height, width) and for
+    non-finite half floats."""
+    px = Codec.read(entry.file, channels=channels)
+    if px.shape[:2] != shape:
+        raise BTFError(f"{entry.file}: texture is {px.shape[1]}x{px.shape[0]}, expected {shape[1]}x{shape[0]}")
+    if px.dtype.kind == "f" and not np.isfinite(px).all():
+        raise BTFError(f"{entry.file}: stored values include NaN or Inf")
+    return px
 
 
 def read_compressed(folder) -> CompressedBTF:
-    """Open a compressed BTF folder (reads every texture; they are small)."""
+    """Open a compressed BTF folder (reads every texture; they are small).
+
+    The metadata is checked first (:func:`usdbtf.compress.validate.check_metadata`), so a
+    damaged folder is one error naming the file and the key, before anything is allocated.
+    """
+    from .validate import check_metadata
+
     folder = Path(folder)
     path = folder / METADATA
-    if not path.is_file():
+    if not os.path.lexists(path):
         raise BTFError(f"{path}: not a compressed BTF (metadata file missing)")
-    try:
-        doc = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise BTFError(f"{path}: unreadable metadata ({exc})") from None
-    if doc.get("format") != FORMAT:
-        raise BTFError(f"{path}: format {doc.get('format')!r} is not {FORMAT!r}")
-    codec = get_codec(_require(doc, "codec", path))
-    samples = _require(doc, "samples", path)
-    sampling = Sampling(np.asarray(samples["view"]), np.asarray(samples["light"]))
-    b = _require(doc, "basis", path)
-    image = Codec.read(folder / b["file"], channels=1)
-    k = int(_require(doc, "k", path))
-    layout = b.get("layout", {"kind": "columns"})
-    if layout.get("kind") == "tiles":
-        V, L, (rows, cols) = layout["views"], layout["lights"], layout["grid"]
-        want = (rows * V, cols * L)
-        ok = V * L == len(sampling) and rows * cols >= k
-    else:
-        want, ok = (len(sampling), k), layout.get("kind") == "columns"
-    if not ok or image.shape[:2] != want:
-        raise BTFError(f"{folder / b['file']}: basis image is {image.shape[1]}x{image.shape[0]}, expected "
-                       f"{want[1]}x{want[0]} for k = {k}, {len(sampling)} samples, layout {layout}")
-    basis_px = image_to_basis(image, layout, k)
-    basis = Stored(basis_px, np.asarray(b["scale"]), np.asarray(b["bias"]))
-    coeffs = []
-    W, H = int(_require(doc, "width", path)), int(_require(doc, "height", path))
-    for entry in _require(doc, "coefficients", path):
-        px = Codec.read(folder / entry["file"])
-        if px.shape[:2] != (H, W):
-            raise BTFError(f"{folder / entry['file']}: texture is {px.shape[1]}x{px.shape[0]}, expected {W}x{H}")
-        coeffs.append(Stored(px, np.asarray(entry["scale"]), np.asarray(entry["bias"])))
-    if len(coeffs) != k:
-        raise BTFError(f"{path}: lists {len(coeffs)} coefficient textures for k = {k}")
-    interp = np.zeros(len(sampling), bool)
-    interp[np.asarray(samples.get("interpolated", []), int)] = True
-    known = {"format", "usdbtf_version", "width", "height", "k", "n_samples", "codec", "working_space",
-             "ocio_config", "source", "color_matrix", "basis", "coefficients", "samples"}
-    info = {key: v for key, v in doc.items() if key not in known}
-    info["usdbtf_version"] = doc.get("usdbtf_version")
-    matrix = np.asarray(_require(doc, "color_matrix", path), np.float64)
-    if matrix.shape != (3, 3) or not np.isfinite(matrix).all():
-        raise BTFError(f"{path}: color_matrix must be 3x3 finite numbers")
-    return CompressedBTF(sampling, W, H, basis, coeffs, matrix, codec.name, _require(doc, "working_space", path),
-                         doc.get("source", {}), interp, doc.get("ocio_config"), info)
+    doc = jsontext.load(path, "compressed-BTF metadata file")
+    meta = check_metadata(doc, folder, path)
+    k, layout, S = meta.k, meta.layout, len(meta.sampling)
+    want = (layout["views"] * layout["grid"][0], layout["lights"] * layout["grid"][1]) \
+        if layout["kind"] == "tiles" else (S, k)
+    image = Codec.read(meta.basis.file, channels=1)
+    if image.shape[:2] != want:
+        raise BTFError(f"{meta.basis.file}: basis image is {image.shape[1]}x{image.shape[0]}, expected "
+                       f"{want[1]}x{want[0]} for k = {k}, {S} samples, layout {layout}")
+    if image.dtype.kind == "f" and not np.isfinite(image).all():
+        raise BTFError(f"{meta.basis.file}: stored values include NaN or Inf")
+    basis = Stored(image_to_basis(image, layout, k), meta.basis.scale, meta.basis.bias)
+    coeffs = [Stored(_read_texture(e, (meta.height, meta.width)), e.scale, e.bias) for e in meta.coefficients]
+    return CompressedBTF(meta.sampling, meta.width, meta.height, basis, coeffs, meta.color_matrix, meta.codec.name,
+                         meta.working_space, meta.source, meta.interpolated, meta.ocio_config, meta.info)
 
 
 def folder_bytes(folder) -> int:

@@ -351,7 +351,7 @@ def plugin_files() -> dict[str, str]:
 
 
 def _resources(plugin: Path | None) -> Path:
-    from ..resources import plugin_dir
+    from ..plugin_folder import plugin_dir
 
     return (plugin or plugin_dir()) / "usdBtf" / "resources"
 
@@ -371,7 +371,7 @@ def write_plugin_files(plugin: Path | None = None) -> list[Path]:
     written = []
     for rel, text in plugin_files().items():
         path = root / rel
-        with atomic_file(path) as tmp:
+        with atomic_file(path, owner_checked=True) as tmp:     # generated files of the plugin
             tmp.write_text(text)
         written.append(path)
     return written

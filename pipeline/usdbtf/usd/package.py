@@ -14,31 +14,37 @@ Files written for ``-o out/pebbles.usda``::
 Textures are re-encoded losslessly into formats every USD consumer reads (JPEG XL and
 TIFF become PNG holding the same integer codes; PNG, JPEG and EXR are copied), so a
 reconstruction from the asset equals one from the compressed folder bit for bit.
-Every asset path is relative.  Everything is written into a staging folder, checked
-with every UsdValidation validator, and only then moved into place (root layer last):
-a failure leaves no half-written asset behind.
+Every asset path is relative.  Everything is written into a staging folder beside the
+asset, checked with every UsdValidation validator and for non-finite numbers, and only
+then moved into place as one :func:`usdbtf.atomic.atomic_group` (textures, payload,
+usdz, root layer last): a failure leaves the previous asset byte-identical, and a run
+killed while moving the pieces in is finished by the next one.  Every layer carries
+``customLayerData = {"usdbtf": {"output": "usdbtf-asset"}}``, so ``--force`` recognises
+a previous asset (and replaces nothing else).
 """
 from __future__ import annotations
 
+import contextlib
 import csv
-import os
 import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from .. import __version__
+from ..atomic import atomic_group
 from ..colour import processor
 from ..compress.codecs import Codec
 from ..compress.format import METADATA, CompressedBTF, basis_file, coefficient_file, read_compressed
-from ..errors import BTFError
+from ..errors import BTFError, UsageError
 from ..imageio import write_image
 from ..mesh import Mesh, load_mesh
 from ..mesh.author import author_mesh
 from . import preview, storm  # storm: issue 7 (Hydra preview)
 from .lods import default_lods
+from ..outputs import ASSET, ASSET_TEXTURES, usd_marker
 from .material import LOD_VARIANT_SET, author_btf
+from .finite import non_finite_values
 from .validate import validate_layer
 
 MATERIAL = "BtfMaterial"
@@ -152,11 +158,29 @@ def _write_albedo(cbtf: CompressedBTF, path: Path, white_level: float) -> None:
     write_image(path, (np.clip(srgb, 0, 1) * 255 + 0.5).astype(np.uint8), color_space=preview.ALBEDO_SPACE)
 
 
+@contextlib.contextmanager
+def _usd_write(path: Path):
+    """USD's write failures (Tf errors) as usdbtf errors naming ``path``: an operating-system
+    problem (disk full, permission) is an IOFailure, anything else bad data."""
+    from pxr import Tf
+
+    from ..errors import OS_ERROR_WORDS, IOFailure
+    from ..usdstage import tf_message
+
+    try:
+        yield
+    except Tf.ErrorException as exc:
+        text = tf_message(exc)
+        cls = IOFailure if any(w in text for w in OS_ERROR_WORDS) else BTFError
+        raise cls(f"{path}: cannot write the USD layer ({text})") from None
+
+
 def _write_payload(path: Path, root: str, cbtf: CompressedBTF, mesh: Mesh, textures_rel: str,
                    basis: str, coeffs: list[str], *, physical_size, curve, roughness: float) -> None:
     from pxr import Kind, Usd, UsdGeom, UsdShade
 
-    stage = Usd.Stage.CreateNew(str(path))
+    with _usd_write(path):
+        stage = Usd.Stage.CreateNew(str(path))
     _stage_metadata(stage.GetRootLayer(), root)
     asset = UsdGeom.Xform.Define(stage, f"/{root}")
     Usd.ModelAPI(asset).SetKind(Kind.Tokens.component)
@@ -170,13 +194,16 @@ def _write_payload(path: Path, root: str, cbtf: CompressedBTF, mesh: Mesh, textu
     storm.author_gpu_preview(stage, material, cbtf, path.parent / textures_rel, textures_rel)
     prim = author_mesh(stage, f"/{root}/geo/{_prim_name(mesh.name)}", mesh)
     UsdShade.MaterialBindingAPI.Apply(prim).Bind(material)
-    stage.GetRootLayer().Save()
+    stage.GetRootLayer().customLayerData = usd_marker()
+    with _usd_write(path):
+        stage.GetRootLayer().Save()
 
 
 def _write_root(path: Path, root: str, payload_name: str, coeffs_abs: list[str], levels: list[int], k: int) -> None:
     from pxr import Kind, Sdf, Usd, UsdGeom
 
-    stage = Usd.Stage.CreateNew(str(path))
+    with _usd_write(path):
+        stage = Usd.Stage.CreateNew(str(path))
     _stage_metadata(stage.GetRootLayer(), root)
     prim = UsdGeom.Xform.Define(stage, f"/{root}").GetPrim()
     Usd.ModelAPI(prim).SetKind(Kind.Tokens.component)
@@ -200,20 +227,20 @@ def _write_root(path: Path, root: str, payload_name: str, coeffs_abs: list[str],
                                 variability=Sdf.VariabilityUniform).Set(
                 Sdf.AssetPathArray([Sdf.AssetPath(p) for p in coeffs_abs[:n]]))
     vset.SetVariantSelection(FULL_LOD)
-    stage.GetRootLayer().Save()
+    stage.GetRootLayer().customLayerData = usd_marker()
+    with _usd_write(path):
+        stage.GetRootLayer().Save()
 
 
-def _publish(staging: Path, out_dir: Path, names: list[str]) -> None:
-    """Move ``names`` from ``staging`` into ``out_dir`` in order, replacing what is there."""
-    for name in names:
-        src, dst = staging / name, out_dir / name
-        if dst.is_dir() and not dst.is_symlink():
-            old = out_dir / f".{name}.old-{os.getpid()}"
-            os.replace(dst, old)
-            os.replace(src, dst)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(src, dst)
+def asset_pieces(out, *, usdz: bool = False) -> list[tuple[str, bool, str]]:
+    """[(name, is_folder, output kind)] of the files ``package`` writes for root layer ``out``,
+    in the order they are published (the root layer last)."""
+    out = Path(out)
+    stem = out.stem
+    pieces = [(f"{stem}_textures", True, ASSET_TEXTURES), (f"{stem}_payload.usda", False, ASSET)]
+    if usdz:
+        pieces.append((f"{stem}.usdz", False, ASSET))
+    return pieces + [(out.name, False, ASSET)]
 
 
 def package(compressed, out, *, mesh=None, usdz: bool = False, lods: list[int] | None = None,
@@ -227,7 +254,7 @@ def package(compressed, out, *, mesh=None, usdz: bool = False, lods: list[int] |
     log = log or (lambda msg: None)
     compressed, out = Path(compressed), Path(out)
     if out.suffix != ".usda":
-        raise BTFError(f"{out}: the asset's root layer must be a .usda file")
+        raise UsageError(f"{out}: the asset's root layer must be a .usda file")
     cbtf = read_compressed(compressed)
     size = physical_size or physical_size_of(cbtf)
     if size is None:
@@ -235,7 +262,7 @@ def package(compressed, out, *, mesh=None, usdz: bool = False, lods: list[int] |
     levels = sorted({int(n) for n in (default_lods(cbtf.k) if lods is None else lods)} - {cbtf.k}, reverse=True)
     bad = [n for n in levels if not 1 <= n < cbtf.k]
     if bad:
-        raise BTFError(f"--lod {bad[0]} is outside 1..{cbtf.k} (the asset's k)")
+        raise UsageError(f"--lod {bad[0]} is outside 1..{cbtf.k} (the asset's k)")
     shape = load_mesh(mesh, need_uv=True).compacted().with_normals() if mesh else Mesh.swatch(*size)
     white = float((cbtf.info.get("source_metadata") or {}).get("white_level", 1.0))
     curve = error_curve(compressed, cbtf)
@@ -243,9 +270,7 @@ def package(compressed, out, *, mesh=None, usdz: bool = False, lods: list[int] |
 
     stem, root = out.stem, _prim_name(out.stem)
     textures_rel, payload_name = f"{stem}_textures", f"{stem}_payload.usda"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{stem}.staging-", dir=out.parent))
-    try:
+    with atomic_group(out.parent, asset_pieces(out, usdz=usdz), what="asset") as staging:
         tex_dir = staging / textures_rel
         basis, coeffs = package_textures(cbtf, compressed, tex_dir)
         _write_albedo(cbtf, tex_dir / "preview_albedo.png", white)
@@ -255,15 +280,17 @@ def package(compressed, out, *, mesh=None, usdz: bool = False, lods: list[int] |
         names = [textures_rel, payload_name]
         if usdz:
             names.append(make_usdz(staging / out.name, staging / f"{stem}.usdz").name)
-        if validate:
-            for name in names[1:] + [out.name]:
+        for name in names[1:] + [out.name]:
+            if not name.endswith(".usdz"):
+                bad = non_finite_values(staging / name)
+                if bad:
+                    raise BTFError(f"{out.parent / name}: would hold non-finite numbers ({bad[0]}"
+                                   + (f" and {len(bad) - 1} more" if len(bad) > 1 else "") + "); not published")
+            if validate:
                 problems = validate_layer(staging / name)
                 if problems:
                     raise BTFError(f"{out.parent / name}: fails USD validation: {problems[0]}"
                                    + (f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""))
-        _publish(staging, out.parent, names + [out.name])
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
     log(f"packaged {compressed} (k = {cbtf.k}, LODs {[cbtf.k] + levels}, roughness fit {roughness:.2f}) as {out}"
         + (f" and {out.with_suffix('.usdz').name}" if usdz else ""))
     written = {"root": out, "payload": out.parent / payload_name, "textures": out.parent / textures_rel}
@@ -276,6 +303,8 @@ def make_usdz(root_layer: Path, usdz: Path) -> Path:
     """Package ``root_layer`` and everything it references into ``usdz`` (variants and payloads kept)."""
     from pxr import Sdf, UsdUtils
 
-    if not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(root_layer)), str(usdz)):
+    with _usd_write(usdz):
+        made = UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(root_layer)), str(usdz))
+    if not made:
         raise BTFError(f"{usdz}: usdz packaging failed")
     return usdz

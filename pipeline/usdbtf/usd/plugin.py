@@ -11,7 +11,7 @@ silently unknown for the life of the process; ``import usdbtf`` therefore calls
 from __future__ import annotations
 
 from ..errors import BTFError
-from ..resources import plugin_dir
+from ..plugin_folder import plugin_dir
 
 API_SCHEMA = "BtfMaterialAPI"
 
