@@ -18,7 +18,7 @@ from pathlib import Path
 
 from . import __version__
 from .commands import command_modules
-from .commands._args import OUTSIDE_PATHS_HELP
+from .argtypes import OUTSIDE_PATHS_HELP
 from .errors import EXIT_CANT_CREATE, EXIT_DATA, EXIT_INTERNAL, EXIT_IO, EXIT_OK, EXIT_USAGE, OS_ERROR_WORDS, \
     BTFError, os_error_message
 

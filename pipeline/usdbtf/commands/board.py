@@ -4,7 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from . import log
-from ._args import float_in, int_in
+from ..argtypes import float_in, int_in
 
 ORDER = 3
 #: Arguments that name outputs (every other path argument is an input).

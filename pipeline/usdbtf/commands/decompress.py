@@ -4,7 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from . import log
-from ._args import int_in
+from ..argtypes import int_in
 
 ORDER = 30
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from ..errors import BTFError
 
-from ._args import add_outside_paths_flag
+from ..argtypes import add_outside_paths_flag
 
 ORDER = 40
 

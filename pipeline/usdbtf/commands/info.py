@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 
 
-from ._args import add_outside_paths_flag
+from ..argtypes import add_outside_paths_flag
 
 ORDER = 50
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from . import log
-from ._args import MAX_TEXTURE_SIDE, SEED, float_in, int_in
+from ..argtypes import MAX_TEXTURE_SIDE, SEED, float_in, int_in
 
 ORDER = 56
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from . import log
-from ._args import WORKERS, add_outside_paths_flag, float_in, int_in
+from ..argtypes import WORKERS, add_outside_paths_flag, float_in, int_in
 
 ORDER = 6
 #: Largest rectified side (texels).

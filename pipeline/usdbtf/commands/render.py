@@ -4,7 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from . import log
-from ._args import MAX_FRAME_SIDE, WORKERS, int_in
+from ..argtypes import MAX_FRAME_SIDE, WORKERS, int_in
 
 ORDER = 80
 #: Arguments that name outputs (every other path argument is an input).

@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._args import SEED, float_in, int_in
+from ..argtypes import SEED, float_in, int_in
 
 ORDER = 4
 #: Arguments that name outputs (every other path argument is an input).

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from .. import __version__
 from . import log
-from ._args import SEED, float_in, int_in
+from ..argtypes import SEED, float_in, int_in
 
 #: Largest synthetic sample side (texels); memory grows with its square.
 MAX_SIZE = 4096

@@ -4,7 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from . import log
-from ._args import MAX_TEXTURE_SIDE, float_in, int_in
+from ..argtypes import MAX_TEXTURE_SIDE, float_in, int_in
 
 ORDER = 54
 #: Densest texel spacing unwrap accepts: 1e6 texels per metre (1 micrometre texels).

@@ -22,7 +22,7 @@ so a second build with unchanged inputs runs nothing.
 Scene text is data, never code:
 
 * ``btf:build:options`` is split with :mod:`shlex` and parsed by the compress command's own
-  argument parser; only the options in :data:`usdbtf.commands.compress.SCENE_OPTIONS`
+  argument parser; only the options in :data:`usdbtf.compress.arguments.SCENE_OPTIONS`
   are allowed, and what reaches the command line is rebuilt from the parsed, typed values.
   Anything else is an error naming the prim and the attribute.
 * The SConstruct is fixed text; the steps (paths, options) are in ``steps.json`` beside it.
@@ -97,9 +97,9 @@ def parse_options(text, where: str) -> tuple[str, ...]:
     """``btf:build:options`` -> the canonical compress argument list, or BTFError naming ``where``.
 
     Split like a shell would (quotes, no expansion), parsed by the compress command's
-    parser, restricted to :data:`~usdbtf.commands.compress.SCENE_OPTIONS`, and rebuilt
+    parser, restricted to :data:`~usdbtf.compress.arguments.SCENE_OPTIONS`, and rebuilt
     from the typed values, so nothing of the original text reaches a command line."""
-    from ..commands.compress import SCENE_OPTIONS, add_arguments
+    from ..compress.arguments import SCENE_OPTIONS, add_arguments
 
     if text is None:
         return ()
