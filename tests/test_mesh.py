@@ -296,6 +296,8 @@ def test_zero_length_file_normals_are_recomputed(tmp_path):
 
 @pytest.mark.parametrize("density", ["1e12", "1e6"])
 def test_atlas_past_the_limit_is_refused_before_xatlas(work, capsys, density):
+    """1e12 is past the option's own bound (the segfault of issue 14); 1e6 is a legal density
+    whose atlas for this sphere would pass the size limit: refused from the estimate."""
     sphere = write_sphere(work / "limit_sphere.obj", radius=0.03, subdivisions=2)
     out = work / f"limit_{density}"
     t0 = time.perf_counter()
@@ -303,7 +305,10 @@ def test_atlas_past_the_limit_is_refused_before_xatlas(work, capsys, density):
     assert time.perf_counter() - t0 < 10
     lines = err.strip().splitlines()
     assert code == EXIT_USAGE and len(lines) == 1, err
-    assert "limit_sphere.obj" in lines[0] and "need an atlas of at least" in lines[0] and "texels/m" in lines[0]
+    if density == "1e12":
+        assert "--texels-per-metre" in lines[0] and "1e12" in lines[0]
+    else:
+        assert "limit_sphere.obj" in lines[0] and "need an atlas of at least" in lines[0] and "texels/m" in lines[0]
     assert not out.exists()
 
 
