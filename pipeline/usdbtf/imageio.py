@@ -119,12 +119,15 @@ def read_image(path, *, expect: tuple[int, int] | None = None, rows: tuple[int, 
     return data, info
 
 
-def write_image(path, pixels: np.ndarray, *, color_space: str, attributes: dict | None = None) -> int:
+def write_image(path, pixels: np.ndarray, *, color_space: str, attributes: dict | None = None,
+                file_type: str | None = None) -> int:
     """Write ``pixels`` (H, W, C) as-is (its dtype is the file's bit depth) and return the file size.
 
     ``color_space`` is recorded as ``oiio:ColorSpace`` (and in the file's own colour
     metadata where the format has some).  Format options go in ``attributes``, e.g.
-    ``{"Compression": "jpeg:90"}`` or ``{"png:compressionLevel": 9}``.
+    ``{"Compression": "jpeg:90"}`` or ``{"png:compressionLevel": 9}``.  ``file_type`` (an
+    extension such as "jxl") chooses the format when ``path`` has no extension, e.g. an
+    in-memory file ``/proc/self/fd/N``; by default the path's extension decides.
     """
     path = Path(path)
     pixels = np.ascontiguousarray(pixels)
@@ -138,11 +141,11 @@ def write_image(path, pixels: np.ndarray, *, color_space: str, attributes: dict 
     # OIIO stamps the current time into EXR/TIFF headers; a fixed stamp keeps outputs
     # byte-identical for identical inputs (the project's determinism rule).  Only there:
     # elsewhere the attribute would add an EXIF block (~300-450 bytes a JPEG/JPEG XL file).
-    if path.suffix.lower() in _TIMESTAMPED:
+    if (f".{file_type}" if file_type else path.suffix).lower() in _TIMESTAMPED:
         spec.attribute("DateTime", FIXED_DATETIME)
     for key, value in (attributes or {}).items():
         spec.attribute(key, value)
-    out = oiio.ImageOutput.create(str(path))
+    out = oiio.ImageOutput.create(file_type or str(path))
     if out is None:
         raise BTFError(f"{path}: no image writer for this file type ({oiio.geterror()})")
     try:

@@ -9,8 +9,8 @@ ORDER = 20
 
 
 def add_parser(sub) -> None:
-    from ..compress import SOLVERS
     from ..compress.codecs import CODECS
+    from ..compress.options import DEFAULT_CODEC, SOLVERS
     p = sub.add_parser("compress", help="apparent-BRDF basis + coefficient textures")
     p.add_argument("input", type=Path, help="manifest folder, btf.json, or UBO2003 zip/folder")
     p.add_argument("-o", "--output", required=True, type=Path)
@@ -18,7 +18,8 @@ def add_parser(sub) -> None:
     p.add_argument("--k", type=int, help="number of basis vectors (maximum when a target is given; default 150)")
     p.add_argument("--target-error", type=float, metavar="PCT", help="percent error to reach (scene-linear)")
     p.add_argument("--max-bytes", type=int, metavar="B", help="byte budget for basis + coefficient textures")
-    p.add_argument("--codec", choices=sorted(CODECS), help="texture storage (default jxl; paper solver: jpeg)")
+    p.add_argument("--codec", choices=sorted(CODECS), help=f"texture storage (default {DEFAULT_CODEC['rsvd']}; "
+                   f"paper solver: {DEFAULT_CODEC['paper']})")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--fit-texels", type=int, help="rsvd: texels sampled to fit the basis "
                    "(default 2048; 4096 with --max-bytes or --target-error)")
@@ -33,16 +34,19 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
-    from ..compress import Options, compress_to_folder
+    from ..compress import CompressOptions, compress, write_compress
     from ..io import open_btf
 
     btf = open_btf(args.input)
     btf.metadata["_path"] = str(args.input)
-    opts = Options(solver=args.solver, k=args.k, target_error=args.target_error, max_bytes=args.max_bytes,
-                   codec=args.codec, seed=args.seed, fit_texels=args.fit_texels,
-                   power_iterations=args.power_iterations, region=args.region, workers=args.workers,
-                   memory_budget=args.memory_budget * 1e9)
+    opts = CompressOptions(solver=args.solver, k=args.k, target_error=args.target_error, max_bytes=args.max_bytes,
+                          codec=args.codec, seed=args.seed, fit_texels=args.fit_texels,
+                          power_iterations=args.power_iterations, region=args.region, workers=args.workers,
+                          memory_budget=args.memory_budget * 1e9)
     extra = {key: v for key, v in btf.metadata.items() if not key.startswith("_")}
     opts.extra = {"source_metadata": extra} if extra else {}
-    compress_to_folder(btf, args.output, opts, log=log(args.quiet))
+    result = compress(btf, opts, log=log(args.quiet))
+    # force=True keeps this command's behaviour (an existing output is replaced once the new
+    # one is complete) until the output policy and its --force flag land (issue 14).
+    write_compress(result, args.output, force=True)
     return 0
