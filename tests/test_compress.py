@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import tempfile
 import warnings
 from pathlib import Path
 
@@ -18,13 +19,13 @@ import OpenImageIO as oiio
 import pytest
 
 from usdbtf import synth
-from usdbtf.compress import CompressOptions, read_compressed, reconstruct, write_compress
+from usdbtf.compress import CompressOptions, compress, read_compressed, reconstruct, write_compress
 from usdbtf.compress.curve import curve_samples
 from usdbtf.compress.decompress import compare, decompress_to_folder, parse_samples
 from usdbtf.compress.format import METADATA, truncate
 from usdbtf.compress.linalg import exact_basis, fix_signs, randomized_basis
 from usdbtf.compress.metrics import ErrorSums
-from usdbtf.errors import BTFError
+from usdbtf.errors import BTFError, OutputRefused
 from usdbtf.manifest import encode_for_file, read_manifest, write_manifest
 from usdbtf import colour
 from usdbtf.model import ArrayBTF
@@ -816,6 +817,93 @@ def test_read_compressed_missing_key(good_folder, tmp_path):
     (f / METADATA).write_text(json.dumps(doc))
     with pytest.raises(BTFError, match=METADATA):
         read_compressed(f)
+
+
+# ---------------------------------------------------------------- compress in memory, write_compress
+
+
+@pytest.mark.parametrize("kw", [dict(k=6), dict(max_bytes=9000), dict(solver="paper", k=8, max_bytes=8000),
+                                dict(codec="jpeg", k=8), dict(codec="exr", target_error=8.0),
+                                dict(k=6, memory_budget=0, workers=2)],
+                         ids=["k", "max-bytes", "paper-max-bytes", "jpeg", "exr-target", "streamed"])
+def test_compress_creates_no_file(tiny32, tmp_path, monkeypatch, kw):
+    """compress() is pure: no file appears where it could write one ($TMPDIR, the working
+    folder, the input's folder and its parent) and no descriptor stays open, whatever the
+    solver, codec, budget or source; the result carries its encoded bytes."""
+    scratch, work = tmp_path / "tmpdir", tmp_path / "cwd"
+    scratch.mkdir()
+    work.mkdir()
+    monkeypatch.setenv("TMPDIR", str(scratch))
+    monkeypatch.setattr(tempfile, "tempdir", None)      # tempfile reads $TMPDIR again
+    monkeypatch.chdir(work)
+    before = folder_files(tiny32), sorted(p.name for p in tiny32.parent.iterdir())
+    fds = sorted(os.listdir("/proc/self/fd"))
+    result = compress(read_manifest(tiny32), CompressOptions(**kw))
+    assert list(scratch.iterdir()) == [] and list(work.iterdir()) == []
+    assert (folder_files(tiny32), sorted(p.name for p in tiny32.parent.iterdir())) == before
+    assert sorted(os.listdir("/proc/self/fd")) == fds
+    assert result.encoded is not None and result.encoded.describes(result)
+    assert result.info["bytes"] == result.encoded.sizes()
+
+
+def test_write_compress_writes_the_carried_bytes_and_changes_nothing(tiny32, tmp_path):
+    """The folder holds exactly the bytes the result carries (a lossy codec is not encoded a
+    second time); writing leaves the result as it was; an existing folder is replaced only
+    with force; a truncated result (no bytes of its own) is encoded when written."""
+    result = compress(read_manifest(tiny32), CompressOptions(solver="paper", k=6))        # JPEG: lossy
+    info = json.dumps(result.info, sort_keys=True)
+    pixels = [st.pixels for st in result.coefficients]
+    out = tmp_path / "c"
+    sizes = write_compress(result, out)
+    assert json.dumps(result.info, sort_keys=True) == info
+    assert all(a is st.pixels for a, st in zip(pixels, result.coefficients))
+    files = folder_files(out)
+    assert [files[f"coeff/c{i:03d}.jpg"] for i in range(6)] == list(result.encoded.coefficients)
+    assert files["basis.tif"] == result.encoded.basis
+    assert sizes == dict(result.info["bytes"], metadata=len(files[METADATA]))
+    assert json.loads(files[METADATA])["bytes"] == sizes
+    assert {"error_curve.csv", "error_curve.png"} <= files.keys()
+    r = read_compressed(out)
+    assert all(np.array_equal(a.pixels, b.pixels) for a, b in zip(r.coefficients, result.coefficients))
+    with pytest.raises((FileExistsError, OutputRefused)):
+        write_compress(result, out)
+    assert folder_files(out) == files
+    write_compress(result, out, force=True)
+    assert folder_files(out) == files and no_leftovers(tmp_path, "c")
+    cut = truncate(result, 3)
+    assert cut.encoded is None
+    write_compress(cut, tmp_path / "t")
+    assert read_compressed(tmp_path / "t").k == 3
+
+
+@pytest.mark.parametrize("ks", [(8, 8, 8), (8, 5, 0)], ids=["interleaved", "planar"])
+def test_projection_tiles_reduce_in_sample_order(small32, ks):
+    """The reduction :mod:`usdbtf.compress.projection` documents: every tile's partial,
+    computed in any order (as distributed workers would return them per shard of samples),
+    summed from zero in sample order per texel block, is bit-identical to the in-process
+    projection."""
+    from usdbtf.compress.load import texel_blocks
+    from usdbtf.compress.projection import TileProjector
+    from usdbtf.compress.source import InMemorySource, tile_samples
+    btf = read_manifest(small32)
+    src = InMemorySource(btf, workers=1)
+    u = randomized_basis(src.columns(np.arange(btf.n_pixels)), 8, seed=0)[0]
+    mix = src.working_mix(np.linalg.qr(np.random.default_rng(0).normal(size=(3, 3)))[0])
+    want, energy = src.project(u, mix, ks, energy=True)
+    tile = tile_samples(btf)
+    assert tile < btf.n_samples, "the sampling must span several tiles"
+    proj = TileProjector(u, mix, ks, src.curves, tile, energy=True)
+    stored = btf.read_encoded(slice(None)).reshape(btf.n_samples, -1)
+    got = np.zeros_like(want)
+    for a, b in texel_blocks(btf.n_pixels):
+        starts = range(0, btf.n_samples, tile)
+        partials = {s0: proj.partial(s0, stored[s0:s0 + tile, 3 * a:3 * b]) for s0 in reversed(starts)}
+        acc = proj.zeros(b - a)
+        for s0 in starts:
+            proj.accumulate(acc, partials[s0])
+        proj.store(acc, got, a, b)
+    assert np.array_equal(got, want)
+    assert proj.energy == pytest.approx(energy, rel=1e-12)
 
 
 # ---------------------------------------------------------------- streaming (memory-bounded) path
