@@ -63,7 +63,7 @@ def main(argv):
             f"rate_control: quantise + encode in memory (k {result.k})": lambda: rate_control(
                 factors, opts, held, lambda msg: None),
             "held_out_error": lambda: held_out_error(result, held),
-            "error curve": lambda: error_curve(result, source, opts.seed),
+            "error curve": lambda: error_curve(result, source),
             "write_compress (files: textures, metadata, curve)": lambda: write_compress(
                 result, Path(tmp) / "w", force=True),
         }

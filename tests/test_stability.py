@@ -31,7 +31,7 @@ orthonormal U and M), so we allow
     2 gamma_S ||x_t||                                                              (B2)
 
 At full k (k = min(S, 3 H W)) or k >= the data's rank, U U^T x = x up to float32 rounding
-of x itself, so |rec - x| <= B1 + B2.  (``core.py`` drops directions with sigma <= 1e-6
+of x itself, so |rec - x| <= B1 + B2.  (``fit.py`` drops directions with sigma <= 1e-6
 sigma_1 of the fit, whose texels get weights ||x_t||^-1/2 when their norms span > 1e6; in
 the data used here the dropped directions carry only float32 rounding noise -- see
 test_hdr_dark_region_with_its_own_brdf.)

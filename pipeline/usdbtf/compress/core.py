@@ -83,7 +83,7 @@ def compress(btf: BTF, options: CompressOptions | None = None, *, log=None) -> C
     cbtf, choice = rate_control(Factorisation(btf, fit.basis, coeff, colour, energy, planes, step), opts, held, say)
     clock.lap("encode")
     result = _described(cbtf, opts, dict(choice, planes=list(planes)), fit.singular_values, held,
-                        held_out_error(cbtf, held), error_curve(cbtf, source, opts.seed))
+                        held_out_error(cbtf, held), error_curve(cbtf, source))
     clock.lap("evaluate")
     say(f"k = {result.k}, {result.info['bytes']['payload']} bytes, estimated error "
         f"{result.info['estimated_error']['linear']['percent']:.3f} % ({clock})")

@@ -36,7 +36,18 @@ class HeldOut:
 
 
 def held_out_set(source, texels: Texels) -> HeldOut:
-    """Read the evaluation texels' working-space values from ``source`` (see :mod:`.source`)."""
+    """The evaluation texels and their true values.
+
+    Parameters
+    ----------
+    source : where the data is read (see :mod:`.source`).
+    texels : ``texels.evaluation`` are read; ``texels.held_out`` says whether they are disjoint
+        from the fit.
+
+    Returns
+    -------
+    HeldOut : truth (S, n, 3) float32 in working space (scene-linear).
+    """
     ev = texels.evaluation
     truth = source.to_working(source.columns(ev)).reshape(source.btf.n_samples, len(ev), 3)
     return HeldOut(ev, truth, texels.held_out)

@@ -244,8 +244,20 @@ def choose_source(btf: BTF, keep_texels: list, keep_rows, *, memory_budget: floa
 
 
 def load_source(btf: BTF, texels: Texels, options: CompressOptions) -> _Source:
-    """The load step: :func:`choose_source` for one compress, keeping the fitting and
-    evaluation texels' columns and the error curve's sample rows (:func:`.curve.curve_samples`)
-    that a streaming source must collect on its first pass."""
+    """The load step: where one compress reads its data from (:func:`choose_source`).
+
+    Parameters
+    ----------
+    btf : the BTF; its files are decoded (all at once, or streamed twice in chunks).
+    texels : the fitting and evaluation texels, whose columns a streaming source keeps on its
+        first pass (with the error curve's sample rows, :func:`.curve.curve_samples`).
+    options : ``memory_budget`` (bytes of stored values held in memory, else streamed),
+        ``chunk_bytes``, ``workers``.
+
+    Returns
+    -------
+    InMemorySource or StreamingSource : answers ``columns`` (S, 3 n), ``project`` and
+    ``working_samples`` (r, P, 3) the same way, bit for bit.
+    """
     return choose_source(btf, [texels.fit, texels.evaluation], curve_samples(btf.n_samples),
                          memory_budget=options.memory_budget, workers=options.workers, chunk_bytes=options.chunk_bytes)
