@@ -196,11 +196,12 @@ def test_preview_albedo_recovers_a_lambertian(tmp_path, capsys):
     data = 0.8 * working[None] * cos_l[:, None, None, None]          # white level 0.8
     btf = ArrayBTF.from_linear(sampling, data)
     btf.metadata.update(physical_size_m=[0.02, 0.02], white_level=0.8)
-    from usdbtf.compress import Options, compress_to_folder
+    from compress_helpers import compress_into
+    from usdbtf.compress import CompressOptions
 
-    opts = Options(k=4, codec="exr")
+    opts = CompressOptions(k=4, codec="exr")
     opts.extra = {"source_metadata": dict(btf.metadata)}
-    compress_to_folder(btf, tmp_path / "c", opts)
+    compress_into(btf, tmp_path / "c", opts)
     pkg.package(tmp_path / "c", tmp_path / "a" / "flat.usda")
     png, _ = read_image(tmp_path / "a" / "flat_textures" / "preview_albedo.png")
     lin = colour.processor(pkg.preview.ALBEDO_SPACE, "Linear Rec.709 (sRGB)").apply(png.astype(np.float32) / 255)
@@ -300,13 +301,13 @@ def test_no_physical_size_is_a_clear_error(src, tmp_path, capsys):
 def test_roughness_fit_recovers_a_flat_ggx_surface(alpha, tmp_path):
     """A flat synthetic surface with GGX alpha: the fitted preview roughness is sqrt(alpha)."""
     from usdbtf import synth
-    from usdbtf.compress.core import compress
+    from usdbtf.compress import CompressOptions, compress
 
     n = 8
     material = synth.Material(np.zeros((n, n), np.float32), np.full((n, n, 3), 0.5, np.float32),
                               np.full((n, n), 0.04, np.float32), np.full((n, n), alpha, np.float32))
     sampling = preset("small")
     data = colour.processor("Linear Rec.709 (sRGB)", "scene_linear").apply(synth.render_all(material, sampling))
-    cbtf = compress(ArrayBTF.from_linear(sampling, data), tmp_path / "c", k=4, codec="exr")
+    cbtf = compress(ArrayBTF.from_linear(sampling, data), CompressOptions(k=4, codec="exr"))
     roughness, residual = pkg.preview.fit_roughness(cbtf)
     assert abs(roughness - alpha ** 0.5) <= 0.05 and residual < 0.05

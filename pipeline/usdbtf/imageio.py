@@ -126,7 +126,7 @@ def read_image(path, *, expect: tuple[int, int] | None = None, rows: tuple[int, 
 
 
 def write_image(path, pixels: np.ndarray, *, color_space: str, attributes: dict | None = None,
-                allow_non_finite: bool = False) -> int:
+                allow_non_finite: bool = False, file_type: str | None = None) -> int:
     """Write ``pixels`` (H, W, C) as-is (its dtype is the file's bit depth) and return the file size.
 
     ``color_space`` is recorded as ``oiio:ColorSpace`` (and in the file's own colour
@@ -137,6 +137,8 @@ def write_image(path, pixels: np.ndarray, *, color_space: str, attributes: dict 
     bad input that slipped through, and is reported as such).  ``allow_non_finite`` is for
     tests that craft damaged input files.  Failures of the writer
     itself (permission, disk full) raise :class:`~usdbtf.errors.IOFailure`.
+    ``file_type`` (an extension such as "jxl") chooses the format when ``path`` has no
+    extension, e.g. an in-memory file ``/proc/self/fd/N``; by default the path's extension decides.
     """
     path = Path(path)
     pixels = np.ascontiguousarray(pixels)
@@ -154,12 +156,13 @@ def write_image(path, pixels: np.ndarray, *, color_space: str, attributes: dict 
     # OIIO stamps the current time into EXR/TIFF headers; a fixed stamp keeps outputs
     # byte-identical for identical inputs (the project's determinism rule).  Only there:
     # elsewhere the attribute would add an EXIF block (~300-450 bytes a JPEG/JPEG XL file).
-    if path.suffix.lower() in _TIMESTAMPED:
+    if (f".{file_type}" if file_type else path.suffix).lower() in _TIMESTAMPED:
         spec.attribute("DateTime", FIXED_DATETIME)
     for key, value in (attributes or {}).items():
         spec.attribute(key, value)
-    _check_room(path, pixels.nbytes)
-    out = oiio.ImageOutput.create(str(path))
+    if not _in_memory(path):
+        _check_room(path, pixels.nbytes)
+    out = oiio.ImageOutput.create(file_type or str(path))
     if out is None:
         raise UsageError(f"{path}: no image writer for this file type ({_one_line(oiio.geterror())})")
     try:
@@ -173,8 +176,14 @@ def write_image(path, pixels: np.ndarray, *, color_space: str, attributes: dict 
             if problem and sys.exc_info()[0] is None:
                 raise IOFailure(f"{path}: write failed ({problem})")
     size = path.stat().st_size
-    _check_written(path, size)
+    if not _in_memory(path):
+        _check_written(path, size)
     return size
+
+
+def _in_memory(path: Path) -> bool:
+    """An anonymous in-memory file (``/proc/self/fd/N`` of a memfd): no file system to check."""
+    return path.parent == Path("/proc/self/fd")
 
 
 def _room(folder: Path) -> tuple[int | None, int | None]:

@@ -110,7 +110,7 @@ def encode_jpeg(btf, out: Path, quality: int = 90, workers: int | None = None) -
 # -- per-view PCA ---------------------------------------------------------------------------
 def encode_pca_view(btf, out: Path, k: int, codec: str = "jxl", seed: int = 0) -> Path:
     """Each view's samples compressed on their own (rsvd, ``k`` vectors), one folder per view."""
-    from ..compress import Options, compress_to_folder
+    from ..compress import CompressOptions, compress, write_compress
     from ..compress.format import cross_layout
     from .datasets import subset_btf
 
@@ -121,7 +121,7 @@ def encode_pca_view(btf, out: Path, k: int, codec: str = "jxl", seed: int = 0) -
     with atomic_dir(out) as tmp:
         for v in range(V):
             view = subset_btf(btf, np.arange(v * L, (v + 1) * L))
-            compress_to_folder(view, tmp / VIEW_FOLDER.format(v), Options(k=k, codec=codec, seed=seed))
+            write_compress(compress(view, CompressOptions(k=k, codec=codec, seed=seed)), tmp / VIEW_FOLDER.format(v))
         (tmp / "views.json").write_text(json.dumps({"views": V, "lights": L, "k": k, "codec": codec}) + "\n")
     return out
 

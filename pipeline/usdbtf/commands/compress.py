@@ -22,16 +22,17 @@ def outputs(args):
 
 
 def run(args) -> int:
-    from ..compress import Options, compress_to_folder
+    from ..compress import CompressOptions, compress, write_compress
     from ..io import open_btf
 
     btf = open_btf(args.input)
     btf.metadata["_path"] = str(args.input)
-    opts = Options(solver=args.solver, k=args.k, target_error=args.target_error, max_bytes=args.max_bytes,
-                   codec=args.codec, seed=args.seed, fit_texels=args.fit_texels,
-                   power_iterations=args.power_iterations, region=args.region, workers=args.workers,
-                   memory_budget=args.memory_budget * 1e9)
+    opts = CompressOptions(solver=args.solver, k=args.k, target_error=args.target_error, max_bytes=args.max_bytes,
+                          codec=args.codec, seed=args.seed, fit_texels=args.fit_texels,
+                          power_iterations=args.power_iterations, region=args.region, workers=args.workers,
+                          memory_budget=args.memory_budget * 1e9)
     extra = {key: v for key, v in btf.metadata.items() if not key.startswith("_")}
     opts.extra = {"source_metadata": extra} if extra else {}
-    compress_to_folder(btf, args.output, opts, log=log(args.quiet))
+    result = compress(btf, opts, log=log(args.quiet))
+    write_compress(result, args.output, force=getattr(args, "force", False))
     return 0

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ..argtypes import SEED, WORKERS, add_outside_paths_flag, float_in, int_in
 from .codecs import CODECS
-from .core import SOLVERS
+from .options import DEFAULT_CODEC, SOLVERS
 
 __all__ = ["SCENE_OPTIONS", "add_arguments"]
 
@@ -27,7 +27,8 @@ def add_arguments(p) -> None:
     p.add_argument("--target-error", type=float_in(0, 100, lo_open=True), metavar="PCT",
                    help="percent error to reach (scene-linear)")
     p.add_argument("--max-bytes", type=int_in(1), metavar="B", help="byte budget for basis + coefficient textures")
-    p.add_argument("--codec", choices=sorted(CODECS), help="texture storage (default jxl; paper solver: jpeg)")
+    p.add_argument("--codec", choices=sorted(CODECS), help=f"texture storage (default {DEFAULT_CODEC['rsvd']}; "
+                   f"paper solver: {DEFAULT_CODEC['paper']})")
     p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--fit-texels", type=int_in(1, 1 << 26), help="rsvd: texels sampled to fit the basis "
                    "(default 2048; 4096 with --max-bytes or --target-error)")
