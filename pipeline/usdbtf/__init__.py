@@ -5,11 +5,12 @@ Stages, one module each, all speaking the :class:`usdbtf.model.BTF` data model:
 ``compress`` (apparent-BRDF basis + coefficient textures), ``usd`` (the BtfMaterialAPI
 schema, packaging, reading assets back), ...
 
-Importing the package registers the usdBtf USD plugin, so it must happen before the
-process first uses USD's schema registry (see :mod:`usdbtf.usd.plugin`).
+Importing the package makes the usdBtf USD plugin known, so it must happen before the
+process first uses USD's schema registry (see :mod:`usdbtf.usd.plugin`).  It does so
+without importing USD: ``usdbtf --version`` and ``--help`` load no pxr, numpy or OIIO.
 """
 __version__ = "0.1.0"
 
-from .usd.plugin import register as _register_usd_plugin
+from .usd.plugin import register_lazily as _register_usd_plugin
 
 _register_usd_plugin()

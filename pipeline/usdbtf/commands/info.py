@@ -3,9 +3,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
-
 from ..argtypes import add_outside_paths_flag
 
 ORDER = 50
@@ -49,6 +46,8 @@ def run(args) -> int:
 
 
 def _count(directions) -> int:
+    import numpy as np
+
     return len({tuple(np.round(d, 6)) for d in directions})
 
 

@@ -6,8 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..argtypes import SEED, WORKERS, add_outside_paths_flag, float_in, int_in
-from .codecs import CODECS
-from .options import DEFAULT_CODEC, SOLVERS
+from .options import CODEC_NAMES, DEFAULT_CODEC, SOLVERS
 
 __all__ = ["SCENE_OPTIONS", "add_arguments"]
 
@@ -27,7 +26,7 @@ def add_arguments(p) -> None:
     p.add_argument("--target-error", type=float_in(0, 100, lo_open=True), metavar="PCT",
                    help="percent error to reach (scene-linear)")
     p.add_argument("--max-bytes", type=int_in(1), metavar="B", help="byte budget for basis + coefficient textures")
-    p.add_argument("--codec", choices=sorted(CODECS), help=f"texture storage (default {DEFAULT_CODEC['rsvd']}; "
+    p.add_argument("--codec", choices=sorted(CODEC_NAMES), help=f"texture storage (default {DEFAULT_CODEC['rsvd']}; "
                    f"paper solver: {DEFAULT_CODEC['paper']})")
     p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--fit-texels", type=int_in(1, 1 << 26), help="rsvd: texels sampled to fit the basis "

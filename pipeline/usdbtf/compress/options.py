@@ -8,11 +8,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from ..errors import BTFError
-from .codecs import get_codec
 
-__all__ = ["CompressOptions", "SOLVERS", "DEFAULT_CODEC", "DEFAULT_K", "BUDGET_K"]
+__all__ = ["CompressOptions", "SOLVERS", "CODEC_NAMES", "DEFAULT_CODEC", "DEFAULT_K", "BUDGET_K"]
 
 SOLVERS = ("rsvd", "paper")
+#: The codecs :mod:`.codecs` defines, by name (here, light, for the command line).
+CODEC_NAMES = ("jxl", "png", "exr", "jpeg")
 #: The codec each solver stores with when none is asked for.
 DEFAULT_CODEC = {"rsvd": "jxl", "paper": "jpeg"}
 #: Basis vectors kept for a plain run (the paper's 150).
@@ -53,7 +54,8 @@ class CompressOptions:
             raise BTFError(f"--target-error must be a positive percentage, got {self.target_error}")
         if self.max_bytes is not None and self.max_bytes <= 0:
             raise BTFError(f"--max-bytes must be positive, got {self.max_bytes}")
-        get_codec(self.codec_name)
+        if self.codec_name not in CODEC_NAMES:
+            raise BTFError(f"unknown codec {self.codec_name!r}; choose from {', '.join(CODEC_NAMES)}")
 
     @property
     def codec_name(self) -> str:

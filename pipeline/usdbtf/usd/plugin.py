@@ -5,10 +5,13 @@ The plugin is a folder (``plugin/`` at the top of the project) holding a
 Storm shaders).  USD must know it before its schema registry is first used (the
 first ``Usd.Stage`` or ``Usd.SchemaRegistry`` query), or ``BtfMaterialAPI`` is
 silently unknown for the life of the process; ``import usdbtf`` therefore calls
-:func:`register` before anything else can.  DCCs and usdview find it through
+:func:`register_lazily` before anything else can.  DCCs and usdview find it through
 ``PXR_PLUGINPATH_NAME=<project>/plugin``.
 """
 from __future__ import annotations
+
+import os
+import sys
 
 from ..errors import BTFError
 from ..plugin_folder import plugin_dir
@@ -24,6 +27,26 @@ def register() -> bool:
     from pxr import Plug
 
     Plug.Registry().RegisterPlugins(str(folder))
+    return True
+
+
+def register_lazily() -> bool:
+    """Make the plugin known to USD without importing USD when it is not loaded yet.
+
+    USD reads ``PXR_PLUGINPATH_NAME`` when its plugin registry starts, so putting the
+    folder there is enough before ``pxr`` is imported (and it costs no import: the
+    command line's ``--version``/``--help`` stay fast; child processes inherit it).  When
+    ``pxr`` is already loaded its registry may exist already: register now.  Idempotent.
+    Returns False when the folder is absent.
+    """
+    folder = plugin_dir()
+    if not (folder / "plugInfo.json").is_file():
+        return False
+    if "pxr" in sys.modules:
+        return register()
+    paths = [p for p in os.environ.get("PXR_PLUGINPATH_NAME", "").split(os.pathsep) if p]
+    if str(folder) not in paths:
+        os.environ["PXR_PLUGINPATH_NAME"] = os.pathsep.join([str(folder), *paths])
     return True
 
 
