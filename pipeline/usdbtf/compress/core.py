@@ -61,31 +61,32 @@ def compress(btf: BTF, options: CompressOptions | None = None, *, log=None) -> C
     say = log or (lambda msg: None)
     clock = _Clock()
     texels = sample_texels(btf, opts)
-    source = load_source(btf, texels, opts)
-    say(f"loaded {btf.n_samples} samples of {btf.width}x{btf.height} ({source.kind}, {source.nbytes / 2**20:.0f} MiB) "
-        f"in {clock.lap('load'):.2f} s")
-    fit = fit_basis(source.columns(texels.fit), opts.fit_k(btf.n_samples, btf.n_pixels), opts)
-    if fit.weighted:
-        say(f"texel norms span more than {HDR_NORM_RANGE:g}: basis fitted with weights ||x_t||^-1/2")
-    require_signal(fit, btf, texels, opts)
-    say(f"basis: {fit.k} vectors from {len(texels.fit)} texels ({opts.solver}) in {clock.lap('fit'):.2f} s")
-    # Colour and (for a plain k) the quantisation step, from the sampled texels' coefficients,
-    # before the projection: then the projection can skip what the step would zero out.
-    held = held_out_set(source, texels)
-    sampled, outside = sampled_coefficients(fit, source.to_working, held.truth, btf.n_pixels)
-    colour = np.eye(3) if opts.solver == "paper" else colour_decorrelation(sampled)
-    step, planes = step_for_k(rotate_colour(sampled, colour), fit.basis, outside, btf.n_pixels, opts)
-    del sampled
-    clock.lap("colour")
-    coeff, energy = project(source, fit.basis, colour, planes, energy=opts.target_error is not None)
-    clock.lap("project")
-    if energy is None:   # not measured: the coefficients' energy plus the estimate outside the basis
-        energy = float(np.einsum("kpc,kpc->", coeff, coeff, dtype=np.float64)) + outside
-    cbtf, choice = rate_control(Factorisation(btf, fit.basis, coeff, colour, energy, planes, step), opts, held, say)
-    clock.lap("encode")
-    result = _described(cbtf, opts, dict(choice, planes=list(planes)), fit.singular_values, held,
-                        held_out_error(cbtf, held), error_curve(cbtf, source))
-    clock.lap("evaluate")
+    # The source holds the data (and a spill file or a cluster, which closing releases).
+    with load_source(btf, texels, opts) as source:
+        say(f"loaded {btf.n_samples} samples of {btf.width}x{btf.height} ({source.kind}, {source.nbytes / 2**20:.0f} MiB) "
+            f"in {clock.lap('load'):.2f} s")
+        fit = fit_basis(source.columns(texels.fit), opts.fit_k(btf.n_samples, btf.n_pixels), opts)
+        if fit.weighted:
+            say(f"texel norms span more than {HDR_NORM_RANGE:g}: basis fitted with weights ||x_t||^-1/2")
+        require_signal(fit, btf, texels, opts)
+        say(f"basis: {fit.k} vectors from {len(texels.fit)} texels ({opts.solver}) in {clock.lap('fit'):.2f} s")
+        # Colour and (for a plain k) the quantisation step, from the sampled texels' coefficients,
+        # before the projection: then the projection can skip what the step would zero out.
+        held = held_out_set(source, texels)
+        sampled, outside = sampled_coefficients(fit, source.to_working, held.truth, btf.n_pixels)
+        colour = np.eye(3) if opts.solver == "paper" else colour_decorrelation(sampled)
+        step, planes = step_for_k(rotate_colour(sampled, colour), fit.basis, outside, btf.n_pixels, opts)
+        del sampled
+        clock.lap("colour")
+        coeff, energy = project(source, fit.basis, colour, planes, energy=opts.target_error is not None)
+        clock.lap("project")
+        if energy is None:   # not measured: the coefficients' energy plus the estimate outside the basis
+            energy = float(np.einsum("kpc,kpc->", coeff, coeff, dtype=np.float64)) + outside
+        cbtf, choice = rate_control(Factorisation(btf, fit.basis, coeff, colour, energy, planes, step), opts, held, say)
+        clock.lap("encode")
+        result = _described(cbtf, opts, dict(choice, planes=list(planes)), fit.singular_values, held,
+                            held_out_error(cbtf, held), error_curve(cbtf, source))
+        clock.lap("evaluate")
     say(f"k = {result.k}, {result.info['bytes']['payload']} bytes, estimated error "
         f"{result.info['estimated_error']['linear']['percent']:.3f} % ({clock})")
     return result

@@ -43,6 +43,8 @@ class CompressOptions:
     chunk_bytes: float = 64e6             # streaming: stored bytes per chunk (rounded to whole projection tiles)
     eval_texels: int = 1024               # held-out texels for error estimates
     workers: int | None = None
+    spill: bool = True                    # streaming: decoded values to an anonymous spill file, read back once
+    dask: str | None = None               # a Dask scheduler address or "local:N" (usdbtf.cluster.parse_address)
     extra: dict = field(default_factory=dict)
 
     def validate(self):
@@ -90,5 +92,11 @@ class CompressOptions:
         return min(self.k or default, n_samples, 3 * n_pixels)
 
     def recorded(self) -> dict:
-        """The options as the output's provenance records them (not ``extra``, not ``workers``)."""
-        return {k: v for k, v in self.__dict__.items() if k not in ("extra", "workers")}
+        """The options as the output's provenance records them: those that steer the result,
+        not how or where it was computed (memory budget, chunk size, workers, spill file,
+        cluster), which give the same bytes."""
+        return {k: v for k, v in self.__dict__.items() if k not in _NOT_RECORDED}
+
+
+#: Options that do not change a bit of the output (see :mod:`.projection`).
+_NOT_RECORDED = ("extra", "workers", "memory_budget", "chunk_bytes", "spill", "dask")
