@@ -27,7 +27,7 @@ from .outputs import MANIFEST as _MANIFEST_KIND
 from .sampling import Sampling
 
 __all__ = ["FORMAT", "MANIFEST", "read_manifest", "write_manifest", "encode_for_file", "FORMAT_ATTRIBUTES",
-           "outside_paths_allowed"]
+           "outside_paths_allowed", "outside_paths_are_allowed"]
 
 FORMAT = "btf-manifest/1"
 MANIFEST = "btf.json"
@@ -62,6 +62,12 @@ def outside_paths_allowed(allowed: bool = True):
         yield
     finally:
         _OUTSIDE.reset(token)
+
+
+def outside_paths_are_allowed() -> bool:
+    """True inside :func:`outside_paths_allowed` (a process that re-opens a manifest, such as
+    a Dask worker, passes this on)."""
+    return _OUTSIDE.get()
 
 
 def _image_path(folder: Path, real_folder: str, name: str, manifest: Path, label: str, outside: bool) -> str:

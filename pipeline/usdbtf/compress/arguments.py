@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..argtypes import SEED, WORKERS, add_outside_paths_flag, float_in, int_in
+from ..cluster import ADDRESS_HELP, parse_address
 from .options import CODEC_NAMES, DEFAULT_CODEC, SOLVERS
 
 __all__ = ["SCENE_OPTIONS", "add_arguments"]
@@ -35,8 +36,10 @@ def add_arguments(p) -> None:
     p.add_argument("--region", type=int_in(1), help="paper: side of the central fitting region in texels")
     p.add_argument("--workers", type=WORKERS, help="decode processes (default: CPU count)")
     p.add_argument("--memory-budget", type=float_in(0, 1e4), default=1.0, metavar="GB",
-                   help="hold the stored values in memory up to this size, else stream them from disk "
-                        "twice (default 1.0)")
+                   help="hold the stored values in memory up to this size, else stream them: decoded once "
+                        "into an anonymous spill file when the temporary folder has room, else twice (default 1.0)")
+    p.add_argument("--dask", type=parse_address, metavar="ADDRESS", help=ADDRESS_HELP + "; the output is "
+                   "byte-identical to a run without --dask")
     add_outside_paths_flag(p)
 
 

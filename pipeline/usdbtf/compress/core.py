@@ -62,7 +62,7 @@ def compress(btf: BTF, options: CompressOptions | None = None, *, log=None) -> C
     clock = _Clock()
     texels = sample_texels(btf, opts)
     # The source holds the data (and a spill file or a cluster, which closing releases).
-    with load_source(btf, texels, opts) as source:
+    with load_source(btf, texels, opts, log=say) as source:
         say(f"loaded {btf.n_samples} samples of {btf.width}x{btf.height} ({source.kind}, {source.nbytes / 2**20:.0f} MiB) "
             f"in {clock.lap('load'):.2f} s")
         fit = fit_basis(source.columns(texels.fit), opts.fit_k(btf.n_samples, btf.n_pixels), opts)

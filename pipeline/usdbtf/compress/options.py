@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from ..errors import BTFError
+from ..errors import BTFError, UsageError
 
 __all__ = ["CompressOptions", "SOLVERS", "CODEC_NAMES", "DEFAULT_CODEC", "DEFAULT_K", "BUDGET_K"]
 
@@ -45,6 +45,7 @@ class CompressOptions:
     workers: int | None = None
     spill: bool = True                    # streaming: decoded values to an anonymous spill file, read back once
     dask: str | None = None               # a Dask scheduler address or "local:N" (usdbtf.cluster.parse_address)
+    progress: bool = False                # a progress bar on stderr for long passes (the Dask ones)
     extra: dict = field(default_factory=dict)
 
     def validate(self):
@@ -56,6 +57,15 @@ class CompressOptions:
             raise BTFError(f"--target-error must be a positive percentage, got {self.target_error}")
         if self.max_bytes is not None and self.max_bytes <= 0:
             raise BTFError(f"--max-bytes must be positive, got {self.max_bytes}")
+        if self.dask is not None:
+            import argparse
+
+            from ..cluster import parse_address
+
+            try:
+                parse_address(self.dask)
+            except argparse.ArgumentTypeError as exc:
+                raise UsageError(f"--dask: {exc}") from None
         if self.codec_name not in CODEC_NAMES:
             raise BTFError(f"unknown codec {self.codec_name!r}; choose from {', '.join(CODEC_NAMES)}")
 
@@ -99,4 +109,4 @@ class CompressOptions:
 
 
 #: Options that do not change a bit of the output (see :mod:`.projection`).
-_NOT_RECORDED = ("extra", "workers", "memory_budget", "chunk_bytes", "spill", "dask")
+_NOT_RECORDED = ("extra", "workers", "memory_budget", "chunk_bytes", "spill", "dask", "progress")

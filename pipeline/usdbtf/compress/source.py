@@ -320,7 +320,7 @@ def choose_source(btf: BTF, keep_texels: list, keep_rows, *, memory_budget: floa
     return StreamingSource(btf, keep_texels, keep_rows, workers=workers, chunk_bytes=chunk_bytes, spill=spill)
 
 
-def load_source(btf: BTF, texels: Texels, options: CompressOptions) -> _Source:
+def load_source(btf: BTF, texels: Texels, options: CompressOptions, *, log=None) -> _Source:
     """The load step: where one compress reads its data from (:func:`choose_source`, or a
     Dask cluster when ``options.dask`` names one: :mod:`.distributed`).
 
@@ -330,7 +330,8 @@ def load_source(btf: BTF, texels: Texels, options: CompressOptions) -> _Source:
     texels : the fitting and evaluation texels, whose columns a streaming source keeps on its
         first pass (with the error curve's sample rows, :func:`.curve.curve_samples`).
     options : ``memory_budget`` (bytes of stored values held in memory, else streamed),
-        ``chunk_bytes``, ``workers``, ``spill``, ``dask``.
+        ``chunk_bytes``, ``workers``, ``spill``, ``dask``, ``progress``.
+    log : callable(str) for what a cluster says (its workers, its dashboard link).
 
     Returns
     -------
@@ -342,6 +343,6 @@ def load_source(btf: BTF, texels: Texels, options: CompressOptions) -> _Source:
     if options.dask:
         from .distributed import DaskSource
 
-        return DaskSource(btf, keep, rows, options)
+        return DaskSource(btf, keep, rows, options, log=log)
     return choose_source(btf, keep, rows, memory_budget=options.memory_budget, workers=options.workers,
                          chunk_bytes=options.chunk_bytes, spill=options.spill)
