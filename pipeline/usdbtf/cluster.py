@@ -33,7 +33,7 @@ from pathlib import Path
 from .errors import BTFError, IOFailure
 
 __all__ = ["ClusterAddress", "parse_address", "session", "environment", "require_environment", "environ_kept",
-           "CONNECT_TIMEOUT",
+           "command_info", "run_command", "CONNECT_TIMEOUT",
            "MAX_LOCAL_WORKERS", "ADDRESS_HELP"]
 
 #: Seconds to reach a scheduler (and for it to have a worker) before giving up.
@@ -241,3 +241,79 @@ def _quiet_dask_logs():
     finally:
         for lg, level in zip(loggers, old):
             lg.setLevel(level)
+
+
+# -- usdbtf commands as tasks (``usdbtf build --dask``) --------------------------------------------
+#: Variables that set how many threads BLAS and OpenMP use: a LocalCluster's workers get 1,
+#: and the fit's float results depend on it, so a command run as a task gets this process's.
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "VECLIB_MAXIMUM_THREADS",
+                    "NUMEXPR_NUM_THREADS")
+
+
+def command_info(client) -> tuple[dict, int]:
+    """(what :func:`run_command` needs, a JSON-able dict; the cluster's thread count) for a
+    checked ``client`` of :func:`session`."""
+    import os
+
+    info = client.scheduler_info()
+    threads = sum(w.get("nthreads", 1) for w in info.get("workers", {}).values()) or 1
+    return ({"scheduler": client.scheduler.address, "environment": environment(),
+             "threads": {k: os.environ.get(k) for k in THREAD_VARIABLES}}, threads)
+
+
+_CLIENTS: dict = {}
+
+
+def run_command(info: dict, argv: list, label: str) -> tuple[int, str]:
+    """Run ``usdbtf ARGV`` as a task on the cluster of ``info`` (:func:`command_info`) and
+    wait: (exit status, stderr).  Called from the build's SConstruct, one thread per job; a
+    cluster that cannot be reached is status 74 with one ``usdbtf`` line."""
+    import os
+    import threading
+
+    lock = _CLIENTS.setdefault("lock", threading.Lock())
+    try:
+        with lock, _quiet_dask_logs():
+            client = _CLIENTS.get(info["scheduler"])
+            if client is None:
+                import atexit
+
+                from distributed import Client
+
+                client = _CLIENTS[info["scheduler"]] = Client(info["scheduler"], timeout=CONNECT_TIMEOUT)
+                atexit.register(client.close)
+        key = f"usdbtf-{'-'.join(label.split()[1:2])}-{os.urandom(4).hex()}"
+        future = client.submit(_command_task, list(argv), info["threads"], info["environment"], pure=False, key=key)
+        return future.result()
+    except BTFError as exc:
+        return exc.exit_code, f"usdbtf {argv[0]}: error: {' '.join(str(exc).split())}\n"
+    except Exception as exc:    # noqa: BLE001 - unreachable scheduler, workers that keep dying: the cluster failed
+        return 74, (f"usdbtf {argv[0]}: error: Dask scheduler {info['scheduler']}: {type(exc).__name__}: "
+                    f"{' '.join(str(exc).split())[:300]}\n")
+
+
+def _command_task(argv: list, threads: dict, expected: dict) -> tuple[int, str]:
+    """On a worker: ``python -m usdbtf.cli ARGV`` (an argument list, no shell) with the
+    client's thread variables, after checking this worker's usdbtf and libraries."""
+    import os
+    import subprocess
+    import sys
+
+    try:
+        from distributed import get_worker
+
+        where = get_worker().address
+    except (ImportError, ValueError):
+        where = f"pid {os.getpid()}"
+    require_environment(expected, where)
+    env = dict(os.environ)
+    for key, value in threads.items():
+        if value is None:
+            env.pop(key, None)
+        else:
+            env[key] = value
+    pipeline = str(Path(__file__).resolve().parents[1])
+    env["PYTHONPATH"] = pipeline + os.pathsep + env.get("PYTHONPATH", "")
+    res = subprocess.run([sys.executable, "-m", "usdbtf.cli", *argv], stdin=subprocess.DEVNULL, capture_output=True,
+                         text=True, env=env)
+    return res.returncode, res.stderr

@@ -4,6 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from . import log
+from ..cluster import ADDRESS_HELP, parse_address
 
 ORDER = 67
 
@@ -13,6 +14,8 @@ def add_parser(sub) -> None:
                        "content signatures)")
     p.add_argument("scene", type=Path, help="scene .usda whose bound BtfMaterialAPI materials carry btf:build:* recipes")
     p.add_argument("--dry-run", action="store_true", help="list what the scene needs without building")
+    p.add_argument("--dask", type=parse_address, metavar="ADDRESS", help=ADDRESS_HELP + "; the material builds "
+                   "run as tasks there, with the same outputs")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 
@@ -33,5 +36,5 @@ def run(args) -> int:
         for path in report["without_recipe"]:
             print(f"{path}: bound, no recipe")
         return 0
-    build(args.scene, force=args.force, log=log(args.quiet))
+    build(args.scene, force=args.force, log=log(args.quiet), dask=args.dask)
     return 0
