@@ -204,10 +204,14 @@ class DaskSource(_Source):
             yield result
 
     def columns(self, texels: np.ndarray) -> np.ndarray:
-        for t, dest in self._kept:
+        """(S, 3 n) float32 curve-decoded values of ``texels``, one of the sets requested up
+        front, handed over: the source forgets them (they are decoded for one use, and
+        holding the fit's columns through the projection would cost their size again)."""
+        for n, (t, dest) in enumerate(self._kept):
             if np.array_equal(t, texels):
+                del self._kept[n]
                 return dest
-        raise ValueError("DaskSource.columns: texels were not requested up front")
+        raise ValueError("DaskSource.columns: texels were not requested up front (or were handed over)")
 
     def working_samples(self, rows) -> np.ndarray:
         try:

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..errors import BTFError
 from . import ratedist
-from .codecs import get_codec
+from .codecs import get_codec, in_threads
 from .decorrelate import planes_in_use
 from .encode import encode, truncate_encoded
 from .evaluate import HeldOut, held_out_error
@@ -161,7 +161,7 @@ def _probe_codec_factors(table, f: Factorisation, k: int, step: float, options: 
     probe = np.unique(np.linspace(0, k - 1, min(k, 12)).round().astype(int))
     cbtf = quantise(f, k, step, options)
     codec = get_codec(cbtf.codec)
-    coeff_bytes = sum(len(codec.encode(cbtf.coefficients[i], "data")) for i in probe)
+    coeff_bytes = sum(len(d) for d in in_threads(lambda i: codec.encode(cbtf.coefficients[i], "data"), probe))
     basis_bytes = len(encode_basis(cbtf))
     overhead = len(probe) * ratedist.FILE_OVERHEAD_BYTES  # the model adds it unscaled
     fc = max(coeff_bytes - overhead, 1.0) / max(float(table.coeff_bytes[probe, j].sum()), 1.0)

@@ -282,10 +282,14 @@ class StreamingSource(_Source):
         return first, result
 
     def columns(self, texels: np.ndarray) -> np.ndarray:
-        for t, dest in self._kept:
+        """(S, 3 n) float32 curve-decoded values of ``texels``, one of the sets requested up
+        front, handed over: the source forgets them (they are decoded for one use, and
+        holding the fit's columns through the projection would cost their size again)."""
+        for n, (t, dest) in enumerate(self._kept):
             if np.array_equal(t, texels):
+                del self._kept[n]
                 return dest
-        raise ValueError("StreamingSource.columns: texels were not requested up front")
+        raise ValueError("StreamingSource.columns: texels were not requested up front (or were handed over)")
 
     def project(self, u: np.ndarray, mix: np.ndarray, ks, *, energy: bool = False):
         """Second pass: the same shards and blocks as :meth:`InMemorySource.project`, chunk by
