@@ -28,7 +28,7 @@ from ..imageio import read_image, write_image
 from .options import CODEC_NAMES
 
 __all__ = ["Codec", "CODECS", "get_codec", "Stored", "quantize_uniform", "quantize_minmax", "quantize_half",
-           "memory_file", "in_threads"]
+           "memory_file"]
 
 
 @dataclass(frozen=True)
@@ -172,21 +172,6 @@ def get_codec(name: str) -> Codec:
         return CODECS[name]
     except KeyError:
         raise BTFError(f"unknown codec {name!r}; choose from {', '.join(CODECS)}") from None
-
-
-def in_threads(fn, items) -> list:
-    """``[fn(x) for x in items]``, on up to one thread per CPU (at most 8): OpenImageIO's
-    encoders and decoders release the GIL, so textures encode in parallel; the results
-    (bytes) are the same as serially, in order.  Threads, not processes: a forked encoder can
-    deadlock in OpenEXR's global thread pool once this process has used it."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    items = list(items)
-    workers = min(len(items), 8, len(os.sched_getaffinity(0)))
-    if workers <= 1:
-        return [fn(x) for x in items]
-    with ThreadPoolExecutor(workers, thread_name_prefix="usdbtf-codec") as pool:
-        return list(pool.map(fn, items))
 
 
 @contextlib.contextmanager

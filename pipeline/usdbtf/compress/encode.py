@@ -9,7 +9,8 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from .codecs import Codec, Stored, get_codec, in_threads
+from .codecs import Codec, Stored, get_codec
+from .parallel import in_threads
 from .format import CompressedBTF, EncodedTextures, decode_basis, encode_basis, truncate
 
 __all__ = ["encode", "truncate_encoded"]

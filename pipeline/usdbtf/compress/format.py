@@ -35,7 +35,8 @@ import numpy as np
 from .. import __version__, jsontext
 from ..errors import BTFError
 from ..sampling import Sampling
-from .codecs import Codec, Stored, get_codec, in_threads
+from .codecs import Codec, Stored, get_codec
+from .parallel import in_threads
 
 __all__ = ["FORMAT", "METADATA", "CompressedBTF", "EncodedTextures", "write_textures", "write_metadata",
            "metadata_document", "metadata_text", "read_compressed", "reconstruct", "working_coefficients",
@@ -260,7 +261,7 @@ def decode_basis(data: bytes, cbtf: CompressedBTF) -> np.ndarray:
 
 def encoded_textures(cbtf: CompressedBTF) -> EncodedTextures:
     """The bytes of every texture of ``cbtf``: ``cbtf.encoded`` when it still describes
-    ``cbtf``, else encoded now (in threads, :func:`.codecs.in_threads`)."""
+    ``cbtf``, else encoded now (in threads, :func:`.parallel.in_threads`)."""
     if cbtf.encoded is not None and cbtf.encoded.describes(cbtf):
         return cbtf.encoded
     codec = get_codec(cbtf.codec)

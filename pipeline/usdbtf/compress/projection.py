@@ -183,14 +183,17 @@ class ShardSums:
         self.accs = [projector.zeros(b - a) for a, b in self.blocks]
         self.energy = np.zeros(len(self.blocks)) if projector.energy else None
 
-    def add_tile(self, projector: TileProjector, s0: int, rows: np.ndarray) -> None:
+    def add_tile(self, projector: TileProjector, s0: int, rows: np.ndarray, which=None) -> None:
         """Add the tile of samples s0.. (the next one in sample order).
 
         rows : (t, 3 m) stored values of texels blocks[0][0].. of those samples (rows may be
             strided), m >= the texels of every block here.
+        which : indices of the blocks to add it to (default all); threads may add the same
+            tile to disjoint sets of blocks at once.
         """
         first = self.blocks[0][0]
-        for i, (a, b) in enumerate(self.blocks):
+        for i in range(len(self.blocks)) if which is None else which:
+            a, b = self.blocks[i]
             part = projector.partial(s0, rows[:, 3 * (a - first):3 * (b - first)])
             for acc, p in zip(self.accs[i], part.products):
                 if p is not None:
@@ -212,7 +215,8 @@ class ProjectionTotal:
         self._energy = np.zeros((len(plan.shards()), n_blocks)) if projector.energy else None
 
     def add(self, shard: int, sums: ShardSums) -> None:
-        """Add shard ``shard``'s sums (each of their blocks must expect this shard next)."""
+        """Add shard ``shard``'s sums (each of their blocks must expect this shard next).
+        Threads may add sums of disjoint blocks at once."""
         for i, (a, b) in enumerate(sums.blocks):
             n = a // self.plan.block
             if self._next[n] != shard:

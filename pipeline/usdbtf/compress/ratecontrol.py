@@ -19,7 +19,8 @@ import numpy as np
 
 from ..errors import BTFError
 from . import ratedist
-from .codecs import get_codec, in_threads
+from .codecs import get_codec
+from .parallel import in_threads
 from .decorrelate import planes_in_use
 from .encode import encode, truncate_encoded
 from .evaluate import HeldOut, held_out_error

@@ -42,6 +42,7 @@ from ..model import BTF, FileBTF
 from .curve import curve_samples
 from .load import _STATE, BlockedData, _forkable, _init, default_workers, load_encoded, stored_dtype
 from .options import CompressOptions
+from .parallel import cpu_count, in_threads, one_blas_thread, thread_map
 from .projection import ProjectionTotal, ShardSums, TileProjector, WorkPlan
 from .spill import Spill
 from .texels import Texels
@@ -138,13 +139,17 @@ class InMemorySource(_Source):
         One block at a time (its stored values are contiguous), each over its shards in order."""
         proj = self.projector(u, mix, ks, energy)
         total = ProjectionTotal(proj, self.plan)
-        for a, b in self.plan.blocks():
-            raw = self.stored.span(a, b)
+
+        def block(ab):
+            raw = self.stored.span(*ab)
             for n, (s0, s1) in enumerate(self.plan.shards()):
-                sums = ShardSums(proj, [(a, b)])
+                sums = ShardSums(proj, [ab])
                 for t0, t1 in self.plan.tiles(s0, s1):
                     sums.add_tile(proj, t0, raw[t0:t1])
                 total.add(n, sums)
+
+        with one_blas_thread():       # blocks on one thread per core, each GEMM on one
+            in_threads(block, self.plan.blocks())
         return total.result()
 
     def working_samples(self, rows) -> np.ndarray:
@@ -296,15 +301,20 @@ class StreamingSource(_Source):
         chunk (a shard's sums for every block are added to the total when the shard ends)."""
         proj = self.projector(u, mix, ks, energy)
         total = ProjectionTotal(proj, self.plan)
+        blocks = self.plan.blocks()
+        # Each tile's blocks on one thread per core (disjoint sets of blocks), each GEMM on one.
+        parts = [p for p in np.array_split(np.arange(len(blocks)), min(len(blocks), cpu_count())) if len(p)]
         shard, sums = -1, None
-        for s0, flat in self._chunks():
-            for t0 in range(0, len(flat), proj.tile):
-                n = (s0 + t0) // self.plan.shard
-                if n != shard:
-                    if sums is not None:
-                        total.add(shard, sums)
-                    shard, sums = n, ShardSums(proj, self.plan.blocks())
-                sums.add_tile(proj, s0 + t0, flat[t0:t0 + proj.tile])
+        with one_blas_thread(), thread_map(len(parts)) as tmap:
+            for s0, flat in self._chunks():
+                for t0 in range(0, len(flat), proj.tile):
+                    n = (s0 + t0) // self.plan.shard
+                    if n != shard:
+                        if sums is not None:
+                            total.add(shard, sums)
+                        shard, sums = n, ShardSums(proj, blocks)
+                    rows = flat[t0:t0 + proj.tile]
+                    tmap(lambda which: sums.add_tile(proj, s0 + t0, rows, which), parts)
         total.add(shard, sums)
         return total.result()
 
