@@ -35,7 +35,7 @@ from ..manifest import outside_paths_allowed, outside_paths_are_allowed
 from ..model import ArrayBTF, BTF, FileBTF
 from ..progress import Progress
 from .projection import ProjectionTotal, ShardSums, TileProjector, WorkPlan
-from .source import _Source
+from .source import _KeptSource, _Source, kept_values
 
 __all__ = ["DaskSource", "TASK_SUM_BYTES", "texel_groups"]
 
@@ -92,10 +92,7 @@ def first_pass_task(job: _Job, a: int, b: int, keep_texels: list, keep_rows: np.
     """Samples a..b: the stored values of each kept texel set ((n, 3 m) per set) and of the
     kept sample rows ({sample: (P, 3)})."""
     job.checked(f"samples {a}..{b}")
-    flat = job.read(a, b).reshape(b - a, -1, 3)
-    cols = [np.ascontiguousarray(flat[:, t, :]).reshape(b - a, -1) for t in keep_texels]
-    rows = {int(i): flat[i - a].copy() for i in keep_rows if a <= i < b}
-    return cols, rows
+    return kept_values(job.read(a, b), a, keep_texels, keep_rows)
 
 
 def project_task(job: _Job, plan: WorkPlan, u: np.ndarray, mix: np.ndarray, ks, energy: bool, shard: tuple,
@@ -132,7 +129,7 @@ def _portable(btf: BTF) -> BTF:
     return clone
 
 
-class DaskSource(_Source):
+class DaskSource(_KeptSource):
     """The source of :mod:`.source`, with both passes on a Dask cluster (module docstring).
 
     Parameters
@@ -156,7 +153,7 @@ class DaskSource(_Source):
             self.in_flight = max(2, n_workers + 1)
             self.kind = f"dask, {n_workers} worker(s)"
             self._job = self._held(_Job(_portable(btf), outside_paths_are_allowed(), environment()), "job")
-            self._first_pass([np.asarray(t) for t in keep_texels], np.asarray(keep_rows, dtype=int))
+            self._first_pass(keep_texels, keep_rows)
         except BaseException:
             self.close()
             raise
@@ -171,21 +168,14 @@ class DaskSource(_Source):
             session, self._session = self._session, None
             session.__exit__(None, None, None)
 
-    def _first_pass(self, keep_texels: list, keep_rows: np.ndarray) -> None:
-        S = self.btf.n_samples
-        self._kept = [(t, np.empty((S, 3 * len(t)), np.float32)) for t in keep_texels]
-        self._rows = {int(r): n for n, r in enumerate(keep_rows)}
-        self._row_data = np.empty((len(keep_rows), self.btf.n_pixels, 3), np.float32)
-        self.nbytes = sum(d.nbytes for _, d in self._kept) + self._row_data.nbytes
+    def _first_pass(self, keep_texels: list, keep_rows) -> None:
+        keep_texels, keep_rows = self._keep(keep_texels, keep_rows)
         shards = self.plan.shards()
         futures = [self.client.submit(first_pass_task, self._job, a, b, keep_texels, keep_rows, pure=False,
                                       key=f"usdbtf-columns-{a}-{os.urandom(4).hex()}") for a, b in shards]
         bar = Progress("dask pass 1/2 (fit columns)", len(shards), enabled=self.progress)
-        for (a, b), (cols, rows) in zip(shards, self._results(futures, bar)):
-            for (_, dest), c in zip(self._kept, cols):
-                dest[a:b] = self.curves(c)
-            for i, image in rows.items():
-                self._row_data[self._rows[i]] = self.to_working(self.curves(image))
+        for (a, _), (cols, rows) in zip(shards, self._results(futures, bar)):
+            self._store(a, cols, rows)
         bar.finish()
 
     def _results(self, futures, bar):
@@ -202,22 +192,6 @@ class DaskSource(_Source):
             future.release()
             bar.update()
             yield result
-
-    def columns(self, texels: np.ndarray) -> np.ndarray:
-        """(S, 3 n) float32 curve-decoded values of ``texels``, one of the sets requested up
-        front, handed over: the source forgets them (they are decoded for one use, and
-        holding the fit's columns through the projection would cost their size again)."""
-        for n, (t, dest) in enumerate(self._kept):
-            if np.array_equal(t, texels):
-                del self._kept[n]
-                return dest
-        raise ValueError("DaskSource.columns: texels were not requested up front (or were handed over)")
-
-    def working_samples(self, rows) -> np.ndarray:
-        try:
-            return self._row_data[[self._rows[int(r)] for r in np.atleast_1d(rows)]]
-        except KeyError:
-            raise ValueError("DaskSource.working_samples: rows were not requested up front") from None
 
     def project(self, u: np.ndarray, mix: np.ndarray, ks, *, energy: bool = False):
         """Pass 2 on the workers; the shard sums are added here in the fixed order."""

@@ -51,7 +51,7 @@ from .texels import Texels
 #: up to workers + 1 chunks are in flight.
 CHUNK_BYTES = 64e6
 
-__all__ = ["InMemorySource", "StreamingSource", "choose_source", "load_source", "stored_bytes", "tile_samples",
+__all__ = ["InMemorySource", "StreamingSource", "kept_values", "choose_source", "load_source", "stored_bytes", "tile_samples",
            "work_plan", "itemsize"]
 
 
@@ -157,17 +157,23 @@ class InMemorySource(_Source):
         return self.to_working(self.curves(self.stored.samples(rows)))
 
 
+def kept_values(block: np.ndarray, a: int, keep_texels: list, keep_rows: np.ndarray):
+    """What a first pass keeps of samples a.. (``block``: (n, H, W, 3) stored values): the
+    stored values of each kept texel set ((n, 3 m) per set) and of the kept sample rows
+    ({sample: (P, 3)}): copies, no arithmetic."""
+    n = len(block)
+    flat = block.reshape(n, -1, 3)
+    cols = [np.ascontiguousarray(flat[:, t, :]).reshape(n, -1) for t in keep_texels]
+    return cols, {int(i): flat[i - a].copy() for i in keep_rows if a <= i < a + n}
+
+
 def _first_pass_chunk(btf: BTF, a: int, b: int, keep_texels: list, keep_rows: np.ndarray, spill: Spill | None):
-    """Decode samples a..b: the stored values of the kept texels (one (n, 3 m) array per
-    texel set), of the kept rows ({sample: (P, 3)}), and the whole chunk written to
-    ``spill`` at its place (sample-major).  Runs in a decode worker or in the caller."""
+    """Decode samples a..b: :func:`kept_values`, and the whole chunk written to ``spill`` at its
+    place (sample-major).  Runs in a decode worker or in the caller."""
     block = btf.read_encoded(slice(a, b))
-    flat = block.reshape(b - a, -1, 3)
     if spill is not None:
-        spill.write(a * flat[0].nbytes, block)
-    cols = [np.ascontiguousarray(flat[:, t, :]).reshape(b - a, -1) for t in keep_texels]
-    rows = {int(i): flat[i - a].copy() for i in keep_rows if a <= i < b}
-    return cols, rows
+        spill.write(a * block[0].nbytes, block)
+    return kept_values(block, a, keep_texels, keep_rows)
 
 
 def _first_pass_worker(bounds):
@@ -186,7 +192,48 @@ def _read_chunk(bounds):
         return str(exc)
 
 
-class StreamingSource(_Source):
+class _KeptSource(_Source):
+    """A source that keeps, from a first pass, only some texels' columns and some samples
+    (streamed, distributed): ``columns`` hands a set over, ``working_samples`` answers the rows."""
+
+    def _keep(self, keep_texels: list, keep_rows) -> tuple[list, np.ndarray]:
+        """Allocate what the first pass fills; returns (texel sets, rows) as arrays."""
+        S = self.btf.n_samples
+        keep_texels = [np.asarray(t) for t in keep_texels]
+        rows = np.asarray(keep_rows, dtype=int)
+        self._kept = [(t, np.empty((S, 3 * len(t)), np.float32)) for t in keep_texels]
+        self._rows = {int(r): n for n, r in enumerate(rows)}
+        self._row_data = np.empty((len(rows), self.btf.n_pixels, 3), np.float32)
+        self.nbytes = sum(d.nbytes for _, d in self._kept) + self._row_data.nbytes
+        return keep_texels, rows
+
+    def _store(self, a: int, cols: list, rows: dict) -> None:
+        """Curve-decode and store :func:`kept_values` of samples a.. (elementwise: the same
+        values as in memory, whatever the chunking)."""
+        for (_, dest), c in zip(self._kept, cols):
+            dest[a:a + len(c)] = self.curves(c)
+        for i, image in rows.items():
+            self._row_data[self._rows[i]] = self.to_working(self.curves(image))
+
+    def columns(self, texels: np.ndarray) -> np.ndarray:
+        """(S, 3 n) float32 curve-decoded values of ``texels``, one of the sets requested up
+        front, handed over: the source forgets them (they are decoded for one use, and
+        holding the fit's columns through the projection would cost their size again)."""
+        for n, (t, dest) in enumerate(self._kept):
+            if np.array_equal(t, texels):
+                del self._kept[n]
+                return dest
+        raise ValueError(f"{type(self).__name__}.columns: texels were not requested up front (or were handed over)")
+
+    def working_samples(self, rows) -> np.ndarray:
+        """(n, P, 3) float32 working-space images of samples ``rows`` (requested up front)."""
+        try:
+            return self._row_data[[self._rows[int(r)] for r in np.atleast_1d(rows)]]
+        except KeyError:
+            raise ValueError(f"{type(self).__name__}.working_samples: rows were not requested up front") from None
+
+
+class StreamingSource(_KeptSource):
     """Decode once (twice without room for a spill file), holding a few chunks of samples.
 
     ``keep_texels`` (lists of sorted texel arrays) and ``keep_rows`` (sample indices) are
@@ -207,22 +254,13 @@ class StreamingSource(_Source):
         tile = self.plan.tile
         self.chunk = tile * int(max(1, chunk_bytes // (tile * btf.n_pixels * 3 * itemsize(btf))))
         self.workers = workers or default_workers()
-        S = btf.n_samples
-        keep_texels = [np.asarray(t) for t in keep_texels]
-        self._kept = [(t, np.empty((S, 3 * len(t)), np.float32)) for t in keep_texels]
-        rows = np.asarray(keep_rows, dtype=int)
-        self._rows = {int(r): n for n, r in enumerate(rows)}
-        self._row_data = np.empty((len(rows), btf.n_pixels, 3), np.float32)
-        self.nbytes = sum(d.nbytes for _, d in self._kept) + self._row_data.nbytes
+        keep_texels, rows = self._keep(keep_texels, keep_rows)
         self._spill = Spill.create(stored_bytes(btf)) if spill else None
         if self._spill is not None:
             self.kind = "streaming, spilled"
         try:
             for a, (cols, kept_rows) in self._first_pass(keep_texels, rows):
-                for (_, dest), c in zip(self._kept, cols):
-                    dest[a:a + len(c)] = self.curves(c)
-                for i, image in kept_rows.items():
-                    self._row_data[self._rows[i]] = self.to_working(self.curves(image))
+                self._store(a, cols, kept_rows)
         except BaseException:
             self.close()
             raise
@@ -286,16 +324,6 @@ class StreamingSource(_Source):
             raise BTFError(result)
         return first, result
 
-    def columns(self, texels: np.ndarray) -> np.ndarray:
-        """(S, 3 n) float32 curve-decoded values of ``texels``, one of the sets requested up
-        front, handed over: the source forgets them (they are decoded for one use, and
-        holding the fit's columns through the projection would cost their size again)."""
-        for n, (t, dest) in enumerate(self._kept):
-            if np.array_equal(t, texels):
-                del self._kept[n]
-                return dest
-        raise ValueError("StreamingSource.columns: texels were not requested up front (or were handed over)")
-
     def project(self, u: np.ndarray, mix: np.ndarray, ks, *, energy: bool = False):
         """Second pass: the same shards and blocks as :meth:`InMemorySource.project`, chunk by
         chunk (a shard's sums for every block are added to the total when the shard ends)."""
@@ -317,12 +345,6 @@ class StreamingSource(_Source):
                     tmap(lambda which: sums.add_tile(proj, s0 + t0, rows, which), parts)
         total.add(shard, sums)
         return total.result()
-
-    def working_samples(self, rows) -> np.ndarray:
-        try:
-            return self._row_data[[self._rows[int(r)] for r in np.atleast_1d(rows)]]
-        except KeyError:
-            raise ValueError("StreamingSource.working_samples: rows were not requested up front") from None
 
 
 def choose_source(btf: BTF, keep_texels: list, keep_rows, *, memory_budget: float, workers=None,
