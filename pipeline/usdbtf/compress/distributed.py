@@ -60,7 +60,9 @@ def texel_groups(plan: WorkPlan, k: int, limit: float | None = None) -> list[lis
 
 # -- on the workers ------------------------------------------------------------------------------
 class _Job:
-    """What every task of one compress needs on a worker (sent once, scattered)."""
+    """What every task of one compress needs on a worker: the BTF (file names, not pixels), the
+    manifest confinement flag, the environment the worker must match.  Held on the cluster
+    as a task's result (:meth:`DaskSource._held`), fetched once per worker."""
 
     def __init__(self, btf: BTF, outside: bool, env: dict):
         self.btf, self.outside, self.env = btf, outside, env
