@@ -167,7 +167,7 @@ def section_floor(inputs, cli, args, doc):
     for r in rows:
         say(f"| {r['input']} | {r['samples']} x {r['texels']} | {fmt_bytes(r['stored_bytes'])} | {r['decode_s']:.2f} | "
             f"{r['gemm_s']:.2f} | {r['compress_s']:.2f} | **{r['ratio_median']:.2f}** "
-            f"({', '.join(f'{x['ratio']:.2f}' for x in r['rounds'])}) | {fmt_bytes(r['peak_rss_bytes'])} |")
+            f"({', '.join(format(x['ratio'], '.2f') for x in r['rounds'])}) | {fmt_bytes(r['peak_rss_bytes'])} |")
 
 
 def section_scaling(cli, args, doc):

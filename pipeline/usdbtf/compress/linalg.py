@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .parallel import one_blas_thread
+
 __all__ = ["fix_signs", "exact_basis", "randomized_basis", "orthonormalize"]
 
 
@@ -27,22 +29,28 @@ def orthonormalize(y: np.ndarray) -> np.ndarray:
     CholeskyQR2: two rounds of Q = Y R^-1 with R from the Cholesky factor of the small
     Gram Y^T Y (computed in float64) -- GEMMs instead of Householder QR, 3x faster on
     10^4 x 166 panels and as orthogonal after the second round.  Falls back to QR when
-    the Gram is not positive definite (rank-deficient Y).
+    the Gram is not positive definite (rank-deficient Y).  The small factorisations run
+    on one BLAS thread (:func:`.parallel.one_blas_thread`): split over threads they gain
+    nothing at this size, spin-wait on a shared machine, and round differently with every
+    thread count.
     """
     q = y
     try:
         for _ in range(2):
             q64 = q.astype(np.float64)   # the Gram in float64: float32 overflows past ~1e19
             g = q64.T @ q64
-            r = np.linalg.cholesky(g).T                       # upper: g = r^T r
+            with one_blas_thread():
+                r = np.linalg.cholesky(g).T                   # upper: g = r^T r
+                r_inv = np.linalg.inv(r)
             # Y R^-1 as a GEMM with the small inverse: a triangular solve with an S-column
             # right-hand side costs 10x more, and the second round restores orthogonality.
-            q = (q64 @ np.linalg.inv(r)).astype(np.float32)
+            q = (q64 @ r_inv).astype(np.float32)
         if not np.isfinite(q).all():
             raise np.linalg.LinAlgError("CholeskyQR lost precision")
         return np.ascontiguousarray(q)
     except np.linalg.LinAlgError:
-        return np.linalg.qr(y)[0]
+        with one_blas_thread():
+            return np.linalg.qr(y)[0]
 
 
 def exact_basis(x: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -99,9 +107,12 @@ def randomized_basis(x: np.ndarray, k: int, *, oversample: int = 16, power_itera
         # B = Q^T X ~= R Z^T -- the small factors replace a fourth GEMM over X
         # (paper-scale pebbles and fuzzy moss: error within 0.1 % relative of Q^T X).
         z = orthonormalize(x.T @ q).astype(np.float64)
-        q, r = np.linalg.qr((x @ z.astype(np.float32)).astype(np.float64))
+        y = (x @ z.astype(np.float32)).astype(np.float64)
+        with one_blas_thread():
+            q, r = np.linalg.qr(y)
         b = r @ z.T                                                       # (l, m)
-    evals, ub = np.linalg.eigh(b @ b.T)              # (l, l): cheap
+    with one_blas_thread():
+        evals, ub = np.linalg.eigh(b @ b.T)          # (l, l): cheap
     order = np.argsort(evals)[::-1][:k]
     sv = np.sqrt(np.maximum(evals[order], 0.0))
     u = np.ascontiguousarray(q.astype(np.float64) @ ub[:, order], dtype=np.float32)

@@ -12,6 +12,7 @@ transforms, and OpenImageIO's encoders all release the GIL, so plain threads use
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 
 __all__ = ["cpu_count", "in_threads", "thread_map", "one_blas_thread"]
@@ -47,10 +48,19 @@ def thread_map(threads: int | None = None):
 @contextlib.contextmanager
 def one_blas_thread():
     """BLAS on one thread inside the block (threadpoolctl; a no-op where it is missing)."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:          # pragma: no cover - a declared dependency
+    controller = _controller()
+    if controller is None:     # pragma: no cover - a declared dependency
         yield
         return
-    with threadpool_limits(limits=1, user_api="blas"):
+    with controller.limit(limits=1, user_api="blas"):
         yield
+
+
+@functools.lru_cache(maxsize=1)
+def _controller():
+    """threadpoolctl's view of the loaded BLAS (scanning the libraries once per process)."""
+    try:
+        from threadpoolctl import ThreadpoolController
+    except ImportError:        # pragma: no cover
+        return None
+    return ThreadpoolController()
