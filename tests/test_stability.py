@@ -575,6 +575,26 @@ def test_chunk_sizes_do_not_change_output(tmp_path, fixed_exr_dates, codec):
         {"one": [], "two": [], "all": []}
 
 
+@pytest.mark.parametrize("options", [[], ["--max-bytes", "40000"], ["--solver", "paper", "--k", "12"]],
+                         ids=["plain", "max-bytes", "paper"])
+def test_output_does_not_depend_on_blas_threads(small_png, tmp_path, options):
+    """compress runs BLAS on one thread and parallelises by itself (usdbtf.compress.parallel):
+    the same folder with 1, 2 and 4 BLAS threads (OpenBLAS alone rounds some products
+    differently on one thread than on several)."""
+    import os
+    import subprocess
+    import sys
+
+    outs = {}
+    for n in ("1", "2", "4"):
+        env = dict(os.environ, OPENBLAS_NUM_THREADS=n, OMP_NUM_THREADS=n)
+        proc = subprocess.run([sys.executable, "-m", "usdbtf.cli", "compress", str(small_png), "-o",
+                               str(tmp_path / n), "-q", *options], capture_output=True, text=True, env=env)
+        assert proc.returncode == 0, proc.stderr
+        outs[n] = folder_files(tmp_path / n)
+    assert outs["1"] == outs["2"] == outs["4"]
+
+
 def _sampling_312():
     """13 views x 24 lights: more samples than one projection tile (128)."""
     return cross(rings((0, 30, 60), (1, 6, 6)), rings((15, 45, 75), (8, 8, 8)))

@@ -244,21 +244,12 @@ def _quiet_dask_logs():
 
 
 # -- usdbtf commands as tasks (``usdbtf build --dask``) --------------------------------------------
-#: Variables that set how many threads BLAS and OpenMP use: a LocalCluster's workers get 1,
-#: and the fit's float results depend on it, so a command run as a task gets this process's.
-THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "VECLIB_MAXIMUM_THREADS",
-                    "NUMEXPR_NUM_THREADS")
-
-
 def command_info(client) -> tuple[dict, int]:
     """(what :func:`run_command` needs, a JSON-able dict; the cluster's thread count) for a
     checked ``client`` of :func:`session`."""
-    import os
-
     info = client.scheduler_info()
     threads = sum(w.get("nthreads", 1) for w in info.get("workers", {}).values()) or 1
-    return ({"scheduler": client.scheduler.address, "environment": environment(),
-             "threads": {k: os.environ.get(k) for k in THREAD_VARIABLES}}, threads)
+    return {"scheduler": client.scheduler.address, "environment": environment()}, threads
 
 
 _CLIENTS: dict = {}
@@ -283,7 +274,7 @@ def run_command(info: dict, argv: list, label: str) -> tuple[int, str]:
                 client = _CLIENTS[info["scheduler"]] = Client(info["scheduler"], timeout=CONNECT_TIMEOUT)
                 atexit.register(client.close)
         key = f"usdbtf-{'-'.join(label.split()[1:2])}-{os.urandom(4).hex()}"
-        future = client.submit(_command_task, list(argv), info["threads"], info["environment"], pure=False, key=key)
+        future = client.submit(_command_task, list(argv), info["environment"], pure=False, key=key)
         return future.result()
     except BTFError as exc:
         return exc.exit_code, f"usdbtf {argv[0]}: error: {' '.join(str(exc).split())}\n"
@@ -292,9 +283,10 @@ def run_command(info: dict, argv: list, label: str) -> tuple[int, str]:
                     f"{' '.join(str(exc).split())[:300]}\n")
 
 
-def _command_task(argv: list, threads: dict, expected: dict) -> tuple[int, str]:
-    """On a worker: ``python -m usdbtf.cli ARGV`` (an argument list, no shell) with the
-    client's thread variables, after checking this worker's usdbtf and libraries."""
+def _command_task(argv: list, expected: dict) -> tuple[int, str]:
+    """On a worker: ``python -m usdbtf.cli ARGV`` (an argument list, no shell), after checking
+    this worker's usdbtf and libraries.  (The worker's ``OMP_NUM_THREADS=1`` reaches the
+    command; compress's bytes do not depend on thread counts.)"""
     import os
     import subprocess
     import sys
@@ -307,11 +299,6 @@ def _command_task(argv: list, threads: dict, expected: dict) -> tuple[int, str]:
         where = f"pid {os.getpid()}"
     require_environment(expected, where)
     env = dict(os.environ)
-    for key, value in threads.items():
-        if value is None:
-            env.pop(key, None)
-        else:
-            env[key] = value
     pipeline = str(Path(__file__).resolve().parents[1])
     env["PYTHONPATH"] = pipeline + os.pathsep + env.get("PYTHONPATH", "")
     res = subprocess.run([sys.executable, "-m", "usdbtf.cli", *argv], stdin=subprocess.DEVNULL, capture_output=True,

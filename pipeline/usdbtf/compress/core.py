@@ -32,6 +32,7 @@ from .evaluate import error_curve, held_out_error, held_out_set
 from .fit import HDR_NORM_RANGE, fit_basis, require_signal, sampled_coefficients
 from .format import CompressedBTF, write_metadata, write_textures
 from .options import CompressOptions
+from .parallel import one_blas_thread
 from .projection import project
 from .quantise import Factorisation
 from .ratecontrol import rate_control, step_for_k
@@ -62,7 +63,9 @@ def compress(btf: BTF, options: CompressOptions | None = None, *, log=None) -> C
     clock = _Clock()
     texels = sample_texels(btf, opts)
     # The source holds the data (and a spill file or a cluster, which closing releases).
-    with load_source(btf, texels, opts, log=say) as source:
+    # BLAS on one thread: the steps parallelise themselves, so no byte depends on thread
+    # counts (see .parallel).
+    with one_blas_thread(), load_source(btf, texels, opts, log=say) as source:
         say(f"loaded {btf.n_samples} samples of {btf.width}x{btf.height} ({source.kind}, {source.nbytes / 2**20:.0f} MiB) "
             f"in {clock.lap('load'):.2f} s")
         fit = fit_basis(source.columns(texels.fit), opts.fit_k(btf.n_samples, btf.n_pixels), opts)

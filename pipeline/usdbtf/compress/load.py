@@ -138,8 +138,9 @@ def load_encoded(btf: BTF, *, workers: int | None = None, block: int = DEFAULT_B
                 data.put(start + n, img)
         return data
     nbytes = int(np.prod(shape)) * dtype.itemsize
-    # MAP_POPULATE: fault the pages in now, in bulk, rather than one trap per page later.
-    flags = mmap.MAP_SHARED | mmap.MAP_ANONYMOUS | getattr(mmap, "MAP_POPULATE", 0)
+    # No MAP_POPULATE: the decode workers fault their own pages in, in parallel, instead of
+    # this process faulting all of them before any decoding starts.
+    flags = mmap.MAP_SHARED | mmap.MAP_ANONYMOUS
     data = BlockedData(np.frombuffer(mmap.mmap(-1, nbytes, flags=flags), dtype).reshape(shape), P, block)
     bounds = np.linspace(0, S, workers * 8 + 1).astype(int)
     # fork: the workers inherit ``btf`` and the mapping; nothing is pickled but the index ranges.

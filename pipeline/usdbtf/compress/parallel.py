@@ -2,12 +2,14 @@
 transforms, and OpenImageIO's encoders all release the GIL, so plain threads use every core.
 
 * :func:`in_threads` maps a function over items on one thread per CPU, results in order.
-* :func:`one_blas_thread` makes BLAS single-threaded inside its block, for code that already
-  runs one thread per core over independent pieces (the projection's texel blocks): many
-  small GEMMs side by side scale better than each small GEMM split over all cores, and a
-  single-threaded GEMM never spin-waits for a core another process holds.  A tile's GEMM
-  gives the same bytes with any number of BLAS threads (``tests/test_dask.py`` checks it),
-  so this changes speed, never output.
+* :func:`one_blas_thread` makes BLAS single-threaded inside its block.  ``compress`` runs in
+  one (:func:`~.core.compress`) and parallelises itself: over texel blocks in the projection,
+  over row blocks of the large products (:func:`rows_gemm`).  That is faster on a shared
+  machine (a single-threaded GEMM never spin-waits for a core another process holds) and
+  makes the output independent of thread counts: OpenBLAS rounds some products differently
+  on one thread than on several, but a product cut by rows, each piece on one thread,
+  gives the bytes of the whole product on one thread (``tests/test_stability.py`` checks
+  the output with 1, 2 and 4 BLAS threads).
 """
 from __future__ import annotations
 
@@ -15,7 +17,7 @@ import contextlib
 import functools
 import os
 
-__all__ = ["cpu_count", "in_threads", "thread_map", "one_blas_thread"]
+__all__ = ["cpu_count", "in_threads", "thread_map", "one_blas_thread", "rows_gemm"]
 
 
 def cpu_count() -> int:
@@ -43,6 +45,27 @@ def thread_map(threads: int | None = None):
         return
     with ThreadPoolExecutor(workers, thread_name_prefix="usdbtf-compress") as pool:
         yield lambda fn, items: list(pool.map(fn, items))
+
+
+def rows_gemm(a, b):
+    """``a @ b`` with the rows of ``a`` cut into one block per CPU, each block's product on one
+    BLAS thread in a thread of its own: the same bytes as ``a @ b`` on one BLAS thread."""
+    import numpy as np
+
+    n = a.shape[0]
+    parts = min(cpu_count(), max(1, n // 64))
+    if parts <= 1:
+        with one_blas_thread():
+            return a @ b
+    out = np.empty((n, b.shape[1]), np.result_type(a.dtype, b.dtype))
+    cuts = np.linspace(0, n, parts + 1).astype(int)
+
+    def piece(i):
+        np.matmul(a[cuts[i]:cuts[i + 1]], b, out=out[cuts[i]:cuts[i + 1]])
+
+    with one_blas_thread():
+        in_threads(piece, range(parts))
+    return out
 
 
 @contextlib.contextmanager
