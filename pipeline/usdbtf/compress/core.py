@@ -32,7 +32,7 @@ from .evaluate import error_curve, held_out_error, held_out_set
 from .fit import HDR_NORM_RANGE, fit_basis, require_signal, sampled_coefficients
 from .format import CompressedBTF, write_metadata, write_textures
 from .options import CompressOptions
-from .parallel import one_blas_thread
+from .parallel import in_threads, one_blas_thread
 from .projection import project
 from .quantise import Factorisation
 from .ratecontrol import rate_control, step_for_k
@@ -68,14 +68,18 @@ def compress(btf: BTF, options: CompressOptions | None = None, *, log=None) -> C
     with one_blas_thread(), load_source(btf, texels, opts, log=say) as source:
         say(f"loaded {btf.n_samples} samples of {btf.width}x{btf.height} ({source.kind}, {source.nbytes / 2**20:.0f} MiB) "
             f"in {clock.lap('load'):.2f} s")
-        fit = fit_basis(source.columns(texels.fit), opts.fit_k(btf.n_samples, btf.n_pixels), opts)
+        x_fit = source.columns(texels.fit)
+        # The held-out truth is read while the basis is fitted (independent steps, one
+        # thread each: the fit's serial parts leave a core free).
+        fit, held = _side_by_side(lambda: fit_basis(x_fit, opts.fit_k(btf.n_samples, btf.n_pixels), opts),
+                                  lambda: held_out_set(source, texels))
+        del x_fit
         if fit.weighted:
             say(f"texel norms span more than {HDR_NORM_RANGE:g}: basis fitted with weights ||x_t||^-1/2")
         require_signal(fit, btf, texels, opts)
         say(f"basis: {fit.k} vectors from {len(texels.fit)} texels ({opts.solver}) in {clock.lap('fit'):.2f} s")
         # Colour and (for a plain k) the quantisation step, from the sampled texels' coefficients,
         # before the projection: then the projection can skip what the step would zero out.
-        held = held_out_set(source, texels)
         sampled, outside = sampled_coefficients(fit, source.to_working, held.truth, btf.n_pixels)
         colour = np.eye(3) if opts.solver == "paper" else colour_decorrelation(sampled)
         step, planes = step_for_k(rotate_colour(sampled, colour), fit.basis, outside, btf.n_pixels, opts)
@@ -88,11 +92,16 @@ def compress(btf: BTF, options: CompressOptions | None = None, *, log=None) -> C
         cbtf, choice = rate_control(Factorisation(btf, fit.basis, coeff, colour, energy, planes, step), opts, held, say)
         clock.lap("encode")
         result = _described(cbtf, opts, dict(choice, planes=list(planes)), fit.singular_values, held,
-                            held_out_error(cbtf, held), error_curve(cbtf, source))
+                            *_side_by_side(lambda: held_out_error(cbtf, held), lambda: error_curve(cbtf, source)))
         clock.lap("evaluate")
     say(f"k = {result.k}, {result.info['bytes']['payload']} bytes, estimated error "
         f"{result.info['estimated_error']['linear']['percent']:.3f} % ({clock})")
     return result
+
+
+def _side_by_side(first, second) -> tuple:
+    """(first(), second()) run at once on two threads (steps that share no data)."""
+    return tuple(in_threads(lambda fn: fn(), [first, second], threads=2))
 
 
 def write_compress(result: CompressedBTF, path, *, force: bool = False) -> dict:
