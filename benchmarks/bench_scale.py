@@ -34,6 +34,7 @@ import argparse
 import math
 import multiprocessing as mp
 import os
+import resource
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -82,33 +83,39 @@ def _decode(bounds):
     return bounds[1] - bounds[0]
 
 
-def decode_pass(btf, workers: int) -> float:
-    """Seconds to decode every image file once in ``workers`` forked processes."""
+def _cpu() -> float:
+    """CPU seconds of this process and its reaped children (user + system)."""
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def decode_pass(btf, workers: int) -> tuple[float, float]:
+    """(wall, CPU) seconds to decode every image file once in ``workers`` forked processes."""
     bounds = np.linspace(0, btf.n_samples, workers * 8 + 1).astype(int)
-    t = time.perf_counter()
+    t, c = time.perf_counter(), _cpu()
     with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"), initializer=_init,
                              initargs=(btf,)) as pool:
         assert sum(pool.map(_decode, list(zip(bounds[:-1], bounds[1:])))) == btf.n_samples
-    return time.perf_counter() - t
+    return time.perf_counter() - t, _cpu() - c
 
 
 def gemm_pass(n_samples: int, n_pixels: int, k: int = GEMM_K) -> tuple[float, dict]:
     """Seconds for the FLOPs of one float32 U.T @ X, X (S, 3P): one GEMM when X fits 2 GB,
-    else column blocks of X (one random buffer reused)."""
+    else column blocks of X (one random buffer reused); BLAS on all its threads."""
     rng = np.random.default_rng(0)
     cols = 3 * n_pixels
     block = min(cols, max(1024, int(GEMM_MAX_BYTES // (4 * n_samples)) // 1024 * 1024))
     x = rng.random((n_samples, block), dtype=np.float32)
     u = rng.standard_normal((n_samples, k), dtype=np.float32)
     (u.T @ x[:, :min(block, 4096)])                 # warm-up (BLAS threads, page faults)
-    t = time.perf_counter()
+    t, c = time.perf_counter(), _cpu()
     done = 0
     while done < cols:
         w = min(block, cols - done)
         u.T @ (x if w == block else x[:, :w])
         done += w
     seconds = time.perf_counter() - t
-    return seconds, {"x_block": [n_samples, block], "blocks": math.ceil(cols / block),
+    return seconds, {"x_block": [n_samples, block], "blocks": math.ceil(cols / block), "cpu_s": _cpu() - c,
                      "gflops_per_s": 2.0 * n_samples * k * cols / seconds / 1e9}
 
 
@@ -143,31 +150,37 @@ def section_floor(inputs, cli, args, doc):
         rounds = []
         for rnd in range(args.repeats):
             load = os.getloadavg()[0]
-            dec = decode_pass(btf, args.workers)
+            dec, dec_cpu = decode_pass(btf, args.workers)
             gem, ginfo = gemm_pass(S, P)
             run = compress_run(cli, folder, OUT / "scale" / f"{name}-plain", ["--workers", str(args.workers)])
-            ratio = run["wall_s"] / (dec + gem) if not run["returncode"] else float("nan")
-            rounds.append({"load1": load, "decode_s": dec, "gemm_s": gem, "gemm": ginfo, "compress": run,
-                           "ratio": ratio})
-            say(f"  round {rnd + 1}: load {load:.1f}; decode {dec:.2f} s + GEMM {gem:.2f} s = floor {dec + gem:.2f} s; "
-                f"compress {run['wall_s']:.2f} s (CPU {run['cpu_s']:.1f} s, peak RSS {fmt_bytes(run['max_rss_bytes'])})"
-                f" -> ratio {ratio:.2f}")
+            ok = not run["returncode"]
+            ratio = run["wall_s"] / (dec + gem) if ok else float("nan")
+            ratio_cpu = run["cpu_s"] / (dec_cpu + ginfo["cpu_s"]) if ok else float("nan")
+            rounds.append({"load1": load, "decode_s": dec, "decode_cpu_s": dec_cpu, "gemm_s": gem, "gemm": ginfo,
+                           "compress": run, "ratio": ratio, "ratio_cpu": ratio_cpu})
+            say(f"  round {rnd + 1}: load {load:.1f}; decode {dec:.2f} s + GEMM {gem:.2f} s = floor {dec + gem:.2f} s "
+                f"(CPU {dec_cpu:.1f} + {ginfo['cpu_s']:.1f} s); compress {run['wall_s']:.2f} s (CPU "
+                f"{run['cpu_s']:.1f} s, peak RSS {fmt_bytes(run['max_rss_bytes'])}) -> ratio {ratio:.2f} "
+                f"(CPU {ratio_cpu:.2f})")
             say(f"    {_stage_line(run['stderr_tail'])}")
             write_json(args.json, doc)
         row = {"input": name, "how": how, "samples": S, "texels": P, "stored_bytes": S * P * 3,
                "decode_s": median(r["decode_s"] for r in rounds), "gemm_s": median(r["gemm_s"] for r in rounds),
                "compress_s": median(r["compress"]["wall_s"] for r in rounds),
                "ratio_median": median(r["ratio"] for r in rounds),
+               "ratio_cpu_median": median(r["ratio_cpu"] for r in rounds),
+               "load1_median": median(r["load1"] for r in rounds),
                "peak_rss_bytes": max(r["compress"]["max_rss_bytes"] for r in rounds), "rounds": rounds}
         rows.append(row)
         doc["floor"] = rows
         write_json(args.json, doc)
-    say("\n| input | samples x texels | stored (8 bit) | decode s | GEMM s | compress s | ratio (median of rounds) "
-        "| peak RSS |\n|---|---|---|---|---|---|---|---|")
+    say("\n| input | samples x texels | stored (8 bit) | decode s | GEMM s | compress s | wall ratio (median; rounds) "
+        "| CPU ratio (median) | load | peak RSS |\n|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         say(f"| {r['input']} | {r['samples']} x {r['texels']} | {fmt_bytes(r['stored_bytes'])} | {r['decode_s']:.2f} | "
             f"{r['gemm_s']:.2f} | {r['compress_s']:.2f} | **{r['ratio_median']:.2f}** "
-            f"({', '.join(format(x['ratio'], '.2f') for x in r['rounds'])}) | {fmt_bytes(r['peak_rss_bytes'])} |")
+            f"({', '.join(format(x['ratio'], '.2f') for x in r['rounds'])}) | {r['ratio_cpu_median']:.2f} | "
+            f"{r['load1_median']:.1f} | {fmt_bytes(r['peak_rss_bytes'])} |")
 
 
 def section_scaling(cli, args, doc):

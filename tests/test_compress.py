@@ -964,18 +964,28 @@ def test_streaming_source_matches_in_memory(small32, tmp_path, solver, monkeypat
     assert list(spill_dir.iterdir()) == []
 
 
-def test_spill_file_is_anonymous_and_sized_by_free_space(tmp_path):
-    from usdbtf.compress.spill import Spill
-    sp = Spill.create(1 << 20, str(tmp_path))
+@pytest.mark.parametrize("direct", [True, False], ids=["direct", "buffered"])
+def test_spill_file_is_anonymous_and_sized_by_free_space(tmp_path, monkeypatch, direct):
+    """Slots written from any offset, read back in order (direct I/O: aligned buffers, padded
+    slots; buffered where the file system refuses O_DIRECT); no name in the folder."""
+    import os
+
+    from usdbtf.compress import spill as spill_mod
+    if not direct:
+        monkeypatch.setattr(os, "O_DIRECT", 0, raising=False)
+    sp = spill_mod.Spill.create(3, 100_000, str(tmp_path))
     assert sp is not None and list(tmp_path.iterdir()) == []
-    data = np.arange(1 << 20, dtype=np.uint8).reshape(256, -1)
-    sp.write(0, data[:128])
-    sp.write(data[:128].nbytes, data[128:])
-    got = [(key, arr.copy()) for key, arr in sp.read_ahead([(0, 0), (data[:100].nbytes, 1)],
-                                                           lambda key: np.empty((100, data.shape[1]), np.uint8))]
-    assert np.array_equal(got[0][1], data[:100]) and np.array_equal(got[1][1], data[100:200])
+    if not direct:
+        assert sp.direct is False                           # else O_DIRECT where the file system has it
+    data = np.arange(250_000, dtype=np.int64).astype(np.uint8)
+    pieces = [data[:100_000], data[100_000:200_000], data[200_000:]]
+    for n in (2, 0, 1):
+        sp.write(n, pieces[n])
+    got = [(slot, arr.copy()) for slot, arr in sp.read_ahead([(n, len(p)) for n, p in enumerate(pieces)], depth=1)]
+    assert [slot for slot, _ in got] == [0, 1, 2]
+    assert all(np.array_equal(arr, p) for (_, arr), p in zip(got, pieces))
     sp.close()
-    assert Spill.create(1 << 62, str(tmp_path)) is None      # more than the disk: decode twice instead
+    assert spill_mod.Spill.create(1, 1 << 62, str(tmp_path)) is None      # more than the disk: decode twice
 
 
 def test_streaming_source_holds_only_requested_columns(small32):

@@ -167,12 +167,13 @@ def kept_values(block: np.ndarray, a: int, keep_texels: list, keep_rows: np.ndar
     return cols, {int(i): flat[i - a].copy() for i in keep_rows if a <= i < a + n}
 
 
-def _first_pass_chunk(btf: BTF, a: int, b: int, keep_texels: list, keep_rows: np.ndarray, spill: Spill | None):
-    """Decode samples a..b: :func:`kept_values`, and the whole chunk written to ``spill`` at its
-    place (sample-major).  Runs in a decode worker or in the caller."""
+def _first_pass_chunk(btf: BTF, a: int, b: int, keep_texels: list, keep_rows: np.ndarray, spill: Spill | None,
+                      chunk: int = 1):
+    """Decode samples a..b: :func:`kept_values`, and the whole chunk written to ``spill`` in its
+    slot (a // chunk).  Runs in a decode worker or in the caller."""
     block = btf.read_encoded(slice(a, b))
     if spill is not None:
-        spill.write(a * block[0].nbytes, block)
+        spill.write(a // chunk, block)
     return kept_values(block, a, keep_texels, keep_rows)
 
 
@@ -238,8 +239,9 @@ class StreamingSource(_KeptSource):
 
     ``keep_texels`` (lists of sorted texel arrays) and ``keep_rows`` (sample indices) are
     collected during the first pass; ``columns`` and ``working_samples`` answer only those.
-    The first pass also writes the stored values to an anonymous spill file (:mod:`.spill`)
-    when ``spill`` and the temporary folder has room; :meth:`project` reads it back, a few
+    The first pass also writes the stored values to an anonymous spill file (:mod:`.spill`,
+    direct I/O where the file system allows) when ``spill`` and the temporary folder has room;
+    :meth:`project` reads it back, a few
     chunks ahead in a thread, else decodes the files again.
     Memory: the kept columns (S x 3 n float32) + up to workers + 1 chunks of stored values +
     twice the coefficients (k x 3P float32: the total and one shard's sums).
@@ -255,7 +257,8 @@ class StreamingSource(_KeptSource):
         self.chunk = tile * int(max(1, chunk_bytes // (tile * btf.n_pixels * 3 * itemsize(btf))))
         self.workers = workers or default_workers()
         keep_texels, rows = self._keep(keep_texels, keep_rows)
-        self._spill = Spill.create(stored_bytes(btf)) if spill else None
+        n_chunks = -(-btf.n_samples // self.chunk)
+        self._spill = Spill.create(n_chunks, self.chunk * btf.n_pixels * 3 * itemsize(btf)) if spill else None
         if self._spill is not None:
             self.kind = "streaming, spilled"
         try:
@@ -282,9 +285,9 @@ class StreamingSource(_KeptSource):
         bounds = self._bounds()
         if not self._parallel(bounds):
             for a, b in bounds:
-                yield a, _first_pass_chunk(self.btf, a, b, keep_texels, rows, self._spill)
+                yield a, _first_pass_chunk(self.btf, a, b, keep_texels, rows, self._spill, self.chunk)
             return
-        yield from self._in_pool(_first_pass_worker, bounds, (keep_texels, rows, self._spill))
+        yield from self._in_pool(_first_pass_worker, bounds, (keep_texels, rows, self._spill, self.chunk))
 
     def _in_pool(self, fn, bounds, extra):
         """Yield (first sample, fn's result) over ``bounds``, in order, from forked decode
@@ -306,10 +309,9 @@ class StreamingSource(_KeptSource):
         btf, bounds = self.btf, self._bounds()
         width, dtype = btf.n_pixels * 3, stored_dtype(btf)
         if self._spill is not None:
-            sample_bytes = width * dtype.itemsize
-            pieces = [(a * sample_bytes, (a, b)) for a, b in bounds]
-            for (a, b), block in self._spill.read_ahead(pieces, lambda ab: np.empty((ab[1] - ab[0], width), dtype)):
-                yield a, block
+            pieces = [(n, (b - a) * width * dtype.itemsize) for n, (a, b) in enumerate(bounds)]
+            for (a, _), (_, raw) in zip(bounds, self._spill.read_ahead(pieces)):
+                yield a, raw.view(dtype).reshape(-1, width)
         elif self._parallel(bounds):
             for a, block in self._in_pool(_read_chunk, bounds, None):
                 yield a, block.reshape(len(block), -1)
