@@ -5,9 +5,9 @@ next to the UsdPreviewSurface fallback::
 
     mtl/BtfMaterial                  outputs:glslfx:surface -> StormSurface.outputs:surface
         StormSurface                 Shader, info:id = "UsdBtfSurface": its Sdr definition
-                                     (plugin/usdBtf/resources/shaderDefs.usda) is
-                                     implementationSource "sourceAsset" with
-                                     info:glslfx:sourceAsset = shaders/UsdBtfSurface.glslfx
+                                     (plugin/usdBtf/resources/sdr/UsdBtfSurface.usda, found
+                                     by Sdr's filesystem discovery) is implementationSource
+                                     "sourceAsset" with shaders/UsdBtfSurface.glslfx
         StormTables, StormPackNN     UsdUVTexture (raw) of <stem>_textures/gpu/...
 
     <stem>_textures/gpu/tables.exr   basis rows, hemisphere lookups, de-quantisation (float32)
@@ -42,7 +42,7 @@ from ..errors import BTFError
 from ..gpu import shaders
 from ..gpu.tables import MAX_GROUPS, gpu_layout, pack_count
 
-__all__ = ["plugin_dir_resources", "GPU_DIR", "STORM_SURFACE", "FULL_CLASS", "author_gpu_preview", "register_shader_definitions",
+__all__ = ["plugin_dir_resources", "GPU_DIR", "STORM_SURFACE", "FULL_CLASS", "author_gpu_preview",
            "write_gpu_textures", "materialx_document", "storm_shader", "layout_from_asset", "read_rgba"]
 
 GPU_DIR = "gpu"
@@ -51,36 +51,13 @@ TABLES_NODE = "StormTables"
 FULL_CLASS = "_UsdBtfStormFull"
 MTLX_FILE = "usdbtf.mtlx"
 _RENDER_CONTEXT = "glslfx"
-_registered = False
 
 
 def plugin_dir_resources() -> Path:
-    """``plugin/usdBtf/resources``: shaderDefs.usda, shaders/, materialx/."""
-    from .plugin import plugin_dir
+    """``plugin/usdBtf/resources``: sdr/, shaders/, materialx/."""
+    from .plugin import resources_dir
 
-    return plugin_dir() / "usdBtf" / "resources"
-
-
-def register_shader_definitions() -> bool:
-    """Make the plugin's shader definition (UsdBtfSurface) known to Sdr in this process, so
-    usdShadeValidators:ShaderSdrCompliance can check the asset's shader against it.
-    Idempotent; returns False when the plugin folder has no shaderDefs.usda."""
-    global _registered
-    if _registered:
-        return True
-    from pxr import Sdr, Usd, UsdShade
-
-    path = plugin_dir_resources() / "shaderDefs.usda"
-    if not path.is_file():
-        return False
-    registry = Sdr.Registry()
-    if shaders.SHADER_ID not in registry.GetShaderNodeIdentifiers():
-        stage = Usd.Stage.Open(str(path))
-        for prim in stage.GetPseudoRoot().GetChildren():
-            for result in UsdShade.ShaderDefUtils.GetDiscoveryResults(UsdShade.Shader(prim), str(path)):
-                registry.AddDiscoveryResult(result)
-    _registered = True
-    return True
+    return resources_dir()
 
 
 # ------------------------------------------------------------------ textures
@@ -175,7 +152,6 @@ def author_gpu_preview(stage, material, cbtf: CompressedBTF, textures_dir: Path,
 
     if cross_layout(cbtf.sampling) is None:
         return False
-    register_shader_definitions()
     tables, packs, k = write_gpu_textures(cbtf, Path(textures_dir) / GPU_DIR)
     (Path(textures_dir) / GPU_DIR / MTLX_FILE).write_text(materialx_document(tables, packs, k))
     rel = f"./{textures_rel}/{GPU_DIR}"
