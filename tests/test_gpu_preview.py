@@ -143,7 +143,7 @@ def test_materialx_generated_glsl_compiles(asset):
 
 # ------------------------------------------------------------------ the packaged asset
 def test_asset_has_storm_shader_beside_the_fallback_and_passes_every_validator(asset):
-    for layer in (asset, asset.with_name("pebbles_payload.usda"), asset.with_suffix(".usdz")):
+    for layer in (asset, asset.with_name("pebbles_payload.usdc"), asset.with_suffix(".usdz")):
         assert validation_issues(layer, severities=("Error", "Warn")) == [], layer
     stage = open_stage(asset)
     material = UsdShade.Material(stage.GetPrimAtPath("/pebbles/mtl/BtfMaterial"))

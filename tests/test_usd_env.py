@@ -30,9 +30,12 @@ def outputs(tmp_path_factory) -> dict[str, Path]:
     assert main(["synth", "fuzzy_moss", "-o", str(src), "--sampling", "small", "--size", "32", "--seed", "3",
                  "-q"]) == 0
     assert main(["compress", str(src), "-o", str(comp), "--k", "12", "--codec", "png", "-q"]) == 0
-    usda = work / "a" / "moss.usda"
-    assert main(["package", str(comp), "-o", str(usda), "--usdz", "--lod", "6,3", "-q"]) == 0
-    return {"usda": usda, "payload": usda.with_name("moss_payload.usda"), "usdz": usda.with_suffix(".usdz")}
+    usda, usdc = work / "a" / "moss.usda", work / "c" / "moss.usdc"
+    assert main(["package", str(comp), "-o", str(usda), "--payload-format", "usda", "--usdz", "--lod", "6,3",
+                 "-q"]) == 0
+    assert main(["package", str(comp), "-o", str(usdc), "--lod", "6,3", "-q"]) == 0
+    return {"usda": usda, "usda payload": usda.with_name("moss_payload.usda"), "usdz": usda.with_suffix(".usdz"),
+            "usdc": usdc, "usdc payload": usdc.with_name("moss_payload.usdc")}
 
 
 def usdbtf_env_lines() -> str:
@@ -72,7 +75,7 @@ def test_fresh_process_with_usdbtf_env_validates_every_output_and_lod_clean(outp
     assert report["validators"] >= 25
     for path in outputs.values():
         per_lod = report["assets"][str(path)]
-        if path.name != "moss_payload.usda":
+        if "payload" not in path.name:
             assert {"", "full", "k6", "k3"} <= set(per_lod), (path, sorted(per_lod))
         for selection, issues in per_lod.items():
             assert issues == [], (path.name, selection, issues)

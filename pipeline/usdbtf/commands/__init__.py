@@ -22,3 +22,31 @@ def command_modules() -> list:
     mods = [importlib.import_module(f"{__name__}.{info.name}") for info in pkgutil.iter_modules(__path__)
             if not info.name.startswith("_")]
     return sorted(mods, key=lambda m: (getattr(m, "ORDER", 1000), m.__name__))
+
+
+def json_ready(value):
+    """``value`` with paths as strings and numpy scalars/arrays as Python numbers/lists."""
+    from pathlib import PurePath
+
+    import numpy as np
+
+    if isinstance(value, dict):
+        return {str(k): json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_ready(v) for v in value]
+    if isinstance(value, PurePath):
+        return str(value)
+    if isinstance(value, np.ndarray):
+        return json_ready(value.tolist())
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, float) and not np.isfinite(value):
+        return None                       # strict JSON has no NaN/Infinity
+    return value
+
+
+def print_json(value) -> None:
+    """The ``--json`` summary of a command: one JSON document on stdout (messages go to stderr)."""
+    import json
+
+    print(json.dumps(json_ready(value), indent=1, sort_keys=True))

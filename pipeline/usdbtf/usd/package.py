@@ -1,86 +1,102 @@
 """``usdbtf package``: a compressed BTF as a USD asset (USD asset structure guidelines).
 
-Files written for ``-o out/pebbles.usda``::
+Files written for ``-o out/pebbles.usda`` (or ``.usdc``)::
 
     out/pebbles.usda             root layer: /pebbles (Xform, kind component, defaultPrim),
-                                 metersPerUnit 1, upAxis Y, assetInfo, the ``lod`` variant
-                                 set, and a payload arc to:
-    out/pebbles_payload.usda     the heavy part: geo/ (swatch quad at physical size, or the
-                                 given mesh) and mtl/BtfMaterial (BtfMaterialAPI, the preview
-                                 network), bound with MaterialBindingAPI
-    out/pebbles_textures/        basis.png|exr, coeff/c000.png ..., preview_albedo.png
+                                 metersPerUnit 1, upAxis Y, assetInfo, extentsHint, the
+                                 thumbnail (UsdMedia.AssetPreviewsAPI), the ``lod`` variant
+                                 sets (usd.lod), and a payload arc to:
+    out/pebbles_payload.usdc     the heavy part (``--payload-format usdc``, the default, or
+                                 usda): geo/ (swatch quad at physical size, or the given mesh)
+                                 and mtl/BtfMaterial (BtfMaterialAPI, the fitted
+                                 UsdPreviewSurface fallback, the Storm preview), bound
+    out/pebbles_textures/        basis, coeff/c000 ..., fallback/ (usd.fallback), gpu/
+                                 (usd.storm), thumbnail.png
     out/pebbles.usdz             with --usdz: the same, packaged (variants and payload kept)
+    out/pebbles_ar.usdz          with --usdz-ar: one usdc layer for AR viewers (usd.arkit)
 
 Textures are re-encoded losslessly into formats every USD consumer reads (JPEG XL and
-TIFF become PNG holding the same integer codes; PNG, JPEG and EXR are copied), so a
-reconstruction from the asset equals one from the compressed folder bit for bit.
-Every asset path is relative.  Everything is written into a staging folder, checked
-with every UsdValidation validator, and only then moved into place (root layer last):
-a failure leaves no half-written asset behind.
+TIFF become PNG holding the same integer codes; PNG, JPEG and EXR are copied), or into
+tiled, mip-mapped files with ``--texture-format`` (usd.textures); a reconstruction from the
+asset equals one from the compressed folder bit for bit.  Every asset path is relative, and
+so is the provenance (the source's path relative to the asset).  Everything is written into
+a staging folder, checked with every UsdValidation validator on every ``lod`` selection,
+and only then moved into place (root layer last): a failure leaves no half-written asset.
 """
 from __future__ import annotations
 
 import csv
+import hashlib
 import os
 import shutil
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .. import __version__
-from ..colour import processor
-from ..compress.codecs import Codec
-from ..compress.format import METADATA, CompressedBTF, basis_file, coefficient_file, read_compressed
-from ..errors import BTFError
-from ..imageio import write_image
-from . import geometry, preview, storm  # storm: issue 7 (Hydra preview)
+from ..compress.format import METADATA, CompressedBTF, read_compressed
+from ..errors import BTFError, UsageError
+from ..render.core import default_wrap
+from . import fallback, geometry, lod, storm, thumbnail
+from .lod import FULL_LOD, default_lods
 from .material import LOD_VARIANT_SET, author_btf
+from .textures import TEXTURE_FORMATS, USDZ_FORMATS, TextureSet, package_textures
 from .validate import validate_layer
 
+__all__ = ["PackageOptions", "package", "make_usdz", "default_lods", "LOD_VARIANT_SET", "FULL_LOD", "MATERIAL",
+           "ROOT_FORMATS", "PAYLOAD_FORMATS", "error_curve", "physical_size_of", "provenance_path"]
+
 MATERIAL = "BtfMaterial"
-FULL_LOD = "full"
-#: Extensions every USD consumer (and the usdz spec) reads; others are re-encoded.
-_PORTABLE = {".png", ".jpg", ".jpeg", ".exr"}
+ROOT_FORMATS = (".usda", ".usdc", ".usd")
+PAYLOAD_FORMATS = ("usdc", "usda")
+THUMBNAIL_FILE = "thumbnail.png"
 
 
-def default_lods(k: int) -> list[int]:
-    """Levels of detail for ``k`` vectors: k, then halvings down to no fewer than 4."""
-    levels, n = [], k // 2
-    while n >= 4 and len(levels) < 3:
-        levels.append(n)
-        n //= 2
-    return levels
+@dataclass
+class PackageOptions:
+    """What ``usdbtf package`` writes besides the root layer.
 
+    mesh : mesh with texture coordinates (OBJ/PLY/STL/GLB/USD); None for a swatch quad.
+    usdz / usdz_ar : also write ``<stem>.usdz`` (everything, variants and payload kept) /
+        ``<stem>_ar.usdz`` (one usdc layer for AR viewers, usd.arkit).
+    lods : basis counts of the ``lod`` variants besides "full" (default :func:`default_lods`).
+    physical_size : (width, height) in metres; default the source's ``physical_size_m``.
+    payload_format : "usdc" (default) or "usda".
+    texture_format : "png" (default), "tx" or "exr" (usd.textures).
+    asset_name : assetInfo name (default the file stem); asset_version : assetInfo version
+        (none unless given); creator : assetInfo and layer metadata (none unless given).
+    thumbnail : render and declare a thumbnail (UsdMedia.AssetPreviewsAPI).
+    validate : run every UsdValidation validator before publishing.
+    """
 
-def _portable_copy(src: Path, dst_no_ext: Path) -> str:
-    """Copy ``src`` (PNG/JPEG/EXR) or re-encode it as PNG (same integer codes); returns the new suffix."""
-    suffix = src.suffix.lower()
-    if suffix in _PORTABLE:
-        dst = dst_no_ext.with_suffix(suffix)
-        shutil.copyfile(src, dst)
-        return suffix
-    pixels = Codec.read(src)
-    if pixels.dtype not in (np.uint8, np.uint16):
-        raise BTFError(f"{src}: cannot re-encode {pixels.dtype} texture as PNG")
-    write_image(dst_no_ext.with_suffix(".png"), pixels, color_space="data", attributes={"png:compressionLevel": 6})
-    return ".png"
+    mesh: Path | None = None
+    usdz: bool = False
+    usdz_ar: bool = False
+    lods: list | None = None
+    physical_size: tuple | None = None
+    payload_format: str = "usdc"
+    texture_format: str = "png"
+    asset_name: str | None = None
+    asset_version: str | None = None
+    creator: str | None = None
+    thumbnail: bool = True
+    validate: bool = True
 
-
-def package_textures(cbtf: CompressedBTF, src: Path, dst: Path) -> tuple[str, list[str]]:
-    """Copy/re-encode the basis and the k coefficient textures from the compressed folder
-    ``src`` into ``dst``.  Returns their paths relative to ``dst``."""
-    from ..compress.codecs import get_codec
-
-    codec = get_codec(cbtf.codec)
-    (dst / "coeff").mkdir(parents=True, exist_ok=True)
-    basis_src = src / basis_file(codec)
-    basis = "basis" + _portable_copy(basis_src, dst / "basis")
-    coeffs = []
-    for i in range(cbtf.k):
-        rel = Path(coefficient_file(codec, i))
-        coeffs.append(str(rel.with_suffix(_portable_copy(src / rel, dst / rel.with_suffix("")))))
-    return basis, coeffs
+    def check(self) -> None:
+        """Raise UsageError for options that contradict each other or are out of range."""
+        if self.payload_format not in PAYLOAD_FORMATS:
+            raise UsageError(f"--payload-format {self.payload_format!r}: choose from {', '.join(PAYLOAD_FORMATS)}")
+        if self.texture_format not in TEXTURE_FORMATS:
+            raise UsageError(f"--texture-format {self.texture_format!r}: choose from {', '.join(TEXTURE_FORMATS)}")
+        if self.usdz and self.texture_format not in USDZ_FORMATS:
+            raise UsageError(f"--usdz cannot hold {self.texture_format} textures (the usdz spec allows PNG, JPEG, "
+                             f"EXR): use --texture-format {' or '.join(USDZ_FORMATS)}")
+        for flag, value in (("--asset-name", self.asset_name), ("--asset-version", self.asset_version),
+                            ("--creator", self.creator)):
+            if value is not None and (not value.strip() or any(ord(ch) < 32 for ch in value)):
+                raise UsageError(f"{flag} {value!r}: must be non-empty text without control characters")
 
 
 def error_curve(folder: Path, cbtf: CompressedBTF) -> list[tuple[int, float]]:
@@ -109,103 +125,102 @@ def physical_size_of(cbtf: CompressedBTF) -> tuple[float, float] | None:
     return w, h
 
 
+def provenance_path(source: str, asset_dir: Path) -> str:
+    """``source`` (the path the compressed BTF records) as the asset should record it:
+    relative to the asset's folder, never absolute.  A relative record is taken relative to
+    the working directory (where compress ran, as far as anyone knows); a path that cannot
+    be made relative (another drive) is recorded as ``sha256:<hash of the absolute path>``."""
+    if not source:
+        return ""
+    absolute = Path(os.path.abspath(source))
+    try:
+        return Path(os.path.relpath(absolute, os.path.abspath(asset_dir))).as_posix()
+    except ValueError:
+        return "sha256:" + hashlib.sha256(str(absolute).encode()).hexdigest()
+
+
 def _prim_name(stem: str) -> str:
     from pxr import Tf
 
     return Tf.MakeValidIdentifier(stem)
 
 
-def _stage_metadata(layer, root: str) -> None:
+def _stage_metadata(layer, root: str, options: PackageOptions, what: str) -> None:
     from pxr import UsdGeom
 
     layer.defaultPrim = root
     layer.pseudoRoot.SetInfo(UsdGeom.Tokens.metersPerUnit, 1.0)
     layer.pseudoRoot.SetInfo(UsdGeom.Tokens.upAxis, UsdGeom.Tokens.y)
+    layer.documentation = f"{what} of BTF asset {options.asset_name}, written by usdbtf {__version__}"
+    data = {"generator": f"usdbtf {__version__}"}
+    if options.creator:
+        data["creator"] = options.creator
+    layer.customLayerData = data
 
 
-def _author_preview(stage, material, textures_rel: str, roughness: float) -> None:
-    """UsdPreviewSurface network: albedo texture (sRGB PNG) + fitted roughness."""
-    from pxr import Sdf, Usd, UsdShade
+@dataclass
+class _Written:
+    """What the payload holds that the root layer needs."""
 
-    mpath = material.GetPath()
-    reader = UsdShade.Shader.Define(stage, mpath.AppendChild("StReader"))
-    reader.CreateIdAttr("UsdPrimvarReader_float2")
-    reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
-    reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
-    tex = UsdShade.Shader.Define(stage, mpath.AppendChild("AlbedoTexture"))
-    tex.CreateIdAttr("UsdUVTexture")
-    file_input = tex.CreateInput("file", Sdf.ValueTypeNames.Asset)
-    file_input.Set(Sdf.AssetPath(f"./{textures_rel}/preview_albedo.png"))
-    file_input.GetAttr().SetColorSpace("srgb_rec709_scene")
-    tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
-    tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
-    tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("repeat")
-    tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("repeat")
-    tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
-    surface = UsdShade.Shader.Define(stage, mpath.AppendChild("PreviewSurface"))
-    surface.CreateIdAttr("UsdPreviewSurface")
-    Usd.ColorSpaceAPI.Apply(surface.GetPrim()).CreateColorSpaceNameAttr("lin_rec709_scene")
-    surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(tex.ConnectableAPI(), "rgb")
-    surface.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(float(roughness))
-    surface.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(0.0)
-    surface.CreateOutput("surface", Sdf.ValueTypeNames.Token)
-    material.CreateSurfaceOutput().ConnectToSource(surface.ConnectableAPI(), "surface")
+    coefficients: list
+    storm: tuple | None
+    extent: np.ndarray
 
 
-def _write_albedo(cbtf: CompressedBTF, path: Path, white_level: float) -> None:
-    albedo = preview.mean_albedo(cbtf, white_level=white_level)
-    srgb = processor(cbtf.working_space, preview.ALBEDO_SPACE, cbtf.ocio_config).apply(albedo)
-    write_image(path, (np.clip(srgb, 0, 1) * 255 + 0.5).astype(np.uint8), color_space=preview.ALBEDO_SPACE)
-
-
-def _write_payload(path: Path, root: str, cbtf: CompressedBTF, mesh: geometry.MeshData, textures_rel: str,
-                   basis: str, coeffs: list[str], *, physical_size, curve, roughness: float) -> None:
+def _write_payload(path: Path, root: str, cbtf: CompressedBTF, compressed: Path, mesh: geometry.MeshData,
+                   textures: TextureSet, options: PackageOptions, *, physical_size, curve, provenance: str,
+                   white_level: float, log) -> _Written:
     from pxr import Kind, Usd, UsdGeom, UsdShade
 
+    from ..svbrdf import fit_svbrdf
+
     stage = Usd.Stage.CreateNew(str(path))
-    _stage_metadata(stage.GetRootLayer(), root)
+    _stage_metadata(stage.GetRootLayer(), root, options, "payload")
     asset = UsdGeom.Xform.Define(stage, f"/{root}")
     Usd.ModelAPI(asset).SetKind(Kind.Tokens.component)
     UsdGeom.Scope.Define(stage, f"/{root}/geo")
     UsdGeom.Scope.Define(stage, f"/{root}/mtl")
     material = UsdShade.Material.Define(stage, f"/{root}/mtl/{MATERIAL}")
-    author_btf(material.GetPrim(), cbtf, f"./{textures_rel}/{basis}", [f"./{textures_rel}/{c}" for c in coeffs],
-               physical_size=physical_size, error_curve=curve)
-    _author_preview(stage, material, textures_rel, roughness)
-    # Issue 7 hook: Storm glslfx preview (render context "glslfx") + GPU textures in <textures>/gpu/.
-    storm.author_gpu_preview(stage, material, cbtf, path.parent / textures_rel, textures_rel)
+    basis, coeffs = package_textures(cbtf, compressed, textures)
+    author_btf(material.GetPrim(), cbtf, basis.path, [c.path for c in coeffs], physical_size=physical_size,
+               error_curve=curve, provenance_source=provenance)
+
+    maps = fit_svbrdf(cbtf, white_level=white_level)
+    log(f"fallback fitted: median roughness {float(np.median(maps.roughness)):.2f}, "
+        f"{float(np.mean(maps.normal[..., 2] < 0.999)) * 100:.0f} % of texels with a normal")
+    summary = {"diffuse": np.median(maps.diffuse.reshape(-1, 3), axis=0),
+               "roughness": float(np.median(maps.roughness))}
+    fallback.author_fallback(stage, material, fallback.write_maps(maps, textures, cbtf.ocio_config),
+                             wrap=default_wrap(cbtf), summary=summary)
+    gpu = storm.author_gpu_preview(stage, material, cbtf, textures)
     prim = geometry.author_mesh(stage, f"/{root}/geo/{_prim_name(mesh.name)}", mesh)
     UsdShade.MaterialBindingAPI.Apply(prim).Bind(material)
     stage.GetRootLayer().Save()
+    return _Written([c.path for c in coeffs], gpu, mesh.extent())
 
 
-def _write_root(path: Path, root: str, payload_name: str, coeffs_abs: list[str], levels: list[int], k: int) -> None:
-    from pxr import Kind, Sdf, Usd, UsdGeom
+def _write_root(path: Path, root: str, payload_name: str, written: _Written, levels: list[int],
+                options: PackageOptions, thumbnail_path: str | None) -> None:
+    from pxr import Kind, Sdf, Usd, UsdGeom, Vt
 
     stage = Usd.Stage.CreateNew(str(path))
-    _stage_metadata(stage.GetRootLayer(), root)
+    _stage_metadata(stage.GetRootLayer(), root, options, "root layer")
     prim = UsdGeom.Xform.Define(stage, f"/{root}").GetPrim()
-    Usd.ModelAPI(prim).SetKind(Kind.Tokens.component)
     model = Usd.ModelAPI(prim)
-    model.SetAssetName(root)
+    model.SetKind(Kind.Tokens.component)
+    model.SetAssetName(options.asset_name)
     model.SetAssetIdentifier(Sdf.AssetPath(f"./{path.name}"))
-    model.SetAssetVersion(__version__)
+    if options.asset_version is not None:
+        model.SetAssetVersion(options.asset_version)
+    if options.creator is not None:
+        prim.SetAssetInfoByKey("creator", options.creator)
     prim.GetPayloads().AddPayload(f"./{payload_name}")
-    # The variant set lives on the root prim, outside the payload, so a consumer can pick
-    # a level of detail before (or without) loading it.  Coefficients are energy-ordered:
-    # a level is the first n textures of the same files.
-    vset = prim.GetVariantSets().AddVariantSet(LOD_VARIANT_SET)
-    for name in [FULL_LOD] + [f"k{n}" for n in levels]:
-        vset.AddVariant(name)
-    for n in levels:
-        vset.SetVariantSelection(f"k{n}")
-        with vset.GetVariantEditContext():
-            mat = stage.OverridePrim(f"/{root}/mtl/{MATERIAL}")
-            mat.CreateAttribute("btf:basisCount", Sdf.ValueTypeNames.Int, custom=False, variability=Sdf.VariabilityUniform).Set(n)
-            mat.CreateAttribute("btf:coefficients", Sdf.ValueTypeNames.AssetArray, custom=False,
-                                variability=Sdf.VariabilityUniform).Set(
-                Sdf.AssetPathArray([Sdf.AssetPath(p) for p in coeffs_abs[:n]]))
-    vset.SetVariantSelection(FULL_LOD)
+    # Bounds above the payload: an unloaded asset still has its box.
+    UsdGeom.ModelAPI.Apply(prim).SetExtentsHint(Vt.Vec3fArray.FromNumpy(written.extent.astype(np.float32)))
+    if thumbnail_path:
+        thumbnail.declare_thumbnail(prim, thumbnail_path)
+    lod.author_lod_variants(stage, f"/{root}", f"/{root}/mtl/{MATERIAL}", levels, written.coefficients,
+                            written.storm)
     stage.GetRootLayer().Save()
 
 
@@ -222,46 +237,64 @@ def _publish(staging: Path, out_dir: Path, names: list[str]) -> None:
             os.replace(src, dst)
 
 
-def package(compressed, out, *, mesh=None, usdz: bool = False, lods: list[int] | None = None,
-            physical_size: tuple[float, float] | None = None, validate: bool = True, log=None) -> dict:
-    """Package the compressed BTF folder ``compressed`` as ``out`` (.usda); returns the paths written.
+def _check_output(out: Path) -> None:
+    if out.suffix not in ROOT_FORMATS:
+        raise UsageError(f"{out}: the asset's root layer must be a {', '.join(ROOT_FORMATS)} file")
 
-    mesh : path of a mesh (OBJ/PLY/STL/GLB/USD with texture coordinates); None for a swatch quad.
-    lods : basis counts of the ``lod`` variants besides "full" (default :func:`default_lods`).
-    physical_size : (width, height) in metres; default the source's ``physical_size_m``.
-    """
+
+def package(compressed, out, options: PackageOptions | None = None, *, log=None, **overrides) -> dict:
+    """Package the compressed BTF folder ``compressed`` as ``out`` (.usda/.usdc/.usd); returns
+    a summary: the paths written ("root", "payload", "textures", "usdz", "usdz_ar"), "k",
+    "lods" ([name, basis count] pairs), "validated".  ``options`` (or keyword overrides of
+    its fields) as :class:`PackageOptions`."""
+    from dataclasses import replace
+
     log = log or (lambda msg: None)
+    options = replace(options or PackageOptions(), **overrides)
+    options.check()
     compressed, out = Path(compressed), Path(out)
-    if out.suffix != ".usda":
-        raise BTFError(f"{out}: the asset's root layer must be a .usda file")
+    _check_output(out)
     cbtf = read_compressed(compressed)
-    size = physical_size or physical_size_of(cbtf)
+    size = options.physical_size or physical_size_of(cbtf)
     if size is None:
         raise BTFError(f"{compressed / METADATA}: no physical_size_m recorded; pass --physical-size W H (metres)")
-    levels = sorted({int(n) for n in (default_lods(cbtf.k) if lods is None else lods)} - {cbtf.k}, reverse=True)
+    levels = sorted({int(n) for n in (default_lods(cbtf.k) if options.lods is None else options.lods)} - {cbtf.k},
+                    reverse=True)
     bad = [n for n in levels if not 1 <= n < cbtf.k]
     if bad:
-        raise BTFError(f"--lod {bad[0]} is outside 1..{cbtf.k} (the asset's k)")
-    shape = geometry.load_mesh(mesh) if mesh else geometry.swatch(*size)
-    white = float((cbtf.info.get("source_metadata") or {}).get("white_level", 1.0))
+        raise UsageError(f"--lod {bad[0]} is outside 1..{cbtf.k} (the asset's k)")
+    shape = geometry.load_mesh(options.mesh) if options.mesh else geometry.swatch(*size)
+    source_meta = cbtf.info.get("source_metadata") or {}
+    white = float(source_meta.get("white_level", 1.0))
+    if not (np.isfinite(white) and white > 0):
+        raise BTFError(f"{compressed / METADATA}: white_level {white!r} must be a positive number")
     curve = error_curve(compressed, cbtf)
-    roughness, _ = preview.fit_roughness(cbtf)
 
     stem, root = out.stem, _prim_name(out.stem)
-    textures_rel, payload_name = f"{stem}_textures", f"{stem}_payload.usda"
+    options = replace(options, asset_name=options.asset_name or stem)
+    textures_rel, payload_name = f"{stem}_textures", f"{stem}_payload.{options.payload_format}"
+    prov = provenance_path(str((cbtf.info.get("provenance") or {}).get("source") or cbtf.source.get("path") or ""),
+                           out.parent)
     out.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{stem}.staging-", dir=out.parent))
     try:
-        tex_dir = staging / textures_rel
-        basis, coeffs = package_textures(cbtf, compressed, tex_dir)
-        _write_albedo(cbtf, tex_dir / "preview_albedo.png", white)
-        _write_payload(staging / payload_name, root, cbtf, shape, textures_rel, basis, coeffs,
-                       physical_size=size, curve=curve, roughness=roughness)
-        _write_root(staging / out.name, root, payload_name, [f"./{textures_rel}/{c}" for c in coeffs], levels, cbtf.k)
+        textures = TextureSet(staging / textures_rel, textures_rel, options.texture_format)
+        textures.folder.mkdir(parents=True)
+        written = _write_payload(staging / payload_name, root, cbtf, compressed, shape, textures, options,
+                                 physical_size=size, curve=curve, provenance=prov, white_level=white, log=log)
+        thumb = None
+        if options.thumbnail:
+            thumbnail.write_thumbnail(cbtf, shape, textures.folder / THUMBNAIL_FILE)
+            thumb = f"./{textures_rel}/{THUMBNAIL_FILE}"
+        _write_root(staging / out.name, root, payload_name, written, levels, options, thumb)
         names = [textures_rel, payload_name]
-        if usdz:
+        if options.usdz:
             names.append(make_usdz(staging / out.name, staging / f"{stem}.usdz").name)
-        if validate:
+        if options.usdz_ar:
+            from .arkit import make_ar_usdz
+
+            names.append(make_ar_usdz(staging, stem, root, shape, textures, options).name)
+        if options.validate:
             for name in names[1:] + [out.name]:
                 problems = validate_layer(staging / name)
                 if problems:
@@ -270,12 +303,17 @@ def package(compressed, out, *, mesh=None, usdz: bool = False, lods: list[int] |
         _publish(staging, out.parent, names + [out.name])
     finally:
         shutil.rmtree(staging, ignore_errors=True)
-    log(f"packaged {compressed} (k = {cbtf.k}, LODs {[cbtf.k] + levels}, roughness fit {roughness:.2f}) as {out}"
-        + (f" and {out.with_suffix('.usdz').name}" if usdz else ""))
-    written = {"root": out, "payload": out.parent / payload_name, "textures": out.parent / textures_rel}
-    if usdz:
-        written["usdz"] = out.with_suffix(".usdz")
-    return written
+    extra = [n for n in names[2:]]
+    log(f"packaged {compressed} (k = {cbtf.k}, LODs {[cbtf.k] + levels}) as {out}"
+        + (f" and {', '.join(extra)}" if extra else ""))
+    summary = {"root": out, "payload": out.parent / payload_name, "textures": out.parent / textures_rel,
+               "k": cbtf.k, "lods": [[FULL_LOD, cbtf.k]] + [[lod.lod_name(n), n] for n in levels],
+               "texture_format": options.texture_format, "validated": options.validate}
+    if options.usdz:
+        summary["usdz"] = out.parent / f"{stem}.usdz"
+    if options.usdz_ar:
+        summary["usdz_ar"] = out.parent / f"{stem}_ar.usdz"
+    return summary
 
 
 def make_usdz(root_layer: Path, usdz: Path) -> Path:

@@ -27,11 +27,9 @@ an unresolvable one fails MissingReferenceValidator, and usd-core has no Sdr par
 outright.  UsdPreviewSurface solves the same problem the same way: the asset names the
 shader, the plugin ships its definition (sourceAsset + glslfx).
 
-Levels of detail: the payload's root prim carries its own ``lod`` variant set, selected
-by the root layer's ``lod`` selection.  Each ``k<n>`` variant sets ``basisCount`` and blocks
-the connections of the packs beyond ``3 * ceil(n / 4)``, so Storm loads only those textures.
-The full set of connections lives on an internal class the shader references (weaker
-than variants): any other selection shows every layer.
+Levels of detail (:mod:`usdbtf.usd.lod`): the Material's ``lod`` variant ``k<n>``, in the
+root layer, sets ``basisCount`` and blocks the connections of the packs beyond
+``3 * ceil(n / 4)``, so Storm loads only those textures; the payload holds the full set.
 """
 from __future__ import annotations
 
@@ -40,15 +38,14 @@ from pathlib import Path
 from ..compress.format import CompressedBTF
 from ..errors import BTFError
 from ..gpu import shaders
-from ..gpu.tables import MAX_GROUPS, gpu_layout, pack_count
+from ..gpu.tables import MAX_GROUPS, gpu_layout
 
-__all__ = ["plugin_dir_resources", "GPU_DIR", "STORM_SURFACE", "FULL_CLASS", "author_gpu_preview",
+__all__ = ["plugin_dir_resources", "GPU_DIR", "STORM_SURFACE", "author_gpu_preview",
            "write_gpu_textures", "materialx_document", "storm_shader", "layout_from_asset", "read_rgba"]
 
 GPU_DIR = "gpu"
 STORM_SURFACE = "StormSurface"
 TABLES_NODE = "StormTables"
-FULL_CLASS = "_UsdBtfStormFull"
 MTLX_FILE = "usdbtf.mtlx"
 _RENDER_CONTEXT = "glslfx"
 
@@ -107,97 +104,61 @@ def materialx_document(tables: str, packs: list[str], k: int) -> str:
 
 
 # ------------------------------------------------------------------ authoring
-def _texture(stage, path, file: str, reader, wrap: str):
-    from pxr import Sdf, UsdShade
+def _texture(stage, path, texture, reader, wrap: str):
+    """A UsdUVTexture of ``texture`` (a textures.Texture) whose output r feeds a shader input."""
+    from pxr import Sdf
 
-    tex = UsdShade.Shader.Define(stage, path)
-    tex.CreateIdAttr("UsdUVTexture")
-    file_input = tex.CreateInput("file", Sdf.ValueTypeNames.Asset)
-    file_input.Set(Sdf.AssetPath(file))
-    file_input.GetAttr().SetColorSpace("raw")
-    tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("raw")
-    tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
-    tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set(wrap)
-    tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set(wrap)
+    from .fallback import uv_texture
+
     # The shader reads all four channels through the sampler (HdGetSampler_*); the
     # connection names output r, a float like the shader input it feeds.
-    tex.CreateOutput("r", Sdf.ValueTypeNames.Float)
-    return tex
+    return uv_texture(stage, path, texture, reader, wrap, ("r", Sdf.ValueTypeNames.Float))
 
 
-def _st_reader(stage, material_path):
-    from pxr import Sdf, UsdShade
-
-    reader = UsdShade.Shader.Get(stage, material_path.AppendChild("StReader"))
-    if reader and reader.GetIdAttr().Get() == "UsdPrimvarReader_float2":
-        return reader                                    # the preview network's reader
-    reader = UsdShade.Shader.Define(stage, material_path.AppendChild("StormStReader"))
-    reader.CreateIdAttr("UsdPrimvarReader_float2")
-    reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
-    reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
-    return reader
-
-
-def author_gpu_preview(stage, material, cbtf: CompressedBTF, textures_dir: Path, textures_rel: str, *,
-                       levels: list[int] | None = None) -> bool:
-    """Write the GPU textures into ``textures_dir/gpu`` and author the Storm shader network
-    in ``material`` (a UsdShade.Material on ``stage``, whose layer sits next to
-    ``textures_rel``).  levels : the asset's LOD basis counts (default: package.default_lods).
-    Returns False (and authors nothing) for a BTF whose sampling is not every light at
-    every view, which the preview cannot interpolate."""
+def author_gpu_preview(stage, material, cbtf: CompressedBTF, textures) -> tuple[str, int, int] | None:
+    """Write the GPU textures into ``textures`` (a :class:`~usdbtf.usd.textures.TextureSet`,
+    under ``gpu/``) and author the Storm shader network in ``material`` (a UsdShade.Material
+    on ``stage``, whose layer sits next to the texture folder).  Returns (the shader's name
+    under the material, number of packs, basis count of the tables) for the ``lod``
+    variants (:mod:`usdbtf.usd.lod`), or None (nothing authored) for a BTF whose sampling
+    is not every light at every view, which the preview cannot interpolate."""
     from pxr import Sdf, UsdShade
 
     from ..compress.format import cross_layout
-    from .package import LOD_VARIANT_SET, default_lods
+    from .fallback import st_reader
 
     if cross_layout(cbtf.sampling) is None:
-        return False
-    tables, packs, k = write_gpu_textures(cbtf, Path(textures_dir) / GPU_DIR)
-    (Path(textures_dir) / GPU_DIR / MTLX_FILE).write_text(materialx_document(tables, packs, k))
-    rel = f"./{textures_rel}/{GPU_DIR}"
+        return None
+    gpu = Path(textures.folder) / GPU_DIR
+    tables_file, pack_files, k = write_gpu_textures(cbtf, gpu)
+    tables = textures.add(f"{GPU_DIR}/{tables_file}", "float")
+    packs = [textures.add(f"{GPU_DIR}/{name}", "unorm" if name.endswith(".png") else "float")
+             for name in pack_files]
+    (gpu / MTLX_FILE).write_text(materialx_document(Path(tables.path).name, [Path(t.path).name for t in packs], k))
     mpath = material.GetPath()
     wrap = _default_wrap(cbtf)
-    reader = _st_reader(stage, mpath)
+    reader = st_reader(stage, mpath)
 
-    # Everything Storm needs for the full k, on an internal class the shader references:
-    # weaker than the payload's lod variants, which trim it.
-    full = stage.CreateClassPrim(f"/{FULL_CLASS}")
-    full.SetDocumentation("usdbtf: the Storm preview's inputs for every basis vector; referenced by "
-                          f"{mpath}/{STORM_SURFACE} and trimmed by the lod variants.")
-    full_shader = UsdShade.Shader(full)
-    full_shader.CreateInput("basisCount", Sdf.ValueTypeNames.Int).Set(k)
-    tex = _texture(stage, mpath.AppendChild(TABLES_NODE), f"{rel}/{tables}", reader, "clamp")
-    full_shader.CreateInput("tables", Sdf.ValueTypeNames.Float).ConnectToSource(tex.ConnectableAPI(), "r")
-    for p, name in enumerate(packs):
-        tex = _texture(stage, mpath.AppendChild(f"Storm{shaders.pack_name(p).capitalize()}"), f"{rel}/{name}",
-                       reader, wrap)
-        full_shader.CreateInput(shaders.pack_name(p), Sdf.ValueTypeNames.Float).ConnectToSource(
-            tex.ConnectableAPI(), "r")
-
+    # The full set of connections, as local opinions: the lod variants live in the root
+    # layer, whose opinions are stronger than the payload's (usdbtf.usd.lod).
     surface = UsdShade.Shader.Define(stage, mpath.AppendChild(STORM_SURFACE))
-    surface.GetPrim().GetReferences().AddInternalReference(full.GetPath())
     surface.CreateIdAttr(shaders.SHADER_ID)
-    surface.CreateInput("exposure", Sdf.ValueTypeNames.Float).Set(1.0)
+    data_inputs = [surface.CreateInput("basisCount", Sdf.ValueTypeNames.Int),
+                   surface.CreateInput("exposure", Sdf.ValueTypeNames.Float)]
+    data_inputs[0].Set(k)
+    data_inputs[1].Set(1.0)
+    tex = _texture(stage, mpath.AppendChild(TABLES_NODE), tables, reader, "clamp")
+    data_inputs.append(surface.CreateInput("tables", Sdf.ValueTypeNames.Float))
+    data_inputs[-1].ConnectToSource(tex.ConnectableAPI(), "r")
+    for p, texture in enumerate(packs):
+        tex = _texture(stage, mpath.AppendChild(f"Storm{shaders.pack_name(p).capitalize()}"), texture, reader, wrap)
+        data_inputs.append(surface.CreateInput(shaders.pack_name(p), Sdf.ValueTypeNames.Float))
+        data_inputs[-1].ConnectToSource(tex.ConnectableAPI(), "r")
+    for inp in data_inputs:             # data, not colour (the material declares its working space)
+        inp.GetAttr().SetColorSpace("raw")
     surface.CreateOutput("surface", Sdf.ValueTypeNames.Token)
     material.CreateSurfaceOutput(_RENDER_CONTEXT).ConnectToSource(surface.ConnectableAPI(), "surface")
-
-    root = stage.GetPrimAtPath(mpath.GetPrefixes()[0])
-    levels = sorted({n for n in (default_lods(cbtf.k) if levels is None else levels) if 1 <= n < cbtf.k},
-                    reverse=True)
-    if not levels:
-        return True
-    vset = root.GetVariantSets().AddVariantSet(LOD_VARIANT_SET)
-    for n in levels:
-        name = f"k{n}"
-        vset.AddVariant(name)
-        vset.SetVariantSelection(name)
-        with vset.GetVariantEditContext():
-            over = stage.OverridePrim(surface.GetPath())
-            over.CreateAttribute("inputs:basisCount", Sdf.ValueTypeNames.Int).Set(min(n, k))
-            for p in range(pack_count(n), len(packs)):
-                over.CreateAttribute(f"inputs:{shaders.pack_name(p)}", Sdf.ValueTypeNames.Float).SetConnections([])
-    vset.ClearVariantSelection()
-    return True
+    return STORM_SURFACE, len(packs), k
 
 
 def _default_wrap(cbtf: CompressedBTF) -> str:
