@@ -15,7 +15,7 @@ import pytest
 import usdbtf  # noqa: F401  (registers the schema plugin first)
 from pxr import Sdf, Usd, UsdGeom, UsdShade
 
-from cli_helpers import bad_input, ok
+from cli_helpers import bad_input, ok, run
 from usdbtf import colour
 from usdbtf.cli import main
 from usdbtf.compress import read_compressed, reconstruct
@@ -452,3 +452,56 @@ def test_no_physical_size_is_a_clear_error(src, tmp_path, capsys):
     meta.write_text(meta.read_text().replace('"physical_size_m"', '"no_size"'))
     bad_input(capsys, "package", c, "-o", tmp_path / "o" / "a.usda", names="--physical-size")
     ok(capsys, "package", c, "-o", tmp_path / "o" / "a.usda", "--physical-size", "0.1", "0.1", "-q")
+
+
+# ------------------------------------------------------------------ textures for renderers
+def _texture_files(asset: Path) -> list[Path]:
+    stage = Usd.Stage.Open(str(asset))
+    found = []
+    for prim in stage.Traverse():
+        for attr in prim.GetAuthoredAttributes():
+            values = attr.Get()
+            if attr.GetTypeName() == Sdf.ValueTypeNames.Asset:
+                values = [values]
+            elif attr.GetTypeName() != Sdf.ValueTypeNames.AssetArray:
+                continue
+            found += [Path(a.resolvedPath) for a in values or [] if a.resolvedPath]
+    return sorted(set(found))
+
+
+@pytest.mark.parametrize("fmt", ["tx", "exr"])
+def test_texture_formats_are_tiled_mipmapped_and_bit_exact(compressed, tmp_path, capsys, fmt):
+    import OpenImageIO as oiio
+
+    out = tmp_path / fmt / "pebbles.usda"
+    ok(capsys, "package", compressed, "-o", out, "--texture-format", fmt, "--no-thumbnail", "-q")
+    files = _texture_files(out)
+    assert len(files) >= 1 + 12 + 4 + 1 and {p.suffix for p in files} == {f".{fmt}"}
+    for path in files:
+        inp = oiio.ImageInput.open(str(path))
+        spec, levels = inp.spec(), 0
+        while inp.seek_subimage(0, levels):
+            levels += 1
+        inp.close()
+        assert spec.tile_width == 64 and levels > 1, path
+    want = reconstruct(read_compressed(compressed))
+    assert np.array_equal(reconstruct(load_btf(out)), want)                     # level 0 holds the codes
+    assert np.array_equal(reconstruct(load_btf(out, lod="k6")), reconstruct(read_compressed(compressed), k=6))
+    assert validate_layer(out) == []
+    # The GPU packs hold what the sampler read from the PNG packs.
+    from usdbtf.usd import storm
+
+    layout, _, _ = storm.layout_from_asset(out)
+    png_layout, _, _ = storm.layout_from_asset(pkg.package(compressed, tmp_path / "png" / "p.usda",
+                                                           thumbnail=False)["root"])
+    assert len(layout.packs) == len(png_layout.packs)
+    for got, ref in zip(layout.packs, png_layout.packs):
+        if fmt == "exr" and np.issubdtype(ref.dtype, np.integer):          # normalised, as a sampler reads it
+            got = np.rint(np.asarray(got, np.float64) * np.iinfo(ref.dtype).max)
+        assert np.array_equal(np.asarray(got, np.float64), np.asarray(ref, np.float64))
+
+
+def test_usdz_refuses_tiff_textures(compressed, tmp_path, capsys):
+    code, _, err = run(capsys, "package", compressed, "-o", tmp_path / "a.usda", "--texture-format", "tx", "--usdz")
+    assert code != 0 and "--usdz cannot hold tx" in err
+    assert not (tmp_path / "a.usda").exists()

@@ -143,8 +143,11 @@ class TextureSet:
         src = self.folder / name
         if self.fmt != "png":
             name = str(Path(name).with_suffix("." + self.fmt))
-            _make_texture(src, self.folder / name, kind, self.fmt)
+            dst = self.folder / name
+            tmp = dst.with_name(f".{dst.name}.maketx{dst.suffix}")
+            _make_texture(src, tmp, kind, self.fmt)
             src.unlink()
+            tmp.replace(dst)
         elif src.suffix.lower() == ".png" and kind != "srgb":
             mark_png_data(src)
         path = f"./{self.rel}/{name}"
@@ -170,6 +173,8 @@ def _make_texture(src: Path, dst: Path, kind: str, fmt: str) -> None:
     elif kind == "srgb":
         space = "srgb_rec709_scene"
     buf.specmod().attribute("oiio:ColorSpace", space)
+    if kind != "srgb":
+        buf.specmod().alpha_channel = -1       # a data layer: maketx would clamp an alpha to [0, 1]
     config = oiio.ImageSpec()
     for key, value in (("maketx:fileformatname", "tiff" if fmt == "tx" else "exr"), ("maketx:filtername", "box"),
                        ("maketx:ignore_unassoc", 1), ("tile_width", _TILE), ("tile_height", _TILE),
