@@ -33,9 +33,9 @@ def outputs(tmp_path_factory) -> dict[str, Path]:
     usda, usdc = work / "a" / "moss.usda", work / "c" / "moss.usdc"
     assert main(["package", str(comp), "-o", str(usda), "--payload-format", "usda", "--usdz", "--lod", "6,3",
                  "-q"]) == 0
-    assert main(["package", str(comp), "-o", str(usdc), "--lod", "6,3", "-q"]) == 0
+    assert main(["package", str(comp), "-o", str(usdc), "--lod", "6,3", "--usdz-ar", "-q"]) == 0
     return {"usda": usda, "usda payload": usda.with_name("moss_payload.usda"), "usdz": usda.with_suffix(".usdz"),
-            "usdc": usdc, "usdc payload": usdc.with_name("moss_payload.usdc")}
+            "usdc": usdc, "usdc payload": usdc.with_name("moss_payload.usdc"), "ar": usdc.with_name("moss_ar.usdz")}
 
 
 def usdbtf_env_lines() -> str:
@@ -75,7 +75,7 @@ def test_fresh_process_with_usdbtf_env_validates_every_output_and_lod_clean(outp
     assert report["validators"] >= 25
     for path in outputs.values():
         per_lod = report["assets"][str(path)]
-        if "payload" not in path.name:
+        if "payload" not in path.name and "_ar" not in path.name:
             assert {"", "full", "k6", "k3"} <= set(per_lod), (path, sorted(per_lod))
         for selection, issues in per_lod.items():
             assert issues == [], (path.name, selection, issues)

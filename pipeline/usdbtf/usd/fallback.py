@@ -69,14 +69,16 @@ def decode_maps(pixels: dict[str, np.ndarray], working_space: str, *, ocio_confi
                       working_space, float(white_level))
 
 
-def write_maps(maps: SvbrdfMaps, textures, ocio_config: str | None = None) -> dict:
-    """Write the four maps into ``textures`` (a textures.TextureSet); {map: textures.Texture}."""
+def write_maps(maps: SvbrdfMaps, textures, ocio_config: str | None = None, names=tuple(MAP_FILES)) -> dict:
+    """Write the maps ``names`` into ``textures`` (a textures.TextureSet); {map: textures.Texture}."""
     from .textures import DATA
 
     folder = Path(textures.folder) / FALLBACK_DIR
     folder.mkdir(parents=True, exist_ok=True)
     written = {}
     for name, pixels in encode_maps(maps, ocio_config).items():
+        if name not in names:
+            continue
         file, kind = MAP_FILES[name]
         space = COLOUR_ENCODING if kind == "srgb" else DATA
         write_image(folder / file, pixels, color_space=space, attributes={"png:compressionLevel": 9})
@@ -121,10 +123,12 @@ def uv_texture(stage, path, texture, reader, wrap: str, output: tuple, *, scale=
     return tex
 
 
-def author_fallback(stage, material, textures: dict, *, wrap: str = "repeat", summary: dict | None = None) -> None:
+def author_fallback(stage, material, textures: dict, *, wrap: str = "repeat", summary: dict | None = None,
+                    specular_workflow: bool = True) -> None:
     """The UsdPreviewSurface network on ``material`` (its universal ``outputs:surface``) from
     :func:`write_maps`'s textures.  ``summary``: {"diffuse": (3,), "roughness": float} used as
-    the inputs' values for readers that ignore connections."""
+    the inputs' values for readers that ignore connections.  Without ``specular_workflow``
+    (AR viewers): metallic workflow at metallic 0, no specular map."""
     from pxr import Gf, Sdf, Usd, UsdShade
 
     mpath = material.GetPath()
@@ -133,8 +137,6 @@ def author_fallback(stage, material, textures: dict, *, wrap: str = "repeat", su
     nodes = {
         "diffuse": uv_texture(stage, mpath.AppendChild("DiffuseTexture"), textures["diffuse"], reader, wrap,
                               ("rgb", f3)),
-        "specular": uv_texture(stage, mpath.AppendChild("SpecularTexture"), textures["specular"], reader, wrap,
-                               ("rgb", f3)),
         "roughness": uv_texture(stage, mpath.AppendChild("RoughnessTexture"), textures["roughness"], reader,
                                 wrap, ("r", f1)),
         "normal": uv_texture(stage, mpath.AppendChild("NormalTexture"), textures["normal"], reader, wrap,
@@ -144,18 +146,21 @@ def author_fallback(stage, material, textures: dict, *, wrap: str = "repeat", su
     surface.CreateIdAttr("UsdPreviewSurface")
     Usd.ColorSpaceAPI.Apply(surface.GetPrim()).CreateColorSpaceNameAttr(_SHADER_SPACE)
     diffuse = surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f)
-    specular = surface.CreateInput("specularColor", Sdf.ValueTypeNames.Color3f)
     roughness = surface.CreateInput("roughness", f1)
     normal = surface.CreateInput("normal", Sdf.ValueTypeNames.Normal3f)
     if summary:
         diffuse.Set(Gf.Vec3f(*map(float, summary["diffuse"])))
         roughness.Set(float(summary["roughness"]))
     diffuse.ConnectToSource(nodes["diffuse"].ConnectableAPI(), "rgb")
-    specular.ConnectToSource(nodes["specular"].ConnectableAPI(), "rgb")
     roughness.ConnectToSource(nodes["roughness"].ConnectableAPI(), "r")
     normal.ConnectToSource(nodes["normal"].ConnectableAPI(), "rgb")
+    if specular_workflow:
+        specular = uv_texture(stage, mpath.AppendChild("SpecularTexture"), textures["specular"], reader, wrap,
+                              ("rgb", f3))
+        surface.CreateInput("specularColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(
+            specular.ConnectableAPI(), "rgb")
     workflow = surface.CreateInput("useSpecularWorkflow", Sdf.ValueTypeNames.Int)
-    workflow.Set(1)
+    workflow.Set(1 if specular_workflow else 0)
     metallic = surface.CreateInput("metallic", f1)
     metallic.Set(0.0)
     for inp in (roughness, normal, workflow, metallic):       # data, not colour

@@ -165,6 +165,7 @@ class _Written:
     coefficients: list
     storm: tuple | None
     extent: np.ndarray
+    maps: object          # svbrdf.SvbrdfMaps, for the AR package
 
 
 def _write_payload(path: Path, root: str, cbtf: CompressedBTF, compressed: Path, mesh: geometry.MeshData,
@@ -196,7 +197,7 @@ def _write_payload(path: Path, root: str, cbtf: CompressedBTF, compressed: Path,
     prim = geometry.author_mesh(stage, f"/{root}/geo/{_prim_name(mesh.name)}", mesh)
     UsdShade.MaterialBindingAPI.Apply(prim).Bind(material)
     stage.GetRootLayer().Save()
-    return _Written([c.path for c in coeffs], gpu, mesh.extent())
+    return _Written([c.path for c in coeffs], gpu, mesh.extent(), maps)
 
 
 def _write_root(path: Path, root: str, payload_name: str, written: _Written, levels: list[int],
@@ -293,7 +294,8 @@ def package(compressed, out, options: PackageOptions | None = None, *, log=None,
         if options.usdz_ar:
             from .arkit import make_ar_usdz
 
-            names.append(make_ar_usdz(staging, stem, root, shape, textures, options).name)
+            names.append(make_ar_usdz(staging, stem, root, shape, written.maps, options, cbtf.ocio_config,
+                                      wrap=default_wrap(cbtf)).name)
         if options.validate:
             for name in names[1:] + [out.name]:
                 problems = validate_layer(staging / name)
@@ -316,10 +318,19 @@ def package(compressed, out, options: PackageOptions | None = None, *, log=None,
     return summary
 
 
+#: The modification time given to files before they are zipped (2000-01-01T00:00:00Z): the usdz
+#: writer stores each file's mtime, and the same inputs must give the same bytes.
+FIXED_MTIME = 946684800
+
+
 def make_usdz(root_layer: Path, usdz: Path) -> Path:
-    """Package ``root_layer`` and everything it references into ``usdz`` (variants and payloads kept)."""
+    """Package ``root_layer`` and everything it references into ``usdz`` (variants and payloads
+    kept; the root layer first, files stored uncompressed and 64-byte aligned)."""
     from pxr import Sdf, UsdUtils
 
+    for path in Path(root_layer).parent.rglob("*"):
+        if path.is_file():
+            os.utime(path, (FIXED_MTIME, FIXED_MTIME))
     if not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(root_layer)), str(usdz)):
         raise BTFError(f"{usdz}: usdz packaging failed")
     return usdz
