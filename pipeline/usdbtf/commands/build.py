@@ -13,6 +13,8 @@ def add_parser(sub) -> None:
                        "content signatures)")
     p.add_argument("scene", type=Path, help="scene .usda whose bound BtfMaterialAPI materials carry btf:build:* recipes")
     p.add_argument("--dry-run", action="store_true", help="list what the scene needs without building")
+    p.add_argument("--json", action="store_true", help="print the build's report as JSON on stdout "
+                   "(bound materials, recipes, steps run)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 
@@ -22,10 +24,29 @@ def run(args) -> int:
 
     if args.dry_run:
         recipes, report = plan(args.scene)
+        if args.json:
+            return _print_report(args.scene, recipes, report, dry_run=True)
         for r in recipes:
             print(f"{r.material}: {r.source} -> {r.asset}" + (f" ({' '.join(r.options)})" if r.options else ""))
         for path in report["without_recipe"]:
             print(f"{path}: bound, no recipe")
         return 0
-    build(args.scene, log=log(args.quiet))
+    report = build(args.scene, log=log(args.quiet))
+    if args.json:
+        return _print_report(args.scene, report["recipes"], report, dry_run=False)
+    return 0
+
+
+def _print_report(scene, recipes, report: dict, *, dry_run: bool) -> int:
+    """``--json``: {"scene", "dry_run", "recipes": [{material, source, options, asset, compressed}],
+    "bound": {material: [prims]}, "without_recipe": [materials], "ran": [commands] (builds only)}."""
+    from . import print_json
+
+    out = {"scene": str(scene), "dry_run": dry_run,
+           "recipes": [{"material": r.material, "source": r.source, "options": list(r.options), "asset": r.asset,
+                        "compressed": r.compressed} for r in recipes],
+           "bound": report["bound"], "without_recipe": report["without_recipe"]}
+    if not dry_run:
+        out["ran"] = report["ran"]
+    print_json(out)
     return 0

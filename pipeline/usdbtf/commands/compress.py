@@ -28,6 +28,8 @@ def add_parser(sub) -> None:
     p.add_argument("--memory-budget", type=float, default=1.0, metavar="GB",
                    help="hold the stored values in memory up to this size, else stream them from disk "
                         "twice (default 1.0)")
+    p.add_argument("--json", action="store_true", help="print a JSON summary of the written folder on stdout "
+                   "(the keys of `usdbtf info --json`)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 
@@ -45,4 +47,9 @@ def run(args) -> int:
     extra = {key: v for key, v in btf.metadata.items() if not key.startswith("_")}
     opts.extra = {"source_metadata": extra} if extra else {}
     compress_to_folder(btf, args.output, opts, log=log(args.quiet))
+    if args.json:
+        from ..summary import compressed_summary
+        from . import print_json
+
+        print_json(compressed_summary(args.output))
     return 0

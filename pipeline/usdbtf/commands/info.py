@@ -10,35 +10,40 @@ ORDER = 50
 def add_parser(sub) -> None:
     p = sub.add_parser("info", help="summarise a BTF or a compressed BTF")
     p.add_argument("path", type=Path)
+    p.add_argument("--json", action="store_true", help="print the summary as JSON (keys in the README)")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    from ..compress.format import METADATA
+    from ..summary import btf_summary, compressed_summary
+
     path = Path(args.path)
-    from ..compress.format import METADATA, folder_bytes
+    s = compressed_summary(path) if (path / METADATA).is_file() else btf_summary(path)
+    if args.json:
+        from . import print_json
 
-    if (path / METADATA).is_file():
-        from ..compress import read_compressed
-
-        c = read_compressed(path)
-        b = c.info.get("bytes", {})
-        est = c.info.get("estimated_error", {}).get("linear", {})
-        print(f"{path}: compressed BTF ({c.info.get('solver', '?')} solver, {c.codec} codec)")
-        print(f"  samples     {c.n_samples}  ({c.width}x{c.height} texels)")
-        print(f"  k           {c.k}")
-        print(f"  bytes       payload {b.get('payload', '?')} (basis {b.get('basis', '?')}, coefficients "
-              f"{b.get('coefficients', '?')}), metadata {(path / METADATA).stat().st_size}, "
-              f"folder {folder_bytes(path)}")
-        if est:
-            print(f"  error       {est['percent']:.3f} % (paper's metric), RMSE {est['rmse']:.5f}, "
-                  f"PSNR {est['psnr_db']:.2f} dB  [held-out texels, scene-linear]")
-        print(f"  colour      working {c.working_space}; source {c.source.get('color_space')} "
-              f"{c.source.get('bit_depth')}")
-        return 0
-    from ..io import open_btf
-
-    btf = open_btf(path)
-    print(f"{path}: BTF, {btf.n_samples} samples of {btf.width}x{btf.height}, {btf.bit_depth} {btf.color_space}")
-    print(f"  views {len({tuple(v) for v in btf.sampling.view})}, lights {len({tuple(v) for v in btf.sampling.light})}, "
-          f"interpolated {int(btf.interpolated.sum())}")
+        print_json(s)
+    elif s["kind"] == "compressed":
+        print(compressed_text(s))
+    else:
+        print(f"{s['path']}: BTF, {s['samples']} samples of {s['width']}x{s['height']}, {s['bit_depth']} "
+              f"{s['color_space']}")
+        print(f"  views {s['views']}, lights {s['lights']}, interpolated {s['interpolated']}")
     return 0
+
+
+def compressed_text(s: dict) -> str:
+    """The human-readable form of :func:`usdbtf.summary.compressed_summary`."""
+    b, est = s["bytes"], s["estimated_error"]
+    lines = [f"{s['path']}: compressed BTF ({s['solver'] or '?'} solver, {s['codec']} codec)",
+             f"  samples     {s['samples']}  ({s['width']}x{s['height']} texels)",
+             f"  k           {s['k']}",
+             f"  bytes       payload {b.get('payload', '?')} (basis {b.get('basis', '?')}, coefficients "
+             f"{b.get('coefficients', '?')}), metadata {b['metadata']}, folder {b['folder']}"]
+    if est:
+        lines.append(f"  error       {est['percent']:.3f} % (paper's metric), RMSE {est['rmse']:.5f}, "
+                     f"PSNR {est['psnr_db']:.2f} dB  [held-out texels, scene-linear]")
+    lines.append(f"  colour      working {s['working_space']}; source {s['source']['color_space']} "
+                 f"{s['source']['bit_depth']}")
+    return "\n".join(lines)

@@ -19,7 +19,7 @@ from ..compress.format import METADATA, CompressedBTF, read_compressed
 from ..errors import BTFError
 from ..unwrap.frames import tangent_frames
 from ..unwrap.layer import UnwrappedMesh, read_layer
-from ..unwrap.meshes import USD_SUFFIXES, load_mesh
+from ..unwrap.meshes import load_mesh
 from .scene import RenderMesh
 
 __all__ = ["resolve_asset", "render_mesh_from_file", "render_mesh_from_layer", "render_mesh_from_arrays"]
@@ -43,8 +43,10 @@ def render_mesh_from_layer(layer: UnwrappedMesh) -> RenderMesh:
 
 def render_mesh_from_file(path) -> RenderMesh:
     """A RenderMesh from an unwrap layer or any mesh file with texture coordinates."""
+    from ..usd.read import usd_exists
+
     path = Path(path)
-    if path.suffix.lower() in USD_SUFFIXES and path.is_file() and _is_unwrap_layer(path):
+    if usd_exists(path) and _is_unwrap_layer(path):
         return render_mesh_from_layer(read_layer(path))
     mesh = load_mesh(path)
     if mesh.uv is None:
@@ -65,11 +67,13 @@ def _is_unwrap_layer(path: Path) -> bool:
 
 def resolve_asset(asset, mesh=None) -> tuple[CompressedBTF, RenderMesh | None]:
     """(compressed BTF, mesh or None) for ``usdbtf render ASSET [--mesh MESH]`` (module docstring)."""
+    from ..usd.read import usd_exists
+
     asset = Path(asset)
     if asset.is_dir() and (asset / METADATA).is_file():
         cbtf = read_compressed(asset)
         return cbtf, render_mesh_from_file(mesh) if mesh is not None else None
-    if asset.suffix.lower() in USD_SUFFIXES and asset.is_file():
+    if usd_exists(asset):                   # found through the asset resolver
         from ..io import open_compressed        # the packaging stage's asset reader
 
         cbtf = open_compressed(asset)

@@ -70,8 +70,10 @@ def _check(name: str, points, faces, path) -> None:
 def load_mesh(path, *, meters_per_unit: float | None = None, up_axis: str | None = None) -> TriMesh:
     """Read a mesh.  ``meters_per_unit`` overrides the file's unit (USD declares one; other
     formats are taken as metres); ``up_axis`` overrides the declared/assumed "Y"."""
+    from ..usd.read import usd_exists
+
     path = Path(path)
-    if not path.is_file():
+    if not (path.is_file() or usd_exists(path)):       # USD files are found through the asset resolver
         raise BTFError(f"{path}: mesh file not found")
     suffix = path.suffix.lower()
     if suffix in USD_SUFFIXES:

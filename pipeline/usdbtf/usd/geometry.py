@@ -56,10 +56,12 @@ def swatch(width_m: float, height_m: float) -> MeshData:
 
 def load_mesh(path) -> MeshData:
     """A mesh with texture coordinates from OBJ/PLY/STL/GLB (trimesh) or a USD file."""
+    from .read import usd_exists
+
     path = Path(path)
-    if not path.is_file():
-        raise BTFError(f"{path}: mesh file not found")
     suffix = path.suffix.lower()
+    if not (path.is_file() or usd_exists(path)):       # USD files are found through the asset resolver
+        raise BTFError(f"{path}: mesh file not found")
     if suffix in USD_SUFFIXES:
         return _load_usd_mesh(path)
     if suffix in TRIMESH_SUFFIXES:

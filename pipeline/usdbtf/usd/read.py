@@ -33,17 +33,35 @@ def tf_message(exc) -> str:
     return found.group(1) if found else re.sub(r"Error in '[^']*' at line \d+ in file \S+ : ", "", text)[:300]
 
 
+def resolve_usd(path) -> str:
+    """The asset resolver's answer for ``path`` (a file path, a search-path-relative name,
+    whatever the studio's resolver understands); BTFError when it finds nothing."""
+    from pxr import Ar
+
+    resolved = str(Ar.GetResolver().Resolve(str(path)))
+    if not resolved:
+        raise BTFError(f"{path}: no such USD file (the asset resolver finds nothing there)")
+    return resolved
+
+
+def usd_exists(path) -> bool:
+    """Whether ``path`` names a USD layer the asset resolver finds (any form it understands)."""
+    from pxr import Ar
+
+    return str(path).lower().endswith(USD_SUFFIXES) and bool(str(Ar.GetResolver().Resolve(str(path))))
+
+
 def open_usd(path, *, composition_errors: bool = True):
-    """``Usd.Stage.Open(path)`` with payloads loaded, raising BTFError naming the file for a
-    missing or unparsable layer and (optionally) for composition errors, e.g. a corrupt
-    payload or an unreadable referenced layer."""
+    """``Usd.Stage.Open(path)`` with payloads loaded, the path found through the asset
+    resolver; raises BTFError naming the file for a missing or unparsable layer and
+    (optionally) for composition errors, e.g. a corrupt payload or an unreadable
+    referenced layer."""
     from pxr import Tf, Usd
 
-    path = Path(path)
-    if not path.is_file():
-        raise BTFError(f"{path}: no such USD file")
+    resolve_usd(path)
+    path = str(path)
     try:
-        stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
+        stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
     except Tf.ErrorException as exc:
         raise BTFError(f"{path}: cannot open USD layer: {tf_message(exc)}") from None
     if stage is None:
