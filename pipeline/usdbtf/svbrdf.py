@@ -15,9 +15,9 @@ y = image up, z = normal); maps are (H, W, ...) arrays in the BTF's texel order.
 The fit, streamed over blocks of texels (the reconstruction of a block over the fit
 samples is all that is held; ``chunk_bytes`` bounds it):
 
-1. **Samples**: at most ``max_samples`` measured samples, evenly spread in sample order
-   (which interleaves views and lights), for the reflectance fit; every sample at the views
-   nearest the normal with lights up to 60 degrees for the normals.
+1. **Samples**: at most ``max_samples`` measured samples for the reflectance fit, half of
+   them the nearest to the mirror configuration, half evenly spread (:func:`fit_samples`);
+   every sample at the views nearest the normal with lights up to 60 degrees for the normals.
 2. **Normal** (photometric stereo): at near-normal views a diffuse surface's luminance is
    ``rho (n . l)``, linear in ``g = rho n``; least squares over the lights, then again
    without the samples whose residual is beyond 2.5 median absolute deviations (cast
@@ -25,7 +25,7 @@ samples is all that is held; ``chunk_bytes`` bounds it):
 3. **Reflectance**: with ``a = rho (1 - F0)`` the model is linear in (a, F0) per colour
    channel: ``Y = a (1 - w) (n.l) / pi + F0 S (1 - w) (n.l) + S w (n.l)`` with
    ``w = (1 - v.h)^5`` and ``S = D G / (4 (n.l)(n.v) + eps)``.  For every roughness on a
-   grid, least squares with a >= 0, 0 <= F0 <= 1, from 2x2 normal equations summed over
+   grid (0.2 to 1, :data:`ROUGHNESS_GRID`), least squares with a >= 0, 0 <= F0 <= 1, from 2x2 normal equations summed over
    samples; each texel keeps the roughness with the smallest residual.  The same is done
    with the flat normal (0, 0, 1) and the texel keeps whichever normal fits better, so a
    poor photometric normal never makes a texel worse than no normal map.
@@ -43,13 +43,17 @@ __all__ = ["SvbrdfMaps", "fit_svbrdf", "flat_fallback", "median_albedo", "fit_fl
            "fit_samples", "normal_samples",
            "ROUGHNESS_GRID", "MIN_ROUGHNESS"]
 
-#: UsdPreviewSurface's roughness candidates (previewSurface.glslfx clamps at 0.001).
-ROUGHNESS_GRID = np.array([0.08, 0.12, 0.16, 0.2, 0.25, 0.3, 0.36, 0.43, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0], np.float32)
+#: The roughness candidates.  None below 0.2: previewSurface.glslfx adds EPSILON = 0.001 to
+#: alpha^2 = roughness^4 in D's numerator, which dominates below roughness ~0.18 and makes
+#: the peak grow as 1 / roughness^8 -- fireflies at mirror directions the fit never saw.
+ROUGHNESS_GRID = np.array([0.2, 0.25, 0.3, 0.36, 0.43, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0], np.float32)
 MIN_ROUGHNESS = 0.001
 _EPS = 0.001                 # previewSurface.glslfx's EPSILON in D's numerator and the specular denominator
 _MAX_TILT_DEG = 60.0
 _NORMAL_VIEW_TOL_DEG = 1e-3
 _NORMAL_MAX_LIGHT_DEG = 60.0
+#: Samples (not fitted to) on which each texel's normal map must beat the flat normal.
+VALIDATION_SAMPLES = 1024
 
 
 @dataclass
@@ -76,11 +80,24 @@ class SvbrdfMaps:
 
 
 def fit_samples(cbtf: CompressedBTF, most: int = 256) -> np.ndarray:
-    """Indices of the samples the reflectance is fitted to: all, or ``most`` evenly spread."""
+    """Indices of the samples the reflectance is fitted to: all, or ``most`` of them.  Half
+    are near the mirror configuration (the 4x as many samples with the smallest half-vector
+    angle, thinned evenly in view order so grazing views are among them): they pin the
+    highlight's height, and at grazing angles UsdPreviewSurface's Fresnel goes to 1 whatever
+    F0 is, so only samples there keep the roughness honest.  The other half is an even spread
+    (in sample order, which interleaves views and lights) of the rest."""
     n = cbtf.n_samples
     if n <= most:
         return np.arange(n)
-    return np.unique(np.linspace(0, n - 1, most).round().astype(int))
+    v, l = to_vectors(cbtf.sampling.view), to_vectors(cbtf.sampling.light)
+    h = v + l
+    cos_h = h[:, 2] / np.maximum(np.linalg.norm(h, axis=1), 1e-12)
+    half = most // 2
+    near = np.sort(np.argsort(-cos_h, kind="stable")[: 4 * half])       # sample order = view order
+    specular = near[np.unique(np.linspace(0, len(near) - 1, half).round().astype(int))]
+    rest = np.setdiff1d(np.arange(n), specular)
+    spread = rest[np.unique(np.linspace(0, len(rest) - 1, most - len(specular)).round().astype(int))]
+    return np.union1d(specular, spread)
 
 
 def normal_samples(cbtf: CompressedBTF) -> np.ndarray:
@@ -161,14 +178,19 @@ def _reconstruct(cbtf: CompressedBTF, rows: np.ndarray, texels: slice) -> np.nda
 
 def _photometric_normals(y_lum: np.ndarray, light: np.ndarray) -> np.ndarray:
     """(T, 3) unit normals from luminance ``y_lum`` (S, T) under unit lights (S, 3)."""
-    weights = np.ones_like(y_lum)
-    for _ in range(2):
-        a = np.einsum("st,si,sj->tij", weights, light, light) + np.eye(3, dtype=np.float32) * 1e-6
-        b = np.einsum("st,st,si->ti", weights, y_lum, light)
-        g = np.linalg.solve(a, b[..., None])[..., 0]                   # (T, 3) = rho n
-        resid = y_lum - light @ g.T
-        mad = np.median(np.abs(resid - np.median(resid, axis=0)), axis=0) + 1e-12
-        weights = (np.abs(resid) <= 2.5 * 1.4826 * mad).astype(np.float32)
+    outer = (light[:, :, None] * light[:, None, :]).reshape(len(light), 9)        # l l^T per sample
+
+    def solve(weights):
+        a = (weights.T @ outer).reshape(-1, 3, 3) + np.eye(3, dtype=np.float32) * 1e-6
+        b = (weights * y_lum).T @ light
+        return np.linalg.solve(a, b[..., None])[..., 0]                           # (T, 3) = rho n
+
+    g = solve(np.ones_like(y_lum))
+    # Again without the outliers (cast shadows, highlights): residuals beyond 2.5 MADs.
+    resid = y_lum - light @ g.T
+    resid -= np.median(resid, axis=0)
+    mad = np.median(np.abs(resid), axis=0) + 1e-12
+    g = solve((np.abs(resid) <= 2.5 * 1.4826 * mad).astype(np.float32))
     norm = np.linalg.norm(g, axis=1, keepdims=True)
     n = np.where((norm > 1e-12) & (g[:, 2:3] > 0), g / np.maximum(norm, 1e-30), [0.0, 0.0, 1.0])
     # Limit the tilt: beyond ~60 degrees photometric stereo at 13-odd lights is noise.
@@ -232,18 +254,45 @@ def _fit_reflectance(y: np.ndarray, n: np.ndarray, v: np.ndarray, l: np.ndarray,
     return best_a, best_f, best_r, best_res
 
 
-def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: int = 256,
-               roughness_grid=ROUGHNESS_GRID, chunk_bytes: float = 64e6) -> SvbrdfMaps:
+def _validation_residual(y: np.ndarray, n: np.ndarray, v: np.ndarray, l: np.ndarray, a, f, r) -> np.ndarray:
+    """(T,) sum over samples and channels of the squared error of the fitted (a, F0, roughness)
+    with normals ``n`` against ``y`` (3, S, T) (already divided by pi W)."""
+    geo = _Geometry(n, v, l)
+    out = np.zeros(y.shape[2])
+    x1 = (1 - geo.w) * geo.nl * np.float32(1 / np.pi)
+    for rv in np.unique(r):
+        sel = np.flatnonzero(r == rv)
+        spec = geo.specular_nl(float(rv))[:, sel]
+        x1s, w = x1[:, sel], geo.w
+        for c in range(3):
+            pred = a[sel, c] * x1s + f[sel, c] * spec * (1 - w) + spec * w
+            out[sel] += ((y[c][:, sel] - pred) ** 2).sum(axis=0, dtype=np.float64)
+    return out
+
+
+def validation_samples(cbtf: CompressedBTF, fit: np.ndarray, most: int = 1024) -> np.ndarray:
+    """Samples not fitted to, evenly spread: they decide whether a texel's normal map helps."""
+    rest = np.setdiff1d(np.arange(cbtf.n_samples), fit)
+    if len(rest) <= most:
+        return rest if len(rest) else fit
+    return rest[np.unique(np.linspace(0, len(rest) - 1, most).round().astype(int))]
+
+
+def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: int = 512,
+               roughness_grid=ROUGHNESS_GRID, normals: bool = True, chunk_bytes: float = 64e6) -> SvbrdfMaps:
     """Fit per-texel UsdPreviewSurface parameters to ``cbtf``'s reconstruction over its
-    measured samples (module docstring), streamed over blocks of texels."""
+    measured samples (module docstring), streamed over blocks of texels.  ``normals=False``
+    fits no normal map (every texel keeps the flat normal)."""
     if not white_level > 0:
         raise ValueError(f"white_level must be positive, got {white_level}")
     fit = fit_samples(cbtf, max_samples)
+    val = validation_samples(cbtf, fit, VALIDATION_SAMPLES)
+    vv, vl = to_vectors(cbtf.sampling.view[val]), to_vectors(cbtf.sampling.light[val])
     ps = normal_samples(cbtf)
     v, l = to_vectors(cbtf.sampling.view[fit]), to_vectors(cbtf.sampling.light[fit])
     ps_light = to_vectors(cbtf.sampling.light[ps]).astype(np.float32)
     basis = cbtf.basis_values()
-    fit_rows, ps_rows = basis[fit], basis[ps]
+    fit_rows, ps_rows, val_rows = basis[fit], basis[ps], basis[val]
     luma = _luminance_weights(cbtf)
     grid = np.asarray(roughness_grid, np.float32)
     texels = cbtf.width * cbtf.height
@@ -254,13 +303,17 @@ def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: in
     flat = np.array([0.0, 0.0, 1.0], np.float32)
     for t0 in range(0, texels, step):
         block = slice(t0, min(t0 + step, texels))
-        n_ps = _photometric_normals(_reconstruct(cbtf, ps_rows, block) @ luma, ps_light)
         y = np.ascontiguousarray((_reconstruct(cbtf, fit_rows, block) * scale).transpose(2, 0, 1))
-        a, f, r, res = _fit_reflectance(y, n_ps, v, l, grid)
-        a0, f0, r0, res0 = _fit_reflectance(y, np.broadcast_to(flat, n_ps.shape), v, l, grid)
-        use_flat = res0 <= res
-        a[use_flat], f[use_flat], r[use_flat] = a0[use_flat], f0[use_flat], r0[use_flat]
-        n_ps[use_flat] = flat
+        n_flat = np.broadcast_to(flat, (y.shape[2], 3))
+        a, f, r, res = _fit_reflectance(y, n_flat, v, l, grid)
+        n_ps = n_flat.copy()
+        if normals:
+            n_fit = _photometric_normals(_reconstruct(cbtf, ps_rows, block) @ luma, ps_light)
+            a1, f1, r1, _ = _fit_reflectance(y, n_fit, v, l, grid)
+            yv = np.ascontiguousarray((_reconstruct(cbtf, val_rows, block) * scale).transpose(2, 0, 1))
+            tilt = _validation_residual(yv, n_fit, vv, vl, a1, f1, r1) < \
+                _validation_residual(yv, n_flat, vv, vl, a, f, r)
+            a[tilt], f[tilt], r[tilt], n_ps[tilt] = a1[tilt], f1[tilt], r1[tilt], n_fit[tilt]
         diffuse[block] = np.clip(a / np.maximum(1.0 - f, 1e-6), 0.0, 1.0)
         specular[block], rough[block], normal[block] = f, r, n_ps
     h, w = cbtf.height, cbtf.width
