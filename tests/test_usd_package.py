@@ -86,9 +86,10 @@ def test_validation_catches_a_broken_asset(asset, tmp_path):
     assert "StageMetadataChecker" in issues and "missing.png" in issues
 
 
-def test_textures_open_in_oiiotool_and_paths_are_relative_and_resolve(asset):
+def asset_values(asset: Path) -> list:
+    """(attribute, Sdf.AssetPath) of every asset-valued attribute value on the composed stage."""
     stage = Usd.Stage.Open(str(asset))
-    checked = 0
+    found = []
     for prim in stage.Traverse():
         for attr in prim.GetAuthoredAttributes():
             values = attr.Get()
@@ -96,13 +97,19 @@ def test_textures_open_in_oiiotool_and_paths_are_relative_and_resolve(asset):
                 values = [values]
             elif attr.GetTypeName() != Sdf.ValueTypeNames.AssetArray:
                 continue
-            for a in values or []:
-                assert a.path.startswith("./"), (attr.GetPath(), a.path)
-                assert a.resolvedPath and Path(a.resolvedPath).is_file(), a.path
-                assert Path(a.resolvedPath).suffix in (".png", ".exr", ".jpg")
-                info = subprocess.run([str(OIIOTOOL), "--info", a.resolvedPath], capture_output=True, text=True)
-                assert info.returncode == 0 and "x" in info.stdout, info.stderr
-                checked += 1
+            found += [(attr, a) for a in values or []]
+    return found
+
+
+def test_textures_open_in_oiiotool_and_paths_are_relative_and_resolve(asset):
+    checked = 0
+    for attr, a in asset_values(asset):
+        assert a.path.startswith("./"), (attr.GetPath(), a.path)
+        assert a.resolvedPath and Path(a.resolvedPath).is_file(), a.path
+        assert Path(a.resolvedPath).suffix in (".png", ".exr", ".jpg")
+        info = subprocess.run([str(OIIOTOOL), "--info", a.resolvedPath], capture_output=True, text=True)
+        assert info.returncode == 0 and "x" in info.stdout, info.stderr
+        checked += 1
     assert checked >= 12 + 1 + 4    # coefficients, basis, fallback maps
 
 
@@ -456,17 +463,7 @@ def test_no_physical_size_is_a_clear_error(src, tmp_path, capsys):
 
 # ------------------------------------------------------------------ textures for renderers
 def _texture_files(asset: Path) -> list[Path]:
-    stage = Usd.Stage.Open(str(asset))
-    found = []
-    for prim in stage.Traverse():
-        for attr in prim.GetAuthoredAttributes():
-            values = attr.Get()
-            if attr.GetTypeName() == Sdf.ValueTypeNames.Asset:
-                values = [values]
-            elif attr.GetTypeName() != Sdf.ValueTypeNames.AssetArray:
-                continue
-            found += [Path(a.resolvedPath) for a in values or [] if a.resolvedPath]
-    return sorted(set(found))
+    return sorted({Path(a.resolvedPath) for _, a in asset_values(asset) if a.resolvedPath})
 
 
 @pytest.mark.parametrize("fmt", ["tx", "exr"])

@@ -25,10 +25,15 @@ samples is all that is held; ``chunk_bytes`` bounds it):
 3. **Reflectance**: with ``a = rho (1 - F0)`` the model is linear in (a, F0) per colour
    channel: ``Y = a (1 - w) (n.l) / pi + F0 S (1 - w) (n.l) + S w (n.l)`` with
    ``w = (1 - v.h)^5`` and ``S = D G / (4 (n.l)(n.v) + eps)``.  For every roughness on a
-   grid (0.2 to 1, :data:`ROUGHNESS_GRID`), least squares with a >= 0, 0 <= F0 <= 1, from 2x2 normal equations summed over
-   samples; each texel keeps the roughness with the smallest residual.  The same is done
-   with the flat normal (0, 0, 1) and the texel keeps whichever normal fits better, so a
-   poor photometric normal never makes a texel worse than no normal map.
+   grid (0.2 to 1, :data:`ROUGHNESS_GRID`), least squares with a >= 0, 0 <= F0 <= 1, from
+   2x2 normal equations summed over samples; each texel keeps the roughness with the
+   smallest residual.  This is done with the flat normal (0, 0, 1) and with the
+   photometric one; a texel keeps its photometric normal only where that fit predicts
+   :data:`VALIDATION_SAMPLES` other measured samples better (a tilted normal with a sharp
+   lobe can fit the fit samples and still flash at directions they do not cover).
+
+:func:`flat_fallback` is the fallback usdbtf shipped before (median albedo, one roughness,
+no normal map), kept as the baseline ``benchmarks/bench_fallback.py`` measures against.
 """
 from __future__ import annotations
 
@@ -40,8 +45,8 @@ from .compress.format import CompressedBTF, working_coefficient_texels
 from .sampling import to_vectors
 
 __all__ = ["SvbrdfMaps", "fit_svbrdf", "flat_fallback", "median_albedo", "fit_flat_roughness", "evaluate",
-           "fit_samples", "normal_samples",
-           "ROUGHNESS_GRID", "MIN_ROUGHNESS"]
+           "fit_samples", "normal_samples", "validation_samples", "ROUGHNESS_GRID", "MIN_ROUGHNESS",
+           "VALIDATION_SAMPLES"]
 
 #: The roughness candidates.  None below 0.2: previewSurface.glslfx adds EPSILON = 0.001 to
 #: alpha^2 = roughness^4 in D's numerator, which dominates below roughness ~0.18 and makes

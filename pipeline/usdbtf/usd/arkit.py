@@ -26,15 +26,14 @@ __all__ = ["AR_SUFFIX", "make_ar_usdz"]
 AR_SUFFIX = "_ar"
 
 
-def make_ar_usdz(staging: Path, stem: str, root: str, mesh, maps, options, ocio_config: str | None = None,
-                 *, wrap: str = "repeat") -> Path:
+def make_ar_usdz(staging: Path, stem: str, root: str, mesh, maps, asset_name: str, asset_version: str | None = None,
+                 creator: str | None = None, ocio_config: str | None = None, *, wrap: str = "repeat") -> Path:
     """Write ``<staging>/<stem>_ar.usdz`` from ``mesh`` (geometry.MeshData) and the fitted
-    ``maps`` (svbrdf.SvbrdfMaps); returns its path.  ``options``: package.PackageOptions
-    (asset name, version, creator)."""
+    ``maps`` (svbrdf.SvbrdfMaps); returns its path."""
     from pxr import Kind, Sdf, Usd, UsdGeom, UsdShade
 
     from . import fallback, geometry
-    from .package import MATERIAL, _stage_metadata, make_usdz
+    from .layers import MATERIAL, make_usdz, stage_metadata
     from .textures import TextureSet
 
     work = staging / f".{stem}{AR_SUFFIX}"
@@ -44,14 +43,14 @@ def make_ar_usdz(staging: Path, stem: str, root: str, mesh, maps, options, ocio_
     written = fallback.write_maps(maps, textures, ocio_config, names=("diffuse", "roughness", "normal"))
     layer_path = work / f"{stem}{AR_SUFFIX}.usdc"
     stage = Usd.Stage.CreateNew(str(layer_path))
-    _stage_metadata(stage.GetRootLayer(), root, options, "AR package")
+    stage_metadata(stage.GetRootLayer(), root, asset_name=asset_name, what="AR package", creator=creator)
     prim = UsdGeom.Xform.Define(stage, f"/{root}").GetPrim()
     model = Usd.ModelAPI(prim)
     model.SetKind(Kind.Tokens.component)
-    model.SetAssetName(options.asset_name)
+    model.SetAssetName(asset_name)
     model.SetAssetIdentifier(Sdf.AssetPath(f"./{layer_path.name}"))
-    if options.asset_version is not None:
-        model.SetAssetVersion(options.asset_version)
+    if asset_version is not None:
+        model.SetAssetVersion(asset_version)
     UsdGeom.Scope.Define(stage, f"/{root}/geo")
     UsdGeom.Scope.Define(stage, f"/{root}/mtl")
     material = UsdShade.Material.Define(stage, f"/{root}/mtl/{MATERIAL}")

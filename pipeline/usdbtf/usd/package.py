@@ -35,11 +35,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
 from ..compress.format import METADATA, CompressedBTF, read_compressed
 from ..errors import BTFError, UsageError
 from ..render.core import default_wrap
 from . import fallback, geometry, lod, storm, thumbnail
+from .layers import MATERIAL, make_usdz, stage_metadata
 from .lod import FULL_LOD, default_lods
 from .material import LOD_VARIANT_SET, author_btf
 from .textures import TEXTURE_FORMATS, USDZ_FORMATS, TextureSet, package_textures
@@ -48,7 +48,6 @@ from .validate import validate_layer
 __all__ = ["PackageOptions", "package", "make_usdz", "default_lods", "LOD_VARIANT_SET", "FULL_LOD", "MATERIAL",
            "ROOT_FORMATS", "PAYLOAD_FORMATS", "error_curve", "physical_size_of", "provenance_path"]
 
-MATERIAL = "BtfMaterial"
 ROOT_FORMATS = (".usda", ".usdc", ".usd")
 PAYLOAD_FORMATS = ("usdc", "usda")
 THUMBNAIL_FILE = "thumbnail.png"
@@ -146,16 +145,7 @@ def _prim_name(stem: str) -> str:
 
 
 def _stage_metadata(layer, root: str, options: PackageOptions, what: str) -> None:
-    from pxr import UsdGeom
-
-    layer.defaultPrim = root
-    layer.pseudoRoot.SetInfo(UsdGeom.Tokens.metersPerUnit, 1.0)
-    layer.pseudoRoot.SetInfo(UsdGeom.Tokens.upAxis, UsdGeom.Tokens.y)
-    layer.documentation = f"{what} of BTF asset {options.asset_name}, written by usdbtf {__version__}"
-    data = {"generator": f"usdbtf {__version__}"}
-    if options.creator:
-        data["creator"] = options.creator
-    layer.customLayerData = data
+    stage_metadata(layer, root, asset_name=options.asset_name, what=what, creator=options.creator)
 
 
 @dataclass
@@ -294,7 +284,8 @@ def package(compressed, out, options: PackageOptions | None = None, *, log=None,
         if options.usdz_ar:
             from .arkit import make_ar_usdz
 
-            names.append(make_ar_usdz(staging, stem, root, shape, written.maps, options, cbtf.ocio_config,
+            names.append(make_ar_usdz(staging, stem, root, shape, written.maps, options.asset_name,
+                                      options.asset_version, options.creator, cbtf.ocio_config,
                                       wrap=default_wrap(cbtf)).name)
         if options.validate:
             for name in names[1:] + [out.name]:
@@ -316,21 +307,3 @@ def package(compressed, out, options: PackageOptions | None = None, *, log=None,
     if options.usdz_ar:
         summary["usdz_ar"] = out.parent / f"{stem}_ar.usdz"
     return summary
-
-
-#: The modification time given to files before they are zipped (2000-01-01T00:00:00Z): the usdz
-#: writer stores each file's mtime, and the same inputs must give the same bytes.
-FIXED_MTIME = 946684800
-
-
-def make_usdz(root_layer: Path, usdz: Path) -> Path:
-    """Package ``root_layer`` and everything it references into ``usdz`` (variants and payloads
-    kept; the root layer first, files stored uncompressed and 64-byte aligned)."""
-    from pxr import Sdf, UsdUtils
-
-    for path in Path(root_layer).parent.rglob("*"):
-        if path.is_file():
-            os.utime(path, (FIXED_MTIME, FIXED_MTIME))
-    if not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(root_layer)), str(usdz)):
-        raise BTFError(f"{usdz}: usdz packaging failed")
-    return usdz

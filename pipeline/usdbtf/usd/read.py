@@ -15,7 +15,6 @@ import os
 import re
 import sys
 import tempfile
-from pathlib import Path
 
 import numpy as np
 

@@ -1,0 +1,44 @@
+"""Pieces every layer a package writes shares: stage metadata, the material's name, usdz packaging."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from .. import __version__
+from ..errors import BTFError
+
+__all__ = ["MATERIAL", "FIXED_MTIME", "stage_metadata", "make_usdz"]
+
+#: The BTF material's prim name under ``/<root>/mtl``.
+MATERIAL = "BtfMaterial"
+#: The modification time given to files before they are zipped (2000-01-01T00:00:00Z): the usdz
+#: writer stores each file's mtime, and the same inputs must give the same bytes.
+FIXED_MTIME = 946684800
+
+
+def stage_metadata(layer, root: str, *, asset_name: str, what: str, creator: str | None = None) -> None:
+    """defaultPrim, metersPerUnit 1, upAxis Y, a doc string, and customLayerData (the tool and,
+    when given, the creator) on ``layer``."""
+    from pxr import UsdGeom
+
+    layer.defaultPrim = root
+    layer.pseudoRoot.SetInfo(UsdGeom.Tokens.metersPerUnit, 1.0)
+    layer.pseudoRoot.SetInfo(UsdGeom.Tokens.upAxis, UsdGeom.Tokens.y)
+    layer.documentation = f"{what} of BTF asset {asset_name}, written by usdbtf {__version__}"
+    data = {"generator": f"usdbtf {__version__}"}
+    if creator:
+        data["creator"] = creator
+    layer.customLayerData = data
+
+
+def make_usdz(root_layer: Path, usdz: Path) -> Path:
+    """Package ``root_layer`` and everything it references into ``usdz`` (variants and payloads
+    kept; the root layer first, files stored uncompressed and 64-byte aligned)."""
+    from pxr import Sdf, UsdUtils
+
+    for path in Path(root_layer).parent.rglob("*"):
+        if path.is_file():
+            os.utime(path, (FIXED_MTIME, FIXED_MTIME))
+    if not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(root_layer)), str(usdz)):
+        raise BTFError(f"{usdz}: usdz packaging failed")
+    return usdz
