@@ -84,7 +84,7 @@ class SvbrdfMaps:
         return self.roughness.shape
 
 
-def fit_samples(cbtf: CompressedBTF, most: int = 256) -> np.ndarray:
+def fit_samples(cbtf: CompressedBTF, most: int = 1536) -> np.ndarray:
     """Indices of the samples the reflectance is fitted to: all, or ``most`` of them.  Half
     are near the mirror configuration (the 4x as many samples with the smallest half-vector
     angle, thinned evenly in view order so grazing views are among them): they pin the
@@ -283,7 +283,7 @@ def validation_samples(cbtf: CompressedBTF, fit: np.ndarray, most: int = 1024) -
     return rest[np.unique(np.linspace(0, len(rest) - 1, most).round().astype(int))]
 
 
-def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: int = 512,
+def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: int = 1536,
                roughness_grid=ROUGHNESS_GRID, normals: bool = True, chunk_bytes: float = 64e6) -> SvbrdfMaps:
     """Fit per-texel UsdPreviewSurface parameters to ``cbtf``'s reconstruction over its
     measured samples (module docstring), streamed over blocks of texels.  ``normals=False``
