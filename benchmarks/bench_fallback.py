@@ -44,8 +44,13 @@ def say(msg: str = "") -> None:
     print(msg, flush=True)
 
 
-def shipped_fallbacks(cbtf, white: float) -> tuple[dict, float]:
-    """({"fitted": maps, "flat": maps} as a renderer reads them from the asset, fit seconds)."""
+#: --ablation: fits with one choice of fit_svbrdf undone (name -> keyword arguments).
+ABLATIONS = {"fitted, no normal map": {"normals": False}, "fitted, 512 fit samples": {"max_samples": 512}}
+
+
+def shipped_fallbacks(cbtf, white: float, ablation: bool = False) -> tuple[dict, float]:
+    """({"fitted": maps, "flat": maps, ablations...} as a renderer reads them from the asset,
+    seconds of the default fit)."""
     from usdbtf import svbrdf
     from usdbtf.usd.fallback import decode_maps, encode_maps
 
@@ -53,9 +58,12 @@ def shipped_fallbacks(cbtf, white: float) -> tuple[dict, float]:
     fitted = svbrdf.fit_svbrdf(cbtf, white_level=white)
     seconds = time.perf_counter() - t
     flat = svbrdf.flat_fallback(cbtf, white_level=white)
+    maps = [("fitted", fitted), ("flat", flat)]
+    if ablation:
+        maps += [(name, svbrdf.fit_svbrdf(cbtf, white_level=white, **kw)) for name, kw in ABLATIONS.items()]
     shipped = {name: decode_maps(encode_maps(m, cbtf.ocio_config), cbtf.working_space,
                                  ocio_config=cbtf.ocio_config, white_level=white)
-               for name, m in (("fitted", fitted), ("flat", flat))}
+               for name, m in maps}
     # The old asset had no normal map and constant inputs: only its albedo went through a file.
     old = shipped["flat"]
     old.normal[:] = (0.0, 0.0, 1.0)
@@ -104,6 +112,8 @@ def main(argv=None) -> int:
     ap.add_argument("--k", type=int, default=64)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--quick", action="store_true", help="small sampling, 64^2 (a check, not a measurement)")
+    ap.add_argument("--ablation", action="store_true", help="also fit without the normal map and with 512 fit "
+                    "samples (the choices fit_svbrdf makes by default)")
     args = ap.parse_args(argv)
     if args.quick:
         args.sampling, args.size = "small", 64
@@ -118,7 +128,7 @@ def main(argv=None) -> int:
         f"PNG, synth seed {args.seed}; compressed with `usdbtf compress --k {args.k} --codec png` (rsvd)")
     say(f"- command: {' '.join([Path(sys.executable).name, *sys.argv])}")
     cli = cli_command()
-    rows, doc = [], {"machine": info, "args": vars(args), "presets": {}}
+    rows, ablation_rows, doc = [], [], {"machine": info, "args": vars(args), "presets": {}}
     for preset in args.presets.split(","):
         say(f"\n## {preset}")
         data = ensure_dataset(OUT / "data", preset, args.sampling, args.size, args.seed, say=say)
@@ -126,7 +136,7 @@ def main(argv=None) -> int:
         cbtf = compressed(cli, Path(data["folder"]), folder, args.k)
         orig = open_btf(data["folder"])
         white = float((cbtf.info.get("source_metadata") or {}).get("white_level", 1.0))
-        shipped, fit_s = shipped_fallbacks(cbtf, white)
+        shipped, fit_s = shipped_fallbacks(cbtf, white, args.ablation)
         say(f"  fit: {fit_s:.1f} s for {cbtf.width}x{cbtf.height} texels, {cbtf.n_samples} samples, k {cbtf.k}")
         t = time.perf_counter()
         res = errors(orig, cbtf, shipped)
@@ -135,9 +145,16 @@ def main(argv=None) -> int:
             parts = [f"{dom} {v['percent']:.2f} % (RMSE {v['rmse']:.4f}, PSNR {v['psnr_db']:.1f} dB)"
                      for dom, v in r.items()]
             say(f"  {name:15s} " + "; ".join(parts))
+            if name in ABLATIONS:
+                ablation_rows.append(f"| {preset} | {name} | {r['linear']['percent']:.2f} | {r['linear']['rmse']:.4f} | "
+                                     f"{r['encoded']['percent']:.2f} | {r['encoded']['rmse']:.4f} |")
         doc["presets"][preset] = {"fit_seconds": fit_s, "errors": res, "samples": orig.n_samples,
                                   "texels": cbtf.width * cbtf.height, "k": cbtf.k}
         f, fl, rc = res["fitted"], res["flat"], res["reconstruction"]
+        for name in ("fitted", "flat"):
+            ablation_rows.append(f"| {preset} | {name} | {res[name]['linear']['percent']:.2f} | "
+                                 f"{res[name]['linear']['rmse']:.4f} | {res[name]['encoded']['percent']:.2f} | "
+                                 f"{res[name]['encoded']['rmse']:.4f} |")
         rows.append(f"| {preset} | {f['linear']['percent']:.2f} | {fl['linear']['percent']:.2f} | "
                     f"{fl['linear']['percent'] / f['linear']['percent']:.2f}x | {f['encoded']['percent']:.2f} | "
                     f"{fl['encoded']['percent']:.2f} | {f['vs_reconstruction']['percent']:.2f} | "
@@ -148,6 +165,10 @@ def main(argv=None) -> int:
     say("|---|---|---|---|---|---|---|---|---|---|")
     for row in rows:
         say(row)
+    if args.ablation:
+        say("\n| preset | fallback | % lin | RMSE lin | % enc | RMSE enc |\n|---|---|---|---|---|---|")
+        for row in sorted(ablation_rows):
+            say(row)
     path = write_json(OUT / f"fallback_{timestamp()}.json", doc)
     say(f"\nwrote {path}")
     return 0
