@@ -46,7 +46,12 @@ def _to_uint8(values: np.ndarray) -> np.ndarray:
 
 def encode_maps(maps: SvbrdfMaps, ocio_config: str | None = None) -> dict[str, np.ndarray]:
     """{map: (H, W, C) uint8 pixels as written}: colour maps sRGB-encoded Rec.709, roughness
-    grey, normals ``n * 0.5 + 0.5``."""
+    grey, normals ``n * 0.5 + 0.5``.  Raises BTFError rather than write a non-finite fit."""
+    from ..errors import BTFError
+
+    for name in ("diffuse", "specular", "roughness", "normal"):
+        if not np.isfinite(getattr(maps, name)).all():
+            raise BTFError(f"the fitted fallback's {name} map is not finite (is the BTF?)")
     to_file = processor(maps.working_space, COLOUR_ENCODING, ocio_config)
     return {"diffuse": _to_uint8(to_file.apply(np.ascontiguousarray(maps.diffuse, np.float32))),
             "specular": _to_uint8(to_file.apply(np.ascontiguousarray(maps.specular, np.float32))),
