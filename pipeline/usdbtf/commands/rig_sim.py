@@ -48,7 +48,7 @@ def add_parser(sub) -> None:
                                                    "link is cut and a new pty opens")
     p.add_argument("--port-file", metavar="PATH", type=Path, help="also write the port to this file")
     p.add_argument("--frames", type=Path, required=True, help="folder for the rendered frames")
-    p.add_argument("--material", default="pebbles", help="synth material: pebbles, ridged_fabric, fuzzy_moss")
+    p.add_argument("--material", default="pebbles", help="synth material (a `usdbtf synth` preset, e.g. pebbles)")
     p.add_argument("--texture-size", type=int_in(8, 4096), default=128,
                    help="texels per side of the sample (default 128)")
     p.add_argument("--seed", type=SEED, default=0, help="material, noise and fault seed")

@@ -17,7 +17,8 @@ ORDER = 10
 def add_parser(sub) -> None:
     from ..sampling import PRESETS as SAMPLINGS
     p = sub.add_parser("synth", help="write a synthetic BTF (manifest folder) from a procedural material")
-    p.add_argument("preset", help="material: pebbles, ridged_fabric or fuzzy_moss")
+    p.add_argument("preset", help="material: pebbles, ridged_fabric, fuzzy_moss, crevice_stones, metal_flakes, "
+                                  "velvet or satin_weave")
     p.add_argument("-o", "--output", required=True, type=Path)
     p.add_argument("--sampling", default="small", choices=sorted(SAMPLINGS), help="direction set (default small)")
     p.add_argument("--size", type=int_in(8, MAX_SIZE), default=128, help=f"texels per side, 8..{MAX_SIZE} "
