@@ -221,9 +221,10 @@ def brdf_mismatch(images: np.ndarray, refs: np.ndarray, layouts: list, n_texels:
 def render_speed(folder: Path, frame: int, repeats: int, cli) -> dict:
     import trimesh
 
+    from usdbtf.camera import parse_camera
     from usdbtf.compress import read_compressed
-    from usdbtf.render import RenderOptions, Renderer, parse_camera, parse_light
-    from usdbtf.render.assets import render_mesh_from_file
+    from usdbtf.mesh import load_mesh
+    from usdbtf.render import RenderOptions, Renderer, parse_light
 
     work = OUT / "quilt_render" / "render"
     work.mkdir(parents=True, exist_ok=True)
@@ -237,7 +238,7 @@ def render_speed(folder: Path, frame: int, repeats: int, cli) -> dict:
         if "error" in r:
             raise SystemExit(r["error"])
     cbtf = read_compressed(work / "sphere_q")
-    mesh = render_mesh_from_file(work / "sphere_uv" / "mesh.usda")
+    mesh = load_mesh(work / "sphere_uv" / "mesh.usda", need_uv=True)
     camera_spec = "eye=0,0.06,0.34 target=0,0,0 fov=30"
     light_spec = "point:0.3,0.3,0.3:0.2"
     camera = parse_camera(camera_spec, frame, frame)
@@ -268,12 +269,12 @@ def render_speed(folder: Path, frame: int, repeats: int, cli) -> dict:
                   camera_spec, "--light", light_spec, "--size", frame, frame, "-o", out, "-q")
     say(f"  $ {' '.join(cmd)}")
     run = run_repeated(cmd, repeats, pss_interval=0)
-    res = {"frame_size": frame, "k": cbtf.k, "atlas": [cbtf.width, cbtf.height], "triangles": len(mesh.corners),
+    res = {"frame_size": frame, "k": cbtf.k, "atlas": [cbtf.width, cbtf.height], "triangles": len(mesh.triangles),
            "covered_pixels": covered, "lights": 1, "shadows": True, "threads": 2, "renderer_init_s": init_s,
            "frame_timing": timing, "plain_eq2_baseline": base,
            "cli": {k: run[k] for k in ("command", "wall_s_samples", "wall_s_median", "cpu_s_median",
                                        "peak_memory_bytes") if k in run}}
-    say(f"  {frame}^2 frame, {covered} covered pixels, {len(mesh.corners)} triangles, "
+    say(f"  {frame}^2 frame, {covered} covered pixels, {len(mesh.triangles)} triangles, "
         f"atlas {cbtf.width}x{cbtf.height}, "
         f"k = {cbtf.k}: median {timing['median_s']:.2f} s of {repeats}, CPU {timing['cpu_s_median']:.2f} s "
         f"(renderer init {init_s:.2f} s, once)")

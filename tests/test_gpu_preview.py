@@ -215,12 +215,13 @@ def test_headless_swatch_matches_cpu_renderer(gl, asset):
 
 def test_headless_sphere_matches_cpu_renderer(egl, asset):
     from usdbtf.gpu.headless import HeadlessRenderer, psnr, uv_sphere
-    from usdbtf.render import auto_camera, parse_light
+    from usdbtf.camera import auto_camera
+    from usdbtf.render import parse_light
 
     layout, _, _ = storm.layout_from_asset(asset)
     gl = HeadlessRenderer(layout, wrap="repeat", ctx=egl)
     mesh = uv_sphere(0.05)
-    camera = auto_camera(mesh.corners, 128, 128)
+    camera = auto_camera(mesh.corner(), 128, 128)
     lights = [parse_light("dir:0.4,0.6,1"), parse_light("point:0.1,0.05,0.12:0.02")]
     ref = _cpu(load_btf(asset), wrap="repeat").render(mesh, camera, lights)
     out = gl.render(mesh, camera, lights)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from quilt_render_data import pebbles, work  # noqa: F401 (fixtures)
-from cli_helpers import bad_input, ok
+from cli_helpers import bad_input, bad_usage, ok
 from usdbtf.compress import read_compressed, reconstruct
 from usdbtf.compress.format import METADATA
 from usdbtf.imageio import read_image
@@ -159,12 +159,12 @@ def test_coefficient_matching_beats_one_images_layout_over_all_samples(pebbles):
 # ------------------------------------------------------------------ bad input
 
 
-def test_bad_input_exits_2_and_writes_nothing(work, pebbles, capsys):
+def test_bad_input_exits_65_bad_options_2_and_writes_nothing(work, pebbles, capsys):
     out = work / "bad_out"
-    bad_input(capsys, "quilt", pebbles, "-o", out, "--size", 64, 64, "--block", 60, names="--block 60")
-    bad_input(capsys, "quilt", pebbles, "-o", out, "--size", 0, 64, names="--size")
-    bad_input(capsys, "quilt", pebbles, "-o", out, "--size", 64, 64, "--m", 99, names="--m")
-    bad_input(capsys, "quilt", pebbles, "-o", out, "--size", 20, 20, "--tileable", names="--tileable")
+    bad_usage(capsys, "quilt", pebbles, "-o", out, "--size", 64, 64, "--block", 60, names="--block 60")
+    bad_usage(capsys, "quilt", pebbles, "-o", out, "--size", 0, 64, names="--size")
+    bad_usage(capsys, "quilt", pebbles, "-o", out, "--size", 64, 64, "--m", 99, names="--m")
+    bad_usage(capsys, "quilt", pebbles, "-o", out, "--size", 20, 20, "--tileable", names="--tileable")
     bad_input(capsys, "quilt", pebbles, "-o", out, "--atlas", work / "nope.usda", names="nope.usda")
     broken = work / "broken_c"
     shutil.copytree(pebbles, broken)

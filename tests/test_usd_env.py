@@ -30,7 +30,7 @@ def outputs(tmp_path_factory) -> dict[str, Path]:
     assert main(["synth", "fuzzy_moss", "-o", str(src), "--sampling", "small", "--size", "32", "--seed", "3",
                  "-q"]) == 0
     assert main(["compress", str(src), "-o", str(comp), "--k", "12", "--codec", "png", "-q"]) == 0
-    usda, usdc = work / "a" / "moss.usda", work / "c" / "moss.usdc"
+    usda, usdc = work / "a" / "moss.usda", work / "b" / "moss.usdc"     # not inside the input c
     assert main(["package", str(comp), "-o", str(usda), "--payload-format", "usda", "--usdz", "--lod", "6,3",
                  "-q"]) == 0
     assert main(["package", str(comp), "-o", str(usdc), "--lod", "6,3", "--usdz-ar", "-q"]) == 0

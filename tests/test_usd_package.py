@@ -15,7 +15,7 @@ import pytest
 import usdbtf  # noqa: F401  (registers the schema plugin first)
 from pxr import Sdf, Usd, UsdGeom, UsdShade
 
-from cli_helpers import bad_input, ok, run
+from cli_helpers import bad_input, bad_usage, ok, refused, run
 from usdbtf import colour
 from usdbtf.cli import main
 from usdbtf.compress import read_compressed, reconstruct
@@ -329,11 +329,12 @@ def test_fallback_maps_recover_a_lambertian(tmp_path, capsys):
     data = 0.8 * working[None] * cos_l[:, None, None, None]          # white level 0.8
     btf = ArrayBTF.from_linear(sampling, data)
     btf.metadata.update(physical_size_m=[0.02, 0.02], white_level=0.8)
-    from usdbtf.compress import Options, compress_to_folder
+    from compress_helpers import compress_into
+    from usdbtf.compress import CompressOptions
 
-    opts = Options(k=4, codec="exr")
+    opts = CompressOptions(k=4, codec="exr")
     opts.extra = {"source_metadata": dict(btf.metadata)}
-    compress_to_folder(btf, tmp_path / "c", opts)
+    compress_into(btf, tmp_path / "c", opts)
     pkg.package(tmp_path / "c", tmp_path / "a" / "flat.usda", thumbnail=False)
     folder = tmp_path / "a" / "flat_textures" / "fallback"
     png, _ = read_image(folder / "diffuse.png")
@@ -351,7 +352,7 @@ def test_fit_recovers_a_ggx_surface_per_texel(alpha, tmp_path):
     """A synthetic surface with GGX alpha and F0 0.04 on a sloped and a flat half: the fit
     finds roughness sqrt(alpha), F0 and the slope's normal, and beats the flat fallback."""
     from usdbtf import synth, svbrdf
-    from usdbtf.compress.core import compress
+    from usdbtf.compress import CompressOptions, compress
 
     n = 8
     height = np.zeros((n, n), np.float32)
@@ -360,7 +361,7 @@ def test_fit_recovers_a_ggx_surface_per_texel(alpha, tmp_path):
                               np.full((n, n), alpha, np.float32))
     sampling = preset("small")
     data = colour.processor("Linear Rec.709 (sRGB)", "scene_linear").apply(synth.render_all(material, sampling))
-    cbtf = compress(ArrayBTF.from_linear(sampling, data), tmp_path / "c", k=12, codec="exr")
+    cbtf = compress(ArrayBTF.from_linear(sampling, data), CompressOptions(k=12, codec="exr"))
     maps = svbrdf.fit_svbrdf(cbtf)
     flat = slice(n // 2 + 1, None)
     assert abs(float(np.median(maps.roughness[:, flat])) - alpha ** 0.5) <= 0.1
@@ -447,9 +448,14 @@ def test_failed_package_leaves_previous_asset_intact(compressed, work, tmp_path,
     out = tmp_path / "keep" / "pebbles.usda"
     ok(capsys, "package", compressed, "-o", out, "-q")
     before = {p: p.read_bytes() for p in out.parent.rglob("*") if p.is_file()}
-    bad_input(capsys, "package", compressed, "-o", out, "--lod", "999", names="--lod 999")
+    bad_usage(capsys, "package", compressed, "-o", out, "--lod", "999", "--force", names="--lod 999")
     after = {p: p.read_bytes() for p in out.parent.rglob("*") if p.is_file()}
     assert after == before
+    # A previous asset is replaced only with --force (and then only once the new one is complete).
+    refused(capsys, "package", compressed, "-o", out, "-q", names="--force")
+    ok(capsys, "package", compressed, "-o", out, "-q", "--force")
+    assert sorted(p.name for p in out.parent.iterdir()) == ["pebbles.usda", "pebbles_payload.usdc",
+                                                            "pebbles_textures"]
 
 
 def test_no_physical_size_is_a_clear_error(src, tmp_path, capsys):

@@ -223,11 +223,16 @@ class FileBTF(BTF):
 
     def read_one(self, i: int, rows=None) -> np.ndarray:
         """Stored values of sample i, (h, W, 3), with size and bit depth checked."""
-        pixels, info = read_image(self.paths[i], expect=(self.width, self.height), rows=rows)
+        return self.read_file(self.paths[i], rows)
+
+    def read_file(self, path, rows=None) -> np.ndarray:
+        """Stored values of the image file ``path`` (h, W, 3), checked against this BTF's
+        size and bit depth (subclasses that hand OIIO another path per sample use this)."""
+        pixels, info = read_image(path, expect=(self.width, self.height), rows=rows)
         if info.bit_depth != self.bit_depth:
-            raise BTFError(f"{self.paths[i]}: bit depth {info.bit_depth} differs from the dataset's {self.bit_depth}")
+            raise BTFError(f"{path}: bit depth {info.bit_depth} differs from the dataset's {self.bit_depth}")
         if pixels.dtype.kind == "f":
-            check_finite(pixels, self.paths[i])
+            check_finite(pixels, path)
         return pixels
 
     def read_encoded(self, indices, rows=None):

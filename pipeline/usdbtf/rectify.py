@@ -24,18 +24,20 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from .atomic import claim, scratch_dir
 from .errors import BTFError
 from .fiducials import Board, apply_homography, detect_markers, fit_homography, make_board, parse_board, to_cv
 from .fill import combine, plan_fill
 from .imageio import read_image
 from .manifest import MANIFEST, read_manifest, write_manifest
+from .outputs import MANIFEST as MANIFEST_KIND
+from .resources import require_disk
 from .sampling import Sampling
 
 __all__ = ["FrameResult", "rectify_frame", "warp_window", "window_homography", "luminance", "RectifyOptions",
@@ -248,8 +250,9 @@ def rectify_capture(raw, out, opts: RectifyOptions, *, board: Board | None = Non
     rejected, residuals = {}, []
     order = sorted(plan.frame_of)
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix=f".{out.name}.scratch-", dir=out.parent) as scratch:
+    with claim(out, folder=True, kind=MANIFEST_KIND), scratch_dir(out) as scratch:
+        # The rectified samples wait on disk (float32) until every frame is done.
+        require_disk(n * size * size * 12, scratch.parent, f"rectifying {n} samples at {size}x{size}")
         texels = np.lib.format.open_memmap(os.path.join(scratch, "texels.npy"), mode="w+", dtype=np.float32,
                                            shape=(n, size, size, 3))
         available = np.zeros(n, bool)

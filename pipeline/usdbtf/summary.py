@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["compressed_summary", "btf_summary"]
+__all__ = ["compressed_summary", "btf_summary", "direction_count", "image_size"]
 
 
 def compressed_summary(folder) -> dict:
@@ -35,12 +35,39 @@ def compressed_summary(folder) -> dict:
             "usdbtf_version": prov.get("version")}
 
 
-def btf_summary(path) -> dict:
-    """What a measured BTF input holds: samples, size, encoding, directions."""
-    from .io import open_btf
+def direction_count(directions) -> int:
+    """Distinct (theta, phi) directions among ``directions`` (N, 2) degrees, to 1e-6."""
+    import numpy as np
 
-    btf = open_btf(path)
-    return {"path": str(path), "kind": "btf", "samples": btf.n_samples, "width": btf.width, "height": btf.height,
+    return len({tuple(np.round(d, 6)) for d in directions})
+
+
+def image_size(btf) -> tuple[int, int]:
+    """(width, height): the size of the image files themselves when the samples are files on
+    disk (a manifest's declared size is checked against them), else the reader's size."""
+    from .imageio import read_info
+
+    paths = getattr(btf, "paths", None)
+    if paths and Path(paths[0]).is_file():
+        first = read_info(paths[0])
+        return first.width, first.height
+    return btf.width, btf.height
+
+
+def btf_summary(path, btf=None) -> dict:
+    """What a measured BTF input holds: format, samples, size, encoding, directions; for
+    Bonn ``.btf`` files also ``file`` (signature, colour model, component counts, ...: the
+    reader's ``describe()``).  ``btf``: the opened input, when the caller has it."""
+    if btf is None:
+        from .io import open_btf
+
+        btf = open_btf(path)
+    width, height = image_size(btf)
+    describe = getattr(btf, "describe", None)
+    ignored = getattr(btf, "ignored", None) or []
+    return {"path": str(path), "kind": "btf", "format": btf.metadata.get("format") or "btf-manifest/1",
+            "samples": btf.n_samples, "width": width, "height": height,
             "bit_depth": btf.bit_depth, "color_space": btf.color_space,
-            "views": len({tuple(v) for v in btf.sampling.view}), "lights": len({tuple(v) for v in btf.sampling.light}),
-            "interpolated": int(btf.interpolated.sum())}
+            "views": direction_count(btf.sampling.view), "lights": direction_count(btf.sampling.light),
+            "interpolated": int(btf.interpolated.sum()), "ignored_members": len(ignored),
+            "file": describe() if describe else None}

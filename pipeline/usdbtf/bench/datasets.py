@@ -9,6 +9,11 @@ folder with one is complete).
 Subsets (the training half of a held-out split, the first n views for a scaling series)
 are manifests whose ``image`` entries point into the full dataset's folder by relative
 path: no pixel is copied.
+
+Material presets are split in two (:data:`TUNING_PRESETS`, :data:`HELDOUT_PRESETS`): any
+choice of a method's parameters may look at the tuning presets; the held-out ones stand in
+for materials nobody has seen, so no tuning run may use them, and benchmarks report them
+apart.  The split was fixed before any compression result on the new presets was seen.
 """
 from __future__ import annotations
 
@@ -26,11 +31,34 @@ from ..model import FileBTF
 from ..sampling import Sampling, preset as sampling_preset
 
 __all__ = ["dataset_dir", "cached_dataset_ok", "ensure_dataset", "synthesize", "first_views", "write_subset",
-           "subset_btf", "compressed", "SRGB", "PHYSICAL_SIZE_M"]
+           "subset_btf", "compressed", "SRGB", "PHYSICAL_SIZE_M", "TUNING_PRESETS", "HELDOUT_PRESETS",
+           "preset_split", "split_presets"]
 
 SRGB = "sRGB Encoded Rec.709 (sRGB)"
 LINEAR_709 = "Linear Rec.709 (sRGB)"
 PHYSICAL_SIZE_M = 0.05          # `usdbtf synth`'s default tile edge
+
+#: Material presets (:data:`usdbtf.synth.PRESETS`) that tuning may look at.
+TUNING_PRESETS = ("pebbles", "ridged_fabric", "fuzzy_moss", "metal_flakes", "satin_weave")
+#: Presets kept out of every tuning run: deep crevices with cast shadows (energy in dark,
+#: shadowed texels) and velvet (grazing sheen and retro-reflection).
+HELDOUT_PRESETS = ("crevice_stones", "velvet")
+
+
+def preset_split(preset: str) -> str:
+    """"tuning" or "held-out" for a material preset (ValueError for an unknown one)."""
+    if preset in TUNING_PRESETS:
+        return "tuning"
+    if preset in HELDOUT_PRESETS:
+        return "held-out"
+    raise ValueError(f"material preset {preset!r} is in neither the tuning nor the held-out set")
+
+
+def split_presets(presets) -> tuple[list, list]:
+    """(tuning, held-out) members of ``presets``, each in the given order."""
+    presets = list(presets)
+    return ([p for p in presets if preset_split(p) == "tuning"],
+            [p for p in presets if preset_split(p) == "held-out"])
 
 
 def first_views(sampling: Sampling, views: int | None) -> np.ndarray:

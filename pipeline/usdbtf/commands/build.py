@@ -19,6 +19,12 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run)
 
 
+def outputs(args):
+    """None declared here: the scene names them, and :func:`usdbtf.usd.build.build` checks them
+    (``--force`` is still offered: it lets a build replace outputs it did not write before)."""
+    return []
+
+
 def run(args) -> int:
     from ..usd.build import build, plan
 
@@ -31,7 +37,7 @@ def run(args) -> int:
         for path in report["without_recipe"]:
             print(f"{path}: bound, no recipe")
         return 0
-    report = build(args.scene, log=log(args.quiet))
+    report = build(args.scene, force=args.force, log=log(args.quiet))
     if args.json:
         return _print_report(args.scene, report["recipes"], report, dry_run=False)
     return 0

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..argtypes import add_outside_paths_flag
 
 ORDER = 50
 
@@ -10,6 +11,7 @@ ORDER = 50
 def add_parser(sub) -> None:
     p = sub.add_parser("info", help="summarise a BTF or a compressed BTF")
     p.add_argument("path", type=Path)
+    add_outside_paths_flag(p)
     p.add_argument("--json", action="store_true", help="print the summary as JSON (keys in the README)")
     p.set_defaults(func=run)
 
@@ -19,17 +21,22 @@ def run(args) -> int:
     from ..summary import btf_summary, compressed_summary
 
     path = Path(args.path)
-    s = compressed_summary(path) if (path / METADATA).is_file() else btf_summary(path)
+    if (path / METADATA).is_file():
+        s = compressed_summary(path)
+        lines = [compressed_text(s)]
+    else:
+        from ..io import open_btf
+
+        btf = open_btf(path)
+        s = btf_summary(path, btf)
+        lines = describe_btf(path, btf, s)
     if args.json:
         from . import print_json
 
         print_json(s)
-    elif s["kind"] == "compressed":
-        print(compressed_text(s))
     else:
-        print(f"{s['path']}: BTF, {s['samples']} samples of {s['width']}x{s['height']}, {s['bit_depth']} "
-              f"{s['color_space']}")
-        print(f"  views {s['views']}, lights {s['lights']}, interpolated {s['interpolated']}")
+        for line in lines:
+            print(line)
     return 0
 
 
@@ -47,3 +54,36 @@ def compressed_text(s: dict) -> str:
     lines.append(f"  colour      working {s['working_space']}; source {s['source']['color_space']} "
                  f"{s['source']['bit_depth']}")
     return "\n".join(lines)
+
+
+def describe_btf(path, btf, summary: dict | None = None) -> list[str]:
+    """The lines ``usdbtf info`` prints for an input BTF: format, directions, size, colour;
+    for Bonn ``.btf`` files also the signature, colour model and component counts.
+    ``summary``: :func:`usdbtf.summary.btf_summary` of it, when the caller has it."""
+    from ..summary import btf_summary
+
+    s = summary or btf_summary(path, btf)
+    nv, nl = s["views"], s["lights"]
+    grid = f"{nv} views x {nl} lights" if nv * nl == btf.n_samples else f"{nv} views, {nl} lights"
+    lines = [f"{path}: {s['format']} BTF, {grid} = {btf.n_samples} samples of {s['width']}x{s['height']} texels"]
+    d = s["file"] or {}
+    if "signature" in d:
+        lines[0] += f" (signature {d['signature']})"
+    lines.append(f"  colour      {btf.bit_depth} {btf.color_space}"
+                 + (f", stored as colour model {d['color_model']} ({d['color_model_name']})" if d else ""))
+    if d.get("components") is not None:
+        per = "view" if d["format"] == "PVF" else "channel"
+        counts = ", ".join(f"{per} {i}: {k}" for i, k in enumerate(d["components"]))
+        lines.append(f"  components  {counts}  ({d['scalar']} floats)")
+    if d:
+        extra = [f"{d['file_bytes']} bytes" if d.get("file_bytes") is not None else None,
+                 f"{d['ppmm']:g} px/mm" if d["ppmm"] > 0 else None,
+                 f"cosine flag {'on' if d['cosine_flag'] else 'off'}", f"{d['rotations']} rotations",
+                 "dynamic-range reduction on" if d.get("dynamic_range_reduction") else None,
+                 f"{d['stored_texels']} stored texels" if "stored_texels" in d else None]
+        lines.append("  file        " + "; ".join(e for e in extra if e))
+    ignored = getattr(btf, "ignored", None)
+    if ignored:
+        lines.append(f"  ignored     {len(ignored)} member(s) that are not samples, e.g. {ignored[0]!r}")
+    lines.append(f"  interpolated {int(btf.interpolated.sum())}")
+    return lines

@@ -4,6 +4,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from . import log
+from ..argtypes import float_in
 
 ORDER = 60
 
@@ -24,7 +25,7 @@ def add_parser(sub) -> None:
                    "layer, PNG textures, the fitted UsdPreviewSurface only")
     p.add_argument("--lod", help="basis counts of the lod variants besides 'full', e.g. 64,16 "
                    "(default: halvings of k down to 4)")
-    p.add_argument("--physical-size", type=float, nargs=2, metavar=("W", "H"),
+    p.add_argument("--physical-size", type=float_in(0, 1e4, lo_open=True), nargs=2, metavar=("W", "H"),
                    help="tile size in metres (default: the source's physical_size_m)")
     p.add_argument("--payload-format", choices=PAYLOAD_FORMATS, default="usdc",
                    help="file format of the heavy payload layer (default usdc)")
@@ -39,6 +40,12 @@ def add_parser(sub) -> None:
     p.add_argument("--json", action="store_true", help="print a JSON summary of what was written on stdout")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
+
+
+def outputs(args):
+    from ..usd.package import asset_pieces
+    pieces = asset_pieces(args.output, usdz=args.usdz, usdz_ar=args.usdz_ar, payload_format=args.payload_format)
+    return [(args.output.parent / name, kind) for name, _, kind in pieces]
 
 
 def run(args) -> int:

@@ -23,7 +23,7 @@ import json
 import sys
 from pathlib import Path
 
-from ..usd.plugin import SHADER_ID
+from ..plugin_folder import SHADER_ID
 from .tables import MAX_GROUPS, MAX_PACKS
 
 __all__ = ["SHADER_ID", "INPUTS", "PRIMVARS", "core_source", "pack_name", "storm_glslfx", "sdr_definition_usda",
@@ -359,9 +359,9 @@ def plugin_files() -> dict[str, str]:
 
 
 def _resources(plugin: Path | None) -> Path:
-    from ..usd.plugin import resources_dir
+    from ..plugin_folder import plugin_dir
 
-    return resources_dir(plugin)
+    return (plugin or plugin_dir()) / "usdBtf" / "resources"
 
 
 def stale_plugin_files(plugin: Path | None = None) -> list[str]:
@@ -379,7 +379,7 @@ def write_plugin_files(plugin: Path | None = None) -> list[Path]:
     written = []
     for rel, text in plugin_files().items():
         path = root / rel
-        with atomic_file(path) as tmp:
+        with atomic_file(path, owner_checked=True) as tmp:     # generated files of the plugin
             tmp.write_text(text)
         written.append(path)
     return written

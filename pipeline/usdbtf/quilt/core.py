@@ -20,7 +20,7 @@ import numpy as np
 
 from .. import __version__
 from ..compress.format import CompressedBTF
-from ..errors import BTFError
+from ..errors import UsageError
 from .engine import Source, default_block, default_overlap, grid_for, place_blocks
 from .features import image_features, matching_features, vector_energies
 from .seams import seam_error_all_samples
@@ -56,15 +56,15 @@ class QuiltOptions:
         overlap = self.overlap if self.overlap is not None else default_overlap(block)
         m = self.m if self.m is not None else min(DEFAULT_M, cbtf.k)
         if block < 3:
-            raise BTFError(f"--block must be at least 3 texels, got {block}")
+            raise UsageError(f"--block must be at least 3 texels, got {block}")
         if block > min(cbtf.width, cbtf.height):
-            raise BTFError(f"--block {block} is larger than the {cbtf.width}x{cbtf.height} sample")
+            raise UsageError(f"--block {block} is larger than the {cbtf.width}x{cbtf.height} sample")
         if not 1 <= overlap < block:
-            raise BTFError(f"--overlap must be in 1..{block - 1} for block {block}, got {overlap}")
+            raise UsageError(f"--overlap must be in 1..{block - 1} for block {block}, got {overlap}")
         if not 1 <= m <= cbtf.k:
-            raise BTFError(f"--m must be in 1..{cbtf.k}, got {m}")
+            raise UsageError(f"--m must be in 1..{cbtf.k}, got {m}")
         if not (self.tolerance >= 0 and np.isfinite(self.tolerance)):
-            raise BTFError(f"tolerance must be a finite number >= 0, got {self.tolerance}")
+            raise UsageError(f"tolerance must be a finite number >= 0, got {self.tolerance}")
         return replace(self, block=block, overlap=overlap, m=m)
 
 
@@ -99,7 +99,7 @@ def prepare_source(cbtf: CompressedBTF, opts: QuiltOptions) -> Source:
 def check_size(width: int, height: int, limit: int = 1 << 15) -> None:
     if not (isinstance(width, (int, np.integer)) and isinstance(height, (int, np.integer))
             and 1 <= width <= limit and 1 <= height <= limit):
-        raise BTFError(f"--size must be two integers in 1..{limit}, got {width} {height}")
+        raise UsageError(f"--size must be two integers in 1..{limit}, got {width} {height}")
 
 
 def quilt(cbtf: CompressedBTF, width: int, height: int, opts: QuiltOptions | None = None, *,

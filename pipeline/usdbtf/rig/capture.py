@@ -277,7 +277,7 @@ def _write_manifest(raw, plan, journal, first, flat, board, extra, driver) -> di
         info["obstruction"] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(plan.geometry).items()}
     doc = {"format": FORMAT, "color_space": first["color_space"], "width": first["width"], "height": first["height"],
            "raw_capture": info, "missing": missing, "samples": samples}
-    with atomic_file(raw / MANIFEST) as tmp:
+    with atomic_file(raw / MANIFEST, owner_checked=True) as tmp:
         tmp.write_text(jsontext.dumps(doc) + "\n")
     return {"shots": len(samples), "missing": len(missing), "resumed": journal.resumed, "reconnects": driver.reconnects,
             "resends": driver.resends, "manifest": str(raw / MANIFEST)}

@@ -28,12 +28,13 @@ AR_SUFFIX = "_ar"
 
 def make_ar_usdz(staging: Path, stem: str, root: str, mesh, maps, asset_name: str, asset_version: str | None = None,
                  creator: str | None = None, ocio_config: str | None = None, *, wrap: str = "repeat") -> Path:
-    """Write ``<staging>/<stem>_ar.usdz`` from ``mesh`` (geometry.MeshData) and the fitted
+    """Write ``<staging>/<stem>_ar.usdz`` from ``mesh`` (a :class:`usdbtf.mesh.Mesh`) and the fitted
     ``maps`` (svbrdf.SvbrdfMaps); returns its path."""
     from pxr import Kind, Sdf, Usd, UsdGeom, UsdShade
 
-    from . import fallback, geometry
-    from .layers import MATERIAL, make_usdz, stage_metadata
+    from ..mesh.author import author_mesh
+    from . import fallback
+    from .layers import MATERIAL, make_usdz, stage_metadata, usd_write
     from .textures import TextureSet
 
     work = staging / f".{stem}{AR_SUFFIX}"
@@ -42,7 +43,8 @@ def make_ar_usdz(staging: Path, stem: str, root: str, mesh, maps, asset_name: st
     textures.folder.mkdir(parents=True)
     written = fallback.write_maps(maps, textures, ocio_config, names=("diffuse", "roughness", "normal"))
     layer_path = work / f"{stem}{AR_SUFFIX}.usdc"
-    stage = Usd.Stage.CreateNew(str(layer_path))
+    with usd_write(layer_path):
+        stage = Usd.Stage.CreateNew(str(layer_path))
     stage_metadata(stage.GetRootLayer(), root, asset_name=asset_name, what="AR package", creator=creator)
     prim = UsdGeom.Xform.Define(stage, f"/{root}").GetPrim()
     model = Usd.ModelAPI(prim)
@@ -55,9 +57,10 @@ def make_ar_usdz(staging: Path, stem: str, root: str, mesh, maps, asset_name: st
     UsdGeom.Scope.Define(stage, f"/{root}/mtl")
     material = UsdShade.Material.Define(stage, f"/{root}/mtl/{MATERIAL}")
     fallback.author_fallback(stage, material, written, wrap=wrap, specular_workflow=False)
-    geom = geometry.author_mesh(stage, f"/{root}/geo/{geometry_name(mesh)}", mesh)
+    geom = author_mesh(stage, f"/{root}/geo/{geometry_name(mesh)}", mesh)
     UsdShade.MaterialBindingAPI.Apply(geom).Bind(material)
-    stage.GetRootLayer().Save()
+    with usd_write(layer_path):
+        stage.GetRootLayer().Save()
     del stage
     return make_usdz(layer_path, staging / f"{stem}{AR_SUFFIX}.usdz")
 

@@ -128,7 +128,7 @@ def generate(source: Path, out_dir: Path) -> list[Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
     for name, text in ((GENERATED, generated_schema(source)), (PLUGINFO, plug_info(source))):
-        with atomic_file(out_dir / name) as tmp:
+        with atomic_file(out_dir / name, owner_checked=True) as tmp:   # generated files of the plugin
             Path(tmp).write_text(text)
         written.append(out_dir / name)
     return written

@@ -8,7 +8,8 @@ from __future__ import annotations
 import numpy as np
 
 from .material import LOD_VARIANT_SET, NS, btf_materials
-from .read import find_material, open_stage, resolve_usd
+from ..usdstage import resolve_usd
+from .read import find_material, open_stage
 
 
 def asset_bytes(asset) -> int:

@@ -1,13 +1,16 @@
-"""Pieces every layer a package writes shares: stage metadata, the material's name, usdz packaging."""
+"""Pieces every layer a package writes shares: stage metadata (with the usdbtf output
+marker), the material's name, USD write errors, usdz packaging."""
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 
 from .. import __version__
 from ..errors import BTFError
+from ..outputs import usd_marker
 
-__all__ = ["MATERIAL", "FIXED_MTIME", "stage_metadata", "make_usdz"]
+__all__ = ["MATERIAL", "FIXED_MTIME", "stage_metadata", "usd_write", "make_usdz"]
 
 #: The BTF material's prim name under ``/<root>/mtl``.
 MATERIAL = "BtfMaterial"
@@ -17,18 +20,36 @@ FIXED_MTIME = 946684800
 
 
 def stage_metadata(layer, root: str, *, asset_name: str, what: str, creator: str | None = None) -> None:
-    """defaultPrim, metersPerUnit 1, upAxis Y, a doc string, and customLayerData (the tool and,
-    when given, the creator) on ``layer``."""
+    """defaultPrim, metersPerUnit 1, upAxis Y, a doc string, and customLayerData on ``layer``:
+    the usdbtf output marker (:func:`usdbtf.outputs.usd_marker`, so ``--force`` recognises the
+    layer), the tool and, when given, the creator."""
     from pxr import UsdGeom
 
     layer.defaultPrim = root
     layer.pseudoRoot.SetInfo(UsdGeom.Tokens.metersPerUnit, 1.0)
     layer.pseudoRoot.SetInfo(UsdGeom.Tokens.upAxis, UsdGeom.Tokens.y)
     layer.documentation = f"{what} of BTF asset {asset_name}, written by usdbtf {__version__}"
-    data = {"generator": f"usdbtf {__version__}"}
+    data = {**usd_marker(), "generator": f"usdbtf {__version__}"}
     if creator:
         data["creator"] = creator
     layer.customLayerData = data
+
+
+@contextlib.contextmanager
+def usd_write(path: Path):
+    """USD's write failures (Tf errors) as usdbtf errors naming ``path``: an operating-system
+    problem (disk full, permission) is an IOFailure, anything else bad data."""
+    from pxr import Tf
+
+    from ..errors import OS_ERROR_WORDS, IOFailure
+    from ..usdstage import tf_message
+
+    try:
+        yield
+    except Tf.ErrorException as exc:
+        text = tf_message(exc)
+        cls = IOFailure if any(w in text for w in OS_ERROR_WORDS) else BTFError
+        raise cls(f"{path}: cannot write the USD layer ({text})") from None
 
 
 def make_usdz(root_layer: Path, usdz: Path) -> Path:
@@ -39,6 +60,8 @@ def make_usdz(root_layer: Path, usdz: Path) -> Path:
     for path in Path(root_layer).parent.rglob("*"):
         if path.is_file():
             os.utime(path, (FIXED_MTIME, FIXED_MTIME))
-    if not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(root_layer)), str(usdz)):
+    with usd_write(usdz):
+        made = UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(root_layer)), str(usdz))
+    if not made:
         raise BTFError(f"{usdz}: usdz packaging failed")
     return usdz

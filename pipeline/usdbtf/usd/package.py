@@ -20,37 +20,45 @@ TIFF become PNG holding the same integer codes; PNG, JPEG and EXR are copied), o
 tiled, mip-mapped files with ``--texture-format`` (usd.textures); a reconstruction from the
 asset equals one from the compressed folder bit for bit.  Every asset path is relative, and
 so is the provenance (the source's path relative to the asset).  Everything is written into
-a staging folder, checked with every UsdValidation validator on every ``lod`` selection,
-and only then moved into place (root layer last): a failure leaves no half-written asset.
+a staging folder beside the asset, checked for non-finite numbers and with every
+UsdValidation validator on every ``lod`` selection, and only then moved into place as one
+:func:`usdbtf.atomic.atomic_group` (:func:`asset_pieces`: textures, payload, usdz files,
+root layer last): a failure leaves the previous asset byte-identical, and a run killed
+while moving the pieces in is finished by the next one.  Every layer carries
+``customLayerData = {"usdbtf": {"output": "usdbtf-asset"}, ...}`` (usd.layers), so
+``--force`` recognises a previous asset (and replaces nothing else).
 """
 from __future__ import annotations
 
 import csv
 import hashlib
 import os
-import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from ..atomic import atomic_group
 from ..compress.format import METADATA, CompressedBTF, read_compressed
 from ..errors import BTFError, UsageError
+from ..mesh import Mesh, load_mesh
+from ..mesh.author import author_mesh
+from ..outputs import ASSET, ASSET_TEXTURES
 from ..render.core import default_wrap
-from . import fallback, geometry, lod, storm, thumbnail
-from .layers import MATERIAL, make_usdz, stage_metadata
+from . import fallback, lod, storm, thumbnail
+from .arkit import AR_SUFFIX
+from .finite import non_finite_in_stage, non_finite_values
+from .layers import MATERIAL, make_usdz, stage_metadata, usd_write
 from .lod import FULL_LOD, default_lods
 from .material import LOD_VARIANT_SET, author_btf
 from .textures import TEXTURE_FORMATS, USDZ_FORMATS, TextureSet, package_textures
 from .validate import validate_layer
 
-__all__ = ["PackageOptions", "package", "make_usdz", "default_lods", "LOD_VARIANT_SET", "FULL_LOD", "MATERIAL",
-           "ROOT_FORMATS", "PAYLOAD_FORMATS", "error_curve", "physical_size_of", "provenance_path"]
+__all__ = ["PackageOptions", "package", "asset_pieces", "make_usdz", "default_lods", "LOD_VARIANT_SET", "FULL_LOD",
+           "MATERIAL", "ROOT_FORMATS", "PAYLOAD_FORMATS", "error_curve", "physical_size_of", "provenance_path"]
 
 ROOT_FORMATS = (".usda", ".usdc", ".usd")
 PAYLOAD_FORMATS = ("usdc", "usda")
-THUMBNAIL_FILE = "thumbnail.png"
 
 
 @dataclass
@@ -158,14 +166,15 @@ class _Written:
     maps: object          # svbrdf.SvbrdfMaps, for the AR package
 
 
-def _write_payload(path: Path, root: str, cbtf: CompressedBTF, compressed: Path, mesh: geometry.MeshData,
+def _write_payload(path: Path, root: str, cbtf: CompressedBTF, compressed: Path, mesh: Mesh,
                    textures: TextureSet, options: PackageOptions, *, physical_size, curve, provenance: str,
                    white_level: float, log) -> _Written:
     from pxr import Kind, Usd, UsdGeom, UsdShade
 
     from ..svbrdf import fit_svbrdf
 
-    stage = Usd.Stage.CreateNew(str(path))
+    with usd_write(path):
+        stage = Usd.Stage.CreateNew(str(path))
     _stage_metadata(stage.GetRootLayer(), root, options, "payload")
     asset = UsdGeom.Xform.Define(stage, f"/{root}")
     Usd.ModelAPI(asset).SetKind(Kind.Tokens.component)
@@ -184,17 +193,19 @@ def _write_payload(path: Path, root: str, cbtf: CompressedBTF, compressed: Path,
     fallback.author_fallback(stage, material, fallback.write_maps(maps, textures, cbtf.ocio_config),
                              wrap=default_wrap(cbtf), summary=summary)
     gpu = storm.author_gpu_preview(stage, material, cbtf, textures)
-    prim = geometry.author_mesh(stage, f"/{root}/geo/{_prim_name(mesh.name)}", mesh)
+    prim = author_mesh(stage, f"/{root}/geo/{_prim_name(mesh.name)}", mesh)
     UsdShade.MaterialBindingAPI.Apply(prim).Bind(material)
-    stage.GetRootLayer().Save()
-    return _Written([c.path for c in coeffs], gpu, mesh.extent(), maps)
+    with usd_write(path):
+        stage.GetRootLayer().Save()
+    return _Written([c.path for c in coeffs], gpu, mesh.bounds(), maps)
 
 
 def _write_root(path: Path, root: str, payload_name: str, written: _Written, levels: list[int],
                 options: PackageOptions, thumbnail_path: str | None) -> None:
     from pxr import Kind, Sdf, Usd, UsdGeom, Vt
 
-    stage = Usd.Stage.CreateNew(str(path))
+    with usd_write(path):
+        stage = Usd.Stage.CreateNew(str(path))
     _stage_metadata(stage.GetRootLayer(), root, options, "root layer")
     prim = UsdGeom.Xform.Define(stage, f"/{root}").GetPrim()
     model = Usd.ModelAPI(prim)
@@ -212,20 +223,38 @@ def _write_root(path: Path, root: str, payload_name: str, written: _Written, lev
         thumbnail.declare_thumbnail(prim, thumbnail_path)
     lod.author_lod_variants(stage, f"/{root}", f"/{root}/mtl/{MATERIAL}", levels, written.coefficients,
                             written.storm)
-    stage.GetRootLayer().Save()
+    with usd_write(path):
+        stage.GetRootLayer().Save()
 
 
-def _publish(staging: Path, out_dir: Path, names: list[str]) -> None:
-    """Move ``names`` from ``staging`` into ``out_dir`` in order, replacing what is there."""
-    for name in names:
-        src, dst = staging / name, out_dir / name
-        if dst.is_dir() and not dst.is_symlink():
-            old = out_dir / f".{name}.old-{os.getpid()}"
-            os.replace(dst, old)
-            os.replace(src, dst)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(src, dst)
+def asset_pieces(out, *, usdz: bool = False, usdz_ar: bool = False,
+                 payload_format: str = PackageOptions.payload_format) -> list[tuple[str, bool, str]]:
+    """[(name, is_folder, output kind)] of the files ``package`` writes for root layer ``out``,
+    in the order they are published (the root layer last).  The texture folder holds the
+    thumbnail and every texture format's files (usdbtf.outputs recognises them)."""
+    out = Path(out)
+    stem = out.stem
+    pieces = [(f"{stem}_textures", True, ASSET_TEXTURES), (f"{stem}_payload.{payload_format}", False, ASSET)]
+    if usdz:
+        pieces.append((f"{stem}.usdz", False, ASSET))
+    if usdz_ar:
+        pieces.append((f"{stem}{AR_SUFFIX}.usdz", False, ASSET))
+    return pieces + [(out.name, False, ASSET)]
+
+
+def _check_published(path: Path, shown: Path, validate: bool) -> None:
+    """The publish gate for one staged layer or package: no non-finite numbers (in a usdz, in
+    any layer it holds: the AR package's layer is nowhere else) and, when ``validate``, every
+    UsdValidation validator on every ``lod`` selection.  BTFError naming ``shown``."""
+    bad = non_finite_in_stage(path) if path.suffix == ".usdz" else non_finite_values(path)
+    if bad:
+        raise BTFError(f"{shown}: would hold non-finite numbers ({bad[0]}"
+                       + (f" and {len(bad) - 1} more" if len(bad) > 1 else "") + "); not published")
+    if validate:
+        problems = validate_layer(path)
+        if problems:
+            raise BTFError(f"{shown}: fails USD validation: {problems[0]}"
+                           + (f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""))
 
 
 def _check_output(out: Path) -> None:
@@ -254,7 +283,7 @@ def package(compressed, out, options: PackageOptions | None = None, *, log=None,
     bad = [n for n in levels if not 1 <= n < cbtf.k]
     if bad:
         raise UsageError(f"--lod {bad[0]} is outside 1..{cbtf.k} (the asset's k)")
-    shape = geometry.load_mesh(options.mesh) if options.mesh else geometry.swatch(*size)
+    shape = load_mesh(options.mesh, need_uv=True).compacted().with_normals() if options.mesh else Mesh.swatch(*size)
     source_meta = cbtf.info.get("source_metadata") or {}
     white = float(source_meta.get("white_level", 1.0))
     if not (np.isfinite(white) and white > 0):
@@ -266,17 +295,16 @@ def package(compressed, out, options: PackageOptions | None = None, *, log=None,
     textures_rel, payload_name = f"{stem}_textures", f"{stem}_payload.{options.payload_format}"
     prov = provenance_path(str((cbtf.info.get("provenance") or {}).get("source") or cbtf.source.get("path") or ""),
                            out.parent)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{stem}.staging-", dir=out.parent))
-    try:
+    pieces = asset_pieces(out, usdz=options.usdz, usdz_ar=options.usdz_ar, payload_format=options.payload_format)
+    with atomic_group(out.parent, pieces, what="asset") as staging:
         textures = TextureSet(staging / textures_rel, textures_rel, options.texture_format)
         textures.folder.mkdir(parents=True)
         written = _write_payload(staging / payload_name, root, cbtf, compressed, shape, textures, options,
                                  physical_size=size, curve=curve, provenance=prov, white_level=white, log=log)
         thumb = None
         if options.thumbnail:
-            thumbnail.write_thumbnail(cbtf, shape, textures.folder / THUMBNAIL_FILE)
-            thumb = f"./{textures_rel}/{THUMBNAIL_FILE}"
+            thumbnail.write_thumbnail(cbtf, shape, textures.folder / thumbnail.THUMBNAIL_FILE)
+            thumb = f"./{textures_rel}/{thumbnail.THUMBNAIL_FILE}"
         _write_root(staging / out.name, root, payload_name, written, levels, options, thumb)
         names = [textures_rel, payload_name]
         if options.usdz:
@@ -287,15 +315,8 @@ def package(compressed, out, options: PackageOptions | None = None, *, log=None,
             names.append(make_ar_usdz(staging, stem, root, shape, written.maps, options.asset_name,
                                       options.asset_version, options.creator, cbtf.ocio_config,
                                       wrap=default_wrap(cbtf)).name)
-        if options.validate:
-            for name in names[1:] + [out.name]:
-                problems = validate_layer(staging / name)
-                if problems:
-                    raise BTFError(f"{out.parent / name}: fails USD validation: {problems[0]}"
-                                   + (f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""))
-        _publish(staging, out.parent, names + [out.name])
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
+        for name in names[1:] + [out.name]:
+            _check_published(staging / name, out.parent / name, options.validate)
     extra = [n for n in names[2:]]
     log(f"packaged {compressed} (k = {cbtf.k}, LODs {[cbtf.k] + levels}) as {out}"
         + (f" and {', '.join(extra)}" if extra else ""))
@@ -305,5 +326,5 @@ def package(compressed, out, options: PackageOptions | None = None, *, log=None,
     if options.usdz:
         summary["usdz"] = out.parent / f"{stem}.usdz"
     if options.usdz_ar:
-        summary["usdz_ar"] = out.parent / f"{stem}_ar.usdz"
+        summary["usdz_ar"] = out.parent / f"{stem}{AR_SUFFIX}.usdz"
     return summary

@@ -31,22 +31,11 @@ import sys
 from pathlib import Path
 
 from ..errors import BTFError
+from ..plugin_folder import SHADER_ID, plugin_dir
 
 API_SCHEMA = "BtfMaterialAPI"
-ENV_PLUGIN_DIR = "USDBTF_PLUGIN_DIR"
-#: The Storm shader's Sdr identifier (the file name of its definition under ``sdr/``).
-SHADER_ID = "UsdBtfSurface"
 #: Variables whose list separator is ':' on every platform (Tf splits extensions on ':').
 _COLON_LISTS = ("PXR_SDR_FS_PLUGIN_ALLOWED_EXTS",)
-
-
-def plugin_dir() -> Path:
-    """The folder to put on ``PXR_PLUGINPATH_NAME``: ``$USDBTF_PLUGIN_DIR``, else the
-    project's ``plugin/`` (source checkouts and editable installs)."""
-    override = os.environ.get(ENV_PLUGIN_DIR)
-    if override:
-        return Path(override)
-    return Path(__file__).resolve().parents[3] / "plugin"
 
 
 def resources_dir(plugin: Path | None = None) -> Path:

@@ -25,7 +25,7 @@ def stage_issues(stage, *, severities=("Error",), name: str = "") -> list[str]:
     registered validator reports for an open stage (as composed now: its variant selections)."""
     from pxr import UsdValidation
 
-    from .read import usd_warnings_silenced
+    from ..usdstage import usd_warnings_silenced
 
     with usd_warnings_silenced():   # what USD would print, the validators report below
         validators = UsdValidation.ValidationRegistry().GetOrLoadAllValidators()
