@@ -64,3 +64,34 @@ def test_control_the_full_usdz_breaks_the_arkit_rules(asset):
     for rule in ("ARKitRootLayerChecker", "ARKitShaderChecker", "ARKitFileExtensionChecker"):
         assert rule in failed, failed
     assert "UsdBtfSurface" in failed and "tables.exr" in failed
+
+
+def test_every_piece_is_a_usdbtf_output_that_force_replaces(asset, tmp_path, capsys):
+    """The pieces beside an asset (usdc payload, thumbnail and fallback maps in the texture
+    folder, both usdz packages) are recognised as usdbtf outputs, so ``--force`` replaces
+    them (here with another texture format), and refuses a texture folder holding anything
+    else."""
+    import shutil
+
+    from cli_helpers import ok, refused
+    from usdbtf import outputs
+
+    pieces = {"fabric.usda": outputs.ASSET, "fabric_payload.usdc": outputs.ASSET, "fabric.usdz": outputs.ASSET,
+              "fabric_ar.usdz": outputs.ASSET, "fabric_textures": outputs.ASSET_TEXTURES}
+    assert {name: outputs.identify(asset.with_name(name)) for name in pieces} == pieces
+    assert (asset.with_name("fabric_textures") / "thumbnail.png").is_file()
+    folder = tmp_path / "a"
+    folder.mkdir()
+    for name in pieces:
+        (shutil.copytree if asset.with_name(name).is_dir() else shutil.copy2)(asset.with_name(name), folder / name)
+    compressed, root = asset.parent.parent / "c", folder / asset.name
+    refused(capsys, "package", compressed, "-o", root, "--usdz", "--usdz-ar", "-q", names="--force")
+    ok(capsys, "package", compressed, "-o", root, "--usdz", "--usdz-ar", "--texture-format", "exr", "--force", "-q")
+    assert sorted(p.name for p in folder.iterdir()) == sorted(pieces)          # nothing else left behind
+    assert {name: outputs.identify(folder / name) for name in pieces} == pieces
+    assert {p.suffix for p in (folder / "fabric_textures" / "coeff").iterdir()} == {".exr"}
+    # Anything foreign in a piece: not a usdbtf output any more, so not replaced.
+    (folder / "fabric_textures" / "notes.txt").write_text("mine\n")
+    before = {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+    refused(capsys, "package", compressed, "-o", root, "--usdz", "--usdz-ar", "--force", "-q", names="fabric_textures")
+    assert {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()} == before

@@ -183,3 +183,15 @@ def test_build_json_report(scene, capsys):
     report = json.loads(out)
     assert code == 0 and not report["dry_run"] and len(report["ran"]) == 2
     assert Path(report["recipes"][0]["asset"]).is_file() and "usdbtf" not in out.split("{", 1)[0]
+
+
+@pytest.mark.parametrize("suffix", [".usdc", ".usd", ".usdz", ".obj"])
+def test_build_asset_may_be_any_root_layer_format_package_writes(scene, capsys, suffix):
+    scene.write_text(SCENE.replace("./build/pebbles.usda", f"./build/pebbles{suffix}"))
+    if suffix in (".usdz", ".obj"):
+        bad_input(capsys, "build", scene, "--dry-run", names="btf:build:asset (.usda/.usdc/.usd)")
+        return
+    recipes, _ = plan(scene)
+    asset = scene.parent / "build" / f"pebbles{suffix}"
+    assert recipes[0].asset == asset
+    assert asset.with_name("pebbles_payload.usdc") in recipes[0].outputs()

@@ -83,6 +83,27 @@ def test_inspect_finds_the_asset_through_the_resolver_and_prints_json(packaged, 
     assert line.startswith("usdbtf inspect: error: pebbles.usda: no such USD file")
 
 
+def test_render_and_package_mesh_find_usd_through_the_resolver(packaged, compressed, tmp_path):
+    """The mesh reader (usdbtf.mesh) and ``render``'s asset opening ask the resolver too."""
+    from usdbtf.imageio import read_image
+
+    asset, _ = packaged
+    env = {"PXR_AR_DEFAULT_SEARCH_PATH": str(asset.parent)}
+    proc = cli("render", "pebbles.usda", "--light", "dir:0.2,0.3,1", "--size", 24, 24, "-o", tmp_path / "r.exr",
+               "--no-png", "-q", cwd=tmp_path, env=env)           # the asset's own mesh, found by name
+    assert proc.returncode == 0, proc.stderr
+    pixels, _ = read_image(tmp_path / "r.exr")
+    lit = pixels[..., :3].sum(axis=2) > 0
+    assert lit.sum() > 100 and not lit.all()                     # the swatch, and background around it
+    out = tmp_path / "m" / "again.usda"
+    proc = cli("package", compressed[0], "-o", out, "--mesh", "pebbles.usda", "--no-thumbnail", "--no-validate",
+               "-q", cwd=tmp_path, env=env)
+    assert proc.returncode == 0, proc.stderr
+    assert "again.usda" in {p.name for p in out.parent.iterdir()}
+    assert cli("render", "pebbles.usda", "--light", "dir:0,0,1", "-o", tmp_path / "x.exr", cwd=tmp_path).returncode \
+        == 65                                                     # without the search path: not found
+
+
 def test_usage_errors_exit_with_the_usage_status(compressed, tmp_path, capsys):
     code, out, err = run(capsys, "package", compressed[0], "-o", tmp_path / "a.usda", "--usdz",
                          "--texture-format", "tx")
