@@ -146,6 +146,12 @@ def test_unwrap_bad_input(work, pebbles, capsys):
     doc.pop("source_metadata")
     (no_size / "btf-compressed.json").write_text(json.dumps(doc))
     bad_input(capsys, "unwrap", sphere, "-o", out, "--btf", no_size, names="physical_size_m")
+    tiny = work / "tiny_size_c"                  # 1e-6 m per sample: a density past the limit
+    shutil.copytree(pebbles, tiny)
+    doc = json.loads((tiny / "btf-compressed.json").read_text())
+    doc["source_metadata"]["physical_size_m"] = [1e-6, 1e-6]
+    (tiny / "btf-compressed.json").write_text(json.dumps(doc))
+    bad_input(capsys, "unwrap", sphere, "-o", out, "--btf", tiny, names="texels per metre")
     assert not out.exists()
 
 

@@ -44,6 +44,7 @@ def run(args) -> int:
 
     if args.btf is not None:
         from ..compress import read_compressed
+        from ..errors import BTFError
 
         density = texel_density(read_compressed(args.btf), str(args.btf))
         if not 0 < density <= MAX_DENSITY:

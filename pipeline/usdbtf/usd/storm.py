@@ -169,7 +169,7 @@ def _default_wrap(cbtf: CompressedBTF) -> str:
 
 
 # ------------------------------------------------------------------ reading back
-def read_rgba(path) -> "np.ndarray":
+def read_rgba(path):
     """(H, W, 4) pixels of a GPU texture in the file's own type (usdbtf.imageio.read_image
     returns RGB only; the packs and tables use all four channels)."""
     import numpy as np
