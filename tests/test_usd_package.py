@@ -335,7 +335,7 @@ def test_fallback_maps_recover_a_lambertian(tmp_path, capsys):
     opts = CompressOptions(k=4, codec="exr")
     opts.extra = {"source_metadata": dict(btf.metadata)}
     compress_into(btf, tmp_path / "c", opts)
-    pkg.package(tmp_path / "c", tmp_path / "a" / "flat.usda", thumbnail=False)
+    pkg.write_package(pkg.package(tmp_path / "c", pkg.PackageOptions(thumbnail=False)), tmp_path / "a" / "flat.usda")
     folder = tmp_path / "a" / "flat_textures" / "fallback"
     png, _ = read_image(folder / "diffuse.png")
     lin = colour.processor(fallback.COLOUR_ENCODING, "Linear Rec.709 (sRGB)").apply(png.astype(np.float32) / 255)
@@ -495,8 +495,8 @@ def test_texture_formats_are_tiled_mipmapped_and_bit_exact(compressed, tmp_path,
     from usdbtf.usd import storm
 
     layout, _, _ = storm.layout_from_asset(out)
-    png_layout, _, _ = storm.layout_from_asset(pkg.package(compressed, tmp_path / "png" / "p.usda",
-                                                           thumbnail=False)["root"])
+    png_layout, _, _ = storm.layout_from_asset(pkg.write_package(pkg.package(compressed, pkg.PackageOptions(
+        thumbnail=False)), tmp_path / "png" / "p.usda")["root"])
     assert len(layout.packs) == len(png_layout.packs)
     for got, ref in zip(layout.packs, png_layout.packs):
         if fmt == "exr" and np.issubdtype(ref.dtype, np.integer):          # normalised, as a sampler reads it

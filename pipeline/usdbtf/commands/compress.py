@@ -1,10 +1,9 @@
 """``usdbtf compress``: apparent-BRDF basis + coefficient textures."""
 from __future__ import annotations
 
-from pathlib import Path
+import logging
 
 from ..compress.arguments import add_arguments
-from . import log
 
 ORDER = 20
 
@@ -14,7 +13,6 @@ def add_parser(sub) -> None:
     add_arguments(p)
     p.add_argument("--json", action="store_true", help="print a JSON summary of the written folder on stdout "
                    "(the keys of `usdbtf info --json`)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 
 
@@ -28,14 +26,14 @@ def run(args) -> int:
     from ..io import open_btf
 
     btf = open_btf(args.input)
-    btf.metadata["_path"] = str(args.input)
     opts = CompressOptions(solver=args.solver, k=args.k, target_error=args.target_error, max_bytes=args.max_bytes,
                           codec=args.codec, seed=args.seed, fit_texels=args.fit_texels,
                           power_iterations=args.power_iterations, region=args.region, workers=args.workers,
                           memory_budget=args.memory_budget * 1e9)
     extra = {key: v for key, v in btf.metadata.items() if not key.startswith("_")}
     opts.extra = {"source_metadata": extra} if extra else {}
-    result = compress(btf, opts, log=log(args.quiet))
+    # compress still takes a callable for its messages (it is being changed on another branch).
+    result = compress(btf, opts, log=logging.getLogger("usdbtf.compress").info)
     write_compress(result, args.output, force=getattr(args, "force", False))
     if args.json:
         from ..summary import compressed_summary

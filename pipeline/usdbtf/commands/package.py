@@ -3,7 +3,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from . import log
 from ..argtypes import float_in
 
 ORDER = 60
@@ -38,7 +37,6 @@ def add_parser(sub) -> None:
     p.add_argument("--no-thumbnail", action="store_true", help="do not render a thumbnail")
     p.add_argument("--no-validate", action="store_true", help="skip the UsdValidation check before publishing")
     p.add_argument("--json", action="store_true", help="print a JSON summary of what was written on stdout")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 
 
@@ -50,7 +48,7 @@ def outputs(args):
 
 def run(args) -> int:
     from ..errors import UsageError
-    from ..usd.package import PackageOptions, package
+    from ..usd.package import PackageOptions, check_root_layer, package, write_package
 
     lods = None
     if args.lod is not None:
@@ -63,7 +61,9 @@ def run(args) -> int:
                              payload_format=args.payload_format, texture_format=args.texture_format,
                              asset_name=args.asset_name, asset_version=args.asset_version, creator=args.creator,
                              thumbnail=not args.no_thumbnail, validate=not args.no_validate)
-    summary = package(args.input, args.output, options, log=log(args.quiet))
+    options.check()                  # every option and the output's name checked before anything is read
+    check_root_layer(args.output)
+    summary = write_package(package(args.input, options), args.output)
     if args.json:
         from . import print_json
 

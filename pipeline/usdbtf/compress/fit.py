@@ -96,7 +96,7 @@ def require_signal(fit: BasisFit, btf: BTF, texels: Texels, options: CompressOpt
     """Raise BTFError, naming the input and what to try, when the fit found no signal."""
     if fit.has_signal:
         return
-    where = btf.metadata.get("_path") or "input BTF"
+    where = btf.path or "input BTF"
     if len(texels.fit) < btf.n_pixels:
         raise BTFError(f"{where}: the {len(texels.fit)} texels the basis is fitted on are all zero "
                        f"({'central region: try --region' if options.solver == 'paper' else 'try --fit-texels'})")

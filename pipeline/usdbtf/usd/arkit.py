@@ -21,27 +21,37 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["AR_SUFFIX", "make_ar_usdz"]
+__all__ = ["AR_SUFFIX", "AR_MAPS", "ar_textures", "write_ar_usdz"]
 
 AR_SUFFIX = "_ar"
+#: The fallback maps an AR package holds (the metallic workflow has no specular map).
+AR_MAPS = ("diffuse", "roughness", "normal")
 
 
-def make_ar_usdz(staging: Path, stem: str, root: str, mesh, maps, asset_name: str, asset_version: str | None = None,
-                 creator: str | None = None, ocio_config: str | None = None, *, wrap: str = "repeat") -> Path:
-    """Write ``<staging>/<stem>_ar.usdz`` from ``mesh`` (a :class:`usdbtf.mesh.Mesh`) and the fitted
-    ``maps`` (svbrdf.SvbrdfMaps); returns its path."""
+def ar_textures(maps, ocio_config: str | None = None):
+    """The AR package's PNG textures of the fitted ``maps`` (svbrdf.SvbrdfMaps), encoded in
+    memory: (textures.TextureSet, {map: name in it})."""
+    from . import fallback
+    from .textures import TextureSet
+
+    textures = TextureSet("png")
+    return textures, fallback.add_maps(maps, textures, ocio_config, names=AR_MAPS)
+
+
+def write_ar_usdz(staging: Path, stem: str, root: str, mesh, textures, names: dict, asset_name: str,
+                  asset_version: str | None = None, creator: str | None = None, *, wrap: str = "repeat") -> Path:
+    """Write ``<staging>/<stem>_ar.usdz`` from ``mesh`` (a :class:`usdbtf.mesh.Mesh`) and the
+    textures of :func:`ar_textures` (``textures``, ``names``); returns its path."""
     from pxr import Kind, Sdf, Usd, UsdGeom, UsdShade
 
     from ..mesh.author import author_mesh
     from . import fallback
-    from .layers import MATERIAL, make_usdz, stage_metadata, usd_write
-    from .textures import TextureSet
+    from .layers import MATERIAL, make_usdz, stage_metadata, usd_write, valid_name
 
     work = staging / f".{stem}{AR_SUFFIX}"
     textures_rel = f"{stem}{AR_SUFFIX}_textures"
-    textures = TextureSet(work / textures_rel, textures_rel, "png")
-    textures.folder.mkdir(parents=True)
-    written = fallback.write_maps(maps, textures, ocio_config, names=("diffuse", "roughness", "normal"))
+    textures.write(work / textures_rel)
+    written = {name: textures.texture(file, textures_rel) for name, file in names.items()}
     layer_path = work / f"{stem}{AR_SUFFIX}.usdc"
     with usd_write(layer_path):
         stage = Usd.Stage.CreateNew(str(layer_path))
@@ -57,15 +67,9 @@ def make_ar_usdz(staging: Path, stem: str, root: str, mesh, maps, asset_name: st
     UsdGeom.Scope.Define(stage, f"/{root}/mtl")
     material = UsdShade.Material.Define(stage, f"/{root}/mtl/{MATERIAL}")
     fallback.author_fallback(stage, material, written, wrap=wrap, specular_workflow=False)
-    geom = author_mesh(stage, f"/{root}/geo/{geometry_name(mesh)}", mesh)
+    geom = author_mesh(stage, f"/{root}/geo/{valid_name(mesh.name)}", mesh)
     UsdShade.MaterialBindingAPI.Apply(geom).Bind(material)
     with usd_write(layer_path):
         stage.GetRootLayer().Save()
     del stage
     return make_usdz(layer_path, staging / f"{stem}{AR_SUFFIX}.usdz")
-
-
-def geometry_name(mesh) -> str:
-    from pxr import Tf
-
-    return Tf.MakeValidIdentifier(mesh.name)

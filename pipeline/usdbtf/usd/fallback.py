@@ -20,15 +20,13 @@ reads back, so the benchmark measures the fallback as shipped.
 """
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
 from ..colour import processor
-from ..imageio import write_image
+from ..imageio import encode_image
 from ..svbrdf import SvbrdfMaps
 
-__all__ = ["COLOUR_ENCODING", "FALLBACK_DIR", "MAP_FILES", "encode_maps", "decode_maps", "write_maps",
+__all__ = ["COLOUR_ENCODING", "FALLBACK_DIR", "MAP_FILES", "encode_maps", "decode_maps", "add_maps",
            "author_fallback", "uv_texture", "st_reader"]
 
 #: The colour maps' file encoding: what UsdUVTexture decodes with sourceColorSpace "sRGB".
@@ -74,21 +72,20 @@ def decode_maps(pixels: dict[str, np.ndarray], working_space: str, *, ocio_confi
                       working_space, float(white_level))
 
 
-def write_maps(maps: SvbrdfMaps, textures, ocio_config: str | None = None, names=tuple(MAP_FILES)) -> dict:
-    """Write the maps ``names`` into ``textures`` (a textures.TextureSet); {map: textures.Texture}."""
+def add_maps(maps: SvbrdfMaps, textures, ocio_config: str | None = None, names=tuple(MAP_FILES)) -> dict:
+    """Encode the maps ``names`` as PNG files (in memory) into ``textures`` (a
+    textures.TextureSet, under :data:`FALLBACK_DIR`); {map: its name in ``textures``}."""
     from .textures import DATA
 
-    folder = Path(textures.folder) / FALLBACK_DIR
-    folder.mkdir(parents=True, exist_ok=True)
-    written = {}
+    added = {}
     for name, pixels in encode_maps(maps, ocio_config).items():
         if name not in names:
             continue
         file, kind = MAP_FILES[name]
         space = COLOUR_ENCODING if kind == "srgb" else DATA
-        write_image(folder / file, pixels, color_space=space, attributes={"png:compressionLevel": 9})
-        written[name] = textures.add(f"{FALLBACK_DIR}/{file}", kind)
-    return written
+        data = encode_image(pixels, "png", color_space=space, attributes={"png:compressionLevel": 9})
+        added[name] = textures.add(f"{FALLBACK_DIR}/{file}", data, kind)
+    return added
 
 
 # ------------------------------------------------------------------ authoring
@@ -131,7 +128,7 @@ def uv_texture(stage, path, texture, reader, wrap: str, output: tuple, *, scale=
 def author_fallback(stage, material, textures: dict, *, wrap: str = "repeat", summary: dict | None = None,
                     specular_workflow: bool = True) -> None:
     """The UsdPreviewSurface network on ``material`` (its universal ``outputs:surface``) from
-    :func:`write_maps`'s textures.  ``summary``: {"diffuse": (3,), "roughness": float} used as
+    the textures of :func:`add_maps` ({map: textures.Texture}).  ``summary``: {"diffuse": (3,), "roughness": float} used as
     the inputs' values for readers that ignore connections.  Without ``specular_workflow``
     (AR viewers): metallic workflow at metallic 0, no specular map."""
     from pxr import Gf, Sdf, Usd, UsdShade

@@ -10,13 +10,21 @@ from .. import __version__
 from ..errors import BTFError
 from ..outputs import usd_marker
 
-__all__ = ["MATERIAL", "FIXED_MTIME", "stage_metadata", "usd_write", "make_usdz"]
+__all__ = ["MATERIAL", "FIXED_MTIME", "stage_metadata", "usd_write", "make_usdz", "valid_name"]
 
 #: The BTF material's prim name under ``/<root>/mtl``.
 MATERIAL = "BtfMaterial"
 #: The modification time given to files before they are zipped (2000-01-01T00:00:00Z): the usdz
 #: writer stores each file's mtime, and the same inputs must give the same bytes.
 FIXED_MTIME = 946684800
+
+
+def valid_name(text: str) -> str:
+    """``text`` as a valid prim name (``Tf.MakeValidIdentifier``: the root prim after the
+    file's stem, the geometry after the mesh's name)."""
+    from pxr import Tf
+
+    return Tf.MakeValidIdentifier(text)
 
 
 def stage_metadata(layer, root: str, *, asset_name: str, what: str, creator: str | None = None) -> None:
@@ -48,8 +56,16 @@ def usd_write(path: Path):
         yield
     except Tf.ErrorException as exc:
         text = tf_message(exc)
-        cls = IOFailure if any(w in text for w in OS_ERROR_WORDS) else BTFError
-        raise cls(f"{path}: cannot write the USD layer ({text})") from None
+        if any(w in text for w in OS_ERROR_WORDS):
+            # In the words every other writer uses for these (usdbtf.atomic), USD's after them.
+            reason = next((r for w, r in _OS_REASONS.items() if w in text), "cannot write the USD layer")
+            raise IOFailure(f"{path}: {reason} ({text})") from None
+        raise BTFError(f"{path}: cannot write the USD layer ({text})") from None
+
+
+#: USD's words for a full disk or file-size limit -> usdbtf's (usdbtf.atomic's).
+_OS_REASONS = {"File too large": "file size limit exceeded", "No space left": "no space left on the device",
+               "Disk quota exceeded": "disk quota exceeded"}
 
 
 def make_usdz(root_layer: Path, usdz: Path) -> Path:

@@ -1,6 +1,11 @@
 """``usdbtf package``: a compressed BTF as a USD asset (USD asset structure guidelines).
 
-Files written for ``-o out/pebbles.usda`` (or ``.usdc``)::
+``package(compressed, PackageOptions) -> PackageResult`` does the work in memory: the
+textures (the compressed BTF's files, portable; the fitted fallback maps; the Storm preview's
+tables and packs; the thumbnail) are encoded into bytes the way ``compress`` encodes its own
+(in-memory files), the mesh is read and the fallback fitted.  ``write_package(result, out)``
+authors the layers, stages every file beside ``out``, validates them and publishes them as one
+group.  Files written for ``out = out/pebbles.usda`` (or ``.usdc``)::
 
     out/pebbles.usda             root layer: /pebbles (Xform, kind component, defaultPrim),
                                  metersPerUnit 1, upAxis Y, assetInfo, extentsHint, the
@@ -15,12 +20,20 @@ Files written for ``-o out/pebbles.usda`` (or ``.usdc``)::
     out/pebbles.usdz             with --usdz: the same, packaged (variants and payload kept)
     out/pebbles_ar.usdz          with --usdz-ar: one usdc layer for AR viewers (usd.arkit)
 
+Why the layers are authored by ``write_package`` and not held as anonymous layers: the names
+in them (the root prim, ``<stem>_textures``, the relative provenance) follow ``out``, and
+USD's crate (usdc) writer lays out a file in the order its specs were authored into a
+file-backed layer, so authoring straight into the staged files keeps a given asset's bytes
+what they have always been.  :func:`asset_layers` authors the same layers into anonymous,
+in-memory ones (for inspection and tests).
+
 Textures are re-encoded losslessly into formats every USD consumer reads (JPEG XL and
 TIFF become PNG holding the same integer codes; PNG, JPEG and EXR are copied), or into
-tiled, mip-mapped files with ``--texture-format`` (usd.textures); a reconstruction from the
-asset equals one from the compressed folder bit for bit.  Every asset path is relative, and
-so is the provenance (the source's path relative to the asset).  Everything is written into
-a staging folder beside the asset, checked for non-finite numbers and with every
+tiled, mip-mapped files with ``--texture-format`` (usd.textures; those are made from the
+in-memory bytes while staging, as OIIO's maketx writes only files); a reconstruction from
+the asset equals one from the compressed folder bit for bit.  Every asset path is relative,
+and so is the provenance (the source's path relative to the asset).  Everything is written
+into a staging folder beside the asset, checked for non-finite numbers and with every
 UsdValidation validator on every ``lod`` selection, and only then moved into place as one
 :func:`usdbtf.atomic.atomic_group` (:func:`asset_pieces`: textures, payload, usdz files,
 root layer last): a failure leaves the previous asset byte-identical, and a run killed
@@ -32,33 +45,39 @@ from __future__ import annotations
 
 import csv
 import hashlib
+import logging
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from ..atomic import atomic_group
-from ..compress.format import METADATA, CompressedBTF, read_compressed
+from ..compress.codecs import get_codec
+from ..compress.format import METADATA, CompressedBTF, EncodedTextures, basis_file, coefficient_file, read_compressed
 from ..errors import BTFError, UsageError
 from ..mesh import Mesh, load_mesh
 from ..mesh.author import author_mesh
 from ..outputs import ASSET, ASSET_TEXTURES
 from ..render.core import default_wrap
+from ..svbrdf import SvbrdfMaps
 from . import fallback, lod, storm, thumbnail
 from .arkit import AR_SUFFIX
 from .finite import non_finite_in_stage, non_finite_values
-from .layers import MATERIAL, make_usdz, stage_metadata, usd_write
+from .layers import MATERIAL, make_usdz, stage_metadata, usd_write, valid_name
 from .lod import FULL_LOD, default_lods
 from .material import LOD_VARIANT_SET, author_btf
 from .textures import TEXTURE_FORMATS, USDZ_FORMATS, TextureSet, package_textures
 from .validate import validate_layer
 
-__all__ = ["PackageOptions", "package", "asset_pieces", "make_usdz", "default_lods", "LOD_VARIANT_SET", "FULL_LOD",
-           "MATERIAL", "ROOT_FORMATS", "PAYLOAD_FORMATS", "error_curve", "physical_size_of", "provenance_path"]
+__all__ = ["PackageOptions", "PackageResult", "package", "write_package", "asset_layers", "read_input",
+           "asset_pieces", "check_root_layer", "make_usdz", "default_lods", "LOD_VARIANT_SET", "FULL_LOD",
+           "MATERIAL", "ROOT_FORMATS", "PAYLOAD_FORMATS", "read_error_curve", "physical_size_of",
+           "provenance_path"]
 
 ROOT_FORMATS = (".usda", ".usdc", ".usd")
 PAYLOAD_FORMATS = ("usdc", "usda")
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -106,7 +125,42 @@ class PackageOptions:
                 raise UsageError(f"{flag} {value!r}: must be non-empty text without control characters")
 
 
-def error_curve(folder: Path, cbtf: CompressedBTF) -> list[tuple[int, float]]:
+@dataclass
+class PackageResult:
+    """A packaged BTF in memory, everything but the layers (which name the files they sit
+    beside: :func:`write_package` authors them, :func:`asset_layers` in memory).
+
+    compressed : the compressed BTF; options : the :class:`PackageOptions`; mesh : the geometry
+    (the swatch quad or the loaded mesh, in metres); physical_size : (w, h) metres; levels :
+    the ``lod`` basis counts below k (descending); curve : [(k, percent)] error curve;
+    source : the provenance source as recorded (made relative to the asset when written).
+    textures : the ``<stem>_textures`` folder's files (:class:`~usdbtf.usd.textures.TextureSet`):
+    ``basis``, ``coefficients`` (names of the BTF's textures), ``fallback`` ({map: name}),
+    ``gpu`` (:class:`~usdbtf.usd.storm.GpuTextures`, or None without a Storm preview),
+    ``thumbnail`` (its name, or None).  maps : the fitted fallback (svbrdf.SvbrdfMaps).
+    ar : (TextureSet, {map: name}) of the AR package with ``usdz_ar``, else None.
+    input_name : what was packaged, for messages (the folder, or "compressed BTF").
+    """
+
+    compressed: CompressedBTF
+    options: PackageOptions
+    mesh: Mesh
+    physical_size: tuple
+    levels: list
+    curve: list
+    source: str
+    textures: TextureSet
+    basis: str
+    coefficients: list
+    fallback: dict
+    gpu: storm.GpuTextures | None
+    thumbnail: str | None
+    maps: SvbrdfMaps
+    ar: tuple | None = None
+    input_name: str = "compressed BTF"
+
+
+def read_error_curve(folder: Path, cbtf: CompressedBTF) -> list[tuple[int, float]]:
     """[(k, percent)] from the compressed folder's error_curve.csv (empty when absent)."""
     name = (cbtf.info.get("error_curve") or {}).get("file", "error_curve.csv")
     path = folder / name
@@ -117,6 +171,20 @@ def error_curve(folder: Path, cbtf: CompressedBTF) -> list[tuple[int, float]]:
             return [(int(r["k"]), float(r["percent_error"])) for r in csv.DictReader(fh)]
     except (KeyError, ValueError) as exc:
         raise BTFError(f"{path}: unreadable error curve ({exc})") from None
+
+
+def read_input(folder) -> CompressedBTF:
+    """The compressed BTF folder ``folder`` as :func:`package` takes it: its codes, the bytes of
+    its texture files (``encoded``: the asset gets exact copies, not re-encodings) and its
+    error curve (``curve``, from error_curve.csv)."""
+    folder = Path(folder)
+    cbtf = read_compressed(folder)
+    codec = get_codec(cbtf.codec)
+    enc = EncodedTextures(cbtf.codec, (folder / basis_file(codec)).read_bytes(),
+                          tuple((folder / coefficient_file(codec, i)).read_bytes() for i in range(cbtf.k)),
+                          (cbtf.basis.pixels, *(st.pixels for st in cbtf.coefficients)))
+    curve = read_error_curve(folder, cbtf)
+    return replace(cbtf, encoded=enc, curve={"k": [k for k, _ in curve], "percent": [p for _, p in curve]})
 
 
 def physical_size_of(cbtf: CompressedBTF) -> tuple[float, float] | None:
@@ -146,85 +214,169 @@ def provenance_path(source: str, asset_dir: Path) -> str:
         return "sha256:" + hashlib.sha256(str(absolute).encode()).hexdigest()
 
 
-def _prim_name(stem: str) -> str:
-    from pxr import Tf
-
-    return Tf.MakeValidIdentifier(stem)
-
-
-def _stage_metadata(layer, root: str, options: PackageOptions, what: str) -> None:
-    stage_metadata(layer, root, asset_name=options.asset_name, what=what, creator=options.creator)
+def check_root_layer(out) -> None:
+    """UsageError unless ``out`` names a root layer :data:`ROOT_FORMATS` allows."""
+    out = Path(out)
+    if out.suffix not in ROOT_FORMATS:
+        raise UsageError(f"{out}: the asset's root layer must be a {', '.join(ROOT_FORMATS)} file")
 
 
-@dataclass
-class _Written:
-    """What the payload holds that the root layer needs."""
-
-    coefficients: list
-    storm: tuple | None
-    extent: np.ndarray
-    maps: object          # svbrdf.SvbrdfMaps, for the AR package
-
-
-def _write_payload(path: Path, root: str, cbtf: CompressedBTF, compressed: Path, mesh: Mesh,
-                   textures: TextureSet, options: PackageOptions, *, physical_size, curve, provenance: str,
-                   white_level: float, log) -> _Written:
-    from pxr import Kind, Usd, UsdGeom, UsdShade
+def package(compressed, options: PackageOptions | None = None) -> PackageResult:
+    """Package ``compressed`` -- a compressed BTF folder (read by :func:`read_input`) or a
+    :class:`CompressedBTF` (its ``encoded`` bytes and ``curve`` are used when it has them, e.g.
+    straight from ``compress``) -- in memory (module docstring); :func:`write_package` writes it.
+    UsageError for options that do not fit, BTFError for bad data."""
+    options = options or PackageOptions()
+    options.check()
+    name = where = "compressed BTF"
+    if not isinstance(compressed, CompressedBTF):
+        name, where = str(Path(compressed)), str(Path(compressed) / METADATA)
+        compressed = read_input(compressed)
+    cbtf = compressed
+    size = options.physical_size or physical_size_of(cbtf)
+    if size is None:
+        raise BTFError(f"{where}: no physical_size_m recorded; pass --physical-size W H (metres)")
+    levels = sorted({int(n) for n in (default_lods(cbtf.k) if options.lods is None else options.lods)} - {cbtf.k},
+                    reverse=True)
+    bad = [n for n in levels if not 1 <= n < cbtf.k]
+    if bad:
+        raise UsageError(f"--lod {bad[0]} is outside 1..{cbtf.k} (the asset's k)")
+    shape = load_mesh(options.mesh, need_uv=True).compacted().with_normals() if options.mesh else Mesh.swatch(*size)
+    source_meta = cbtf.info.get("source_metadata") or {}
+    white = float(source_meta.get("white_level", 1.0))
+    if not (np.isfinite(white) and white > 0):
+        raise BTFError(f"{where}: white_level {white!r} must be a positive number")
+    curve = list(zip(cbtf.curve["k"], cbtf.curve["percent"])) if cbtf.curve else []
+    source = str((cbtf.info.get("provenance") or {}).get("source") or cbtf.source.get("path") or "")
 
     from ..svbrdf import fit_svbrdf
 
-    with usd_write(path):
-        stage = Usd.Stage.CreateNew(str(path))
-    _stage_metadata(stage.GetRootLayer(), root, options, "payload")
-    asset = UsdGeom.Xform.Define(stage, f"/{root}")
-    Usd.ModelAPI(asset).SetKind(Kind.Tokens.component)
-    UsdGeom.Scope.Define(stage, f"/{root}/geo")
-    UsdGeom.Scope.Define(stage, f"/{root}/mtl")
-    material = UsdShade.Material.Define(stage, f"/{root}/mtl/{MATERIAL}")
-    basis, coeffs = package_textures(cbtf, compressed, textures)
-    author_btf(material.GetPrim(), cbtf, basis.path, [c.path for c in coeffs], physical_size=physical_size,
-               error_curve=curve, provenance_source=provenance)
+    textures = TextureSet(options.texture_format)
+    basis, coefficients = package_textures(cbtf, textures)
+    maps = fit_svbrdf(cbtf, white_level=white)
+    log.info(f"fallback fitted: median roughness {float(np.median(maps.roughness)):.2f}, "
+             f"{float(np.mean(maps.normal[..., 2] < 0.999)) * 100:.0f} % of texels with a normal")
+    maps_added = fallback.add_maps(maps, textures, cbtf.ocio_config)
+    gpu = storm.add_gpu_textures(cbtf, textures)
+    thumb = None
+    if options.thumbnail:
+        thumb = textures.add_file(thumbnail.THUMBNAIL_FILE, thumbnail.thumbnail_png(cbtf, shape))
+    ar = None
+    if options.usdz_ar:
+        from .arkit import ar_textures
 
-    maps = fit_svbrdf(cbtf, white_level=white_level)
-    log(f"fallback fitted: median roughness {float(np.median(maps.roughness)):.2f}, "
-        f"{float(np.mean(maps.normal[..., 2] < 0.999)) * 100:.0f} % of texels with a normal")
+        ar = ar_textures(maps, cbtf.ocio_config)
+    return PackageResult(cbtf, options, shape, tuple(size), levels, curve, source, textures, basis, coefficients,
+                         maps_added, gpu, thumb, maps, ar, name)
+
+
+@dataclass
+class _Names:
+    """The names an asset written as ``out`` uses: the root prim, the texture folder and the
+    payload (relative to ``out``'s folder), and the asset name."""
+
+    stem: str
+    root: str
+    textures: str
+    payload: str
+    asset_name: str
+
+    @classmethod
+    def of(cls, out: Path, result: PackageResult) -> "_Names":
+        o = result.options
+        return cls(out.stem, valid_name(out.stem), f"{out.stem}_textures", f"{out.stem}_payload.{o.payload_format}",
+                   o.asset_name or out.stem)
+
+
+def _stage_metadata(layer, names: _Names, options: PackageOptions, what: str) -> None:
+    stage_metadata(layer, names.root, asset_name=names.asset_name, what=what, creator=options.creator)
+
+
+def _author_payload(stage, result: PackageResult, names: _Names, provenance: str) -> tuple[list, tuple | None]:
+    """The payload layer's content on ``stage`` (its root layer): the geometry and the bound
+    BTF material with its fallback and Storm preview.  Returns (the coefficient asset paths,
+    the Storm tuple for :func:`usdbtf.usd.lod.author_lod_variants`)."""
+    from pxr import Kind, Usd, UsdGeom, UsdShade
+
+    cbtf, textures = result.compressed, result.textures
+    _stage_metadata(stage.GetRootLayer(), names, result.options, "payload")
+    asset = UsdGeom.Xform.Define(stage, f"/{names.root}")
+    Usd.ModelAPI(asset).SetKind(Kind.Tokens.component)
+    UsdGeom.Scope.Define(stage, f"/{names.root}/geo")
+    UsdGeom.Scope.Define(stage, f"/{names.root}/mtl")
+    material = UsdShade.Material.Define(stage, f"/{names.root}/mtl/{MATERIAL}")
+    coefficients = [textures.texture(name, names.textures).path for name in result.coefficients]
+    author_btf(material.GetPrim(), cbtf, textures.texture(result.basis, names.textures).path, coefficients,
+               physical_size=result.physical_size, error_curve=result.curve, provenance_source=provenance)
+    maps = result.maps
     summary = {"diffuse": np.median(maps.diffuse.reshape(-1, 3), axis=0),
                "roughness": float(np.median(maps.roughness))}
-    fallback.author_fallback(stage, material, fallback.write_maps(maps, textures, cbtf.ocio_config),
-                             wrap=default_wrap(cbtf), summary=summary)
-    gpu = storm.author_gpu_preview(stage, material, cbtf, textures)
-    prim = author_mesh(stage, f"/{root}/geo/{_prim_name(mesh.name)}", mesh)
+    wrap = default_wrap(cbtf)
+    fallback.author_fallback(stage, material, {m: textures.texture(name, names.textures)
+                                               for m, name in result.fallback.items()},
+                             wrap=wrap, summary=summary)
+    gpu = None
+    if result.gpu is not None:
+        g = result.gpu
+        gpu = storm.author_gpu_preview(stage, material, textures.texture(g.tables, names.textures),
+                                       [textures.texture(p, names.textures) for p in g.packs], g.k, wrap)
+    prim = author_mesh(stage, f"/{names.root}/geo/{valid_name(result.mesh.name)}", result.mesh)
     UsdShade.MaterialBindingAPI.Apply(prim).Bind(material)
-    with usd_write(path):
-        stage.GetRootLayer().Save()
-    return _Written([c.path for c in coeffs], gpu, mesh.bounds(), maps)
+    return coefficients, gpu
 
 
-def _write_root(path: Path, root: str, payload_name: str, written: _Written, levels: list[int],
-                options: PackageOptions, thumbnail_path: str | None) -> None:
+def _author_root(stage, result: PackageResult, names: _Names, root_name: str, coefficients: list,
+                 gpu: tuple | None) -> None:
+    """The root layer's content on ``stage``: the asset prim, its metadata and bounds, the
+    thumbnail, the payload arc and the ``lod`` variant sets (``root_name``: the layer's file)."""
     from pxr import Kind, Sdf, Usd, UsdGeom, Vt
 
-    with usd_write(path):
-        stage = Usd.Stage.CreateNew(str(path))
-    _stage_metadata(stage.GetRootLayer(), root, options, "root layer")
-    prim = UsdGeom.Xform.Define(stage, f"/{root}").GetPrim()
+    options = result.options
+    _stage_metadata(stage.GetRootLayer(), names, options, "root layer")
+    prim = UsdGeom.Xform.Define(stage, f"/{names.root}").GetPrim()
     model = Usd.ModelAPI(prim)
     model.SetKind(Kind.Tokens.component)
-    model.SetAssetName(options.asset_name)
-    model.SetAssetIdentifier(Sdf.AssetPath(f"./{path.name}"))
+    model.SetAssetName(names.asset_name)
+    model.SetAssetIdentifier(Sdf.AssetPath(f"./{root_name}"))
     if options.asset_version is not None:
         model.SetAssetVersion(options.asset_version)
     if options.creator is not None:
         prim.SetAssetInfoByKey("creator", options.creator)
-    prim.GetPayloads().AddPayload(f"./{payload_name}")
+    prim.GetPayloads().AddPayload(f"./{names.payload}")
     # Bounds above the payload: an unloaded asset still has its box.
-    UsdGeom.ModelAPI.Apply(prim).SetExtentsHint(Vt.Vec3fArray.FromNumpy(written.extent.astype(np.float32)))
-    if thumbnail_path:
-        thumbnail.declare_thumbnail(prim, thumbnail_path)
-    lod.author_lod_variants(stage, f"/{root}", f"/{root}/mtl/{MATERIAL}", levels, written.coefficients,
-                            written.storm)
+    UsdGeom.ModelAPI.Apply(prim).SetExtentsHint(Vt.Vec3fArray.FromNumpy(result.mesh.bounds().astype(np.float32)))
+    if result.thumbnail:
+        thumbnail.declare_thumbnail(prim, f"./{names.textures}/{result.thumbnail}")
+    lod.author_lod_variants(stage, f"/{names.root}", f"/{names.root}/mtl/{MATERIAL}", result.levels, coefficients,
+                            gpu)
+
+
+def _authored(path: Path, author):
+    """A new layer file at ``path`` with ``author(stage)``'s content, saved; returns what
+    ``author`` returned."""
+    from pxr import Usd
+
+    with usd_write(path):
+        stage = Usd.Stage.CreateNew(str(path))
+    made = author(stage)
     with usd_write(path):
         stage.GetRootLayer().Save()
+    return made
+
+
+def asset_layers(result: PackageResult, out) -> dict:
+    """{file name: Sdf.Layer} of the root layer and the payload :func:`write_package` would write
+    as ``out``, authored into anonymous, in-memory layers (no file is made)."""
+    from pxr import Sdf, Usd
+
+    out = Path(out)
+    names = _Names.of(out, result)
+    provenance = provenance_path(result.source, out.parent)
+    payload = Sdf.Layer.CreateAnonymous(names.payload)
+    coefficients, gpu = _author_payload(Usd.Stage.Open(payload), result, names, provenance)
+    root = Sdf.Layer.CreateAnonymous(out.name)
+    _author_root(Usd.Stage.Open(root), result, names, out.name, coefficients, gpu)
+    return {out.name: root, names.payload: payload}
 
 
 def asset_pieces(out, *, usdz: bool = False, usdz_ar: bool = False,
@@ -257,74 +409,42 @@ def _check_published(path: Path, shown: Path, validate: bool) -> None:
                            + (f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""))
 
 
-def _check_output(out: Path) -> None:
-    if out.suffix not in ROOT_FORMATS:
-        raise UsageError(f"{out}: the asset's root layer must be a {', '.join(ROOT_FORMATS)} file")
-
-
-def package(compressed, out, options: PackageOptions | None = None, *, log=None, **overrides) -> dict:
-    """Package the compressed BTF folder ``compressed`` as ``out`` (.usda/.usdc/.usd); returns
-    a summary: the paths written ("root", "payload", "textures", "usdz", "usdz_ar"), "k",
-    "lods" ([name, basis count] pairs), "validated".  ``options`` (or keyword overrides of
-    its fields) as :class:`PackageOptions`."""
-    from dataclasses import replace
-
-    log = log or (lambda msg: None)
-    options = replace(options or PackageOptions(), **overrides)
-    options.check()
-    compressed, out = Path(compressed), Path(out)
-    _check_output(out)
-    cbtf = read_compressed(compressed)
-    size = options.physical_size or physical_size_of(cbtf)
-    if size is None:
-        raise BTFError(f"{compressed / METADATA}: no physical_size_m recorded; pass --physical-size W H (metres)")
-    levels = sorted({int(n) for n in (default_lods(cbtf.k) if options.lods is None else options.lods)} - {cbtf.k},
-                    reverse=True)
-    bad = [n for n in levels if not 1 <= n < cbtf.k]
-    if bad:
-        raise UsageError(f"--lod {bad[0]} is outside 1..{cbtf.k} (the asset's k)")
-    shape = load_mesh(options.mesh, need_uv=True).compacted().with_normals() if options.mesh else Mesh.swatch(*size)
-    source_meta = cbtf.info.get("source_metadata") or {}
-    white = float(source_meta.get("white_level", 1.0))
-    if not (np.isfinite(white) and white > 0):
-        raise BTFError(f"{compressed / METADATA}: white_level {white!r} must be a positive number")
-    curve = error_curve(compressed, cbtf)
-
-    stem, root = out.stem, _prim_name(out.stem)
-    options = replace(options, asset_name=options.asset_name or stem)
-    textures_rel, payload_name = f"{stem}_textures", f"{stem}_payload.{options.payload_format}"
-    prov = provenance_path(str((cbtf.info.get("provenance") or {}).get("source") or cbtf.source.get("path") or ""),
-                           out.parent)
+def write_package(result: PackageResult, out) -> dict:
+    """Write ``result`` as the asset ``out`` (.usda/.usdc/.usd): every piece staged beside it,
+    checked and published together (module docstring).  Returns a summary: the paths written
+    ("root", "payload", "textures", "usdz", "usdz_ar"), "k", "lods" ([name, basis count]
+    pairs), "texture_format", "validated"."""
+    out = Path(out)
+    check_root_layer(out)
+    options, cbtf = result.options, result.compressed
+    names = _Names.of(out, result)
+    provenance = provenance_path(result.source, out.parent)
     pieces = asset_pieces(out, usdz=options.usdz, usdz_ar=options.usdz_ar, payload_format=options.payload_format)
     with atomic_group(out.parent, pieces, what="asset") as staging:
-        textures = TextureSet(staging / textures_rel, textures_rel, options.texture_format)
-        textures.folder.mkdir(parents=True)
-        written = _write_payload(staging / payload_name, root, cbtf, compressed, shape, textures, options,
-                                 physical_size=size, curve=curve, provenance=prov, white_level=white, log=log)
-        thumb = None
-        if options.thumbnail:
-            thumbnail.write_thumbnail(cbtf, shape, textures.folder / thumbnail.THUMBNAIL_FILE)
-            thumb = f"./{textures_rel}/{thumbnail.THUMBNAIL_FILE}"
-        _write_root(staging / out.name, root, payload_name, written, levels, options, thumb)
-        names = [textures_rel, payload_name]
+        result.textures.write(staging / names.textures)
+        coefficients, gpu = _authored(staging / names.payload,
+                                      lambda stage: _author_payload(stage, result, names, provenance))
+        _authored(staging / out.name, lambda stage: _author_root(stage, result, names, out.name, coefficients, gpu))
+        published = [names.textures, names.payload]
         if options.usdz:
-            names.append(make_usdz(staging / out.name, staging / f"{stem}.usdz").name)
+            published.append(make_usdz(staging / out.name, staging / f"{names.stem}.usdz").name)
         if options.usdz_ar:
-            from .arkit import make_ar_usdz
+            from .arkit import write_ar_usdz
 
-            names.append(make_ar_usdz(staging, stem, root, shape, written.maps, options.asset_name,
-                                      options.asset_version, options.creator, cbtf.ocio_config,
-                                      wrap=default_wrap(cbtf)).name)
-        for name in names[1:] + [out.name]:
+            ar_set, ar_names = result.ar
+            published.append(write_ar_usdz(staging, names.stem, names.root, result.mesh, ar_set, ar_names,
+                                           names.asset_name, options.asset_version, options.creator,
+                                           wrap=default_wrap(cbtf)).name)
+        for name in published[1:] + [out.name]:
             _check_published(staging / name, out.parent / name, options.validate)
-    extra = [n for n in names[2:]]
-    log(f"packaged {compressed} (k = {cbtf.k}, LODs {[cbtf.k] + levels}) as {out}"
-        + (f" and {', '.join(extra)}" if extra else ""))
-    summary = {"root": out, "payload": out.parent / payload_name, "textures": out.parent / textures_rel,
-               "k": cbtf.k, "lods": [[FULL_LOD, cbtf.k]] + [[lod.lod_name(n), n] for n in levels],
+    extra = published[2:]
+    log.info(f"packaged {result.input_name} (k = {cbtf.k}, LODs {[cbtf.k] + result.levels}) as {out}"
+             + (f" and {', '.join(extra)}" if extra else ""))
+    summary = {"root": out, "payload": out.parent / names.payload, "textures": out.parent / names.textures,
+               "k": cbtf.k, "lods": [[FULL_LOD, cbtf.k]] + [[lod.lod_name(n), n] for n in result.levels],
                "texture_format": options.texture_format, "validated": options.validate}
     if options.usdz:
-        summary["usdz"] = out.parent / f"{stem}.usdz"
+        summary["usdz"] = out.parent / f"{names.stem}.usdz"
     if options.usdz_ar:
-        summary["usdz_ar"] = out.parent / f"{stem}{AR_SUFFIX}.usdz"
+        summary["usdz_ar"] = out.parent / f"{names.stem}{AR_SUFFIX}.usdz"
     return summary

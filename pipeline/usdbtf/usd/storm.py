@@ -1,6 +1,7 @@
 """The real-time BTF preview inside a packaged Material: Storm shader, GPU textures, MaterialX.
 
-:func:`author_gpu_preview` (called by ``usd.package`` while it writes the payload) adds,
+:func:`add_gpu_textures` (``usd.package.package``: the files, in memory) and
+:func:`author_gpu_preview` (``usd.package.write_package``: the network in the payload) add,
 next to the UsdPreviewSurface fallback::
 
     mtl/BtfMaterial                  outputs:glslfx:surface -> StormSurface.outputs:surface
@@ -33,6 +34,7 @@ root layer, sets ``basisCount`` and blocks the connections of the packs beyond
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 from ..compress.format import CompressedBTF
@@ -40,8 +42,8 @@ from ..errors import BTFError
 from ..gpu import shaders
 from ..gpu.tables import MAX_GROUPS, gpu_layout
 
-__all__ = ["plugin_dir_resources", "GPU_DIR", "STORM_SURFACE", "author_gpu_preview",
-           "write_gpu_textures", "materialx_document", "storm_shader", "layout_from_asset", "read_rgba"]
+__all__ = ["plugin_dir_resources", "GPU_DIR", "STORM_SURFACE", "GpuTextures", "add_gpu_textures",
+           "author_gpu_preview", "materialx_document", "storm_shader", "layout_from_asset", "read_rgba"]
 
 GPU_DIR = "gpu"
 STORM_SURFACE = "StormSurface"
@@ -58,29 +60,45 @@ def plugin_dir_resources() -> Path:
 
 
 # ------------------------------------------------------------------ textures
-def write_gpu_textures(cbtf: CompressedBTF, folder: Path) -> tuple[str, list[str], int]:
-    """Write tables.exr and the coefficient packs into ``folder``; returns their names
-    (relative to ``folder``) and the number of basis vectors they hold."""
+@dataclass(frozen=True)
+class GpuTextures:
+    """The Storm preview's files in a texture set: ``tables`` and ``packs`` (names), the basis
+    count ``k`` the tables hold."""
+
+    tables: str
+    packs: list
+    k: int
+
+
+def add_gpu_textures(cbtf: CompressedBTF, textures) -> GpuTextures | None:
+    """Encode tables.exr, the coefficient packs and the MaterialX document (in memory) into
+    ``textures`` (a :class:`~usdbtf.usd.textures.TextureSet`, under ``gpu/``); None (nothing
+    added) for a BTF whose sampling is not every light at every view, which the preview
+    cannot interpolate."""
     import numpy as np
 
-    from ..imageio import write_image
+    from ..compress.format import cross_layout
+    from ..imageio import encode_image
 
+    if cross_layout(cbtf.sampling) is None:
+        return None
     layout = gpu_layout(cbtf)
-    folder.mkdir(parents=True, exist_ok=True)
-    write_image(folder / "tables.exr", layout.tables, color_space="data", attributes={"compression": "zip"})
-    names = []
+    tables = textures.add(f"{GPU_DIR}/tables.exr", encode_image(layout.tables, "exr", color_space="data",
+                                                                 attributes={"compression": "zip"}), "float")
+    packs = []
     for p, pixels in enumerate(layout.packs):
         if pixels.dtype == np.float16:
-            name = f"{shaders.pack_name(p)}.exr"
-            write_image(folder / name, pixels, color_space="data", attributes={"compression": "zip"})
+            data = encode_image(pixels, "exr", color_space="data", attributes={"compression": "zip"})
+            packs.append(textures.add(f"{GPU_DIR}/{shaders.pack_name(p)}.exr", data, "float"))
         else:
-            name = f"{shaders.pack_name(p)}.png"
             # Alpha is the fourth coefficient layer, not coverage: OIIO must not
             # un-premultiply RGB by it (Storm's PNG reader takes the file's values as-is).
-            write_image(folder / name, pixels, color_space="data",
-                        attributes={"png:compressionLevel": 6, "oiio:UnassociatedAlpha": 1})
-        names.append(name)
-    return "tables.exr", names, layout.k
+            data = encode_image(pixels, "png", color_space="data",
+                                attributes={"png:compressionLevel": 6, "oiio:UnassociatedAlpha": 1})
+            packs.append(textures.add(f"{GPU_DIR}/{shaders.pack_name(p)}.png", data, "unorm"))
+    document = materialx_document(Path(tables).name, [Path(name).name for name in packs], layout.k)
+    textures.add_file(f"{GPU_DIR}/{MTLX_FILE}", document.encode())
+    return GpuTextures(tables, packs, layout.k)
 
 
 def materialx_document(tables: str, packs: list[str], k: int) -> str:
@@ -115,28 +133,17 @@ def _texture(stage, path, texture, reader, wrap: str):
     return uv_texture(stage, path, texture, reader, wrap, ("r", Sdf.ValueTypeNames.Float))
 
 
-def author_gpu_preview(stage, material, cbtf: CompressedBTF, textures) -> tuple[str, int, int] | None:
-    """Write the GPU textures into ``textures`` (a :class:`~usdbtf.usd.textures.TextureSet`,
-    under ``gpu/``) and author the Storm shader network in ``material`` (a UsdShade.Material
-    on ``stage``, whose layer sits next to the texture folder).  Returns (the shader's name
-    under the material, number of packs, basis count of the tables) for the ``lod``
-    variants (:mod:`usdbtf.usd.lod`), or None (nothing authored) for a BTF whose sampling
-    is not every light at every view, which the preview cannot interpolate."""
+def author_gpu_preview(stage, material, tables, packs: list, k: int, wrap: str) -> tuple[str, int, int]:
+    """Author the Storm shader network in ``material`` (a UsdShade.Material on ``stage``, whose
+    layer sits next to the texture folder) on the GPU textures ``tables`` and ``packs``
+    (:class:`~usdbtf.usd.textures.Texture`\\ s of :func:`add_gpu_textures`' files; the tables
+    hold ``k`` basis vectors; ``wrap`` for the packs).  Returns (the shader's name under the
+    material, number of packs, k) for the ``lod`` variants (:mod:`usdbtf.usd.lod`)."""
     from pxr import Sdf, UsdShade
 
-    from ..compress.format import cross_layout
     from .fallback import st_reader
 
-    if cross_layout(cbtf.sampling) is None:
-        return None
-    gpu = Path(textures.folder) / GPU_DIR
-    tables_file, pack_files, k = write_gpu_textures(cbtf, gpu)
-    tables = textures.add(f"{GPU_DIR}/{tables_file}", "float")
-    packs = [textures.add(f"{GPU_DIR}/{name}", "unorm" if name.endswith(".png") else "float")
-             for name in pack_files]
-    (gpu / MTLX_FILE).write_text(materialx_document(Path(tables.path).name, [Path(t.path).name for t in packs], k))
     mpath = material.GetPath()
-    wrap = _default_wrap(cbtf)
     reader = st_reader(stage, mpath)
 
     # The full set of connections, as local opinions: the lod variants live in the root
@@ -159,13 +166,6 @@ def author_gpu_preview(stage, material, cbtf: CompressedBTF, textures) -> tuple[
     surface.CreateOutput("surface", Sdf.ValueTypeNames.Token)
     material.CreateSurfaceOutput(_RENDER_CONTEXT).ConnectToSource(surface.ConnectableAPI(), "surface")
     return STORM_SURFACE, len(packs), k
-
-
-def _default_wrap(cbtf: CompressedBTF) -> str:
-    """Repeat for a tileable quilt, else clamp: what the CPU renderer does."""
-    from ..render.core import default_wrap
-
-    return default_wrap(cbtf)
 
 
 # ------------------------------------------------------------------ reading back

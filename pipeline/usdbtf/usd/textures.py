@@ -24,7 +24,6 @@ de-quantisation is affine.  Reading level 0 back gives the written codes bit for
 """
 from __future__ import annotations
 
-import shutil
 import struct
 import zlib
 from dataclasses import dataclass
@@ -32,13 +31,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..compress.codecs import Codec
-from ..compress.format import CompressedBTF, basis_file, coefficient_file
+from ..compress.codecs import get_codec
+from ..compress.format import CompressedBTF, basis_file, coefficient_file, encoded_textures
 from ..errors import BTFError
-from ..imageio import write_image
+from ..imageio import decode_image, encode_image, write_encoded
 
-__all__ = ["DATA", "PORTABLE", "TEXTURE_FORMATS", "USDZ_FORMATS", "Texture", "TextureSet", "mark_png_data",
-           "portable_copy", "package_textures"]
+__all__ = ["DATA", "PORTABLE", "TEXTURE_FORMATS", "USDZ_FORMATS", "Texture", "TextureSet", "png_as_data",
+           "portable_bytes", "package_textures"]
 
 #: OIIO colour-space name for data files.
 DATA = "data"
@@ -61,19 +60,17 @@ def _chunk(kind: bytes, data: bytes) -> bytes:
     return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
 
 
-def mark_png_data(path: Path) -> None:
-    """Rewrite the PNG at ``path`` so its pixels read as data: colour chunks dropped, a gAMA
-    of 1.0 after IHDR.  Only ancillary chunks change; the image data is untouched bytes."""
-    path = Path(path)
-    blob = path.read_bytes()
+def png_as_data(blob: bytes, where: str = "PNG") -> bytes:
+    """The PNG file ``blob`` with its pixels marked as data: colour chunks dropped, a gAMA of
+    1.0 after IHDR.  Only ancillary chunks change; the image data is untouched bytes."""
     if not blob.startswith(_PNG_SIGNATURE):
-        raise BTFError(f"{path}: not a PNG file")
+        raise BTFError(f"{where}: not a PNG file")
     out, pos = [_PNG_SIGNATURE], len(_PNG_SIGNATURE)
     while pos + 8 <= len(blob):
         length, kind = struct.unpack(">I", blob[pos:pos + 4])[0], blob[pos + 4:pos + 8]
         end = pos + 12 + length
         if end > len(blob):
-            raise BTFError(f"{path}: truncated PNG chunk {kind!r}")
+            raise BTFError(f"{where}: truncated PNG chunk {kind!r}")
         if kind not in _COLOUR_CHUNKS:
             out.append(blob[pos:end])
         if kind == b"IHDR":
@@ -81,37 +78,40 @@ def mark_png_data(path: Path) -> None:
         pos = end
         if kind == b"IEND":
             break
-    path.write_bytes(b"".join(out))
+    return b"".join(out)
 
 
-def portable_copy(src: Path, dst_no_ext: Path) -> str:
-    """Copy ``src`` (PNG/JPEG/EXR) or re-encode it as PNG (same integer codes) next to
-    ``dst_no_ext``.  Returns the suffix."""
-    suffix = src.suffix.lower()
+def portable_bytes(data: bytes, suffix: str, where: str) -> tuple[bytes, str]:
+    """(bytes, suffix) of a texture file every USD consumer reads: ``data`` itself when it is
+    PNG/JPEG/EXR (``suffix``), else re-encoded as PNG holding the same integer codes."""
+    suffix = suffix.lower()
     if suffix in PORTABLE:
-        shutil.copyfile(src, dst_no_ext.with_suffix(suffix))
-        return suffix
-    pixels = Codec.read(src)
+        return data, suffix
+    pixels = decode_image(data)
     if pixels.dtype not in (np.uint8, np.uint16):
-        raise BTFError(f"{src}: cannot re-encode {pixels.dtype} texture as PNG")
-    write_image(dst_no_ext.with_suffix(".png"), pixels, color_space=DATA, attributes={"png:compressionLevel": 6})
-    return ".png"
+        raise BTFError(f"{where}: cannot re-encode {pixels.dtype} texture as PNG")
+    return encode_image(pixels, "png", color_space=DATA, attributes={"png:compressionLevel": 6}), ".png"
 
 
-def package_textures(cbtf: CompressedBTF, src: Path, textures: "TextureSet") -> tuple["Texture", list["Texture"]]:
-    """Copy/re-encode the basis and the k coefficient textures from the compressed folder
-    ``src`` into ``textures`` (as BTF codes).  Returns (basis, coefficients)."""
-    from ..compress.codecs import get_codec
-
+def package_textures(cbtf: CompressedBTF, textures: "TextureSet") -> tuple[str, list[str]]:
+    """Add the basis and the k coefficient textures of ``cbtf`` to ``textures`` (as BTF codes):
+    the bytes its folder holds (``cbtf.encoded``, e.g. as :func:`usdbtf.usd.package.read_input`
+    or ``compress`` made them), portable (:func:`portable_bytes`), else encoded now from the
+    stored codes (lossless codecs only: re-encoding decoded JPEG codes would change them).
+    Returns the names (in ``textures``) of the basis and of the coefficient textures."""
     codec = get_codec(cbtf.codec)
-    dst = textures.folder
-    (dst / "coeff").mkdir(parents=True, exist_ok=True)
-    basis = textures.add("basis" + portable_copy(src / basis_file(codec), dst / "basis"), "codes")
+    if not (cbtf.encoded is not None and cbtf.encoded.describes(cbtf)) and not codec.lossless:
+        raise BTFError(f"a {codec.name}-coded compressed BTF is packaged from the bytes of its files: "
+                       "give its folder (or compress's result), not codes read from them")
+    enc = encoded_textures(cbtf)
+    name = basis_file(codec)
+    data, suffix = portable_bytes(enc.basis, Path(name).suffix, name)
+    basis = textures.add("basis" + suffix, data, "codes")
     coeffs = []
-    for i in range(cbtf.k):
+    for i, blob in enumerate(enc.coefficients):
         rel = Path(coefficient_file(codec, i))
-        suffix = portable_copy(src / rel, dst / rel.with_suffix(""))
-        coeffs.append(textures.add(str(rel.with_suffix(suffix)), "codes"))
+        data, suffix = portable_bytes(blob, rel.suffix, str(rel))
+        coeffs.append(textures.add(str(rel.with_suffix(suffix)), data, "codes"))
     return basis, coeffs
 
 
@@ -126,36 +126,73 @@ class Texture:
     source_color_space: str
 
 
-class TextureSet:
-    """Textures written into ``folder`` (which the layers name ``./<rel>``), converted to
-    ``fmt`` (:data:`TEXTURE_FORMATS`) as they are added."""
+@dataclass(frozen=True)
+class _File:
+    """A file of a :class:`TextureSet`: ``data`` stored under ``written`` (its name as added),
+    then, for a ``kind`` texture in a tiled format, converted by maketx to its final name."""
 
-    def __init__(self, folder: Path, rel: str, fmt: str = "png"):
+    written: str
+    data: bytes
+    kind: str | None
+
+
+class TextureSet:
+    """A texture folder's files, held in memory until :meth:`write`: each texture converted to
+    ``fmt`` (:data:`TEXTURE_FORMATS`) as it is added, as far as memory allows -- PNG data
+    tagging is done on the bytes; the tiled, mip-mapped ``tx``/``exr`` files are made by OIIO's
+    ``make_texture``, which writes only to files (through a temporary file beside its
+    target), so :meth:`write` makes them from the added bytes."""
+
+    def __init__(self, fmt: str = "png"):
         if fmt not in TEXTURE_FORMATS:
             raise BTFError(f"texture format {fmt!r}: choose from {', '.join(TEXTURE_FORMATS)}")
-        self.folder, self.rel, self.fmt = Path(folder), rel, fmt
+        self.fmt = fmt
+        self.files: dict[str, _File] = {}
+        self.kinds: dict[str, str] = {}
 
-    def add(self, name: str, kind: str) -> Texture:
-        """Finish the file ``folder/name`` (just written) as a ``kind`` texture (:data:`KINDS`);
-        returns how the layers must name and declare it."""
+    def add(self, name: str, data: bytes, kind: str) -> str:
+        """Add the texture file ``name`` (its bytes ``data``) as a ``kind`` texture (:data:`KINDS`);
+        returns its final name in the folder (the suffix follows ``fmt``)."""
         if kind not in KINDS:
             raise ValueError(f"texture kind {kind!r}")
-        src = self.folder / name
+        final = name
         if self.fmt != "png":
-            name = str(Path(name).with_suffix("." + self.fmt))
-            dst = self.folder / name
-            tmp = dst.with_name(f".{dst.name}.maketx{dst.suffix}")
-            _make_texture(src, tmp, kind, self.fmt)
-            src.unlink()
-            tmp.replace(dst)
-        elif src.suffix.lower() == ".png" and kind != "srgb":
-            mark_png_data(src)
-        path = f"./{self.rel}/{name}"
+            final = str(Path(name).with_suffix("." + self.fmt))
+        elif name.lower().endswith(".png") and kind != "srgb":
+            data = png_as_data(data, name)
+        self.files[final] = _File(name, data, kind if self.fmt != "png" else None)
+        self.kinds[final] = kind
+        return final
+
+    def add_file(self, name: str, data: bytes) -> str:
+        """A file stored as it is (a thumbnail, a MaterialX document); returns ``name``."""
+        self.files[name] = _File(name, data, None)
+        return name
+
+    def texture(self, name: str, rel: str) -> Texture:
+        """How layers beside a folder ``rel`` name and declare the texture ``name``."""
+        kind = self.kinds[name]
+        path = f"./{rel}/{name}"
         if kind != "srgb":
             return Texture(path, "raw", "raw")
         if self.fmt == "exr":
             return Texture(path, "lin_rec709_scene", "raw")
         return Texture(path, "srgb_rec709_scene", "sRGB")
+
+    def write(self, folder: Path) -> None:
+        """Create ``folder`` with every file (making the tiled formats' files now)."""
+        folder = Path(folder)
+        folder.mkdir(parents=True)
+        for final, f in self.files.items():
+            src = folder / f.written
+            src.parent.mkdir(parents=True, exist_ok=True)
+            write_encoded(src, f.data)
+            if f.kind is not None:
+                dst = folder / final
+                tmp = dst.with_name(f".{dst.name}.maketx{dst.suffix}")
+                _make_texture(src, tmp, f.kind, self.fmt)
+                src.unlink()
+                tmp.replace(dst)
 
 
 def _make_texture(src: Path, dst: Path, kind: str, fmt: str) -> None:

@@ -9,14 +9,12 @@ The image is display-encoded through OCIO (the renderer's default display and vi
 """
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
 from ..compress.format import CompressedBTF
 from ..mesh import Mesh
 
-__all__ = ["THUMBNAIL_SIZE", "THUMBNAIL_FILE", "render_thumbnail", "write_thumbnail", "declare_thumbnail"]
+__all__ = ["THUMBNAIL_SIZE", "THUMBNAIL_FILE", "render_thumbnail", "thumbnail_png", "declare_thumbnail"]
 
 THUMBNAIL_SIZE = 256
 #: The thumbnail's file name inside the asset's texture folder.
@@ -38,15 +36,15 @@ def render_thumbnail(cbtf: CompressedBTF, mesh: Mesh, size: int = THUMBNAIL_SIZE
     return to_display(image, cbtf.working_space, config=cbtf.ocio_config)
 
 
-def write_thumbnail(cbtf: CompressedBTF, mesh: Mesh, path: Path, size: int = THUMBNAIL_SIZE) -> None:
-    """Render and write the thumbnail PNG (sRGB display encoding, tagged as such)."""
-    from ..imageio import write_image
+def thumbnail_png(cbtf: CompressedBTF, mesh: Mesh, size: int = THUMBNAIL_SIZE) -> bytes:
+    """The thumbnail rendered and encoded as a PNG file's bytes, in memory (sRGB display
+    encoding, tagged as such)."""
+    from ..imageio import encode_image
     from ..render.output import display_processor
 
     pixels = render_thumbnail(cbtf, mesh, size)
     _, display, _ = display_processor(cbtf.working_space, None, None, cbtf.ocio_config)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_image(path, pixels, color_space=display, attributes={"png:compressionLevel": 9})
+    return encode_image(pixels, "png", color_space=display, attributes={"png:compressionLevel": 9})
 
 
 def declare_thumbnail(prim, asset_path: str) -> None:
