@@ -211,7 +211,8 @@ def main(argv=None) -> int:
         sub.error(f"unrecognized arguments: {' '.join(extra)}")
     debug = getattr(args, "debug", False)
     configure_logging(quiet=args.quiet, verbose=args.verbose, progress=args.progress)
-    logging.getLogger(__name__).debug("usdbtf %s: %s", __version__, " ".join(map(str, argv or sys.argv[1:])))
+    # By name: run as ``python -m usdbtf.cli`` this module is __main__, outside the usdbtf loggers.
+    logging.getLogger("usdbtf.cli").debug("usdbtf %s: %s", __version__, " ".join(map(str, argv or sys.argv[1:])))
     try:
         with _signals_raise(), _outputs_claimed(args):
             return args.func(args)

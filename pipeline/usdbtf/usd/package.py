@@ -326,9 +326,11 @@ def _author_payload(stage, result: PackageResult, names: _Names, provenance: str
 
 
 def _author_root(stage, result: PackageResult, names: _Names, root_name: str, coefficients: list,
-                 gpu: tuple | None) -> None:
+                 gpu: tuple | None, payload: str | None = None) -> None:
     """The root layer's content on ``stage``: the asset prim, its metadata and bounds, the
-    thumbnail, the payload arc and the ``lod`` variant sets (``root_name``: the layer's file)."""
+    thumbnail, the payload arc and the ``lod`` variant sets (``root_name``: the layer's file;
+    ``payload``: the arc's asset path, default the payload file beside it).  The payload must
+    resolve: the variants' overrides of its prims are authored against what it defines."""
     from pxr import Kind, Sdf, Usd, UsdGeom, Vt
 
     options = result.options
@@ -342,7 +344,7 @@ def _author_root(stage, result: PackageResult, names: _Names, root_name: str, co
         model.SetAssetVersion(options.asset_version)
     if options.creator is not None:
         prim.SetAssetInfoByKey("creator", options.creator)
-    prim.GetPayloads().AddPayload(f"./{names.payload}")
+    prim.GetPayloads().AddPayload(payload or f"./{names.payload}")
     # Bounds above the payload: an unloaded asset still has its box.
     UsdGeom.ModelAPI.Apply(prim).SetExtentsHint(Vt.Vec3fArray.FromNumpy(result.mesh.bounds().astype(np.float32)))
     if result.thumbnail:
@@ -375,7 +377,10 @@ def asset_layers(result: PackageResult, out) -> dict:
     payload = Sdf.Layer.CreateAnonymous(names.payload)
     coefficients, gpu = _author_payload(Usd.Stage.Open(payload), result, names, provenance)
     root = Sdf.Layer.CreateAnonymous(out.name)
-    _author_root(Usd.Stage.Open(root), result, names, out.name, coefficients, gpu)
+    # The arc points at the in-memory payload while the root is authored (see _author_root),
+    # then at the payload's file name, as the written root layer has it.
+    _author_root(Usd.Stage.Open(root), result, names, out.name, coefficients, gpu, payload=payload.identifier)
+    root.GetPrimAtPath(f"/{names.root}").payloadList.prependedItems = [Sdf.Payload(f"./{names.payload}")]
     return {out.name: root, names.payload: payload}
 
 
