@@ -137,3 +137,22 @@ def test_messages_reach_a_swapped_stderr(tmp_path, capsys):
     assert code == 0 and out == "" and "wrote 24 samples of pebbles" in err
     code, out, err = run(capsys, "-q", "synth", "pebbles", "--sampling", "tiny", "--size", 8, "-o", tmp_path / "b")
     assert code == 0 and out == "" and err == ""
+
+
+@pytest.mark.parametrize("fmt", ["tx", "exr"])
+def test_tiled_textures_are_reproducible(tmp_path, fmt):
+    """maketx output is the same bytes whenever it is made (no time stamp on any MIP level)."""
+    import time
+
+    from usdbtf.imageio import encode_image
+    from usdbtf.usd.textures import TextureSet
+
+    pixels = (np.arange(64 * 48 * 3) % 251).astype(np.uint8).reshape(48, 64, 3)
+    made = []
+    for n in range(2):
+        textures = TextureSet(fmt)
+        name = textures.add("coeff/c000.png", encode_image(pixels, "png", color_space="data"), "codes")
+        textures.write(tmp_path / f"t{n}")
+        made.append((tmp_path / f"t{n}" / name).read_bytes())
+        time.sleep(1.1)                    # the clock's seconds move on between the two
+    assert made[0] == made[1]

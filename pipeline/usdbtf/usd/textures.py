@@ -213,9 +213,12 @@ def _make_texture(src: Path, dst: Path, kind: str, fmt: str) -> None:
     if kind != "srgb":
         buf.specmod().alpha_channel = -1       # a data layer: maketx would clamp an alpha to [0, 1]
     config = oiio.ImageSpec()
+    # mipmap_metadata: every MIP level keeps the fixed DateTime (without it maketx drops the
+    # metadata of levels 1.., and the TIFF writer stamps them with the current time: a .tx
+    # would differ from run to run).
     for key, value in (("maketx:fileformatname", "tiff" if fmt == "tx" else "exr"), ("maketx:filtername", "box"),
-                       ("maketx:ignore_unassoc", 1), ("tile_width", _TILE), ("tile_height", _TILE),
-                       ("compression", "zip"), ("DateTime", "2000:01:01 00:00:00")):
+                       ("maketx:ignore_unassoc", 1), ("maketx:mipmap_metadata", 1), ("tile_width", _TILE),
+                       ("tile_height", _TILE), ("compression", "zip"), ("DateTime", "2000:01:01 00:00:00")):
         config.attribute(key, value)
     if not oiio.ImageBufAlgo.make_texture(oiio.MakeTxTexture, buf, str(dst), config):
         raise BTFError(f"{dst}: maketx failed ({' '.join(oiio.geterror().split())})")
