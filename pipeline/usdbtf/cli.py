@@ -27,7 +27,6 @@ from .argtypes import OUTSIDE_PATHS_HELP
 from .errors import EXIT_CANT_CREATE, EXIT_DATA, EXIT_INTERNAL, EXIT_IO, EXIT_OK, EXIT_USAGE, OS_ERROR_WORDS, \
     BTFError, os_error_message
 
-EXIT_BAD_INPUT = EXIT_DATA   # kept for callers of the old name
 
 EXIT_STATUS = f"""\
 exit status:
