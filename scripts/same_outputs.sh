@@ -131,7 +131,8 @@ if diff -q "$WORK/ref.sha256" "$WORK/tree.sha256" > /dev/null; then
     echo "same_outputs: all $total output files are byte-identical ($REF vs working tree)"
     exit 0
 fi
-echo "same_outputs: files that differ ($REF vs working tree):"
-join -j 2 -a 1 -a 2 -e MISSING -o 0,1.1,2.1 <(sort -k 2 "$WORK/ref.sha256") <(sort -k 2 "$WORK/tree.sha256") \
-    | awk '$2 != $3 { if ($2 == "MISSING") s = "only in the working tree"; else if ($3 == "MISSING") s = "only in " ref; else s = "content differs"; print "  " $1 "  (" s ")" }' ref="$REF"
+differing=$(join -j 2 -a 1 -a 2 -e MISSING -o 0,1.1,2.1 <(sort -k 2 "$WORK/ref.sha256") <(sort -k 2 "$WORK/tree.sha256") \
+    | awk '$2 != $3 { if ($2 == "MISSING") s = "only in the working tree"; else if ($3 == "MISSING") s = "only in " ref; else s = "content differs"; print "  " $1 "  (" s ")" }' ref="$REF")
+echo "same_outputs: $(printf '%s\n' "$differing" | wc -l) of $total output files differ ($REF vs working tree):"
+printf '%s\n' "$differing"
 exit 1
