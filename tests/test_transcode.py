@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 import bonn_btf_writer as w
-from cli_helpers import ok
+from cli_helpers import bad_usage, ok
 from compress_helpers import compress_into
 from usdbtf import synth
 from usdbtf.compress import CompressOptions, compress, load_source, sample_texels
@@ -84,6 +84,7 @@ def test_transcoded_matches_the_files_images_by_direction(tmp_path, capsys, pebb
     assert made["transcoded"]["from"] == "factors" and made["transcoded"]["color_model"] == model
     assert made["transcoded"]["components"] == list(KS)
     assert made["transcoded"]["decode"] == ("nonlinear" if model == 11 else "linear")
+    assert made["transcoded"]["basis"].startswith("rsvd fit" if model == 11 else "exact SVD")
     expanded = metadata(tmp_path / "expanded")["provenance"]
     assert "transcoded" not in expanded and expanded["options"]["expand_factors"] is True
 
@@ -238,8 +239,7 @@ def test_fmf_linear_transcodes_exactly(tmp_path, pebbles):
     errs = {}
     for name, expand in (("factors", False), ("expanded", True)):
         c = compress(btf, CompressOptions(k=K, expand_factors=expand))
-        rec = np.stack(list(reconstruct(c, np.arange(S))))
-        errs[name] = float(np.sqrt(np.mean((rec - truth) ** 2)))
+        errs[name] = float(np.sqrt(np.mean((np.stack(list(reconstruct(c, np.arange(S)))) - truth) ** 2)))
     assert errs["factors"] <= 1.1 * errs["expanded"], errs
 
 
@@ -247,3 +247,32 @@ def test_ordinary_inputs_record_no_factor_options():
     assert "expand_factors" not in CompressOptions().recorded()
     assert "factor_rows" not in CompressOptions().recorded()
     assert CompressOptions(factor_rows=100).recorded()["factor_rows"] == 100
+
+
+def test_paper_solver_fits_on_the_region_and_projects_from_the_factors(tmp_path, pebbles):
+    btf = read_ubo2014(dfmf(tmp_path / "m.btf", pebbles, 0))
+    result = compress(btf, CompressOptions(solver="paper", k=K))
+    made = result.info["provenance"]["transcoded"]
+    assert made["basis"].startswith("paper fit on the decoded values of")
+    assert made["coefficients"]["product"] == "exact from the factors"
+
+
+def test_factor_rows_bounded_on_the_command_line(tmp_path, capsys, pebbles):
+    path = dfmf(tmp_path / "m.btf", pebbles, 11)
+    bad_usage(capsys, "compress", path, "-o", tmp_path / "c", "--factor-rows", "0", names="--factor-rows")
+
+
+def test_clamp_that_matters_fits_the_basis_on_decoded_values(tmp_path, pebbles):
+    """A model-0 file whose product is negative in many places (the data shifted down): the
+    product's SVD would be the basis of values the reader never shows, so the basis is fitted
+    on the decoded ones, and the result stays as good as the expansion's."""
+    btf = read_ubo2014(dfmf(tmp_path / "neg.btf", pebbles - 0.12, 0))
+    truth = btf.read_samples(slice(None))
+    assert (truth == 0).mean() > 0.2
+    results = {name: compress(btf, CompressOptions(k=K, expand_factors=expand))
+               for name, expand in (("factors", False), ("expanded", True))}
+    errs = {name: float(np.sqrt(np.mean((np.stack(list(reconstruct(c, np.arange(S)))) - truth) ** 2)))
+            for name, c in results.items()}
+    made = results["factors"].info["provenance"]["transcoded"]
+    assert made["clamp_energy_share_on_fit_texels"] > 1e-3 and made["basis"].startswith("rsvd fit")
+    assert errs["factors"] <= 1.5 * errs["expanded"], errs

@@ -11,14 +11,16 @@ It answers the questions every source answers (:mod:`.source`), plus the fit:
 
 ``fit``
     When the decode after the product is linear (:func:`.factor_algebra.linear_decode`:
-    colour models 0, 1, 3, 4, no dynamic-range restore, a matrix to the working space) and
-    the solver is rsvd: the exact top-k SVD of the whole data matrix from small QR and Gram
-    products of the factors (:func:`.factor_algebra.exact_fit`).  Otherwise -- the paper
-    solver, or a nonlinear decode such as UBO2014's colour model 11 (log Y, U/Y, V/Y), whose
-    exp(log Y) makes the luminance matrix full-rank even though its logarithm is not -- the
-    basis is fitted as for any input, on the fitting texels' values (:func:`.fit.fit_basis`).
+    colour models 0, 1, 3, 4, no dynamic-range restore, a matrix to the working space), the
+    solver is rsvd and the clamp is negligible (below): the exact top-k SVD of the whole data
+    matrix from small QR and Gram products of the factors (:func:`.factor_algebra.exact_fit`).
+    Otherwise -- the paper solver, a clamp that matters, or a nonlinear decode such as
+    UBO2014's colour model 11 (log Y, U/Y, V/Y), whose exp(log Y) makes the luminance matrix
+    full-rank even though its logarithm is not -- the basis is fitted as for any input, on the
+    fitting texels' decoded values (:func:`.fit.fit_basis`).
 ``project``
-    Linear decode: exact, (U^T Q) h(t) per texel (:func:`.factor_algebra.exact_coefficients`).
+    Linear decode: exact, (U^T Q) h(t) per texel (:func:`.factor_algebra.exact_coefficients`),
+    plus the clamp's share (below).
     Nonlinear: weighted least squares on m leverage-sampled samples of every texel
     (:mod:`.row_sampling`; m = ``factor_rows``, default 16 k; m >= S is the exact projection).
 ``columns`` / ``working_samples``
@@ -27,10 +29,13 @@ It answers the questions every source answers (:mod:`.source`), plus the fit:
     request, far more than a few fitting texels or curve samples need.
 
 **The clamp.**  The reader sets negative decoded values to 0 (a truncated factorisation
-rings below zero).  That is not linear, and the exact path does not apply it: it compresses
-the factor product itself.  The sampled path solves on clamped values (the reader's).  Either
-way the error the output's metadata reports is measured on held-out texels against the
-reader's values, clamp included, so what the clamp costs is in that number.
+rings below zero), which is not linear.  On the linear path the coefficients are the exact
+projection of the product plus the clamp's share, solved on sampled rows like the nonlinear
+path's; the basis is the product's exact SVD only while the clamp changes at most
+:data:`CLAMP_TOLERANCE` of the fitting texels' energy, and is otherwise fitted on the decoded
+(clamped) values.  The nonlinear path works on clamped values throughout.  Either way the error
+the output's metadata reports is measured on held-out texels against the reader's values, clamp
+included.
 
 Memory: the factors in float32, Q (S x K float64) on the exact path, the fitting and
 held-out columns (as for any input), one texel block of sampled rows, and the coefficients.
@@ -39,17 +44,22 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import BTFError
 from ..model import BTF
 from ..resources import require_memory
-from .factor_algebra import FactorFrame, exact_coefficients, exact_fit, linear_decode
+from .factor_algebra import FactorFrame, exact_coefficients, exact_fit, linear_decode, mix_planes, working_map
 from .fit import BasisFit, fit_basis
 from .options import CompressOptions
 from .row_sampling import default_rows, leverage_rows, solve_operators
 
-__all__ = ["FactoredSource", "uses_factors"]
+__all__ = ["FactoredSource", "uses_factors", "CLAMP_TOLERANCE"]
 
 #: Bytes of float32 values one expansion step produces (the decode makes ~3 temporaries of it).
 _STEP_BYTES = 32e6
+#: The exact basis of the factor product is used while the reader's clamp changes at most this
+#: share of the data's energy (measured on the fitting texels); past it, the product's SVD is
+#: the wrong basis for the clamped images and the basis is fitted on decoded values instead.
+CLAMP_TOLERANCE = 1e-3
 
 
 def uses_factors(btf: BTF, options: CompressOptions) -> bool:
@@ -80,6 +90,7 @@ class FactoredSource:
         require_memory(sum(unique.values()) + btf.n_samples * (K + 2) * 8 * 2 + 8 * _STEP_BYTES,
                        f"transcoding {self._where()} from its factors")
         self.linear = linear_decode(btf)
+        self._affine = working_map(btf)
         self.frame = FactorFrame(self.linear) if self.linear is not None else None
         self.nbytes = sum(unique.values()) + (self.frame.q.nbytes if self.frame is not None else 0)
         self._record = {"basis": None, "coefficients": None}
@@ -124,13 +135,32 @@ class FactoredSource:
 
     # -- fit and projection from the factors ---------------------------------------------
     def fit(self, texels: np.ndarray, k: int, options: CompressOptions) -> BasisFit:
-        """The basis: exact from the factors (linear decode, rsvd), else fitted on the
-        decoded values of ``texels`` as for any input (:func:`.fit.fit_basis`)."""
+        """The basis: exact from the factors when the decode is linear, the solver rsvd and the
+        reader's clamp changes at most :data:`CLAMP_TOLERANCE` of the energy of ``texels``;
+        else fitted on the decoded values of ``texels`` as for any input (:func:`.fit.fit_basis`)."""
         if self.frame is not None and options.solver == "rsvd":
-            self._record["basis"] = "exact SVD of the factor product (all texels)"
-            return exact_fit(self.frame, k, self.btf.n_pixels, texels)
+            share = self._clamp_share(texels)
+            self._record["clamp_energy_share_on_fit_texels"] = share
+            if share <= CLAMP_TOLERANCE:
+                self._record["basis"] = "exact SVD of the factor product (all texels)"
+                return exact_fit(self.frame, k, self.btf.n_pixels, texels)
         self._record["basis"] = f"{options.solver} fit on the decoded values of {len(texels)} texels"
         return fit_basis(self.columns(texels), k, options)
+
+    def _clamp_share(self, texels: np.ndarray) -> float:
+        """||clamped - unclamped||^2 / ||clamped||^2 over ``texels`` x every sample (working space):
+        how much of the data the reader's clamp changes (linear decode only)."""
+        lin = self.linear
+        clamped = changed = 0.0
+        step = self._rows_per_step(len(texels))
+        for s0 in range(0, self.btf.n_samples, step):
+            rows = np.arange(s0, min(s0 + step, self.btf.n_samples))
+            rgb = self.btf.channels_to_rgb(self._planes(rows, texels), rows, clamp=False)
+            neg = mix_planes(lin.to_working, np.maximum(-rgb, 0.0))
+            kept = mix_planes(lin.to_working, np.maximum(rgb, 0.0), lin.working_offset)
+            changed += float(np.einsum("jrn,jrn->", neg, neg, dtype=np.float64))
+            clamped += float(np.einsum("jrn,jrn->", kept, kept, dtype=np.float64))
+        return changed / clamped if clamped > 0 else 0.0
 
     def project(self, u: np.ndarray, mix: np.ndarray, ks, *, energy: bool = False):
         """Coefficients (k, P, 3) float32 of every texel on ``u`` (plane j on its first
@@ -174,8 +204,19 @@ class FactoredSource:
         return total
 
     def _decoded_rows(self, rows, sl, mix):
-        """The reader's values at ``rows`` x texels ``sl``, mixed: (3, n, t) planes and ||y_row||^2."""
-        y = np.einsum("ji,rni->jrn", mix.astype(np.float32), self.values(rows, sl))
+        """The reader's values at ``rows`` x texels ``sl``, mixed: (3, n, t) planes and ||y_row||^2.
+
+        When the conversion to the working space is affine (as between linear spaces) it is
+        applied on the planes, folded into ``mix``; otherwise through OCIO like ``values``."""
+        if self._affine is None:
+            y = np.einsum("ji,rni->jrn", mix.astype(np.float32), self.values(rows, sl))
+        else:
+            rgb = self.btf.channels_to_rgb(self._planes(rows, sl), rows)
+            if not np.isfinite(rgb).all():
+                raise BTFError(f"{self._where()}: decoded values include NaN or Inf (a factor product "
+                               "overflows the colour model's exp)")
+            matrix, offset = self._affine
+            y = mix_planes(mix @ matrix, rgb, mix @ offset)
         return y, np.einsum("jrn,jrn->r", y, y, dtype=np.float64)
 
     def _clamp_rows(self, rows, sl, mix):
@@ -186,9 +227,8 @@ class FactoredSource:
         neg = np.maximum(-rgb, 0.0)
         self._clamped += int(np.count_nonzero(neg))
         to_mixed = mix @ self.linear.to_working
-        y_clamp = np.einsum("ji,irn->jrn", to_mixed.astype(np.float32), neg)
-        y = np.einsum("ji,irn->jrn", to_mixed.astype(np.float32), rgb)
-        y += (mix @ self.linear.working_offset).astype(np.float32)[:, None, None]
+        y_clamp = mix_planes(to_mixed, neg)
+        y = mix_planes(to_mixed, rgb, mix @ self.linear.working_offset)
         change = np.einsum("jrn,jrn->r", y_clamp, 2 * y + y_clamp, dtype=np.float64)
         return y_clamp, change
 
