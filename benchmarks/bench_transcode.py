@@ -24,8 +24,8 @@ ones proportional to the texels (encode, evaluate) scaled by 16, fit and colour 
 sample of texels) as measured.  The scaled figure is a lower bound: at full size the
 streaming source reads 32-sample chunks, each of which makes the reader multiply out its
 whole 128-sample tile (4x the products of the crop's 512-sample chunks).  The factor path is
-timed on the crop too, like for like.  Then the same for a model-0 (linear) file of that
-shape: the exact path.
+timed on the crop too, like for like.  Then the same for a model-0 (RGB, linear) file of that
+shape, channels around 0.5: the exact path.
 
 Run: ``.venv/bin/python benchmarks/bench_transcode.py [--quick] [--k 16]``
 (``--quick``: the quality part only, ~3 min on 2 cores; the whole run ~15 min).
@@ -172,12 +172,10 @@ def crop_of(path: Path, folder: Path, model: int) -> Path:
 
 
 def ubo_size(folder: Path, model: int, k: int) -> None:
-    path = synthetic_dfmf(folder / f"ubo_model{model}.btf", [150, 50, 50])
-    if model != 11:   # the same random factors relabelled as RGB (model 0): the linear, exact path
-        data = bytearray(path.read_bytes())
-        at = data.index(b"\x0b\x00\x00\x00", len(b"!DFMF08FCR"))
-        data[at:at + 4] = model.to_bytes(4, "little")
-        path.write_bytes(bytes(data))
+    # Model 0 (RGB, the linear path): the same kind of factors around 0.5 per channel, so that
+    # few values ring below zero (random factors centred on 0 would be half clamped).
+    path = synthetic_dfmf(folder / f"ubo_model{model}.btf", [150, 50, 50], model=model,
+                          offsets=(-2.0, 0.0, 0.0) if model == 11 else (0.5, 0.5, 0.5))
     crop = crop_of(path, folder, model)
     print(f"\n## time: model {model}, {N_VIEWS} x {N_LIGHTS} samples, {SIZE}^2, components 150 / 50 / 50, "
           f"{path.stat().st_size / 1e6:.1f} MB; compress --k {k}")

@@ -60,6 +60,12 @@ def rmse(capsys, original: Path, reconstruction: Path) -> float:
     return json.loads(ok(capsys, "error", original, reconstruction))["linear"]["rmse"]
 
 
+def reconstruction_rmse(result, truth: np.ndarray) -> float:
+    """RMSE of ``result`` decoded (all samples, working space) against ``truth`` (S, H, W, 3)."""
+    rec = np.stack(list(reconstruct(result, np.arange(len(truth)))))
+    return float(np.sqrt(np.mean((rec - truth) ** 2)))
+
+
 def metadata(folder: Path) -> dict:
     return json.loads((folder / "btf-compressed.json").read_text())
 
@@ -236,10 +242,8 @@ def test_fmf_linear_transcodes_exactly(tmp_path, pebbles):
     btf = read_ubo2014(w.fmf_file(tmp_path / "f.btf", s, u, sxv, **GEOM))
     assert linear_decode(btf) is not None
     truth = btf.read_samples(slice(None))
-    errs = {}
-    for name, expand in (("factors", False), ("expanded", True)):
-        c = compress(btf, CompressOptions(k=K, expand_factors=expand))
-        errs[name] = float(np.sqrt(np.mean((np.stack(list(reconstruct(c, np.arange(S)))) - truth) ** 2)))
+    errs = {name: reconstruction_rmse(compress(btf, CompressOptions(k=K, expand_factors=expand)), truth)
+            for name, expand in (("factors", False), ("expanded", True))}
     assert errs["factors"] <= 1.1 * errs["expanded"], errs
 
 
@@ -271,8 +275,7 @@ def test_clamp_that_matters_fits_the_basis_on_decoded_values(tmp_path, pebbles):
     assert (truth == 0).mean() > 0.2
     results = {name: compress(btf, CompressOptions(k=K, expand_factors=expand))
                for name, expand in (("factors", False), ("expanded", True))}
-    errs = {name: float(np.sqrt(np.mean((np.stack(list(reconstruct(c, np.arange(S)))) - truth) ** 2)))
-            for name, c in results.items()}
+    errs = {name: reconstruction_rmse(c, truth) for name, c in results.items()}
     made = results["factors"].info["provenance"]["transcoded"]
     assert made["clamp_energy_share_on_fit_texels"] > 1e-3 and made["basis"].startswith("rsvd fit")
     assert errs["factors"] <= 1.5 * errs["expanded"], errs

@@ -122,7 +122,10 @@ def _model_map(btf, S: int, nc: int):
         return None
     scale = np.einsum("isc,ic->s", per, matrix) / np.sum(matrix * matrix)
     offset = off[:, ref] / scale[ref] if scale[ref] else np.zeros(3)
-    # The map must reproduce the decode on random values (a log or product model will not).
+    # Every sample's map must be this one scaled ...
+    if not (_agree(per, scale[None, :, None] * matrix[:, None, :]) and _agree(off, scale[None, :] * offset[:, None])):
+        return None
+    # ... and reproduce the decode on random values (a log or product model will not).
     rng = np.random.default_rng(0)
     idx = np.sort(rng.choice(S, size=min(S, _PROBE_SAMPLES), replace=False))
     values = rng.standard_normal((nc, len(idx), _PROBE_TEXELS)).astype(np.float32)

@@ -94,6 +94,7 @@ class FactoredSource:
         self.frame = FactorFrame(self.linear) if self.linear is not None else None
         self.nbytes = sum(unique.values()) + (self.frame.q.nbytes if self.frame is not None else 0)
         self._record = {"basis": None, "coefficients": None}
+        self._clamped = 0          # values the clamp changed at the sampled rows (linear path)
 
     # -- the questions every source answers ----------------------------------------------
     def to_working(self, x: np.ndarray) -> np.ndarray:
