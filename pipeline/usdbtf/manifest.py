@@ -141,17 +141,14 @@ def read_manifest(folder, *, ocio_config: str | None = None, working_space: str 
 def encode_for_file(linear: np.ndarray, processor: colour.Processor, bit_depth: str) -> np.ndarray:
     """Working-space float (..., 3) -> file values in ``processor.dst`` at ``bit_depth``.
 
-    Integer depths clip to [0, 1] and round to nearest; float depths are stored as they are,
-    except negative values, which become 0: radiance is never negative, and a file holding
-    them (a reconstruction ringing below zero, a colour outside the file's gamut) would be
-    refused by every usdbtf reader.
+    Integer depths clip to [0, 1] and round to nearest; float depths are stored as is.
     """
     enc = processor.apply(linear)
     dtype = numpy_dtype(bit_depth)
     if np.dtype(dtype).kind == "u":
         top = np.iinfo(dtype).max
         return np.rint(np.clip(enc, 0.0, 1.0) * top).astype(dtype)
-    return np.maximum(enc, 0.0).astype(dtype)
+    return enc.astype(dtype)
 
 
 def _sample_file(i: int, view, light, ext: str) -> str:
