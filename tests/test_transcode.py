@@ -293,16 +293,23 @@ def test_factor_rows_bounded_on_the_command_line(tmp_path, capsys, pebbles):
     bad_usage(capsys, "compress", path, "-o", tmp_path / "c", "--factor-rows", "0", names="--factor-rows")
 
 
-def test_clamp_that_matters_fits_the_basis_on_decoded_values(tmp_path, pebbles):
-    """A model-0 file whose product is negative in many places (the data shifted down): the
-    product's SVD would be the basis of values the reader never shows, so the basis is fitted
-    on the decoded ones, and the result stays as good as the expansion's."""
-    btf = read_ubo2014(dfmf(tmp_path / "neg.btf", pebbles - 0.12, 0))
+@pytest.mark.parametrize("shift", [-0.12, 0.3])
+def test_clamp_handled_by_how_much_it_changes(tmp_path, pebbles, shift):
+    """Model 0, the data shifted down (the product negative in many places: its SVD would be
+    the basis of values the reader never shows, so the basis is fitted on the decoded ones) or
+    up (nothing to clamp: no sampled correction, nothing decoded beyond the fitting texels).
+    Both as good as the expansion."""
+    btf = read_ubo2014(dfmf(tmp_path / "shifted.btf", pebbles + shift, 0))
     truth = btf.read_samples(slice(None))
-    assert (truth == 0).mean() > 0.2
+    assert ((truth == 0).mean() > 0.2) == (shift < 0)
     results = {name: compress(btf, CompressOptions(k=K, expand_factors=expand))
                for name, expand in (("factors", False), ("expanded", True))}
     errs = {name: reconstruction_rmse(c, truth) for name, c in results.items()}
     made = results["factors"].info["provenance"]["transcoded"]
-    assert made["clamp_energy_share_on_fit_texels"] > 1e-3 and made["basis"].startswith("rsvd fit")
+    if shift < 0:
+        assert made["clamp_energy_share_on_fit_texels"] > 1e-3 and made["basis"].startswith("rsvd fit")
+        assert made["coefficients"]["clamp"]["solved_on"]["sampling"] == "leverage"
+    else:
+        assert made["clamp_energy_share_on_fit_texels"] == 0 and made["basis"].startswith("exact SVD")
+        assert made["coefficients"]["clamp"].startswith("negligible")
     assert errs["factors"] <= 1.5 * errs["expanded"], errs

@@ -20,7 +20,7 @@ It answers the questions every source answers (:mod:`.source`), plus the fit:
     fitting texels' decoded values (:func:`.fit.fit_basis`).
 ``project``
     Linear decode: exact, (U^T Q) h(t) per texel (:func:`.factor_algebra.exact_coefficients`),
-    plus the clamp's share (below).
+    plus the clamp's share when it is not negligible (below).
     Nonlinear: weighted least squares on m leverage-sampled samples of every texel
     (:mod:`.row_sampling`; m = ``factor_rows``, default 16 k; m >= S is the exact projection).
 ``columns`` / ``working_samples``
@@ -29,13 +29,13 @@ It answers the questions every source answers (:mod:`.source`), plus the fit:
     request, far more than a few fitting texels or curve samples need.
 
 **The clamp.**  The reader sets negative decoded values to 0 (a truncated factorisation
-rings below zero), which is not linear.  On the linear path the coefficients are the exact
-projection of the product plus the clamp's share, solved on sampled rows like the nonlinear
-path's; the basis is the product's exact SVD only while the clamp changes at most
-:data:`CLAMP_TOLERANCE` of the fitting texels' energy, and is otherwise fitted on the decoded
-(clamped) values.  The nonlinear path works on clamped values throughout.  Either way the error
-the output's metadata reports is measured on held-out texels against the reader's values, clamp
-included.
+rings below zero), which is not linear.  The linear path measures how much of the fitting
+texels' energy the clamp changes.  Above :data:`CLAMP_NEGLIGIBLE` the clamp's share of every
+texel's coefficients is solved on sampled rows like the nonlinear path's (added to the exact
+projection of the product); above :data:`CLAMP_TOLERANCE` the basis, too, is fitted on the
+decoded (clamped) values instead of taken from the product's SVD.  The nonlinear path works on
+clamped values throughout.  Either way the error the output's metadata reports is measured on
+held-out texels against the reader's values, clamp included.
 
 Memory: the factors in float32, Q (S x K float64) on the exact path, the fitting and
 held-out columns (as for any input), one texel block of sampled rows, and the coefficients.
@@ -52,7 +52,7 @@ from .fit import BasisFit, fit_basis
 from .options import CompressOptions
 from .row_sampling import default_rows, leverage_rows, solve_operators
 
-__all__ = ["FactoredSource", "uses_factors", "CLAMP_TOLERANCE"]
+__all__ = ["FactoredSource", "uses_factors", "CLAMP_TOLERANCE", "CLAMP_NEGLIGIBLE"]
 
 #: Bytes of float32 values one expansion step produces (the decode makes ~3 temporaries of it).
 _STEP_BYTES = 32e6
@@ -60,6 +60,9 @@ _STEP_BYTES = 32e6
 #: share of the data's energy (measured on the fitting texels); past it, the product's SVD is
 #: the wrong basis for the clamped images and the basis is fitted on decoded values instead.
 CLAMP_TOLERANCE = 1e-3
+#: Below this share (0.1 % in RMS terms) the clamp's effect on the coefficients is not solved
+#: for at all: the exact path then never decodes a pixel beyond the fitting texels.
+CLAMP_NEGLIGIBLE = 1e-6
 
 
 def uses_factors(btf: BTF, options: CompressOptions) -> bool:
@@ -95,6 +98,7 @@ class FactoredSource:
         self.nbytes = sum(unique.values()) + (self.frame.q.nbytes if self.frame is not None else 0)
         self._record = {"basis": None, "coefficients": None}
         self._clamped = 0          # values the clamp changed at the sampled rows (linear path)
+        self._share = None         # the clamp's energy share on the fitting texels (linear path)
 
     # -- the questions every source answers ----------------------------------------------
     def to_working(self, x: np.ndarray) -> np.ndarray:
@@ -139,10 +143,10 @@ class FactoredSource:
         """The basis: exact from the factors when the decode is linear, the solver rsvd and the
         reader's clamp changes at most :data:`CLAMP_TOLERANCE` of the energy of ``texels``;
         else fitted on the decoded values of ``texels`` as for any input (:func:`.fit.fit_basis`)."""
-        if self.frame is not None and options.solver == "rsvd":
-            share = self._clamp_share(texels)
-            self._record["clamp_energy_share_on_fit_texels"] = share
-            if share <= CLAMP_TOLERANCE:
+        if self.frame is not None:
+            self._share = self._clamp_share(texels)
+            self._record["clamp_energy_share_on_fit_texels"] = self._share
+            if options.solver == "rsvd" and self._share <= CLAMP_TOLERANCE:
                 self._record["basis"] = "exact SVD of the factor product (all texels)"
                 return exact_fit(self.frame, k, self.btf.n_pixels, texels)
         self._record["basis"] = f"{options.solver} fit on the decoded values of {len(texels)} texels"
@@ -179,6 +183,10 @@ class FactoredSource:
             self._record["coefficients"] = {"solved_on": solved}
             return coeff, (total if energy else None)
         coeff, total = exact_coefficients(self.frame, u, mix, ks, n_texels=P, energy=energy)
+        if self._share is not None and self._share <= CLAMP_NEGLIGIBLE:
+            self._record["coefficients"] = {"product": "exact from the factors",
+                                            "clamp": "negligible on the fitting texels: not applied"}
+            return coeff, total
         self._clamped = 0
         extra = self._solve_on_rows(u, ks, rows, weights, coeff, lambda sl: self._clamp_rows(rows, sl, mix))
         self._record["coefficients"] = {"product": "exact from the factors",
