@@ -29,7 +29,8 @@ def run(args) -> int:
     opts = CompressOptions(solver=args.solver, k=args.k, target_error=args.target_error, max_bytes=args.max_bytes,
                           codec=args.codec, seed=args.seed, fit_texels=args.fit_texels,
                           power_iterations=args.power_iterations, region=args.region, workers=args.workers,
-                          memory_budget=args.memory_budget * 1e9)
+                          memory_budget=args.memory_budget * 1e9, expand_factors=args.expand_factors,
+                          factor_rows=args.factor_rows)
     extra = {key: v for key, v in btf.metadata.items() if not key.startswith("_")}
     opts.extra = {"source_metadata": extra} if extra else {}
     # compress still takes a callable for its messages (it is being changed on another branch).

@@ -29,7 +29,7 @@ from ..outputs import COMPRESSED as COMPRESSED_KIND
 from .curve import write_curve
 from .decorrelate import colour_decorrelation, rotate_colour
 from .evaluate import error_curve, held_out_error, held_out_set
-from .fit import HDR_NORM_RANGE, fit_basis, require_signal, sampled_coefficients
+from .fit import HDR_NORM_RANGE, fit_source, require_signal, sampled_coefficients
 from .format import CompressedBTF, write_metadata, write_textures
 from .options import CompressOptions
 from .projection import project
@@ -64,7 +64,7 @@ def compress(btf: BTF, options: CompressOptions | None = None, *, log=None) -> C
     source = load_source(btf, texels, opts)
     say(f"loaded {btf.n_samples} samples of {btf.width}x{btf.height} ({source.kind}, {source.nbytes / 2**20:.0f} MiB) "
         f"in {clock.lap('load'):.2f} s")
-    fit = fit_basis(source.columns(texels.fit), opts.fit_k(btf.n_samples, btf.n_pixels), opts)
+    fit = fit_source(source, texels.fit, opts.fit_k(btf.n_samples, btf.n_pixels), opts)
     if fit.weighted:
         say(f"texel norms span more than {HDR_NORM_RANGE:g}: basis fitted with weights ||x_t||^-1/2")
     require_signal(fit, btf, texels, opts)
@@ -84,7 +84,7 @@ def compress(btf: BTF, options: CompressOptions | None = None, *, log=None) -> C
     cbtf, choice = rate_control(Factorisation(btf, fit.basis, coeff, colour, energy, planes, step), opts, held, say)
     clock.lap("encode")
     result = _described(cbtf, opts, dict(choice, planes=list(planes)), fit.singular_values, held,
-                        held_out_error(cbtf, held), error_curve(cbtf, source))
+                        held_out_error(cbtf, held), error_curve(cbtf, source), getattr(source, "provenance", None))
     clock.lap("evaluate")
     say(f"k = {result.k}, {result.info['bytes']['payload']} bytes, estimated error "
         f"{result.info['estimated_error']['linear']['percent']:.3f} % ({clock})")
@@ -117,8 +117,9 @@ def write_compress(result: CompressedBTF, path, *, force: bool = False) -> dict:
 
 
 def _described(cbtf: CompressedBTF, opts: CompressOptions, choice: dict, singular_values, held, sums,
-               curve: dict) -> CompressedBTF:
-    """``cbtf`` with what the metadata records about how it was made, and its error curve."""
+               curve: dict, transcoded: dict | None = None) -> CompressedBTF:
+    """``cbtf`` with what the metadata records about how it was made (``transcoded``: how a
+    factorised input was compressed from its factors), and its error curve."""
     info = dict(cbtf.info)
     info.update({
         "solver": opts.solver,
@@ -132,6 +133,8 @@ def _described(cbtf: CompressedBTF, opts: CompressOptions, choice: dict, singula
         "provenance": {"tool": "usdbtf", "version": __version__, "solver": opts.solver, "seed": opts.seed,
                        "source": cbtf.source["path"], "options": opts.recorded()},
     })
+    if transcoded is not None:
+        info["provenance"]["transcoded"] = transcoded
     info.update(opts.extra)
     return replace(cbtf, info=info, curve=curve)
 

@@ -42,6 +42,10 @@ class CompressOptions:
     chunk_bytes: float = 64e6             # streaming: stored bytes per chunk (rounded to whole projection tiles)
     eval_texels: int = 1024               # held-out texels for error estimates
     workers: int | None = None
+    expand_factors: bool = False          # a factorised input (UBO2014 DFMF/FMF): expand its images instead of
+                                          # transcoding from the factors (see factored.py)
+    factor_rows: int | None = None        # transcoding a nonlinear colour model: samples the coefficients are
+                                          # solved on (default: factored.default_rows; >= S: all, exact)
     extra: dict = field(default_factory=dict)
 
     def validate(self):
@@ -53,6 +57,8 @@ class CompressOptions:
             raise BTFError(f"--target-error must be a positive percentage, got {self.target_error}")
         if self.max_bytes is not None and self.max_bytes <= 0:
             raise BTFError(f"--max-bytes must be positive, got {self.max_bytes}")
+        if self.factor_rows is not None and self.factor_rows < 1:
+            raise BTFError(f"--factor-rows must be at least 1, got {self.factor_rows}")
         get_codec(self.codec_name)
 
     @property
@@ -88,5 +94,14 @@ class CompressOptions:
         return min(self.k or default, n_samples, 3 * n_pixels)
 
     def recorded(self) -> dict:
-        """The options as the output's provenance records them (not ``extra``, not ``workers``)."""
-        return {k: v for k, v in self.__dict__.items() if k not in ("extra", "workers")}
+        """The options as the output's provenance records them (not ``extra``, not ``workers``;
+        the factor-input options only when set, so other inputs' records stay as they were)."""
+        out = {k: v for k, v in self.__dict__.items() if k not in ("extra", "workers")}
+        for key, default in _FACTOR_OPTIONS.items():
+            if out[key] == default:
+                del out[key]
+        return out
+
+
+#: Options that only steer factorised inputs, with their defaults.
+_FACTOR_OPTIONS = {"expand_factors": False, "factor_rows": None}

@@ -35,6 +35,7 @@ from .. import colour
 from ..errors import BTFError
 from ..model import BTF, FileBTF
 from .curve import curve_samples
+from .factored import FactoredSource, uses_factors
 from .load import BlockedData, _forkable, _init, default_workers, load_encoded, texel_blocks
 from .options import CompressOptions
 from .projection import TileProjector, project_block
@@ -257,7 +258,11 @@ def load_source(btf: BTF, texels: Texels, options: CompressOptions) -> _Source:
     Returns
     -------
     InMemorySource or StreamingSource : answers ``columns`` (S, 3 n), ``project`` and
-    ``working_samples`` (r, P, 3) the same way, bit for bit.
+    ``working_samples`` (r, P, 3) the same way, bit for bit.  An input that exposes a
+    factorisation gets a :class:`~.factored.FactoredSource` instead (unless
+    ``options.expand_factors``): the same questions, answered from the factors.
     """
+    if uses_factors(btf, options):
+        return FactoredSource(btf, options)
     return choose_source(btf, [texels.fit, texels.evaluation], curve_samples(btf.n_samples),
                          memory_budget=options.memory_budget, workers=options.workers, chunk_bytes=options.chunk_bytes)
