@@ -36,9 +36,10 @@ SIZE = 400
 CHUNK = 256
 
 
-def synthetic_dfmf(path: Path, ks, seed: int = 0) -> Path:
+def synthetic_dfmf(path: Path, ks, seed: int = 0, *, model: int = 11, offsets=(-2.0, 0.0, 0.0)) -> Path:
     """Random factors with UBO2014's shapes; channel values stay in a plausible range
-    (log Y around -2, chroma ratios around 0), so the colour model does real work."""
+    (by default colour model 11 with log Y around -2, chroma ratios around 0, so the colour
+    model does real work; ``offsets`` are the channels' means)."""
     rng = np.random.default_rng(seed)
     S, T = N_VIEWS * N_LIGHTS, SIZE * SIZE
     theta = np.radians(np.linspace(0, 75, N_VIEWS))
@@ -47,9 +48,9 @@ def synthetic_dfmf(path: Path, ks, seed: int = 0) -> Path:
     for c, k in enumerate(ks):
         u = (rng.standard_normal((S, k)) / np.sqrt(k)).astype(np.float32)
         sxv = (0.3 * rng.standard_normal((T, k)) * (0.9 ** np.arange(k))).astype(np.float32)
-        u[:, 0], sxv[:, 0] = 1.0, (-2.0 if c == 0 else 0.0)
+        u[:, 0], sxv[:, 0] = 1.0, offsets[c]
         chans.append((np.ones(k), u, sxv))
-    return writer.dfmf_file(path, chans, views_rad=dirs, lights_rad=dirs, width=SIZE, height=SIZE)
+    return writer.dfmf_file(path, chans, views_rad=dirs, lights_rad=dirs, width=SIZE, height=SIZE, model=model)
 
 
 def main() -> None:

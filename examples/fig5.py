@@ -7,7 +7,7 @@ torus knot, each under a point light at two distances.
 Per preset: ``usdbtf synth`` (sampling ``--sampling``, ``--size`` texels, 5 cm across) and
 ``usdbtf compress --k K``; per shape (examples/shapes.py): ``usdbtf unwrap`` at the sample's
 texel density, then quilting into each atlas and rendering, in-process through the library
-(``usdbtf.quilt.atlas.quilt_atlas``, ``usdbtf.render.Renderer``) so each BTF is read once.
+(``usdbtf.quilt.quilt`` into an atlas, ``usdbtf.render.Renderer``) so each BTF is read once.
 Rows: materials; columns: shape x light (near, far; same irradiance at the object).  Colour:
 working space -> sRGB display through OCIO (``usdbtf.render.to_display``).
 """
@@ -28,8 +28,7 @@ from usdbtf.camera import auto_camera  # noqa: E402
 from usdbtf.cli import main as usdbtf  # noqa: E402
 from usdbtf.compress import read_compressed  # noqa: E402
 from usdbtf.imageio import write_image  # noqa: E402
-from usdbtf.quilt import QuiltOptions, quilted_btf  # noqa: E402
-from usdbtf.quilt.atlas import quilt_atlas  # noqa: E402
+from usdbtf.quilt import QuiltOptions, quilt, quilted_btf  # noqa: E402
 from usdbtf.render import Light, RenderOptions, Renderer, to_display  # noqa: E402
 from usdbtf.unwrap import read_unwrap  # noqa: E402
 
@@ -87,8 +86,8 @@ def main(argv=None) -> int:
                 obj = shapes.write_obj(work / f"{shape}.obj", points * scale, faces, normals)
                 run("unwrap", obj, "-o", uv, "--btf", comp, "-q", "--force")
             unwrapped = read_unwrap(uv / "mesh.usda")
-            q = quilt_atlas(cbtf, unwrapped, QuiltOptions(seed=args.seed))
-            renderer = Renderer(quilted_btf(cbtf, q), RenderOptions(threads=2))
+            q = quilt(cbtf, QuiltOptions(seed=args.seed), atlas=unwrapped)
+            renderer = Renderer(quilted_btf(q), RenderOptions(threads=2))
             mesh = unwrapped.mesh
             camera = auto_camera(mesh.corner(), args.tile, args.tile, fov=24.0, direction=(0.3, 0.35, 1.0))
             camera.eye = camera.target + (camera.eye - camera.target) * closer

@@ -61,8 +61,10 @@ step "compress the rectified capture" \
     usdbtf compress --force "$OUT/rig/RECT" -o "$OUT/rig/C" --k 12
 
 # -- package as a USD asset (issue 3) --
-step "package: USD asset (swatch, LOD variants, usdz) checked by every UsdValidation validator" \
-    usdbtf package --force "$OUT/pebbles_c" -o "$OUT/asset/pebbles.usda" --usdz
+step "package: USD asset (swatch, fitted fallback, LOD variants, thumbnail, usdz, AR usdz) checked by every UsdValidation validator" \
+    usdbtf package --force "$OUT/pebbles_c" -o "$OUT/asset/pebbles.usda" --usdz --usdz-ar
+step "env: the launcher lines that make any USD process know the plugin (issue 15)" \
+    usdbtf env
 step "inspect the asset" \
     usdbtf inspect "$OUT/asset/pebbles.usda" --validate
 step "decompress from the asset (equals decompress of the folder, bit for bit)" \

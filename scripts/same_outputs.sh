@@ -7,10 +7,11 @@
 # once with the code of REF (a `git archive` of it in a temporary folder), once with the
 # working tree (uncommitted changes included) -- and compares the SHA-256 of every output
 # file (a .usdz by its members' names and bytes: USD stamps them with the packing time).
-# Covered: synth; compress with both solvers, every codec, --k, --max-bytes,
-# --target-error, in memory and streamed (--memory-budget 0); decompress; info and error
-# reports; quilt (tileable and into an atlas); unwrap; package (+ usdz); render (swatch
-# and mesh).  Prints each differing file and exits 1 on any difference, 0 when every file
+# Covered: board; synth (8-bit PNG and half EXR); compress with both solvers, every codec,
+# --k, --max-bytes, --target-error, in memory and streamed (--memory-budget 0); decompress;
+# info and error reports; quilt (tileable and into an atlas); unwrap; package (+ usdz; a
+# mesh with a usda payload, asset metadata and --usdz-ar; tx and exr textures); render
+# (swatch and mesh).  Not covered: capture and rectify (they need a rig).  Prints each differing file and exits 1 on any difference, 0 when every file
 # is identical, 2 when a stage fails.
 #
 # Both runs use this checkout's .venv (REF's code goes first on PYTHONPATH), OCIO's built-in
@@ -57,7 +58,10 @@ pipeline() {
             exit 2
         fi
     }
+    stage board usdbtf board -o board.png --json board.json --grid 6 --window 2 --cell-px 40
     stage synth usdbtf synth pebbles -o raw --sampling small --size 64 --seed 1
+    stage synth-exr usdbtf synth ridged_fabric -o raw_exr --sampling tiny --size 16 --seed 3 --format exr \
+        --bit-depth half
     stage compress usdbtf compress raw -o c --k 32
     stage compress-paper usdbtf compress raw -o c_paper --solver paper --k 32
     stage compress-png usdbtf compress raw -o c_png --codec png --k 12
@@ -85,6 +89,10 @@ pipeline() {
     stage quilt-atlas usdbtf quilt c --atlas knot_uv/mesh.usda -o knot_btf --seed 1
     stage render-mesh usdbtf render knot_btf --mesh knot_uv/mesh.usda --light point:-0.05,0.07,0.06:0.01 \
         --size 96 96 -o knot.exr
+    stage package-mesh usdbtf package c -o asset_mesh/knot.usdc --mesh knot_uv/mesh.usda --payload-format usda \
+        --usdz-ar --asset-name knot --asset-version 2 --creator same_outputs --lod 8
+    stage package-tx usdbtf package c_rsvd_jpeg -o asset_tx/j.usda --texture-format tx --no-thumbnail
+    stage package-exr usdbtf package c_exr -o asset_exr/e.usda --texture-format exr --usdz --no-thumbnail
     cd "$WORK"
 }
 
@@ -123,7 +131,8 @@ if diff -q "$WORK/ref.sha256" "$WORK/tree.sha256" > /dev/null; then
     echo "same_outputs: all $total output files are byte-identical ($REF vs working tree)"
     exit 0
 fi
-echo "same_outputs: files that differ ($REF vs working tree):"
-join -j 2 -a 1 -a 2 -e MISSING -o 0,1.1,2.1 <(sort -k 2 "$WORK/ref.sha256") <(sort -k 2 "$WORK/tree.sha256") \
-    | awk '$2 != $3 { if ($2 == "MISSING") s = "only in the working tree"; else if ($3 == "MISSING") s = "only in " ref; else s = "content differs"; print "  " $1 "  (" s ")" }' ref="$REF"
+differing=$(join -j 2 -a 1 -a 2 -e MISSING -o 0,1.1,2.1 <(sort -k 2 "$WORK/ref.sha256") <(sort -k 2 "$WORK/tree.sha256") \
+    | awk '$2 != $3 { if ($2 == "MISSING") s = "only in the working tree"; else if ($3 == "MISSING") s = "only in " ref; else s = "content differs"; print "  " $1 "  (" s ")" }' ref="$REF")
+echo "same_outputs: $(printf '%s\n' "$differing" | wc -l) of $total output files differ ($REF vs working tree):"
+printf '%s\n' "$differing"
 exit 1

@@ -189,6 +189,55 @@ def test_unknown_section_is_one_line_error(capsys, tmp_path):
 # ------------------------------------------------------------------ pieces
 
 
+def test_preset_split_covers_every_preset_once():
+    from usdbtf import synth
+    from usdbtf.bench.datasets import HELDOUT_PRESETS, TUNING_PRESETS, preset_split, split_presets
+
+    assert set(TUNING_PRESETS) | set(HELDOUT_PRESETS) == set(synth.PRESETS)
+    assert not set(TUNING_PRESETS) & set(HELDOUT_PRESETS)
+    assert len(HELDOUT_PRESETS) >= 2 and len(TUNING_PRESETS) >= len(HELDOUT_PRESETS)
+    assert split_presets(["velvet", "pebbles", "crevice_stones"]) == (["pebbles"], ["velvet", "crevice_stones"])
+    with pytest.raises(ValueError, match="granite"):
+        preset_split("granite")
+
+
+def test_bench_compress_reports_held_out_presets_apart():
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    folder = Path(__file__).resolve().parents[1] / "benchmarks"
+    sys.path.insert(0, str(folder))
+    try:
+        spec = importlib.util.spec_from_file_location("bench_compress_under_test", folder / "bench_compress.py")
+        bench = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(bench)
+    finally:
+        sys.path.remove(str(folder))
+
+    def solver(k, payload, lin, enc):
+        return {"k": k, "codec": "jxl", "bytes": {"payload": payload}, "wall_s_median": 2.0, "max_rss_bytes": 1e9,
+                "peak_tree_pss_bytes": 1e9, "peak_memory_bytes": 1e9,
+                "full_error": {"linear": {"percent": lin, "rmse": 0.01, "psnr_db": 40.0},
+                               "encoded": {"percent": enc, "rmse": 0.01, "psnr_db": 30.0}}}
+
+    results = {}
+    for preset, ratio in (("velvet", 0.9), ("pebbles", 0.5), ("crevice_stones", 0.6)):
+        results[preset] = {"input": {"raw_bytes": 10**6}, "gemm": {"median_s": 1.0},
+                           "paper": solver(150, 1000, 10.0, 10.0), "default": solver(200, 990, 10 * ratio, 5.0),
+                           "quality_ratio_linear": ratio, "quality_ratio_encoded": 0.5, "speed_ratio": 2.0}
+    table = bench.markdown_table(results, {"median_s": 1.0})
+    lines = table.splitlines()
+    assert sum(line.startswith("| preset") for line in lines) == 1       # one table, one header
+    names = [line.split("|")[1].strip() for line in lines[2:]]
+    assert names == ["pebbles", "pebbles", "**targets, tuning presets**", "velvet (held out)", "velvet (held out)",
+                     "crevice_stones (held out)", "crevice_stones (held out)", "**targets, held-out presets**"]
+    assert "**PASS** (worst 0.50)" in lines[4] and "**FAIL** (worst 0.90)" in lines[-1]
+    summary = bench.target_summary(results)
+    assert summary["quality_ratio_linear_tuning"]["pass"] and not summary["quality_ratio_linear_heldout"]["pass"]
+    assert summary["quality_ratio_encoded_heldout"]["worst"] == 0.5
+
+
 def test_split_lights_keeps_a_view_by_light_grid():
     s = preset("small")                                   # 13 views x 13 lights
     fit, held = split_lights(s, 0.15, seed=3)

@@ -163,7 +163,9 @@ def test_cli_local_cluster_byte_identical_with_progress(manifest, in_process, tm
     argv = [sys.executable, "-m", "usdbtf.cli", "compress", str(manifest), "--max-bytes", str(kw["max_bytes"])]
     ref = subprocess.run(argv + ["-o", str(tmp_path / "ref"), "-q"], capture_output=True, text=True)
     assert ref.returncode == 0, ref.stderr
-    proc = subprocess.run(argv + ["-o", str(tmp_path / "d"), "--dask", "local:2"], capture_output=True, text=True)
+    # --progress: stderr is a pipe here, where bars are drawn only when asked.
+    proc = subprocess.run(argv + ["-o", str(tmp_path / "d"), "--dask", "local:2", "--progress"],
+                          capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     assert folder_files(tmp_path / "d") == folder_files(tmp_path / "ref")
     assert "dask: local:2: 2 worker(s)" in proc.stderr

@@ -143,7 +143,7 @@ def test_materialx_generated_glsl_compiles(asset):
 
 # ------------------------------------------------------------------ the packaged asset
 def test_asset_has_storm_shader_beside_the_fallback_and_passes_every_validator(asset):
-    for layer in (asset, asset.with_name("pebbles_payload.usda"), asset.with_suffix(".usdz")):
+    for layer in (asset, asset.with_name("pebbles_payload.usdc"), asset.with_suffix(".usdz")):
         assert validation_issues(layer, severities=("Error", "Warn")) == [], layer
     stage = open_stage(asset)
     material = UsdShade.Material(stage.GetPrimAtPath("/pebbles/mtl/BtfMaterial"))
@@ -153,8 +153,9 @@ def test_asset_has_storm_shader_beside_the_fallback_and_passes_every_validator(a
     assert shader.GetIdAttr().Get() == shaders.SHADER_ID
     assert material.ComputeSurfaceSource("glslfx")[0].GetPath() == shader.GetPath()
     assert material.ComputeSurfaceSource("ri")[0].GetPrim() == universal   # others get the fallback
-    node = Sdr.Registry().GetShaderNodeByIdentifier(shaders.SHADER_ID)       # the plugin's definition
-    assert node.GetSourceType() == "glslfx"
+    node = Sdr.Registry().GetShaderNodeByIdentifier(shaders.SHADER_ID)       # the plugin's definition,
+    assert Path(node.GetResolvedDefinitionURI()) == \
+        storm.plugin_dir_resources() / "sdr" / f"{shaders.SHADER_ID}.usda"     # found by filesystem discovery
     assert Path(node.GetResolvedImplementationURI()) == \
         storm.plugin_dir_resources() / "shaders" / f"{shaders.SHADER_ID}.glslfx"
     assert set(node.GetShaderInputNames()) == {name for name, *_ in shaders.INPUTS}

@@ -47,7 +47,8 @@ def data(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("hostile_data")
     cli_ok("synth", "pebbles", "-o", root / "src", "--sampling", "tiny", "--size", 16, "-q")
     cli_ok("compress", root / "src", "-o", root / "c", "--k", 4, "--codec", "png", "-q")
-    cli_ok("package", root / "c", "-o", root / "asset" / "a.usda", "-q")
+    # A text payload: tests below edit it as text (the default is usdc).
+    cli_ok("package", root / "c", "-o", root / "asset" / "a.usda", "--payload-format", "usda", "-q")
     write_sphere(root / "sphere.obj", subdivisions=1)
     cli_ok("unwrap", root / "sphere.obj", "-o", root / "uv", "--texels-per-metre", 200, "-q")
     cli_ok("render", root / "c", "--swatch", "--view", "0,0", "--light", "30,0", "-o", root / "r.exr", "-q")
@@ -209,7 +210,7 @@ def test_hostile_file_names_in_a_scene_build_and_run_nothing(tmp_path, data):
 @pytest.mark.parametrize("asset,sublayer,names", [
     ("./scene.usda", None, ["scene.usda", "btf:build:asset", "a layer of the scene"]),   # the scene itself
     ("./captures/a.usda", None, ["captures", "the source"]),                             # inside the source
-    ("./x.usda", "./x_payload.usda", ["x_payload.usda", "a layer of the scene"]),        # a piece over a sublayer
+    ("./x.usda", "./x_payload.usdc", ["x_payload.usdc", "a layer of the scene"]),        # a piece over a sublayer
 ])
 def test_scene_outputs_over_the_scene_or_its_source_are_refused(case, data, asset, sublayer, names):
     from pxr import Sdf
@@ -219,7 +220,7 @@ def test_scene_outputs_over_the_scene_or_its_source_are_refused(case, data, asse
     src = copy(data / "src", folder / "captures")
     scene = _scene(folder, src, asset, "--k 4")
     if sublayer:
-        (folder / sublayer).write_text("#usda 1.0\n")
+        Sdf.Layer.CreateNew(str(folder / sublayer)).Save()      # the payload is usdc by default
         layer = Sdf.Layer.FindOrOpen(str(scene))
         layer.subLayerPaths.append(sublayer)
         layer.Save()
@@ -601,7 +602,7 @@ def test_nan_vertex_in_a_package_mesh(case, data):
                      uv=np.array([[0, 0], [1, 0], [0, 1], [1, 1.0]]))
     line = case(["package", data / "c", "-o", case.work / "a.usda", "--mesh", mesh, "-q"], code=DATA, names=[])
     # Refused by the mesh reader (naming the file) or, failing that, by the publish gate.
-    assert "nan.obj" in line or ("a_payload.usda" in line and "non-finite" in line), line
+    assert "nan.obj" in line or ("a_payload.usdc" in line and "non-finite" in line), line
 
 
 def test_inspect_validate_reports_non_finite_numbers(case, data):

@@ -280,7 +280,7 @@ def test_degenerate_faces_are_dropped_never_written(work, pebbles, capsys):
     _unit_vectors(work / "degenerate_uv" / "mesh.usda", ("normals", "tangents", "bitangents"))
     # ... and packaged from the file directly: normals computed, all unit.
     ok(capsys, "package", pebbles, "--mesh", obj, "-o", work / "degenerate_asset" / "d.usda", "-q")
-    _unit_vectors(work / "degenerate_asset" / "d_payload.usda", ("normals",))
+    _unit_vectors(work / "degenerate_asset" / "d_payload.usdc", ("normals",))
 
 
 def test_zero_length_file_normals_are_recomputed(tmp_path):

@@ -279,3 +279,28 @@ def test_incomplete_capture_is_refused(raw_capture, tmp_path, capsys):
     (raw / "btf.json").write_text(json.dumps(doc))
     code, err = cli(capsys, "rectify", raw, "-o", tmp_path / "RECT", "--size", "16")
     assert code == 65 and "neither captured nor listed as missing" in err
+
+
+def test_rectify_in_memory_equals_the_command(raw_capture, tmp_path, capsys):
+    """The stage in memory (no scratch file) and with a scratch memmap give what the command
+    writes: write_rectify's bytes are the command's, and to_btf() reads the same samples."""
+    from usdbtf.rectify import RectifyOptions, rectify, write_rectify
+
+    assert cli(capsys, "rectify", raw_capture, "-o", tmp_path / "cli", "--size", "32", "-q")[0] == 0
+    opts = RectifyOptions(size=32)
+    before = sorted(p.name for p in tmp_path.iterdir())
+    in_memory = rectify(raw_capture, opts)
+    assert sorted(p.name for p in tmp_path.iterdir()) == before            # nothing written
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    mapped = rectify(raw_capture, opts, scratch=scratch)
+    assert isinstance(mapped.texels, np.memmap) and not isinstance(in_memory.texels, np.memmap)
+    write_rectify(in_memory, tmp_path / "lib")
+    write_rectify(mapped, tmp_path / "lib_mapped")
+    assert tree_bytes(tmp_path / "lib") == tree_bytes(tmp_path / "cli") == tree_bytes(tmp_path / "lib_mapped")
+    btf = in_memory.to_btf()
+    written = read_manifest(tmp_path / "cli")
+    assert btf.n_samples == written.n_samples == 24
+    np.testing.assert_array_equal(btf.interpolated, written.interpolated)
+    got, want = btf.read_samples([0, 5]), written.read_samples([0, 5])
+    np.testing.assert_allclose(got, want, rtol=2e-3, atol=1e-4)            # the files hold half floats

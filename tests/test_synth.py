@@ -109,7 +109,7 @@ def test_material_validation():
 
 
 def test_presets_differ():
-    mats = {name: synth.make_material(name, 64, seed=0) for name in synth.PRESETS}
+    mats = {name: synth.make_material(name, 64, seed=0) for name in ("pebbles", "ridged_fabric", "fuzzy_moss")}
     peb, fab, moss = mats["pebbles"], mats["ridged_fabric"], mats["fuzzy_moss"]
     # moss is green; pebbles greyish-brown (red >= blue, channels close)
     g = moss.albedo.mean(axis=(0, 1))
@@ -159,8 +159,10 @@ def test_render_tiles_and_is_translation_equivariant(name):
     def roll(a):
         return np.roll(a, shift, axis=(0, 1))
 
-    rolled = synth.Material(roll(m.height), roll(m.albedo), roll(m.specular), roll(m.roughness), m.sheen)
-    np.testing.assert_allclose(synth.render_sample(rolled, view, light), roll(img), atol=2e-4)
+    rolled = synth.Material(roll(m.height), roll(m.albedo), roll(m.specular), roll(m.roughness), m.sheen,
+                            retro=m.retro, slope=None if m.slope is None else roll(m.slope))
+    # rtol: flake sparkles reach ~50, where float32 rounding of the bilinear weights shows
+    np.testing.assert_allclose(synth.render_sample(rolled, view, light), roll(img), atol=2e-4, rtol=1e-4)
 
 
 # ------------------------------------------------------------ masking/parallax
@@ -342,6 +344,143 @@ def test_normal_orientation_on_a_ramp(axis):
     assert lit > 1.2 * unlit
 
 
+def test_retro_lobe_is_exact_on_a_flat_surface():
+    # L = E cos(theta_l) albedo (1/pi + retro (p + 2) / (2 pi) max(v.l, 0)^p (1 - n.v)):
+    # nothing head-on (n.v = 1), strongest with the light behind a grazing camera.
+    plain = _flat(8, albedo=0.3)
+    retro = synth.Material(plain.height, plain.albedo, plain.specular, plain.roughness, retro=0.8)
+    np.testing.assert_allclose(synth.render_sample(retro, (0, 0), (0, 0)), synth.render_sample(plain, (0, 0), (0, 0)),
+                               rtol=1e-6)
+    p = synth.RETRO_EXPONENT
+    for view, light in (((60, 20), (60, 20)), ((60, 20), (40, 50)), ((70, 0), (30, 180))):
+        v, l = to_vectors(np.array([view, light], float))
+        lobe = 0.8 * (p + 2) / (2 * math.pi) * max(v @ l, 0.0) ** p * (1 - v[2])
+        expected = E * math.cos(math.radians(light[0])) * 0.3 * (1 / math.pi + lobe)
+        np.testing.assert_allclose(synth.render_sample(retro, view, light), expected, rtol=1e-5)
+    graze = synth.render_sample(retro, (70, 0), (70, 0)).mean()
+    assert graze > 2 * synth.render_sample(plain, (70, 0), (70, 0)).mean()
+
+
+def test_slope_map_tilts_shading_not_geometry():
+    # A flat surface with a constant slope map shades like the tilted plane of the ramp
+    # test (n = (-0.3, 0, 1) / |.|) but casts no shadow and shows no parallax.
+    slope = np.zeros((16, 16, 2), np.float32)
+    slope[..., 0] = 0.3
+    plain = _flat(16, albedo=0.5)
+    tilted = synth.Material(plain.height, plain.albedo, plain.specular, plain.roughness, slope=slope)
+    normal = np.array([-0.3, 0.0, 1.0]) / math.hypot(0.3, 1.0)
+    for light in ((45, 180), (45, 0), (80, 0)):
+        expected = 0.5 / math.pi * E * max(0.0, normal @ to_vectors(np.array([light], float))[0])
+        np.testing.assert_allclose(synth.render_sample(tilted, (50, 90), light), expected, rtol=1e-4, atol=1e-7)
+    assert np.all(synth.shadow_map(tilted, (80, 0)) == 1)
+    hits = synth.trace_view(tilted, (60, 0))
+    np.testing.assert_allclose(hits.col, np.mgrid[0:16, 0:16][1], atol=1e-6)
+
+
+def test_new_material_fields_validated():
+    good = _flat(8)
+    with pytest.raises(ValueError, match="retro"):
+        synth.Material(good.height, good.albedo, good.specular, good.roughness, retro=-1)
+    with pytest.raises(ValueError, match="slope"):
+        synth.Material(good.height, good.albedo, good.specular, good.roughness, slope=np.zeros((8, 8, 3)))
+    with pytest.raises(ValueError, match="slope"):
+        synth.Material(good.height, good.albedo, good.specular, good.roughness, slope=np.full((8, 8, 2), np.nan))
+    m = synth.Material(good.height, good.albedo, good.specular, good.roughness, slope=np.zeros((8, 8, 2)))
+    assert m.slope.dtype == np.float32 and not m.slope.flags.writeable
+
+
+# ------------------------------------------------- the presets' characters
+
+
+def _apparent(m, cache, view, light):
+    """Mean luminance of one image over E cos(theta_l): an apparent BRDF, comparable across lights."""
+    return float(_lum(synth.render_sample(m, view, light, cache=cache)).mean()) / (E * math.cos(math.radians(light[0])))
+
+
+def test_crevice_stones_keep_their_dark_texels_in_shadow():
+    # Deep narrow crevices: a quarter of the heightfield is shadowed under most lights
+    # (the others: almost none), and the darkest image texels are mostly dark because
+    # they are shadowed, not because of their albedo.
+    n, s = 48, preset("small")
+    share = {}
+    for name in ("crevice_stones", "pebbles", "fuzzy_moss"):
+        m = synth.make_material(name, n, seed=0)
+        cache = synth.RenderCache(m)
+        lights = np.unique(s.light, axis=0)
+        mostly_shadowed = np.mean([cache.shadow(l) < 0.5 for l in lights], axis=0) > 0.5
+        imgs = _lum(synth.render_all(m, s))
+        shadowed = np.empty(imgs.shape, bool)
+        for i, (v, l) in enumerate(zip(s.view, s.light)):
+            hits = cache.hits(v)
+            shadowed[i] = _bilinear_wrap(cache.shadow(l), hits.row, hits.col) < 0.5
+        mean = imgs.mean(axis=0)
+        darkest = mean <= np.percentile(mean, 10)
+        share[name] = (mostly_shadowed.mean(), shadowed[:, darkest].mean())
+    stones = share.pop("crevice_stones")
+    assert stones[0] > 0.15, stones
+    assert stones[1] > 0.35, stones
+    for name, (mostly, dark) in share.items():
+        assert mostly < 0.05 and stones[1] > 1.5 * dark, (name, mostly, dark)
+
+
+def test_metal_flakes_sparkle():
+    # Per texel, the brightest sample over the median one: a few flakes flare by orders
+    # of magnitude (a heavy tail over the texels); a rough material's texels all peak alike.
+    s = preset("small")
+    tail = {}
+    for name in ("metal_flakes", "pebbles", "satin_weave"):
+        imgs = _lum(synth.render_all(synth.make_material(name, 48, seed=0), s))
+        peak = imgs.max(axis=0) / np.maximum(np.median(imgs, axis=0), 1e-6)
+        tail[name] = np.percentile(peak, 99) / np.median(peak)
+    assert tail["metal_flakes"] > 20, tail
+    assert tail["pebbles"] < 5 and tail["satin_weave"] < 5, tail
+    # the flakes are spatially random: neighbouring texels do not flare together
+    m = synth.make_material("metal_flakes", 48, seed=0)
+    img = _lum(synth.render_sample(m, (30, 0), (30, 180)))
+    hot = img > 10 * np.median(img)
+    assert 0.005 < hot.mean() < 0.2
+    assert (hot & np.roll(hot, 3, axis=1)).mean() < 0.3 * hot.mean()
+
+
+def test_velvet_is_brighter_at_grazing():
+    # Grazing over head-on apparent BRDF, camera beside the light: velvet's sheen and
+    # retro-reflection make it the largest of all presets (masking alone brightens tall
+    # rough materials at grazing too, but less) ...
+    grazing = {}
+    for name in synth.PRESETS:
+        m = synth.make_material(name, 48, seed=0)
+        cache = synth.RenderCache(m)
+        head_on = _apparent(m, cache, (0, 0), (0, 0))
+        grazing[name] = np.mean([_apparent(m, cache, (75, ph), (75, ph)) for ph in (0, 90, 180, 270)]) / head_on
+    velvet = grazing.pop("velvet")
+    assert velvet > 1.3 * max(grazing.values()), (velvet, grazing)
+    # ... and the lobes are what does it: the same pile without them is several times
+    # darker at grazing, a little darker head-on (where only the fibres' tilted flanks
+    # see the lobes), and as dark with the light opposite the camera
+    m = synth.make_material("velvet", 48, seed=0)
+    bare = synth.Material(m.height, m.albedo, m.specular, m.roughness)
+    for view, light, lo, hi in (((0, 0), (0, 0), 1.0, 1.5), ((75, 30), (75, 30), 4.0, None),
+                                ((60, 30), (60, 30), 3.0, None), ((60, 30), (60, 210), 1.0, 1.2)):
+        ratio = _apparent(m, None, view, light) / _apparent(bare, None, view, light)
+        assert ratio >= lo and (hi is None or ratio <= hi), (view, light, ratio)
+
+
+def test_satin_highlights_are_anisotropic_in_phi():
+    # Half vector tilted 15 deg off the normal, turned about it: across the warp floats
+    # (phi 0 / 180) the threads' flanks catch it, along them (90 / 270) hardly any texel
+    # does.  The bright texels' level differs by a large factor; isotropic presets: none.
+    def anisotropy(name):
+        m = synth.make_material(name, 64, seed=0)
+        cache = synth.RenderCache(m)
+        p95 = [np.percentile(_lum(synth.render_sample(m, (55, ph), (25, ph + 180), cache=cache)), 95)
+               for ph in (0, 90, 180, 270)]
+        return (p95[0] + p95[2]) / (p95[1] + p95[3])
+
+    assert anisotropy("satin_weave") > 2.0
+    for name in ("pebbles", "ridged_fabric", "velvet"):
+        assert 0.8 < anisotropy(name) < 1.25, name
+
+
 # -------------------------------------------------------------- render / API
 
 
@@ -352,14 +491,15 @@ def test_render_all_tiny_finite_nonnegative(name):
     imgs = synth.render_all(m, s)
     assert imgs.shape == (len(s), 32, 32, 3) and imgs.dtype == np.float32
     assert np.all(np.isfinite(imgs)) and imgs.min() >= 0
-    # mostly below 1 so that 8-bit encodings only clip specular peaks
-    assert np.percentile(imgs, 99) < 1.0
+    # mostly below 1 so that 8-bit encodings only clip specular peaks (metallic flakes
+    # are nothing but specular peaks: a few percent of their values clip, as a camera's would)
+    assert np.percentile(imgs, 97 if name == "metal_flakes" else 99) < 1.0
     assert imgs.mean() > 0.02
     # render yields the same images, in sampling order, as one-at-a-time calls
     cache = synth.RenderCache(m)
     for k in (0, 7, len(s) - 1):
         np.testing.assert_array_equal(imgs[k], synth.render_sample(m, s.view[k], s.light[k], cache=cache))
-    assert len(list(synth.render(m, s))) == len(s)
+    assert len(list(synth.render_samples(m, s))) == len(s)
 
 
 def test_render_any_order_and_chunk():
@@ -369,13 +509,13 @@ def test_render_any_order_and_chunk():
     order = np.random.default_rng(0).permutation(len(s))
     shuffled = Sampling(s.view[order], s.light[order])
     for chunk in (None, 1):
-        out = np.stack(list(synth.render(m, shuffled, chunk=chunk)))
+        out = np.stack(list(synth.render_samples(m, shuffled, chunk=chunk)))
         np.testing.assert_array_equal(out, base[order])
 
 
 def test_render_checks_arguments_eagerly():
     with pytest.raises(TypeError):
-        synth.render(_flat(4), [((0, 0), (0, 0))])
+        synth.render_samples(_flat(4), [((0, 0), (0, 0))])
     with pytest.raises(TypeError):
         synth.RenderCache("pebbles")
 

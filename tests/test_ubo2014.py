@@ -11,6 +11,7 @@ Files are written by ``tests/bonn_btf_writer.py`` (no usdbtf code).  Two kinds o
 """
 from __future__ import annotations
 
+import json
 import pickle
 import struct
 from pathlib import Path
@@ -282,6 +283,14 @@ def test_info_names_signature_directions_and_components(tmp_path, capsys):
     assert "UBO2014 DFMF BTF, 3 views x 3 lights = 9 samples of 6x4 texels (signature !DFMF08FCR)" in out
     assert "colour model 11 (log Y, U/Y, V/Y)" in out and "Linear Rec.709 (sRGB)" in out
     assert "channel 0: 7, channel 1: 3, channel 2: 2  (half floats)" in out
+    # --json: the same facts, machine-readable (issue 15's info --json with issue 18's reader).
+    code, out, err = run(capsys, "info", path, "--json")
+    assert code == 0, err
+    info = json.loads(out)
+    assert (info["format"], info["views"], info["lights"], info["samples"], info["width"], info["height"]) == \
+        ("UBO2014 DFMF", 3, 3, 9, 6, 4)
+    assert info["file"]["signature"] == "!DFMF08FCR" and info["file"]["components"] == [7, 3, 2]
+    assert info["file"]["color_model"] == 11
 
 
 def _bad(tmp_path, name: str, data: bytes) -> Path:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -18,9 +19,8 @@ from cli_helpers import bad_input, bad_usage, ok, run
 from quilt_render_data import pebbles, work  # noqa: F401 (fixtures)
 from quilt_render_data import PHYSICAL_SIZE, SIZE, plane_with_uv, write_obj, write_sphere
 from usdbtf.compress import read_compressed
-from usdbtf.quilt import QuiltOptions, read_position_map
+from usdbtf.quilt import QuiltOptions, quilt, read_position_map
 from usdbtf.mesh.frames import uv_gradients
-from usdbtf.quilt.atlas import quilt_atlas
 from usdbtf.unwrap import read_unwrap
 
 DENSITY = SIZE / PHYSICAL_SIZE          # 960 texels per metre
@@ -146,6 +146,12 @@ def test_unwrap_bad_input(work, pebbles, capsys):
     doc.pop("source_metadata")
     (no_size / "btf-compressed.json").write_text(json.dumps(doc))
     bad_input(capsys, "unwrap", sphere, "-o", out, "--btf", no_size, names="physical_size_m")
+    tiny = work / "tiny_size_c"                  # 1e-6 m per sample: a density past the limit
+    shutil.copytree(pebbles, tiny)
+    doc = json.loads((tiny / "btf-compressed.json").read_text())
+    doc["source_metadata"]["physical_size_m"] = [1e-6, 1e-6]
+    (tiny / "btf-compressed.json").write_text(json.dumps(doc))
+    bad_input(capsys, "unwrap", sphere, "-o", out, "--btf", tiny, names="texels per metre")
     assert not out.exists()
 
 
@@ -190,8 +196,8 @@ def test_chart_borders_match_their_neighbours(pebbles, sphere_uv):
     cbtf = read_compressed(pebbles)
     unwrapped = read_unwrap(sphere_uv / "mesh.usda")
     opts = QuiltOptions(block=12, seed=4)
-    with_ghosts = quilt_atlas(cbtf, unwrapped, opts).record
-    without = quilt_atlas(cbtf, unwrapped, opts, ghosts=False).record
+    with_ghosts = quilt(cbtf, opts, atlas=unwrapped).record
+    without = quilt(cbtf, replace(opts, ghosts=False), atlas=unwrapped).record
     border, border_plain = with_ghosts["atlas"]["chart_border_error"], without["atlas"]["chart_border_error"]
     assert with_ghosts["atlas"]["ghost_texels"] > 0
     assert border < 0.7 * border_plain, (border, border_plain)

@@ -5,9 +5,10 @@ Stages, one module each, all speaking the :class:`usdbtf.model.BTF` data model:
 ``compress`` (apparent-BRDF basis + coefficient textures), ``usd`` (the BtfMaterialAPI
 schema, packaging, reading assets back), ...
 
-Importing the package makes the usdBtf USD plugin known, so it must happen before the
-process first uses USD's schema registry (see :mod:`usdbtf.usd.plugin`).  It does so
-without importing USD: ``usdbtf --version`` and ``--help`` load no pxr, numpy or OIIO.
+Importing the package sets up the usdBtf USD plugin for this process (the environment
+``usdbtf env`` prints), so it must come before the process first imports pxr (see
+:mod:`usdbtf.usd.plugin`).  It does so without importing USD: ``usdbtf --version`` and
+``--help`` load no pxr, numpy or OIIO.
 """
 __version__ = "0.1.0"
 

@@ -40,6 +40,7 @@ import contextvars
 import errno
 import fcntl
 import json
+import logging
 import os
 import re
 import secrets
@@ -53,6 +54,7 @@ from .errors import BTFError, IOFailure, OutputRefused, os_error_message
 __all__ = ["Policy", "output_policy", "current_policy", "check_output", "claim", "atomic_dir", "atomic_file",
            "atomic_group", "scratch_dir", "umask", "interrupt", "related", "TMP_TAG", "LOCK_TAG"]
 
+log = logging.getLogger(__name__)
 TMP_TAG = ".usdbtf-tmp-"
 LOCK_TAG = ".usdbtf-lock"
 SCRATCH_TAG = ".usdbtf-scratch-"
@@ -275,6 +277,7 @@ def claim(target, *, folder: bool, kind: str | None = None, what: str = "output"
     """
     target = Path(target)
     state = check_output(target, folder=folder, kind=kind, what=what)
+    log.debug(f"{target}: output {state} ({kind or 'any usdbtf kind'})")
     real = _real(target if target.name not in ("", ".", "..") else Path(os.path.realpath(target)))
     made, held = [], None
     try:
@@ -387,6 +390,7 @@ def _commit(staging: Path, out_dir: Path, names: list[str]) -> None:
     _roll_forward(staging, out_dir)
     _fsync_dir(out_dir)
     shutil.rmtree(staging, ignore_errors=True)
+    log.debug(f"published {', '.join(names)} in {out_dir}")
 
 
 def _fsync_dir(path: Path) -> None:

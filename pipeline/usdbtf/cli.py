@@ -6,11 +6,16 @@ and an exit status that tells a wrong command line from a bad asset from a full 
 (:data:`EXIT_STATUS`, also printed by ``--help``).  ``--debug`` adds the traceback.
 The commands themselves live in :mod:`usdbtf.commands`, one module each; a module that
 writes files defines ``outputs(args) -> [(path, kind)]`` and gets ``--force``.
+
+Messages are :mod:`logging` records of the ``usdbtf`` loggers (one per module), written to
+stderr as their bare text; ``-q`` (warnings only), ``-v`` (debug too) and ``--progress``
+(progress bars also when stderr is not a terminal) work before or after the command name.
 """
 from __future__ import annotations
 
 import argparse
 import contextlib
+import logging
 import signal
 import sys
 import threading
@@ -22,7 +27,6 @@ from .argtypes import OUTSIDE_PATHS_HELP
 from .errors import EXIT_CANT_CREATE, EXIT_DATA, EXIT_INTERNAL, EXIT_IO, EXIT_OK, EXIT_USAGE, OS_ERROR_WORDS, \
     BTFError, os_error_message
 
-EXIT_BAD_INPUT = EXIT_DATA   # kept for callers of the old name
 
 EXIT_STATUS = f"""\
 exit status:
@@ -42,6 +46,9 @@ traceback of any error."""
 FORCE_HELP = ("replace an existing output, if it is a previous usdbtf output of the same kind (never "
               "anything else); the old one stays until the new one is complete")
 DEBUG_HELP = "also print the traceback of an error (above its one-line message)"
+QUIET_HELP = "warnings and errors only: no progress messages or bars"
+VERBOSE_HELP = "also debug messages"
+PROGRESS_HELP = "draw progress bars of long work even when stderr is not a terminal (e.g. in a log)"
 
 
 class Parser(argparse.ArgumentParser):
@@ -51,11 +58,49 @@ class Parser(argparse.ArgumentParser):
         self.exit(EXIT_USAGE, f"{self.prog}: error: {' '.join(str(message).split())} (see {self.prog} --help)\n")
 
 
+def _add_message_flags(p, *, default) -> None:
+    """--debug, -q/--quiet, -v/--verbose and --progress on the main parser (``default``
+    False) and on each command's (``default`` SUPPRESS: the main parser's value stands
+    unless the flag is given after the command name)."""
+    p.add_argument("--debug", action="store_true", default=default, help=DEBUG_HELP)
+    level = p.add_mutually_exclusive_group()
+    level.add_argument("-q", "--quiet", action="store_true", default=default, help=QUIET_HELP)
+    level.add_argument("-v", "--verbose", action="store_true", default=default, help=VERBOSE_HELP)
+    p.add_argument("--progress", action="store_true", default=default, help=PROGRESS_HELP)
+
+
+class _Stderr(logging.Handler):
+    """Each record's message on its own line of the current ``sys.stderr`` (looked up per
+    record, so a caller that swaps stderr, e.g. a test capturing it, gets the lines)."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            sys.stderr.write(self.format(record) + "\n")
+            sys.stderr.flush()
+        except Exception:       # noqa: BLE001 - logging must never end a command
+            self.handleError(record)
+
+
+def configure_logging(*, quiet: bool = False, verbose: bool = False, progress: bool = False) -> None:
+    """The ``usdbtf`` loggers' level (``quiet``: warnings; default: info; ``verbose``: debug)
+    and one stderr handler printing the bare message; ``progress`` draws bars off a terminal
+    too (:func:`usdbtf.progress.show_progress`).  Idempotent: a second call replaces the first."""
+    from .progress import show_progress
+
+    root = logging.getLogger("usdbtf")
+    for handler in [h for h in root.handlers if isinstance(h, _Stderr)]:
+        root.removeHandler(handler)
+    root.addHandler(_Stderr())
+    root.setLevel(logging.WARNING if quiet else logging.DEBUG if verbose else logging.INFO)
+    root.propagate = False          # the one handler prints each message once
+    show_progress(progress)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = Parser(prog="usdbtf", description="Measured BTF materials to USD assets.", epilog=EXIT_STATUS,
                formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version=f"usdbtf {__version__}")
-    p.add_argument("--debug", action="store_true", help=DEBUG_HELP)
+    _add_message_flags(p, default=False)
     p.add_argument("--force", action="store_true", help="the same as the stage's --force: " + FORCE_HELP)
     p.add_argument("--allow-outside-paths", action="store_true", help=OUTSIDE_PATHS_HELP)
     sub = p.add_subparsers(dest="command", required=True, metavar="<stage>", parser_class=Parser)
@@ -66,7 +111,7 @@ def build_parser() -> argparse.ArgumentParser:
             sp = sub.choices[name]
             sp.epilog = EXIT_STATUS if not sp.epilog else f"{sp.epilog}\n\n{EXIT_STATUS}"
             sp.formatter_class = argparse.RawDescriptionHelpFormatter
-            sp.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help=DEBUG_HELP)
+            _add_message_flags(sp, default=argparse.SUPPRESS)
             if hasattr(module, "outputs") and "force" not in {a.dest for a in sp._actions}:
                 sp.add_argument("--force", action="store_true", default=argparse.SUPPRESS, help=FORCE_HELP)
             sp.set_defaults(_module=module)
@@ -86,7 +131,7 @@ def describe(exc: BaseException) -> tuple[int, str]:
     if type(exc).__module__.startswith("pxr"):
         # A USD (Tf) error that no reader turned into a BTFError: USD reports a bad layer
         # or a failed write this way.
-        from .usd.read import tf_message
+        from .usdstage import tf_message
 
         text = tf_message(exc)
         status = EXIT_IO if any(w in text for w in OS_ERROR_WORDS) else EXIT_DATA
@@ -164,6 +209,9 @@ def main(argv=None) -> int:
         sub = next(a for a in parser._actions if a.dest == "command").choices[args.command]
         sub.error(f"unrecognized arguments: {' '.join(extra)}")
     debug = getattr(args, "debug", False)
+    configure_logging(quiet=args.quiet, verbose=args.verbose, progress=args.progress)
+    # By name: run as ``python -m usdbtf.cli`` this module is __main__, outside the usdbtf loggers.
+    logging.getLogger("usdbtf.cli").debug("usdbtf %s: %s", __version__, " ".join(map(str, argv or sys.argv[1:])))
     try:
         with _signals_raise(), _outputs_claimed(args):
             return args.func(args)

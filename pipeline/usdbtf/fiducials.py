@@ -61,10 +61,6 @@ class Board:
     corners: np.ndarray
 
     @property
-    def metres_per_pixel(self) -> float:
-        return self.physical_size_m[0] / self.image_size[0]
-
-    @property
     def window_size_m(self) -> tuple[float, float]:
         """(w, h) of the sample window in metres."""
         x0, y0, x1, y1 = self.sample_rect

@@ -5,6 +5,7 @@ conversion lives in :mod:`usdbtf.colour`.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 from dataclasses import dataclass
@@ -15,7 +16,8 @@ import OpenImageIO as oiio
 
 from .errors import BTFError, IOFailure, UsageError
 
-__all__ = ["ImageInfo", "read_info", "read_image", "write_image", "BIT_DEPTHS", "numpy_dtype"]
+__all__ = ["ImageInfo", "read_info", "read_image", "write_image", "encode_image", "decode_image", "write_encoded",
+           "memory_file", "BIT_DEPTHS", "numpy_dtype"]
 
 FIXED_DATETIME = "1970:01:01 00:00:00"
 _TIMESTAMPED = {".exr", ".sxr", ".mxr", ".tif", ".tiff"}
@@ -179,6 +181,46 @@ def write_image(path, pixels: np.ndarray, *, color_space: str, attributes: dict 
     if not _in_memory(path):
         _check_written(path, size)
     return size
+
+
+@contextlib.contextmanager
+def memory_file():
+    """An anonymous in-memory file (Linux ``memfd_create``): yields (fd, "/proc/self/fd/N"),
+    a path any library can open; it vanishes when closed, leaving nothing on any disk."""
+    fd = os.memfd_create("usdbtf-image", os.MFD_CLOEXEC)
+    try:
+        yield fd, f"/proc/self/fd/{fd}"
+    finally:
+        os.close(fd)
+
+
+def encode_image(pixels: np.ndarray, file_type: str, *, color_space: str, attributes: dict | None = None) -> bytes:
+    """The bytes :func:`write_image` would write to a ``file_type`` file (an extension, e.g.
+    "png"), encoded into an in-memory file: byte for byte the same writer and options."""
+    with memory_file() as (fd, path):
+        size = write_image(path, pixels, color_space=color_space, attributes=attributes, file_type=file_type)
+        return os.pread(fd, size, 0)
+
+
+def write_encoded(path, data: bytes) -> int:
+    """Write an image file's bytes (:func:`encode_image`) to ``path`` after checking that they
+    fit (free space, the file-size limit, which would otherwise end the process with
+    SIGXFSZ); returns the size."""
+    path = Path(path)
+    free, limit = _room(path.parent)
+    if free is not None and free < len(data):
+        raise IOFailure(f"{path}: no space left on the device (needs {len(data)} bytes, {free} free)")
+    if limit is not None and limit < len(data):
+        raise IOFailure(f"{path}: file size limit exceeded (needs {len(data)} bytes, the limit is {limit})")
+    path.write_bytes(data)
+    return len(data)
+
+
+def decode_image(data: bytes) -> np.ndarray:
+    """The pixels :func:`read_image` reads from an image file's ``data`` (read in memory)."""
+    with memory_file() as (fd, path):
+        os.write(fd, data)
+        return read_image(path)[0]
 
 
 def _in_memory(path: Path) -> bool:

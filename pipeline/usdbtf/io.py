@@ -36,8 +36,16 @@ def open_btf(path, *, color_space: str | None = None, **kw) -> BTF:
     kw : ``ocio_config``, ``working_space`` -- passed to the reader.
 
     Raises BTFError naming ``path`` when it does not exist or is none of the accepted formats.
+    The BTF's ``path`` is ``path`` as given.
     """
     p = Path(path)
+    btf = _read(p, color_space, kw)
+    btf.path = str(p)
+    return btf
+
+
+def _read(p: Path, color_space: str | None, kw: dict) -> BTF:
+    """The reader for ``p`` (see :func:`open_btf`)."""
     if not p.exists():
         raise BTFError(f"{p}: no such file or folder")
     is_manifest = (p.is_dir() and (p / manifest.MANIFEST).is_file()) or (p.is_file() and p.suffix.lower() == ".json")

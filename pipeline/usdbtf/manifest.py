@@ -22,7 +22,7 @@ from . import colour, jsontext
 from .atomic import atomic_dir
 from .errors import BTFError
 from .imageio import numpy_dtype, read_info, write_image
-from .model import BTF, FileBTF, validate_sampling
+from .model import FileBTF, validate_sampling
 from .outputs import MANIFEST as _MANIFEST_KIND
 from .sampling import Sampling
 
@@ -217,22 +217,3 @@ def write_manifest(folder, sampling: Sampling, images: Iterable[np.ndarray], *, 
         doc["samples"] = entries
         (tmp / MANIFEST).write_text(jsontext.dumps(doc) + "\n")
     return Path(folder)
-
-
-def write_btf(folder, btf: BTF, **kw) -> Path:
-    """Write any BTF (streamed in sample chunks) as a manifest folder; defaults keep its encoding."""
-    kw.setdefault("color_space", btf.color_space)
-    kw.setdefault("bit_depth", btf.bit_depth)
-    kw.setdefault("ext", "png" if kw["bit_depth"] in ("uint8", "uint16") else "exr")
-    kw.setdefault("metadata", btf.metadata)
-    kw.setdefault("interpolated", btf.interpolated)
-
-    def images():
-        for _, chunk in btf.iter_chunks(64):
-            yield from chunk
-
-    return write_manifest(folder, btf.sampling, images(), array_space=btf.working_space,
-                          ocio_config=btf.ocio_config, **kw)
-
-
-__all__.append("write_btf")

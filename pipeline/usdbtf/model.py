@@ -86,6 +86,8 @@ class BTF:
     interpolated : (S,) bool, True for samples filled in rather than measured.
     working_space, ocio_config : where decoded values go.
     metadata : dict of extra keys carried through (e.g. physical size).
+    path : the file or folder the BTF was opened from, as given (:func:`usdbtf.io.open_btf`
+        sets it; errors and provenance name it); "" for a BTF made in memory.
     """
 
     sampling: Sampling
@@ -98,6 +100,7 @@ class BTF:
     working_space: str = colour.WORKING_SPACE
     ocio_config: str | None = None
     metadata: dict = field(default_factory=dict)
+    path: str = ""
 
     def __post_init__(self):
         if not self.names:

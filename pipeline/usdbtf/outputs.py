@@ -20,7 +20,8 @@ kind                        what     recognised by
 ``usdbtf-asset``            file     a USD layer (or usdz) whose layer metadata holds
                                      ``customLayerData = {"usdbtf": {"output": ...}}``
 ``usdbtf-asset-textures``   folder   ``<stem>_textures`` beside a usdbtf asset; only packaged
-                                     texture names
+                                     texture names (BTF codes, GPU tables and packs, the
+                                     fallback's maps, the thumbnail; any texture format)
 ``usdbtf-render``           file     EXR/PNG with the image attribute ``usdbtf:output``
 ``usdbtf-board-image``      file     PNG with the image attribute ``usdbtf:output``
 ``usdbtf-board/1``          file     board JSON with that ``format``
@@ -76,7 +77,11 @@ _COMPRESSED_EXTRAS = {"error_curve.csv", "error_curve.png", "quilt_positions.exr
 _UNWRAP_FILES = {"mesh.usda", "charts.png", "unwrap.json"}
 _CAPTURE_FILES = re.compile(r"(btf\.json|journal\.jsonl|flat\.exr|\.lock|\.(tmp|hook)-.*|frames/[^/]*)")
 _SIM_FRAME_FILES = re.compile(r"(latest|s\d+|flat\d+|\.tmp-[^/]*)\.tif|\.[^/]*\.tmp-[^/]*")
-_TEXTURE_FILES = re.compile(r"(basis\.\w+|coeff/c\d+\.\w+|preview_albedo\.png|gpu/[\w.-]+)")
+# preview_albedo.png: the flat fallback of assets written before the fitted one.
+_TEXTURE_FILES = re.compile(r"(basis\.\w+|coeff/c\d+\.\w+|preview_albedo\.png|gpu/[\w.-]+|thumbnail\.png"
+                            r"|fallback/(diffuse|specular|roughness|normal)\.\w+)")
+#: Root and payload layer names a texture folder ``<stem>_textures`` sits beside.
+_ASSET_LAYERS = ("_payload.usdc", "_payload.usda", ".usda", ".usdc", ".usd")
 _PORT_TEXT = re.compile(r"(/dev/\S+|socket://\S+)\n?")
 _MAX_MARKER_BYTES = 256 << 20   # a marker JSON larger than this is not one of ours
 
@@ -166,7 +171,7 @@ def _asset_textures(folder: Path) -> bool:
     if not folder.name.endswith("_textures"):
         return False
     stem = folder.name[:-len("_textures")]
-    beside = [folder.parent / f"{stem}{suffix}" for suffix in ("_payload.usda", ".usda")]
+    beside = [folder.parent / f"{stem}{suffix}" for suffix in _ASSET_LAYERS]
     return any(_usd_layer(p) == ASSET for p in beside) and _only(folder, _TEXTURE_FILES.fullmatch)
 
 

@@ -1,16 +1,21 @@
 """Where usdbtf's USD plugin folder is (the schema, the Storm shaders, the MaterialX nodes).
 
 A base module so that both the GPU code (which generates files into the plugin) and the USD
-code (which registers it) can find the folder without importing each other.
+code (which registers it) can find the folder, and agree on the Storm shader's name, without
+importing each other.
 """
 from __future__ import annotations
 
 import os
 from pathlib import Path
 
-__all__ = ["ENV_PLUGIN_DIR", "plugin_dir"]
+__all__ = ["ENV_PLUGIN_DIR", "SHADER_ID", "plugin_dir"]
 
 ENV_PLUGIN_DIR = "USDBTF_PLUGIN_DIR"
+#: The Storm shader's Sdr identifier: the file name of its definition under
+#: ``usdBtf/resources/sdr/`` (Sdr's filesystem discovery names a node after its file) and of
+#: its glslfx under ``shaders/``.
+SHADER_ID = "UsdBtfSurface"
 
 
 def plugin_dir() -> Path:

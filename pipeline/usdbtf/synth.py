@@ -9,7 +9,10 @@ per-texel reflectance, rendered as a rectified image per (view, light) pair with
 * cast shadows: per-texel visibility of the light (horizon test along the light's
   azimuth, slightly softened);
 * foreshortening: the ``max(n.l, 0)`` term with ``n`` the heightfield normal;
-* a GGX specular lobe and an optional sheen ("fuzz") lobe.
+* a GGX specular lobe, an optional sheen ("fuzz") lobe and an optional
+  retro-reflective lobe;
+* an optional normal map (extra slopes) for facets smaller than the heightfield
+  resolves, e.g. metallic flakes.
 
 Everything is pure numpy and deterministic: the same ``(preset, size, seed)`` gives
 bit-identical arrays.
@@ -54,12 +57,16 @@ How an image is made
    light's elevation; visibility = smoothstep over +-SHADOW_SOFTNESS_DEG.
 3. Per (view, light): visibility is looked up bilinearly at the view's hit points and
 
-       L = E * vis * max(n.l, 0) * (albedo/pi + F*D*V + sheen * albedo * D_s * V_s)
+       L = E * vis * max(n.l, 0) * (albedo/pi + F*D*V + sheen * albedo * D_s * V_s
+                                    + retro * albedo * (p + 2) / (2 pi) * max(v.l, 0)^p * (1 - n.v))
 
    with GGX D, height-correlated Smith V, the Fresnel F above, and the Charlie sheen
    distribution D_s (roughness 0.5) with Neubelt's V_s: a lobe that brightens the
-   surface when view and light are grazing and is zero head-on.  No extra
-   1/cos(theta_v): rectified images are radiance per unit area of the sample.
+   surface when view and light are grazing and is zero head-on.  The retro lobe
+   (exponent p = :data:`RETRO_EXPONENT`) peaks when the light sits behind the camera
+   and grows as the view grazes the surface, as light scattered back along fibres
+   seen from the side does (velvet: dark head-on, bright towards the rim).  No extra 1/cos(theta_v):
+   rectified images are radiance per unit area of the sample.
 """
 from __future__ import annotations
 
@@ -81,12 +88,17 @@ __all__ = [
     "trace_view",
     "shadow_map",
     "render_sample",
-    "render",
+    "render_samples",
     "render_all",
+    "SynthOptions",
+    "SynthResult",
+    "synth",
+    "write_synth",
     "IRRADIANCE",
     "MAX_THETA_DEG",
     "MIN_ALPHA",
     "SHADOW_SOFTNESS_DEG",
+    "RETRO_EXPONENT",
 ]
 
 #: Irradiance of the distant light on a plane facing it.  0.8 * pi makes a white
@@ -97,6 +109,8 @@ IRRADIANCE = 0.8 * math.pi
 MAX_THETA_DEG = 89.0
 #: Smallest GGX alpha used when shading (smaller would make the lobe a sub-texel spike).
 MIN_ALPHA = 0.02
+#: Exponent p of the retro-reflective lobe max(v.l, 0)^p: about 35 deg to half maximum.
+RETRO_EXPONENT = 6.0
 #: Half-width of the shadow penumbra, as an angle between the light's elevation and
 #: the horizon's (a small area light); keeps shadow edges from aliasing.
 SHADOW_SOFTNESS_DEG = 2.5
@@ -120,6 +134,11 @@ class Material:
     roughness : (N, N) float32 > 0, GGX alpha (not perceptual roughness).
     sheen : weight of the sheen ("fuzz") lobe, tinted by the albedo; 0 disables it.
     name : free text, e.g. the preset name.
+    retro : weight of the retro-reflective lobe, tinted by the albedo; 0 disables it.
+    slope : None, or (N, N, 2) float32 extra surface slopes (dh/dx, dh/dy), added to the
+        heightfield's own where normals are computed: a normal map for facets below the
+        heightfield's resolution (flakes).  It tilts the shading only, never the geometry
+        that masks and shadows.
 
     The arrays are copied on construction and made read-only, so renders and caches
     made from a Material stay valid.  ``eq=False``: materials compare by identity.
@@ -131,6 +150,8 @@ class Material:
     roughness: np.ndarray
     sheen: float = 0.0
     name: str = ""
+    retro: float = 0.0
+    slope: np.ndarray | None = None
 
     def __post_init__(self):
         height = np.array(self.height, dtype=_F32)
@@ -140,15 +161,20 @@ class Material:
         albedo = np.array(self.albedo, dtype=_F32)
         specular = np.array(self.specular, dtype=_F32)
         roughness = np.array(self.roughness, dtype=_F32)
+        slope = None if self.slope is None else np.array(self.slope, dtype=_F32)
         for label, arr, shape in (
             ("albedo", albedo, (n, n, 3)),
             ("specular", specular, (n, n)),
             ("roughness", roughness, (n, n)),
+            ("slope", slope, (n, n, 2)),
         ):
+            if arr is None:
+                continue
             if arr.shape != shape:
                 raise ValueError(f"{label} must have shape {shape}, got {arr.shape}")
-        for label, arr in (("height", height), ("albedo", albedo), ("specular", specular), ("roughness", roughness)):
-            if not np.all(np.isfinite(arr)):
+        for label, arr in (("height", height), ("albedo", albedo), ("specular", specular), ("roughness", roughness),
+                           ("slope", slope)):
+            if arr is not None and not np.all(np.isfinite(arr)):
                 raise ValueError(f"{label} has non-finite values")
         if albedo.min() < 0 or albedo.max() > 1:
             raise ValueError("albedo must lie in [0, 1]")
@@ -156,17 +182,21 @@ class Material:
             raise ValueError("specular (F0) must lie in [0, 1]")
         if roughness.min() <= 0:
             raise ValueError("roughness (GGX alpha) must be > 0")
-        sheen = float(self.sheen)
-        if not (math.isfinite(sheen) and sheen >= 0):
-            raise ValueError("sheen must be a finite weight >= 0")
-        for label, arr in (("height", height), ("albedo", albedo), ("specular", specular), ("roughness", roughness)):
-            arr.flags.writeable = False
+        sheen, retro = float(self.sheen), float(self.retro)
+        for label, weight in (("sheen", sheen), ("retro", retro)):
+            if not (math.isfinite(weight) and weight >= 0):
+                raise ValueError(f"{label} must be a finite weight >= 0")
+        for label, arr in (("height", height), ("albedo", albedo), ("specular", specular), ("roughness", roughness),
+                           ("slope", slope)):
+            if arr is not None:
+                arr.flags.writeable = False
             object.__setattr__(self, label, arr)
         object.__setattr__(self, "sheen", sheen)
+        object.__setattr__(self, "retro", retro)
         object.__setattr__(self, "name", str(self.name))
 
     def __repr__(self) -> str:
-        return f"Material(name={self.name!r}, size={self.size}, sheen={self.sheen})"
+        return f"Material(name={self.name!r}, size={self.size}, sheen={self.sheen}, retro={self.retro})"
 
     @property
     def size(self) -> int:
@@ -208,7 +238,7 @@ def _grid(n: int) -> tuple[np.ndarray, np.ndarray]:
     return r.astype(np.float64), c.astype(np.float64)
 
 
-def _pack(name, n, height, albedo, specular, roughness, sheen) -> Material:
+def _pack(name, n, height, albedo, specular, roughness, sheen, *, retro=0.0, slope=None) -> Material:
     return Material(
         height=np.asarray(height, dtype=_F32),
         albedo=np.clip(albedo, 0.0, 1.0).astype(_F32),
@@ -216,7 +246,43 @@ def _pack(name, n, height, albedo, specular, roughness, sheen) -> Material:
         roughness=np.clip(np.broadcast_to(roughness, (n, n)), MIN_ALPHA, 1.0).astype(_F32),
         sheen=sheen,
         name=name,
+        retro=retro,
+        slope=slope,
     )
+
+
+def _worley(rows: np.ndarray, cols: np.ndarray, g: int, cell: float, jitter: np.ndarray):
+    """Periodic Worley (cellular) layout: one feature point per cell of a g x g grid.
+
+    rows, cols : (n, n) float64 (possibly domain-warped) texel coordinates; cell = n / g
+        texels; jitter : (g, g, 2) feature position inside its cell, in cell units.
+    Returns f1, f2 (n, n) distances to the nearest and second-nearest feature point
+    (texels), ident (n, n) int64 nearest cell index ``i * g + j``, and offset (2, n, n),
+    the (row, col) offset of each texel from its nearest feature point.
+    """
+    n = rows.shape[0]
+    ci = np.floor(rows / cell).astype(np.int64)
+    cj = np.floor(cols / cell).astype(np.int64)
+    f1 = np.full((n, n), np.inf)
+    f2 = np.full((n, n), np.inf)
+    ident = np.zeros((n, n), dtype=np.int64)
+    offset = np.zeros((2, n, n))
+    # The nearest feature point is in the 3 x 3 cells around a texel.  Neighbour cells
+    # are taken modulo g but positioned unwrapped, so distances across the tile seam are
+    # the periodic ones.
+    for di in (-1, 0, 1):
+        for dj in (-1, 0, 1):
+            ki, kj = ci + di, cj + dj
+            mi, mj = ki % g, kj % g
+            dr = rows - (ki + jitter[mi, mj, 0]) * cell
+            dc = cols - (kj + jitter[mi, mj, 1]) * cell
+            d = np.hypot(dr, dc)
+            closer = d < f1
+            f2 = np.where(closer, f1, np.minimum(f2, d))
+            ident = np.where(closer, mi * g + mj, ident)
+            offset = np.where(closer, np.stack([dr, dc]), offset)
+            f1 = np.where(closer, d, f1)
+    return f1, f2, ident, offset
 
 
 def _pebbles(size: int, seed: int) -> Material:
@@ -245,25 +311,7 @@ def _pebbles(size: int, seed: int) -> Material:
     # function of the (periodic) noise, so the layout still tiles.
     rw = rows + 0.025 * n * warp_r
     cw = cols + 0.025 * n * warp_c
-    ci = np.floor(rw / cell).astype(np.int64)
-    cj = np.floor(cw / cell).astype(np.int64)
-    f1 = np.full((n, n), np.inf)
-    f2 = np.full((n, n), np.inf)
-    ident = np.zeros((n, n), dtype=np.int64)
-    # Worley noise: the nearest feature point is in the 3 x 3 cells around a texel.
-    # Neighbour cells are taken modulo g but positioned unwrapped, so distances across
-    # the tile seam are the periodic ones.
-    for di in (-1, 0, 1):
-        for dj in (-1, 0, 1):
-            ki, kj = ci + di, cj + dj
-            mi, mj = ki % g, kj % g
-            pr = (ki + jitter[mi, mj, 0]) * cell
-            pc = (kj + jitter[mi, mj, 1]) * cell
-            d = np.hypot(rw - pr, cw - pc)
-            closer = d < f1
-            f2 = np.where(closer, f1, np.minimum(f2, d))
-            ident = np.where(closer, mi * g + mj, ident)
-            f1 = np.where(closer, d, f1)
+    f1, f2, ident, _ = _worley(rw, cw, g, cell, jitter)
     edge = 0.5 * (f2 - f1)  # distance to the cell border (exact for straight borders)
     x = np.clip((edge - 0.04 * cell) / (0.3 * cell), 0.0, 1.0)
     dome = np.sqrt(x * (2.0 - x))  # quarter-circle shoulder: rounded stone edges
@@ -374,11 +422,198 @@ def _fuzzy_moss(size: int, seed: int) -> Material:
     return _pack("fuzzy_moss", n, height, albedo, 0.005, 0.9, 1.0)
 
 
+def _crevice_stones(size: int, seed: int) -> Material:
+    """Angular stones packed tight, split by deep narrow crevices: strong cast shadows.
+
+    6 x 6 stones per tile; stones about 9 % of the tile width tall (11.5 texels at
+    N = 128) with near-vertical flanks, tilted chipped tops and crevices about a fifth
+    of a stone wide that reach the floor.  A crevice floor sees the light only when the
+    light is within ~25 deg of the normal and is hidden from grazing views, so much of
+    the BTF's energy sits in dark, often shadowed texels.  Pale limestone-like stones
+    (albedo 0.35..0.6), dark grit in the crevices, low gloss (alpha 0.35..0.6).
+    """
+    n = size
+    rng = np.random.default_rng(seed)
+    g = 6
+    cell = n / g
+    jitter = rng.uniform(0.15, 0.85, (g, g, 2))
+    stone_amp = rng.uniform(0.75, 1.0, g * g)
+    tilt = rng.normal(0.0, 0.2, (g * g, 2))  # top slope, height per texel along (row, col)
+    stone_lum = rng.uniform(0.35, 0.6, g * g)
+    stone_tint = rng.uniform(0.0, 1.0, g * g)
+    stone_alpha = rng.uniform(0.35, 0.6, g * g)
+    warp_r = _filtered_noise(rng, n, n / 3)
+    warp_c = _filtered_noise(rng, n, n / 3)
+    chips = _filtered_noise(rng, n, n / 12)
+    mottle = _filtered_noise(rng, n, n / 30)
+    grit = _filtered_noise(rng, n, max(n / 40, 2.0))
+
+    rows, cols = _grid(n)
+    rw = rows + 0.035 * n * warp_r
+    cw = cols + 0.035 * n * warp_c
+    f1, f2, ident, offset = _worley(rw, cw, g, cell, jitter)
+    edge = 0.5 * (f2 - f1)
+    # Crevice half-width 0.1 cell, then a steep flank over 0.12 cell (quarter circle:
+    # vertical at the foot) up to the stone's top.
+    x = np.clip((edge - 0.1 * cell) / (0.12 * cell), 0.0, 1.0)
+    flank = np.sqrt(x * (2.0 - x))
+    amp = 0.09 * n
+    top = amp * stone_amp[ident] + (tilt[ident, 0] * offset[0] + tilt[ident, 1] * offset[1])
+    top += 0.06 * amp * chips
+    floor = -0.05 * amp + 0.03 * amp * grit
+    height = floor + (top - floor) * flank
+
+    grey = np.array([0.95, 0.95, 0.93])
+    buff = np.array([1.06, 0.95, 0.80])
+    tint = stone_tint[ident][..., None]
+    stone_col = stone_lum[ident][..., None] * ((1.0 - tint) * grey + tint * buff)
+    stone_col = stone_col * (1.0 + 0.1 * mottle[..., None])
+    grit_col = np.array([0.12, 0.10, 0.085]) * (1.0 + 0.25 * grit[..., None])
+    m = flank[..., None] ** 2
+    albedo = grit_col * (1.0 - m) + stone_col * m
+    specular = 0.02 + 0.015 * m[..., 0]
+    roughness = 0.8 * (1.0 - m[..., 0]) + stone_alpha[ident] * m[..., 0]
+    return _pack("crevice_stones", n, height, albedo, specular, roughness, 0.0)
+
+
+_PAINTS = np.array(
+    [
+        [0.45, 0.03, 0.03],  # candy red
+        [0.03, 0.08, 0.35],  # deep blue
+        [0.04, 0.20, 0.08],  # racing green
+        [0.30, 0.14, 0.02],  # copper
+    ]
+)
+
+
+def _metal_flakes(size: int, seed: int) -> Material:
+    """Metallic flake paint: small mirror-like flakes with random tilts in a coloured base coat.
+
+    Flakes sit on a grid of cells 2.5 texels wide (51 x 51 per tile at N = 128: the
+    flakes are a fixed size in texels, so their count grows with N), about 2 texels
+    across, covering ~30 % of the surface.  Each flake has its own tilt (normal map:
+    Gaussian slopes, sd tan 20 deg), F0 0.9 and alpha 0.04: it lights up only for half
+    vectors near its own normal, so the highlights are tiny, sharp and spatially random
+    (sparkle).  Base coat: one paint colour (diffuse albedo), F0 0.04, alpha 0.3.
+    Relief: a gentle orange peel (about 5 texels peak to peak at N = 128 over a
+    wavelength of half the tile: slopes of a few degrees).
+    """
+    n = size
+    rng = np.random.default_rng(seed)
+    g = max(4, int(round(n / 2.5)))
+    cell = n / g
+    jitter = rng.uniform(0.25, 0.75, (g, g, 2))
+    present = rng.uniform(0.0, 1.0, g * g) < 0.7
+    flake_slope = rng.normal(0.0, math.tan(math.radians(20.0)), (g * g, 2))
+    flake_alpha = rng.uniform(0.03, 0.05, g * g)
+    paint = _PAINTS[rng.integers(len(_PAINTS))]
+    peel = _filtered_noise(rng, n, n / 2)
+    shade = _filtered_noise(rng, n, n / 8)
+
+    rows, cols = _grid(n)
+    f1, _, ident, _ = _worley(rows, cols, g, cell, jitter)
+    flake = (f1 < 0.4 * cell) & present[ident]
+    fl = flake[..., None]
+    height = 0.01 * n * peel
+    # (dh/dx, dh/dy) of each flake's plane: x = +col, y = -row.
+    slope = np.where(fl, flake_slope[ident], 0.0)
+    base = paint * (1.0 + 0.08 * shade[..., None])
+    albedo = np.where(fl, 0.15 * base + 0.02, base)
+    specular = np.where(flake, 0.9, 0.04)
+    roughness = np.where(flake, flake_alpha[ident], 0.3)
+    return _pack("metal_flakes", n, height, albedo, specular, roughness, 0.0, slope=slope.astype(_F32))
+
+
+def _velvet(size: int, seed: int) -> Material:
+    """Crushed velvet: a dense fine pile, flattened in patches; grazing sheen and retro-reflection.
+
+    Fibre tufts about 2.5 texels apart (band-pass noise) standing up to ~3 % of the
+    tile width (4 texels at N = 128) where the pile is upright and a third of that
+    where it is crushed (a low-frequency pattern, ~40 % crushed, which also lies
+    ~2 texels lower).  A saturated dark dye (albedo 0.1..0.35, lighter where crushed),
+    no specular lobe, sheen 3.0 and retro-reflection 1.0, both tinted by the dye.
+    """
+    n = size
+    rng = np.random.default_rng(seed)
+    dye = _DYES[rng.choice([0, 1, 3, 4])] * 0.55
+    crush = _filtered_noise(rng, n, n / 4)
+    fibres = _filtered_noise(rng, n, 2.5, band=0.4)
+    speckle = _filtered_noise(rng, n, 2.0)
+    upright = 1.0 / (1.0 + np.exp(-4.0 * (crush + 0.25)))      # 1 upright, 0 crushed (~40 %)
+    pile = np.clip(fibres, 0.0, None) ** 1.2
+    pile = np.minimum(pile / np.percentile(pile, 99.0), 1.2)
+    height = 0.016 * n * upright + 0.03 * n * pile * (1.0 / 3.0 + 2.0 / 3.0 * upright)
+
+    tip = np.clip(pile, 0.0, 1.0)[..., None]
+    albedo = dye * (0.6 + 0.4 * tip) * (1.0 + 0.35 * (1.0 - upright[..., None]))
+    albedo = albedo * (1.0 + 0.08 * speckle[..., None])
+    return _pack("velvet", n, height, albedo, 0.0, 0.8, 3.0, retro=1.0)
+
+
+def _satin_weave(size: int, seed: int) -> Material:
+    """5-harness satin: glossy warp floats over four weft threads: anisotropic highlights.
+
+    Warp threads run along y (columns), weft along x (rows), 20 of each per tile (5
+    per 32 texels for smaller N; the satin repeat is 5 threads).  Warp thread k passes
+    under weft m where (m - 2 k) mod 5 == 0 and floats over the other four, so ~80 %
+    of the face is long, glossy warp floats (alpha 0.1, F0 0.05) with fine fibre
+    grooves along the thread: each float's highlight is a line across the thread and
+    moves with the light's azimuth very differently along and across the threads.
+    Weft threads show only at the interlacings (matte, alpha 0.4).  Two dyes, sheen 0.2.
+    """
+    n = size
+    rng = np.random.default_rng(seed)
+    threads = 5 * max(1, int(round(n / 32)))
+    p = n / threads
+    dyes = rng.choice(len(_DYES), size=2, replace=False)
+    warp_dye, weft_dye = _DYES[dyes[0]], _DYES[dyes[1]]
+    warp_w = rng.uniform(0.85, 0.95, threads)
+    warp_lum = rng.uniform(0.92, 1.08, threads)
+    fibre = _filtered_noise(rng, n, (p * 3.0, p / 8.0))  # streaks along the warp
+
+    rows, cols = _grid(n)
+    # Thread centres on the tile's edges, so the seam runs along threads, not between them.
+    rows, cols = rows + 0.5 * p, cols + 0.5 * p
+    k = np.floor(cols / p).astype(np.int64) % threads  # warp (vertical) thread index
+    m = np.floor(rows / p).astype(np.int64) % threads  # weft (horizontal) thread index
+    u = cols / p - np.floor(cols / p) - 0.5  # across the warp, [-0.5, 0.5)
+    v = rows / p - np.floor(rows / p) - 0.5  # across the weft
+    radius = 0.35 * p
+    lift = 0.45 * p
+    # Distance (in threads) along the warp to its nearest interlacing (where it dips under
+    # a weft), and along the weft to its nearest crossing over a warp.  Period 5 threads.
+    def to_nearest(pos, phase):
+        off = np.mod(pos - phase, 5.0)
+        return np.minimum(off, 5.0 - off)
+
+    warp_dip = np.exp(-(to_nearest(rows / p - 0.5, np.mod(2 * k, 5)) / 0.55) ** 2)
+    weft_rise = np.exp(-(to_nearest(cols / p - 0.5, np.mod(3 * m, 5)) / 0.55) ** 2)
+    prof_warp = np.sqrt(np.clip(1.0 - (2.0 * u / warp_w[k]) ** 2, 0.0, 1.0))
+    prof_weft = np.sqrt(np.clip(1.0 - (2.0 * v / 0.9) ** 2, 0.0, 1.0))
+    grooves = 0.06 * radius * np.cos(2.0 * math.pi * 4.0 * u)
+    h_warp = np.where(prof_warp > 0, lift * (1.0 - warp_dip) + radius * prof_warp + grooves * prof_warp
+                      + 0.03 * radius * fibre, -lift)
+    h_weft = np.where(prof_weft > 0, lift * (weft_rise - 0.4) + radius * prof_weft, -lift)
+    on_warp = h_warp >= h_weft
+    height = np.maximum(np.maximum(h_warp, h_weft), -lift)
+
+    col_warp = warp_dye * warp_lum[k][..., None] * (1.0 + 0.08 * fibre[..., None])
+    prof = np.where(on_warp, prof_warp, prof_weft)[..., None]
+    albedo = np.where(on_warp[..., None], col_warp, weft_dye * 0.9) * (0.6 + 0.4 * prof)
+    specular = np.where(on_warp, 0.05, 0.03)
+    roughness = np.where(on_warp, 0.1, 0.4)
+    return _pack("satin_weave", n, height, albedo, specular, roughness, 0.2)
+
+
 #: name -> fn(size, seed) -> Material
 PRESETS: dict[str, Callable[[int, int], Material]] = {
     "pebbles": _pebbles,
     "ridged_fabric": _ridged_fabric,
     "fuzzy_moss": _fuzzy_moss,
+    "crevice_stones": _crevice_stones,
+    "metal_flakes": _metal_flakes,
+    "velvet": _velvet,
+    "satin_weave": _satin_weave,
 }
 
 
@@ -509,11 +744,12 @@ class ViewHits:
 class _ViewData:
     """Per-view quantities that do not depend on the light (flattened, (M,) = N*N)."""
 
-    __slots__ = ("hits", "v", "idx", "w", "n", "nv", "kd", "f0", "a2", "lam_v", "sheen")
+    __slots__ = ("hits", "v", "idx", "w", "n", "nv", "kd", "f0", "a2", "lam_v", "sheen", "retro")
 
-    def __init__(self, hits: ViewHits, v, idx, w, n, nv, kd, f0, a2, lam_v, sheen):
+    def __init__(self, hits: ViewHits, v, idx, w, n, nv, kd, f0, a2, lam_v, sheen, retro):
         self.hits, self.v, self.idx, self.w = hits, v, idx, w
         self.n, self.nv, self.kd, self.f0, self.a2, self.lam_v, self.sheen = n, nv, kd, f0, a2, lam_v, sheen
+        self.retro = retro
 
 
 class RenderCache:
@@ -553,6 +789,9 @@ class RenderCache:
         # y = -row, so the +y neighbour of row i is row i - 1.
         gx = 0.5 * (np.roll(h, -1, axis=1) - np.roll(h, 1, axis=1))
         gy = 0.5 * (np.roll(h, 1, axis=0) - np.roll(h, -1, axis=0))
+        if material.slope is not None:
+            gx = gx + material.slope[..., 0]
+            gy = gy + material.slope[..., 1]
         alpha = np.maximum(material.roughness, _F32(MIN_ALPHA))
         # Maps gathered at the hit points, one row per channel: (7, N*N).
         self._attrs = np.ascontiguousarray(
@@ -675,10 +914,13 @@ class RenderCache:
         kd = np.ascontiguousarray(a[2:5].T) * _F32(1.0 / math.pi)  # (M, 3)
         a2 = a[6] * a[6]
         lam_v = np.sqrt(nv * nv * (1 - a2) + a2)
-        sheen = None
+        sheen = retro = None
         if self.material.sheen > 0:
             sheen = np.ascontiguousarray(a[2:5].T) * _F32(self.material.sheen)
-        return _ViewData(hits, v, idx, w, nrm, nv, kd, a[5].copy(), a2, lam_v, sheen)
+        if self.material.retro > 0:
+            norm = (RETRO_EXPONENT + 2.0) / (2.0 * math.pi)
+            retro = np.ascontiguousarray(a[2:5].T) * _F32(self.material.retro * norm)
+        return _ViewData(hits, v, idx, w, nrm, nv, kd, a[5].copy(), a2, lam_v, sheen, retro)
 
     # -- lights ------------------------------------------------------------------
 
@@ -751,11 +993,14 @@ def _shade(vd: _ViewData, lights: np.ndarray, vis: np.ndarray, n: int) -> np.nda
     lights : (B, 3) unit light vectors; vis : (B, N*N) float32 shadow maps (on the
     heightfield texels).  Returns (B, n, n, 3) float32 radiance
 
-    L = E * vis * max(n.l, 0) * (albedo / pi + F * D * V + sheen * albedo * D_s * V_s)
+    L = E * vis * max(n.l, 0) * (albedo / pi + F * D * V + sheen * albedo * D_s * V_s
+                                 + retro * albedo * (p + 2) / (2 pi) * max(v.l, 0)^p * (1 - n.v))
 
     with GGX D, height-correlated Smith V, F = min(1, F0 * (1 + 24 (1 - v.h)^5))
     (Schlick's curve for F0 = 0.04, scaled; F0 = ``specular``); the sheen
-    lobe is the Charlie distribution (sheen roughness 0.5) with Neubelt's visibility.
+    lobe is the Charlie distribution (sheen roughness 0.5) with Neubelt's visibility;
+    the retro lobe's exponent p is RETRO_EXPONENT (distant light, orthographic camera:
+    v.l is one number per image).
     """
     f32 = _F32
     one = f32(1.0)
@@ -792,6 +1037,9 @@ def _shade(vd: _ViewData, lights: np.ndarray, vis: np.ndarray, n: int) -> np.nda
         fs /= f32(4.0) * (nlc + vd.nv - nlc * vd.nv)
         fs *= weight
         out += vd.sheen * fs[:, :, None]
+    if vd.retro is not None:
+        back = np.maximum(lights @ vd.v, 0.0) ** RETRO_EXPONENT               # (B,)
+        out += vd.retro * (weight * back.astype(f32)[:, None] * (one - vd.nv))[:, :, None]
     return out.reshape(-1, n, n, 3)
 
 
@@ -808,7 +1056,7 @@ def render_sample(material: Material, view_deg, light_deg, *, cache: RenderCache
     return _shade(vd, l[None, :], vis.reshape(1, -1), material.size)[0]
 
 
-def render(material: Material, sampling: Sampling, *, chunk: int | None = None) -> Iterator[np.ndarray]:
+def render_samples(material: Material, sampling: Sampling, *, chunk: int | None = None) -> Iterator[np.ndarray]:
     """Yield one (N, N, 3) float32 image per sample of ``sampling``, in order.
 
     Each yielded array is new (callers may keep or modify it).  Within the call, hit
@@ -851,6 +1099,102 @@ def render_all(material: Material, sampling: Sampling) -> np.ndarray:
     S * N * N * 12 bytes)."""
     n = material.size
     out = np.empty((len(sampling), n, n, 3), dtype=_F32)
-    for k, img in enumerate(render(material, sampling)):
+    for k, img in enumerate(render_samples(material, sampling)):
         out[k] = img
     return out
+
+
+# --------------------------------------------------------------------------- the stage
+#: The OCIO space synthesised radiance is in (linear Rec.709 primaries, see the module docstring).
+RADIANCE_SPACE = "Linear Rec.709 (sRGB)"
+
+
+@dataclass(frozen=True)
+class SynthOptions:
+    """What ``usdbtf synth`` makes and how :func:`write_synth` stores it.
+
+    size : texels per side (>= 8); seed : the only source of randomness; sampling : a
+    :data:`usdbtf.sampling.PRESETS` name; physical_size : edge of the tile in metres.
+    ext, bit_depth, color_space : the manifest's image files (``color_space`` None: sRGB for
+    integer depths, linear Rec.709 for float ones).
+    """
+
+    size: int = 128
+    seed: int = 0
+    sampling: str = "small"
+    physical_size: float = 0.05
+    ext: str = "png"
+    bit_depth: str = "uint8"
+    color_space: str | None = None
+
+    @property
+    def file_space(self) -> str:
+        """The OCIO space the image files are encoded in."""
+        if self.color_space:
+            return self.color_space
+        return "sRGB Encoded Rec.709 (sRGB)" if self.bit_depth in ("uint8", "uint16") else RADIANCE_SPACE
+
+
+@dataclass
+class SynthResult:
+    """A synthetic BTF, evaluated lazily: :meth:`images` renders the samples one at a time
+    (a whole BTF may not fit in memory; :meth:`to_btf` holds it all for small ones).
+
+    preset : the material's name; material : its :class:`Material`; sampling : the directions;
+    options : the :class:`SynthOptions`; metadata : the manifest's extra keys
+    (``physical_size_m``, ``synthetic``: preset, size, seed, sampling, version).
+    """
+
+    preset: str
+    material: Material
+    sampling: Sampling
+    options: SynthOptions
+    metadata: dict
+
+    def images(self) -> Iterator[np.ndarray]:
+        """One (N, N, 3) float32 image per sample, in sampling order, radiance in
+        :data:`RADIANCE_SPACE`."""
+        return render_samples(self.material, self.sampling)
+
+    def to_btf(self):
+        """The samples as an in-memory :class:`usdbtf.model.ArrayBTF` in the working space
+        (S x N x N x 12 bytes)."""
+        from . import colour
+        from .model import ArrayBTF
+
+        data = colour.processor(RADIANCE_SPACE, colour.WORKING_SPACE).apply(render_all(self.material, self.sampling))
+        btf = ArrayBTF.from_linear(self.sampling, data)
+        btf.metadata.update(self.metadata)
+        return btf
+
+
+def synth(preset: str, options: SynthOptions | None = None) -> SynthResult:
+    """The procedural material ``preset`` (a :data:`PRESETS` name) over ``options.sampling``.
+
+    Nothing is rendered yet: :meth:`SynthResult.images` renders on demand and
+    :func:`write_synth` streams the images into a manifest folder.  ValueError for an
+    unknown preset, sampling or size.
+    """
+    from . import __version__
+    from .sampling import preset as sampling_preset
+
+    options = options or SynthOptions()
+    sampling = sampling_preset(options.sampling)
+    material = make_material(preset, options.size, options.seed)
+    size = options.physical_size
+    metadata = {"physical_size_m": [size, size],
+                "synthetic": {"preset": preset, "size": options.size, "seed": options.seed,
+                              "sampling": options.sampling, "usdbtf_version": __version__}}
+    return SynthResult(preset, material, sampling, options, metadata)
+
+
+def write_synth(result: SynthResult, path) -> None:
+    """Render ``result`` into the manifest folder ``path`` (atomically, one image at a time,
+    with a progress bar), encoded as its options say."""
+    from .manifest import write_manifest
+    from .progress import track
+
+    opts = result.options
+    images = track(result.images(), "synth", len(result.sampling))
+    write_manifest(path, result.sampling, images, color_space=opts.file_space, bit_depth=opts.bit_depth,
+                   ext=opts.ext, array_space=RADIANCE_SPACE, metadata=result.metadata)

@@ -3,7 +3,9 @@
 Every reader of USD input (meshes, packaged assets, scenes) opens it here, so a missing
 file, a syntax error or a broken reference is one :class:`~usdbtf.errors.BTFError` naming
 the file and the parser's ``file:line:col: message``, not a traceback or USD's own warnings
-on stderr.
+on stderr.  Paths are found through the asset resolver (:func:`resolve_usd`), so a name the
+studio's resolver understands (a search-path-relative name, a URI) works wherever a file
+path does.
 """
 from __future__ import annotations
 
@@ -12,11 +14,9 @@ import os
 import re
 import sys
 import tempfile
-from pathlib import Path
-
 from .errors import BTFError
 
-__all__ = ["USD_SUFFIXES", "open_usd", "tf_message", "usd_warnings_silenced"]
+__all__ = ["USD_SUFFIXES", "open_usd", "resolve_usd", "usd_exists", "tf_message", "usd_warnings_silenced"]
 
 #: File name suffixes of USD layers and packages.
 USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
@@ -29,17 +29,35 @@ def tf_message(exc) -> str:
     return found.group(1) if found else re.sub(r"Error in '[^']*' at line \d+ in file \S+ : ", "", text)[:300]
 
 
+def resolve_usd(path) -> str:
+    """The asset resolver's answer for ``path`` (a file path, a search-path-relative name,
+    whatever the studio's resolver understands); BTFError when it finds nothing."""
+    from pxr import Ar
+
+    resolved = str(Ar.GetResolver().Resolve(str(path)))
+    if not resolved:
+        raise BTFError(f"{path}: no such USD file (the asset resolver finds nothing there)")
+    return resolved
+
+
+def usd_exists(path) -> bool:
+    """Whether ``path`` names a USD layer (by its suffix) that the asset resolver finds."""
+    from pxr import Ar
+
+    return str(path).lower().endswith(USD_SUFFIXES) and bool(str(Ar.GetResolver().Resolve(str(path))))
+
+
 def open_usd(path, *, composition_errors: bool = True):
-    """``Usd.Stage.Open(path)`` with payloads loaded, raising BTFError naming the file for a
-    missing or unparsable layer and (optionally) for composition errors, e.g. a corrupt
-    payload or an unreadable referenced layer."""
+    """``Usd.Stage.Open(path)`` with payloads loaded, the path found through the asset
+    resolver (:func:`resolve_usd`); raises BTFError naming the file for a missing or
+    unparsable layer and (optionally) for composition errors, e.g. a corrupt payload or an
+    unreadable referenced layer."""
     from pxr import Tf, Usd
 
-    path = Path(path)
-    if not path.is_file():
-        raise BTFError(f"{path}: no such USD file")
+    resolve_usd(path)
+    path = str(path)
     try:
-        stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
+        stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
     except Tf.ErrorException as exc:
         raise BTFError(f"{path}: cannot open USD layer: {tf_message(exc)}") from None
     if stage is None:

@@ -57,7 +57,7 @@ def ffmpeg_x265() -> tuple[str | None, str]:
 
 def _require_8bit(btf, kind: str) -> None:
     if btf.bit_depth != "uint8":
-        raise BTFError(f"{btf.metadata.get('_path', 'input')}: the {kind} baseline takes 8-bit images, "
+        raise BTFError(f"{btf.path or 'input'}: the {kind} baseline takes 8-bit images, "
                        f"got {btf.bit_depth}")
 
 
@@ -204,7 +204,6 @@ def main(argv=None) -> int:
     try:
         with outside_paths_allowed():
             btf = open_btf(args.input)
-            btf.metadata["_path"] = str(args.input)
             if args.kind == "jpeg":
                 encode_jpeg(btf, args.output, args.quality, args.workers)
             elif args.kind == "pca-view":

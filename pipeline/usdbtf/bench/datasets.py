@@ -9,6 +9,11 @@ folder with one is complete).
 Subsets (the training half of a held-out split, the first n views for a scaling series)
 are manifests whose ``image`` entries point into the full dataset's folder by relative
 path: no pixel is copied.
+
+Material presets are split in two (:data:`TUNING_PRESETS`, :data:`HELDOUT_PRESETS`): any
+choice of a method's parameters may look at the tuning presets; the held-out ones stand in
+for materials nobody has seen, so no tuning run may use them, and benchmarks report them
+apart.  The split was fixed before any compression result on the new presets was seen.
 """
 from __future__ import annotations
 
@@ -19,18 +24,40 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__, jsontext
+from .. import jsontext
 from ..atomic import atomic_dir
 from ..compress.format import cross_layout
 from ..model import FileBTF
 from ..sampling import Sampling, preset as sampling_preset
 
 __all__ = ["dataset_dir", "cached_dataset_ok", "ensure_dataset", "synthesize", "first_views", "write_subset",
-           "subset_btf", "compressed", "SRGB", "PHYSICAL_SIZE_M"]
+           "subset_btf", "compressed", "SRGB", "PHYSICAL_SIZE_M", "TUNING_PRESETS", "HELDOUT_PRESETS",
+           "preset_split", "split_presets"]
 
 SRGB = "sRGB Encoded Rec.709 (sRGB)"
-LINEAR_709 = "Linear Rec.709 (sRGB)"
 PHYSICAL_SIZE_M = 0.05          # `usdbtf synth`'s default tile edge
+
+#: Material presets (:data:`usdbtf.synth.PRESETS`) that tuning may look at.
+TUNING_PRESETS = ("pebbles", "ridged_fabric", "fuzzy_moss", "metal_flakes", "satin_weave")
+#: Presets kept out of every tuning run: deep crevices with cast shadows (energy in dark,
+#: shadowed texels) and velvet (grazing sheen and retro-reflection).
+HELDOUT_PRESETS = ("crevice_stones", "velvet")
+
+
+def preset_split(preset: str) -> str:
+    """"tuning" or "held-out" for a material preset (ValueError for an unknown one)."""
+    if preset in TUNING_PRESETS:
+        return "tuning"
+    if preset in HELDOUT_PRESETS:
+        return "held-out"
+    raise ValueError(f"material preset {preset!r} is in neither the tuning nor the held-out set")
+
+
+def split_presets(presets) -> tuple[list, list]:
+    """(tuning, held-out) members of ``presets``, each in the given order."""
+    presets = list(presets)
+    return ([p for p in presets if preset_split(p) == "tuning"],
+            [p for p in presets if preset_split(p) == "held-out"])
 
 
 def first_views(sampling: Sampling, views: int | None) -> np.ndarray:
@@ -76,23 +103,17 @@ def cached_dataset_ok(folder: Path, preset: str, sampling: str, size: int, seed:
 def synthesize(folder: Path, preset: str, sampling: str, size: int, seed: int, fmt: str = "png",
                views: int | None = None) -> Path:
     """Write the dataset (8-bit sRGB) as ``usdbtf synth`` does, restricted to ``views`` views."""
-    from .. import synth
-    from ..manifest import write_manifest
+    from dataclasses import replace
 
-    full = sampling_preset(sampling)
-    chosen = full.subset(first_views(full, views))
-    material = synth.make_material(preset, size, seed)
+    from ..synth import SynthOptions, synth, write_synth
 
-    def images():
-        for block in synth.render(material, chosen):
-            yield from (block if block.ndim == 4 else [block])
-
-    syn = {"preset": preset, "size": size, "seed": seed, "sampling": sampling, "usdbtf_version": __version__}
+    result = synth(preset, SynthOptions(size=size, seed=seed, sampling=sampling, physical_size=PHYSICAL_SIZE_M,
+                                        ext=fmt, bit_depth="uint8", color_space=SRGB))
     if views is not None:
-        syn["views"] = views
-    return write_manifest(folder, chosen, images(), color_space=SRGB, bit_depth="uint8", ext=fmt,
-                          array_space=LINEAR_709,
-                          metadata={"physical_size_m": [PHYSICAL_SIZE_M, PHYSICAL_SIZE_M], "synthetic": syn})
+        result = replace(result, sampling=result.sampling.subset(first_views(result.sampling, views)))
+        result.metadata["synthetic"]["views"] = views
+    write_synth(result, folder)
+    return Path(folder)
 
 
 def ensure_dataset(workdir: Path, preset: str, sampling: str, size: int, seed: int = 0, fmt: str = "png",

@@ -32,7 +32,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 __all__ = ["REPO", "default_out", "median", "time_call", "cpu_seconds", "run_measured", "run_repeated", "RunResult", "cli_command",
-           "warm_page_cache", "dir_bytes", "timestamp", "write_json", "fmt_bytes"]
+           "warm_page_cache", "timestamp", "write_json", "fmt_bytes"]
 
 
 def _find_repo() -> Path | None:
@@ -310,10 +310,6 @@ def warm_page_cache(folder) -> dict:
                     total += got
             files += 1
     return {"files": files, "bytes": total, "seconds": time.perf_counter() - t}
-
-
-def dir_bytes(folder) -> int:
-    return sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(folder) for f in fs)
 
 
 def timestamp() -> str:

@@ -116,11 +116,14 @@ def validate(cfg: Config) -> None:
 
 def _describe(cfg: Config) -> list:
     from ..sampling import preset
+    from .datasets import split_presets
 
+    tuning, held = split_presets(cfg.presets)
     pairs = (", ".join(f"{s}/{c}" for s, c in cfg.solver_codecs) if cfg.solver_codecs
              else f"{' + '.join(cfg.solvers)} x {' + '.join(cfg.codecs)}")
     return [
-        f"- configuration `{cfg.name}`; materials {', '.join(cfg.presets)} (synthetic, seed {cfg.seed}, 8-bit sRGB PNG)",
+        f"- configuration `{cfg.name}`; materials {', '.join(tuning) or '-'} (tuning set), {', '.join(held) or '-'} "
+        f"(held-out set: never tuned on) (synthetic, seed {cfg.seed}, 8-bit sRGB PNG)",
         f"- compress: sampling `{cfg.sampling}` ({len(preset(cfg.sampling))} samples), sizes "
         f"{', '.join(f'{s}²' for s in cfg.sizes)}; {pairs}; k {', '.join(map(str, cfg.ks))}; "
         f"{cfg.repeats} timed run(s) each",

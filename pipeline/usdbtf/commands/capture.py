@@ -1,10 +1,12 @@
 """``usdbtf capture``: drive the rig through a capture plan into a RAW manifest folder."""
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
-from . import log
 from ..argtypes import float_in, int_in
+
+log = logging.getLogger(__name__)
 
 ORDER = 5
 
@@ -43,7 +45,6 @@ def add_parser(sub) -> None:
     p.add_argument("--reconnect-timeout", type=float_in(0, 86400), default=30.0,
                    help="seconds to keep reopening a dropped link (default 30)")
     p.add_argument("--baud", type=int_in(50, 10_000_000), default=115200)
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 
 
@@ -61,11 +62,10 @@ def run(args) -> int:
     from ..rig.plan import ArmGeometry, make_plan
     from ..sampling import preset
 
-    say = log(args.quiet)
     board = load_board(args.board).to_json() if args.board else None
     plan = make_plan(preset(args.sampling), ordering=args.order,
                      geometry=None if args.no_obstruction else ArmGeometry())
-    say(f"capture: plan {args.sampling}: {len(plan.sampling)} samples, {int(plan.obstructed.sum())} obstructed, "
+    log.info(f"capture: plan {args.sampling}: {len(plan.sampling)} samples, {int(plan.obstructed.sum())} obstructed, "
         f"{len(plan.order)} to shoot; arm travel {plan.arm_travel_deg():.0f} deg, head travel "
         f"{plan.head_travel_deg():.0f} deg ({args.order} order)")
     # --force over a previous capture starts over: the new capture is written beside it and
@@ -75,18 +75,17 @@ def run(args) -> int:
     with (atomic_dir(args.output, kind=CAPTURE) if fresh else contextlib.nullcontext(args.output)) as raw:
         raw.mkdir(parents=True, exist_ok=True)
         try:
-            summary = _capture(args, raw, plan, board, say)
+            summary = _capture(args, raw, plan, board)
         except BaseException:
             if not fresh and not _shot_anything(raw):
                 _undo_start(raw, remove_folder=new_folder)   # nothing to resume: leave no trace
             raise
-    say(f"capture: {summary['shots']} frames, {summary['missing']} missing (obstructed) -> {summary['manifest']}"
+    log.info(f"capture: {summary['shots']} frames, {summary['missing']} missing (obstructed) -> {summary['manifest']}"
         f" ({summary['reconnects']} reconnects, {summary['resends']} resends)")
     return 0
 
 
-def _capture(args, raw, plan, board, say) -> dict:
-    from ..progress import Progress
+def _capture(args, raw, plan, board) -> dict:
     from ..rig.camera import CommandCamera, OpenCVCamera
     from ..rig.capture import capture
     from ..rig.driver import RigDriver
@@ -96,11 +95,9 @@ def _capture(args, raw, plan, board, say) -> dict:
     else:
         camera = CommandCamera(args.camera_cmd, raw, color_space=args.camera_space, ext=args.camera_ext)
     driver = RigDriver(args.port, timeout=args.timeout, move_timeout=args.move_timeout, retries=args.retries,
-                       reconnect_timeout=args.reconnect_timeout, baudrate=args.baud, log=say)
-    bar = (lambda done, total: Progress("capture", total, done)) if not args.quiet else None
+                       reconnect_timeout=args.reconnect_timeout, baudrate=args.baud)
     return capture(driver, camera, raw, plan, flat_frames=args.flat_frames, board=board,
-                   extra={"sampling": args.sampling}, frame_compression=args.frame_compression, log=say,
-                   progress=bar)
+                   extra={"sampling": args.sampling}, frame_compression=args.frame_compression)
 
 
 def _shot_anything(raw: Path) -> bool:

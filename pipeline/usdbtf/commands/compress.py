@@ -1,10 +1,9 @@
 """``usdbtf compress``: apparent-BRDF basis + coefficient textures."""
 from __future__ import annotations
 
-from pathlib import Path
+import logging
 
 from ..compress.arguments import add_arguments
-from . import log
 
 ORDER = 20
 
@@ -12,7 +11,8 @@ ORDER = 20
 def add_parser(sub) -> None:
     p = sub.add_parser("compress", help="apparent-BRDF basis + coefficient textures")
     add_arguments(p)
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    p.add_argument("--json", action="store_true", help="print a JSON summary of the written folder on stdout "
+                   "(the keys of `usdbtf info --json`)")
     p.set_defaults(func=run)
 
 
@@ -26,13 +26,19 @@ def run(args) -> int:
     from ..io import open_btf
 
     btf = open_btf(args.input)
-    btf.metadata["_path"] = str(args.input)
     opts = CompressOptions(solver=args.solver, k=args.k, target_error=args.target_error, max_bytes=args.max_bytes,
                           codec=args.codec, seed=args.seed, fit_texels=args.fit_texels,
                           power_iterations=args.power_iterations, region=args.region, workers=args.workers,
-                          memory_budget=args.memory_budget * 1e9, dask=args.dask, progress=not args.quiet)
+                          memory_budget=args.memory_budget * 1e9, expand_factors=args.expand_factors,
+                          factor_rows=args.factor_rows, dask=args.dask, progress=not args.quiet)
     extra = {key: v for key, v in btf.metadata.items() if not key.startswith("_")}
     opts.extra = {"source_metadata": extra} if extra else {}
-    result = compress(btf, opts, log=log(args.quiet))
+    # compress still takes a callable for its messages (it is being changed on another branch).
+    result = compress(btf, opts, log=logging.getLogger("usdbtf.compress").info)
     write_compress(result, args.output, force=getattr(args, "force", False))
+    if args.json:
+        from ..summary import compressed_summary
+        from . import print_json
+
+        print_json(compressed_summary(args.output))
     return 0

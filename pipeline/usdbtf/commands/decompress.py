@@ -1,10 +1,12 @@
 """``usdbtf decompress``: write the reconstruction as a manifest folder."""
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
-from . import log
 from ..argtypes import int_in
+
+log = logging.getLogger(__name__)
 
 ORDER = 30
 
@@ -17,7 +19,6 @@ def add_parser(sub) -> None:
     p.add_argument("--k", type=int_in(1), help="use only the first k basis vectors")
     p.add_argument("--material", help="USD assets: prim path of the BTF material (when there are several)")
     p.add_argument("--lod", help="USD assets: lod variant to read, e.g. k16")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 
 
@@ -27,18 +28,11 @@ def outputs(args):
 
 
 def run(args) -> int:
-    from ..compress.decompress import decompress_to_folder, parse_samples
-    from ..errors import UsageError
+    from ..decompress import DecompressOptions, decompress, write_decompress
     from ..io import open_compressed
-    from ..resources import require_memory
 
     cbtf = open_compressed(args.input, material=args.material, lod=args.lod)
-    idx = parse_samples(args.samples, cbtf.n_samples)
-    if args.k is not None and not (1 <= args.k <= cbtf.k):
-        raise UsageError(f"--k must be in 1..{cbtf.k} for {args.input}")
-    k = args.k or cbtf.k
-    # The k working-space coefficient textures, and a chunk of 128 reconstructions.
-    require_memory(cbtf.width * cbtf.height * 3 * 4 * (k + min(128, len(idx))), f"decompressing {args.input}")
-    decompress_to_folder(cbtf, args.output, samples=idx, k=args.k)
-    log(args.quiet)(f"wrote {len(idx)} reconstructed samples (k = {args.k or cbtf.k}) to {args.output}")
+    result = decompress(cbtf, DecompressOptions(samples=args.samples, k=args.k))
+    write_decompress(result, args.output)
+    log.info(f"wrote {len(result.indices)} reconstructed samples (k = {args.k or cbtf.k}) to {args.output}")
     return 0

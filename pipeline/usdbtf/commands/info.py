@@ -12,67 +12,61 @@ def add_parser(sub) -> None:
     p = sub.add_parser("info", help="summarise a BTF or a compressed BTF")
     p.add_argument("path", type=Path)
     add_outside_paths_flag(p)
+    p.add_argument("--json", action="store_true", help="print the summary as JSON (keys in the README)")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    from ..compress.format import METADATA
+    from ..summary import btf_summary, compressed_summary
+
     path = Path(args.path)
-    from ..compress.format import METADATA, folder_bytes
-
     if (path / METADATA).is_file():
-        from ..compress import read_compressed
+        s = compressed_summary(path)
+        lines = [compressed_text(s)]
+    else:
+        from ..io import open_btf
 
-        c = read_compressed(path)
-        b = c.info.get("bytes", {})
-        est = c.info.get("estimated_error", {}).get("linear", {})
-        print(f"{path}: compressed BTF ({c.info.get('solver', '?')} solver, {c.codec} codec)")
-        print(f"  samples     {c.n_samples}  ({c.width}x{c.height} texels)")
-        print(f"  k           {c.k}")
-        print(f"  bytes       payload {b.get('payload', '?')} (basis {b.get('basis', '?')}, coefficients "
-              f"{b.get('coefficients', '?')}), metadata {(path / METADATA).stat().st_size}, "
-              f"folder {folder_bytes(path)}")
-        if est:
-            print(f"  error       {est['percent']:.3f} % (paper's metric), RMSE {est['rmse']:.5f}, "
-                  f"PSNR {est['psnr_db']:.2f} dB  [held-out texels, scene-linear]")
-        print(f"  colour      working {c.working_space}; source {c.source.get('color_space')} "
-              f"{c.source.get('bit_depth')}")
-        return 0
-    from ..io import open_btf
+        btf = open_btf(path)
+        s = btf_summary(path, btf)
+        lines = describe_btf(path, btf, s)
+    if args.json:
+        from . import print_json
 
-    btf = open_btf(path)
-    for line in describe_btf(path, btf):
-        print(line)
+        print_json(s)
+    else:
+        for line in lines:
+            print(line)
     return 0
 
 
-def _count(directions) -> int:
-    import numpy as np
-
-    return len({tuple(np.round(d, 6)) for d in directions})
-
-
-def _image_size(btf) -> tuple[int, int]:
-    """The size of the image files themselves when the samples are files on disk (a
-    manifest's declared size is checked against them), else the reader's size."""
-    from ..imageio import read_info
-
-    paths = getattr(btf, "paths", None)
-    if paths and Path(paths[0]).is_file():
-        first = read_info(paths[0])
-        return first.width, first.height
-    return btf.width, btf.height
+def compressed_text(s: dict) -> str:
+    """The human-readable form of :func:`usdbtf.summary.compressed_summary`."""
+    b, est = s["bytes"], s["estimated_error"]
+    lines = [f"{s['path']}: compressed BTF ({s['solver'] or '?'} solver, {s['codec']} codec)",
+             f"  samples     {s['samples']}  ({s['width']}x{s['height']} texels)",
+             f"  k           {s['k']}",
+             f"  bytes       payload {b.get('payload', '?')} (basis {b.get('basis', '?')}, coefficients "
+             f"{b.get('coefficients', '?')}), metadata {b['metadata']}, folder {b['folder']}"]
+    if est:
+        lines.append(f"  error       {est['percent']:.3f} % (paper's metric), RMSE {est['rmse']:.5f}, "
+                     f"PSNR {est['psnr_db']:.2f} dB  [held-out texels, scene-linear]")
+    lines.append(f"  colour      working {s['working_space']}; source {s['source']['color_space']} "
+                 f"{s['source']['bit_depth']}")
+    return "\n".join(lines)
 
 
-def describe_btf(path, btf) -> list[str]:
+def describe_btf(path, btf, summary: dict | None = None) -> list[str]:
     """The lines ``usdbtf info`` prints for an input BTF: format, directions, size, colour;
-    for Bonn ``.btf`` files also the signature, colour model and component counts."""
-    nv, nl = _count(btf.sampling.view), _count(btf.sampling.light)
+    for Bonn ``.btf`` files also the signature, colour model and component counts.
+    ``summary``: :func:`usdbtf.summary.btf_summary` of it, when the caller has it."""
+    from ..summary import btf_summary
+
+    s = summary or btf_summary(path, btf)
+    nv, nl = s["views"], s["lights"]
     grid = f"{nv} views x {nl} lights" if nv * nl == btf.n_samples else f"{nv} views, {nl} lights"
-    fmt = btf.metadata.get("format") or "btf-manifest/1"
-    w, h = _image_size(btf)
-    lines = [f"{path}: {fmt} BTF, {grid} = {btf.n_samples} samples of {w}x{h} texels"]
-    describe = getattr(btf, "describe", None)
-    d = describe() if describe else {}
+    lines = [f"{path}: {s['format']} BTF, {grid} = {btf.n_samples} samples of {s['width']}x{s['height']} texels"]
+    d = s["file"] or {}
     if "signature" in d:
         lines[0] += f" (signature {d['signature']})"
     lines.append(f"  colour      {btf.bit_depth} {btf.color_space}"

@@ -6,11 +6,12 @@ shared GLSL (Mesa llvmpipe through EGL, no display needed) and writes the image 
 """
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
-from . import log
 from .render import add_scene_arguments, render_outputs
 
+log = logging.getLogger(__name__)
 ORDER = 82
 
 
@@ -22,7 +23,6 @@ def add_parser(sub) -> None:
     p.add_argument("--compare", action="store_true",
                    help="also render with the CPU reference renderer (bilinear, no shadows) and print the PSNR")
     p.add_argument("--no-png", action="store_true", help="write only the EXR")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 
 
@@ -40,7 +40,6 @@ def run(args) -> int:
     from ..usd.storm import layout_from_asset
     from .render import _angles, check_frame_args, parsed, scene_mesh
 
-    say = log(args.quiet)
     W, H = args.size
     check_frame_args(args)
     # Every argument and the mesh are checked before the GPU context is made.
@@ -75,7 +74,7 @@ def run(args) -> int:
         what = f"{W}x{H} frame, {len(lights)} light(s)"
     info = write_render(RenderResult(image, cbtf.working_space, cbtf.ocio_config), args.output,
                         png_path=None if args.no_png else args.output.with_suffix(".png"))
-    say(f"preview (k = {k}) {what} -> {info['exr']}")
+    log.info(f"preview (k = {k}) {what} -> {info['exr']}")
     if reference is not None:
         mask = None if args.swatch else (image[..., 3] > 0) & (reference[..., 3] > 0)
         value = psnr(np.asarray(image)[..., :3], np.asarray(reference)[..., :3], mask)

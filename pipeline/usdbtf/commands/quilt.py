@@ -1,11 +1,12 @@
 """``usdbtf quilt``: image quilting in coefficient space -> a larger compressed BTF (or an atlas)."""
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
-from . import log
 from ..argtypes import MAX_TEXTURE_SIDE, SEED, float_in, int_in
 
+log = logging.getLogger(__name__)
 ORDER = 56
 
 
@@ -28,7 +29,6 @@ def add_parser(sub) -> None:
     p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--no-ghosts", action="store_true",
                    help="atlas: do not match chart borders against neighbouring charts (for comparison)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 
 
@@ -40,36 +40,28 @@ def outputs(args):
 def run(args) -> int:
     import time
 
-    from ..compress import read_compressed
     from ..errors import UsageError
-    from ..quilt import QuiltOptions, quilt, write_quilted
+    from ..quilt import QuiltOptions, quilt, write_quilt
     from ..resources import require_memory
 
-    say = log(args.quiet)
     t0 = time.perf_counter()
-    cbtf = read_compressed(args.input)
     if args.size is not None:
         # Position map, matching features of the m leading textures, one gathered texture.
         m = args.m or 4
         require_memory(args.size[0] * args.size[1] * (16.0 * m + 64), f"quilt --size {args.size[0]} {args.size[1]}",
                        error=UsageError)
+    if args.atlas is None and args.no_ghosts:
+        raise UsageError("--no-ghosts applies to --atlas only")
     opts = QuiltOptions(block=args.block, overlap=args.overlap, m=args.m, tolerance=args.tolerance, seed=args.seed,
-                        tileable=args.tileable)
-    if args.atlas is not None:
-        from ..quilt.atlas import quilt_atlas
-        from ..unwrap import read_unwrap
-
-        q = quilt_atlas(cbtf, read_unwrap(args.atlas), opts, ghosts=not args.no_ghosts, log=say)
-        q.record["atlas"]["layer"] = str(args.atlas)
-    else:
-        if args.no_ghosts:
-            raise UsageError("--no-ghosts applies to --atlas only")
-        q = quilt(cbtf, args.size[0], args.size[1], opts)
+                        tileable=args.tileable, size=tuple(args.size) if args.size is not None else None,
+                        ghosts=not args.no_ghosts)
+    q = quilt(args.input, opts, atlas=args.atlas)
     synth_s = time.perf_counter() - t0
-    say(f"quilted {q.width}x{q.height} from {cbtf.width}x{cbtf.height} ({q.record['blocks']} blocks of "
-        f"{q.options.block}, overlap {q.options.overlap}, m = {q.options.m}) in {synth_s:.2f} s; "
-        f"seam error {q.record['seam_error']['all_samples_mean']:.4g}")
-    sizes = write_quilted(cbtf, q, args.output, source_folder=args.input, log=say)
-    say(f"wrote {cbtf.k} coefficient textures ({sizes['payload']} bytes) to {args.output} "
-        f"in {time.perf_counter() - t0 - synth_s:.2f} s")
+    cbtf = q.source
+    log.info(f"quilted {q.width}x{q.height} from {cbtf.width}x{cbtf.height} ({q.record['blocks']} blocks of "
+             f"{q.options.block}, overlap {q.options.overlap}, m = {q.options.m}) in {synth_s:.2f} s; "
+             f"seam error {q.record['seam_error']['all_samples_mean']:.4g}")
+    sizes = write_quilt(q, args.output)
+    log.info(f"wrote {cbtf.k} coefficient textures ({sizes['payload']} bytes) to {args.output} "
+             f"in {time.perf_counter() - t0 - synth_s:.2f} s")
     return 0

@@ -1,11 +1,12 @@
 """``usdbtf rectify``: RAW camera frames -> an N x N rectified BTF (manifest folder)."""
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
-from . import log
 from ..argtypes import WORKERS, add_outside_paths_flag, float_in, int_in
 
+log = logging.getLogger(__name__)
 ORDER = 6
 #: Largest rectified side (texels).
 MAX_SIZE = 8192
@@ -34,7 +35,6 @@ def add_parser(sub) -> None:
     p.add_argument("--color-space", help="OCIO space of the output files (default ACEScg for float, sRGB for "
                                          "integer depths)")
     add_outside_paths_flag(p)
-    p.add_argument("-q", "--quiet", action="store_true")
     p.set_defaults(func=run)
 
 
@@ -44,12 +44,11 @@ def outputs(args):
 
 
 def run(args) -> int:
+    from ..atomic import scratch_dir
     from ..errors import UsageError
     from ..fiducials import load_board
-    from ..progress import Progress
-    from ..rectify import RectifyOptions, rectify_capture
+    from ..rectify import RectifyOptions, rectify, write_rectify
 
-    say = log(args.quiet)
     if args.format == "png" and args.bit_depth in ("half", "float"):
         raise UsageError("PNG stores uint8 or uint16; pass --bit-depth uint8/uint16 or --format exr")
     space = args.color_space or ("ACEScg" if args.bit_depth in ("half", "float") else "sRGB Encoded Rec.709 (sRGB)")
@@ -57,18 +56,15 @@ def run(args) -> int:
     opts = RectifyOptions(size=args.size, min_markers=args.min_markers, max_residual_px=args.max_residual,
                           fill=not args.no_fill, workers=args.workers, color_space=space,
                           bit_depth=args.bit_depth, ext=args.format)
-    bar = {}
-
-    def progress(done, total):
-        if "p" not in bar:
-            bar["p"] = Progress("rectify", total, enabled=not args.quiet)
-        bar["p"].update()
-
-    report = rectify_capture(args.raw, args.output, opts, board=board, log=say, progress=progress)
-    if "p" in bar:
-        bar["p"].finish()
+    # The rectified samples wait in a memory-mapped file beside the output (a capture's samples
+    # need not fit in memory), removed when the output is written.
+    with scratch_dir(args.output) as scratch:
+        result = rectify(args.raw, opts, board=board, scratch=scratch)
+        write_rectify(result, args.output)
+        report = result.report
+        del result                      # the scratch file's last mapping
     res = report["mean_corner_residual_px"]
-    say(f"rectify: {report['rectified']} of {report['frames']} frames rectified to {args.size}x{args.size}, "
-        f"{len(report['rejected'])} rejected, {report['interpolated']} samples interpolated; mean corner residual "
-        f"{res:.3f} px -> {args.output}")
+    log.info(f"rectify: {report['rectified']} of {report['frames']} frames rectified to {args.size}x{args.size}, "
+             f"{len(report['rejected'])} rejected, {report['interpolated']} samples interpolated; mean corner "
+             f"residual {res:.3f} px -> {args.output}")
     return 0

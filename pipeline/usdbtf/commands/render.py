@@ -1,11 +1,12 @@
 """``usdbtf render``: CPU reference renderer (a mesh under point/distant lights, or the flat swatch)."""
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
-from . import log
 from ..argtypes import MAX_FRAME_SIDE, WORKERS, int_in
 
+log = logging.getLogger(__name__)
 ORDER = 80
 #: Arguments that name outputs (every other path argument is an input).
 OUTPUT_ARGS = ("output", "png")
@@ -42,7 +43,6 @@ def add_parser(sub) -> None:
     p.add_argument("--display", help="OCIO display for the PNG (default: the config's default)")
     p.add_argument("--display-view", help="OCIO view for the PNG (default: Un-tone-mapped)")
     p.add_argument("--threads", type=WORKERS, default=2, help="shading threads (default 2)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 
 
@@ -76,9 +76,10 @@ def open_asset(asset: Path):
     from ..compress.format import METADATA
     from ..errors import BTFError
     from ..io import open_compressed
-    from ..usdstage import USD_SUFFIXES
+    from ..usdstage import usd_exists
 
-    if (asset.is_dir() and (asset / METADATA).is_file()) or (asset.suffix.lower() in USD_SUFFIXES and asset.is_file()):
+    # A USD asset is found through the asset resolver (a search-path-relative name works).
+    if (asset.is_dir() and (asset / METADATA).is_file()) or usd_exists(asset):
         return open_compressed(asset)
     raise BTFError(f"{asset}: not a compressed BTF folder (no {METADATA}) or a USD asset")
 
@@ -124,7 +125,6 @@ def run(args) -> int:
     from ..errors import UsageError
     from ..render import RenderOptions, parse_light, render, render_swatch, write_render
 
-    say = log(args.quiet)
     t0 = time.perf_counter()
     W, H = args.size
     check_frame_args(args)
@@ -152,12 +152,12 @@ def run(args) -> int:
         if mesh is None:
             raise UsageError("give --mesh (an unwrap layer or a mesh with texture coordinates), or --swatch")
         for note in mesh.notes:
-            say(f"{mesh.source}: {note}")
+            log.info(f"{mesh.source}: {note}")
         camera = camera or auto_camera(mesh.corner(), W, H)
         result = render(cbtf, mesh, camera, lights, opts)
         what = f"{W}x{H} frame, {len(mesh.triangles)} triangles, {len(lights)} light(s)"
     png = None if args.no_png else (args.png or args.output.with_suffix(".png"))
     info = write_render(result, args.output, png_path=png, display=args.display, view=args.display_view)
-    say(f"rendered {what} in {time.perf_counter() - t0:.2f} s -> {info['exr']}"
+    log.info(f"rendered {what} in {time.perf_counter() - t0:.2f} s -> {info['exr']}"
         + (f" and {info['png']} ({info['display']} / {info['view']})" if info["png"] else ""))
     return 0

@@ -2,10 +2,12 @@
 from __future__ import annotations
 
 import argparse
+import logging
 from pathlib import Path
 
 from ..argtypes import SEED, float_in, int_in
 
+log = logging.getLogger(__name__)
 ORDER = 4
 #: Arguments that name outputs (every other path argument is an input).
 OUTPUT_ARGS = ("frames", "port_file", "link")
@@ -48,7 +50,7 @@ def add_parser(sub) -> None:
                                                    "link is cut and a new pty opens")
     p.add_argument("--port-file", metavar="PATH", type=Path, help="also write the port to this file")
     p.add_argument("--frames", type=Path, required=True, help="folder for the rendered frames")
-    p.add_argument("--material", default="pebbles", help="synth material: pebbles, ridged_fabric, fuzzy_moss")
+    p.add_argument("--material", default="pebbles", help="synth material (a `usdbtf synth` preset, e.g. pebbles)")
     p.add_argument("--texture-size", type=int_in(8, 4096), default=128,
                    help="texels per side of the sample (default 128)")
     p.add_argument("--seed", type=SEED, default=0, help="material, noise and fault seed")
@@ -68,7 +70,6 @@ def add_parser(sub) -> None:
                    help="cut the link after every N-th request")
     p.add_argument("--reset-on-drop", action="store_true", help="forget positions when the link is cut")
     p.add_argument("--speed", type=float_in(0, 1e6), default=0.0, metavar="DEG_S", help="motion speed, 0 = instant")
-    p.add_argument("-q", "--quiet", action="store_true")
     p.set_defaults(func=run)
 
 
@@ -87,7 +88,6 @@ def run(args) -> int:
 
     if args.link and args.listen:
         raise UsageError("--link applies to --pty only")
-    log = (lambda msg: None) if args.quiet else sim.stderr_log
     board = load_board(args.board) if args.board else make_board()
     try:
         material = synth.make_material(args.material, args.texture_size, args.seed)
@@ -98,21 +98,21 @@ def run(args) -> int:
                             shot_noise=args.shot_noise)
     renderer = sim.SceneRenderer(material, board, camera, args.frames, seed=args.seed)
     rig = sim.RigSimulator(renderer, fault_rate=args.fault_rate, seed=args.seed, drop_every=args.drop_every,
-                           reset_on_drop=args.reset_on_drop, speed_deg_s=args.speed, log=log)
+                           reset_on_drop=args.reset_on_drop, speed_deg_s=args.speed)
     import signal
     import sys
     # Killed politely (SIGTERM), clean up as on Ctrl-C: close the link, remove the --link symlink.
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
-    log(f"rig-sim: {args.material} {args.texture_size}^2 in a {len(board.ids)}-marker board, frames "
-        f"{w}x{h} -> {args.frames}")
+    log.info(f"rig-sim: {args.material} {args.texture_size}^2 in a {len(board.ids)}-marker board, frames "
+             f"{w}x{h} -> {args.frames}")
     port_file = str(args.port_file) if args.port_file else None
     if args.listen:
         host, port = args.listen
         try:
-            sim.serve_socket(rig, host, port, port_file=port_file, log=log)
+            sim.serve_socket(rig, host, port, port_file=port_file)
         except OSError as exc:
             from ..errors import IOFailure
             raise IOFailure(f"--listen {host}:{port}: {' '.join((exc.strerror or str(exc)).split())}") from None
     else:
-        sim.serve_pty(rig, link=str(args.link) if args.link else None, port_file=port_file, log=log)
+        sim.serve_pty(rig, link=str(args.link) if args.link else None, port_file=port_file)
     return 0

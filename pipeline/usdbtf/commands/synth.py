@@ -1,12 +1,13 @@
 """``usdbtf synth``: write a synthetic BTF (manifest folder) from a procedural material."""
 from __future__ import annotations
 
+import logging
 import time
 from pathlib import Path
 
-from .. import __version__
-from . import log
 from ..argtypes import SEED, float_in, int_in
+
+log = logging.getLogger(__name__)
 
 #: Largest synthetic sample side (texels); memory grows with its square.
 MAX_SIZE = 4096
@@ -17,7 +18,8 @@ ORDER = 10
 def add_parser(sub) -> None:
     from ..sampling import PRESETS as SAMPLINGS
     p = sub.add_parser("synth", help="write a synthetic BTF (manifest folder) from a procedural material")
-    p.add_argument("preset", help="material: pebbles, ridged_fabric or fuzzy_moss")
+    p.add_argument("preset", help="material: pebbles, ridged_fabric, fuzzy_moss, crevice_stones, metal_flakes, "
+                                  "velvet or satin_weave")
     p.add_argument("-o", "--output", required=True, type=Path)
     p.add_argument("--sampling", default="small", choices=sorted(SAMPLINGS), help="direction set (default small)")
     p.add_argument("--size", type=int_in(8, MAX_SIZE), default=128, help=f"texels per side, 8..{MAX_SIZE} "
@@ -28,7 +30,6 @@ def add_parser(sub) -> None:
     p.add_argument("--color-space", help="OCIO space of the files (default sRGB for integers, linear Rec.709 for floats)")
     p.add_argument("--physical-size", type=float_in(0, 100, lo_open=True), default=0.05,
                    help="edge length of the tile in metres (default 0.05)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 
 
@@ -40,30 +41,18 @@ def outputs(args):
 def run(args) -> int:
     from .. import synth
     from ..errors import UsageError
-    from ..manifest import write_manifest
     from ..resources import require_memory
-    from ..sampling import preset
+    from ..synth import SynthOptions, write_synth
 
     t0 = time.perf_counter()
     if args.preset not in synth.PRESETS:
         raise UsageError(f"unknown material preset {args.preset!r}; choose from {', '.join(synth.PRESETS)}")
     # Height field, per-view hit maps and shading temporaries: about 256 bytes a texel.
     require_memory(256.0 * args.size ** 2, f"synth --size {args.size}", error=UsageError)
-    sampling = preset(args.sampling)
-    material = synth.make_material(args.preset, args.size, args.seed)
-
-    def images():
-        for block in synth.render(material, sampling):
-            yield from (block if block.ndim == 4 else [block])
-
-    meta = {"physical_size_m": [args.physical_size, args.physical_size],
-            "synthetic": {"preset": args.preset, "size": args.size, "seed": args.seed, "sampling": args.sampling,
-                          "usdbtf_version": __version__}}
-    space = args.color_space or ("sRGB Encoded Rec.709 (sRGB)" if args.bit_depth in ("uint8", "uint16")
-                                 else "Linear Rec.709 (sRGB)")
-    write_manifest(args.output, sampling, images(), color_space=space, bit_depth=args.bit_depth, ext=args.format,
-                   array_space="Linear Rec.709 (sRGB)",
-                   metadata=meta)
-    log(args.quiet)(f"wrote {len(sampling)} samples of {args.preset} ({args.size}x{args.size}, {args.bit_depth} "
-                     f"{space}) to {args.output} in {time.perf_counter() - t0:.1f} s")
+    options = SynthOptions(size=args.size, seed=args.seed, sampling=args.sampling, physical_size=args.physical_size,
+                           ext=args.format, bit_depth=args.bit_depth, color_space=args.color_space)
+    result = synth.synth(args.preset, options)
+    write_synth(result, args.output)
+    log.info(f"wrote {len(result.sampling)} samples of {args.preset} ({args.size}x{args.size}, {args.bit_depth} "
+             f"{options.file_space}) to {args.output} in {time.perf_counter() - t0:.1f} s")
     return 0

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from . import log
 from ..argtypes import MAX_TEXTURE_SIDE, float_in, int_in
 
 ORDER = 54
@@ -29,7 +28,6 @@ def add_parser(sub) -> None:
     p.add_argument("--meters-per-unit", type=float_in(0, 1e6, lo_open=True),
                    help="scale of the mesh's units (default: the file's, else 1)")
     p.add_argument("--up-axis", choices=["Y", "Z"], help="up axis to declare (default: the file's, else Y)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
 
 
@@ -44,6 +42,7 @@ def run(args) -> int:
 
     if args.btf is not None:
         from ..compress import read_compressed
+        from ..errors import BTFError
 
         density = texel_density(read_compressed(args.btf), str(args.btf))
         if not 0 < density <= MAX_DENSITY:
@@ -55,5 +54,5 @@ def run(args) -> int:
                          padding=args.padding)
     opts.validate()                     # every number checked before the mesh is read
     mesh = load_mesh(args.mesh, meters_per_unit=args.meters_per_unit, up_axis=args.up_axis)
-    write_unwrap(unwrap(mesh, opts, log=log(args.quiet)), args.output)
+    write_unwrap(unwrap(mesh, opts), args.output)
     return 0

@@ -29,7 +29,7 @@ _WHERE = {
     "project": "projection",
     "Factorisation": "quantise", "quantise": "quantise",
     "rate_control": "ratecontrol", "step_for_k": "ratecontrol",
-    "load_source": "source",
+    "load_source": "select_source",
     "Texels": "texels", "sample_texels": "texels",
 }
 

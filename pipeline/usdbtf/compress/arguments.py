@@ -19,7 +19,8 @@ SCENE_OPTIONS = ("solver", "k", "target_error", "max_bytes", "codec", "seed", "f
 
 def add_arguments(p) -> None:
     """The compress command's arguments (also used to parse a scene's build options)."""
-    p.add_argument("input", type=Path, help="manifest folder, btf.json, or UBO2003 zip/folder")
+    p.add_argument("input", type=Path, help="manifest folder, btf.json, UBO2003/UTIA/ATRIUM zip or folder, or "
+                   "Bonn .btf file (UBO2014)")
     p.add_argument("-o", "--output", required=True, type=Path)
     p.add_argument("--solver", default="rsvd", choices=SOLVERS, help="rsvd (default) or paper (the 2003 method)")
     p.add_argument("--k", type=int_in(1, 300), help="number of basis vectors, 1..300 (maximum when a target is "
@@ -40,6 +41,12 @@ def add_arguments(p) -> None:
                         "into an anonymous spill file when the temporary folder has room, else twice (default 1.0)")
     p.add_argument("--dask", type=parse_address, metavar="ADDRESS", help=ADDRESS_HELP + "; the output is "
                    "byte-identical to a run without --dask")
+    p.add_argument("--expand-factors", action="store_true",
+                   help="a factorised input (UBO2014 .btf, DFMF/FMF): expand its images and compress those, "
+                        "instead of transcoding from the factors (the default)")
+    p.add_argument("--factor-rows", type=int_in(1, 1 << 31), metavar="M",
+                   help="transcoding a nonlinear colour model (UBO2014's log Y, U/Y, V/Y): samples the "
+                        "coefficients are solved on (default 16 k; the number of samples or more = exact)")
     add_outside_paths_flag(p)
 
 

@@ -16,7 +16,6 @@ Codecs
 """
 from __future__ import annotations
 
-import contextlib
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import BTFError
-from ..imageio import read_image, write_image
+from ..imageio import encode_image, memory_file, read_image
 from .options import CODEC_NAMES
 
 __all__ = ["Codec", "CODECS", "get_codec", "Stored", "quantize_uniform", "quantize_minmax", "quantize_half",
@@ -111,11 +110,12 @@ class Codec:
         """
         attrs = self.basis_attributes if basis else self.attributes
         ext = self.basis_ext if basis else self.ext
-        data = _encode_in_memory(stored.pixels, ext, color_space, attrs)
+        data = encode_image(stored.pixels, ext, color_space=color_space, attributes=attrs)
         if self.name == "jxl" and len(data) < _JXL_MIN_READABLE:
             # OpenImageIO's JPEG XL reader needs 128 bytes to recognise a file; a constant
             # texture compresses below that.  A description box (useful anyway) pads it.
-            data = _encode_in_memory(stored.pixels, ext, color_space, dict(attrs, ImageDescription=_DESCRIPTION))
+            data = encode_image(stored.pixels, ext, color_space=color_space,
+                                attributes=dict(attrs, ImageDescription=_DESCRIPTION))
         return data
 
     def write(self, path: Path, stored: Stored, color_space: str, *, basis: bool = False) -> int:
@@ -173,20 +173,3 @@ def get_codec(name: str) -> Codec:
     except KeyError:
         raise BTFError(f"unknown codec {name!r}; choose from {', '.join(CODECS)}") from None
 
-
-@contextlib.contextmanager
-def memory_file():
-    """An anonymous in-memory file (Linux ``memfd_create``): yields (fd, "/proc/self/fd/N"),
-    a path any library can open; it vanishes when closed, leaving nothing on any disk."""
-    fd = os.memfd_create("usdbtf-texture", os.MFD_CLOEXEC)
-    try:
-        yield fd, f"/proc/self/fd/{fd}"
-    finally:
-        os.close(fd)
-
-
-def _encode_in_memory(pixels: np.ndarray, ext: str, color_space: str, attributes: dict) -> bytes:
-    """Encode ``pixels`` as a ``ext`` file into an in-memory file and return its bytes."""
-    with memory_file() as (fd, path):
-        size = write_image(path, pixels, color_space=color_space, attributes=attributes, file_type=ext)
-        return os.pread(fd, size, 0)

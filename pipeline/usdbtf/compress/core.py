@@ -29,14 +29,14 @@ from ..outputs import COMPRESSED as COMPRESSED_KIND
 from .curve import write_curve
 from .decorrelate import colour_decorrelation, rotate_colour
 from .evaluate import error_curve, held_out_error, held_out_set
-from .fit import HDR_NORM_RANGE, fit_basis, require_signal, sampled_coefficients
+from .fit import HDR_NORM_RANGE, fit_source, require_signal, sampled_coefficients
 from .format import CompressedBTF, write_metadata, write_textures
 from .options import CompressOptions
 from .parallel import in_threads, one_blas_thread
 from .projection import project
 from .quantise import Factorisation
 from .ratecontrol import rate_control, step_for_k
-from .source import load_source
+from .select_source import load_source
 from .texels import sample_texels
 
 __all__ = ["compress", "write_compress"]
@@ -68,12 +68,11 @@ def compress(btf: BTF, options: CompressOptions | None = None, *, log=None) -> C
     with one_blas_thread(), load_source(btf, texels, opts, log=say) as source:
         say(f"loaded {btf.n_samples} samples of {btf.width}x{btf.height} ({source.kind}, {source.nbytes / 2**20:.0f} MiB) "
             f"in {clock.lap('load'):.2f} s")
-        x_fit = source.columns(texels.fit)
         # The held-out truth is read while the basis is fitted (independent steps, one
         # thread each: the fit's serial parts leave a core free).
-        fit, held = _side_by_side(lambda: fit_basis(x_fit, opts.fit_k(btf.n_samples, btf.n_pixels), opts),
+        fit, held = _side_by_side(lambda: fit_source(source, texels.fit, opts.fit_k(btf.n_samples, btf.n_pixels),
+                                                     opts),
                                   lambda: held_out_set(source, texels))
-        del x_fit
         if fit.weighted:
             say(f"texel norms span more than {HDR_NORM_RANGE:g}: basis fitted with weights ||x_t||^-1/2")
         require_signal(fit, btf, texels, opts)
@@ -92,7 +91,8 @@ def compress(btf: BTF, options: CompressOptions | None = None, *, log=None) -> C
         cbtf, choice = rate_control(Factorisation(btf, fit.basis, coeff, colour, energy, planes, step), opts, held, say)
         clock.lap("encode")
         result = _described(cbtf, opts, dict(choice, planes=list(planes)), fit.singular_values, held,
-                            *_side_by_side(lambda: held_out_error(cbtf, held), lambda: error_curve(cbtf, source)))
+                            *_side_by_side(lambda: held_out_error(cbtf, held), lambda: error_curve(cbtf, source)),
+                            getattr(source, "provenance", None))
         clock.lap("evaluate")
     say(f"k = {result.k}, {result.info['bytes']['payload']} bytes, estimated error "
         f"{result.info['estimated_error']['linear']['percent']:.3f} % ({clock})")
@@ -130,8 +130,9 @@ def write_compress(result: CompressedBTF, path, *, force: bool = False) -> dict:
 
 
 def _described(cbtf: CompressedBTF, opts: CompressOptions, choice: dict, singular_values, held, sums,
-               curve: dict) -> CompressedBTF:
-    """``cbtf`` with what the metadata records about how it was made, and its error curve."""
+               curve: dict, transcoded: dict | None = None) -> CompressedBTF:
+    """``cbtf`` with what the metadata records about how it was made (``transcoded``: how a
+    factorised input was compressed from its factors), and its error curve."""
     info = dict(cbtf.info)
     info.update({
         "solver": opts.solver,
@@ -145,6 +146,8 @@ def _described(cbtf: CompressedBTF, opts: CompressOptions, choice: dict, singula
         "provenance": {"tool": "usdbtf", "version": __version__, "solver": opts.solver, "seed": opts.seed,
                        "source": cbtf.source["path"], "options": opts.recorded()},
     })
+    if transcoded is not None:
+        info["provenance"]["transcoded"] = transcoded
     info.update(opts.extra)
     return replace(cbtf, info=info, curve=curve)
 

@@ -33,7 +33,7 @@ from ..cluster import environment, require_environment, session
 from ..errors import IOFailure, UsageError
 from ..manifest import outside_paths_allowed, outside_paths_are_allowed
 from ..model import ArrayBTF, BTF, FileBTF
-from ..progress import Progress
+from ..progress import Progress, bar as progress_bar
 from .projection import ProjectionTotal, ShardSums, TileProjector, WorkPlan
 from .source import _KeptSource, _Source, kept_values
 
@@ -165,6 +165,11 @@ class DaskSource(_KeptSource):
         loses nothing, the scheduler runs the task again (scattered data would be lost)."""
         return self.client.submit(_identity, value, pure=False, key=f"usdbtf-{what}-{os.urandom(4).hex()}")
 
+    def _bar(self, label: str, total: int) -> Progress:
+        """A progress bar of a pass (drawn as :func:`usdbtf.progress.bar` decides: on a
+        terminal or with ``usdbtf --progress``, not with ``-q``), or a silent one."""
+        return progress_bar(label, total) if self.progress else Progress(label, total, enabled=False)
+
     def close(self) -> None:
         if self._session is not None:
             session, self._session = self._session, None
@@ -175,7 +180,7 @@ class DaskSource(_KeptSource):
         shards = self.plan.shards()
         futures = [self.client.submit(first_pass_task, self._job, a, b, keep_texels, keep_rows, pure=False,
                                       key=f"usdbtf-columns-{a}-{os.urandom(4).hex()}") for a, b in shards]
-        bar = Progress("dask pass 1/2 (fit columns)", len(shards), enabled=self.progress)
+        bar = self._bar("dask pass 1/2 (fit columns)", len(shards))
         for (a, _), (cols, rows) in zip(shards, self._results(futures, bar)):
             self._store(a, cols, rows)
         bar.finish()
@@ -203,7 +208,7 @@ class DaskSource(_KeptSource):
         shards = self.plan.shards()
         # Group-major: each group's shards come in order, so the reduction rarely waits.
         work = [(g, n) for g in texel_groups(self.plan, max(proj.ks)) for n in range(len(shards))]
-        bar = Progress("dask pass 2/2 (projection)", len(work), enabled=self.progress)
+        bar = self._bar("dask pass 2/2 (projection)", len(work))
         tag = os.urandom(4).hex()
         pending: deque = deque()
         todo = iter(work)

@@ -18,7 +18,8 @@ from .options import CompressOptions
 from .parallel import rows_gemm
 from .texels import Texels
 
-__all__ = ["BasisFit", "fit_basis", "fit_weights", "require_signal", "sampled_coefficients", "HDR_NORM_RANGE"]
+__all__ = ["BasisFit", "fit_basis", "fit_source", "fit_weights", "norm_weights", "signal_only", "require_signal",
+           "sampled_coefficients", "HDR_NORM_RANGE"]
 
 #: Fitted texels whose norms span more than this get equalising fit weights: an energy-
 #: weighted float32 fit cannot see a region below ~1e-6 of the brightest (its singular
@@ -86,18 +87,33 @@ def fit_basis(x: np.ndarray, k: int, options: CompressOptions) -> BasisFit:
                                         seed=options.seed, return_coefficients=True)
         if weights is not None:
             coeff /= weights             # U^T (X W) = (U^T X) W
-    fit = BasisFit(u, sv, coeff, weights is not None)
+    return signal_only(BasisFit(u, sv, coeff, weights is not None))
+
+
+def signal_only(fit: BasisFit) -> BasisFit:
+    """``fit`` without the directions whose sigma is below 1e-6 sigma_1 (they carry no signal,
+    only rounding); an all-zero fit as it is."""
     if not fit.has_signal:
         return fit
-    rank = int(np.count_nonzero(sv > sv[0] * _RANK_CUT))  # drop directions that carry no signal
-    return BasisFit(u[:, :rank], sv[:rank], None if coeff is None else coeff[:rank], fit.weighted)
+    sv = fit.singular_values
+    rank = int(np.count_nonzero(sv > sv[0] * _RANK_CUT))
+    coeff = None if fit.coefficients is None else fit.coefficients[:rank]
+    return BasisFit(fit.basis[:, :rank], sv[:rank], coeff, fit.weighted)
+
+
+def fit_source(source, texels: np.ndarray, k: int, options: CompressOptions) -> BasisFit:
+    """The fit step on a source: a source that fits from its own structure (one with a
+    ``fit(texels, k, options)`` method, e.g. :class:`~.factored.FactoredSource`) does so;
+    any other is fitted by :func:`fit_basis` on the columns of ``texels``."""
+    own = getattr(source, "fit", None)
+    return own(texels, k, options) if own is not None else fit_basis(source.columns(texels), k, options)
 
 
 def require_signal(fit: BasisFit, btf: BTF, texels: Texels, options: CompressOptions) -> None:
     """Raise BTFError, naming the input and what to try, when the fit found no signal."""
     if fit.has_signal:
         return
-    where = btf.metadata.get("_path") or "input BTF"
+    where = btf.path or "input BTF"
     if len(texels.fit) < btf.n_pixels:
         raise BTFError(f"{where}: the {len(texels.fit)} texels the basis is fitted on are all zero "
                        f"({'central region: try --region' if options.solver == 'paper' else 'try --fit-texels'})")
@@ -112,12 +128,17 @@ def fit_weights(x: np.ndarray) -> np.ndarray | None:
     norm): a dark region with a BRDF of its own then gets basis directions, while bright
     texels still weigh more, as the paper's absolute error metric wants.
     """
-    norms = np.sqrt(_column_energy(x).reshape(-1, 3).sum(axis=1))
+    w = norm_weights(np.sqrt(_column_energy(x).reshape(-1, 3).sum(axis=1)))
+    return None if w is None else np.repeat(w, 3).astype(np.float32)
+
+
+def norm_weights(norms: np.ndarray) -> np.ndarray | None:
+    """Per-texel fit weights (n,) float64 from texel norms ||x_t|| (n,): ||x_t||^-1/2 when the
+    nonzero norms span more than HDR_NORM_RANGE (zero texels weigh 1), else None."""
     pos = norms[norms > 0]
     if len(pos) == 0 or pos.max() <= HDR_NORM_RANGE * pos.min():
         return None
-    w = np.where(norms > 0, 1.0 / np.sqrt(np.maximum(norms, pos.min())), 1.0)
-    return np.repeat(w, 3).astype(np.float32)
+    return np.where(norms > 0, 1.0 / np.sqrt(np.maximum(norms, pos.min())), 1.0)
 
 
 def _column_energy(x: np.ndarray, rows: int = 256) -> np.ndarray:

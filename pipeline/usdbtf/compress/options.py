@@ -46,6 +46,10 @@ class CompressOptions:
     spill: bool = True                    # streaming: decoded values to an anonymous spill file, read back once
     dask: str | None = None               # a Dask scheduler address or "local:N" (usdbtf.cluster.parse_address)
     progress: bool = False                # a progress bar on stderr for long passes (the Dask ones)
+    expand_factors: bool = False          # a factorised input (UBO2014 DFMF/FMF): expand its images instead of
+                                          # transcoding from the factors (see factored.py)
+    factor_rows: int | None = None        # transcoding a nonlinear colour model: samples the coefficients are
+                                          # solved on (default: factored.default_rows; >= S: all, exact)
     extra: dict = field(default_factory=dict)
 
     def validate(self):
@@ -66,6 +70,8 @@ class CompressOptions:
                 parse_address(self.dask)
             except argparse.ArgumentTypeError as exc:
                 raise UsageError(f"--dask: {exc}") from None
+        if self.factor_rows is not None and self.factor_rows < 1:
+            raise BTFError(f"--factor-rows must be at least 1, got {self.factor_rows}")
         if self.codec_name not in CODEC_NAMES:
             raise BTFError(f"unknown codec {self.codec_name!r}; choose from {', '.join(CODEC_NAMES)}")
 
@@ -104,9 +110,16 @@ class CompressOptions:
     def recorded(self) -> dict:
         """The options as the output's provenance records them: those that steer the result,
         not how or where it was computed (memory budget, chunk size, workers, spill file,
-        cluster), which give the same bytes."""
-        return {k: v for k, v in self.__dict__.items() if k not in _NOT_RECORDED}
+        cluster), which give the same bytes; the factor-input options only when set, so
+        other inputs' records stay as they were."""
+        out = {k: v for k, v in self.__dict__.items() if k not in _NOT_RECORDED}
+        for key, default in _FACTOR_OPTIONS.items():
+            if out[key] == default:
+                del out[key]
+        return out
 
 
 #: Options that do not change a bit of the output (see :mod:`.projection`).
 _NOT_RECORDED = ("extra", "workers", "memory_budget", "chunk_bytes", "spill", "dask", "progress")
+#: Options that only steer factorised inputs, with their defaults.
+_FACTOR_OPTIONS = {"expand_factors": False, "factor_rows": None}

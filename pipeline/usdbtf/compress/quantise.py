@@ -101,7 +101,7 @@ def quantise(f: Factorisation, k: int, step: float, options: CompressOptions) ->
         color_matrix=f.colour_matrix, codec=options.codec_name,
         working_space=colour.resolve_space(btf.working_space, btf.ocio_config),
         source={"color_space": btf.color_space, "bit_depth": btf.bit_depth,
-                "path": str(btf.metadata.get("_path", ""))},
+                "path": btf.path},
         interpolated=btf.interpolated, ocio_config=btf.ocio_config)
 
 

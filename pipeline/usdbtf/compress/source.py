@@ -39,19 +39,16 @@ import numpy as np
 from .. import colour
 from ..errors import BTFError
 from ..model import BTF, FileBTF
-from .curve import curve_samples
 from .load import _STATE, BlockedData, _forkable, _init, default_workers, load_encoded, stored_dtype
-from .options import CompressOptions
 from .parallel import cpu_count, in_threads, one_blas_thread, thread_map
 from .projection import ProjectionTotal, ShardSums, TileProjector, WorkPlan
 from .spill import Spill
-from .texels import Texels
 
 #: Bytes of stored values the streaming source decodes per chunk (whole projection tiles);
 #: up to workers + 1 chunks are in flight.
 CHUNK_BYTES = 64e6
 
-__all__ = ["InMemorySource", "StreamingSource", "kept_values", "choose_source", "load_source", "stored_bytes", "tile_samples",
+__all__ = ["InMemorySource", "StreamingSource", "kept_values", "choose_source", "stored_bytes", "tile_samples",
            "work_plan", "itemsize"]
 
 
@@ -356,31 +353,3 @@ def choose_source(btf: BTF, keep_texels: list, keep_rows, *, memory_budget: floa
     if stored_bytes(btf) <= memory_budget:
         return InMemorySource(btf, workers=workers)
     return StreamingSource(btf, keep_texels, keep_rows, workers=workers, chunk_bytes=chunk_bytes, spill=spill)
-
-
-def load_source(btf: BTF, texels: Texels, options: CompressOptions, *, log=None) -> _Source:
-    """The load step: where one compress reads its data from (:func:`choose_source`, or a
-    Dask cluster when ``options.dask`` names one: :mod:`.distributed`).
-
-    Parameters
-    ----------
-    btf : the BTF; its files are decoded (all at once, or streamed in chunks).
-    texels : the fitting and evaluation texels, whose columns a streaming source keeps on its
-        first pass (with the error curve's sample rows, :func:`.curve.curve_samples`).
-    options : ``memory_budget`` (bytes of stored values held in memory, else streamed),
-        ``chunk_bytes``, ``workers``, ``spill``, ``dask``, ``progress``.
-    log : callable(str) for what a cluster says (its workers, its dashboard link).
-
-    Returns
-    -------
-    A source (a context manager: close it, or use ``with``) that answers ``columns``
-    (S, 3 n), ``project`` and ``working_samples`` (r, P, 3) the same way, bit for bit.
-    """
-    keep = [texels.fit, texels.evaluation]
-    rows = curve_samples(btf.n_samples)
-    if options.dask:
-        from .distributed import DaskSource
-
-        return DaskSource(btf, keep, rows, options, log=log)
-    return choose_source(btf, keep, rows, memory_budget=options.memory_budget, workers=options.workers,
-                         chunk_bytes=options.chunk_bytes, spill=options.spill)

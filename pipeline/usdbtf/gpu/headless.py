@@ -24,7 +24,7 @@ from ..mesh import Mesh
 from . import shaders
 from .tables import MAX_PACKS, GpuLayout
 
-__all__ = ["HeadlessRenderer", "create_context", "egl_unavailable_reason", "psnr", "uv_sphere"]
+__all__ = ["HeadlessRenderer", "create_context", "psnr", "uv_sphere"]
 
 _MAX_CODE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}
 
@@ -39,15 +39,6 @@ def create_context():
         return moderngl.create_context(standalone=True, backend="egl")
     except Exception as exc:  # moderngl/glcontext raise plain Exceptions for a missing EGL
         raise BTFError(f"cannot create a headless OpenGL context through EGL: {' '.join(str(exc).split())}") from None
-
-
-def egl_unavailable_reason() -> str | None:
-    """Why no headless context can be made here, or None when one can."""
-    try:
-        create_context().release()
-    except BTFError as exc:
-        return str(exc)
-    return None
 
 
 def psnr(image: np.ndarray, reference: np.ndarray, mask: np.ndarray | None = None) -> float:

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import BTFError, UsageError
-from ..usdstage import USD_SUFFIXES, open_usd, usd_warnings_silenced
+from ..usdstage import USD_SUFFIXES, open_usd, usd_exists, usd_warnings_silenced
 from .model import Mesh
 
 __all__ = ["load_mesh", "MESH_SUFFIXES", "TRIMESH_SUFFIXES", "USD_SUFFIXES"]
@@ -48,7 +48,7 @@ def load_mesh(path, *, meters_per_unit: float | None = None, up_axis: str | None
         raise UsageError(f"--meters-per-unit must be a positive number, got {meters_per_unit}")
     if up_axis is not None and up_axis not in ("Y", "Z"):
         raise UsageError(f"--up-axis must be Y or Z, got {up_axis!r}")
-    if not path.is_file():
+    if not (path.is_file() or usd_exists(path)):       # USD files are found through the asset resolver
         raise BTFError(f"{path}: mesh file not found")
     suffix = path.suffix.lower()
     if suffix in USD_SUFFIXES:

@@ -9,7 +9,7 @@ fixed "ghost" texels.  Block matching then sees what lies across the border on t
 surface, so the chart grows to continue its neighbours, and the ghosts stay in the chart's
 rim (the texels just outside its triangles that bilinear filtering reads), so at the border
 itself the texture is the neighbour's continued (measured: the squared difference across
-chart borders falls 2-3x, see tests/test_quilt_atlas.py).  (The tangent frames on the two
+chart borders falls 2-3x, see tests/test_unwrap.py).  (The tangent frames on the two
 sides still differ by the charts' relative rotation: no atlas can avoid that.)  Charts are
 visited breadth-first over the chart adjacency graph from the largest, so every chart but
 the first of each connected piece has a done neighbour.
@@ -19,7 +19,9 @@ mip filtering near chart edges never read unrelated data.
 """
 from __future__ import annotations
 
+import logging
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -28,14 +30,15 @@ from ..compress.format import CompressedBTF
 from ..errors import BTFError
 from ..mesh import Mesh, weld
 from ..raster import pixel_barycentrics, rasterize, st_to_texels
-from ..unwrap import UnwrapResult
-from .core import Quilt, QuiltOptions, prepare_source, quilt_record
+from ..unwrap import UnwrapResult, read_unwrap
+from .core import QuiltOptions, QuiltResult, prepare_source, quilt_record
 from .engine import Grid, grid_for, place_blocks
 from .seams import pair_error, seam_error_all_samples
 
 __all__ = ["quilt_atlas", "face_neighbours", "chart_border_error"]
 
 _RINGS = 2
+log = logging.getLogger(__name__)
 
 
 def face_neighbours(faces_welded: np.ndarray) -> np.ndarray:
@@ -152,12 +155,17 @@ def corner_texels(mesh: Mesh, width: int, height: int) -> np.ndarray:
     return st_to_texels(mesh.corner(mesh.uv), width, height)
 
 
-def quilt_atlas(cbtf: CompressedBTF, unwrapped: UnwrapResult, opts: QuiltOptions | None = None,
-                *, ghosts: bool = True, log=None) -> Quilt:
-    """Quilt ``cbtf`` into the atlas of ``unwrapped`` (:func:`usdbtf.unwrap.unwrap` or
-    :func:`~usdbtf.unwrap.read_unwrap`: its mesh's per-corner st and charts, and the chart map)."""
-    say = log or (lambda msg: None)
-    opts = (opts or QuiltOptions()).resolved(cbtf)
+def quilt_atlas(cbtf: CompressedBTF, atlas, opts: QuiltOptions | None = None) -> QuiltResult:
+    """Quilt ``cbtf`` into the atlas of ``atlas``: an :class:`~usdbtf.unwrap.UnwrapResult`
+    (:func:`usdbtf.unwrap.unwrap`: its mesh's per-corner st and charts, and the chart map) or
+    the path of an ``usdbtf unwrap`` layer (read by :func:`~usdbtf.unwrap.read_unwrap`, and
+    recorded).  ``opts.ghosts``: match chart borders against their quilted neighbours."""
+    layer_path = None
+    if not isinstance(atlas, UnwrapResult):
+        layer_path = Path(atlas)
+        atlas = read_unwrap(layer_path)
+    unwrapped, opts = atlas, (opts or QuiltOptions()).resolved(cbtf)
+    ghosts = opts.ghosts
     if opts.tileable:
         raise BTFError("--tileable does not apply to an atlas")
     layer, charts = unwrapped.mesh, unwrapped.chart_map
@@ -209,13 +217,15 @@ def quilt_atlas(cbtf: CompressedBTF, unwrapped: UnwrapResult, opts: QuiltOptions
     seconds = time.perf_counter() - t0
     seam = seam_error_all_samples(positions, source.image, cbtf.width, cbtf.n_samples, labels=charts)
     border = chart_border_error(positions, layer, neighbours, source.image, cbtf.width, cbtf.n_samples)
-    say(f"atlas {W}x{H}: {n_charts} charts, {blocks} blocks, {ghost_texels} ghost texels, "
+    log.info(f"atlas {W}x{H}: {n_charts} charts, {blocks} blocks, {ghost_texels} ghost texels, "
         f"seam error {seam:.4g} (inside charts), {border:.4g} (across chart borders)")
     record = quilt_record(cbtf, opts, W, H, blocks=blocks, seam=seam, seconds=seconds,
                           atlas={"charts": n_charts, "ghost_texels": int(ghost_texels), "ghosts": bool(ghosts),
                                  "chart_border_error": border, "coverage": float(valid.mean()),
                                  "texels_per_metre": unwrapped.atlas.texels_per_metre or None})
-    return Quilt(positions, valid, opts, record)
+    if layer_path is not None:
+        record["atlas"]["layer"] = str(layer_path)
+    return QuiltResult(positions, valid, opts, record, cbtf)
 
 
 def _place_ghosts(canvas, c, origin, positions, face_chart, done, neighbours, welded, points, corner_xy) -> int:

@@ -41,7 +41,10 @@ Laziness: blocks are memory-mapped, nothing is expanded at open.  ``UBO2014BTF.f
 exposes the DFMF/FMF factors per channel -- ``samples`` (S x k, row v nL + l) and
 ``texels`` (T x k, row y W + x) with ``channel values = samples @ texels.T`` -- and the
 colour model to invert after, so that a transcoder can work in memory proportional to the
-factors.  ``read_encoded(samples, rows)`` multiplies out any samples x row block.
+factors (``usdbtf.compress.factored`` does); ``channels_to_rgb(planes, samples)`` applies to
+channel values it multiplied out itself what ``read_encoded`` applies after the product (the
+colour model's inverse, the cosine, the clamp).  ``read_encoded(samples, rows)`` multiplies out
+any samples x row block.
 """
 from .binary import SIGNATURES, BonnHeader
 from .colour_models import MODEL_NAMES, undecorrelate

@@ -111,21 +111,39 @@ class UBO2014BTF(BTF):
         if have is not None and need > have:
             raise BTFError(f"{self.source}: expanding {n} samples x {h} rows needs about {need / 1e9:.1f} GB "
                            f"of memory, {have / 1e9:.1f} GB is available; read fewer samples or rows at a time")
-        planes = self._to_rgb(self.decoder.channels(idx, y0 * w, y1 * w), idx)   # (3, n, h W)
+        planes = self.channels_to_rgb(self.decoder.channels(idx, y0 * w, y1 * w), idx)   # (3, n, h W)
         rgb = np.empty((n, h * w, 3), np.float32)
         for c in range(3):
             rgb[..., c] = planes[c]
         return rgb.reshape(n, h, w, 3)
 
-    def _to_rgb(self, planes: np.ndarray, idx: np.ndarray) -> np.ndarray:
-        """Channel planes (3, n, T') -> linear RGB planes: colour model, dynamic range, cosine, clamp."""
+    def channels_to_rgb(self, planes: np.ndarray, samples: np.ndarray, *, clamp: bool = True) -> np.ndarray:
+        """What follows the factor product: channel planes -> linear RGB planes in ``color_space``.
+
+        The colour model's inverse, the dynamic-range restore, the light cosine (cosine flag)
+        and, with ``clamp``, negative values set to 0 -- the steps ``read_encoded`` applies,
+        exposed so that a caller multiplying the factors itself (a transcoder) decodes the same
+        values.
+
+        Parameters
+        ----------
+        planes : (3, n, T') float32 channel values of samples ``samples`` (modified in place
+            where possible).
+        samples : (n,) int sample indices (v nL + l) of the planes' rows.
+        clamp : set negative results to 0 (truncated factorisations ring below zero).
+
+        Returns
+        -------
+        (3, n, T') float32 RGB planes.
+        """
         f = self.factors
         if f is not None:
             planes = undecorrelate(planes, f.color_model, mean=f.color_mean, matrix=f.color_matrix, axis=0)
             planes = restore_dynamic_range(planes, f.dynamic_range_reduction)
         if self.header.cosine_flag:
-            planes /= self._cos_light[idx % self.header.n_lights][None, :, None]
-        np.maximum(planes, 0.0, out=planes)  # NaN stays NaN, and decode() reports it
+            planes /= self._cos_light[np.asarray(samples) % self.header.n_lights][None, :, None]
+        if clamp:
+            np.maximum(planes, 0.0, out=planes)  # NaN stays NaN, and decode() reports it
         return planes
 
     @property

@@ -20,6 +20,7 @@ covers ``s in [j/W, (j+1)/W]``, ``t in [1-(i+1)/H, 1-i/H]``.
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import cv2
@@ -29,6 +30,8 @@ from ..compress.format import CompressedBTF
 from ..errors import BTFError, UsageError
 from ..mesh import Mesh, mirrored_faces, uv_gradients
 from ..raster import rasterize, st_to_texels
+
+log = logging.getLogger(__name__)
 
 __all__ = ["Atlas", "texel_density", "make_atlas", "keep_uvs", "chart_map", "uv_problems", "MAX_ATLAS_SIDE",
            "MIN_TEXEL_SCALE", "check_atlas_size"]
@@ -126,20 +129,18 @@ def check_atlas_size(area_m2: float, density: float, max_resolution: int, where:
     return float(scale)
 
 
-def make_atlas(mesh: Mesh, density: float, *, max_resolution: int = 4096, padding: int = 4,
-               log=None) -> Atlas:
+def make_atlas(mesh: Mesh, density: float, *, max_resolution: int = 4096, padding: int = 4) -> Atlas:
     """Charts and packing by xatlas at ``density`` texels per metre (capped, see module docstring).
 
     mesh : per-vertex texture-less mesh with per-vertex normals (N, 3)."""
     import xatlas
 
-    say = log or (lambda msg: None)
     scale = check_atlas_size(mesh.area(), density, max_resolution, mesh.source)
     if scale < 1.0:
         # Start where the atlas will about fit (charts plus packing overhead), not at a size
         # xatlas could not allocate.
         scale *= 0.98
-        say(f"the atlas at {density:.4g} texels/m would exceed {max_resolution}: texel density x {scale:.3f}")
+        log.info(f"the atlas at {density:.4g} texels/m would exceed {max_resolution}: texel density x {scale:.3f}")
     for _ in range(8):
         atlas = xatlas.Atlas()
         atlas.add_mesh(mesh.points.astype(np.float32), mesh.triangles.astype(np.uint32),
@@ -160,7 +161,7 @@ def make_atlas(mesh: Mesh, density: float, *, max_resolution: int = 4096, paddin
         if max(atlas.width, atlas.height) <= max_resolution:
             break
         shrink = max_resolution / max(atlas.width, atlas.height) * 0.98
-        say(f"atlas {atlas.width}x{atlas.height} exceeds {max_resolution}: texel density x {scale * shrink:.3f}")
+        log.info(f"atlas {atlas.width}x{atlas.height} exceeds {max_resolution}: texel density x {scale * shrink:.3f}")
         scale *= shrink
         if scale < MIN_TEXEL_SCALE:
             break

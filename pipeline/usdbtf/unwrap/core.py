@@ -14,6 +14,7 @@ Output folder (:func:`write_unwrap`; :func:`read_unwrap` reads it back)::
 from __future__ import annotations
 
 import json
+import logging
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -26,6 +27,8 @@ from ..imageio import read_image, write_image
 from ..mesh import Mesh, load_mesh, mirrored_faces, tangent_frames
 from .atlas import MAX_ATLAS_SIDE, Atlas, chart_map, keep_uvs, make_atlas, uv_problems
 from .layer import layer_atlas_info, write_layer
+
+log = logging.getLogger(__name__)
 
 __all__ = ["UnwrapOptions", "UnwrapResult", "unwrap", "write_unwrap", "read_unwrap", "LAYER", "CHARTS"]
 
@@ -82,12 +85,11 @@ def _prepared(mesh: Mesh) -> Mesh:
     return mesh.split_corners().without_degenerate().compacted().with_normals()
 
 
-def unwrap(mesh: Mesh, options: UnwrapOptions, *, log=None) -> UnwrapResult:
+def unwrap(mesh: Mesh, options: UnwrapOptions) -> UnwrapResult:
     """Atlas, tangent frames and chart map of ``mesh`` at ``options.texels_per_metre`` (in
     memory; :func:`write_unwrap` writes it).  Degenerate triangles are dropped and points no
     triangle uses left out (``record["notes"]`` says what was dropped)."""
     options.validate()
-    say = log or (lambda msg: None)
     mesh = _prepared(mesh)
     density = float(options.texels_per_metre)
     atlas = None
@@ -100,9 +102,9 @@ def unwrap(mesh: Mesh, options: UnwrapOptions, *, log=None) -> UnwrapResult:
                 kept_reason = f"keeping them needs a {atlas.width}-texel atlas (> --max-resolution)"
                 atlas = None
         if atlas is None:
-            say(f"not keeping the mesh's texture coordinates: {kept_reason}; unwrapping with xatlas")
+            log.info(f"not keeping the mesh's texture coordinates: {kept_reason}; unwrapping with xatlas")
     if atlas is None:
-        atlas = make_atlas(mesh, density, max_resolution=options.max_resolution, padding=options.padding, log=say)
+        atlas = make_atlas(mesh, density, max_resolution=options.max_resolution, padding=options.padding)
     normals = mesh.normals[atlas.vertex_of]
     points = mesh.points[atlas.vertex_of]
     tangents, bitangents = tangent_frames(points, atlas.faces, atlas.st, normals)
@@ -122,8 +124,8 @@ def unwrap(mesh: Mesh, options: UnwrapOptions, *, log=None) -> UnwrapResult:
     if out.notes:
         record["notes"] = list(out.notes)
     for note in out.notes:
-        say(f"{mesh.source}: {note}")
-    say(f"{len(out.triangles)} triangles, {atlas.charts} charts, atlas {atlas.width}x{atlas.height} at "
+        log.info(f"{mesh.source}: {note}")
+    log.info(f"{len(out.triangles)} triangles, {atlas.charts} charts, atlas {atlas.width}x{atlas.height} at "
         f"{atlas.texels_per_metre:.1f} texels/m ({atlas.method})")
     return UnwrapResult(out, atlas, charts, record)
 

@@ -187,7 +187,8 @@ def plan(scene) -> tuple[list[Recipe], dict]:
 
     The report lists ``bound`` materials with the prims bound to them and
     ``without_recipe`` (bound materials that have nothing to build)."""
-    from .read import open_usd, usd_warnings_silenced
+    from ..usdstage import open_usd, usd_warnings_silenced
+    from .package import ROOT_FORMATS
 
     scene = Path(scene)
     # Composition errors are expected before the first build: the materials reference
@@ -205,8 +206,9 @@ def plan(scene) -> tuple[list[Recipe], dict]:
             without.append(path)
             continue
         asset = _anchored(prim, "build:asset")
-        if asset is None or asset.suffix != ".usda":
-            raise BTFError(f"{scene}: {path} has btf:build:source but no btf:build:asset (.usda) to write")
+        if asset is None or asset.suffix not in ROOT_FORMATS:
+            raise BTFError(f"{scene}: {path} has btf:build:source but no btf:build:asset "
+                           f"({'/'.join(ROOT_FORMATS)}) to write")
         if not source.exists():
             raise BTFError(f"{scene}: {path}: btf:build:source {source} does not exist")
         attr = prim.GetAttribute(NS + "build:options")

@@ -6,7 +6,7 @@
 
 ``load_btf`` returns the same :class:`~usdbtf.compress.format.CompressedBTF` that
 ``read_compressed`` gives for the compressed folder, so every tool that takes one
-(``reconstruct``, ``decompress_to_folder``, the renderer) takes an asset too.
+(``reconstruct``, :mod:`usdbtf.decompress`, the renderer) takes an asset too.
 """
 from __future__ import annotations
 

@@ -187,6 +187,7 @@ def mark_pareto(rows: list) -> None:
 
 def run(ctx: Context) -> SectionResult:
     from ..baselines import ffmpeg_x265
+    from ..datasets import preset_split
     from ..measure import warm_page_cache
 
     cfg = ctx.config
@@ -206,8 +207,8 @@ def run(ctx: Context) -> SectionResult:
             rows = [reference_row(ctx, ds)] + [measure_method(ctx, ds, m, video_ok) for m in methods]
             mark_pareto(rows)
             result.rows.extend(rows)
-            title = (f"{preset}, sampling {cfg.sampling} ({len(ds.fit_idx)} fitted + {len(ds.held_idx)} held-out "
-                     f"samples), {size}x{size}")
+            title = (f"{preset}{' (held-out preset)' if preset_split(preset) == 'held-out' else ''}, sampling "
+                     f"{cfg.sampling} ({len(ds.fit_idx)} fitted + {len(ds.held_idx)} held-out samples), {size}x{size}")
             result.tables.append(f"#### {title}\n\n{markdown_table(rows, COLUMNS)}")
             ok = [r for r in rows if r.get("status") == "ok"]
             if ok:
