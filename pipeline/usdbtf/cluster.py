@@ -32,6 +32,8 @@ from pathlib import Path
 
 from .errors import BTFError, IOFailure
 
+log = logging.getLogger(__name__)
+
 __all__ = ["ClusterAddress", "parse_address", "session", "environment", "require_environment", "environ_kept",
            "command_info", "run_command", "CONNECT_TIMEOUT",
            "MAX_LOCAL_WORKERS", "ADDRESS_HELP"]
@@ -149,18 +151,17 @@ def _worker_environment():
 
 # -- sessions ------------------------------------------------------------------------------------
 @contextlib.contextmanager
-def session(address, *, log=None, timeout: float = CONNECT_TIMEOUT):
+def session(address, *, timeout: float = CONNECT_TIMEOUT):
     """A checked Dask ``Client`` for ``address`` (text or :class:`ClusterAddress`), closed after.
 
     ``local:N`` starts a LocalCluster of N single-threaded worker processes (its dashboard on
     a free port when Bokeh is installed) and stops it after.  A scheduler that does not answer
     within ``timeout`` seconds, or that has no worker by then, is an :class:`IOFailure` (exit
     status 74: the network or the cluster failed, not the input data).  Workers whose
-    :func:`environment` differs are refused (:class:`BTFError`, exit status 65).  ``log``
-    (callable(str)) gets the cluster and its dashboard link.
+    :func:`environment` differs are refused (:class:`BTFError`, exit status 65).  The cluster and its
+    dashboard link are logged (info).
     """
     addr = parse_address(address)
-    say = log or (lambda msg: None)
     quiet_logs = _quiet_dask_logs()
     with quiet_logs, contextlib.ExitStack() as stack:
         from distributed import Client, LocalCluster
@@ -192,7 +193,7 @@ def session(address, *, log=None, timeout: float = CONNECT_TIMEOUT):
         n = len(info.get("workers", {}))
         threads = sum(w.get("nthreads", 1) for w in info.get("workers", {}).values())
         link = client.dashboard_link if _has_dashboard(client) else "none (install bokeh for one)"
-        say(f"dask: {addr}: {n} worker(s), {threads} thread(s); dashboard {link}")
+        log.info(f"dask: {addr}: {n} worker(s), {threads} thread(s); dashboard {link}")
         yield client
 
 

@@ -1,7 +1,6 @@
 """``usdbtf build``: build the BTF materials a scene binds (and nothing else), incrementally."""
 from __future__ import annotations
 
-import logging
 from pathlib import Path
 
 from ..cluster import ADDRESS_HELP, parse_address
@@ -39,8 +38,7 @@ def run(args) -> int:
         for path in report["without_recipe"]:
             print(f"{path}: bound, no recipe")
         return 0
-    # usd.build still takes a callable for its messages (it is being changed on another branch).
-    report = build(args.scene, force=args.force, log=logging.getLogger("usdbtf.usd.build").info, dask=args.dask)
+    report = build(args.scene, force=args.force, dask=args.dask)
     if args.json:
         return _print_report(args.scene, report["recipes"], report, dry_run=False)
     return 0

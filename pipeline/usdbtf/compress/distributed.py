@@ -140,15 +140,14 @@ class DaskSource(_KeptSource):
     keep_texels : sorted texel arrays whose columns :meth:`columns` answers.
     keep_rows : sample indices :meth:`working_samples` answers.
     options : ``dask`` (the cluster address), ``progress`` (a bar on stderr).
-    log : callable(str) for the cluster line (workers, dashboard link).
     """
 
     kind = "dask"
 
-    def __init__(self, btf: BTF, keep_texels: list, keep_rows, options, *, log=None):
+    def __init__(self, btf: BTF, keep_texels: list, keep_rows, options):
         super().__init__(btf)
         self.progress = bool(getattr(options, "progress", False))
-        self._session = session(options.dask, log=log)
+        self._session = session(options.dask)
         self.client = self._session.__enter__()
         try:
             n_workers = len(self.client.scheduler_info().get("workers", {}))

@@ -7,6 +7,7 @@ above all three so that none of them imports another's chooser.
 """
 from __future__ import annotations
 
+import logging
 from ..model import BTF
 from .curve import curve_samples
 from .factored import FactoredSource, uses_factors
@@ -14,10 +15,12 @@ from .options import CompressOptions
 from .source import choose_source
 from .texels import Texels
 
+log = logging.getLogger(__name__)
+
 __all__ = ["load_source"]
 
 
-def load_source(btf: BTF, texels: Texels, options: CompressOptions, *, log=None):
+def load_source(btf: BTF, texels: Texels, options: CompressOptions):
     """The load step: where one compress reads its data from (:func:`choose_source`, or a
     Dask cluster when ``options.dask`` names one: :mod:`.distributed`).
 
@@ -28,7 +31,6 @@ def load_source(btf: BTF, texels: Texels, options: CompressOptions, *, log=None)
         first pass (with the error curve's sample rows, :func:`.curve.curve_samples`).
     options : ``memory_budget`` (bytes of stored values held in memory, else streamed),
         ``chunk_bytes``, ``workers``, ``spill``, ``dask``, ``progress``.
-    log : callable(str) for what a cluster says (its workers, its dashboard link).
 
     Returns
     -------
@@ -40,14 +42,14 @@ def load_source(btf: BTF, texels: Texels, options: CompressOptions, *, log=None)
     decodes no images; the bytes are those of a run without ``--dask``).
     """
     if uses_factors(btf, options):
-        if options.dask and log:
-            log("transcoding from the input's factors in this process (--dask is for decoding images)")
+        if options.dask:
+            log.info("transcoding from the input's factors in this process (--dask is for decoding images)")
         return FactoredSource(btf, options)
     keep = [texels.fit, texels.evaluation]
     rows = curve_samples(btf.n_samples)
     if options.dask:
         from .distributed import DaskSource
 
-        return DaskSource(btf, keep, rows, options, log=log)
+        return DaskSource(btf, keep, rows, options)
     return choose_source(btf, keep, rows, memory_budget=options.memory_budget, workers=options.workers,
                          chunk_bytes=options.chunk_bytes, spill=options.spill)

@@ -36,6 +36,7 @@ Scene text is data, never code:
 """
 from __future__ import annotations
 
+import logging
 import argparse
 import contextlib
 import json
@@ -50,6 +51,8 @@ from ..atomic import atomic_file, related
 from ..compress.format import METADATA as COMPRESSED_METADATA
 from ..errors import BTFError, OutputRefused, error_for_status
 from .material import NS
+
+log = logging.getLogger(__name__)
 
 __all__ = ["Recipe", "plan", "build", "sconstruct", "parse_options", "BUILD_DIR"]
 
@@ -339,7 +342,7 @@ def _claim_outputs(scene: Path, recipes: list[Recipe], work: Path, force: bool) 
         tmp.write_text(json.dumps(sorted(owned | set(mine)), indent=1) + "\n")
 
 
-def build(scene, *, force: bool = False, log=None, dask=None) -> dict:
+def build(scene, *, force: bool = False, dask=None) -> dict:
     """Build what ``scene`` needs; returns the report (plan + ``ran``: the steps SCons ran).
 
     force : replace existing outputs this build did not write before (only usdbtf outputs
@@ -347,11 +350,10 @@ def build(scene, *, force: bool = False, log=None, dask=None) -> dict:
     dask : a cluster address (:func:`usdbtf.cluster.parse_address`): the steps run as Dask
         tasks there, as many at once as it has threads (each runs ``usdbtf`` on a worker,
         which must read and write the same paths); the outputs are the same."""
-    log = log or (lambda msg: None)
     scene = Path(scene).resolve()
     recipes, report = plan(scene)
     for path in report["without_recipe"]:
-        log(f"{path}: bound, no btf:build recipe (nothing to build)")
+        log.info(f"{path}: bound, no btf:build recipe (nothing to build)")
     work = scene.parent / BUILD_DIR / scene.stem
     _claim_outputs(scene, recipes, work, force)
     with contextlib.ExitStack() as stack:
@@ -359,7 +361,7 @@ def build(scene, *, force: bool = False, log=None, dask=None) -> dict:
         if dask is not None:
             from ..cluster import command_info, session
 
-            dask_info, jobs = command_info(stack.enter_context(session(dask, log=log)))
+            dask_info, jobs = command_info(stack.enter_context(session(dask)))
         for name, text in (("SConstruct", sconstruct()),
                            (_STEPS, json.dumps(steps(recipes, dask_info), indent=1) + "\n")):
             if not (work / name).is_file() or (work / name).read_text() != text:
@@ -384,8 +386,8 @@ def build(scene, *, force: bool = False, log=None, dask=None) -> dict:
         detail = proc.stderr.strip().splitlines() or proc.stdout.strip().splitlines() or ["?"]
         raise BTFError(f"{scene}: build failed: {detail[-1]}")
     for r in recipes:
-        log(f"{r.material}: {r.asset}")
-    log(f"{len(recipes)} bound BTF material(s); {len(ran)} step(s) run" + ("" if ran else " (all up to date)"))
+        log.info(f"{r.material}: {r.asset}")
+    log.info(f"{len(recipes)} bound BTF material(s); {len(ran)} step(s) run" + ("" if ran else " (all up to date)"))
     report.update(recipes=recipes, ran=ran)
     return report
 
