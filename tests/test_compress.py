@@ -659,6 +659,19 @@ def test_decompress_float_source_to_exr(rank4_exr, tmp_path):
     np.testing.assert_allclose(d.read_samples(slice(None)), btf.read_samples([1, 5]), rtol=0, atol=2e-3)
 
 
+def test_float_manifest_writer_clamps_ringing_below_zero_so_readers_accept_it(tmp_path):
+    """A truncated reconstruction rings below zero; the float files hold 0 there (as integer
+    depths clip), so `usdbtf error ORIG DECOMPRESSED` and every other reader can open them."""
+    s = preset("tiny")
+    data = rank_r_images(4, len(s), 8, seed=3) - 0.05          # some values below zero
+    assert (data < 0).any()
+    folder = write_manifest(tmp_path / "m", s, data, color_space=LIN709, bit_depth="half", ext="exr",
+                            array_space=LIN709)
+    back = read_manifest(folder).read_encoded(np.arange(len(s)))     # the file values (Rec.709 linear)
+    np.testing.assert_allclose(back, np.maximum(data, 0.0), rtol=2e-3, atol=1e-3)
+    assert back.min() == 0.0
+
+
 # ---------------------------------------------------------------- error curve
 
 

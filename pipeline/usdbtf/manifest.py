@@ -153,14 +153,17 @@ def read_manifest(folder, *, ocio_config: str | None = None, working_space: str 
 def encode_for_file(linear: np.ndarray, processor: colour.Processor, bit_depth: str) -> np.ndarray:
     """Working-space float (..., 3) -> file values in ``processor.dst`` at ``bit_depth``.
 
-    Integer depths clip to [0, 1] and round to nearest; float depths are stored as is.
+    Integer depths clip to [0, 1] and round to nearest; float depths clamp below at 0 and
+    are stored as is above: radiance is never negative, and every reader refuses negative
+    values (:func:`usdbtf.model.check_finite`), so a reconstruction's ringing below zero or
+    an out-of-gamut colour in the file's primaries must not make an unreadable file.
     """
     enc = processor.apply(linear)
     dtype = numpy_dtype(bit_depth)
     if np.dtype(dtype).kind == "u":
         top = np.iinfo(dtype).max
         return np.rint(np.clip(enc, 0.0, 1.0) * top).astype(dtype)
-    return enc.astype(dtype)
+    return np.maximum(enc, 0.0).astype(dtype)
 
 
 def _sample_file(i: int, view, light, ext: str) -> str:
