@@ -1,0 +1,136 @@
+#!/usr/bin/env python
+"""Issue 16 final comparison: the paper, today's default and the proposal, every preset, at the paper's bytes.
+
+Per preset (tuning presets first, then the held-out presets, which no tuning run used):
+
+1. the paper's method on the encoded values (``methods.paper_method``): its stored bytes are the
+   budget;
+2. today's ``usdbtf compress --max-bytes <budget>`` (subprocess);
+3. the proposal (``methods.proposed``) under the same budget;
+
+percent error on the 8-bit encoded values and in scene-linear over every sample, texel and
+channel (``--stride`` to subsample), bytes, and compress time.  Then held-out directions: 10 %
+of the light directions (every view) are removed, each method stores the rest under the paper's
+budget for that subset, and the held-out images are predicted from the 4 nearest stored
+directions (basis rows blended in each method's working domain, ``methods.heldout_predictor``);
+the "floor" row predicts them from the original images.  Usage::
+
+    .venv/bin/python benchmarks/research/final.py [--presets a,b] [--stride 1] [--no-heldout-directions]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+import numpy as np
+
+from rlib import DATA, OUT, Timer, evaluate, header, load, say, stride_rows
+from methods import heldout_predictor, paper_cached, paper_method, proposed
+from paper_baseline import usdbtf_default
+
+
+def directions(data, stride: int) -> dict:
+    """Held-out-direction errors of paper, default and proposal (see the module docstring)."""
+    from usdbtf.bench.datasets import write_subset
+    from usdbtf.bench.heldout import neighbour_weights, split_lights
+
+    fit_idx, held_idx = split_lights(data.sampling, 0.1, seed=0)
+    sub = data.subset(fit_idx)
+    sub.name = data.name
+    fs, hs = data.sampling.subset(fit_idx), data.sampling.subset(held_idx)
+    held_pos = np.full(data.S, -1)
+    held_pos[held_idx] = np.arange(len(held_idx))
+    sel = held_idx[::stride]
+    out = {}
+    paper = paper_method(sub)
+    budget = paper.bytes["payload"]
+    folder = DATA / f"{data.name}-paper-{data.size}-seed0"
+    subset_dir = OUT / "subsets" / f"{data.name}-fit90"
+    if not (subset_dir / "btf.json").is_file():
+        write_subset(folder, fit_idx, subset_dir)
+    default = usdbtf_default(sub, budget, folder=subset_dir, tag="fit90")
+    ours = proposed(sub, budget)
+    for name, f in (("paper", paper), ("default", default), ("proposal", ours)):
+        predict = heldout_predictor(f, fs, hs)
+        e = evaluate(data, lambda s: predict(held_pos[s]), sel)
+        out[name] = {"encoded": e.encoded, "linear": e.linear, "bytes": f.bytes["payload"], "k": f.k}
+    # floor: the original fitted images blended the same way (linear, foreshortening per neighbour)
+    idx, w = neighbour_weights(fs, hs, 4)
+
+    def floor(s):
+        pos = held_pos[s]
+        imgs = data.lut[np.asarray(data.codes[fit_idx[idx[pos]].ravel()])].reshape(len(pos), idx.shape[1], -1, 3)
+        return np.einsum("qn,qnpc->qpc", w[pos].astype(np.float32), imgs)
+    e = evaluate(data, floor, sel, chunk=64)
+    out["floor"] = {"encoded": e.encoded, "linear": e.linear}
+    return out
+
+
+def main(argv=None) -> int:
+    from usdbtf.bench.datasets import HELDOUT_PRESETS, TUNING_PRESETS
+
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--presets", default=",".join(TUNING_PRESETS + HELDOUT_PRESETS))
+    p.add_argument("--stride", type=int, default=1)
+    p.add_argument("--no-heldout-directions", action="store_true")
+    args = p.parse_args(argv)
+    presets = [x for x in args.presets.split(",") if x]
+    header("issue 16: paper vs today's default vs the proposal at the paper's bytes",
+           [f"presets {', '.join(presets)}; held out (never tuned on): "
+            f"{', '.join(x for x in presets if x in HELDOUT_PRESETS) or '-'}",
+            "sampling paper (90 views x 120 lights = 10,800 samples), 128x128, 8-bit sRGB PNG, synth seed 0",
+            f"errors over every {args.stride}-th sample, all texels and channels; encoded = 8-bit sRGB file values, "
+            "linear = scene-linear ACEScg",
+            "budget = the paper method's stored bytes (basis + coefficient files) on the same data"])
+    results = {}
+    for preset in presets:
+        say(f"## {preset}{' (held out)' if preset in HELDOUT_PRESETS else ''}")
+        data = load(preset)
+        sel = stride_rows(data, args.stride)
+        r = results[preset] = {}
+        with Timer() as t:
+            paper = paper_cached(data)
+        budget = paper.bytes["payload"]
+        with Timer() as td:
+            default = usdbtf_default(data, budget)
+        with Timer() as tp:
+            ours = proposed(data, budget)
+        for name, f, secs in (("paper", paper, None), ("default", default, td.s), ("proposal", ours, tp.s)):
+            e = evaluate(data, f.recon, sel)
+            r[name] = {"k": f.k, "bytes": f.bytes, "encoded": e.encoded, "linear": e.linear, "seconds": secs,
+                       "domain": f.dom.name, "info": {k: v for k, v in f.info.items() if k != "singular_values"}}
+            say(f"  {name:8s}: k {f.k:3d}, {f.bytes['payload']:,} B (basis {f.bytes['basis']:,}), domain "
+                f"{f.dom.name}: {e.row()}" + ("" if secs is None else f", {secs:.0f} s"))
+        for name in ("default", "proposal"):
+            r[name]["ratio"] = [r[name]["encoded"] / r["paper"]["encoded"], r[name]["linear"] / r["paper"]["linear"]]
+            say(f"  {name} / paper: {r[name]['ratio'][0]:.3f} enc, {r[name]['ratio'][1]:.3f} lin")
+        if not args.no_heldout_directions:
+            with Timer() as t:
+                r["directions"] = directions(data, args.stride)
+            say("  held-out directions (% enc / % lin): " + ", ".join(
+                f"{k} {v['encoded']:.2f} / {v['linear']:.2f}" for k, v in r["directions"].items()) + f" ({t.s:.0f} s)")
+        (OUT / "final.json").write_text(json.dumps(results, indent=1, default=float))
+    say("\n| preset | paper bytes | paper % enc | paper % lin | default k | default % enc | default % lin | default ratio "
+        "enc / lin | proposal domain | proposal k | proposal bytes | proposal % enc | proposal % lin | proposal ratio "
+        "enc / lin | held-out dirs % enc / lin: floor, paper, default, proposal |")
+    say("|" + "---|" * 15)
+    for group in (TUNING_PRESETS, HELDOUT_PRESETS):
+        for preset in [x for x in presets if x in group]:
+            r = results[preset]
+            pa, de, pr = r["paper"], r["default"], r["proposal"]
+            dirs = r.get("directions")
+            dtxt = ("; ".join(f"{dirs[k]['encoded']:.2f} / {dirs[k]['linear']:.2f}"
+                              for k in ("floor", "paper", "default", "proposal")) if dirs else "")
+            name = preset + (" (held out)" if preset in HELDOUT_PRESETS else "")
+            say(f"| {name} | {pa['bytes']['payload']:,} | {pa['encoded']:.2f} | {pa['linear']:.2f} | {de['k']} | "
+                f"{de['encoded']:.2f} | {de['linear']:.2f} | {de['ratio'][0]:.3f} / {de['ratio'][1]:.3f} | "
+                f"{pr['domain']} | {pr['k']} | {pr['bytes']['payload']:,} | {pr['encoded']:.2f} | {pr['linear']:.2f} | "
+                f"**{pr['ratio'][0]:.3f} / {pr['ratio'][1]:.3f}** | {dtxt} |")
+    say(f"\nfinished {time.strftime('%Y-%m-%d %H:%M:%S')}; results: {OUT / 'final.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
