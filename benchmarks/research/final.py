@@ -26,42 +26,33 @@ import time
 
 import numpy as np
 
-from rlib import DATA, OUT, Timer, evaluate, header, load, say, stride_rows
-from methods import heldout_predictor, paper_cached, paper_method, proposed
+from rlib import OUT, Timer, evaluate, header, load, preset_list, say, stride_rows
+from methods import direction_split, heldout_predictor, paper_cached, paper_method, proposed
 from paper_baseline import usdbtf_default
 
 
 def directions(data, stride: int) -> dict:
     """Held-out-direction errors of paper, default and proposal (see the module docstring)."""
-    from usdbtf.bench.datasets import write_subset
-    from usdbtf.bench.heldout import neighbour_weights, split_lights
+    from usdbtf.bench.heldout import neighbour_weights
 
-    fit_idx, held_idx = split_lights(data.sampling, 0.1, seed=0)
-    sub = data.subset(fit_idx)
-    sub.name = data.name
-    fs, hs = data.sampling.subset(fit_idx), data.sampling.subset(held_idx)
-    held_pos = np.full(data.S, -1)
-    held_pos[held_idx] = np.arange(len(held_idx))
-    sel = held_idx[::stride]
+    split = direction_split(data)
+    sel = split.held[::stride]
     out = {}
-    paper = paper_method(sub)
+    paper = paper_method(split.sub)
     budget = paper.bytes["payload"]
-    folder = DATA / f"{data.name}-paper-{data.size}-seed0"
-    subset_dir = OUT / "subsets" / f"{data.name}-fit90"
-    if not (subset_dir / "btf.json").is_file():
-        write_subset(folder, fit_idx, subset_dir)
-    default = usdbtf_default(sub, budget, folder=subset_dir, tag="fit90")
-    ours = proposed(sub, budget)
+    default = usdbtf_default(split.sub, budget, folder=split.manifest(), tag="fit90")
+    ours = proposed(split.sub, budget)
     for name, f in (("paper", paper), ("default", default), ("proposal", ours)):
-        predict = heldout_predictor(f, fs, hs)
-        e = evaluate(data, lambda s: predict(held_pos[s]), sel)
+        predict = heldout_predictor(f, split.fitted, split.query)
+        e = evaluate(data, lambda s: predict(split.position[s]), sel)
         out[name] = {"encoded": e.encoded, "linear": e.linear, "bytes": f.bytes["payload"], "k": f.k}
     # floor: the original fitted images blended the same way (linear, foreshortening per neighbour)
-    idx, w = neighbour_weights(fs, hs, 4)
+    idx, w = neighbour_weights(split.fitted, split.query, 4)
 
     def floor(s):
-        pos = held_pos[s]
-        imgs = data.lut[np.asarray(data.codes[fit_idx[idx[pos]].ravel()])].reshape(len(pos), idx.shape[1], -1, 3)
+        pos = split.position[s]
+        codes = np.asarray(data.codes[split.fit[idx[pos]].ravel()])
+        imgs = data.lut[codes].reshape(len(pos), idx.shape[1], -1, 3)
         return np.einsum("qn,qnpc->qpc", w[pos].astype(np.float32), imgs)
     e = evaluate(data, floor, sel, chunk=64)
     out["floor"] = {"encoded": e.encoded, "linear": e.linear}
@@ -76,7 +67,7 @@ def main(argv=None) -> int:
     p.add_argument("--stride", type=int, default=1)
     p.add_argument("--no-heldout-directions", action="store_true")
     args = p.parse_args(argv)
-    presets = [x for x in args.presets.split(",") if x]
+    presets = preset_list(args.presets, tuning_only=False)
     header("issue 16: paper vs today's default vs the proposal at the paper's bytes",
            [f"presets {', '.join(presets)}; held out (never tuned on): "
             f"{', '.join(x for x in presets if x in HELDOUT_PRESETS) or '-'}",

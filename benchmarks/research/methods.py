@@ -322,19 +322,67 @@ def paper_cached(data: Data) -> Factorised:
 # ----------------------------------------------------------------------------- held-out directions
 
 
-def heldout_predictor(f: Factorised, fitted_sampling, query_sampling, neighbours: int = 4):
+@dataclass
+class DirectionSplit:
+    """10 % of the light directions held out of ``data`` (every view; ``bench.heldout``):
+    ``sub`` the fitted samples as a Data of their own, ``fitted`` / ``query`` their samplings,
+    ``held`` the held-out sample indices, ``position[s]`` the index of sample s among them."""
+
+    data: Data
+    fit: np.ndarray
+    held: np.ndarray
+    sub: Data
+    fitted: object
+    query: object
+    position: np.ndarray
+
+    def manifest(self):
+        """A manifest folder of the fitted samples (images by reference), for the CLI."""
+        from usdbtf.bench.datasets import write_subset
+        from rlib import DATA, OUT
+
+        folder = OUT / "subsets" / f"{self.data.name}-fit90"
+        if not (folder / "btf.json").is_file():
+            write_subset(DATA / f"{self.data.name}-paper-{self.data.size}-seed0", self.fit, folder)
+        return folder
+
+
+def direction_split(data: Data, fraction: float = 0.1, seed: int = 0) -> DirectionSplit:
+    from usdbtf.bench.heldout import split_lights
+
+    fit, held = split_lights(data.sampling, fraction, seed=seed)
+    sub = data.subset(fit)
+    sub.name = data.name
+    position = np.full(data.S, -1)
+    position[held] = np.arange(len(held))
+    return DirectionSplit(data, fit, held, sub, data.sampling.subset(fit), data.sampling.subset(held), position)
+
+
+
+def heldout_predictor(f: Factorised, fitted_sampling, query_sampling, neighbours: int = 4, mode: str = "rows"):
     """``predict(positions) -> (n, P, 3)`` linear images of held-out directions from the
     stored fitted ones, the way a renderer would: blend the ``neighbours`` nearest basis rows
     in the working domain (inverse-distance-squared weights, ``usdbtf.bench.heldout``), dot
     with the coefficients, apply the inverse curve.  The light's foreshortening is carried
     as in ``bench.heldout`` (neighbour j scaled by a_j = cos theta_l(query) / cos theta_l(j)):
     exactly, by a_j^(1/g) on the rows, for a power curve x^(1/g) (g = 1: linear, identical
-    to the benchmark's predictor; sRGB as g = 2.2), else as one gain on the linear result."""
+    to the benchmark's predictor; sRGB as g = 2.2), else as one gain on the linear result.
+
+    mode "images" instead reconstructs each neighbour (dot product, inverse curve) and blends
+    the linear images with the benchmark's weights: exact for any curve, but a renderer then
+    evaluates ``neighbours`` dot products per texel instead of one."""
     from usdbtf.bench.heldout import neighbour_weights
 
     idx, w = neighbour_weights(fitted_sampling, query_sampling, neighbours, foreshortening=False)
     cos_f = np.maximum(np.cos(np.radians(fitted_sampling.light[:, 0])), 1e-3)
     a = np.cos(np.radians(query_sampling.light[:, 0]))[:, None] / cos_f[idx]
+    if mode == "images":
+        wa = (w * a).astype(np.float32)
+
+        def blend_images(pos):
+            imgs = f.recon_rows(f.basis[idx[pos].ravel()]).reshape(len(pos), idx.shape[1], -1, 3)
+            return np.einsum("qn,qnpc->qpc", wa[pos], imgs)
+        return blend_images
     g = f.dom.gamma
     if g is not None:
         wr, gain = w * a ** (1.0 / g), None

@@ -24,7 +24,7 @@ import sys
 
 import numpy as np
 
-from rlib import DATA, OUT, REPO, Timer, evaluate, header, load, say, stride_rows
+from rlib import DATA, OUT, REPO, Timer, evaluate, header, load, preset_list, say, stride_rows
 from methods import Factorised, paper_method
 
 
@@ -57,7 +57,7 @@ def main(argv=None) -> int:
     p.add_argument("--presets", default=",".join(TUNING_PRESETS + HELDOUT_PRESETS))
     p.add_argument("--stride", type=int, default=1, help="evaluate every N-th sample (default 1: all)")
     args = p.parse_args(argv)
-    presets = [x for x in args.presets.split(",") if x]
+    presets = preset_list(args.presets, tuning_only=False)
     header("issue 16 baseline: the paper's method on the encoded values vs today's default",
            [f"presets {', '.join(presets)} (held out: {', '.join(x for x in presets if x in HELDOUT_PRESETS) or '-'})",
             "sampling paper (90 views x 120 lights = 10,800 samples), 128x128, 8-bit sRGB PNG, synth seed 0",

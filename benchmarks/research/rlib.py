@@ -25,12 +25,11 @@ Definitions
 """
 from __future__ import annotations
 
-import math
 import os
 import sys
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -41,7 +40,7 @@ OUT = REPO / "benchmarks" / "out" / "research"
 DATA = REPO / "benchmarks" / "out" / "data"
 
 __all__ = ["Data", "load", "Domain", "DOMAINS", "domain", "Errors", "evaluate", "srgb_encode", "srgb_decode",
-           "header", "say", "OUT", "DATA", "encode_bytes", "Timer", "stride_rows"]
+           "header", "say", "OUT", "DATA", "encode_bytes", "Timer", "stride_rows", "preset_list"]
 
 
 def say(msg: str = "") -> None:
@@ -278,32 +277,25 @@ def domain(name: str) -> Domain:
 
 @dataclass
 class Errors:
-    """Running sums of both domains' errors (see the module docstring)."""
+    """Both domains' error sums (``usdbtf.compress.metrics.ErrorSums``): ``enc`` on the 8-bit
+    codes (peak 255), ``lin`` in scene-linear ACEScg (peak 1)."""
 
-    enc_abs: float = 0.0
-    enc_total: float = 0.0
-    enc_sq: float = 0.0
-    lin_abs: float = 0.0
-    lin_total: float = 0.0
-    lin_sq: float = 0.0
-    count: int = 0
-    extra: dict = field(default_factory=dict)
+    enc: object = None
+    lin: object = None
+
+    def __post_init__(self):
+        from usdbtf.compress.metrics import ErrorSums
+
+        self.enc = self.enc or ErrorSums()
+        self.lin = self.lin or ErrorSums()
 
     @property
     def encoded(self) -> float:
-        return 100.0 * self.enc_abs / self.enc_total
+        return self.enc.percent
 
     @property
     def linear(self) -> float:
-        return 100.0 * self.lin_abs / self.lin_total
-
-    @property
-    def psnr_encoded(self) -> float:
-        return 20 * math.log10(255.0 / math.sqrt(self.enc_sq / self.count))
-
-    @property
-    def psnr_linear(self) -> float:
-        return 20 * math.log10(1.0 / math.sqrt(self.lin_sq / self.count))
+        return self.lin.percent
 
     def row(self) -> str:
         return f"{self.encoded:7.3f} % enc, {self.linear:7.3f} % lin"
@@ -320,19 +312,21 @@ def evaluate(data: Data, recon, rows=None, chunk: int = 256) -> Errors:
         sel = rows[a:a + chunk]
         codes = np.asarray(data.codes[sel])
         rec = recon(sel)
-        enc = srgb_encode(rec)
-        d = enc.astype(np.int16) - codes.astype(np.int16)
-        e.enc_abs += float(np.abs(d).sum(dtype=np.int64))
-        e.enc_sq += float(np.einsum("i,i->", d.ravel().astype(np.float32), d.ravel().astype(np.float32),
-                                    dtype=np.float64))
-        e.enc_total += float(codes.sum(dtype=np.int64))
-        truth = data.lut[codes]
-        diff = mix_rgb(rec - truth, data.to_aces).ravel()
-        e.lin_abs += float(np.abs(diff).sum(dtype=np.float64))
-        e.lin_sq += float(np.einsum("i,i->", diff, diff, dtype=np.float64))
-        e.lin_total += float(mix_rgb(truth, data.to_aces).sum(dtype=np.float64))
-        e.count += d.size
+        e.enc.add(codes.astype(np.float32), srgb_encode(rec).astype(np.float32))
+        e.lin.add(mix_rgb(data.lut[codes], data.to_aces), mix_rgb(rec, data.to_aces))
     return e
+
+
+def preset_list(text: str, *, tuning_only: bool) -> list:
+    """Comma-separated preset names; with ``tuning_only`` a held-out preset is refused (no
+    sweep may look at one)."""
+    from usdbtf.bench.datasets import preset_split
+
+    presets = [x for x in text.split(",") if x]
+    held = [x for x in presets if preset_split(x) == "held-out"]
+    if tuning_only and held:
+        raise SystemExit(f"held-out presets {held} are never tuned on")
+    return presets
 
 
 # ----------------------------------------------------------------------------- codecs

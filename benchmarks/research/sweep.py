@@ -17,21 +17,19 @@ from __future__ import annotations
 import argparse
 import sys
 
-from rlib import Timer, evaluate, header, load, say, stride_rows
+from rlib import Timer, evaluate, header, load, preset_list, say, stride_rows
 from methods import paper_cached, run_config
 
 
 def main(argv=None) -> int:
-    from usdbtf.bench.datasets import HELDOUT_PRESETS, TUNING_PRESETS
+    from usdbtf.bench.datasets import TUNING_PRESETS
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--presets", default=",".join(TUNING_PRESETS))
     p.add_argument("--configs", nargs="+", default=["dom=linear", "dom=srgb"])
     p.add_argument("--stride", type=int, default=4, help="evaluate every N-th sample (default 4)")
     args = p.parse_args(argv)
-    presets = [x for x in args.presets.split(",") if x]
-    if set(presets) & set(HELDOUT_PRESETS):
-        raise SystemExit(f"held-out presets {sorted(set(presets) & set(HELDOUT_PRESETS))} are never tuned on")
+    presets = preset_list(args.presets, tuning_only=True)
     header("issue 16 sweep: prototype configurations at the paper's bytes",
            [f"tuning presets {', '.join(presets)}", f"configurations: {'; '.join(args.configs)}",
             "sampling paper (10,800 samples), 128x128, 8-bit sRGB PNG, synth seed 0",

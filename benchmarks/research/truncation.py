@@ -15,12 +15,11 @@ import sys
 
 import numpy as np
 
-from rlib import domain, evaluate, header, load, say, stride_rows
+from rlib import domain, evaluate, header, load, preset_list, say, stride_rows
 from methods import Factorised, fit_texels, project
 
 
 def main(argv=None) -> int:
-    from usdbtf.bench.datasets import HELDOUT_PRESETS
     from usdbtf.compress.linalg import randomized_basis
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -30,9 +29,7 @@ def main(argv=None) -> int:
     p.add_argument("--fit", type=int, default=4096)
     p.add_argument("--stride", type=int, default=8)
     args = p.parse_args(argv)
-    presets = [x for x in args.presets.split(",") if x]
-    if set(presets) & set(HELDOUT_PRESETS):
-        raise SystemExit("held-out presets are never tuned on")
+    presets = preset_list(args.presets, tuning_only=True)
     ks = [int(x) for x in args.ks.split(",")]
     header("issue 16: unquantised error vs k (truncation floor)",
            [f"tuning presets {', '.join(presets)}; domains {args.domains}; k {args.ks}; fit texels {args.fit}",
