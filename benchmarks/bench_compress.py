@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common import (OUT, REPO, cli_command, dir_bytes, fmt_bytes, format_machine, machine_info, run_repeated,
+from common import (OUT, REPO, cli_command, fmt_bytes, folder_bytes, format_machine, machine_info, run_repeated,
                     time_call, timestamp, warm_page_cache, write_json)
 
 from usdbtf.bench.datasets import HELDOUT_PRESETS, TUNING_PRESETS, preset_split, split_presets
@@ -99,7 +99,7 @@ def run_solver(cli, data: Path, out: Path, extra_args: list, repeats: int, pss_i
         "k": doc["k"], "codec": doc["codec"], "solver": doc.get("solver"),
         "bytes": {key: doc["bytes"][key] for key in ("payload", "basis", "coefficients")},
         "metadata_bytes": (out / "btf-compressed.json").stat().st_size,
-        "folder_bytes": dir_bytes(out),
+        "folder_bytes": folder_bytes(out),
         "choice": doc.get("choice"),
         "held_out_estimate": doc.get("estimated_error"),
         "output": str(out),
@@ -368,7 +368,7 @@ def main(argv=None) -> int:
         say(f"## {preset}")
         inp = ensure_dataset(args.workdir, preset, args.sampling, size, args.seed, n_samples, args.format)
         data = Path(inp["folder"])
-        inp.update(raw_bytes=raw_bytes, png_bytes=dir_bytes(data), n_samples=n_samples, width=size, height=size)
+        inp.update(raw_bytes=raw_bytes, png_bytes=folder_bytes(data), n_samples=n_samples, width=size, height=size)
         warm = warm_page_cache(data)
         inp["page_cache_warmup"] = warm
         say(f"  page cache warm-up (untimed): read {warm['files']} files, {fmt_bytes(warm['bytes'])} in "

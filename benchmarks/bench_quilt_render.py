@@ -39,6 +39,7 @@ import argparse
 import os
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -94,14 +95,14 @@ def cpu_timed(fn, repeats: int, warmup: int) -> dict:
 
 def quilt_speed(folder: Path, size: int, repeats: int, cli) -> dict:
     from usdbtf.compress import read_compressed
-    from usdbtf.quilt import QuiltOptions, quilt, write_quilted
+    from usdbtf.quilt import QuiltOptions, quilt, write_quilt
 
     cbtf = read_compressed(folder)
-    opts = QuiltOptions(seed=1)
+    opts = QuiltOptions(size=(size, size), seed=1)
     holder = {}
 
     def synth():
-        holder["q"] = quilt(cbtf, size, size, opts)
+        holder["q"] = quilt(cbtf, opts)
 
     t_synth = cpu_timed(synth, repeats=repeats, warmup=0)
     q = holder["q"]
@@ -113,7 +114,7 @@ def quilt_speed(folder: Path, size: int, repeats: int, cli) -> dict:
     t_gather = time_call(gather, repeats=repeats, warmup=1)
     out = OUT / "quilt_render" / f"quilt{size}"
     t = time.perf_counter()
-    sizes = write_quilted(cbtf, q, out, source_folder=folder)
+    sizes = write_quilt(replace(q, source_folder=folder), out)
     write_s = time.perf_counter() - t
     cmd = command(*cli, "quilt", folder, "-o", OUT / "quilt_render" / f"quilt{size}_cli", "--size", size, size,
                   "--seed", 1, "-q")
@@ -131,7 +132,7 @@ def quilt_speed(folder: Path, size: int, repeats: int, cli) -> dict:
         f"({q.record['blocks']} blocks of {q.options.block}, overlap {q.options.overlap}, m = {q.options.m})")
     say(f"  gather all {cbtf.k} textures (baseline) median {t_gather['median_s']:.2f} s; "
         f"synthesis + gather = {res['in_memory_s']:.2f} s")
-    say(f"  write_quilted ({cbtf.codec}, {cbtf.k} textures) {write_s:.2f} s; CLI median "
+    say(f"  write_quilt ({cbtf.codec}, {cbtf.k} textures) {write_s:.2f} s; CLI median "
         f"{run['wall_s_median']:.2f} s (runs {', '.join(f'{x:.2f}' for x in run['wall_s_samples'])})")
     return res
 
@@ -148,7 +149,7 @@ def m_sweep(folder: Path, ms: list, size: int, seeds: list) -> list:
         times, errs = [], []
         for seed in seeds:
             t = time.perf_counter()
-            q = quilt(cbtf, size, size, QuiltOptions(m=m, seed=seed))
+            q = quilt(cbtf, QuiltOptions(size=(size, size), m=m, seed=seed))
             times.append(time.perf_counter() - t)
             errs.append(q.record["seam_error"]["all_samples_mean"])
         rows.append({"m": m, "time_s_median": float(np.median(times)), "seam_error_mean": float(np.mean(errs)),
@@ -168,7 +169,7 @@ def seam_comparison(folder: Path, size: int, every: int, seed: int) -> dict:
     images = reconstruct(cbtf)                                     # (S, H, W, 3) working space
     opts = QuiltOptions(seed=seed).resolved(cbtf)
     t = time.perf_counter()
-    coeff = quilt(cbtf, size, size, opts)
+    coeff = quilt(cbtf, replace(opts, size=(size, size)))
     coeff_s = time.perf_counter() - t
     per_sample = seam_error_images(coeff.positions, images)
     grid = grid_for(size, size, opts.block, opts.overlap)
@@ -221,9 +222,10 @@ def brdf_mismatch(images: np.ndarray, refs: np.ndarray, layouts: list, n_texels:
 def render_speed(folder: Path, frame: int, repeats: int, cli) -> dict:
     import trimesh
 
+    from usdbtf.camera import parse_camera
     from usdbtf.compress import read_compressed
-    from usdbtf.render import RenderOptions, Renderer, parse_camera, parse_light
-    from usdbtf.render.assets import render_mesh_from_file
+    from usdbtf.mesh import load_mesh
+    from usdbtf.render import RenderOptions, Renderer, parse_light
 
     work = OUT / "quilt_render" / "render"
     work.mkdir(parents=True, exist_ok=True)
@@ -237,7 +239,7 @@ def render_speed(folder: Path, frame: int, repeats: int, cli) -> dict:
         if "error" in r:
             raise SystemExit(r["error"])
     cbtf = read_compressed(work / "sphere_q")
-    mesh = render_mesh_from_file(work / "sphere_uv" / "mesh.usda")
+    mesh = load_mesh(work / "sphere_uv" / "mesh.usda", need_uv=True)
     camera_spec = "eye=0,0.06,0.34 target=0,0,0 fov=30"
     light_spec = "point:0.3,0.3,0.3:0.2"
     camera = parse_camera(camera_spec, frame, frame)
@@ -268,12 +270,12 @@ def render_speed(folder: Path, frame: int, repeats: int, cli) -> dict:
                   camera_spec, "--light", light_spec, "--size", frame, frame, "-o", out, "-q")
     say(f"  $ {' '.join(cmd)}")
     run = run_repeated(cmd, repeats, pss_interval=0)
-    res = {"frame_size": frame, "k": cbtf.k, "atlas": [cbtf.width, cbtf.height], "triangles": len(mesh.corners),
+    res = {"frame_size": frame, "k": cbtf.k, "atlas": [cbtf.width, cbtf.height], "triangles": len(mesh.triangles),
            "covered_pixels": covered, "lights": 1, "shadows": True, "threads": 2, "renderer_init_s": init_s,
            "frame_timing": timing, "plain_eq2_baseline": base,
            "cli": {k: run[k] for k in ("command", "wall_s_samples", "wall_s_median", "cpu_s_median",
                                        "peak_memory_bytes") if k in run}}
-    say(f"  {frame}^2 frame, {covered} covered pixels, {len(mesh.corners)} triangles, "
+    say(f"  {frame}^2 frame, {covered} covered pixels, {len(mesh.triangles)} triangles, "
         f"atlas {cbtf.width}x{cbtf.height}, "
         f"k = {cbtf.k}: median {timing['median_s']:.2f} s of {repeats}, CPU {timing['cpu_s_median']:.2f} s "
         f"(renderer init {init_s:.2f} s, once)")

@@ -46,12 +46,13 @@ import numpy as np
 from common import OUT, format_machine, machine_info, median, timestamp, write_json
 
 from usdbtf import colour, synth
+from usdbtf.camera import Camera
 from usdbtf.fiducials import apply_homography, detect_markers, fit_homography, make_board
 from usdbtf.imageio import read_image
 from usdbtf.rectify import luminance, rectify_frame, warp_window, window_homography
 from usdbtf.rig.capture import decode_frame, flat_gain
 from usdbtf.rig.plan import make_plan
-from usdbtf.rig.scene import Camera, frame_homography
+from usdbtf.rig.scene import frame_homography
 from usdbtf.rig.sim import CAMERA_SPACE, SceneRenderer
 from usdbtf.sampling import preset
 

@@ -9,10 +9,11 @@ folder on ``sys.path``).  Definitions (wall time, peak RSS, tree PSS, MB/GB) are
 from __future__ import annotations
 
 from usdbtf.bench.machine import format_machine, machine_info
-from usdbtf.bench.measure import (REPO, RunResult, cli_command, default_out, dir_bytes, fmt_bytes, median,
+from usdbtf.compress.format import folder_bytes
+from usdbtf.bench.measure import (REPO, RunResult, cli_command, default_out, fmt_bytes, median,
                                   run_measured, run_repeated, time_call, timestamp, warm_page_cache, write_json)
 
 OUT = default_out()
 
 __all__ = ["REPO", "OUT", "median", "time_call", "run_measured", "run_repeated", "RunResult", "machine_info",
-           "format_machine", "warm_page_cache", "dir_bytes", "timestamp", "write_json", "fmt_bytes", "cli_command"]
+           "format_machine", "warm_page_cache", "folder_bytes", "timestamp", "write_json", "fmt_bytes", "cli_command"]

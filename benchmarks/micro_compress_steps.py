@@ -1,11 +1,11 @@
 """Where plain ``usdbtf compress`` spends its time, step by step, against the GEMM baseline.
 
-Each step of a default compress (rsvd, jxl, k = 150) is timed on its own in one process:
-minimum and median of N runs, wall and CPU seconds (this process + its decode workers).
-The float32 GEMM U^T X of issue 2's speed target is timed the same way, so every row also
-reads as a fraction of it.  Min-of-N is robust on a shared, busy machine (noise only adds
-time): use this for before/after comparisons of single steps; whole-run claims come from
-bench_compress.py and ab_compress.sh.
+Each public step of a default compress (rsvd, jxl, k = 150; see ``usdbtf.compress.compress``)
+is timed on its own in one process: minimum and median of N runs, wall and CPU seconds (this
+process + its decode workers).  The float32 GEMM U^T X of issue 2's speed target is timed
+the same way, so every row also reads as a fraction of it.  Min-of-N is robust on a shared,
+busy machine (noise only adds time): use this for before/after comparisons of single steps;
+whole-run claims come from bench_compress.py and ab_compress.sh.
 
     .venv/bin/python benchmarks/micro_compress_steps.py benchmarks/out/data/pebbles-paper-128-seed0-tif [N]
 
@@ -22,11 +22,9 @@ import numpy as np
 
 from bench_compress import gemm_baseline
 from common import format_machine, machine_info, time_call
-from usdbtf.compress import core
-from usdbtf.compress.curve import curve_samples, error_curve
-from usdbtf.compress.format import write_metadata, write_textures
-from usdbtf.compress.linalg import randomized_basis
-from usdbtf.compress.source import choose_source
+from usdbtf.compress import (CompressOptions, Factorisation, colour_decorrelation, compress, error_curve, fit_basis,
+                             held_out_error, held_out_set, load_source, project, rate_control, rotate_colour,
+                             sample_texels, sampled_coefficients, step_for_k, write_compress)
 from usdbtf.io import open_btf
 
 
@@ -34,44 +32,44 @@ def main(argv):
     path, n = argv[0], int(argv[1]) if len(argv) > 1 else 5
     print(format_machine(machine_info()))
     btf = open_btf(path)
-    opts = core.Options()
+    opts = CompressOptions()
+    result = compress(btf, opts)
+    texels = sample_texels(btf, opts)
+    source = load_source(btf, texels, opts)
+    x_fit = source.columns(texels.fit)
+    k_fit = opts.fit_k(btf.n_samples, btf.n_pixels)
+    fit = fit_basis(x_fit, k_fit, opts)
+    held = held_out_set(source, texels)
+
+    def colour_and_step():
+        sampled, outside = sampled_coefficients(fit, source.to_working, held.truth, btf.n_pixels)
+        colour = colour_decorrelation(sampled)
+        return colour, outside, step_for_k(rotate_colour(sampled, colour), fit.basis, outside, btf.n_pixels, opts)
+
+    colour, outside, (step, planes) = colour_and_step()
+    coeff, _ = project(source, fit.basis, colour, planes)
+    energy = float(np.einsum("kpc,kpc->", coeff, coeff, dtype=np.float64)) + outside
+    factors = Factorisation(btf, fit.basis, coeff, colour, energy, planes, step)
     with tempfile.TemporaryDirectory() as tmp:
-        cbtf = core.compress_to_folder(btf, Path(tmp) / "c", opts)
-        fit = core._fit_texels(btf, opts)
-        evalt = core._eval_texels(btf, fit, opts)
-        rows = curve_samples(btf.n_samples)
-
-        def load():
-            return choose_source(btf, [fit, evalt], rows, memory_budget=opts.memory_budget)
-
-        data = load()
-        x_fit = data.columns(fit)
-        truth = data.to_working(data.columns(evalt)).reshape(btf.n_samples, len(evalt), 3)
-        k = cbtf.k
-        u = cbtf.basis_values(k)
-        mix = data.working_mix(np.asarray(cbtf.color_matrix).T)
-        planes = cbtf.info["choice"]["planes"]
-        out = Path(tmp) / "w"
-        out.mkdir()
         floor = {
-            f"load: decode {btf.n_samples} files ({data.kind})": load,
-            "columns(fit texels)": lambda: data.columns(fit),
-            f"fit: randomized basis, {x_fit.shape[1]} columns": lambda: randomized_basis(
-                x_fit, k, oversample=opts.oversample, power_iterations=opts.power_iterations, seed=opts.seed,
-                return_coefficients=True),
-            f"project: planes {planes}": lambda: data.project(u, mix, planes),
+            f"load: decode {btf.n_samples} files ({source.kind})": lambda: load_source(btf, texels, opts),
+            "columns (fit texels)": lambda: source.columns(texels.fit),
+            f"fit_basis: weights + randomized basis, {x_fit.shape[1]} columns": lambda: fit_basis(x_fit, k_fit, opts),
+            f"project: planes {list(planes)}": lambda: project(source, fit.basis, colour, planes),
         }
         rest = {
-            "fit weights": lambda: core._fit_weights(x_fit),
-            "truth (evaluation texels, working)": lambda: data.to_working(data.columns(evalt)),
-            "evaluate (held-out error)": lambda: core._evaluate(cbtf, truth, evalt),
-            "error curve": lambda: error_curve(cbtf, data, opts.seed),
-            "write textures (jxl)": lambda: write_textures(cbtf, out),
-            "write metadata": lambda: write_metadata(cbtf, out),
+            "held_out_set (evaluation texels, working)": lambda: held_out_set(source, texels),
+            "colour decorrelation + step_for_k": colour_and_step,
+            f"rate_control: quantise + encode in memory (k {result.k})": lambda: rate_control(
+                factors, opts, held, lambda msg: None),
+            "held_out_error": lambda: held_out_error(result, held),
+            "error curve": lambda: error_curve(result, source),
+            "write_compress (files: textures, metadata, curve)": lambda: write_compress(
+                result, Path(tmp) / "w", force=True),
         }
         gemm = gemm_baseline(btf.n_samples, btf.n_pixels, 150)
-        print(f"input: {path} ({btf.n_samples} samples, {btf.width}x{btf.height}); {len(fit)} fit texels, "
-              f"{len(evalt)} evaluation texels; k {k}; {n} runs per step after one warm-up")
+        print(f"input: {path} ({btf.n_samples} samples, {btf.width}x{btf.height}); {len(texels.fit)} fit texels, "
+              f"{len(texels.evaluation)} evaluation texels; k {result.k}; {n} runs per step after one warm-up")
         print(f"baseline: float32 U.T @ X, X {tuple(gemm['shape_x'])}, U {tuple(gemm['shape_u'])}: "
               f"min {gemm['min_s']:.3f} s, median {gemm['median_s']:.3f} s")
         print("\n| step | min s | median s | CPU s (median) | min / GEMM min |\n|---|---|---|---|---|")

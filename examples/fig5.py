@@ -7,7 +7,7 @@ torus knot, each under a point light at two distances.
 Per preset: ``usdbtf synth`` (sampling ``--sampling``, ``--size`` texels, 5 cm across) and
 ``usdbtf compress --k K``; per shape (examples/shapes.py): ``usdbtf unwrap`` at the sample's
 texel density, then quilting into each atlas and rendering, in-process through the library
-(``usdbtf.quilt.atlas.quilt_atlas``, ``usdbtf.render.Renderer``) so each BTF is read once.
+(``usdbtf.quilt.quilt`` into an atlas, ``usdbtf.render.Renderer``) so each BTF is read once.
 Rows: materials; columns: shape x light (near, far; same irradiance at the object).  Colour:
 working space -> sRGB display through OCIO (``usdbtf.render.to_display``).
 """
@@ -24,14 +24,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import shapes  # noqa: E402  (examples/shapes.py)
 
+from usdbtf.camera import auto_camera  # noqa: E402
 from usdbtf.cli import main as usdbtf  # noqa: E402
 from usdbtf.compress import read_compressed  # noqa: E402
 from usdbtf.imageio import write_image  # noqa: E402
-from usdbtf.quilt import QuiltOptions, quilted_btf  # noqa: E402
-from usdbtf.quilt.atlas import quilt_atlas  # noqa: E402
-from usdbtf.render import Light, RenderOptions, Renderer, auto_camera, to_display  # noqa: E402
-from usdbtf.render.assets import render_mesh_from_layer  # noqa: E402
-from usdbtf.unwrap import read_chart_map, read_layer  # noqa: E402
+from usdbtf.quilt import QuiltOptions, quilt, quilted_btf  # noqa: E402
+from usdbtf.render import Light, RenderOptions, Renderer, to_display  # noqa: E402
+from usdbtf.unwrap import read_unwrap  # noqa: E402
 
 PRESETS = ("pebbles", "ridged_fabric", "fuzzy_moss")
 # Scale of examples/shapes.py's sizes (atlases stay below ~800^2 at 2560 texels per metre) and
@@ -75,8 +74,9 @@ def main(argv=None) -> int:
     for preset in PRESETS:
         raw, comp = work / f"{preset}_raw", work / f"{preset}_c"
         if not (comp / "btf-compressed.json").is_file():
-            run("synth", preset, "-o", raw, "--sampling", args.sampling, "--size", args.size, "--seed", args.seed, "-q")
-            run("compress", raw, "-o", comp, "--k", args.k, "-q")
+            run("synth", preset, "-o", raw, "--sampling", args.sampling, "--size", args.size, "--seed", args.seed, "-q",
+                "--force")
+            run("compress", raw, "-o", comp, "--k", args.k, "-q", "--force")
         cbtf = read_compressed(comp)
         row = []
         for shape, (scale, closer) in SHAPES.items():
@@ -84,14 +84,14 @@ def main(argv=None) -> int:
             if not (uv / "mesh.usda").is_file():
                 points, faces, normals = shapes.SHAPES[shape]()
                 obj = shapes.write_obj(work / f"{shape}.obj", points * scale, faces, normals)
-                run("unwrap", obj, "-o", uv, "--btf", comp, "-q")
-            layer = read_layer(uv / "mesh.usda")
-            q = quilt_atlas(cbtf, layer, read_chart_map(uv / "mesh.usda", layer), QuiltOptions(seed=args.seed))
-            renderer = Renderer(quilted_btf(cbtf, q), RenderOptions(threads=2))
-            mesh = render_mesh_from_layer(layer)
-            camera = auto_camera(mesh.corners, args.tile, args.tile, fov=24.0, direction=(0.3, 0.35, 1.0))
+                run("unwrap", obj, "-o", uv, "--btf", comp, "-q", "--force")
+            unwrapped = read_unwrap(uv / "mesh.usda")
+            q = quilt(cbtf, QuiltOptions(seed=args.seed), atlas=unwrapped)
+            renderer = Renderer(quilted_btf(q), RenderOptions(threads=2))
+            mesh = unwrapped.mesh
+            camera = auto_camera(mesh.corner(), args.tile, args.tile, fov=24.0, direction=(0.3, 0.35, 1.0))
             camera.eye = camera.target + (camera.eye - camera.target) * closer
-            centre = mesh.corners.reshape(-1, 3).mean(axis=0)
+            centre = mesh.corner().reshape(-1, 3).mean(axis=0)
             for direction, dist in zip(LIGHT_DIRECTIONS, LIGHT_DISTANCES):
                 pos = centre + direction / np.linalg.norm(direction) * dist
                 light = Light("point", pos, 1.2 * dist ** 2)            # same irradiance at the object

@@ -51,8 +51,8 @@ def readme_figure(workdir, out, presets=("pebbles", "ridged_fabric", "fuzzy_moss
     rows = []
     for preset in presets:
         raw, comp = workdir / f"{preset}_raw", workdir / f"{preset}_c"
-        usdbtf(["synth", preset, "-o", str(raw), "--sampling", "small", "--size", "96", "--seed", "3", "-q"])
-        usdbtf(["compress", str(raw), "-o", str(comp), "--k", "48", "-q"])
+        usdbtf(["synth", preset, "-o", str(raw), "--sampling", "small", "--size", "96", "--seed", "3", "-q", "--force"])
+        usdbtf(["compress", str(raw), "-o", str(comp), "--k", "48", "-q", "--force"])
         rows.append(sheet(open_btf(raw), read_compressed(comp), np.array(samples))[:2 * (96 * 2 + 22)])
     write_image(out, np.vstack(rows), color_space="sRGB Encoded Rec.709 (sRGB)")
     print(f"wrote {out}")

@@ -16,9 +16,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from usdbtf.camera import auto_camera
 from usdbtf.gpu.headless import HeadlessRenderer, psnr, uv_sphere
 from usdbtf.imageio import write_image
-from usdbtf.render import RenderOptions, Renderer, auto_camera, parse_light, to_display
+from usdbtf.render import RenderOptions, Renderer, parse_light, to_display
 from usdbtf.usd.read import load_btf
 from usdbtf.usd.storm import layout_from_asset
 
@@ -43,7 +44,7 @@ def figure(asset: Path, size: int = 256) -> np.ndarray:
             a, b, mask = gl.swatch(view, light), cpu.swatch(view, light), None
         else:
             mesh = uv_sphere(0.05, 64, 32)
-            camera = auto_camera(mesh.corners, size, size)
+            camera = auto_camera(mesh.corner(), size, size)
             lights = [parse_light("dir:-0.5,0.7,1"), parse_light("point:0.12,-0.02,0.1:0.01")]
             a, b = gl.render(mesh, camera, lights), cpu.render(mesh, camera, lights)
             mask = (a[..., 3] > 0) & (b[..., 3] > 0)

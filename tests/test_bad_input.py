@@ -1,6 +1,7 @@
 """Bad input to the manifest reader and the data model: every case raises BTFError naming
 the offending file or sample, at open time or (for pixel problems) when pixels are read.
-Also: failed writes leave nothing behind (write_manifest, atomic_dir)."""
+Also: failed writes leave nothing behind (write_manifest, atomic_dir), and atomic_dir replaces
+only a previous usdbtf output of the same kind."""
 from __future__ import annotations
 
 import json
@@ -10,7 +11,7 @@ import numpy as np
 import pytest
 
 from usdbtf.atomic import atomic_dir
-from usdbtf.errors import BTFError
+from usdbtf.errors import BTFError, OutputRefused
 from usdbtf.imageio import write_image
 from usdbtf.manifest import MANIFEST, read_manifest, write_manifest
 from usdbtf.sampling import Sampling
@@ -113,11 +114,12 @@ def test_mixed_image_sizes(folder):
 
 
 def test_size_in_manifest_disagrees_with_files(folder):
+    # Checked at open, against the first image's header: nothing is allocated for a size
+    # the files do not have (a manifest declaring 100000^2 fails at once).
     doc = make_manifest(folder)
     doc["width"] = SIZE * 2
     dump(folder, doc)
-    btf = read_manifest(folder)
-    raises_naming("a.png", btf.read_samples, [0], match=f"expected {2 * SIZE}x{SIZE}")
+    raises_naming("a.png", read_manifest, folder, match=f"declares {2 * SIZE}x{SIZE}")
 
 
 def test_unsupported_channel_count(folder):
@@ -143,7 +145,7 @@ def test_non_finite_or_negative_exr_pixels(folder, dtype, bad):
     make_manifest(folder, ext="exr", dtype=dtype, space="ACEScg")
     img = np.full((SIZE, SIZE, 3), 0.25, dtype)
     img[3, 4, 1] = bad  # one texel, in the rows read_rows(2, 5) covers
-    write_image(folder / "b.exr", img, color_space="ACEScg")
+    write_image(folder / "b.exr", img, color_space="ACEScg", allow_non_finite=True)
     btf = read_manifest(folder)
     assert btf.bit_depth == ("half" if dtype == np.float16 else "float")
     btf.read_samples([0, 2, 3])
@@ -316,26 +318,46 @@ def test_write_manifest_too_few_images(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def _tiny_manifest(target: Path, value: float = 0.5) -> Path:
+    images = (np.full((SIZE, SIZE, 3), value, np.float32) for _ in range(4))
+    return write_manifest(target, SAMPLING, images, color_space=SRGB)
+
+
 def test_atomic_dir_replaces_only_on_success(tmp_path):
     target = tmp_path / "out"
-    target.mkdir()
-    (target / "old.txt").write_text("old")
+    _tiny_manifest(target, 0.25)
+    before = {p.name: p.read_bytes() for p in target.iterdir()}
 
     with pytest.raises(ValueError):
         with atomic_dir(target) as tmp:
             (tmp / "new.txt").write_text("new")
             raise ValueError("fail midway")
-    assert sorted(p.name for p in target.iterdir()) == ["old.txt"]
+    assert {p.name: p.read_bytes() for p in target.iterdir()} == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
 
     with atomic_dir(target) as tmp:
-        assert tmp.parent == tmp_path and tmp != target
-        (tmp / "new.txt").write_text("new")
-        assert (target / "old.txt").exists()  # the old output stays until the new one is complete
-    assert sorted(p.name for p in target.iterdir()) == ["new.txt"]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no .out.tmp-* / .out.old-* left
+        assert tmp.parent.parent.parent == tmp_path and tmp.name == "out" and tmp != target
+        _tiny_manifest(tmp / "x", 0.75)          # a manifest of its own, then moved into place
+        for p in (tmp / "x").iterdir():
+            p.rename(tmp / p.name)
+        (tmp / "x").rmdir()
+        assert {p.name: p.read_bytes() for p in target.iterdir()} == before  # old until new is complete
+    assert {p.name: p.read_bytes() for p in target.iterdir()} != before
+    assert read_manifest(target).n_samples == 4
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no staging folder, no lock left
 
-    with pytest.raises(FileExistsError):
+    with pytest.raises(OutputRefused):
         with atomic_dir(target, overwrite=False):
             pass
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def test_atomic_dir_never_replaces_what_usdbtf_did_not_make(tmp_path):
+    target = tmp_path / "out"
+    target.mkdir()
+    (target / "old.txt").write_text("old")
+    with pytest.raises(OutputRefused, match="not a usdbtf"):
+        with atomic_dir(target) as tmp:
+            (tmp / "new.txt").write_text("new")
+    assert sorted(p.name for p in target.iterdir()) == ["old.txt"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]

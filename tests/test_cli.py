@@ -1,6 +1,6 @@
 """The ``usdbtf`` command line: synth -> compress -> decompress -> error -> info, the
-options that steer compression, and bad input (exit status 2, one stderr line naming
-the file, nothing written).
+options that steer compression, and bad input (exit status 65 for bad data, 2 for a wrong
+command line; one stderr line naming the file, nothing written).
 
 Most tests call :func:`usdbtf.cli.main` in-process (fast); one smoke test runs the
 installed console script in a subprocess.
@@ -20,7 +20,7 @@ import pytest
 from usdbtf import colour, synth
 from usdbtf.cli import main
 
-from cli_helpers import bad_input, ok, run  # noqa: E402
+from cli_helpers import bad_input, bad_usage, ok, refused, run  # noqa: E402
 from usdbtf.compress import read_compressed, reconstruct
 from usdbtf.compress.decompress import compare
 from usdbtf.compress.format import METADATA
@@ -134,15 +134,15 @@ def test_compress_decompress_error_info_chain(capsys, src, compressed, work):
     assert f"{c.info['estimated_error']['linear']['percent']:.3f} %" in info
     assert SRGB in info
     info_src = ok(capsys, "info", src)
-    assert "BTF, 24 samples of 32x32, uint8 " + SRGB in info_src
-    assert "views 4, lights 6, interpolated 0" in info_src
+    assert "btf-manifest/1 BTF, 4 views x 6 lights = 24 samples of 32x32 texels" in info_src
+    assert "colour      uint8 " + SRGB in info_src and "interpolated 0" in info_src
 
 
 def test_progress_goes_to_stderr_and_quiet_silences_it(capsys, src, tmp_path):
     code, out, err = run(capsys, "compress", src, "-o", tmp_path / "c", "--k", "2")
     assert code == 0 and out == ""
     assert "loaded 24 samples of 32x32" in err and "k = 2" in err
-    code, out, err = run(capsys, "compress", src, "-o", tmp_path / "c", "--k", "2", "-q")
+    code, out, err = run(capsys, "compress", src, "-o", tmp_path / "c", "--k", "2", "-q", "--force")
     assert code == 0 and out == "" and err == ""
 
 
@@ -228,10 +228,12 @@ def test_same_seed_same_output_other_seed_differs(capsys, src, tmp_path):
             (tmp_path / "b" / "coeff" / f"c{i:03d}.jxl").read_bytes()
 
 
-def test_output_is_replaced(capsys, src, tmp_path):
+def test_output_is_replaced_with_force_only(capsys, src, tmp_path):
     out = tmp_path / "c"
     ok(capsys, "compress", src, "-o", out, "--k", "4", "-q")
-    ok(capsys, "compress", src, "-o", out, "--k", "2", "-q")
+    refused(capsys, "compress", src, "-o", out, "--k", "2", "-q", names="--force")
+    assert len(list((out / "coeff").iterdir())) == 4
+    ok(capsys, "compress", src, "-o", out, "--k", "2", "-q", "--force")
     assert sorted(p.name for p in (out / "coeff").iterdir()) == ["c000.jxl", "c001.jxl"]
     assert [p.name for p in tmp_path.iterdir()] == ["c"]
 
@@ -276,7 +278,7 @@ def test_truncated_image_exit_status(capsys, src, tmp_path):
     broken = sample_file(folder, 5)
     broken.write_bytes(broken.read_bytes()[:200])
     code, _, err = run(capsys, "compress", folder, "-o", tmp_path / "out", "-q")
-    assert code == 2 and broken.name in err
+    assert code == 65 and broken.name in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["src"]
 
 
@@ -289,11 +291,11 @@ def test_bad_compressed_folder(capsys, compressed, tmp_path):
 
 
 def test_bad_options(capsys, src, compressed, tmp_path):
-    bad_input(capsys, "compress", src, "-o", tmp_path / "o", "--k", "0", names="--k")
+    bad_usage(capsys, "compress", src, "-o", tmp_path / "o", "--k", "0", names="--k")
     bad_input(capsys, "compress", src, "-o", tmp_path / "o", "--max-bytes", "40", "-q", names="--max-bytes")
-    bad_input(capsys, "decompress", compressed, "-o", tmp_path / "o", "--k", "9", names="--k")
-    bad_input(capsys, "decompress", compressed, "-o", tmp_path / "o", "--samples", "0-30", names="--samples")
-    bad_input(capsys, "decompress", compressed, "-o", tmp_path / "o", "--samples", "a-b", names="--samples")
+    bad_usage(capsys, "decompress", compressed, "-o", tmp_path / "o", "--k", "9", names="--k")
+    bad_usage(capsys, "decompress", compressed, "-o", tmp_path / "o", "--samples", "0-30", names="--samples")
+    bad_usage(capsys, "decompress", compressed, "-o", tmp_path / "o", "--samples", "a-b", names="--samples")
     assert list(tmp_path.iterdir()) == []
     with pytest.raises(SystemExit) as exc:
         main(["compress", str(src), "-o", str(tmp_path / "o"), "--solver", "svd"])
@@ -345,6 +347,6 @@ def test_console_script_smoke(tmp_path):
     assert r.returncode == 0, r.stderr
     assert read_compressed(tmp_path / "c").k == 3
     r = sh("compress", tmp_path / "missing", "-o", tmp_path / "x")
-    assert r.returncode == 2
+    assert r.returncode == 65
     assert r.stderr.strip().splitlines() == [f"usdbtf compress: error: {tmp_path / 'missing'}: no such file or folder"]
     assert not (tmp_path / "x").exists()

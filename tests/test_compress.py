@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import tempfile
 import warnings
 from pathlib import Path
 
@@ -18,17 +19,19 @@ import OpenImageIO as oiio
 import pytest
 
 from usdbtf import synth
-from usdbtf.compress import Options, compress_to_folder, read_compressed, reconstruct, write_compressed
+from usdbtf.compress import CompressOptions, compress, read_compressed, reconstruct, write_compress
 from usdbtf.compress.curve import curve_samples
 from usdbtf.compress.decompress import compare, decompress_to_folder, parse_samples
 from usdbtf.compress.format import METADATA, truncate
 from usdbtf.compress.linalg import exact_basis, fix_signs, randomized_basis
 from usdbtf.compress.metrics import ErrorSums
-from usdbtf.errors import BTFError
+from usdbtf.errors import BTFError, OutputRefused
 from usdbtf.manifest import encode_for_file, read_manifest, write_manifest
 from usdbtf import colour
 from usdbtf.model import ArrayBTF
 from usdbtf.sampling import preset
+
+from compress_helpers import compress_into
 
 SRGB = "sRGB Encoded Rec.709 (sRGB)"
 LIN709 = "Linear Rec.709 (sRGB)"
@@ -103,7 +106,7 @@ def tiny64(data_root) -> Path:
 def paper_small32(small32, tmp_path_factory):
     out = tmp_path_factory.mktemp("paper") / "paper_k16"
     btf = read_manifest(small32)
-    return btf, compress_to_folder(btf, out, Options(solver="paper", k=16)), out
+    return btf, compress_into(btf, out, CompressOptions(solver="paper", k=16)), out
 
 
 # ---------------------------------------------------------------- linear algebra
@@ -255,7 +258,7 @@ def rank4_exr(data_root):
 @pytest.mark.parametrize("k", [4, 7])
 def test_full_rank_exr_codec_is_half_precision(rank4_exr, tmp_path, k):
     btf = rank4_exr
-    c = compress_to_folder(btf, tmp_path / "c", Options(k=k, codec="exr"))
+    c = compress_into(btf, tmp_path / "c", CompressOptions(k=k, codec="exr"))
     # k beyond the numerical rank (4) keeps only the vectors that carry signal.
     assert c.k == min(k, 4)
     rec = reconstruct(read_compressed(tmp_path / "c"))
@@ -270,7 +273,7 @@ def test_rank_r_plus_noise_jxl_with_k_r_is_accurate(tmp_path):
     s = preset("tiny")
     data = rank_r_images(5, len(s), 16, seed=4, noise=1e-3)
     btf = ArrayBTF.from_linear(s, data)
-    c = compress_to_folder(btf, tmp_path / "c", Options(k=5))
+    c = compress_into(btf, tmp_path / "c", CompressOptions(k=5))
     assert c.k == 5 and c.codec == "jxl"
     r = read_compressed(tmp_path / "c")
     assert full_percent(btf, r) < 1.0
@@ -281,7 +284,7 @@ def test_exact_rank_jxl_with_k_equal_rank(tmp_path):
     for r in range(1, 9):
         data = rank_r_images(r, len(s), 16, seed=r)
         btf = ArrayBTF.from_linear(s, data)
-        c = compress_to_folder(btf, tmp_path / f"c{r}", Options(k=r))
+        c = compress_into(btf, tmp_path / f"c{r}", CompressOptions(k=r))
         assert full_percent(btf, read_compressed(tmp_path / f"c{r}")) < 1.0
 
 
@@ -290,7 +293,7 @@ def test_default_options_on_tiny_sampling(tiny32, tmp_path):
     inputs = [read_manifest(tiny32)] + [ArrayBTF.from_linear(s, synth.render_all(synth.make_material(m, 24, 0), s))
                                         for m in ("pebbles", "ridged_fabric", "fuzzy_moss")]
     for n, btf in enumerate(inputs):
-        c = compress_to_folder(btf, tmp_path / f"c{n}", Options())
+        c = compress_into(btf, tmp_path / f"c{n}", CompressOptions())
         assert c.k == 24
         assert full_percent(btf, read_compressed(tmp_path / f"c{n}")) < 1.0
 
@@ -301,7 +304,7 @@ def test_default_options_on_tiny_sampling(tiny32, tmp_path):
 def test_paper_solver_folder_layout_and_bit_exact_read(small32, tmp_path):
     btf = read_manifest(small32)
     out = tmp_path / "paper"
-    c = compress_to_folder(btf, out, Options(solver="paper", k=8))
+    c = compress_into(btf, out, CompressOptions(solver="paper", k=8))
     assert c.k == 8 and c.codec == "jpeg"
     doc = json.loads((out / METADATA).read_text())
     assert doc["solver"] == "paper" and doc["k"] == 8 and doc["codec"] == "jpeg"
@@ -339,12 +342,12 @@ def test_paper_solver_fits_only_the_central_region(tmp_path):
     mask[4:12, 4:12] = True
     data = np.where(mask, inner, outer).astype(np.float32)
     btf = ArrayBTF.from_linear(s, data)
-    c = compress_to_folder(btf, tmp_path / "p", Options(solver="paper", k=1, codec="png", region=8))
+    c = compress_into(btf, tmp_path / "p", CompressOptions(solver="paper", k=1, codec="png", region=8))
     rec = reconstruct(c)
     assert np.abs(rec[:, 4:12, 4:12] - data[:, 4:12, 4:12]).max() < 0.01 * data.max()
     assert np.abs(rec[:, :4] - data[:, :4]).mean() > 0.05
     # rsvd samples texels everywhere: rank 2 is exact.
-    c2 = compress_to_folder(btf, tmp_path / "r", Options(k=2, codec="exr"))
+    c2 = compress_into(btf, tmp_path / "r", CompressOptions(k=2, codec="exr"))
     assert np.abs(reconstruct(c2) - data).max() < 2e-3
 
 
@@ -355,7 +358,7 @@ def test_default_solver_beats_paper_at_equal_bytes(paper_small32, tmp_path):
     # (it misses some budgets, see test_max_bytes_rate_control_never_stalls).
     for fraction in (1.0, 0.985, 0.97, 0.95, 0.93):
         try:
-            rs = compress_to_folder(btf, tmp_path / "rs", Options(max_bytes=int(budget * fraction)))
+            rs = compress_into(btf, tmp_path / "rs", CompressOptions(max_bytes=int(budget * fraction)))
             break
         except BTFError as exc:
             assert "--max-bytes" in str(exc)
@@ -375,7 +378,7 @@ def test_max_bytes_rate_control_never_stalls(tiny32, tmp_path):
     failed = []
     for budget in (4500, 5500, 7000, 12500, 16000, 17500, 19000):
         try:
-            c = compress_to_folder(btf, tmp_path / "c", Options(max_bytes=budget))
+            c = compress_into(btf, tmp_path / "c", CompressOptions(max_bytes=budget))
             assert c.info["bytes"]["payload"] <= budget
         except BTFError as exc:
             failed.append((budget, str(exc)))
@@ -386,12 +389,12 @@ def test_paper_max_bytes_and_target_error(paper_small32, tmp_path):
     btf, paper16, _ = paper_small32
     per = paper16.info["bytes"]
     budget = int(per["payload"] * 0.5)
-    c = compress_to_folder(btf, tmp_path / "mb", Options(solver="paper", k=16, max_bytes=budget))
+    c = compress_into(btf, tmp_path / "mb", CompressOptions(solver="paper", k=16, max_bytes=budget))
     assert c.k < 16 and c.info["bytes"]["payload"] <= budget
     assert len(list((tmp_path / "mb" / "coeff").iterdir())) == c.k
     # Target: the paper's error at k = 16 (held-out estimate) is reachable with k <= 16.
     est16 = paper16.info["estimated_error"]["linear"]["percent"]
-    t = compress_to_folder(btf, tmp_path / "te", Options(solver="paper", k=16, target_error=est16 * 1.05))
+    t = compress_into(btf, tmp_path / "te", CompressOptions(solver="paper", k=16, target_error=est16 * 1.05))
     assert t.k <= 16
     assert t.info["estimated_error"]["linear"]["percent"] <= est16 * 1.05
     assert full_percent(btf, t) <= est16 * 1.05 * 1.1
@@ -404,7 +407,7 @@ def test_max_bytes_respected(tiny32, tmp_path):
     btf = read_manifest(tiny32)
     errs = []
     for budget in (4000, 12000):
-        c = compress_to_folder(btf, tmp_path / f"b{budget}", Options(max_bytes=budget))
+        c = compress_into(btf, tmp_path / f"b{budget}", CompressOptions(max_bytes=budget))
         pay = c.info["bytes"]["payload"]
         assert pay <= budget
         assert pay > 0.6 * budget, "budget mostly unused"
@@ -418,7 +421,7 @@ def test_max_bytes_respected(tiny32, tmp_path):
 def test_max_bytes_impossible_raises_and_writes_nothing(tiny32, tmp_path):
     btf = read_manifest(tiny32)
     with pytest.raises(BTFError, match="--max-bytes"):
-        compress_to_folder(btf, tmp_path / "out", Options(max_bytes=50))
+        compress_into(btf, tmp_path / "out", CompressOptions(max_bytes=50))
     assert not (tmp_path / "out").exists()
     assert no_leftovers(tmp_path, "out")
 
@@ -426,12 +429,12 @@ def test_max_bytes_impossible_raises_and_writes_nothing(tiny32, tmp_path):
 @pytest.mark.parametrize("target", [6.0, 3.0])
 def test_target_error_met_on_full_data(tiny64, tmp_path, target):
     btf = read_manifest(tiny64)
-    c = compress_to_folder(btf, tmp_path / "t", Options(target_error=target))
+    c = compress_into(btf, tmp_path / "t", CompressOptions(target_error=target))
     assert c.info["estimated_error"]["linear"]["percent"] <= target
     assert full_percent(btf, read_compressed(tmp_path / "t")) <= target * 1.1
     # Not absurdly over-delivered either: a looser target never costs more bytes.
     if target == 3.0:
-        loose = compress_to_folder(btf, tmp_path / "loose", Options(target_error=6.0))
+        loose = compress_into(btf, tmp_path / "loose", CompressOptions(target_error=6.0))
         assert loose.info["bytes"]["payload"] < c.info["bytes"]["payload"]
 
 
@@ -439,7 +442,7 @@ def test_target_error_met_on_full_data(tiny64, tmp_path, target):
 def test_k_respected(tiny32, tmp_path, k):
     btf = read_manifest(tiny32)
     out = tmp_path / "k"
-    c = compress_to_folder(btf, out, Options(k=k))
+    c = compress_into(btf, out, CompressOptions(k=k))
     assert c.k == k
     doc = json.loads((out / METADATA).read_text())
     assert doc["k"] == k and len(doc["coefficients"]) == k
@@ -459,7 +462,7 @@ def test_k_capped_without_nan(tmp_path, size, cap, solver):
     codec = "exr" if solver == "rsvd" else "png"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)   # see test_exr_codec_emits_no_warnings
-        c = compress_to_folder(btf, tmp_path / "c", Options(solver=solver, k=1000, codec=codec, region=size))
+        c = compress_into(btf, tmp_path / "c", CompressOptions(solver=solver, k=1000, codec=codec, region=size))
     assert c.k == cap
     r = read_compressed(tmp_path / "c")
     rec = reconstruct(r)
@@ -496,7 +499,7 @@ def test_jxl_codec_round_trips_constant_textures(tmp_path):
 
 def test_k1_on_tiny_sampling_readable(tiny32, tmp_path):
     btf = read_manifest(tiny32)
-    c = compress_to_folder(btf, tmp_path / "c", Options(k=1))
+    c = compress_into(btf, tmp_path / "c", CompressOptions(k=1))
     r = read_compressed(tmp_path / "c")
     assert np.array_equal(reconstruct(r), reconstruct(c))
 
@@ -514,7 +517,7 @@ def test_deterministic_for_a_seed(small32, tmp_path):
     btf = read_manifest(small32)
     outs = [tmp_path / "a", tmp_path / "b"]
     for out in outs:
-        compress_to_folder(btf, out, Options(k=8, seed=3))
+        compress_into(btf, out, CompressOptions(k=8, seed=3))
     a, b = folder_files(outs[0]), folder_files(outs[1])
     assert a.keys() == b.keys()
     assert {"btf-compressed.json", "basis.jxl", "coeff/c000.jxl", "error_curve.csv", "error_curve.png"} <= a.keys()
@@ -524,7 +527,7 @@ def test_deterministic_for_a_seed(small32, tmp_path):
         else:
             assert a[name] == b[name], name
     # Another seed samples other fit texels: a different (but equally valid) result.
-    compress_to_folder(btf, tmp_path / "c", Options(k=8, seed=4))
+    compress_into(btf, tmp_path / "c", CompressOptions(k=8, seed=4))
     assert (tmp_path / "c" / "basis.jxl").read_bytes() != a["basis.jxl"]
 
 
@@ -534,7 +537,7 @@ def test_read_back_is_bit_exact(tiny32, tmp_path, codec):
     out = tmp_path / codec
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)   # exr: see test_exr_codec_emits_no_warnings
-        c = compress_to_folder(btf, out, Options(k=6, codec=codec))
+        c = compress_into(btf, out, CompressOptions(k=6, codec=codec))
     r = read_compressed(out)
     assert r.codec == codec and r.k == 6 and (r.width, r.height, r.n_samples) == (32, 32, 24)
     assert np.array_equal(reconstruct(r), reconstruct(c))
@@ -547,13 +550,13 @@ def test_read_back_is_bit_exact(tiny32, tmp_path, codec):
     # All three codecs store the same approximation: comparable error.
     assert full_percent(btf, r) < 15.0
     # Rewriting what was read gives the same reconstruction again.
-    write_compressed(r, tmp_path / "again")
+    write_compress(r, tmp_path / "again")
     assert np.array_equal(reconstruct(read_compressed(tmp_path / "again")), reconstruct(c))
 
 
 def test_estimated_error_matches_full_data_when_every_texel_is_evaluated(tiny32, tmp_path):
     btf = read_manifest(tiny32)     # 1024 texels < fit_texels: evaluation covers every texel
-    c = compress_to_folder(btf, tmp_path / "c", Options(k=5))
+    c = compress_into(btf, tmp_path / "c", CompressOptions(k=5))
     est = c.info["estimated_error"]["linear"]
     assert c.info["estimated_error"]["texels"] == 1024
     assert est["percent"] == pytest.approx(full_percent(btf, c), rel=1e-4)
@@ -561,7 +564,7 @@ def test_estimated_error_matches_full_data_when_every_texel_is_evaluated(tiny32,
 
 def test_paper_with_exr_codec_reads_back(tiny32, tmp_path):
     btf = read_manifest(tiny32)
-    c = compress_to_folder(btf, tmp_path / "c", Options(solver="paper", k=6, codec="exr"))
+    c = compress_into(btf, tmp_path / "c", CompressOptions(solver="paper", k=6, codec="exr"))
     r = read_compressed(tmp_path / "c")
     np.testing.assert_allclose(reconstruct(r), reconstruct(c), rtol=1e-3, atol=1e-4)
 
@@ -569,7 +572,7 @@ def test_paper_with_exr_codec_reads_back(tiny32, tmp_path):
 def test_rsvd_with_jpeg_codec_is_sane(tiny32, tmp_path):
     btf = read_manifest(tiny32)
     try:
-        c = compress_to_folder(btf, tmp_path / "c", Options(k=6, codec="jpeg"))
+        c = compress_into(btf, tmp_path / "c", CompressOptions(k=6, codec="jpeg"))
     except BTFError:
         return      # refusing the combination would also be fine
     assert full_percent(btf, read_compressed(tmp_path / "c")) < 20.0
@@ -579,7 +582,7 @@ def test_exr_codec_emits_no_warnings(tiny32, tmp_path):
     btf = read_manifest(tiny32)
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)
-        compress_to_folder(btf, tmp_path / "c", Options(k=4, codec="exr"))
+        compress_into(btf, tmp_path / "c", CompressOptions(k=4, codec="exr"))
 
 
 @pytest.mark.parametrize("solver", ["rsvd", "paper"])
@@ -589,7 +592,7 @@ def test_all_black_btf(tmp_path, solver):
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("error", RuntimeWarning)
-            compress_to_folder(btf, tmp_path / "c", Options(solver=solver, k=4))
+            compress_into(btf, tmp_path / "c", CompressOptions(solver=solver, k=4))
     except BTFError:
         return
     assert np.abs(reconstruct(read_compressed(tmp_path / "c"))).max() == 0
@@ -597,7 +600,7 @@ def test_all_black_btf(tmp_path, solver):
 
 def test_metadata_bytes_recorded(tiny32, tmp_path):
     btf = read_manifest(tiny32)
-    compress_to_folder(btf, tmp_path / "c", Options(k=3))
+    compress_into(btf, tmp_path / "c", CompressOptions(k=3))
     doc = json.loads((tmp_path / "c" / METADATA).read_text())
     assert doc["bytes"]["metadata"] > 0
 
@@ -608,7 +611,7 @@ def test_metadata_bytes_recorded(tiny32, tmp_path):
 def test_decompress_8bit_source_to_png_manifest(tiny32, tmp_path):
     btf = read_manifest(tiny32)
     out = tmp_path / "c"
-    c = compress_to_folder(btf, out, Options(k=8))
+    c = compress_into(btf, out, CompressOptions(k=8))
     r = read_compressed(out)
     dec = decompress_to_folder(r, tmp_path / "d")
     d = read_manifest(dec)
@@ -630,7 +633,7 @@ def test_decompress_8bit_source_to_png_manifest(tiny32, tmp_path):
 
 def test_decompress_samples_subset_and_k_truncation(tiny32, tmp_path):
     btf = read_manifest(tiny32)
-    r = compress_to_folder(btf, tmp_path / "c", Options(k=8))
+    r = compress_into(btf, tmp_path / "c", CompressOptions(k=8))
     idx = parse_samples("0-3,7", r.n_samples)
     d_full = read_manifest(decompress_to_folder(r, tmp_path / "full", samples=idx))
     d_k2 = read_manifest(decompress_to_folder(r, tmp_path / "k2", samples=idx, k=2))
@@ -648,7 +651,7 @@ def test_decompress_samples_subset_and_k_truncation(tiny32, tmp_path):
 
 def test_decompress_float_source_to_exr(rank4_exr, tmp_path):
     btf = rank4_exr
-    r = compress_to_folder(btf, tmp_path / "c", Options(k=4, codec="exr"))
+    r = compress_into(btf, tmp_path / "c", CompressOptions(k=4, codec="exr"))
     d = read_manifest(decompress_to_folder(read_compressed(tmp_path / "c"), tmp_path / "d", samples=np.array([1, 5])))
     assert (d.bit_depth, d.color_space, d.n_samples) == ("float", LIN709, 2)
     assert all(Path(p).suffix == ".exr" for p in d.paths)
@@ -662,7 +665,7 @@ def test_decompress_float_source_to_exr(rank4_exr, tmp_path):
 def test_error_curve_files(small32, tmp_path):
     btf = read_manifest(small32)
     out = tmp_path / "c"
-    c = compress_to_folder(btf, out, Options(k=10))
+    c = compress_into(btf, out, CompressOptions(k=10))
     with open(out / "error_curve.csv") as fh:
         rows = list(csv.DictReader(fh))
     assert [int(r["k"]) for r in rows] == list(range(1, 11))
@@ -699,7 +702,7 @@ def test_corrupt_input_image_is_atomic(tiny32, tmp_path):
     parent = tmp_path / "outs"
     parent.mkdir()
     with pytest.raises(BTFError, match=bad):
-        compress_to_folder(btf, parent / "c", Options(k=4))
+        compress_into(btf, parent / "c", CompressOptions(k=4))
     assert list(parent.iterdir()) == []
 
 
@@ -713,21 +716,21 @@ def test_corrupt_input_image_parallel_loader(small32, tmp_path):
     (src / bad).write_bytes(b"garbage" * 40)
     btf = read_manifest(src)
     with pytest.raises(BTFError, match=bad):
-        compress_to_folder(btf, tmp_path / "c", Options(k=4, workers=2))
+        compress_into(btf, tmp_path / "c", CompressOptions(k=4, workers=2))
     assert not (tmp_path / "c").exists() and no_leftovers(tmp_path, "c")
 
 
 def test_failed_compress_keeps_previous_output(tiny32, tmp_path):
     btf = read_manifest(tiny32)
     out = tmp_path / "c"
-    compress_to_folder(btf, out, Options(k=3))
+    compress_into(btf, out, CompressOptions(k=3))
     before = folder_files(out)
     with pytest.raises(BTFError):
-        compress_to_folder(btf, out, Options(max_bytes=10))
+        compress_into(btf, out, CompressOptions(max_bytes=10))
     assert folder_files(out) == before
     assert no_leftovers(tmp_path, "c")
     # A successful run replaces it completely (no stale coefficient files).
-    compress_to_folder(btf, out, Options(k=2))
+    compress_into(btf, out, CompressOptions(k=2))
     assert sorted(p.name for p in (out / "coeff").iterdir()) == ["c000.jxl", "c001.jxl"]
     assert no_leftovers(tmp_path, "c")
 
@@ -735,17 +738,17 @@ def test_failed_compress_keeps_previous_output(tiny32, tmp_path):
 def test_invalid_options():
     s = preset("tiny")
     btf = ArrayBTF.from_linear(s, np.ones((len(s), 4, 4, 3), np.float32))
-    for opts, msg in [(Options(solver="svd"), "unknown solver"), (Options(k=0), "--k"),
-                      (Options(target_error=0), "--target-error"), (Options(max_bytes=-1), "--max-bytes"),
-                      (Options(codec="webp"), "unknown codec")]:
+    for opts, msg in [(CompressOptions(solver="svd"), "unknown solver"), (CompressOptions(k=0), "--k"),
+                      (CompressOptions(target_error=0), "--target-error"), (CompressOptions(max_bytes=-1), "--max-bytes"),
+                      (CompressOptions(codec="webp"), "unknown codec")]:
         with pytest.raises(BTFError, match=msg):
-            compress_to_folder(btf, "/nonexistent/never/written", opts)
+            compress_into(btf, "/nonexistent/never/written", opts)
 
 
 @pytest.fixture(scope="module")
 def good_folder(tiny32, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("good") / "c"
-    compress_to_folder(read_manifest(tiny32), out, Options(k=3, codec="png"))
+    compress_into(read_manifest(tiny32), out, CompressOptions(k=3, codec="png"))
     return out
 
 
@@ -816,6 +819,93 @@ def test_read_compressed_missing_key(good_folder, tmp_path):
         read_compressed(f)
 
 
+# ---------------------------------------------------------------- compress in memory, write_compress
+
+
+@pytest.mark.parametrize("kw", [dict(k=6), dict(max_bytes=9000), dict(solver="paper", k=8, max_bytes=8000),
+                                dict(codec="jpeg", k=8), dict(codec="exr", target_error=8.0),
+                                dict(k=6, memory_budget=0, workers=2)],
+                         ids=["k", "max-bytes", "paper-max-bytes", "jpeg", "exr-target", "streamed"])
+def test_compress_creates_no_file(tiny32, tmp_path, monkeypatch, kw):
+    """compress() is pure: no file appears where it could write one ($TMPDIR, the working
+    folder, the input's folder and its parent) and no descriptor stays open, whatever the
+    solver, codec, budget or source; the result carries its encoded bytes."""
+    scratch, work = tmp_path / "tmpdir", tmp_path / "cwd"
+    scratch.mkdir()
+    work.mkdir()
+    monkeypatch.setenv("TMPDIR", str(scratch))
+    monkeypatch.setattr(tempfile, "tempdir", None)      # tempfile reads $TMPDIR again
+    monkeypatch.chdir(work)
+    before = folder_files(tiny32), sorted(p.name for p in tiny32.parent.iterdir())
+    fds = sorted(os.listdir("/proc/self/fd"))
+    result = compress(read_manifest(tiny32), CompressOptions(**kw))
+    assert list(scratch.iterdir()) == [] and list(work.iterdir()) == []
+    assert (folder_files(tiny32), sorted(p.name for p in tiny32.parent.iterdir())) == before
+    assert sorted(os.listdir("/proc/self/fd")) == fds
+    assert result.encoded is not None and result.encoded.describes(result)
+    assert result.info["bytes"] == result.encoded.sizes()
+
+
+def test_write_compress_writes_the_carried_bytes_and_changes_nothing(tiny32, tmp_path):
+    """The folder holds exactly the bytes the result carries (a lossy codec is not encoded a
+    second time); writing leaves the result as it was; an existing folder is replaced only
+    with force; a truncated result (no bytes of its own) is encoded when written."""
+    result = compress(read_manifest(tiny32), CompressOptions(solver="paper", k=6))        # JPEG: lossy
+    info = json.dumps(result.info, sort_keys=True)
+    pixels = [st.pixels for st in result.coefficients]
+    out = tmp_path / "c"
+    sizes = write_compress(result, out)
+    assert json.dumps(result.info, sort_keys=True) == info
+    assert all(a is st.pixels for a, st in zip(pixels, result.coefficients))
+    files = folder_files(out)
+    assert [files[f"coeff/c{i:03d}.jpg"] for i in range(6)] == list(result.encoded.coefficients)
+    assert files["basis.tif"] == result.encoded.basis
+    assert sizes == dict(result.info["bytes"], metadata=len(files[METADATA]))
+    assert json.loads(files[METADATA])["bytes"] == sizes
+    assert {"error_curve.csv", "error_curve.png"} <= files.keys()
+    r = read_compressed(out)
+    assert all(np.array_equal(a.pixels, b.pixels) for a, b in zip(r.coefficients, result.coefficients))
+    with pytest.raises((FileExistsError, OutputRefused)):
+        write_compress(result, out)
+    assert folder_files(out) == files
+    write_compress(result, out, force=True)
+    assert folder_files(out) == files and no_leftovers(tmp_path, "c")
+    cut = truncate(result, 3)
+    assert cut.encoded is None
+    write_compress(cut, tmp_path / "t")
+    assert read_compressed(tmp_path / "t").k == 3
+
+
+@pytest.mark.parametrize("ks", [(8, 8, 8), (8, 5, 0)], ids=["interleaved", "planar"])
+def test_projection_tiles_reduce_in_sample_order(small32, ks):
+    """The reduction :mod:`usdbtf.compress.projection` documents: every tile's partial,
+    computed in any order (as distributed workers would return them per shard of samples),
+    summed from zero in sample order per texel block, is bit-identical to the in-process
+    projection."""
+    from usdbtf.compress.load import texel_blocks
+    from usdbtf.compress.projection import TileProjector
+    from usdbtf.compress.source import InMemorySource, tile_samples
+    btf = read_manifest(small32)
+    src = InMemorySource(btf, workers=1)
+    u = randomized_basis(src.columns(np.arange(btf.n_pixels)), 8, seed=0)[0]
+    mix = src.working_mix(np.linalg.qr(np.random.default_rng(0).normal(size=(3, 3)))[0])
+    want, energy = src.project(u, mix, ks, energy=True)
+    tile = tile_samples(btf)
+    assert tile < btf.n_samples, "the sampling must span several tiles"
+    proj = TileProjector(u, mix, ks, src.curves, tile, energy=True)
+    stored = btf.read_encoded(slice(None)).reshape(btf.n_samples, -1)
+    got = np.zeros_like(want)
+    for a, b in texel_blocks(btf.n_pixels):
+        starts = range(0, btf.n_samples, tile)
+        partials = {s0: proj.partial(s0, stored[s0:s0 + tile, 3 * a:3 * b]) for s0 in reversed(starts)}
+        acc = proj.zeros(b - a)
+        for s0 in starts:
+            proj.accumulate(acc, partials[s0])
+        proj.store(acc, got, a, b)
+    assert np.array_equal(got, want)
+    assert proj.energy == pytest.approx(energy, rel=1e-12)
+
+
 # ---------------------------------------------------------------- streaming (memory-bounded) path
 
 
@@ -824,8 +914,8 @@ def test_streaming_source_matches_in_memory(small32, tmp_path, solver):
     """memory_budget=0 streams the files twice instead of holding them: same choice of k,
     same bytes up to float summation order, same reconstruction to float32 rounding."""
     btf = read_manifest(small32)
-    mem = compress_to_folder(btf, tmp_path / "mem", Options(solver=solver, k=12))
-    streamed = compress_to_folder(btf, tmp_path / "str", Options(solver=solver, k=12, memory_budget=0))
+    mem = compress_into(btf, tmp_path / "mem", CompressOptions(solver=solver, k=12))
+    streamed = compress_into(btf, tmp_path / "str", CompressOptions(solver=solver, k=12, memory_budget=0))
     assert streamed.k == mem.k == 12
     assert abs(streamed.info["bytes"]["payload"] - mem.info["bytes"]["payload"]) <= 0.01 * mem.info["bytes"]["payload"]
     a, b = reconstruct(read_compressed(tmp_path / "mem")), reconstruct(read_compressed(tmp_path / "str"))

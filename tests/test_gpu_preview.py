@@ -143,7 +143,7 @@ def test_materialx_generated_glsl_compiles(asset):
 
 # ------------------------------------------------------------------ the packaged asset
 def test_asset_has_storm_shader_beside_the_fallback_and_passes_every_validator(asset):
-    for layer in (asset, asset.with_name("pebbles_payload.usda"), asset.with_suffix(".usdz")):
+    for layer in (asset, asset.with_name("pebbles_payload.usdc"), asset.with_suffix(".usdz")):
         assert validation_issues(layer, severities=("Error", "Warn")) == [], layer
     stage = open_stage(asset)
     material = UsdShade.Material(stage.GetPrimAtPath("/pebbles/mtl/BtfMaterial"))
@@ -153,8 +153,9 @@ def test_asset_has_storm_shader_beside_the_fallback_and_passes_every_validator(a
     assert shader.GetIdAttr().Get() == shaders.SHADER_ID
     assert material.ComputeSurfaceSource("glslfx")[0].GetPath() == shader.GetPath()
     assert material.ComputeSurfaceSource("ri")[0].GetPrim() == universal   # others get the fallback
-    node = Sdr.Registry().GetShaderNodeByIdentifier(shaders.SHADER_ID)       # the plugin's definition
-    assert node.GetSourceType() == "glslfx"
+    node = Sdr.Registry().GetShaderNodeByIdentifier(shaders.SHADER_ID)       # the plugin's definition,
+    assert Path(node.GetResolvedDefinitionURI()) == \
+        storm.plugin_dir_resources() / "sdr" / f"{shaders.SHADER_ID}.usda"     # found by filesystem discovery
     assert Path(node.GetResolvedImplementationURI()) == \
         storm.plugin_dir_resources() / "shaders" / f"{shaders.SHADER_ID}.glslfx"
     assert set(node.GetShaderInputNames()) == {name for name, *_ in shaders.INPUTS}
@@ -214,12 +215,13 @@ def test_headless_swatch_matches_cpu_renderer(gl, asset):
 
 def test_headless_sphere_matches_cpu_renderer(egl, asset):
     from usdbtf.gpu.headless import HeadlessRenderer, psnr, uv_sphere
-    from usdbtf.render import auto_camera, parse_light
+    from usdbtf.camera import auto_camera
+    from usdbtf.render import parse_light
 
     layout, _, _ = storm.layout_from_asset(asset)
     gl = HeadlessRenderer(layout, wrap="repeat", ctx=egl)
     mesh = uv_sphere(0.05)
-    camera = auto_camera(mesh.corners, 128, 128)
+    camera = auto_camera(mesh.corner(), 128, 128)
     lights = [parse_light("dir:0.4,0.6,1"), parse_light("point:0.1,0.05,0.12:0.02")]
     ref = _cpu(load_btf(asset), wrap="repeat").render(mesh, camera, lights)
     out = gl.render(mesh, camera, lights)

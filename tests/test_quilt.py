@@ -10,12 +10,13 @@ from __future__ import annotations
 import itertools
 import json
 import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from quilt_render_data import pebbles, work  # noqa: F401 (fixtures)
-from cli_helpers import bad_input, ok
+from cli_helpers import bad_input, bad_usage, ok
 from usdbtf.compress import read_compressed, reconstruct
 from usdbtf.compress.format import METADATA
 from usdbtf.imageio import read_image
@@ -127,7 +128,7 @@ def test_tileable_output_wraps_without_a_seam(pebbles):
     feats = image_features(cbtf)
     errors = {}
     for tileable in (True, False):
-        p = quilt(cbtf, 96, 80, QuiltOptions(block=16, seed=2, tileable=tileable)).positions
+        p = quilt(cbtf, QuiltOptions(size=(96, 80), block=16, seed=2, tileable=tileable)).positions
         wrap = pair_error(feats, np.r_[p[:, -1], p[-1]], np.r_[p[:, 0], p[0]], cbtf.n_samples)
         inner = pair_error(feats, np.r_[p[:, 47], p[39]], np.r_[p[:, 48], p[40]], cbtf.n_samples)
         errors[tileable] = (wrap, inner)
@@ -144,7 +145,7 @@ def test_coefficient_matching_beats_one_images_layout_over_all_samples(pebbles):
     cbtf = read_compressed(pebbles)
     images = reconstruct(cbtf)                                   # (S, H, W, 3)
     opts = QuiltOptions(block=16, seed=7).resolved(cbtf)
-    coeff = quilt(cbtf, 96, 96, opts).positions
+    coeff = quilt(cbtf, replace(opts, size=(96, 96))).positions
     coeff_err = seam_error_images(coeff, images).mean()
     grid = grid_for(96, 96, opts.block, opts.overlap)
     for s in (0, 84, 150):                                       # frontal, mid, grazing samples
@@ -159,12 +160,12 @@ def test_coefficient_matching_beats_one_images_layout_over_all_samples(pebbles):
 # ------------------------------------------------------------------ bad input
 
 
-def test_bad_input_exits_2_and_writes_nothing(work, pebbles, capsys):
+def test_bad_input_exits_65_bad_options_2_and_writes_nothing(work, pebbles, capsys):
     out = work / "bad_out"
-    bad_input(capsys, "quilt", pebbles, "-o", out, "--size", 64, 64, "--block", 60, names="--block 60")
-    bad_input(capsys, "quilt", pebbles, "-o", out, "--size", 0, 64, names="--size")
-    bad_input(capsys, "quilt", pebbles, "-o", out, "--size", 64, 64, "--m", 99, names="--m")
-    bad_input(capsys, "quilt", pebbles, "-o", out, "--size", 20, 20, "--tileable", names="--tileable")
+    bad_usage(capsys, "quilt", pebbles, "-o", out, "--size", 64, 64, "--block", 60, names="--block 60")
+    bad_usage(capsys, "quilt", pebbles, "-o", out, "--size", 0, 64, names="--size")
+    bad_usage(capsys, "quilt", pebbles, "-o", out, "--size", 64, 64, "--m", 99, names="--m")
+    bad_usage(capsys, "quilt", pebbles, "-o", out, "--size", 20, 20, "--tileable", names="--tileable")
     bad_input(capsys, "quilt", pebbles, "-o", out, "--atlas", work / "nope.usda", names="nope.usda")
     broken = work / "broken_c"
     shutil.copytree(pebbles, broken)

@@ -11,6 +11,7 @@ import pytest
 from rig_helpers import ENV, USDBTF, Sim, run_capture, tree_bytes
 
 from usdbtf import colour, synth
+from usdbtf.camera import Camera
 from usdbtf.cli import main
 from usdbtf.fiducials import apply_homography, detect_markers, load_board, make_board
 from usdbtf.fill import combine, plan_fill, spherical_weights
@@ -18,7 +19,7 @@ from usdbtf.imageio import read_image, write_image
 from usdbtf.manifest import read_manifest
 from usdbtf.rectify import rectify_frame, window_homography
 from usdbtf.rig import kinematics as K
-from usdbtf.rig.scene import Camera, add_sensor_noise, frame_homography, render_frame, vignetting
+from usdbtf.rig.scene import add_sensor_noise, frame_homography, render_frame, vignetting
 from usdbtf.sampling import Sampling, preset, to_vectors
 
 LIN709 = "Linear Rec.709 (sRGB)"
@@ -68,8 +69,8 @@ def test_bad_board_json(tmp_path, capsys, mutate, needle):
     mutate(doc)
     path = tmp_path / "board.json"
     path.write_text(json.dumps(doc))
-    code, err = cli(capsys, "rectify", tmp_path, "-o", tmp_path / "out", "--board", path)
-    assert code == 2
+    code, err = cli(capsys, "rectify", tmp_path / "raw", "-o", tmp_path / "out", "--board", path)
+    assert code == 65
     lines = err.strip().splitlines()
     assert len(lines) == 1 and str(path) in lines[0] and needle in lines[0], err
 
@@ -77,8 +78,8 @@ def test_bad_board_json(tmp_path, capsys, mutate, needle):
 def test_board_json_that_is_not_json(tmp_path, capsys):
     path = tmp_path / "board.json"
     path.write_text("{not json")
-    code, err = cli(capsys, "rectify", tmp_path, "-o", tmp_path / "out", "--board", path)
-    assert code == 2 and "not a readable board JSON" in err and len(err.strip().splitlines()) == 1
+    code, err = cli(capsys, "rectify", tmp_path / "raw", "-o", tmp_path / "out", "--board", path)
+    assert code == 65 and "not a readable board JSON" in err and len(err.strip().splitlines()) == 1
 
 
 # -- accuracy on simulated frames with known homographies -------------------------------------
@@ -239,7 +240,7 @@ def test_capture_rectify_compress(raw_capture, tmp_path, capsys):
     assert code == 0, err
     # --no-fill refuses when something is missing.
     code, err = cli(capsys, "rectify", raw, "-o", tmp_path / "R3", "--size", "32", "--no-fill", "-q")
-    assert code == 2 and "1 samples are missing" in err
+    assert code == 65 and "1 samples are missing" in err
 
 
 def test_obstructed_samples_are_filled(raw_capture, tmp_path, capsys):
@@ -258,14 +259,14 @@ def test_obstructed_samples_are_filled(raw_capture, tmp_path, capsys):
     assert meta["rectify"]["obstructed"] == sorted(s["index"] for s in gone)
 
 
-def test_corrupt_frame_exits_2(raw_capture, tmp_path):
+def test_corrupt_frame_exits_65(raw_capture, tmp_path):
     raw = shutil.copytree(raw_capture, tmp_path / "RAW")
     doc = json.loads((raw / "btf.json").read_text())
     victim = raw / doc["samples"][5]["image"]
     victim.write_bytes(victim.read_bytes()[:5000])
     done = subprocess.run(USDBTF + ["rectify", str(raw), "-o", str(tmp_path / "RECT"), "--size", "16"],
                           capture_output=True, text=True, env=ENV)
-    assert done.returncode == 2
+    assert done.returncode == 65
     last = done.stderr.strip().splitlines()[-1]
     assert last.startswith("usdbtf rectify: error: ") and victim.name in last
     assert not (tmp_path / "RECT").exists()
@@ -277,4 +278,29 @@ def test_incomplete_capture_is_refused(raw_capture, tmp_path, capsys):
     doc["samples"].pop(2)
     (raw / "btf.json").write_text(json.dumps(doc))
     code, err = cli(capsys, "rectify", raw, "-o", tmp_path / "RECT", "--size", "16")
-    assert code == 2 and "neither captured nor listed as missing" in err
+    assert code == 65 and "neither captured nor listed as missing" in err
+
+
+def test_rectify_in_memory_equals_the_command(raw_capture, tmp_path, capsys):
+    """The stage in memory (no scratch file) and with a scratch memmap give what the command
+    writes: write_rectify's bytes are the command's, and to_btf() reads the same samples."""
+    from usdbtf.rectify import RectifyOptions, rectify, write_rectify
+
+    assert cli(capsys, "rectify", raw_capture, "-o", tmp_path / "cli", "--size", "32", "-q")[0] == 0
+    opts = RectifyOptions(size=32)
+    before = sorted(p.name for p in tmp_path.iterdir())
+    in_memory = rectify(raw_capture, opts)
+    assert sorted(p.name for p in tmp_path.iterdir()) == before            # nothing written
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    mapped = rectify(raw_capture, opts, scratch=scratch)
+    assert isinstance(mapped.texels, np.memmap) and not isinstance(in_memory.texels, np.memmap)
+    write_rectify(in_memory, tmp_path / "lib")
+    write_rectify(mapped, tmp_path / "lib_mapped")
+    assert tree_bytes(tmp_path / "lib") == tree_bytes(tmp_path / "cli") == tree_bytes(tmp_path / "lib_mapped")
+    btf = in_memory.to_btf()
+    written = read_manifest(tmp_path / "cli")
+    assert btf.n_samples == written.n_samples == 24
+    np.testing.assert_array_equal(btf.interpolated, written.interpolated)
+    got, want = btf.read_samples([0, 5]), written.read_samples([0, 5])
+    np.testing.assert_allclose(got, want, rtol=2e-3, atol=1e-4)            # the files hold half floats

@@ -14,17 +14,18 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 
-from cli_helpers import bad_input, ok
+from cli_helpers import bad_input, bad_usage, ok
 from quilt_render_data import pebbles, work  # noqa: F401 (fixtures)
 from quilt_render_data import PHYSICAL_SIZE, plane_with_uv, write_sphere
 from usdbtf import colour
+from usdbtf.camera import Camera, parse_camera
 from usdbtf.colour import resolve_space
 from usdbtf.compress import read_compressed
 from usdbtf.imageio import read_image, read_info
-from usdbtf.render import Camera, Light, RenderOptions, Renderer, parse_camera
-from usdbtf.render.assets import render_mesh_from_arrays
+from usdbtf.mesh import Mesh
+from usdbtf.raster import rasterize
+from usdbtf.render import Light, RenderOptions, Renderer
 from usdbtf.render.hemisphere import Triangulation, directions_to_vectors, project
-from usdbtf.render.raster import rasterize
 from usdbtf.sampling import preset
 
 
@@ -182,7 +183,7 @@ def test_rasteriser_coverage_and_depth():
 
 def _plane(size_m, n=4):
     points, faces, uv = plane_with_uv(size_m, n)
-    return render_mesh_from_arrays(points, faces, uv, np.tile([0.0, 0.0, 1.0], (len(points), 1)))
+    return Mesh(points, faces, uv=uv, normals=np.tile([0.0, 0.0, 1.0], (len(points), 1)))
 
 
 @pytest.mark.parametrize("light", [(45.0, 0.0), (60.0, 300.0)])
@@ -220,9 +221,8 @@ def test_minified_texture_is_mip_filtered(renderer):
 def test_cast_shadows(renderer):
     ground = _plane(0.2, n=8)
     points, faces, uv = plane_with_uv(0.04, 2, z=0.05)                # a floating square occluder
-    roof = render_mesh_from_arrays(points, faces, uv, np.tile([0.0, 0.0, 1.0], (len(points), 1)))
-    mesh = type(ground)(*(np.concatenate([getattr(ground, f), getattr(roof, f)])
-                          for f in ("corners", "normals", "tangents", "bitangents", "st")))
+    roof = Mesh(points, faces, uv=uv, normals=np.tile([0.0, 0.0, 1.0], (len(points), 1)))
+    mesh = Mesh.concatenate([ground, roof])
     cam = parse_camera(f"eye=0,0,1 target=0,0,0 fov={np.degrees(2 * np.arctan(0.1)):.6f}", 100, 100)
     sun = Light("directional", np.array([1.0, 0.0, 1.0]) / np.sqrt(2), 1.0)
     lit = Renderer(renderer.cbtf, RenderOptions(shadows=False)).render(mesh, cam, [sun])[..., :3].mean(axis=2)
@@ -285,16 +285,16 @@ def test_render_a_packaged_usd_asset_like_its_folder(work, sphere_quilt, capsys)
 
 def test_render_bad_input(work, pebbles, capsys):
     out = work / "bad.exr"
-    bad_input(capsys, "render", pebbles, "--swatch", "--light", "30,0", "-o", out, names="--view")
-    bad_input(capsys, "render", pebbles, "--swatch", "--view", "95,0", "--light", "30,0", "-o", out, names="--view")
-    bad_input(capsys, "render", pebbles, "--swatch", "--view", "0,0", "--light", "x", "-o", out, names="--light")
-    bad_input(capsys, "render", pebbles, "--swatch", "--view", "0,0", "--light", "30,0", "-o", work / "bad.png",
+    bad_usage(capsys, "render", pebbles, "--swatch", "--light", "30,0", "-o", out, names="--view")
+    bad_usage(capsys, "render", pebbles, "--swatch", "--view", "95,0", "--light", "30,0", "-o", out, names="--view")
+    bad_usage(capsys, "render", pebbles, "--swatch", "--view", "0,0", "--light", "x", "-o", out, names="--light")
+    bad_usage(capsys, "render", pebbles, "--swatch", "--view", "0,0", "--light", "30,0", "-o", work / "bad.png",
               names="bad.png")
     sphere = write_sphere(work / "plain.obj", subdivisions=1)
     bad_input(capsys, "render", pebbles, "--mesh", sphere, "--light", "point:1,1,1", "-o", out,
               names="no texture coordinates")
-    bad_input(capsys, "render", pebbles, "--mesh", sphere, "--light", "spot:1,1,1", "-o", out, names="spot:1,1,1")
-    bad_input(capsys, "render", pebbles, "--mesh", sphere, "--camera", "eye=0,0,1", "--light", "dir:0,0,1", "-o", out,
+    bad_usage(capsys, "render", pebbles, "--mesh", sphere, "--light", "spot:1,1,1", "-o", out, names="spot:1,1,1")
+    bad_usage(capsys, "render", pebbles, "--mesh", sphere, "--camera", "eye=0,0,1", "--light", "dir:0,0,1", "-o", out,
               names="--camera")
     bad_input(capsys, "render", work / "nowhere", "--swatch", "--view", "0,0", "--light", "30,0", "-o", out,
               names="nowhere")

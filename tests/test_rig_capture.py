@@ -174,7 +174,7 @@ def test_opencv_camera_source(tmp_path):
 
 
 def _one_error_line(done, *needles):
-    assert done.returncode == 2, (done.returncode, done.stderr)
+    assert done.returncode == 65, (done.returncode, done.stderr)
     lines = done.stderr.strip().splitlines()
     assert lines[-1].startswith("usdbtf capture: error: "), done.stderr
     for n in needles:
@@ -182,7 +182,7 @@ def _one_error_line(done, *needles):
     return lines[-1]
 
 
-def test_garbage_serial_replies_exit_2(tmp_path):
+def test_garbage_serial_replies_exit_65(tmp_path):
     with FakeController(garbage()) as dev:
         done = run_capture(dev.path, tmp_path / "RAW", tmp_path / "frames", "-q", "--retries", "2",
                            "--timeout", "0.3")
@@ -190,7 +190,7 @@ def test_garbage_serial_replies_exit_2(tmp_path):
     assert len(done.stderr.strip().splitlines()) == 1
 
 
-def test_bad_frames_and_hooks_exit_2(tmp_path):
+def test_bad_frames_and_hooks_exit_65(tmp_path):
     sim = Sim(tmp_path / "frames")
     try:
         bad = tmp_path / "bad.tif"

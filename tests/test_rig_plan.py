@@ -114,7 +114,8 @@ def test_simulator_draws_the_arm_exactly_where_the_plan_says_it_hides_the_sample
     import cv2
 
     from usdbtf.fiducials import make_board
-    from usdbtf.rig.scene import Camera, frame_homography, render_frame, texture_homography
+    from usdbtf.camera import Camera
+    from usdbtf.rig.scene import frame_homography, render_frame, texture_homography
 
     board = make_board()
     cam = Camera.framing(board, 320, 240)

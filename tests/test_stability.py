@@ -31,7 +31,7 @@ orthonormal U and M), so we allow
     2 gamma_S ||x_t||                                                              (B2)
 
 At full k (k = min(S, 3 H W)) or k >= the data's rank, U U^T x = x up to float32 rounding
-of x itself, so |rec - x| <= B1 + B2.  (``core.py`` drops directions with sigma <= 1e-6
+of x itself, so |rec - x| <= B1 + B2.  (``fit.py`` drops directions with sigma <= 1e-6
 sigma_1 of the fit, whose texels get weights ||x_t||^-1/2 when their norms span > 1e6; in
 the data used here the dropped directions carry only float32 rounding noise -- see
 test_hdr_dark_region_with_its_own_brdf.)
@@ -53,7 +53,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from usdbtf import colour, synth
-from usdbtf.compress import Options, compress_to_folder, read_compressed, reconstruct
+from usdbtf.compress import CompressOptions, read_compressed, reconstruct
 from usdbtf.compress import codecs as codecs_mod
 from usdbtf.compress.linalg import exact_basis, randomized_basis
 from usdbtf.compress.source import InMemorySource, StreamingSource, tile_samples
@@ -61,6 +61,8 @@ from usdbtf.errors import BTFError
 from usdbtf.manifest import read_manifest, write_manifest
 from usdbtf.model import ArrayBTF
 from usdbtf.sampling import cross, preset, rings
+
+from compress_helpers import compress_into
 
 SRGB = "sRGB Encoded Rec.709 (sRGB)"
 LIN709 = "Linear Rec.709 (sRGB)"
@@ -243,7 +245,7 @@ def test_hdr_exr_error_relative_to_each_texel(tmp_path):
     assert x.min() == pytest.approx(1e-4, rel=1e-6) and x.max() == pytest.approx(1e4, rel=1e-6)
     assert texel_norm(x).max() < 65504
     btf = ArrayBTF.from_linear(preset("tiny"), x)
-    c = compress_to_folder(btf, tmp_path / "c", Options(codec="exr"))
+    c = compress_into(btf, tmp_path / "c", CompressOptions(codec="exr"))
     assert c.k == 3                                   # the data's rank
     check_output_finite(tmp_path / "c")
     r = read_compressed(tmp_path / "c")
@@ -261,7 +263,7 @@ def test_hdr_jxl_absolute_error_within_step_bound(tmp_path):
     No relative bound for dark texels is documented (they may round to zero)."""
     x = hdr_btf()
     btf = ArrayBTF.from_linear(preset("tiny"), x)
-    c = compress_to_folder(btf, tmp_path / "c", Options())
+    c = compress_into(btf, tmp_path / "c", CompressOptions())
     assert c.codec == "jxl" and c.k == 3
     check_output_finite(tmp_path / "c")
     r = read_compressed(tmp_path / "c")
@@ -277,7 +279,7 @@ def compress_within_bound_or_refuse(btf, x, folder, opts):
     """Compress; either the result is finite and within the pixel bound B1 + B2 of ``x``
     (returns it), or a BTFError was raised and nothing was left behind (returns None)."""
     try:
-        c = compress_to_folder(btf, folder, opts)
+        c = compress_into(btf, folder, opts)
     except BTFError:
         assert not folder.exists() and no_leftovers(folder.parent, folder.name)
         return None
@@ -293,7 +295,7 @@ def test_hdr_exr_bright_texels_overflow_half(tmp_path):
     s = preset("tiny")
     x = np.full((len(s), 8, 8, 3), 1e4, np.float32)
     x[:, :4] = 1e-4
-    c = compress_within_bound_or_refuse(ArrayBTF.from_linear(s, x), x, tmp_path / "c", Options(codec="exr"))
+    c = compress_within_bound_or_refuse(ArrayBTF.from_linear(s, x), x, tmp_path / "c", CompressOptions(codec="exr"))
     assert c is None or c.k == 1
 
 
@@ -305,7 +307,7 @@ def test_hdr_dark_region_with_its_own_brdf(tmp_path):
     x = hdr_btf(dark_own_brdf=True)
     assert x.min() == pytest.approx(1e-4, rel=1e-6) and x.max() == pytest.approx(1e4, rel=1e-6)
     btf = ArrayBTF.from_linear(preset("tiny"), x)
-    compress_to_folder(btf, tmp_path / "c", Options(codec="exr"))
+    compress_into(btf, tmp_path / "c", CompressOptions(codec="exr"))
     r = read_compressed(tmp_path / "c")
     rel = np.abs(reconstruct(r).astype(np.float64) - x).max(axis=(0, 3)) / texel_norm(x)
     assert (rel <= texel_relative_bound(r, x)).all(), f"k = {r.k}, worst texel-relative error {rel.max():.3g}"
@@ -321,7 +323,7 @@ def test_extreme_finite_magnitudes(tmp_path, exponent):
     or a clear BTFError.  Inf must never be produced internally from finite input."""
     s = preset("tiny")
     x = (np.random.default_rng(0).uniform(0, 1, (len(s), 8, 8, 3)) * 2.0 ** exponent).astype(np.float32)
-    compress_within_bound_or_refuse(ArrayBTF.from_linear(s, x), x, tmp_path / "c", Options())
+    compress_within_bound_or_refuse(ArrayBTF.from_linear(s, x), x, tmp_path / "c", CompressOptions())
 
 
 # ---------------------------------------------------------------- rank-deficient data
@@ -362,7 +364,7 @@ def test_rank_deficient_inputs(tmp_path, kind, solver, codec, k):
     B1 + B2 when k >= rank, else within the Eckart-Young truncation error plus B1 + B2."""
     x, rank = _rank_deficient(kind)
     btf = ArrayBTF.from_linear(preset("tiny"), x)
-    c = compress_to_folder(btf, tmp_path / "c", Options(solver=solver, codec=codec, k=k))
+    c = compress_into(btf, tmp_path / "c", CompressOptions(solver=solver, codec=codec, k=k))
     want = rank if k is None else min(k, rank)
     assert c.k == want
     check_output_finite(tmp_path / "c")
@@ -385,7 +387,7 @@ def test_paper_solver_signal_outside_region_message(tmp_path):
     x[:, 0, 0] = np.random.default_rng(0).uniform(0.1, 1, (24, 3))
     btf = ArrayBTF.from_linear(preset("tiny"), x)
     try:
-        compress_to_folder(btf, tmp_path / "c", Options(solver="paper", codec="png"))
+        compress_into(btf, tmp_path / "c", CompressOptions(solver="paper", codec="png"))
     except BTFError as exc:
         assert not (tmp_path / "c").exists()
         assert "every pixel is zero" not in str(exc), str(exc)
@@ -397,8 +399,8 @@ def test_metadata_is_strict_json_for_exact_reconstructions(tmp_path):
     """A single nonzero value, paper solver, lossless png: the stored representation is
     exact (error 0).  The metadata must still be valid JSON (no NaN / Infinity)."""
     x, _ = _rank_deficient("one-lit-value")
-    compress_to_folder(ArrayBTF.from_linear(preset("tiny"), x), tmp_path / "c",
-                       Options(solver="paper", codec="png", k=1))
+    compress_into(ArrayBTF.from_linear(preset("tiny"), x), tmp_path / "c",
+                       CompressOptions(solver="paper", codec="png", k=1))
     assert non_finite_json(tmp_path / "c" / "btf-compressed.json") == {}
 
 
@@ -410,8 +412,8 @@ def test_float64_input_is_rounded_once(tmp_path):
     precisions of the same data give byte-identical folders."""
     s = preset("tiny")
     x64 = np.random.default_rng(1).uniform(0, 1, (len(s), 12, 12, 3))
-    compress_to_folder(ArrayBTF.from_linear(s, x64), tmp_path / "a", Options(k=6))
-    compress_to_folder(ArrayBTF.from_linear(s, x64.astype(np.float32)), tmp_path / "b", Options(k=6))
+    compress_into(ArrayBTF.from_linear(s, x64), tmp_path / "a", CompressOptions(k=6))
+    compress_into(ArrayBTF.from_linear(s, x64.astype(np.float32)), tmp_path / "b", CompressOptions(k=6))
     assert differing(folder_files(tmp_path / "a"), folder_files(tmp_path / "b")) == []
 
 
@@ -502,7 +504,7 @@ def test_stored_basis_follows_sign_and_order_convention(tmp_path, solver, codec)
     largest-magnitude entry positive (fix_signs) up to one rounding of the storage
     (quantisation is monotone, so the order of |entries| survives it within a step)."""
     btf = pebbles("tiny", 16)
-    c = compress_to_folder(btf, tmp_path / "c", Options(solver=solver, codec=codec, k=8))
+    c = compress_into(btf, tmp_path / "c", CompressOptions(solver=solver, codec=codec, k=8))
     sv = np.asarray(c.info["singular_values"])
     assert np.all(np.diff(sv) <= 0) and len(sv) >= c.k
     b = read_compressed(tmp_path / "c").basis_values().astype(np.float64)
@@ -519,14 +521,14 @@ def test_sign_convention_is_independent_of_equivalent_inputs(tmp_path):
     a = rng.uniform(0.1, 1.0, (len(s), 4)) * np.array([8.0, 4.0, 2.0, 1.0])
     x = (a @ rng.uniform(0, 1, (4, 16 * 16 * 3))).reshape(len(s), 16, 16, 3).astype(np.float32)
     runs = {
-        "plain": (x, Options(k=4, codec="exr")),
-        "mirrored": (x[:, :, ::-1].copy(), Options(k=4, codec="exr")),
-        "doubled": (2 * x, Options(k=4, codec="exr")),
-        "paper": (x, Options(solver="paper", k=4, codec="exr", region=16)),
+        "plain": (x, CompressOptions(k=4, codec="exr")),
+        "mirrored": (x[:, :, ::-1].copy(), CompressOptions(k=4, codec="exr")),
+        "doubled": (2 * x, CompressOptions(k=4, codec="exr")),
+        "paper": (x, CompressOptions(solver="paper", k=4, codec="exr", region=16)),
     }
     bases = {}
     for name, (data, opts) in runs.items():
-        compress_to_folder(ArrayBTF.from_linear(s, data), tmp_path / name, opts)
+        compress_into(ArrayBTF.from_linear(s, data), tmp_path / name, opts)
         bases[name] = read_compressed(tmp_path / name).basis_values().astype(np.float64)
     for name, b in bases.items():
         # Half precision on both sides plus the float32 fit: well inside 2^-9 per entry.
@@ -551,7 +553,7 @@ def two_runs(small_png, tmp_path_factory):
     for batch in ("a", "b"):
         for n, (solver, codec, kw) in enumerate(configs):
             folder = root / f"{batch}{n}"
-            compress_to_folder(btf, folder, Options(solver=solver, codec=codec, k=8, seed=5, **kw))
+            compress_into(btf, folder, CompressOptions(solver=solver, codec=codec, k=8, seed=5, **kw))
             out.setdefault((solver, codec, tuple(kw.items())), []).append(folder_files(folder))
         time.sleep(1.05 - time.time() % 1.0)
     return out
@@ -580,7 +582,7 @@ def test_chunk_sizes_do_not_change_output(tmp_path, fixed_exr_dates, codec):
             "all": {"memory_budget": 0, "chunk_bytes": 1e12}}
     outs = {}
     for name, kw in runs.items():
-        compress_to_folder(btf, tmp_path / name, Options(codec=codec, **kw))
+        compress_into(btf, tmp_path / name, CompressOptions(codec=codec, **kw))
         outs[name] = comparable_files(tmp_path / name, drop_options=["memory_budget", "chunk_bytes"])
     assert {name: differing(outs["mem"], f) for name, f in outs.items() if name != "mem"} == \
         {"one": [], "two": [], "all": []}
@@ -602,8 +604,8 @@ def test_streaming_matches_in_memory_byte_for_byte(tmp_path, fixed_exr_dates, sa
     s = preset("small") if sampling == "small" else _sampling_312()
     size = 16 if sampling == "small" else 8
     btf = ArrayBTF.from_linear(s, synth.render_all(synth.make_material("pebbles", size, 0), s))
-    compress_to_folder(btf, tmp_path / "mem", Options(codec=codec))
-    compress_to_folder(btf, tmp_path / "str", Options(codec=codec, memory_budget=0))
+    compress_into(btf, tmp_path / "mem", CompressOptions(codec=codec))
+    compress_into(btf, tmp_path / "str", CompressOptions(codec=codec, memory_budget=0))
     assert differing(comparable_files(tmp_path / "mem", ["memory_budget"]),
                      comparable_files(tmp_path / "str", ["memory_budget"])) == []
 
@@ -656,7 +658,7 @@ def test_bad_pixel_in_file_is_rejected(exr_manifest, tmp_path, bad, budget):
     parent = tmp_path / "outs"
     parent.mkdir()
     with pytest.raises(BTFError, match="negative" if bad == "negative" else "NaN or Inf") as exc:
-        compress_to_folder(btf, parent / "c", Options(k=4, memory_budget=budget))
+        compress_into(btf, parent / "c", CompressOptions(k=4, memory_budget=budget))
     assert name in str(exc.value)
     assert list(parent.iterdir()) == []
 
@@ -682,7 +684,7 @@ def test_bad_pixel_in_memory_error_names_the_sample(tmp_path, entry):
             ArrayBTF.from_linear(s, x)
         else:   # an ArrayBTF built directly: the check happens while compressing
             btf = ArrayBTF(sampling=s, width=8, height=8, color_space=colour.WORKING_SPACE, bit_depth="float", data=x)
-            compress_to_folder(btf, tmp_path / "c", Options(k=2))
+            compress_into(btf, tmp_path / "c", CompressOptions(k=2))
     assert not (tmp_path / "c").exists()
     assert f"#{BAD_SAMPLE}" in str(exc.value), str(exc.value)
 
@@ -726,12 +728,12 @@ def _round_trip(x, codec, folder: Path):
     full_k = min(x.shape[0], 3 * x.shape[1] * x.shape[2])
     if not x.any():
         with pytest.raises(BTFError, match="every pixel is zero"):
-            compress_to_folder(btf, folder, Options(codec=codec, k=full_k))
+            compress_into(btf, folder, CompressOptions(codec=codec, k=full_k))
         assert not folder.exists() and no_leftovers(folder.parent, folder.name)
         return None
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)
-        c = compress_to_folder(btf, folder, Options(codec=codec, k=full_k))
+        c = compress_into(btf, folder, CompressOptions(codec=codec, k=full_k))
     assert 1 <= c.k <= full_k
     check_output_finite(folder)
     r = read_compressed(folder)

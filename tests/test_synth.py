@@ -499,7 +499,7 @@ def test_render_all_tiny_finite_nonnegative(name):
     cache = synth.RenderCache(m)
     for k in (0, 7, len(s) - 1):
         np.testing.assert_array_equal(imgs[k], synth.render_sample(m, s.view[k], s.light[k], cache=cache))
-    assert len(list(synth.render(m, s))) == len(s)
+    assert len(list(synth.render_samples(m, s))) == len(s)
 
 
 def test_render_any_order_and_chunk():
@@ -509,13 +509,13 @@ def test_render_any_order_and_chunk():
     order = np.random.default_rng(0).permutation(len(s))
     shuffled = Sampling(s.view[order], s.light[order])
     for chunk in (None, 1):
-        out = np.stack(list(synth.render(m, shuffled, chunk=chunk)))
+        out = np.stack(list(synth.render_samples(m, shuffled, chunk=chunk)))
         np.testing.assert_array_equal(out, base[order])
 
 
 def test_render_checks_arguments_eagerly():
     with pytest.raises(TypeError):
-        synth.render(_flat(4), [((0, 0), (0, 0))])
+        synth.render_samples(_flat(4), [((0, 0), (0, 0))])
     with pytest.raises(TypeError):
         synth.RenderCache("pebbles")
 

@@ -5,8 +5,8 @@ distinct known colour, written as real PNG / JPEG / EXR files through OpenImageI
 """
 from __future__ import annotations
 
-import gc
 import os
+import pickle
 import struct
 import tempfile
 import zipfile
@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from usdbtf import colour
+from cli_helpers import run
+from usdbtf import cli, colour
 from usdbtf.errors import BTFError
 from usdbtf.imageio import write_image
 from usdbtf.io import open_btf
@@ -97,9 +98,10 @@ def expected_sampling():
     return cross(np.array(VIEWS, float), np.array(LIGHTS, float))
 
 
-def caches(stem: str):
-    """Leftover extraction folders for a zip named ``stem``.zip."""
-    return list(Path(tempfile.gettempdir()).glob(f"usdbtf-ubo-{stem}-*"))
+def data_error_status() -> int:
+    """A BTFError's exit status: BTFError.exit_code (65) once the CLI maps exit codes (the
+    safety branch); the CLI on this branch still returns EXIT_BAD_INPUT (2) for all."""
+    return getattr(cli, "EXIT_BAD_INPUT", BTFError.exit_code)
 
 
 @pytest.fixture(scope="module")
@@ -130,7 +132,7 @@ def test_folder_angles_order_and_exact_values(png_folder):
     np.testing.assert_array_equal(btf.sampling.view, want.view)  # view-major
     np.testing.assert_array_equal(btf.sampling.light, want.light)
     assert btf.names[0] == "tv000_pv000/" + file_name(N - 1, (0, 0), (0, 0), "png")
-    assert btf.cache_dir is None and btf.paths[0].startswith(str(png_folder))
+    assert not btf.archive and btf.paths[0].startswith(str(png_folder))
     # PNG is lossless: the values are exactly OCIO's decode of the known codes.
     np.testing.assert_allclose(btf.read_samples(slice(None)), expected_linear(), rtol=1e-5, atol=1e-7)
     np.testing.assert_allclose(btf.read_rows(3, 7), expected_linear()[:, 3:7], rtol=1e-5, atol=1e-7)
@@ -141,11 +143,21 @@ def test_underscore_separators(tmp_path):
     np.testing.assert_array_equal(btf.sampling.view, expected_sampling().view)
 
 
+@pytest.fixture
+def private_tmpdir(tmp_path, monkeypatch) -> Path:
+    """A fresh, empty temporary directory for this test (``tempfile`` and ``$TMPDIR``)."""
+    d = tmp_path / "tmpdir"
+    d.mkdir()
+    monkeypatch.setenv("TMPDIR", str(d))
+    monkeypatch.setattr(tempfile, "tempdir", str(d))
+    return d
+
+
 @pytest.mark.parametrize("top", [None, "UBO_TEST16"])
-def test_zip_jpeg_values_and_cache_lifetime(jpg_folder, tmp_path, top):
+def test_zip_jpeg_values_read_in_place(jpg_folder, tmp_path, private_tmpdir, top):
     zpath = make_zip(jpg_folder, tmp_path / f"ubojpg{top or ''}.zip", top=top)
     btf = read_ubo(zpath)
-    assert isinstance(btf, UBOBTF)
+    assert isinstance(btf, UBOBTF) and btf.archive
     np.testing.assert_array_equal(btf.sampling.light, expected_sampling().light)
     assert btf.names[1] == (f"{top}/" if top else "") + "tv000_pv000/" + file_name(N - 1 - 3, (0, 0), (15, 0), "jpg")
     got = btf.read_samples(slice(None))
@@ -154,22 +166,24 @@ def test_zip_jpeg_values_and_cache_lifetime(jpg_folder, tmp_path, top):
     back = colour.processor("scene_linear", SRGB).apply(got) * 255.0
     codes = np.stack([sample_codes(vi, li, "jpg") for vi in range(len(VIEWS)) for li in range(len(LIGHTS))])
     assert np.abs(back - codes).max() <= 3.0
-    # The extraction cache is a private temp folder, and nothing lands beside the zip.
-    cache = btf.cache_dir
-    assert os.path.isdir(cache) and Path(cache).parent == Path(tempfile.gettempdir())
-    assert sorted(p.name for p in tmp_path.iterdir()) == [zpath.name]
-    del btf, got
-    gc.collect()
-    assert not os.path.exists(cache)
+    # Read in place: nothing in $TMPDIR, nothing beside the zip, no descriptor left open.
+    assert list(private_tmpdir.iterdir()) == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([zpath.name, "tmpdir"])
+    fds = len(os.listdir("/proc/self/fd"))
+    btf.read_samples([0, 5])
+    assert len(os.listdir("/proc/self/fd")) == fds
 
 
-def test_zip_close_removes_cache(png_folder, tmp_path):
+def test_zip_values_identical_to_folder(png_folder, tmp_path):
+    folder = read_ubo(png_folder).read_samples(slice(None))
     btf = read_ubo(make_zip(png_folder, tmp_path / "uboclose.zip"))
-    cache = btf.cache_dir
-    np.testing.assert_allclose(btf.read_samples([0, 5]), expected_linear()[[0, 5]], rtol=1e-5, atol=1e-7)
+    np.testing.assert_array_equal(btf.read_samples(slice(None)), folder)
+    np.testing.assert_array_equal(btf.read_rows(3, 7), folder[:, 3:7])
     btf.close()
-    btf.close()  # idempotent
-    assert not os.path.exists(cache)
+    btf.close()  # idempotent; a later read reopens the archive
+    np.testing.assert_array_equal(btf.read_samples([0, 5]), folder[[0, 5]])
+    clone = pickle.loads(pickle.dumps(btf))
+    np.testing.assert_array_equal(clone.read_samples([7]), folder[[7]])
 
 
 def test_float_files_default_to_scene_linear_and_override(tmp_path):
@@ -186,20 +200,50 @@ def test_float_files_default_to_scene_linear_and_override(tmp_path):
                                colour.processor("Linear Rec.709 (sRGB)", "scene_linear").apply(stored[2]), rtol=1e-6)
 
 
-def test_non_image_and_hidden_members_are_ignored(png_folder, tmp_path):
+def test_non_image_and_hidden_members_are_listed_not_dropped(png_folder, tmp_path, capsys):
     extra = {"readme.txt": b"hello", "__MACOSX/tv000_pv000/._00011 tl000 pl000 tv000 pv000.png": b"junk",
              "preview.png": b"not looked at"}
-    btf = read_ubo(make_zip(png_folder, tmp_path / "uboextra.zip", extra=extra))
+    z = make_zip(png_folder, tmp_path / "uboextra.zip", extra=extra)
+    btf = read_ubo(z)
     assert btf.n_samples == N
+    assert sorted(btf.ignored) == sorted(extra)
+    code, out, err = run(capsys, "info", z)
+    assert code == 0, err
+    assert "ignored     3 member(s) that are not samples" in out
 
 
-def test_zip_slip_member_is_not_written_outside(png_folder, tmp_path):
+@pytest.mark.parametrize("member", ["../evil tl000 pl000 tv075 pv000.png",
+                                    "../../../../x/tv000_pv000/00000 tl000 pl000 tv000 pv000.png",
+                                    "/abs/tv000_pv000/00000 tl000 pl000 tv000 pv000.png",
+                                    "C:\\tv000_pv000\\00000 tl000 pl000 tv000 pv000.png"],
+                         ids=["dotdot", "deep dotdot", "absolute", "drive"])
+def test_zip_member_outside_archive_is_an_error(png_folder, tmp_path, capsys, member):
     zdir = tmp_path / "z"
     zdir.mkdir()
-    extra = {"../evil tl000 pl000 tv075 pv000.png": b"x"}
-    btf = read_ubo(make_zip(png_folder, zdir / "uboslip.zip", extra=extra))
+    z = make_zip(png_folder, zdir / "uboslip.zip", extra={member: b"x"})
+    with pytest.raises(BTFError) as exc:
+        read_ubo(z)
+    assert "uboslip.zip" in str(exc.value) and repr(member) in str(exc.value)
+    # Through the CLI: one line naming the member, no output, nothing written anywhere.
+    code, out, err = run(capsys, "compress", z, "-o", tmp_path / "c", "--k", "2")
+    assert code == data_error_status() and repr(member) in err and len(err.strip().splitlines()) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["z"] and os.listdir(zdir) == ["uboslip.zip"]
+
+
+def test_folder_links_outside_are_errors_inside_followed(tmp_path):
+    folder = make_dataset(tmp_path / "d")
+    (tmp_path / "elsewhere").mkdir()
+    moved = tmp_path / "elsewhere" / "tv015_pv060"
+    (folder / "tv015_pv060").rename(moved)
+    (folder / "tv015_pv060").symlink_to(moved)
+    with pytest.raises(BTFError, match=r"tv015_pv060 links to .*elsewhere.*outside the folder"):
+        read_ubo(folder)
+    (folder / "tv015_pv060").unlink()
+    (folder / "inner").mkdir()
+    moved.rename(folder / "inner" / "tv015_pv060")
+    (folder / "tv015_pv060").symlink_to(folder / "inner" / "tv015_pv060")
+    btf = read_ubo(folder)  # a link that stays inside is followed (and its target not read twice)
     assert btf.n_samples == N
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["z"]
 
 
 # --------------------------------------------------------------------------- dispatch
@@ -274,10 +318,11 @@ def test_corrupt_zip_member(png_folder, tmp_path):
     start = info.header_offset + 30 + name_len + extra_len
     raw[start + info.compress_size // 2] ^= 0xFF  # the CRC no longer matches
     z.write_bytes(bytes(raw))
+    btf = read_ubo(z)  # members are read in place: the damage shows when the sample is read
+    btf.read_samples(slice(0, 4))
     with pytest.raises(BTFError) as exc:
-        read_ubo(z)
-    assert "ubocrc.zip" in str(exc.value) and member in str(exc.value)
-    assert caches("ubocrc") == []  # the partial extraction was removed
+        btf.read_samples(slice(None))
+    assert f"ubocrc.zip:{member}" in str(exc.value) and "Bad CRC" in str(exc.value)
 
 
 def test_no_matching_images(tmp_path):
@@ -347,7 +392,7 @@ def test_mixed_sizes_raise_on_read_naming_zip_member(tmp_path):
         btf.read_samples(slice(None))
     msg = str(exc.value)
     assert f"ubosizes.zip:tv015_pv060/{small.name}" in msg and "expected 16x16" in msg
-    assert btf.cache_dir not in msg  # the user's names, not the cache's
+    assert "/proc/self/fd" not in msg  # the user's names, not the in-memory copy's
 
 
 def test_member_stored_twice(png_folder, tmp_path):
@@ -358,3 +403,108 @@ def test_member_stored_twice(png_folder, tmp_path):
     with pytest.raises(BTFError, match="stored twice") as exc:
         read_ubo(z)
     assert "ubotwice.zip" in str(exc.value) and member in str(exc.value)
+
+
+# --------------------------------------------------------------------------- UTIA, ATRIUM
+
+
+def _write_undeclared(path: Path, pixels: np.ndarray, attributes: dict | None = None) -> None:
+    """An image file with no colour-space declaration (write_image always declares one)."""
+    import OpenImageIO as oiio
+
+    spec = oiio.ImageSpec(pixels.shape[1], pixels.shape[0], 3, "half")
+    for key, value in (attributes or {}).items():
+        spec.attribute(key, oiio.TypeDesc("float[8]"), value)
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), spec) and out.write_image(np.ascontiguousarray(pixels))
+    out.close()
+
+
+def utia_folder(root: Path, chromaticities=None) -> tuple[Path, np.ndarray]:
+    """UTIA naming (btf.utia.cas.cz: ``tv000_pv000/tl000_pl000_tv000_pv000.exr``), half
+    EXR without a colour-space declaration; returns (folder, stored values view-major)."""
+    stored = []
+    for vi, view in enumerate(VIEWS):
+        d = root / f"tv{view[0]:03d}_pv{view[1]:03d}"
+        d.mkdir(parents=True, exist_ok=True)
+        for li, light in enumerate(LIGHTS):
+            img = (sample_codes(vi, li, "exr") / 255.0).astype(np.float16)
+            name = f"tl{light[0]:03d}_pl{light[1]:03d}_tv{view[0]:03d}_pv{view[1]:03d}.exr"
+            _write_undeclared(d / name, img, {"chromaticities": chromaticities} if chromaticities else None)
+            stored.append(img.astype(np.float32))
+    return root, np.stack(stored)
+
+
+@pytest.mark.parametrize("declared", [False, True], ids=["undeclared", "XYZ chromaticities"])
+def test_utia_exr_is_xyz_d65_through_ocio(tmp_path, capsys, declared):
+    folder, stored = utia_folder(tmp_path / "utia", (1, 0, 0, 1, 0, 0, 1 / 3, 1 / 3) if declared else None)
+    btf = open_btf(folder)
+    assert btf.color_space == "CIE XYZ-D65 - Scene-referred" and btf.bit_depth == "half"
+    np.testing.assert_array_equal(btf.sampling.view, expected_sampling().view)
+    want = colour.processor("CIE XYZ-D65 - Scene-referred", "scene_linear").apply(stored)
+    np.testing.assert_allclose(btf.read_samples(slice(None)), want, rtol=1e-6, atol=1e-7)
+    assert not np.allclose(want, stored, atol=1e-3)  # the conversion did something
+    code, out, err = run(capsys, "info", folder)
+    assert "UTIA (UBO2003 layout) BTF, 3 views x 4 lights = 12 samples of 16x16 texels" in out
+    assert "half CIE XYZ-D65 - Scene-referred" in out
+
+
+def _rgbe(pixels: np.ndarray) -> bytes:
+    """Flat (not run-length encoded) Radiance RGBE pixels."""
+    m = pixels.max(axis=-1)
+    e = np.floor(np.log2(np.maximum(m, 1e-30))) + 1
+    scale = np.ldexp(1.0, (8 - e).astype(int))
+    mant = np.clip(np.floor(pixels * scale[..., None]), 0, 255).astype(np.uint8)
+    return np.concatenate([mant, (e + 128).astype(np.uint8)[..., None]], axis=-1).tobytes()
+
+
+def test_atrium_hdr_column_major_header_is_reoriented(tmp_path):
+    """ATRIUM's HDRs carry ``+X N -Y N`` (btf-extractor's AtriumHdr): per the Radiance format
+    a column-major image, which OIIO flags as orientation 5 and usdbtf turns upright."""
+    w, h = 6, 4   # not square: a missed transpose changes the shape
+    folder = tmp_path / "CEILING_HDR"
+    truth = []
+    for vi, view in enumerate(VIEWS):
+        d = folder / f"tv{view[0]:03d}_pv{view[1]:03d}"
+        d.mkdir(parents=True)
+        for li, light in enumerate(LIGHTS):
+            img = 0.2 + 0.05 * (vi * len(LIGHTS) + li) + 0.1 * np.arange(h)[:, None, None] + 0.01 * np.arange(w)[:, None]
+            img = np.broadcast_to(img, (h, w, 3)) * np.array([1.0, 0.8, 0.6])
+            header = f"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n+X {w} -Y {h}\n".encode()
+            (d / f"tl{light[0]:03d} pl{light[1]:03d} tv{view[0]:03d} pv{view[1]:03d}.hdr").write_bytes(
+                header + _rgbe(img.transpose(1, 0, 2)))       # X the slow axis: columns, each top to bottom
+            truth.append(img)
+    z = make_zip(folder, tmp_path / "CEILING_HDR.zip", top="CEILING_HDR")
+    for src in (folder, z):
+        btf = read_ubo(src)
+        assert (btf.width, btf.height, btf.orientation) == (w, h, 5)
+        assert btf.color_space == "Linear Rec.709 (sRGB)" and btf.metadata["format"] == "ATRIUM (UBO2003 layout)"
+        got = btf.read_encoded(slice(None))
+        np.testing.assert_allclose(got, np.stack(truth), rtol=0.02)
+        np.testing.assert_array_equal(btf.read_encoded([3], rows=(1, 3)), got[[3], 1:3])
+
+
+# --------------------------------------------------------------------------- kill -9
+
+
+def test_kill_during_zip_input_leaves_tmpdir_empty(png_folder, tmp_path):
+    import signal
+    import subprocess
+    import sys
+
+    z = make_zip(png_folder, tmp_path / "ubokill.zip")
+    tmpdir = tmp_path / "tmpdir"
+    tmpdir.mkdir()
+    script = ("import sys\nfrom usdbtf.ubo import read_ubo\nb = read_ubo(sys.argv[1])\nfirst = True\n"
+              "while True:\n    b.read_samples(slice(None))\n    if first:\n        print('ready', flush=True)\n"
+              "        first = False\n")
+    env = dict(os.environ, TMPDIR=str(tmpdir))
+    proc = subprocess.Popen([sys.executable, "-c", script, str(z)], stdout=subprocess.PIPE, env=env)
+    try:
+        assert proc.stdout.readline().strip() == b"ready"
+        proc.send_signal(signal.SIGKILL)
+    finally:
+        proc.kill()
+        proc.wait(10)
+    assert proc.returncode == -signal.SIGKILL
+    assert list(tmpdir.iterdir()) == []

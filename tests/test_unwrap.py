@@ -9,19 +9,19 @@ from __future__ import annotations
 
 import json
 import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from pxr import Usd, UsdGeom, UsdValidation, Vt
 
-from cli_helpers import bad_input, ok, run
+from cli_helpers import bad_input, bad_usage, ok, run
 from quilt_render_data import pebbles, work  # noqa: F401 (fixtures)
 from quilt_render_data import PHYSICAL_SIZE, SIZE, plane_with_uv, write_obj, write_sphere
 from usdbtf.compress import read_compressed
-from usdbtf.quilt import QuiltOptions, read_position_map
-from usdbtf.quilt.atlas import quilt_atlas
-from usdbtf.unwrap import read_chart_map, read_layer
-from usdbtf.unwrap.frames import uv_gradients
+from usdbtf.quilt import QuiltOptions, quilt, read_position_map
+from usdbtf.mesh.frames import uv_gradients
+from usdbtf.unwrap import read_unwrap
 
 DENSITY = SIZE / PHYSICAL_SIZE          # 960 texels per metre
 
@@ -53,19 +53,19 @@ def test_layer_is_a_valid_usd_mesh_with_sample_frames(sphere_uv):
     errors = [e for e in UsdValidation.ValidationContext(validators).Validate(stage) if not e.HasNoError()]
     assert not [e for e in errors if e.GetType() == UsdValidation.ValidationErrorType.Error], \
         [e.GetMessage() for e in errors]
-    layer = read_layer(sphere_uv / "mesh.usda")
+    layer = read_unwrap(sphere_uv / "mesh.usda").mesh
     # Points on the sphere, in metres.
     np.testing.assert_allclose(np.linalg.norm(layer.points, axis=1), 0.03, rtol=1e-5)
-    # Frames: orthonormal, right-handed with the normal, tangent along +s and bitangent along +t.
-    t, b = layer.tangents, layer.bitangents
-    n = np.zeros_like(t)
-    n[layer.corner.ravel()] = layer.normals[layer.faces.ravel()]
+    # Frames (per triangle corner): orthonormal, right-handed with the normal, tangent along +s
+    # and bitangent along +t.
+    t, b = layer.tangents.reshape(-1, 3), layer.bitangents.reshape(-1, 3)
+    n = layer.corner(layer.normals).reshape(-1, 3)
     np.testing.assert_allclose(np.linalg.norm(t, axis=1), 1, atol=1e-5)
     np.testing.assert_allclose(np.einsum("ij,ij->i", t, n), 0, atol=1e-5)
     np.testing.assert_allclose(np.cross(n, t), b, atol=1e-5)
-    ds, dt, area = uv_gradients(layer.points[layer.faces], layer.st[layer.corner])
+    ds, dt, area = uv_gradients(layer.corner(), layer.uv)
     assert (area > 0).all()                                      # no mirrored or degenerate charts
-    t_face, b_face = t[layer.corner].mean(axis=1), b[layer.corner].mean(axis=1)
+    t_face, b_face = layer.tangents.mean(axis=1), layer.bitangents.mean(axis=1)
     cos_t = np.einsum("ij,ij->i", t_face, ds) / np.linalg.norm(ds, axis=1) / np.linalg.norm(t_face, axis=1)
     cos_b = np.einsum("ij,ij->i", b_face, dt) / np.linalg.norm(dt, axis=1) / np.linalg.norm(b_face, axis=1)
     assert np.median(cos_t) > 0.99 and cos_t.min() > 0.7
@@ -75,12 +75,12 @@ def test_layer_is_a_valid_usd_mesh_with_sample_frames(sphere_uv):
 def test_atlas_texel_density_is_the_samples(sphere_uv):
     record = json.loads((sphere_uv / "unwrap.json").read_text())
     assert record["atlas"]["texels_per_metre"] == pytest.approx(DENSITY)
-    layer = read_layer(sphere_uv / "mesh.usda")
-    _, _, area_uv = uv_gradients(layer.points[layer.faces], layer.corner_texels())
+    unwrapped = read_unwrap(sphere_uv / "mesh.usda")
+    _, _, area_uv = uv_gradients(unwrapped.mesh.corner(), unwrapped.atlas.texel_coords())
     area_3d = 4 * np.pi * 0.03 ** 2
     # Texture area (texels) over surface area (m^2) is the density squared, up to distortion.
     assert abs(area_uv).sum() / area_3d == pytest.approx(DENSITY ** 2, rel=0.1)
-    W, H = layer.atlas["width"], layer.atlas["height"]
+    W, H = unwrapped.atlas.width, unwrapped.atlas.height
     assert area_3d * DENSITY ** 2 < W * H < 3 * area_3d * DENSITY ** 2   # packing overhead only
 
 
@@ -88,10 +88,10 @@ def test_keep_uvs_keeps_good_ones_and_refuses_bad_ones(work, capsys):
     points, faces, uv = plane_with_uv(0.1, n=3)
     good = write_obj(work / "plane.obj", points, faces, uv)
     ok(capsys, "unwrap", good, "-o", work / "plane_kept", "--texels-per-metre", 500, "--keep-uvs", "-q")
-    layer = read_layer(work / "plane_kept" / "mesh.usda")
+    kept = read_unwrap(work / "plane_kept" / "mesh.usda")
     assert json.loads((work / "plane_kept" / "unwrap.json").read_text())["atlas"]["method"] == "kept"
-    np.testing.assert_allclose(layer.st[layer.corner], uv[faces], atol=1e-6)   # same triangles, same st
-    assert layer.atlas["width"] == layer.atlas["height"] == 50                 # 0.1 m x 500 texels/m
+    np.testing.assert_allclose(kept.mesh.uv, uv[faces], atol=1e-6)              # same triangles, same st
+    assert kept.atlas.width == kept.atlas.height == 50                         # 0.1 m x 500 texels/m
     # Two separate quads, both mapped onto the whole texture: overlapping charts.
     quad = np.array([[0, 0, 0], [0.1, 0, 0], [0.1, 0.1, 0], [0, 0.1, 0]])
     two = np.concatenate([quad, quad + [0.2, 0, 0]])
@@ -115,10 +115,10 @@ def test_usd_input_units_and_up_axis(work, capsys):
     stage.SetDefaultPrim(mesh.GetPrim())
     stage.GetRootLayer().Save()
     ok(capsys, "unwrap", path, "-o", work / "quad_uv", "--texels-per-metre", 400, "-q")
-    layer = read_layer(work / "quad_uv" / "mesh.usda")
-    assert layer.up_axis == "Z" and len(layer.faces) == 2                   # quad fan-triangulated
-    np.testing.assert_allclose(layer.points.max(axis=0), [0.1, 0.1, 0], atol=1e-7)  # centimetres -> metres
-    assert 40 <= layer.atlas["width"] <= 60
+    quad = read_unwrap(work / "quad_uv" / "mesh.usda")
+    assert quad.mesh.up_axis == "Z" and len(quad.mesh.triangles) == 2        # quad fan-triangulated
+    np.testing.assert_allclose(quad.mesh.points.max(axis=0), [0.1, 0.1, 0], atol=1e-7)  # centimetres -> metres
+    assert 40 <= quad.atlas.width <= 60
 
 
 def test_unwrap_is_deterministic(work, capsys):
@@ -137,13 +137,21 @@ def test_unwrap_bad_input(work, pebbles, capsys):
     flat = write_obj(work / "flat.obj", np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.0]]), np.array([[0, 1, 2]]))
     bad_input(capsys, "unwrap", flat, "-o", out, "--texels-per-metre", 100, names="zero surface area")
     sphere = write_sphere(work / "s.obj", subdivisions=1)
-    bad_input(capsys, "unwrap", sphere, "-o", out, "--texels-per-metre", -3, names="--texels-per-metre")
+    bad_usage(capsys, "unwrap", sphere, "-o", out, "--texels-per-metre", -3, names="--texels-per-metre")
+    bad_usage(capsys, "unwrap", sphere, "-o", out, "--texels-per-metre", "1e12", names="--texels-per-metre")
+    bad_usage(capsys, "unwrap", sphere, "-o", out, "--texels-per-metre", "nan", names="--texels-per-metre")
     no_size = work / "no_size_c"
     shutil.copytree(pebbles, no_size)
     doc = json.loads((no_size / "btf-compressed.json").read_text())
     doc.pop("source_metadata")
     (no_size / "btf-compressed.json").write_text(json.dumps(doc))
     bad_input(capsys, "unwrap", sphere, "-o", out, "--btf", no_size, names="physical_size_m")
+    tiny = work / "tiny_size_c"                  # 1e-6 m per sample: a density past the limit
+    shutil.copytree(pebbles, tiny)
+    doc = json.loads((tiny / "btf-compressed.json").read_text())
+    doc["source_metadata"]["physical_size_m"] = [1e-6, 1e-6]
+    (tiny / "btf-compressed.json").write_text(json.dumps(doc))
+    bad_input(capsys, "unwrap", sphere, "-o", out, "--btf", tiny, names="texels per metre")
     assert not out.exists()
 
 
@@ -160,7 +168,7 @@ def atlas_quilt(work, pebbles, sphere_uv):
 
 
 def test_every_chart_filled_and_gutters_padded(atlas_quilt, sphere_uv, pebbles):
-    charts = read_chart_map(sphere_uv / "mesh.usda")
+    charts = read_unwrap(sphere_uv / "mesh.usda").chart_map
     cbtf = read_compressed(atlas_quilt)
     assert (cbtf.width, cbtf.height) == (charts.shape[1], charts.shape[0])
     x, y = read_position_map(atlas_quilt)
@@ -186,11 +194,10 @@ def test_every_chart_filled_and_gutters_padded(atlas_quilt, sphere_uv, pebbles):
 
 def test_chart_borders_match_their_neighbours(pebbles, sphere_uv):
     cbtf = read_compressed(pebbles)
-    layer = read_layer(sphere_uv / "mesh.usda")
-    charts = read_chart_map(sphere_uv / "mesh.usda", layer)
+    unwrapped = read_unwrap(sphere_uv / "mesh.usda")
     opts = QuiltOptions(block=12, seed=4)
-    with_ghosts = quilt_atlas(cbtf, layer, charts, opts).record
-    without = quilt_atlas(cbtf, layer, charts, opts, ghosts=False).record
+    with_ghosts = quilt(cbtf, opts, atlas=unwrapped).record
+    without = quilt(cbtf, replace(opts, ghosts=False), atlas=unwrapped).record
     border, border_plain = with_ghosts["atlas"]["chart_border_error"], without["atlas"]["chart_border_error"]
     assert with_ghosts["atlas"]["ghost_texels"] > 0
     assert border < 0.7 * border_plain, (border, border_plain)

@@ -167,3 +167,31 @@ def test_failed_step_reports_the_usdbtf_error(scene, capsys):
     line = bad_input(capsys, "build", scene, names="btf.json")
     assert "build failed" in line
     assert not (scene.parent / "build" / "pebbles.usda").exists()
+
+
+def test_build_json_report(scene, capsys):
+    import json
+
+    from cli_helpers import run
+
+    code, out, _ = run(capsys, "build", scene, "--dry-run", "--json")
+    report = json.loads(out)
+    assert code == 0 and report["dry_run"] and [r["material"] for r in report["recipes"]] == ["/World/Looks/Pebbles"]
+    assert report["recipes"][0]["options"] == ["--k", "6", "--codec", "png"]
+    assert sorted(report["bound"]["/World/Looks/Pebbles"]) == ["/World/Ball", "/World/Switch"]
+    code, out, err = run(capsys, "build", scene, "--json")
+    report = json.loads(out)
+    assert code == 0 and not report["dry_run"] and len(report["ran"]) == 2
+    assert Path(report["recipes"][0]["asset"]).is_file() and "usdbtf" not in out.split("{", 1)[0]
+
+
+@pytest.mark.parametrize("suffix", [".usdc", ".usd", ".usdz", ".obj"])
+def test_build_asset_may_be_any_root_layer_format_package_writes(scene, capsys, suffix):
+    scene.write_text(SCENE.replace("./build/pebbles.usda", f"./build/pebbles{suffix}"))
+    if suffix in (".usdz", ".obj"):
+        bad_input(capsys, "build", scene, "--dry-run", names="btf:build:asset (.usda/.usdc/.usd)")
+        return
+    recipes, _ = plan(scene)
+    asset = scene.parent / "build" / f"pebbles{suffix}"
+    assert recipes[0].asset == asset
+    assert asset.with_name("pebbles_payload.usdc") in recipes[0].outputs()

@@ -15,16 +15,18 @@ import pytest
 import usdbtf  # noqa: F401  (registers the schema plugin first)
 from pxr import Sdf, Usd, UsdGeom, UsdShade
 
-from cli_helpers import bad_input, ok
+from cli_helpers import bad_input, bad_usage, ok, refused, run
 from usdbtf import colour
 from usdbtf.cli import main
 from usdbtf.compress import read_compressed, reconstruct
+from usdbtf.compress.metrics import ErrorSums
 from usdbtf.imageio import read_image
 from usdbtf.model import ArrayBTF
 from usdbtf.sampling import preset, to_vectors
+from usdbtf.usd import fallback
 from usdbtf.usd import package as pkg
 from usdbtf.usd.read import load_btf, sample_image
-from usdbtf.usd.validate import validation_issues
+from usdbtf.usd.validate import validate_layer, validation_issues
 
 OIIOTOOL = Path(__import__("sys").executable).parent / "oiiotool"
 
@@ -57,7 +59,7 @@ def asset(compressed, work) -> Path:
 
 
 def _layers(root: Path) -> list[Path]:
-    return [root, root.with_name(root.stem + "_payload.usda"), root.with_suffix(".usdz")]
+    return [root, root.with_name(root.stem + "_payload.usdc"), root.with_suffix(".usdz")]
 
 
 # ------------------------------------------------------------------ validity
@@ -67,7 +69,7 @@ def test_every_validator_passes_on_every_layer(asset):
     assert len(UsdValidation.ValidationRegistry().GetOrLoadAllValidators()) >= 25
     for layer in _layers(asset):
         assert layer.is_file()
-        assert validation_issues(layer) == [], layer
+        assert validate_layer(layer) == [], layer          # every lod selection
 
 
 def test_validation_catches_a_broken_asset(asset, tmp_path):
@@ -84,9 +86,10 @@ def test_validation_catches_a_broken_asset(asset, tmp_path):
     assert "StageMetadataChecker" in issues and "missing.png" in issues
 
 
-def test_textures_open_in_oiiotool_and_paths_are_relative_and_resolve(asset):
+def asset_values(asset: Path) -> list:
+    """(attribute, Sdf.AssetPath) of every asset-valued attribute value on the composed stage."""
     stage = Usd.Stage.Open(str(asset))
-    checked = 0
+    found = []
     for prim in stage.Traverse():
         for attr in prim.GetAuthoredAttributes():
             values = attr.Get()
@@ -94,14 +97,20 @@ def test_textures_open_in_oiiotool_and_paths_are_relative_and_resolve(asset):
                 values = [values]
             elif attr.GetTypeName() != Sdf.ValueTypeNames.AssetArray:
                 continue
-            for a in values or []:
-                assert a.path.startswith("./"), (attr.GetPath(), a.path)
-                assert a.resolvedPath and Path(a.resolvedPath).is_file(), a.path
-                assert Path(a.resolvedPath).suffix in (".png", ".exr", ".jpg")
-                info = subprocess.run([str(OIIOTOOL), "--info", a.resolvedPath], capture_output=True, text=True)
-                assert info.returncode == 0 and "x" in info.stdout, info.stderr
-                checked += 1
-    assert checked >= 12 + 2    # coefficients, basis, albedo
+            found += [(attr, a) for a in values or []]
+    return found
+
+
+def test_textures_open_in_oiiotool_and_paths_are_relative_and_resolve(asset):
+    checked = 0
+    for attr, a in asset_values(asset):
+        assert a.path.startswith("./"), (attr.GetPath(), a.path)
+        assert a.resolvedPath and Path(a.resolvedPath).is_file(), a.path
+        assert Path(a.resolvedPath).suffix in (".png", ".exr", ".jpg")
+        info = subprocess.run([str(OIIOTOOL), "--info", a.resolvedPath], capture_output=True, text=True)
+        assert info.returncode == 0 and "x" in info.stdout, info.stderr
+        checked += 1
+    assert checked >= 12 + 1 + 4    # coefficients, basis, fallback maps
 
 
 def test_asset_structure(asset):
@@ -111,6 +120,7 @@ def test_asset_structure(asset):
     assert root.GetName() == "pebbles" and Usd.ModelAPI(root).GetKind() == "component"
     assert UsdGeom.GetStageMetersPerUnit(stage) == 1.0 and UsdGeom.GetStageUpAxis(stage) == "Y"
     assert root.HasAuthoredPayloads() and list(layer.GetPrimAtPath("/pebbles").variantSets.keys()) == ["lod"]
+    assert Sdf.Layer.FindOrOpen(str(asset.with_name("pebbles_payload.usdc"))).GetFileFormat().formatId == "usdc"
     assert not layer.GetPrimAtPath("/pebbles/geo")            # heavy data only behind the payload
     assert stage.GetPrimAtPath("/pebbles/geo").IsA(UsdGeom.Scope)
     material = stage.GetPrimAtPath("/pebbles/mtl/BtfMaterial")
@@ -121,15 +131,137 @@ def test_asset_structure(asset):
     assert bound.GetPath() == material.GetPath()
     ext = np.asarray(swatch.GetExtentAttr().Get())
     np.testing.assert_allclose(ext[1] - ext[0], [0.05, 0.05, 0])         # physical size of the tile
-    tex = UsdShade.Shader(stage.GetPrimAtPath("/pebbles/mtl/BtfMaterial/AlbedoTexture"))
-    assert tex.GetInput("sourceColorSpace").Get() == "sRGB"
     surface = UsdShade.Material(material).ComputeSurfaceSource()[0]
-    assert surface.GetIdAttr().Get() == "UsdPreviewSurface"
-    assert 0.0 < surface.GetInput("roughness").Get() <= 1.0
-    # Unloaded, the lod variant can still be chosen (it sits outside the payload).
+    assert surface.GetIdAttr().Get() == "UsdPreviewSurface" and surface.GetInput("useSpecularWorkflow").Get() == 1
+    for name, node in (("diffuseColor", "DiffuseTexture"), ("specularColor", "SpecularTexture"),
+                       ("roughness", "RoughnessTexture"), ("normal", "NormalTexture")):
+        source = surface.GetInput(name).GetConnectedSources()[0][0].source.GetPrim()
+        assert source.GetName() == node and UsdShade.Shader(source).GetIdAttr().Get() == "UsdUVTexture", name
+    # Unloaded, the lod variant can still be chosen and the bounds are known (both outside the payload).
     unloaded = Usd.Stage.Open(str(asset), Usd.Stage.LoadNone)
-    vset = unloaded.GetDefaultPrim().GetVariantSets().GetVariantSet("lod")
-    assert vset.GetVariantNames() == ["full", "k6"]
+    prim = unloaded.GetDefaultPrim()
+    assert prim.GetVariantSets().GetVariantSet("lod").GetVariantNames() == ["full", "k6"]
+    hint = np.asarray(UsdGeom.ModelAPI(prim).GetExtentsHint())
+    np.testing.assert_allclose(hint, [[-0.025, -0.025, 0], [0.025, 0.025, 0]], atol=1e-7)
+    bbox = UsdGeom.BBoxCache(Usd.TimeCode.Default(), ["default"], useExtentsHint=True).ComputeWorldBound(prim)
+    np.testing.assert_allclose(np.asarray(bbox.ComputeAlignedRange().GetSize()), [0.05, 0.05, 0], atol=1e-7)
+
+
+def test_asset_info_thumbnail_and_provenance(compressed, tmp_path, capsys):
+    from pxr import UsdMedia
+
+    out = tmp_path / "nested" / "deeper" / "rock.usdc"
+    ok(capsys, "package", compressed, "-o", out, "--asset-name", "Rock", "--asset-version", "3.1",
+       "--creator", "lookdev team", "--payload-format", "usda", "-q")
+    assert Sdf.Layer.FindOrOpen(str(out)).GetFileFormat().formatId == "usdc"
+    assert out.with_name("rock_payload.usda").is_file()
+    stage = Usd.Stage.Open(str(out))
+    root = stage.GetDefaultPrim()
+    info = Usd.ModelAPI(root)
+    assert (info.GetAssetName(), info.GetAssetVersion(), root.GetAssetInfoByKey("creator")) == \
+        ("Rock", "3.1", "lookdev team")
+    assert stage.GetRootLayer().customLayerData["creator"] == "lookdev team"
+    thumbs = UsdMedia.AssetPreviewsAPI(root).GetDefaultThumbnails()
+    png = Path(thumbs.defaultImage.resolvedPath)
+    pixels, _ = read_image(png)
+    assert png.parent.name == "rock_textures" and pixels.shape[:2] == (256, 256)
+    assert len(np.unique(pixels.reshape(-1, 3), axis=0)) > 50           # a render, not a flat colour
+    material = stage.GetPrimAtPath("/rock/mtl/BtfMaterial")
+    source = material.GetAttribute("btf:provenance:source").Get()
+    assert not Path(source).is_absolute() and source.startswith("../")
+    assert (out.parent / source).resolve() == Path(read_compressed(compressed).info["provenance"]["source"]).resolve()
+    # Nothing absolute anywhere in the layers.
+    for layer in stage.GetUsedLayers():
+        assert str(tmp_path) not in layer.ExportToString(), layer.identifier
+    # Without --asset-version there is no version (not the tool's).
+    plain = tmp_path / "plain" / "rock.usda"
+    ok(capsys, "package", compressed, "-o", plain, "--no-thumbnail", "-q")
+    plain_stage = Usd.Stage.Open(str(plain))
+    plain_root = plain_stage.GetDefaultPrim()
+    assert Usd.ModelAPI(plain_root).GetAssetVersion() == "" and not plain_root.HasAPI("AssetPreviewsAPI")
+
+
+def test_data_is_raw_and_colour_is_declared(asset):
+    from pxr import UsdShade as S
+
+    stage = Usd.Stage.Open(str(asset))
+    cache = Usd.ColorSpaceHashCache()
+    space = lambda attr: Usd.ColorSpaceAPI.ComputeColorSpaceName(attr, cache)  # noqa: E731
+    material = stage.GetPrimAtPath("/pebbles/mtl/BtfMaterial")
+    for name in ("basis", "coefficients", "basisScale", "coefficientScale", "coefficientBias", "colorMatrix",
+                 "viewDirections"):
+        assert space(material.GetAttribute(f"btf:{name}")) == "raw", name
+    select = Usd.Stage.Open(str(asset))
+    select.GetDefaultPrim().GetVariantSets().SetSelection("lod", "k6")
+    coeffs = select.GetPrimAtPath("/pebbles/mtl/BtfMaterial").GetAttribute("btf:coefficients")
+    assert len(coeffs.Get()) == 6 and space(coeffs) == "raw"             # the lod override too
+    files = {}
+    for prim in stage.Traverse():
+        shader = S.Shader(prim)
+        if shader and shader.GetIdAttr().Get() == "UsdUVTexture":
+            files[prim.GetName()] = (space(shader.GetInput("file").GetAttr()), shader.GetInput("sourceColorSpace").Get())
+    for name in ("StormTables", "StormPack00", "RoughnessTexture", "NormalTexture"):
+        assert files[name] == ("raw", "raw"), name
+    for name in ("DiffuseTexture", "SpecularTexture"):
+        assert files[name] == ("srgb_rec709_scene", "sRGB"), name
+    surface = S.Shader(stage.GetPrimAtPath("/pebbles/mtl/BtfMaterial/PreviewSurface"))
+    assert space(surface.GetInput("diffuseColor").GetAttr()) == "lin_rec709_scene"
+    assert space(surface.GetInput("roughness").GetAttr()) == "raw"
+    # The files say it too: OIIO reads the data PNGs as linear, not sRGB-encoded.
+    tex = asset.with_name("pebbles_textures")
+    for rel in ("coeff/c000.png", "gpu/pack00.png", "fallback/normal.png"):
+        if (tex / rel).is_file():
+            assert read_info_space(tex / rel) != "srgb_rec709_scene", rel
+    assert read_info_space(tex / "fallback" / "diffuse.png") == "srgb_rec709_scene"
+
+
+def read_info_space(path: Path) -> str:
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    try:
+        return inp.spec().getattribute("oiio:ColorSpace")
+    finally:
+        inp.close()
+
+
+def test_lod_switches_from_a_scene_that_references_only_the_material(asset, compressed, tmp_path):
+    """The README's scene pattern: a Material referencing </pebbles/mtl/BtfMaterial> picks its
+    own lod, for the BTF data and for the Storm shader."""
+    scene = tmp_path / "scene.usda"
+    scene.write_text(f"""#usda 1.0
+(
+    defaultPrim = "World"
+    metersPerUnit = 1
+    upAxis = "Y"
+)
+def Xform "World"
+{{
+    def Scope "Looks"
+    {{
+        def Material "Pebbles" (
+            prepend references = @{asset}@</pebbles/mtl/BtfMaterial>
+            variants = {{ string lod = "k6" }}
+        )
+        {{
+        }}
+        def Material "PebblesFull" (
+            prepend references = @{asset}@</pebbles/mtl/BtfMaterial>
+        )
+        {{
+        }}
+    }}
+}}
+""")
+    stage = Usd.Stage.Open(str(scene))
+    low, full = stage.GetPrimAtPath("/World/Looks/Pebbles"), stage.GetPrimAtPath("/World/Looks/PebblesFull")
+    assert low.GetVariantSets().GetVariantSet("lod").GetVariantNames() == ["full", "k6"]
+    assert low.GetAttribute("btf:basisCount").Get() == 6 and full.GetAttribute("btf:basisCount").Get() == 12
+    assert low.GetPrimAtPath("StormSurface").GetAttribute("inputs:basisCount").Get() == 6
+    assert not UsdShade.Shader(low.GetPrimAtPath("StormSurface")).GetInput("pack08").HasConnectedSource()
+    assert UsdShade.Shader(full.GetPrimAtPath("StormSurface")).GetInput("pack08").HasConnectedSource()
+    cb = load_btf(stage, material="/World/Looks/Pebbles")
+    assert cb.k == 6 and np.array_equal(reconstruct(cb), reconstruct(read_compressed(compressed), k=6))
 
 
 # ------------------------------------------------------------------ round trips
@@ -179,14 +311,15 @@ def test_inspect_reports_k_bytes_directions_error(asset, capsys):
     assert "169 samples: 13 views" in out
     assert "% at k = 12" in out and "0 error(s)" in out
     tex = asset.with_name("pebbles_textures")
-    on_disk = sum(p.stat().st_size for p in tex.rglob("*") if p.is_file() and p.name != "preview_albedo.png"
-                  and "gpu" not in p.relative_to(tex).parts)    # the BTF's own textures, not the GPU packs
+    on_disk = sum(p.stat().st_size for p in (tex / "coeff").iterdir()) + \
+        sum(p.stat().st_size for p in tex.glob("basis.*"))    # the BTF's own textures, not fallback/GPU/thumbnail
     assert f"bytes        {on_disk} " in out
 
 
-# ------------------------------------------------------------------ preview fit
-def test_preview_albedo_recovers_a_lambertian(tmp_path, capsys):
-    """A flat Lambertian of known albedo: the preview texture must show that albedo."""
+# ------------------------------------------------------------------ the fallback
+def test_fallback_maps_recover_a_lambertian(tmp_path, capsys):
+    """A flat Lambertian of known albedo: the fallback's diffuse map shows that albedo, with
+    no specular and no normal tilt."""
     sampling = preset("small")
     albedo = np.zeros((16, 16, 3), np.float32)
     albedo[:, :8] = (0.6, 0.3, 0.1)
@@ -196,16 +329,53 @@ def test_preview_albedo_recovers_a_lambertian(tmp_path, capsys):
     data = 0.8 * working[None] * cos_l[:, None, None, None]          # white level 0.8
     btf = ArrayBTF.from_linear(sampling, data)
     btf.metadata.update(physical_size_m=[0.02, 0.02], white_level=0.8)
-    from usdbtf.compress import Options, compress_to_folder
+    from compress_helpers import compress_into
+    from usdbtf.compress import CompressOptions
 
-    opts = Options(k=4, codec="exr")
+    opts = CompressOptions(k=4, codec="exr")
     opts.extra = {"source_metadata": dict(btf.metadata)}
-    compress_to_folder(btf, tmp_path / "c", opts)
-    pkg.package(tmp_path / "c", tmp_path / "a" / "flat.usda")
-    png, _ = read_image(tmp_path / "a" / "flat_textures" / "preview_albedo.png")
-    lin = colour.processor(pkg.preview.ALBEDO_SPACE, "Linear Rec.709 (sRGB)").apply(png.astype(np.float32) / 255)
+    compress_into(btf, tmp_path / "c", opts)
+    pkg.write_package(pkg.package(tmp_path / "c", pkg.PackageOptions(thumbnail=False)), tmp_path / "a" / "flat.usda")
+    folder = tmp_path / "a" / "flat_textures" / "fallback"
+    png, _ = read_image(folder / "diffuse.png")
+    lin = colour.processor(fallback.COLOUR_ENCODING, "Linear Rec.709 (sRGB)").apply(png.astype(np.float32) / 255)
     np.testing.assert_allclose(lin[:, 2:6], albedo[:, 2:6], atol=0.02)
     np.testing.assert_allclose(lin[:, 10:14], albedo[:, 10:14], atol=0.02)
+    spec, _ = read_image(folder / "specular.png")
+    normal, _ = read_image(folder / "normal.png")
+    assert spec.max() <= 28                                           # F0 < 0.012
+    assert np.abs(normal.astype(int) - [128, 128, 255]).max() <= 3    # flat
+
+
+@pytest.mark.parametrize("alpha", [0.1, 0.3])
+def test_fit_recovers_a_ggx_surface_per_texel(alpha, tmp_path):
+    """A synthetic surface with GGX alpha and F0 0.04 on a sloped and a flat half: the fit
+    finds roughness sqrt(alpha), F0 and the slope's normal, and beats the flat fallback."""
+    from usdbtf import synth, svbrdf
+    from usdbtf.compress import CompressOptions, compress
+
+    n = 8
+    height = np.zeros((n, n), np.float32)
+    height[:, : n // 2] = np.arange(n // 2, dtype=np.float32)[None, :] * 0.4       # a 22 degree slope along +x
+    material = synth.Material(height, np.full((n, n, 3), 0.5, np.float32), np.full((n, n), 0.04, np.float32),
+                              np.full((n, n), alpha, np.float32))
+    sampling = preset("small")
+    data = colour.processor("Linear Rec.709 (sRGB)", "scene_linear").apply(synth.render_all(material, sampling))
+    cbtf = compress(ArrayBTF.from_linear(sampling, data), CompressOptions(k=12, codec="exr"))
+    maps = svbrdf.fit_svbrdf(cbtf)
+    flat = slice(n // 2 + 1, None)
+    assert abs(float(np.median(maps.roughness[:, flat])) - alpha ** 0.5) <= 0.1
+    assert 0.01 <= float(np.median(maps.specular[:, flat])) <= 0.07
+    # The slope rises along +x by 0.4 texel per texel: n ~ (-0.37, 0, 0.93) (x = image right).
+    np.testing.assert_allclose(maps.normal[:, 1:3], np.broadcast_to([-0.37, 0, 0.93], (n, 2, 3)), atol=0.06)
+    np.testing.assert_allclose(maps.normal[:, flat], np.broadcast_to([0, 0, 1], maps.normal[:, flat].shape), atol=0.02)
+    truth = reconstruct(cbtf).reshape(cbtf.n_samples, -1, 3)
+    err = {}
+    for name, m in (("fit", maps), ("flat", svbrdf.flat_fallback(cbtf))):
+        sums = ErrorSums()
+        sums.add(truth, svbrdf.evaluate(m, cbtf.sampling.view, cbtf.sampling.light))
+        err[name] = sums.percent
+    assert err["fit"] < 0.7 * err["flat"], err
 
 
 # ------------------------------------------------------------------ meshes
@@ -255,7 +425,7 @@ def test_missing_texture_in_packaged_asset(asset, tmp_path, capsys):
 def test_corrupt_layer(asset, tmp_path, capsys):
     copy = tmp_path / "a"
     shutil.copytree(asset.parent, copy)
-    (copy / "pebbles_payload.usda").write_text("#usda 1.0\ndef Xform \"pebbles\" {\n  garbage here\n")
+    (copy / "pebbles_payload.usdc").write_text("#usda 1.0\ndef Xform \"pebbles\" {\n  garbage here\n")
     line = bad_input(capsys, "inspect", copy / "pebbles.usda", names="pebbles")
     assert "payload" in line or "no BtfMaterialAPI" in line
     root = copy / "pebbles.usda"
@@ -267,8 +437,9 @@ def test_corrupt_layer(asset, tmp_path, capsys):
 def test_schema_version_mismatch(asset, tmp_path, capsys):
     copy = tmp_path / "a"
     shutil.copytree(asset.parent, copy)
-    payload = copy / "pebbles_payload.usda"
-    payload.write_text(payload.read_text().replace("uniform int btf:schemaVersion = 1", "uniform int btf:schemaVersion = 7"))
+    payload = Sdf.Layer.FindOrOpen(str(copy / "pebbles_payload.usdc"))
+    payload.GetAttributeAtPath("/pebbles/mtl/BtfMaterial.btf:schemaVersion").default = 7
+    payload.Save()
     bad_input(capsys, "decompress", copy / "pebbles.usda", "-o", tmp_path / "d", names="btf:schemaVersion = 7")
     assert not (tmp_path / "d").exists()
 
@@ -277,9 +448,14 @@ def test_failed_package_leaves_previous_asset_intact(compressed, work, tmp_path,
     out = tmp_path / "keep" / "pebbles.usda"
     ok(capsys, "package", compressed, "-o", out, "-q")
     before = {p: p.read_bytes() for p in out.parent.rglob("*") if p.is_file()}
-    bad_input(capsys, "package", compressed, "-o", out, "--lod", "999", names="--lod 999")
+    bad_usage(capsys, "package", compressed, "-o", out, "--lod", "999", "--force", names="--lod 999")
     after = {p: p.read_bytes() for p in out.parent.rglob("*") if p.is_file()}
     assert after == before
+    # A previous asset is replaced only with --force (and then only once the new one is complete).
+    refused(capsys, "package", compressed, "-o", out, "-q", names="--force")
+    ok(capsys, "package", compressed, "-o", out, "-q", "--force")
+    assert sorted(p.name for p in out.parent.iterdir()) == ["pebbles.usda", "pebbles_payload.usdc",
+                                                            "pebbles_textures"]
 
 
 def test_no_physical_size_is_a_clear_error(src, tmp_path, capsys):
@@ -291,17 +467,44 @@ def test_no_physical_size_is_a_clear_error(src, tmp_path, capsys):
     ok(capsys, "package", c, "-o", tmp_path / "o" / "a.usda", "--physical-size", "0.1", "0.1", "-q")
 
 
-@pytest.mark.parametrize("alpha", [0.2, 0.7])
-def test_roughness_fit_recovers_a_flat_ggx_surface(alpha, tmp_path):
-    """A flat synthetic surface with GGX alpha: the fitted preview roughness is sqrt(alpha)."""
-    from usdbtf import synth
-    from usdbtf.compress.core import compress
+# ------------------------------------------------------------------ textures for renderers
+def _texture_files(asset: Path) -> list[Path]:
+    return sorted({Path(a.resolvedPath) for _, a in asset_values(asset) if a.resolvedPath})
 
-    n = 8
-    material = synth.Material(np.zeros((n, n), np.float32), np.full((n, n, 3), 0.5, np.float32),
-                              np.full((n, n), 0.04, np.float32), np.full((n, n), alpha, np.float32))
-    sampling = preset("small")
-    data = colour.processor("Linear Rec.709 (sRGB)", "scene_linear").apply(synth.render_all(material, sampling))
-    cbtf = compress(ArrayBTF.from_linear(sampling, data), tmp_path / "c", k=4, codec="exr")
-    roughness, residual = pkg.preview.fit_roughness(cbtf)
-    assert abs(roughness - alpha ** 0.5) <= 0.05 and residual < 0.05
+
+@pytest.mark.parametrize("fmt", ["tx", "exr"])
+def test_texture_formats_are_tiled_mipmapped_and_bit_exact(compressed, tmp_path, capsys, fmt):
+    import OpenImageIO as oiio
+
+    out = tmp_path / fmt / "pebbles.usda"
+    ok(capsys, "package", compressed, "-o", out, "--texture-format", fmt, "--no-thumbnail", "-q")
+    files = _texture_files(out)
+    assert len(files) >= 1 + 12 + 4 + 1 and {p.suffix for p in files} == {f".{fmt}"}
+    for path in files:
+        inp = oiio.ImageInput.open(str(path))
+        spec, levels = inp.spec(), 0
+        while inp.seek_subimage(0, levels):
+            levels += 1
+        inp.close()
+        assert spec.tile_width == 64 and levels > 1, path
+    want = reconstruct(read_compressed(compressed))
+    assert np.array_equal(reconstruct(load_btf(out)), want)                     # level 0 holds the codes
+    assert np.array_equal(reconstruct(load_btf(out, lod="k6")), reconstruct(read_compressed(compressed), k=6))
+    assert validate_layer(out) == []
+    # The GPU packs hold what the sampler read from the PNG packs.
+    from usdbtf.usd import storm
+
+    layout, _, _ = storm.layout_from_asset(out)
+    png_layout, _, _ = storm.layout_from_asset(pkg.write_package(pkg.package(compressed, pkg.PackageOptions(
+        thumbnail=False)), tmp_path / "png" / "p.usda")["root"])
+    assert len(layout.packs) == len(png_layout.packs)
+    for got, ref in zip(layout.packs, png_layout.packs):
+        if fmt == "exr" and np.issubdtype(ref.dtype, np.integer):          # normalised, as a sampler reads it
+            got = np.rint(np.asarray(got, np.float64) * np.iinfo(ref.dtype).max)
+        assert np.array_equal(np.asarray(got, np.float64), np.asarray(ref, np.float64))
+
+
+def test_usdz_refuses_tiff_textures(compressed, tmp_path, capsys):
+    code, _, err = run(capsys, "package", compressed, "-o", tmp_path / "a.usda", "--texture-format", "tx", "--usdz")
+    assert code != 0 and "--usdz cannot hold tx" in err
+    assert not (tmp_path / "a.usda").exists()

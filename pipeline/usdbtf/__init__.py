@@ -5,8 +5,9 @@ Stages, one module each, all speaking the :class:`usdbtf.model.BTF` data model:
 ``compress`` (apparent-BRDF basis + coefficient textures), ``usd`` (the BtfMaterialAPI
 schema, packaging, reading assets back), ...
 
-Importing the package registers the usdBtf USD plugin, so it must happen before the
-process first uses USD's schema registry (see :mod:`usdbtf.usd.plugin`).
+Importing the package sets up the usdBtf USD plugin for this process (the environment
+``usdbtf env`` prints, and Plug registration), so it must come before the process first
+imports pxr (see :mod:`usdbtf.usd.plugin`).
 """
 __version__ = "0.1.0"
 

@@ -16,6 +16,7 @@ class                   status  meaning
                                 input, another process is writing it, ...
 :class:`IOFailure`          74  an operating-system error while reading or writing
                                 (``EX_IOERR``): disk full, permission denied, read-only ...
+(OSError, MemoryError)      74  (the CLI maps them to :class:`IOFailure`)
 (anything else)              1  an internal error: a bug; rerun with ``--debug``
 ======================  ======  ===========================================================
 
@@ -24,8 +25,13 @@ Every message names the file, sample or option at fault; the CLI prints it as on
 """
 from __future__ import annotations
 
-__all__ = ["BTFError", "UsageError", "OutputRefused", "IOFailure",
-           "EXIT_OK", "EXIT_USAGE", "EXIT_DATA", "EXIT_CANT_CREATE", "EXIT_IO", "EXIT_INTERNAL"]
+__all__ = ["BTFError", "UsageError", "OutputRefused", "IOFailure", "error_for_status", "os_error_message",
+           "OS_ERROR_WORDS", "EXIT_OK", "EXIT_USAGE", "EXIT_DATA", "EXIT_CANT_CREATE", "EXIT_IO", "EXIT_INTERNAL"]
+
+#: Words of operating-system errors inside the messages of libraries that do not raise
+#: OSError (USD's Tf errors, image writers): such a failure is an I/O error, status 74.
+OS_ERROR_WORDS = ("File too large", "No space left", "Permission denied", "Read-only file system", "Is a directory",
+                  "Disk quota exceeded")
 
 EXIT_OK = 0
 EXIT_INTERNAL = 1
@@ -60,3 +66,30 @@ class IOFailure(BTFError):
     denied, read-only file system, a folder where a file was expected)."""
 
     exit_code = EXIT_IO
+
+
+def error_for_status(status: int, message: str) -> BTFError:
+    """The exception whose exit status is ``status`` (e.g. the status of a child ``usdbtf``
+    process that ``build`` ran), carrying ``message``; statuses without a class of their
+    own (1, signals) give a plain :class:`BTFError` with status 65 replaced by ``status``."""
+    for cls in (UsageError, OutputRefused, IOFailure, BTFError):
+        if cls.exit_code == status:
+            return cls(message)
+    exc = BTFError(message)
+    exc.exit_code = status
+    return exc
+
+
+def os_error_message(exc: OSError, path=None) -> str:
+    """One line for an operating-system error: ``PATH: reason`` (the path the error names,
+    else ``path``)."""
+    import os
+
+    reason = exc.strerror or " ".join(str(exc).split()) or type(exc).__name__
+    where = exc.filename if exc.filename is not None else path
+    if where is None:
+        return reason
+    text = f"{os.fsdecode(where)}: {reason}"
+    if exc.filename2 is not None:
+        text += f" (-> {os.fsdecode(exc.filename2)})"
+    return text

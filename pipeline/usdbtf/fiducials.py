@@ -25,7 +25,6 @@ Marker corners are listed clockwise from the marker's top-left (ArUco's order).
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -60,10 +59,6 @@ class Board:
     sample_rect: tuple
     ids: np.ndarray
     corners: np.ndarray
-
-    @property
-    def metres_per_pixel(self) -> float:
-        return self.physical_size_m[0] / self.image_size[0]
 
     @property
     def window_size_m(self) -> tuple[float, float]:
@@ -216,14 +211,10 @@ def parse_board(doc, where: str = "board") -> Board:
 
 def load_board(path) -> Board:
     """Read and validate a board.json file."""
+    from .jsontext import load
+
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise BTFError(f"{path}: board file not found") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise BTFError(f"{path}: not a readable board JSON ({exc})") from None
-    return parse_board(doc, str(path))
+    return parse_board(load(path, "board JSON"), str(path))
 
 
 # ------------------------------------------------------------------ geometry helpers

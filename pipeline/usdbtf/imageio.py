@@ -5,16 +5,19 @@ conversion lives in :mod:`usdbtf.colour`.
 """
 from __future__ import annotations
 
+import contextlib
 import os
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import OpenImageIO as oiio
 
-from .errors import BTFError
+from .errors import BTFError, IOFailure, UsageError
 
-__all__ = ["ImageInfo", "read_info", "read_image", "write_image", "BIT_DEPTHS", "numpy_dtype"]
+__all__ = ["ImageInfo", "read_info", "read_image", "write_image", "encode_image", "decode_image", "write_encoded",
+           "memory_file", "BIT_DEPTHS", "numpy_dtype"]
 
 FIXED_DATETIME = "1970:01:01 00:00:00"
 _TIMESTAMPED = {".exr", ".sxr", ".mxr", ".tif", ".tiff"}
@@ -56,8 +59,13 @@ def _open(path) -> "oiio.ImageInput":
     inp = oiio.ImageInput.open(path)
     if inp is None:
         msg = oiio.geterror()
-        if not os.path.isfile(path):  # checked only on failure: a stat per image adds up over 10^4 images
+        # Checked only on failure: a stat per image adds up over 10^4 images.
+        if os.path.isdir(path):
+            raise IOFailure(f"{path}: is a folder, not an image file")
+        if not os.path.isfile(path):
             raise BTFError(f"{path}: image file not found")
+        if not os.access(path, os.R_OK):
+            raise IOFailure(f"{path}: permission denied")
         raise BTFError(f"{path}: cannot read image ({_one_line(msg) or 'unknown format'})")
     return inp
 
@@ -119,12 +127,20 @@ def read_image(path, *, expect: tuple[int, int] | None = None, rows: tuple[int, 
     return data, info
 
 
-def write_image(path, pixels: np.ndarray, *, color_space: str, attributes: dict | None = None) -> int:
+def write_image(path, pixels: np.ndarray, *, color_space: str, attributes: dict | None = None,
+                allow_non_finite: bool = False, file_type: str | None = None) -> int:
     """Write ``pixels`` (H, W, C) as-is (its dtype is the file's bit depth) and return the file size.
 
     ``color_space`` is recorded as ``oiio:ColorSpace`` (and in the file's own colour
     metadata where the format has some).  Format options go in ``attributes``, e.g.
     ``{"Compression": "jpeg:90"}`` or ``{"png:compressionLevel": 9}``.
+
+    Float pixels must be finite: nothing non-finite is ever written (a NaN here comes from
+    bad input that slipped through, and is reported as such).  ``allow_non_finite`` is for
+    tests that craft damaged input files.  Failures of the writer
+    itself (permission, disk full) raise :class:`~usdbtf.errors.IOFailure`.
+    ``file_type`` (an extension such as "jxl") chooses the format when ``path`` has no
+    extension, e.g. an in-memory file ``/proc/self/fd/N``; by default the path's extension decides.
     """
     path = Path(path)
     pixels = np.ascontiguousarray(pixels)
@@ -133,23 +149,125 @@ def write_image(path, pixels: np.ndarray, *, color_space: str, attributes: dict 
     type_name = {np.dtype(v): k for k, v in BIT_DEPTHS.items()}.get(pixels.dtype)
     if type_name is None:
         raise BTFError(f"{path}: cannot write pixel type {pixels.dtype}")
+    if pixels.dtype.kind == "f" and not allow_non_finite and not np.isfinite(pixels).all():
+        bad = np.argwhere(~np.isfinite(pixels))[0]
+        raise BTFError(f"{path}: refusing to write NaN or infinite values (first at pixel x={bad[1]}, y={bad[0]}, "
+                       f"channel {bad[2]}); an input holds non-finite data")
     spec = oiio.ImageSpec(pixels.shape[1], pixels.shape[0], pixels.shape[2], type_name)
     spec.attribute("oiio:ColorSpace", color_space)
     # OIIO stamps the current time into EXR/TIFF headers; a fixed stamp keeps outputs
     # byte-identical for identical inputs (the project's determinism rule).  Only there:
     # elsewhere the attribute would add an EXIF block (~300-450 bytes a JPEG/JPEG XL file).
-    if path.suffix.lower() in _TIMESTAMPED:
+    if (f".{file_type}" if file_type else path.suffix).lower() in _TIMESTAMPED:
         spec.attribute("DateTime", FIXED_DATETIME)
     for key, value in (attributes or {}).items():
         spec.attribute(key, value)
-    out = oiio.ImageOutput.create(str(path))
+    if not _in_memory(path):
+        _check_room(path, pixels.nbytes)
+    out = oiio.ImageOutput.create(file_type or str(path))
     if out is None:
-        raise BTFError(f"{path}: no image writer for this file type ({oiio.geterror()})")
+        raise UsageError(f"{path}: no image writer for this file type ({_one_line(oiio.geterror())})")
     try:
         if not out.open(str(path), spec):
-            raise BTFError(f"{path}: cannot open for writing ({out.geterror()})")
+            raise IOFailure(f"{path}: cannot open for writing ({_one_line(out.geterror()) or _os_reason(path)})")
         if not out.write_image(pixels):
-            raise BTFError(f"{path}: write failed ({out.geterror()})")
+            raise IOFailure(f"{path}: write failed ({_one_line(out.geterror()) or _os_reason(path)})")
     finally:
-        out.close()
-    return path.stat().st_size
+        if not out.close():
+            problem = _one_line(out.geterror())
+            if problem and sys.exc_info()[0] is None:
+                raise IOFailure(f"{path}: write failed ({problem})")
+    size = path.stat().st_size
+    if not _in_memory(path):
+        _check_written(path, size)
+    return size
+
+
+@contextlib.contextmanager
+def memory_file():
+    """An anonymous in-memory file (Linux ``memfd_create``): yields (fd, "/proc/self/fd/N"),
+    a path any library can open; it vanishes when closed, leaving nothing on any disk."""
+    fd = os.memfd_create("usdbtf-image", os.MFD_CLOEXEC)
+    try:
+        yield fd, f"/proc/self/fd/{fd}"
+    finally:
+        os.close(fd)
+
+
+def encode_image(pixels: np.ndarray, file_type: str, *, color_space: str, attributes: dict | None = None) -> bytes:
+    """The bytes :func:`write_image` would write to a ``file_type`` file (an extension, e.g.
+    "png"), encoded into an in-memory file: byte for byte the same writer and options."""
+    with memory_file() as (fd, path):
+        size = write_image(path, pixels, color_space=color_space, attributes=attributes, file_type=file_type)
+        return os.pread(fd, size, 0)
+
+
+def write_encoded(path, data: bytes) -> int:
+    """Write an image file's bytes (:func:`encode_image`) to ``path`` after checking that they
+    fit (free space, the file-size limit, which would otherwise end the process with
+    SIGXFSZ); returns the size."""
+    path = Path(path)
+    free, limit = _room(path.parent)
+    if free is not None and free < len(data):
+        raise IOFailure(f"{path}: no space left on the device (needs {len(data)} bytes, {free} free)")
+    if limit is not None and limit < len(data):
+        raise IOFailure(f"{path}: file size limit exceeded (needs {len(data)} bytes, the limit is {limit})")
+    path.write_bytes(data)
+    return len(data)
+
+
+def decode_image(data: bytes) -> np.ndarray:
+    """The pixels :func:`read_image` reads from an image file's ``data`` (read in memory)."""
+    with memory_file() as (fd, path):
+        os.write(fd, data)
+        return read_image(path)[0]
+
+
+def _in_memory(path: Path) -> bool:
+    """An anonymous in-memory file (``/proc/self/fd/N`` of a memfd): no file system to check."""
+    return path.parent == Path("/proc/self/fd")
+
+
+def _room(folder: Path) -> tuple[int | None, int | None]:
+    """(bytes free on ``folder``'s file system, this process's file size limit), None when unknown."""
+    import resource
+
+    try:
+        st = os.statvfs(folder)
+        free = st.f_bavail * st.f_frsize
+    except OSError:
+        free = None
+    limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+    return free, (None if limit == resource.RLIM_INFINITY else limit)
+
+
+def _check_room(path: Path, raw_bytes: int) -> None:
+    """Refuse a write that cannot fit: some image writers (libpng, small OpenEXR files)
+    do not report a full disk and leave a truncated file, and libjpeg exits the process.
+    The bound is the raw pixel size plus the formats' worst-case overhead."""
+    need = int(raw_bytes * 1.02) + 65536
+    free, limit = _room(path.parent)
+    if free is not None and free < need:
+        raise IOFailure(f"{path}: no space left on the device (needs up to {need} bytes, {free} free)")
+    if limit is not None and limit < need:
+        raise IOFailure(f"{path}: file size limit exceeded (needs up to {need} bytes, the limit is {limit})")
+
+
+def _check_written(path: Path, size: int) -> None:
+    """A file that ends exactly at the size limit, or a file system left with no room, may
+    hold a truncated image the writer did not report."""
+    free, limit = _room(path.parent)
+    if limit is not None and size >= limit:
+        raise IOFailure(f"{path}: file size limit exceeded (the file reached the limit of {limit} bytes)")
+    if free == 0:
+        raise IOFailure(f"{path}: no space left on the device (the file may be truncated)")
+
+
+def _os_reason(path: Path) -> str:
+    """Why a file cannot be written, when the writer did not say."""
+    folder = path.parent
+    if not folder.is_dir():
+        return "its folder does not exist"
+    if not os.access(folder, os.W_OK):
+        return "permission denied"
+    return "unknown error"

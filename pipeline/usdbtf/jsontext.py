@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import json
 
-__all__ = ["dumps"]
+__all__ = ["dumps", "load"]
 
 # One encoder for every call: json.dumps with options builds a new one each time, which
 # dominates for 10^4 one-line sample entries.
@@ -63,3 +63,30 @@ def dumps(obj, indent: int = 1) -> str:
     """``obj`` as indented JSON text with compact leaves (see the module docstring).
     NaN and infinities are refused (strict JSON), as with ``allow_nan=False``."""
     return _text(obj, "", " " * indent)
+
+
+def load(path, what: str):
+    """Parse the JSON file ``path`` (a ``what``, e.g. "JSON manifest") for a reader.
+
+    A missing file or text that is not JSON is bad input (:class:`~usdbtf.errors.BTFError`,
+    exit status 65); an operating-system error reading it (permission denied, a folder
+    where the file should be) is :class:`~usdbtf.errors.IOFailure` (74).  Either names the
+    file.
+    """
+    from pathlib import Path
+
+    from .errors import BTFError, IOFailure, os_error_message
+
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise BTFError(f"{path}: {what} not found") from None
+    except UnicodeDecodeError as exc:
+        raise BTFError(f"{path}: not a readable {what} ({exc.reason} at byte {exc.start})") from None
+    except OSError as exc:
+        raise IOFailure(os_error_message(exc, path)) from None
+    try:
+        return json.loads(text)
+    except (json.JSONDecodeError, RecursionError) as exc:
+        raise BTFError(f"{path}: not a readable {what} ({' '.join(str(exc).split())[:200]})") from None

@@ -10,9 +10,10 @@ Angles in degrees; images in any format OpenImageIO reads; extra keys are kept
 """
 from __future__ import annotations
 
-import json
+import contextlib
+import contextvars
 import os
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Iterable
 
 import numpy as np
@@ -20,11 +21,13 @@ import numpy as np
 from . import colour, jsontext
 from .atomic import atomic_dir
 from .errors import BTFError
-from .imageio import numpy_dtype, write_image
-from .model import BTF, FileBTF, validate_sampling
+from .imageio import numpy_dtype, read_info, write_image
+from .model import FileBTF, validate_sampling
+from .outputs import MANIFEST as _MANIFEST_KIND
 from .sampling import Sampling
 
-__all__ = ["FORMAT", "MANIFEST", "read_manifest", "write_manifest", "encode_for_file", "FORMAT_ATTRIBUTES"]
+__all__ = ["FORMAT", "MANIFEST", "read_manifest", "write_manifest", "encode_for_file", "FORMAT_ATTRIBUTES",
+           "outside_paths_allowed"]
 
 FORMAT = "btf-manifest/1"
 MANIFEST = "btf.json"
@@ -47,17 +50,54 @@ def _angle_pair(value, key, label, path):
     return [float(value[0]), float(value[1])]
 
 
-def read_manifest(folder, *, ocio_config: str | None = None, working_space: str = colour.WORKING_SPACE) -> FileBTF:
-    """Open a manifest folder as a streaming :class:`FileBTF` (pixels are read on demand)."""
+_OUTSIDE = contextvars.ContextVar("usdbtf_outside_paths_allowed", default=False)
+
+
+@contextlib.contextmanager
+def outside_paths_allowed(allowed: bool = True):
+    """Within the block, manifests may name images outside their folder
+    (``--allow-outside-paths``)."""
+    token = _OUTSIDE.set(bool(allowed))
+    try:
+        yield
+    finally:
+        _OUTSIDE.reset(token)
+
+
+def _image_path(folder: Path, real_folder: str, name: str, manifest: Path, label: str, outside: bool) -> str:
+    """The image file of a sample, confined to the manifest's folder unless ``outside``:
+    no absolute names, no ``..``, no symbolic link that leads out."""
+    if not name or "\0" in name:
+        raise BTFError(f"{manifest}: sample {label}: \"image\" must be a file name")
+    path = os.fspath(folder / name)
+    if outside:
+        return path
+    parts = PurePosixPath(name).parts
+    if PurePosixPath(name).is_absolute() or ".." in parts:
+        raise BTFError(f"{manifest}: sample {label}: image {name!r} is outside the manifest's folder "
+                       "(absolute or '..'); pass --allow-outside-paths to read it anyway")
+    real = os.path.realpath(path)
+    if not real.startswith(real_folder + os.sep):
+        raise BTFError(f"{manifest}: sample {label}: image {name!r} leads outside the manifest's folder (through "
+                       "a symbolic link); pass --allow-outside-paths to read it anyway")
+    return path
+
+
+def read_manifest(folder, *, ocio_config: str | None = None, working_space: str = colour.WORKING_SPACE,
+                  allow_outside_paths: bool | None = None) -> FileBTF:
+    """Open a manifest folder as a streaming :class:`FileBTF` (pixels are read on demand).
+
+    Every image must lie inside the manifest's folder unless ``allow_outside_paths``
+    (default: :func:`outside_paths_allowed`).  The first image's header must agree with
+    the declared size, so nothing is allocated for a size the files do not have.
+    """
+    outside = _OUTSIDE.get() if allow_outside_paths is None else bool(allow_outside_paths)
     folder = Path(folder)
     path = folder / MANIFEST if folder.is_dir() else folder
     folder = path.parent
-    if not path.is_file():
+    if not os.path.lexists(path):
         raise BTFError(f"{path}: manifest not found")
-    try:
-        doc = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise BTFError(f"{path}: not a readable JSON manifest ({exc})") from None
+    doc = jsontext.load(path, "JSON manifest")
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise BTFError(f"{path}: \"format\" must be {FORMAT!r}, got {doc.get('format') if isinstance(doc, dict) else doc!r}")
     for key in ("width", "height"):
@@ -74,6 +114,7 @@ def read_manifest(folder, *, ocio_config: str | None = None, working_space: str 
     if not isinstance(samples, list) or not samples:
         raise BTFError(f"{path}: \"samples\" is empty or missing; a BTF needs at least one sample")
     views, lights, paths, names, interp = [], [], [], [], []
+    real_folder = os.path.realpath(folder)
     for i, s in enumerate(samples):
         label = f"#{i}"
         if not isinstance(s, dict) or not isinstance(s.get("image"), str):
@@ -81,12 +122,16 @@ def read_manifest(folder, *, ocio_config: str | None = None, working_space: str 
         label = f"#{i} ({s['image']})"
         views.append(_angle_pair(s.get("view"), "view", label, path))
         lights.append(_angle_pair(s.get("light"), "light", label, path))
-        paths.append(os.fspath(folder / s["image"]))
+        paths.append(_image_path(folder, real_folder, s["image"], path, label, outside))
         names.append(s["image"])
         interp.append(bool(s.get("interpolated", False)))
     sampling = Sampling(np.array(views), np.array(lights))
     validate_sampling(sampling, [f"{path.name} sample #{i} ({n})" for i, n in enumerate(names)])
     extra = {k: v for k, v in doc.items() if k not in _RESERVED}
+    first = read_info(paths[0])
+    if (first.width, first.height) != (doc["width"], doc["height"]):
+        raise BTFError(f"{paths[0]}: image is {first.width}x{first.height}, but {path} declares "
+                       f"{doc['width']}x{doc['height']}")
     btf = FileBTF.probe(paths, sampling, space, width=doc["width"], height=doc["height"], names=names,
                         interpolated=np.array(interp), ocio_config=ocio_config, working_space=working_space,
                         metadata=extra)
@@ -131,7 +176,7 @@ def write_manifest(folder, sampling: Sampling, images: Iterable[np.ndarray], *, 
     interpolated = np.zeros(len(sampling), bool) if interpolated is None else np.asarray(interpolated, bool)
     entries = []
     width = height = None
-    with atomic_dir(folder) as tmp:
+    with atomic_dir(folder, kind=_MANIFEST_KIND) as tmp:
         count = 0
         for i, img in enumerate(images):
             if i >= len(sampling):
@@ -160,22 +205,3 @@ def write_manifest(folder, sampling: Sampling, images: Iterable[np.ndarray], *, 
         doc["samples"] = entries
         (tmp / MANIFEST).write_text(jsontext.dumps(doc) + "\n")
     return Path(folder)
-
-
-def write_btf(folder, btf: BTF, **kw) -> Path:
-    """Write any BTF (streamed in sample chunks) as a manifest folder; defaults keep its encoding."""
-    kw.setdefault("color_space", btf.color_space)
-    kw.setdefault("bit_depth", btf.bit_depth)
-    kw.setdefault("ext", "png" if kw["bit_depth"] in ("uint8", "uint16") else "exr")
-    kw.setdefault("metadata", btf.metadata)
-    kw.setdefault("interpolated", btf.interpolated)
-
-    def images():
-        for _, chunk in btf.iter_chunks(64):
-            yield from chunk
-
-    return write_manifest(folder, btf.sampling, images(), array_space=btf.working_space,
-                          ocio_config=btf.ocio_config, **kw)
-
-
-__all__.append("write_btf")

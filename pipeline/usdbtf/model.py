@@ -86,6 +86,8 @@ class BTF:
     interpolated : (S,) bool, True for samples filled in rather than measured.
     working_space, ocio_config : where decoded values go.
     metadata : dict of extra keys carried through (e.g. physical size).
+    path : the file or folder the BTF was opened from, as given (:func:`usdbtf.io.open_btf`
+        sets it; errors and provenance name it); "" for a BTF made in memory.
     """
 
     sampling: Sampling
@@ -98,6 +100,7 @@ class BTF:
     working_space: str = colour.WORKING_SPACE
     ocio_config: str | None = None
     metadata: dict = field(default_factory=dict)
+    path: str = ""
 
     def __post_init__(self):
         if not self.names:
@@ -223,11 +226,16 @@ class FileBTF(BTF):
 
     def read_one(self, i: int, rows=None) -> np.ndarray:
         """Stored values of sample i, (h, W, 3), with size and bit depth checked."""
-        pixels, info = read_image(self.paths[i], expect=(self.width, self.height), rows=rows)
+        return self.read_file(self.paths[i], rows)
+
+    def read_file(self, path, rows=None) -> np.ndarray:
+        """Stored values of the image file ``path`` (h, W, 3), checked against this BTF's
+        size and bit depth (subclasses that hand OIIO another path per sample use this)."""
+        pixels, info = read_image(path, expect=(self.width, self.height), rows=rows)
         if info.bit_depth != self.bit_depth:
-            raise BTFError(f"{self.paths[i]}: bit depth {info.bit_depth} differs from the dataset's {self.bit_depth}")
+            raise BTFError(f"{path}: bit depth {info.bit_depth} differs from the dataset's {self.bit_depth}")
         if pixels.dtype.kind == "f":
-            check_finite(pixels, self.paths[i])
+            check_finite(pixels, path)
         return pixels
 
     def read_encoded(self, indices, rows=None):

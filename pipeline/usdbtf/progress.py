@@ -1,16 +1,59 @@
-"""A progress line with rate and ETA for long runs (captures, rectification).
+"""Progress bars of long work (captures, rectification, synthesis, writing samples): one helper.
 
-On a terminal the line is redrawn in place; in a log (not a tty) a line is printed at
-most every ``log_interval`` seconds, so a 10-hour capture does not write 10^4 lines.
-The rate counts only work done in this run (a resumed capture's earlier samples are
+Messages go through :mod:`logging` (one logger per module, ``logging.getLogger(__name__)``;
+the command line sets the level with ``-q``/``-v``).  A progress bar is not a message: it is
+one line with rate and ETA, drawn on stderr by :func:`bar` (or :func:`track` over an
+iterable) only when stderr is a terminal or when asked (``usdbtf --progress``), and only
+while the caller's logger shows info messages (``-q`` hides it).  Stdout is never touched,
+so ``--json`` output stays one document.
+
+On a terminal the line is redrawn in place; in a log (not a tty, ``--progress``) a line is
+printed at most every ``log_interval`` seconds, so a 10-hour capture does not write 10^4
+lines.  The rate counts only work done in this run (a resumed capture's earlier samples are
 not "fast"), and the ETA is the remaining count over that rate.
 """
 from __future__ import annotations
 
+import logging
 import sys
 import time
+from typing import Iterable, Iterator
 
-__all__ = ["Progress", "format_duration"]
+__all__ = ["Progress", "bar", "track", "show_progress", "format_duration"]
+
+#: Draw bars even when stderr is not a terminal (``usdbtf --progress``).
+_forced = False
+
+
+def show_progress(force: bool) -> None:
+    """Draw progress bars on a stderr that is not a terminal too (``True``), or only on a
+    terminal (``False``, the default)."""
+    global _forced
+    _forced = bool(force)
+
+
+def bar(label: str, total: int, done: int = 0, *, logger: logging.Logger | None = None) -> "Progress":
+    """The progress bar of ``total`` items (``done`` of them finished before this run).
+
+    Drawn on stderr when it is a terminal or when :func:`show_progress` asked for it, and
+    when ``logger`` (default ``usdbtf``) shows info messages; otherwise a silent
+    :class:`Progress`.  Call :meth:`Progress.update` per item and :meth:`Progress.finish`."""
+    logger = logger or logging.getLogger("usdbtf")
+    stream = sys.stderr
+    on_terminal = bool(getattr(stream, "isatty", lambda: False)())
+    return Progress(label, total, done, stream=stream,
+                    enabled=logger.isEnabledFor(logging.INFO) and (_forced or on_terminal))
+
+
+def track(items: Iterable, label: str, total: int, *, logger: logging.Logger | None = None) -> Iterator:
+    """``items`` with a :func:`bar` advanced per item (finished when they run out)."""
+    progress = bar(label, total, logger=logger)
+    try:
+        for item in items:
+            yield item
+            progress.update()
+    finally:
+        progress.finish()
 
 
 def format_duration(seconds: float) -> str:

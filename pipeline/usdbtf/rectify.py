@@ -14,32 +14,40 @@ A frame is *rejected* (reported, and treated as missing rather than guessed) whe
 shows fewer than ``min_markers`` board markers, when the RANSAC fit leaves a mean inlier
 residual above ``max_residual_px``, or when the window is not entirely inside the frame.
 
-Folder level (:func:`rectify_capture`): every sample of the capture plan ends up in the
-output manifest, in plan order; obstructed and rejected samples are filled from their
-neighbours (:mod:`usdbtf.fill`) and marked ``"interpolated": true``.  Rectified texels
-are staged in a memory-mapped scratch file, so memory stays at a few frames whatever
-the sampling.
+The stage (:func:`rectify` -> :class:`RectifyResult`, :func:`write_rectify`): every sample of
+the capture plan ends up in the output manifest, in plan order; obstructed and rejected
+samples are filled from their neighbours (:mod:`usdbtf.fill`) when read and marked
+``"interpolated": true``.  The rectified texels are held in memory, or (``scratch``: what the
+CLI does, beside the output) in a memory-mapped scratch file, so memory stays at a few
+frames whatever the sampling.
 """
 from __future__ import annotations
 
 import json
+import logging
 import os
-import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
+from . import colour
 from .errors import BTFError
 from .fiducials import Board, apply_homography, detect_markers, fit_homography, make_board, parse_board, to_cv
 from .fill import combine, plan_fill
 from .imageio import read_image
 from .manifest import MANIFEST, read_manifest, write_manifest
+from .model import BTF
+from .progress import track
+from .resources import require_disk, require_memory
 from .sampling import Sampling
 
+log = logging.getLogger(__name__)
+
 __all__ = ["FrameResult", "rectify_frame", "warp_window", "window_homography", "luminance", "RectifyOptions",
-           "rectify_capture", "read_raw_plan", "RawPlan"]
+           "RectifyResult", "RectifiedBTF", "rectify", "write_rectify", "read_raw_plan", "RawPlan"]
 
 
 @dataclass
@@ -203,7 +211,7 @@ def read_flat(path: Path, shape: tuple[int, int]) -> np.ndarray:
 class RectifyOptions:
     """size: output N; min_markers / max_residual_px: rejection rules; fill: interpolate
     missing samples (else refuse when any is missing); workers: processes (1 = in this one);
-    color_space / bit_depth / ext: how the output files are stored."""
+    color_space / bit_depth / ext: how :func:`write_rectify` stores the output files."""
 
     size: int = 128
     min_markers: int = 4
@@ -232,75 +240,130 @@ def _rectify_one(k: int) -> FrameResult:
     return rectify_frame(linear, board, opts.size, min_markers=opts.min_markers, max_residual_px=opts.max_residual_px)
 
 
-def rectify_capture(raw, out, opts: RectifyOptions, *, board: Board | None = None, log=lambda msg: None,
-                    progress=None) -> dict:
-    """Rectify a RAW capture folder into a manifest folder ``out`` (written atomically).
+@dataclass
+class RectifyResult:
+    """A rectified capture: every sample of the plan, the measured ones rectified and the
+    missing ones filled from their neighbours when read (lazily: :meth:`images`).
 
-    board : the fiducial board; default the one recorded in the capture, else the
-        standard board of :func:`usdbtf.fiducials.make_board`.
-    progress : optional callable(done, total) after each frame.
-    Returns the report dict also stored under ``"rectify"`` in the output manifest.
+    sampling : the capture plan's directions, plan order (S samples).
+    texels : (S, N, N, 3) float32 working-space rectified frames (rows of missing samples are
+        unset) -- in memory, or a memory-mapped file in the ``scratch`` folder :func:`rectify`
+        was given (a capture's samples need not fit in memory).
+    available : (S,) bool, the samples rectified from a frame.
+    fills : {sample: :class:`usdbtf.fill.Fill`} for the others (barycentric interpolation).
+    report : what was done (frames, rejected, interpolated, residuals, board), stored under
+        ``"rectify"`` in the output manifest; metadata : the manifest's extra keys.
+    options : the :class:`RectifyOptions`.
+    """
+
+    sampling: Sampling
+    texels: np.ndarray
+    available: np.ndarray
+    fills: dict
+    report: dict
+    metadata: dict
+    options: RectifyOptions
+
+    def image(self, i: int) -> np.ndarray:
+        """Sample ``i`` (N, N, 3) float32 working space: its rectified frame, or the fill."""
+        if self.available[i]:
+            return self.texels[i]
+        f = self.fills[i]
+        return combine(f, self.texels[f.sources])
+
+    def images(self) -> Iterator[np.ndarray]:
+        """Every sample in plan order (:meth:`image`)."""
+        return (self.image(i) for i in range(len(self.sampling)))
+
+    def to_btf(self) -> BTF:
+        """The result as a :class:`usdbtf.model.BTF` (working-space floats, fills made when
+        read; ``interpolated`` marks them), e.g. for :func:`usdbtf.compress.compress`."""
+        return RectifiedBTF(self.sampling, self.options.size, self.options.size, color_space=colour.WORKING_SPACE,
+                            interpolated=~self.available, metadata=dict(self.metadata), result=self)
+
+
+@dataclass
+class RectifiedBTF(BTF):
+    """:meth:`RectifyResult.to_btf`: samples read from the result, in the working space."""
+
+    result: RectifyResult | None = None
+
+    def read_encoded(self, indices, rows=None) -> np.ndarray:
+        idx = np.atleast_1d(np.arange(self.n_samples)[indices])
+        out = np.stack([self.result.image(int(i)) for i in idx])
+        return out if rows is None else out[:, rows[0]:rows[1]]
+
+
+def rectify(raw, options: RectifyOptions, *, board: Board | None = None, scratch=None) -> RectifyResult:
+    """Rectify the frames of a RAW capture folder (``usdbtf capture``, or any manifest of board
+    frames) into every sample of its plan.
+
+    board : the fiducial board; default the one recorded in the capture, else the standard
+        board of :func:`usdbtf.fiducials.make_board`.
+    scratch : a folder for the rectified samples' memory-mapped file (S x N x N x 12 bytes; its
+        disk space is checked first), which the caller removes after writing; None holds them
+        in memory (its size checked against the machine's).  The CLI puts it beside the output.
+    Rejected frames are logged; BTFError when none could be rectified, or when samples are
+    missing and ``options.fill`` is off.
     """
     frames, plan = read_raw_plan(raw)
     board = board or plan.board or make_board()
     gain = read_flat(plan.flat_field, (frames.height, frames.width)) if plan.flat_field else None
-    n, size = len(plan.sampling), opts.size
-    rejected, residuals = {}, []
-    order = sorted(plan.frame_of)
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix=f".{out.name}.scratch-", dir=out.parent) as scratch:
+    n, size = len(plan.sampling), options.size
+    what = f"rectifying {n} samples at {size}x{size}"
+    if scratch is not None:
+        require_disk(n * size * size * 12, Path(scratch), what)
         texels = np.lib.format.open_memmap(os.path.join(scratch, "texels.npy"), mode="w+", dtype=np.float32,
                                            shape=(n, size, size, 3))
-        available = np.zeros(n, bool)
-        tasks = [plan.frame_of[i] for i in order]
-        if opts.workers > 1 and len(tasks) > 1:
-            pool = ProcessPoolExecutor(opts.workers, initializer=_init_worker, initargs=(frames, board, gain, opts))
-            results = pool.map(_rectify_one, tasks, chunksize=4)
-        else:
-            pool = None
-            _init_worker(frames, board, gain, opts)
-            results = map(_rectify_one, tasks)
-        try:
-            for done, (i, res) in enumerate(zip(order, results), start=1):
-                if res.image is None:
-                    rejected[i] = res.reason
-                    log(f"rectify: rejected {frames.names[plan.frame_of[i]]}: {res.reason}")
-                else:
-                    texels[i] = res.image
-                    available[i] = True
-                    residuals.append(res.residual_px)
-                if progress:
-                    progress(done, len(order))
-        finally:
-            if pool is not None:
-                pool.shutdown(cancel_futures=True)
-        missing = dict(plan.missing)
-        missing.update(rejected)
-        if missing and not opts.fill:
-            raise BTFError(f"{raw}: {len(missing)} samples are missing ({len(rejected)} rejected frames); "
-                           "rectify without --no-fill to interpolate them")
-        if not available.any():
-            raise BTFError(f"{raw}: no frame could be rectified (first problem: {next(iter(rejected.values()), 'none')})")
-        fills = {f.target: f for f in plan_fill(plan.sampling, available)}
+    else:
+        require_memory(n * size * size * 12, what)
+        texels = np.empty((n, size, size, 3), np.float32)
+    rejected, residuals = {}, []
+    order = sorted(plan.frame_of)
+    available = np.zeros(n, bool)
+    tasks = [plan.frame_of[i] for i in order]
+    if options.workers > 1 and len(tasks) > 1:
+        pool = ProcessPoolExecutor(options.workers, initializer=_init_worker,
+                                   initargs=(frames, board, gain, options))
+        results = pool.map(_rectify_one, tasks, chunksize=4)
+    else:
+        pool = None
+        _init_worker(frames, board, gain, options)
+        results = map(_rectify_one, tasks)
+    try:
+        for i, res in zip(order, track(results, "rectify", len(order), logger=log)):
+            if res.image is None:
+                rejected[i] = res.reason
+                log.info(f"rectify: rejected {frames.names[plan.frame_of[i]]}: {res.reason}")
+            else:
+                texels[i] = res.image
+                available[i] = True
+                residuals.append(res.residual_px)
+    finally:
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
+    missing = dict(plan.missing)
+    missing.update(rejected)
+    if missing and not options.fill:
+        raise BTFError(f"{raw}: {len(missing)} samples are missing ({len(rejected)} rejected frames); "
+                       "rectify without --no-fill to interpolate them")
+    if not available.any():
+        raise BTFError(f"{raw}: no frame could be rectified (first problem: {next(iter(rejected.values()), 'none')})")
+    fills = {f.target: f for f in plan_fill(plan.sampling, available)}
+    report = {"size": size, "frames": len(order), "rectified": int(available.sum()),
+              "rejected": [{"index": i, "reason": r} for i, r in sorted(rejected.items())],
+              "obstructed": sorted(i for i, r in plan.missing.items() if r == "obstructed"),
+              "interpolated": int((~available).sum()),
+              "mean_corner_residual_px": float(np.mean(residuals)) if residuals else None,
+              "max_corner_residual_px": float(np.max(residuals)) if residuals else None,
+              "board": board.to_json()}
+    metadata = {"physical_size_m": list(board.window_size_m), "rectify": report}
+    return RectifyResult(plan.sampling, texels, available, fills, report, metadata, options)
 
-        def images():
-            for i in range(n):
-                if available[i]:
-                    yield texels[i]
-                else:
-                    f = fills[i]
-                    yield combine(f, texels[f.sources])
 
-        report = {"size": size, "frames": len(order), "rectified": int(available.sum()),
-                  "rejected": [{"index": i, "reason": r} for i, r in sorted(rejected.items())],
-                  "obstructed": sorted(i for i, r in plan.missing.items() if r == "obstructed"),
-                  "interpolated": int((~available).sum()),
-                  "mean_corner_residual_px": float(np.mean(residuals)) if residuals else None,
-                  "max_corner_residual_px": float(np.max(residuals)) if residuals else None,
-                  "board": board.to_json()}
-        meta = {"physical_size_m": list(board.window_size_m), "rectify": report}
-        write_manifest(out, plan.sampling, images(), color_space=opts.color_space, bit_depth=opts.bit_depth,
-                       ext=opts.ext, interpolated=~available, metadata=meta)
-        del texels
-    return report
+def write_rectify(result: RectifyResult, path) -> None:
+    """Write ``result`` as a manifest folder at ``path`` (atomically), its files stored as
+    ``result.options`` says, interpolated samples marked."""
+    o = result.options
+    write_manifest(path, result.sampling, result.images(), color_space=o.color_space, bit_depth=o.bit_depth,
+                   ext=o.ext, interpolated=~result.available, metadata=result.metadata)

@@ -88,8 +88,12 @@ __all__ = [
     "trace_view",
     "shadow_map",
     "render_sample",
-    "render",
+    "render_samples",
     "render_all",
+    "SynthOptions",
+    "SynthResult",
+    "synth",
+    "write_synth",
     "IRRADIANCE",
     "MAX_THETA_DEG",
     "MIN_ALPHA",
@@ -1057,7 +1061,7 @@ def render_sample(material: Material, view_deg, light_deg, *, cache: RenderCache
     return _shade(vd, l[None, :], vis.reshape(1, -1), material.size)[0]
 
 
-def render(material: Material, sampling: Sampling, *, chunk: int | None = None) -> Iterator[np.ndarray]:
+def render_samples(material: Material, sampling: Sampling, *, chunk: int | None = None) -> Iterator[np.ndarray]:
     """Yield one (N, N, 3) float32 image per sample of ``sampling``, in order.
 
     Each yielded array is new (callers may keep or modify it).  Within the call, hit
@@ -1100,6 +1104,102 @@ def render_all(material: Material, sampling: Sampling) -> np.ndarray:
     S * N * N * 12 bytes)."""
     n = material.size
     out = np.empty((len(sampling), n, n, 3), dtype=_F32)
-    for k, img in enumerate(render(material, sampling)):
+    for k, img in enumerate(render_samples(material, sampling)):
         out[k] = img
     return out
+
+
+# --------------------------------------------------------------------------- the stage
+#: The OCIO space synthesised radiance is in (linear Rec.709 primaries, see the module docstring).
+RADIANCE_SPACE = "Linear Rec.709 (sRGB)"
+
+
+@dataclass(frozen=True)
+class SynthOptions:
+    """What ``usdbtf synth`` makes and how :func:`write_synth` stores it.
+
+    size : texels per side (>= 8); seed : the only source of randomness; sampling : a
+    :data:`usdbtf.sampling.PRESETS` name; physical_size : edge of the tile in metres.
+    ext, bit_depth, color_space : the manifest's image files (``color_space`` None: sRGB for
+    integer depths, linear Rec.709 for float ones).
+    """
+
+    size: int = 128
+    seed: int = 0
+    sampling: str = "small"
+    physical_size: float = 0.05
+    ext: str = "png"
+    bit_depth: str = "uint8"
+    color_space: str | None = None
+
+    @property
+    def file_space(self) -> str:
+        """The OCIO space the image files are encoded in."""
+        if self.color_space:
+            return self.color_space
+        return "sRGB Encoded Rec.709 (sRGB)" if self.bit_depth in ("uint8", "uint16") else RADIANCE_SPACE
+
+
+@dataclass
+class SynthResult:
+    """A synthetic BTF, evaluated lazily: :meth:`images` renders the samples one at a time
+    (a whole BTF may not fit in memory; :meth:`to_btf` holds it all for small ones).
+
+    preset : the material's name; material : its :class:`Material`; sampling : the directions;
+    options : the :class:`SynthOptions`; metadata : the manifest's extra keys
+    (``physical_size_m``, ``synthetic``: preset, size, seed, sampling, version).
+    """
+
+    preset: str
+    material: Material
+    sampling: Sampling
+    options: SynthOptions
+    metadata: dict
+
+    def images(self) -> Iterator[np.ndarray]:
+        """One (N, N, 3) float32 image per sample, in sampling order, radiance in
+        :data:`RADIANCE_SPACE`."""
+        return render_samples(self.material, self.sampling)
+
+    def to_btf(self):
+        """The samples as an in-memory :class:`usdbtf.model.ArrayBTF` in the working space
+        (S x N x N x 12 bytes)."""
+        from . import colour
+        from .model import ArrayBTF
+
+        data = colour.processor(RADIANCE_SPACE, colour.WORKING_SPACE).apply(render_all(self.material, self.sampling))
+        btf = ArrayBTF.from_linear(self.sampling, data)
+        btf.metadata.update(self.metadata)
+        return btf
+
+
+def synth(preset: str, options: SynthOptions | None = None) -> SynthResult:
+    """The procedural material ``preset`` (a :data:`PRESETS` name) over ``options.sampling``.
+
+    Nothing is rendered yet: :meth:`SynthResult.images` renders on demand and
+    :func:`write_synth` streams the images into a manifest folder.  ValueError for an
+    unknown preset, sampling or size.
+    """
+    from . import __version__
+    from .sampling import preset as sampling_preset
+
+    options = options or SynthOptions()
+    sampling = sampling_preset(options.sampling)
+    material = make_material(preset, options.size, options.seed)
+    size = options.physical_size
+    metadata = {"physical_size_m": [size, size],
+                "synthetic": {"preset": preset, "size": options.size, "seed": options.seed,
+                              "sampling": options.sampling, "usdbtf_version": __version__}}
+    return SynthResult(preset, material, sampling, options, metadata)
+
+
+def write_synth(result: SynthResult, path) -> None:
+    """Render ``result`` into the manifest folder ``path`` (atomically, one image at a time,
+    with a progress bar), encoded as its options say."""
+    from .manifest import write_manifest
+    from .progress import track
+
+    opts = result.options
+    images = track(result.images(), "synth", len(result.sampling))
+    write_manifest(path, result.sampling, images, color_space=opts.file_space, bit_depth=opts.bit_depth,
+                   ext=opts.ext, array_space=RADIANCE_SPACE, metadata=result.metadata)

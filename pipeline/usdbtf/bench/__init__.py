@@ -1,8 +1,8 @@
 """Benchmarks of run time against error (``usdbtf bench``).
 
 * :mod:`.suite`      configurations and one run over the sections (report, CSV, plots, JSON);
-* :mod:`.sections`   the registry: one module per section (``compress``, ``scaling``; quilting
-                     and rendering plug in as modules of their own once their stages exist);
+* :mod:`.sections`   the registry: one module per section (``compress``, ``scaling``,
+                     ``quilt``, ``render``);
 * :mod:`.methods`    what is compared: ``usdbtf compress`` solver x codec x k and the baselines
                      of :mod:`.baselines` (JPEG per image, per-view PCA, H.265 video);
 * :mod:`.heldout`    held-out light directions and their prediction from fitted ones;

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__, jsontext
+from .. import jsontext
 from ..atomic import atomic_dir
 from ..compress.format import cross_layout
 from ..model import FileBTF
@@ -35,7 +35,6 @@ __all__ = ["dataset_dir", "cached_dataset_ok", "ensure_dataset", "synthesize", "
            "preset_split", "split_presets"]
 
 SRGB = "sRGB Encoded Rec.709 (sRGB)"
-LINEAR_709 = "Linear Rec.709 (sRGB)"
 PHYSICAL_SIZE_M = 0.05          # `usdbtf synth`'s default tile edge
 
 #: Material presets (:data:`usdbtf.synth.PRESETS`) that tuning may look at.
@@ -104,23 +103,17 @@ def cached_dataset_ok(folder: Path, preset: str, sampling: str, size: int, seed:
 def synthesize(folder: Path, preset: str, sampling: str, size: int, seed: int, fmt: str = "png",
                views: int | None = None) -> Path:
     """Write the dataset (8-bit sRGB) as ``usdbtf synth`` does, restricted to ``views`` views."""
-    from .. import synth
-    from ..manifest import write_manifest
+    from dataclasses import replace
 
-    full = sampling_preset(sampling)
-    chosen = full.subset(first_views(full, views))
-    material = synth.make_material(preset, size, seed)
+    from ..synth import SynthOptions, synth, write_synth
 
-    def images():
-        for block in synth.render(material, chosen):
-            yield from (block if block.ndim == 4 else [block])
-
-    syn = {"preset": preset, "size": size, "seed": seed, "sampling": sampling, "usdbtf_version": __version__}
+    result = synth(preset, SynthOptions(size=size, seed=seed, sampling=sampling, physical_size=PHYSICAL_SIZE_M,
+                                        ext=fmt, bit_depth="uint8", color_space=SRGB))
     if views is not None:
-        syn["views"] = views
-    return write_manifest(folder, chosen, images(), color_space=SRGB, bit_depth="uint8", ext=fmt,
-                          array_space=LINEAR_709,
-                          metadata={"physical_size_m": [PHYSICAL_SIZE_M, PHYSICAL_SIZE_M], "synthetic": syn})
+        result = replace(result, sampling=result.sampling.subset(first_views(result.sampling, views)))
+        result.metadata["synthetic"]["views"] = views
+    write_synth(result, folder)
+    return Path(folder)
 
 
 def ensure_dataset(workdir: Path, preset: str, sampling: str, size: int, seed: int = 0, fmt: str = "png",

@@ -32,7 +32,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 __all__ = ["REPO", "default_out", "median", "time_call", "cpu_seconds", "run_measured", "run_repeated", "RunResult", "cli_command",
-           "warm_page_cache", "dir_bytes", "timestamp", "write_json", "fmt_bytes"]
+           "warm_page_cache", "timestamp", "write_json", "fmt_bytes"]
 
 
 def _find_repo() -> Path | None:
@@ -267,14 +267,16 @@ def run_measured(cmd, *, cwd=None, env=None, pss_interval: float = 0.2) -> RunRe
 
 def cli_command(name: str = "usdbtf") -> list:
     """The console script next to this interpreter (or in the checkout's .venv), else
-    ``python -m usdbtf.cli`` with this interpreter."""
+    ``python -m usdbtf.cli`` with this interpreter; with ``--force``, because benchmarks
+    rerun commands into their own outputs, and ``--allow-outside-paths``, because their
+    subset manifests name the images of the full dataset."""
     candidates = [Path(sys.executable).parent / name]
     if REPO is not None:
         candidates.append(REPO / ".venv" / "bin" / name)
     for exe in candidates:
         if exe.is_file() and os.access(exe, os.X_OK):
-            return [str(exe)]
-    return [sys.executable, "-m", "usdbtf.cli"]
+            return [str(exe), "--force", "--allow-outside-paths"]
+    return [sys.executable, "-m", "usdbtf.cli", "--force", "--allow-outside-paths"]
 
 
 # -- files -------------------------------------------------------------------------------------
@@ -293,10 +295,6 @@ def warm_page_cache(folder) -> dict:
                     total += got
             files += 1
     return {"files": files, "bytes": total, "seconds": time.perf_counter() - t}
-
-
-def dir_bytes(folder) -> int:
-    return sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(folder) for f in fs)
 
 
 def timestamp() -> str:

@@ -1,9 +1,12 @@
 """``usdbtf bench``: benchmarks of run time against error (see :mod:`usdbtf.bench`)."""
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 ORDER = 90
+#: Arguments that name outputs (every other path argument is an input).
+OUTPUT_ARGS = ("out",)
 
 
 def _ints(text: str) -> tuple:
@@ -61,6 +64,14 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run, config="full")
 
 
+def outputs(args):
+    """The report folder when named (the default has a time stamp, so it is new).  A bench
+    run writes it in place as it goes (hours of results are kept if it stops); with
+    --force it may write into a previous bench folder."""
+    from ..outputs import BENCH
+    return [(args.out, BENCH)] if args.out is not None else []
+
+
 def _command_line(args) -> str:
     """The equivalent ``usdbtf bench`` command (for the report)."""
     parts = ["usdbtf", "bench"] + ([f"--{args.config}"] if args.config != "full" else [])
@@ -80,16 +91,28 @@ def _command_line(args) -> str:
 def run(args) -> int:
     from dataclasses import replace
 
+    from ..atomic import output_policy
     from ..bench.suite import config_from, run_suite
-    from ..errors import BTFError
+    from ..errors import UsageError
+    from ..manifest import outside_paths_allowed
 
     overrides = {dest: getattr(args, dest) for _, dest, _, _ in OVERRIDES}
     cfg = config_from(args.config, keep_outputs=args.keep_outputs, **overrides)
     if args.eval_samples == 0:                   # 0 = every sample
         cfg = replace(cfg, eval_samples=None)
     try:
-        doc = run_suite(cfg, sections=args.sections, out=args.out, workdir=args.workdir,
-                        command=_command_line(args))
+        # The benchmark's subset manifests name the images of the full datasets beside them,
+        # and it rewrites its own intermediate outputs (inside its folders) as it goes.
+        with outside_paths_allowed(), output_policy(force=True):
+            doc = run_suite(cfg, sections=args.sections, out=args.out, workdir=args.workdir,
+                            command=_command_line(args))
     except ValueError as exc:
-        raise BTFError(str(exc)) from None
-    return 0 if doc["status"] == "ok" else 1
+        raise UsageError(str(exc)) from None
+    if doc["status"] != "ok":
+        failed = sorted(name for name, sec in doc.get("sections", {}).items() if isinstance(sec, dict) and
+                        sec.get("error"))
+        # A section that fails is a failed measurement (a bug or the machine), not bad input: status 1.
+        print(f"usdbtf bench: error: section(s) {', '.join(failed) or '?'} failed; see {doc.get('out')}/report.md",
+              file=sys.stderr)
+        return 1
+    return 0

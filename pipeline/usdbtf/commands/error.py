@@ -6,6 +6,8 @@ from pathlib import Path
 
 from ..errors import BTFError
 
+from ..argtypes import add_outside_paths_flag
+
 ORDER = 40
 
 
@@ -14,13 +16,16 @@ def add_parser(sub) -> None:
     p.add_argument("original", type=Path)
     p.add_argument("reconstruction", type=Path)
     p.add_argument("--samples", help="restrict to these original sample indices")
+    add_outside_paths_flag(p)
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    from ..io import open_btf
-    from ..compress.decompress import compare, parse_samples
     import numpy as np
+
+    from ..compress.decompress import compare, parse_samples
+    from ..io import open_btf
+    from ..resources import require_memory
 
     orig = open_btf(args.original)
     other = open_btf(args.reconstruction)
@@ -42,6 +47,10 @@ def run(args) -> int:
     if missing:
         raise BTFError(f"{args.reconstruction}: has no reconstruction of original sample {missing[0]} "
                        f"({orig.names[missing[0]]})")
-    report = compare(orig, lambda sel: other.read_samples([order[int(s)] for s in sel]), wanted)
+    # Per sample: stored, decoded and reconstructed images plus the encoded copy (float32).
+    per_sample = orig.width * orig.height * 3 * 4 * 5
+    require_memory(per_sample, f"comparing {orig.width}x{orig.height} images")
+    chunk = int(max(1, min(256, 1e9 // per_sample)))
+    report = compare(orig, lambda sel: other.read_samples([order[int(s)] for s in sel]), wanted, chunk=chunk)
     print(json.dumps(report, indent=1))
     return 0

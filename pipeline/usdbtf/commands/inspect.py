@@ -1,27 +1,52 @@
 """``usdbtf inspect``: what a packaged BTF asset holds (k, bytes, directions, error, LODs)."""
 from __future__ import annotations
 
-from pathlib import Path
-
 ORDER = 65
 
 
 def add_parser(sub) -> None:
     p = sub.add_parser("inspect", help="summarise the BTF materials of a USD asset")
-    p.add_argument("asset", type=Path, help=".usda/.usdc/.usdz asset (or any stage referencing one)")
-    p.add_argument("--validate", action="store_true", help="also run every UsdValidation validator")
+    # A string, not a Path: the asset resolver may understand names a file path would mangle.
+    p.add_argument("asset", help=".usda/.usdc/.usdz asset (or any stage referencing one), as the asset "
+                   "resolver finds it")
+    p.add_argument("--validate", action="store_true",
+                   help="also run every UsdValidation validator on every lod selection and check every layer "
+                        "for NaN or Inf (exit status 65 when there is an error)")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON (keys in the README)")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
-    from ..usd.inspect import describe
-    from ..usd.validate import validation_issues
+    from ..errors import BTFError
+    from ..usd.finite import non_finite_in_stage
+    from ..usd.inspect import describe, summary
+    from ..usd.validate import validation_by_lod
 
-    print(describe(args.asset))
+    info = summary(args.asset)
+    errors = []
     if args.validate:
-        errors = validation_issues(args.asset)
-        warnings = validation_issues(args.asset, severities=("Warn",))
-        print(f"validation: {len(errors)} error(s), {len(warnings)} warning(s)"
-              + "".join(f"\n  {line}" for line in errors + warnings))
-        return 1 if errors else 0
+        flat = lambda report: [f"{f'lod={lod}: ' if lod else ''}{line}"  # noqa: E731
+                               for lod, lines in report.items() for line in lines]
+        by_lod = validation_by_lod(args.asset)
+        # Besides USD's validators: no NaN or infinite number in any layer (none of them checks).
+        errors = flat(by_lod) + [f"[usdbtf:NonFiniteValue] {where}: NaN or infinite value"
+                                 for where in non_finite_in_stage(args.asset)]
+        info["validation"] = {"errors": errors, "warnings": flat(validation_by_lod(args.asset, severities=("Warn",))),
+                              "selections": [lod or "(as authored)" for lod in by_lod]}
+    if args.json:
+        from . import print_json
+
+        print_json(info)
+    else:
+        print(describe(args.asset, info))
+        if args.validate:
+            v = info["validation"]
+            print(f"validation: {len(v['errors'])} error(s), {len(v['warnings'])} warning(s) on "
+                  f"{len(v['selections'])} lod selection(s)" + "".join(f"\n  {line}" for line in v["errors"]
+                                                                     + v["warnings"]))
+    if errors:       # a bad asset is bad data (status 65); the report above lists every error
+        import sys
+
+        sys.stdout.flush()
+        raise BTFError(f"{args.asset}: fails validation ({len(errors)} error(s)); first: {errors[0]}")
     return 0

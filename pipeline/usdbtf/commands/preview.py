@@ -6,11 +6,12 @@ shared GLSL (Mesa llvmpipe through EGL, no display needed) and writes the image 
 """
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
-from . import log
-from .render import add_scene_arguments
+from .render import add_scene_arguments, render_outputs
 
+log = logging.getLogger(__name__)
 ORDER = 82
 
 
@@ -22,25 +23,39 @@ def add_parser(sub) -> None:
     p.add_argument("--compare", action="store_true",
                    help="also render with the CPU reference renderer (bilinear, no shadows) and print the PSNR")
     p.add_argument("--no-png", action="store_true", help="write only the EXR")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=run)
+
+
+outputs = render_outputs
 
 
 def run(args) -> int:
     import numpy as np
 
-    from ..errors import BTFError
+    from ..camera import auto_camera, parse_camera
+    from ..errors import UsageError
     from ..gpu.headless import HeadlessRenderer, psnr
-    from ..render import RenderOptions, Renderer, auto_camera, parse_camera, parse_light, write_render
-    from ..render.assets import render_mesh_from_file
+    from ..render import RenderOptions, Renderer, RenderResult, parse_light, write_render
     from ..usd.read import load_btf
     from ..usd.storm import layout_from_asset
-    from .render import _angles
+    from .render import _angles, check_frame_args, parsed, scene_mesh
 
-    say = log(args.quiet)
     W, H = args.size
-    if not (1 <= W <= 16384 and 1 <= H <= 16384):
-        raise BTFError(f"--size must be in 1..16384, got {W} {H}")
+    check_frame_args(args)
+    # Every argument and the mesh are checked before the GPU context is made.
+    if args.swatch:
+        if args.mesh is not None or args.camera is not None or len(args.light) != 1:
+            raise UsageError("--swatch renders the flat patch: one --light THETA,PHI, no --mesh or --camera")
+        view, light = _angles(args.view, "view"), _angles(args.light[0], "light")
+    else:
+        if not args.light:
+            raise UsageError("give at least one --light")
+        lights = [parsed(parse_light, spec) for spec in args.light]
+        camera = parsed(lambda text: parse_camera(text, W, H), args.camera) if args.camera else None
+        mesh = scene_mesh(args.asset, args.mesh)
+        if mesh is None:
+            raise UsageError(f"{args.asset}: not a USD asset; give --mesh")
+        camera = camera or auto_camera(mesh.corner(), W, H)
     layout, wrap, k = layout_from_asset(args.asset, lod=args.lod)
     gl = HeadlessRenderer(layout, wrap=wrap)
     reference = None
@@ -48,26 +63,18 @@ def run(args) -> int:
     cpu = Renderer(cbtf, RenderOptions(k=min(k, cbtf.k), shadows=False, filter="bilinear", wrap=wrap)) \
         if args.compare else None
     if args.swatch:
-        if args.mesh is not None or args.camera is not None or len(args.light) != 1:
-            raise BTFError("--swatch renders the flat patch: one --light THETA,PHI, no --mesh or --camera")
-        view, light = _angles(args.view, "view"), _angles(args.light[0], "light")
         image = gl.swatch(view, light)
         if cpu is not None:
             reference = cpu.swatch(view, light)
         what = f"swatch, view {view}, light {light}"
     else:
-        if not args.light:
-            raise BTFError("give at least one --light")
-        mesh = render_mesh_from_file(args.mesh if args.mesh is not None else args.asset)
-        lights = [parse_light(spec) for spec in args.light]
-        camera = parse_camera(args.camera, W, H) if args.camera else auto_camera(mesh.corners, W, H)
         image = gl.render(mesh, camera, lights)
         if cpu is not None:
             reference = cpu.render(mesh, camera, lights)
         what = f"{W}x{H} frame, {len(lights)} light(s)"
-    info = write_render(args.output, image, cbtf.working_space,
-                        png_path=None if args.no_png else args.output.with_suffix(".png"), config=cbtf.ocio_config)
-    say(f"preview (k = {k}) {what} -> {info['exr']}")
+    info = write_render(RenderResult(image, cbtf.working_space, cbtf.ocio_config), args.output,
+                        png_path=None if args.no_png else args.output.with_suffix(".png"))
+    log.info(f"preview (k = {k}) {what} -> {info['exr']}")
     if reference is not None:
         mask = None if args.swatch else (image[..., 3] > 0) & (reference[..., 3] > 0)
         value = psnr(np.asarray(image)[..., :3], np.asarray(reference)[..., :3], mask)

@@ -1,11 +1,15 @@
 """``usdbtf rectify``: RAW camera frames -> an N x N rectified BTF (manifest folder)."""
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
-from . import log
+from ..argtypes import WORKERS, add_outside_paths_flag, float_in, int_in
 
+log = logging.getLogger(__name__)
 ORDER = 6
+#: Largest rectified side (texels).
+MAX_SIZE = 8192
 
 
 def add_parser(sub) -> None:
@@ -17,51 +21,50 @@ def add_parser(sub) -> None:
                                    "(marked \"interpolated\": true).")
     p.add_argument("raw", type=Path, help="RAW folder from usdbtf capture (or any manifest of board frames)")
     p.add_argument("-o", "--output", required=True, type=Path)
-    p.add_argument("--size", type=int, default=128, help="output texels per side (default 128)")
+    p.add_argument("--size", type=int_in(8, MAX_SIZE), default=128,
+                   help=f"output texels per side, 8..{MAX_SIZE} (default 128)")
     p.add_argument("--board", type=Path, help="board.json (default: recorded by capture, else the standard board)")
-    p.add_argument("--min-markers", type=int, default=4, help="reject frames with fewer markers (default 4)")
-    p.add_argument("--max-residual", type=float, default=1.0, metavar="PX",
+    p.add_argument("--min-markers", type=int_in(1, 10000), default=4,
+                   help="reject frames with fewer markers (default 4)")
+    p.add_argument("--max-residual", type=float_in(0, 1e4, lo_open=True), default=1.0, metavar="PX",
                    help="reject frames whose mean corner residual exceeds this (default 1.0 px)")
     p.add_argument("--no-fill", action="store_true", help="refuse instead of interpolating missing samples")
-    p.add_argument("--workers", type=int, default=1, help="processes (default 1)")
+    p.add_argument("--workers", type=WORKERS, default=1, help="processes (default 1)")
     p.add_argument("--format", default="exr", choices=["exr", "png", "tif"], help="output files (default exr)")
     p.add_argument("--bit-depth", default="half", choices=["half", "float", "uint8", "uint16"])
     p.add_argument("--color-space", help="OCIO space of the output files (default ACEScg for float, sRGB for "
                                          "integer depths)")
-    p.add_argument("-q", "--quiet", action="store_true")
+    add_outside_paths_flag(p)
     p.set_defaults(func=run)
 
 
-def run(args) -> int:
-    from ..errors import BTFError
-    from ..fiducials import load_board
-    from ..progress import Progress
-    from ..rectify import RectifyOptions, rectify_capture
+def outputs(args):
+    from ..outputs import MANIFEST
+    return [(args.output, MANIFEST)]
 
-    say = log(args.quiet)
-    if args.size < 8:
-        raise BTFError(f"--size must be at least 8, got {args.size}")
-    if args.min_markers < 1 or args.workers < 1:
-        raise BTFError("--min-markers and --workers must be >= 1")
+
+def run(args) -> int:
+    from ..atomic import scratch_dir
+    from ..errors import UsageError
+    from ..fiducials import load_board
+    from ..rectify import RectifyOptions, rectify, write_rectify
+
     if args.format == "png" and args.bit_depth in ("half", "float"):
-        raise BTFError("PNG stores uint8 or uint16; pass --bit-depth uint8/uint16 or --format exr")
+        raise UsageError("PNG stores uint8 or uint16; pass --bit-depth uint8/uint16 or --format exr")
     space = args.color_space or ("ACEScg" if args.bit_depth in ("half", "float") else "sRGB Encoded Rec.709 (sRGB)")
     board = load_board(args.board) if args.board else None
     opts = RectifyOptions(size=args.size, min_markers=args.min_markers, max_residual_px=args.max_residual,
                           fill=not args.no_fill, workers=args.workers, color_space=space,
                           bit_depth=args.bit_depth, ext=args.format)
-    bar = {}
-
-    def progress(done, total):
-        if "p" not in bar:
-            bar["p"] = Progress("rectify", total, enabled=not args.quiet)
-        bar["p"].update()
-
-    report = rectify_capture(args.raw, args.output, opts, board=board, log=say, progress=progress)
-    if "p" in bar:
-        bar["p"].finish()
+    # The rectified samples wait in a memory-mapped file beside the output (a capture's samples
+    # need not fit in memory), removed when the output is written.
+    with scratch_dir(args.output) as scratch:
+        result = rectify(args.raw, opts, board=board, scratch=scratch)
+        write_rectify(result, args.output)
+        report = result.report
+        del result                      # the scratch file's last mapping
     res = report["mean_corner_residual_px"]
-    say(f"rectify: {report['rectified']} of {report['frames']} frames rectified to {args.size}x{args.size}, "
-        f"{len(report['rejected'])} rejected, {report['interpolated']} samples interpolated; mean corner residual "
-        f"{res:.3f} px -> {args.output}")
+    log.info(f"rectify: {report['rectified']} of {report['frames']} frames rectified to {args.size}x{args.size}, "
+             f"{len(report['rejected'])} rejected, {report['interpolated']} samples interpolated; mean corner "
+             f"residual {res:.3f} px -> {args.output}")
     return 0

@@ -1,11 +1,18 @@
 """``usdbtf render``: CPU reference renderer (a mesh under point/distant lights, or the flat swatch)."""
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
-from . import log
+from ..argtypes import MAX_FRAME_SIDE, WORKERS, int_in
 
+log = logging.getLogger(__name__)
 ORDER = 80
+#: Arguments that name outputs (every other path argument is an input).
+OUTPUT_ARGS = ("output", "png")
+#: Bytes per frame pixel the renderer holds (RGBA float, depth, triangle ids, barycentrics,
+#: interpolated frames and directions, shadow-map lookups).
+BYTES_PER_PIXEL = 160
 
 
 def add_scene_arguments(p, *, mesh_help: str) -> None:
@@ -19,15 +26,15 @@ def add_scene_arguments(p, *, mesh_help: str) -> None:
                         "(repeatable; I = irradiance relative to the capture light, point lights I/d^2)")
     p.add_argument("--camera", metavar="SPEC", help='"eye=X,Y,Z target=X,Y,Z [up=X,Y,Z] [fov=DEG]" '
                    "(default: frame the mesh)")
-    p.add_argument("--size", type=int, nargs=2, default=(512, 512), metavar=("W", "H"),
-                   help="frame size (default 512 512)")
+    p.add_argument("--size", type=int_in(1, MAX_FRAME_SIDE), nargs=2, default=(512, 512), metavar=("W", "H"),
+                   help=f"frame size, 1..{MAX_FRAME_SIDE} each (default 512 512)")
 
 
 def add_parser(sub) -> None:
     p = sub.add_parser("render", help="CPU reference render of a BTF on a mesh, or the flat measured swatch")
     p.add_argument("asset", type=Path, help="compressed BTF folder (or packaged USD asset)")
     add_scene_arguments(p, mesh_help="`usdbtf unwrap` layer or a mesh with texture coordinates")
-    p.add_argument("--k", type=int, help="use only the first k basis vectors")
+    p.add_argument("--k", type=int_in(1), help="use only the first k basis vectors")
     p.add_argument("--no-shadows", action="store_true", help="no cast shadows")
     p.add_argument("--filter", choices=["mip", "bilinear"], default="mip", help="coefficient filtering (default mip)")
     p.add_argument("--wrap", choices=["repeat", "clamp"], help="texture wrap (default: repeat for a tileable quilt)")
@@ -35,68 +42,122 @@ def add_parser(sub) -> None:
     p.add_argument("--no-png", action="store_true", help="write only the EXR")
     p.add_argument("--display", help="OCIO display for the PNG (default: the config's default)")
     p.add_argument("--display-view", help="OCIO view for the PNG (default: Un-tone-mapped)")
-    p.add_argument("--threads", type=int, default=2, help="shading threads (default 2)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    p.add_argument("--threads", type=WORKERS, default=2, help="shading threads (default 2)")
     p.set_defaults(func=run)
 
 
+def render_outputs(args):
+    """The EXR and (unless --no-png) the PNG a render or preview writes."""
+    from ..outputs import RENDER
+    png = None if args.no_png else (getattr(args, "png", None) or args.output.with_suffix(".png"))
+    return [(args.output, RENDER)] + ([(png, RENDER)] if png is not None else [])
+
+
+outputs = render_outputs
+
+
 def _angles(text: str | None, what: str):
-    from ..errors import BTFError
+    import math
+
+    from ..errors import UsageError
 
     try:
         theta, phi = (float(x) for x in (text or "").split(","))
     except ValueError:
-        raise BTFError(f"--{what} must be THETA,PHI in degrees, got {text!r}") from None
-    if not (0 <= theta <= 90 and abs(phi) < 1e6):
-        raise BTFError(f"--{what}: theta must be in [0, 90] degrees, got {theta}")
+        raise UsageError(f"--{what} must be THETA,PHI in degrees, got {text!r}") from None
+    if not (math.isfinite(theta) and math.isfinite(phi) and 0 <= theta <= 90 and abs(phi) <= 360):
+        raise UsageError(f"--{what}: theta must be in [0, 90] and phi in [-360, 360] degrees, got {text}")
     return theta, phi
+
+
+def open_asset(asset: Path):
+    """The compressed BTF of ASSET: a ``btf-compressed/1`` folder (an original or a quilt) or a
+    packaged USD asset (.usda/.usdc/.usd/.usdz, read back through :func:`usdbtf.io.open_compressed`)."""
+    from ..compress.format import METADATA
+    from ..errors import BTFError
+    from ..io import open_compressed
+    from ..usdstage import usd_exists
+
+    # A USD asset is found through the asset resolver (a search-path-relative name works).
+    if (asset.is_dir() and (asset / METADATA).is_file()) or usd_exists(asset):
+        return open_compressed(asset)
+    raise BTFError(f"{asset}: not a compressed BTF folder (no {METADATA}) or a USD asset")
+
+
+def scene_mesh(asset: Path, mesh: Path | None):
+    """The mesh to render: ``--mesh`` (an unwrap layer, whose stored frames are used, or any mesh
+    file with texture coordinates), else a USD asset's own Mesh; None for a folder without --mesh."""
+    from ..mesh import load_mesh
+    from ..usdstage import USD_SUFFIXES
+
+    if mesh is None and asset.suffix.lower() not in USD_SUFFIXES:
+        return None
+    return load_mesh(mesh if mesh is not None else asset, need_uv=True)
+
+
+def check_frame_args(args) -> None:
+    """Checks shared with ``usdbtf preview``: the output name and the frame's memory."""
+    from ..errors import UsageError
+    from ..resources import require_memory
+
+    if args.output.suffix.lower() != ".exr":
+        raise UsageError(f"{args.output}: the render is written as OpenEXR; name it *.exr")
+    W, H = args.size
+    require_memory(float(W) * H * BYTES_PER_PIXEL, f"a {W}x{H} frame", error=UsageError)
+
+
+def parsed(parse, text):
+    """A --light/--camera value parsed, its errors as usage errors (exit status 2)."""
+    from ..errors import BTFError, UsageError
+
+    try:
+        return parse(text)
+    except UsageError:
+        raise
+    except BTFError as exc:
+        raise UsageError(str(exc)) from None
 
 
 def run(args) -> int:
     import time
 
-    from ..errors import BTFError
-    from ..render import RenderOptions, Renderer, auto_camera, parse_camera, parse_light, write_render
-    from ..render.assets import resolve_asset
+    from ..camera import auto_camera, parse_camera
+    from ..errors import UsageError
+    from ..render import RenderOptions, parse_light, render, render_swatch, write_render
 
-    say = log(args.quiet)
     t0 = time.perf_counter()
     W, H = args.size
-    if not (1 <= W <= 16384 and 1 <= H <= 16384):
-        raise BTFError(f"--size must be in 1..16384, got {W} {H}")
-    if args.threads < 1:
-        raise BTFError("--threads must be at least 1")
-    if args.output.suffix.lower() != ".exr":
-        raise BTFError(f"{args.output}: the render is written as OpenEXR; name it *.exr")
+    check_frame_args(args)
     opts = RenderOptions(k=args.k, shadows=not args.no_shadows, filter=args.filter, wrap=args.wrap,
                          threads=args.threads)
     # Every argument is checked before any file is read.
     if args.swatch:
         if args.mesh is not None or args.camera is not None:
-            raise BTFError("--swatch renders the flat patch: it takes no --mesh or --camera")
+            raise UsageError("--swatch renders the flat patch: it takes no --mesh or --camera")
         if len(args.light) != 1:
-            raise BTFError("--swatch needs exactly one --light THETA,PHI")
+            raise UsageError("--swatch needs exactly one --light THETA,PHI")
         view, light = _angles(args.view, "view"), _angles(args.light[0], "light")
-        cbtf, _ = resolve_asset(args.asset)
-        image = Renderer(cbtf, opts).swatch(view, light)
+        cbtf = open_asset(args.asset)
+        result = render_swatch(cbtf, view, light, opts)
         what = f"swatch {cbtf.width}x{cbtf.height}, view {view}, light {light}"
     else:
         if args.view is not None:
-            raise BTFError("--view is for --swatch; place the camera with --camera")
-        lights = [parse_light(spec) for spec in args.light]
+            raise UsageError("--view is for --swatch; place the camera with --camera")
+        lights = [parsed(parse_light, spec) for spec in args.light]
         if not lights:
-            raise BTFError("give at least one --light point:X,Y,Z[:I] or dir:X,Y,Z[:I]")
-        camera = parse_camera(args.camera, W, H) if args.camera else None
-        cbtf, mesh = resolve_asset(args.asset, args.mesh)
+            raise UsageError("give at least one --light point:X,Y,Z[:I] or dir:X,Y,Z[:I]")
+        camera = parsed(lambda text: parse_camera(text, W, H), args.camera) if args.camera else None
+        cbtf = open_asset(args.asset)
+        mesh = scene_mesh(args.asset, args.mesh)
         if mesh is None:
-            raise BTFError("give --mesh (an unwrap layer or a mesh with texture coordinates), or --swatch")
-        camera = camera or auto_camera(mesh.corners, W, H)
-        renderer = Renderer(cbtf, opts)
-        image = renderer.render(mesh, camera, lights)
-        what = f"{W}x{H} frame, {len(mesh.corners)} triangles, {len(lights)} light(s)"
+            raise UsageError("give --mesh (an unwrap layer or a mesh with texture coordinates), or --swatch")
+        for note in mesh.notes:
+            log.info(f"{mesh.source}: {note}")
+        camera = camera or auto_camera(mesh.corner(), W, H)
+        result = render(cbtf, mesh, camera, lights, opts)
+        what = f"{W}x{H} frame, {len(mesh.triangles)} triangles, {len(lights)} light(s)"
     png = None if args.no_png else (args.png or args.output.with_suffix(".png"))
-    info = write_render(args.output, image, cbtf.working_space, png_path=png, display=args.display,
-                        view=args.display_view, config=cbtf.ocio_config)
-    say(f"rendered {what} in {time.perf_counter() - t0:.2f} s -> {info['exr']}"
+    info = write_render(result, args.output, png_path=png, display=args.display, view=args.display_view)
+    log.info(f"rendered {what} in {time.perf_counter() - t0:.2f} s -> {info['exr']}"
         + (f" and {info['png']} ({info['display']} / {info['view']})" if info["png"] else ""))
     return 0

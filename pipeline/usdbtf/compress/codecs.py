@@ -16,15 +16,17 @@ Codecs
 """
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import BTFError
-from ..imageio import read_image, write_image
+from ..imageio import encode_image, memory_file, read_image
 
-__all__ = ["Codec", "CODECS", "get_codec", "Stored", "quantize_uniform", "quantize_minmax", "quantize_half"]
+__all__ = ["Codec", "CODECS", "get_codec", "Stored", "quantize_uniform", "quantize_minmax", "quantize_half",
+           "memory_file"]
 
 
 @dataclass(frozen=True)
@@ -99,16 +101,34 @@ class Codec:
     basis_attributes: dict
     lossless: bool
 
-    def write(self, path: Path, stored: Stored, color_space: str, *, basis: bool = False) -> int:
-        """Write ``stored.pixels``; returns bytes on disk."""
+    def encode(self, stored: Stored, color_space: str, *, basis: bool = False) -> bytes:
+        """The file's bytes for ``stored.pixels``, encoded in memory (no file is created).
+
+        Byte for byte what :meth:`write` puts on disk: the same OpenImageIO writer, given
+        an anonymous in-memory file with the format named explicitly.
+        """
         attrs = self.basis_attributes if basis else self.attributes
-        size = write_image(path, stored.pixels, color_space=color_space, attributes=attrs)
-        if self.name == "jxl" and size < _JXL_MIN_READABLE:
+        ext = self.basis_ext if basis else self.ext
+        data = encode_image(stored.pixels, ext, color_space=color_space, attributes=attrs)
+        if self.name == "jxl" and len(data) < _JXL_MIN_READABLE:
             # OpenImageIO's JPEG XL reader needs 128 bytes to recognise a file; a constant
             # texture compresses below that.  A description box (useful anyway) pads it.
-            size = write_image(path, stored.pixels, color_space=color_space,
-                               attributes=dict(attrs, ImageDescription=_DESCRIPTION))
-        return size
+            data = encode_image(stored.pixels, ext, color_space=color_space,
+                                attributes=dict(attrs, ImageDescription=_DESCRIPTION))
+        return data
+
+    def write(self, path: Path, stored: Stored, color_space: str, *, basis: bool = False) -> int:
+        """Write ``stored.pixels`` to ``path`` (see :meth:`encode`); returns bytes on disk."""
+        data = self.encode(stored, color_space, basis=basis)
+        Path(path).write_bytes(data)
+        return len(data)
+
+    @staticmethod
+    def decode(data: bytes, channels: int | None = None) -> np.ndarray:
+        """Stored integers/halves (H, W, C) back from a file's bytes, as :meth:`read` gives them."""
+        with memory_file() as (fd, path):
+            os.write(fd, data)
+            return Codec.read(path, channels)
 
     def fastest(self) -> "Codec":
         """The same format at its quickest lossless setting (JPEG XL effort 1: ~12x faster
@@ -148,3 +168,4 @@ def get_codec(name: str) -> Codec:
         return CODECS[name]
     except KeyError:
         raise BTFError(f"unknown codec {name!r}; choose from {', '.join(CODECS)}") from None
+

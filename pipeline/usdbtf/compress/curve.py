@@ -24,14 +24,25 @@ def curve_ks(k: int, count: int = 48) -> np.ndarray:
     return np.unique(np.r_[head, tail, k]).astype(int)
 
 
-def error_curve(cbtf, data, seed: int = 0, *, texels_per_block: int = 16384) -> dict:
-    """Percent error (paper's metric, working space) vs k at :func:`curve_ks` points up to cbtf.k.
+def error_curve(cbtf, data, *, texels_per_block: int = 16384) -> dict:
+    """Percent error vs k, the paper's Fig. 3, of the stored representation.
 
     Measured over all texels of ``curve_samples`` (the paper plots one view/light pair;
-    a spread of samples is more representative).  The residual is updated from one curve
-    point to the next by the basis columns in between, so the whole curve costs one
-    k-column GEMM plus two sums per point.  Returns {"k": [...], "percent": [...],
-    "rmse": [...], "samples": [...]}.
+    a spread of samples is more representative), reconstructed by Eq. (2) from the first k
+    components at the :func:`curve_ks` points up to cbtf.k.  The residual is updated from
+    one curve point to the next by the basis columns in between, so the whole curve costs
+    one k-column GEMM plus two sums per point.
+
+    Parameters
+    ----------
+    cbtf : the stored representation.
+    data : the source (``working_samples(rows)`` -> (r, P, 3) working-space truth).
+    texels_per_block : texels decoded from the coefficient textures at a time.
+
+    Returns
+    -------
+    dict : "k" (list of int), "percent" (the paper's metric, working space), "rmse" (linear
+    units), "samples" (the sample indices measured).
     """
     rows = curve_samples(cbtf.n_samples)
     truth = data.working_samples(rows)                                   # (r, P, 3)

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import colour
-from ..errors import BTFError
+from ..errors import UsageError
 from ..manifest import encode_for_file, write_manifest
 from ..model import BTF
 from .format import CompressedBTF, reconstruct, working_coefficients
@@ -24,14 +24,16 @@ def parse_samples(spec: str | None, n: int) -> np.ndarray:
             if "-" in part:
                 a, b = part.split("-", 1)
                 lo, hi = int(a) if a else 0, int(b) if b else n - 1
-                out.extend(range(lo, hi + 1))
             else:
-                out.append(int(part))
+                lo = hi = int(part)
         except ValueError:
-            raise BTFError(f"--samples: cannot parse {part!r} (use e.g. 0-99,200)") from None
+            raise UsageError(f"--samples: cannot parse {part!r} (use e.g. 0-99,200)") from None
+        if not (0 <= lo <= hi < n):
+            raise UsageError(f"--samples: {part!r}: indices must lie in 0..{n - 1}")
+        out.extend(range(lo, hi + 1))
     idx = np.unique(np.asarray(out, int))
-    if len(idx) == 0 or idx[0] < 0 or idx[-1] >= n:
-        raise BTFError(f"--samples: indices must lie in 0..{n - 1}")
+    if len(idx) == 0:
+        raise UsageError(f"--samples: indices must lie in 0..{n - 1}")
     return idx
 
 

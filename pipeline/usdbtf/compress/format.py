@@ -26,7 +26,6 @@ channels to working-space RGB: identity for the paper solver.
 """
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -34,18 +33,51 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__, jsontext
-from ..atomic import atomic_dir
 from ..errors import BTFError
 from ..sampling import Sampling
 from .codecs import Codec, Stored, get_codec
 
-__all__ = ["FORMAT", "METADATA", "CompressedBTF", "write_compressed", "write_textures", "write_metadata",
-           "metadata_document", "read_compressed", "reconstruct", "working_coefficients", "working_coefficient_texels",
-           "folder_bytes", "basis_layout",
-           "basis_to_image", "image_to_basis", "cross_layout", "truncate", "truncate_written", "write_basis"]
+__all__ = ["FORMAT", "METADATA", "CompressedBTF", "EncodedTextures", "write_textures", "write_metadata",
+           "metadata_document", "metadata_text", "read_compressed", "reconstruct", "working_coefficients",
+           "working_coefficient_texels", "folder_bytes", "basis_layout", "encode_basis", "decode_basis",
+           "encoded_textures", "basis_to_image", "image_to_basis", "cross_layout", "truncate", "write_basis"]
 
 FORMAT = "btf-compressed/1"
 METADATA = "btf-compressed.json"
+
+
+@dataclass(frozen=True)
+class EncodedTextures:
+    """The codec bytes of a compressed BTF's textures, exactly as its folder holds them.
+
+    Made in memory (:func:`encoded_textures`, or the encoding step :func:`.encode.encode`),
+    so a writer copies bytes instead of encoding again.
+
+    Attributes
+    ----------
+    codec : name of the codec that made them.
+    basis : bytes of the basis image.
+    coefficients : tuple of k bytes, coefficient texture i at i.
+    pixels : the stored arrays they encode, basis first: :meth:`describes` checks them by
+        identity, so bytes are never written for a representation they no longer describe.
+    """
+
+    codec: str
+    basis: bytes
+    coefficients: tuple
+    pixels: tuple
+
+    def sizes(self) -> dict:
+        """Byte counts as the metadata records them: basis, coefficients, payload (their sum),
+        per_coefficient."""
+        per = [len(c) for c in self.coefficients]
+        return {"basis": len(self.basis), "coefficients": int(sum(per)), "payload": len(self.basis) + int(sum(per)),
+                "per_coefficient": per}
+
+    def describes(self, cbtf: "CompressedBTF") -> bool:
+        """True when ``cbtf`` holds exactly the arrays these bytes were encoded from."""
+        return (self.codec == cbtf.codec and len(self.coefficients) == cbtf.k and self.pixels[0] is cbtf.basis.pixels
+                and all(a is st.pixels for a, st in zip(self.pixels[1:], cbtf.coefficients)))
 
 
 @dataclass
@@ -62,6 +94,10 @@ class CompressedBTF:
     working_space : OCIO name of the space reconstructions are in.
     source : dict, the input's "color_space", "bit_depth", "path" (decompress writes this encoding).
     info : dict, everything else recorded in the metadata (solver, errors, bytes, provenance...).
+    encoded : EncodedTextures of these textures when they were encoded in memory (``compress``),
+        else None (a writer then encodes them).
+    curve : the error curve (:func:`.curve.error_curve`) ``compress`` measured, written beside
+        the textures; None when not measured (e.g. a folder that was read).
     """
 
     sampling: Sampling
@@ -76,6 +112,8 @@ class CompressedBTF:
     interpolated: np.ndarray | None = None
     ocio_config: str | None = None
     info: dict = field(default_factory=dict)
+    encoded: EncodedTextures | None = None
+    curve: dict | None = None
 
     @property
     def k(self) -> int:
@@ -208,62 +246,58 @@ def basis_file(codec: Codec) -> str:
     return f"basis.{codec.basis_ext}"
 
 
-def write_textures(cbtf: CompressedBTF, folder: Path) -> dict:
-    """Write basis and coefficient textures into an existing folder; returns byte counts.
+def encode_basis(cbtf: CompressedBTF) -> bytes:
+    """The basis image's file bytes (layout per :func:`basis_layout`), encoded in memory."""
+    layout = basis_layout(cbtf.sampling, cbtf.k, cbtf.codec)
+    image = Stored(basis_to_image(cbtf.basis.pixels, layout), cbtf.basis.scale, cbtf.basis.bias)
+    return get_codec(cbtf.codec).encode(image, "data", basis=True)
 
-    Lossy codecs are read back so ``cbtf`` then holds exactly what any reader sees.
-    Encoding is serial on purpose: forked encoders deadlock in OpenEXR's global thread
-    pool once the parent process has used it.
-    """
+
+def decode_basis(data: bytes, cbtf: CompressedBTF) -> np.ndarray:
+    """(S, k, 1) stored basis from the basis image's bytes (inverse of :func:`encode_basis`)."""
+    return image_to_basis(Codec.decode(data, channels=1), basis_layout(cbtf.sampling, cbtf.k, cbtf.codec), cbtf.k)
+
+
+def encoded_textures(cbtf: CompressedBTF) -> EncodedTextures:
+    """The bytes of every texture of ``cbtf``: ``cbtf.encoded`` when it still describes
+    ``cbtf``, else encoded now (serially on purpose: forked encoders deadlock in OpenEXR's
+    global thread pool once the parent process has used it)."""
+    if cbtf.encoded is not None and cbtf.encoded.describes(cbtf):
+        return cbtf.encoded
+    codec = get_codec(cbtf.codec)
+    coeff = tuple(codec.encode(st, "data") for st in cbtf.coefficients)
+    return EncodedTextures(cbtf.codec, encode_basis(cbtf), coeff,
+                           (cbtf.basis.pixels, *(st.pixels for st in cbtf.coefficients)))
+
+
+def write_textures(cbtf: CompressedBTF, folder: Path) -> dict:
+    """Write basis and coefficient textures into an existing folder; returns byte counts
+    (:meth:`EncodedTextures.sizes`).  ``cbtf`` is not changed."""
+    enc = encoded_textures(cbtf)
     codec = get_codec(cbtf.codec)
     (folder / "coeff").mkdir(exist_ok=True)
-    names = [coefficient_file(codec, i) for i in range(cbtf.k)]
-    coeff_bytes = [codec.write(folder / n, st, "data") for n, st in zip(names, cbtf.coefficients)]
-    if not codec.lossless:
-        for i, name in enumerate(names):
-            stored = cbtf.coefficients[i]
-            cbtf.coefficients[i] = Stored(Codec.read(folder / name), stored.scale, stored.bias)
-    return _record_sizes(cbtf, write_basis(cbtf, folder), coeff_bytes)
-
-
-def _record_sizes(cbtf: CompressedBTF, basis_bytes: int, coeff_bytes: list) -> dict:
-    sizes = {"basis": basis_bytes, "coefficients": int(sum(coeff_bytes)),
-             "payload": basis_bytes + int(sum(coeff_bytes)), "per_coefficient": list(coeff_bytes)}
-    cbtf.info["bytes"] = sizes
-    return sizes
+    for i, data in enumerate(enc.coefficients):
+        (folder / coefficient_file(codec, i)).write_bytes(data)
+    (folder / basis_file(codec)).write_bytes(enc.basis)
+    return enc.sizes()
 
 
 def write_basis(cbtf: CompressedBTF, folder: Path) -> int:
     """Write the basis image (layout per :func:`basis_layout`); returns its bytes."""
-    codec = get_codec(cbtf.codec)
-    basis_name = basis_file(codec)
-    layout = basis_layout(cbtf.sampling, cbtf.k, cbtf.codec)
-    image = Stored(basis_to_image(cbtf.basis.pixels, layout), cbtf.basis.scale, cbtf.basis.bias)
-    size = codec.write(folder / basis_name, image, "data", basis=True)
-    if not codec.lossless:
-        back = image_to_basis(Codec.read(folder / basis_name, channels=1), layout, cbtf.k)
-        cbtf.basis = Stored(back, cbtf.basis.scale, cbtf.basis.bias)
-    return size
+    enc = cbtf.encoded
+    data = enc.basis if enc is not None and enc.describes(cbtf) else encode_basis(cbtf)
+    (folder / basis_file(get_codec(cbtf.codec))).write_bytes(data)
+    return len(data)
 
 
 def truncate(cbtf: CompressedBTF, k: int) -> CompressedBTF:
-    """The first ``k`` components (coefficients are energy-ordered, so this is a level of detail)."""
+    """The first ``k`` components (coefficients are energy-ordered, so this is a level of detail).
+    Not encoded: :func:`.encode.truncate_encoded` keeps the bytes of an encoded one."""
     if not 1 <= k <= cbtf.k:
         raise BTFError(f"cannot keep {k} of {cbtf.k} basis vectors")
     b = cbtf.basis
     basis = Stored(np.ascontiguousarray(b.pixels[:, :k]), b.scale[:k], b.bias[:k])
-    return replace(cbtf, basis=basis, coefficients=list(cbtf.coefficients[:k]), info=dict(cbtf.info))
-
-
-def truncate_written(cbtf: CompressedBTF, k: int, folder: Path) -> tuple[CompressedBTF, dict]:
-    """Truncate a representation already written into ``folder``: drop the trailing
-    coefficient files and rewrite only the basis image."""
-    sizes = cbtf.info["bytes"]
-    codec = get_codec(cbtf.codec)
-    for i in range(k, cbtf.k):
-        (folder / coefficient_file(codec, i)).unlink()
-    out = truncate(cbtf, k)
-    return out, _record_sizes(out, write_basis(out, folder), sizes["per_coefficient"][:k])
+    return replace(cbtf, basis=basis, coefficients=list(cbtf.coefficients[:k]), info=dict(cbtf.info), encoded=None)
 
 
 def metadata_document(cbtf: CompressedBTF) -> dict:
@@ -295,89 +329,70 @@ def metadata_document(cbtf: CompressedBTF) -> dict:
 _SIZE_MARK = -987654321  # unique placeholder for the metadata file's own size
 
 
-def write_metadata(cbtf: CompressedBTF, folder: Path) -> int:
-    """Write the metadata file; its own size is recorded in it (``bytes.metadata``).
+def metadata_text(cbtf: CompressedBTF, sizes: dict | None = None) -> str:
+    """The metadata file's text; its own size is recorded in it (``bytes.metadata``).
 
-    Encoded once with a placeholder that is then replaced by the final size (the JSON
-    for 10^4 sample directions is ~0.7 MB: encoding it twice would cost ~0.15 s).
+    ``sizes`` (from :func:`write_textures`) replaces the recorded ``bytes``; by default
+    ``cbtf.info["bytes"]`` is kept.  Encoded once with a placeholder that is then replaced by
+    the final size (the JSON for 10^4 sample directions is ~0.7 MB: encoding it twice would
+    cost ~0.15 s).  ``cbtf`` is not changed.
     """
-    sizes = cbtf.info.setdefault("bytes", {})
-    sizes["metadata"] = _SIZE_MARK
-    text = jsontext.dumps(metadata_document(cbtf)) + "\n"
+    doc = metadata_document(cbtf)
+    recorded = (doc.get("bytes") or {}) if sizes is None else sizes
+    doc["bytes"] = dict(recorded, metadata=_SIZE_MARK)
+    text = jsontext.dumps(doc) + "\n"
     base = len(text.encode()) - len(str(_SIZE_MARK))
     size = base + 1
     while len(str(size)) + base != size:  # the number's own digits count too
         size = base + len(str(size))
-    text = text.replace(str(_SIZE_MARK), str(size), 1)
-    sizes["metadata"] = size
+    return text.replace(str(_SIZE_MARK), str(size), 1)
+
+
+def write_metadata(cbtf: CompressedBTF, folder: Path, sizes: dict | None = None) -> int:
+    """Write the metadata file (:func:`metadata_text`); returns its bytes."""
+    text = metadata_text(cbtf, sizes)
     (folder / METADATA).write_text(text)
-    return size
+    return len(text.encode())
 
 
-def write_compressed(cbtf: CompressedBTF, folder) -> dict:
-    """Write the whole folder atomically; returns the byte counts."""
-    with atomic_dir(folder) as tmp:
-        sizes = write_textures(cbtf, tmp)
-        write_metadata(cbtf, tmp)
-    return sizes
-
-
-def _require(doc, key, path):
-    if key not in doc:
-        raise BTFError(f"{path}: missing {key!r}")
-    return doc[key]
+def _read_texture(entry, shape: tuple[int, int], channels: int | None = None) -> np.ndarray:
+    """A stored texture's pixels, checked against the expected (height, width) and for
+    non-finite half floats."""
+    px = Codec.read(entry.file, channels=channels)
+    if px.shape[:2] != shape:
+        raise BTFError(f"{entry.file}: texture is {px.shape[1]}x{px.shape[0]}, expected {shape[1]}x{shape[0]}")
+    if px.dtype.kind == "f" and not np.isfinite(px).all():
+        raise BTFError(f"{entry.file}: stored values include NaN or Inf")
+    return px
 
 
 def read_compressed(folder) -> CompressedBTF:
-    """Open a compressed BTF folder (reads every texture; they are small)."""
+    """Open a compressed BTF folder (reads every texture; they are small).
+
+    The metadata is checked first (:func:`usdbtf.compress.validate.check_metadata`), so a
+    damaged folder is one error naming the file and the key, before anything is allocated.
+    """
+    from .validate import check_metadata
+
     folder = Path(folder)
     path = folder / METADATA
-    if not path.is_file():
+    if not os.path.lexists(path):
         raise BTFError(f"{path}: not a compressed BTF (metadata file missing)")
-    try:
-        doc = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise BTFError(f"{path}: unreadable metadata ({exc})") from None
-    if doc.get("format") != FORMAT:
-        raise BTFError(f"{path}: format {doc.get('format')!r} is not {FORMAT!r}")
-    codec = get_codec(_require(doc, "codec", path))
-    samples = _require(doc, "samples", path)
-    sampling = Sampling(np.asarray(samples["view"]), np.asarray(samples["light"]))
-    b = _require(doc, "basis", path)
-    image = Codec.read(folder / b["file"], channels=1)
-    k = int(_require(doc, "k", path))
-    layout = b.get("layout", {"kind": "columns"})
-    if layout.get("kind") == "tiles":
-        V, L, (rows, cols) = layout["views"], layout["lights"], layout["grid"]
-        want = (rows * V, cols * L)
-        ok = V * L == len(sampling) and rows * cols >= k
-    else:
-        want, ok = (len(sampling), k), layout.get("kind") == "columns"
-    if not ok or image.shape[:2] != want:
-        raise BTFError(f"{folder / b['file']}: basis image is {image.shape[1]}x{image.shape[0]}, expected "
-                       f"{want[1]}x{want[0]} for k = {k}, {len(sampling)} samples, layout {layout}")
-    basis_px = image_to_basis(image, layout, k)
-    basis = Stored(basis_px, np.asarray(b["scale"]), np.asarray(b["bias"]))
-    coeffs = []
-    W, H = int(_require(doc, "width", path)), int(_require(doc, "height", path))
-    for entry in _require(doc, "coefficients", path):
-        px = Codec.read(folder / entry["file"])
-        if px.shape[:2] != (H, W):
-            raise BTFError(f"{folder / entry['file']}: texture is {px.shape[1]}x{px.shape[0]}, expected {W}x{H}")
-        coeffs.append(Stored(px, np.asarray(entry["scale"]), np.asarray(entry["bias"])))
-    if len(coeffs) != k:
-        raise BTFError(f"{path}: lists {len(coeffs)} coefficient textures for k = {k}")
-    interp = np.zeros(len(sampling), bool)
-    interp[np.asarray(samples.get("interpolated", []), int)] = True
-    known = {"format", "usdbtf_version", "width", "height", "k", "n_samples", "codec", "working_space",
-             "ocio_config", "source", "color_matrix", "basis", "coefficients", "samples"}
-    info = {key: v for key, v in doc.items() if key not in known}
-    info["usdbtf_version"] = doc.get("usdbtf_version")
-    matrix = np.asarray(_require(doc, "color_matrix", path), np.float64)
-    if matrix.shape != (3, 3) or not np.isfinite(matrix).all():
-        raise BTFError(f"{path}: color_matrix must be 3x3 finite numbers")
-    return CompressedBTF(sampling, W, H, basis, coeffs, matrix, codec.name, _require(doc, "working_space", path),
-                         doc.get("source", {}), interp, doc.get("ocio_config"), info)
+    doc = jsontext.load(path, "compressed-BTF metadata file")
+    meta = check_metadata(doc, folder, path)
+    k, layout, S = meta.k, meta.layout, len(meta.sampling)
+    want = (layout["views"] * layout["grid"][0], layout["lights"] * layout["grid"][1]) \
+        if layout["kind"] == "tiles" else (S, k)
+    image = Codec.read(meta.basis.file, channels=1)
+    if image.shape[:2] != want:
+        raise BTFError(f"{meta.basis.file}: basis image is {image.shape[1]}x{image.shape[0]}, expected "
+                       f"{want[1]}x{want[0]} for k = {k}, {S} samples, layout {layout}")
+    if image.dtype.kind == "f" and not np.isfinite(image).all():
+        raise BTFError(f"{meta.basis.file}: stored values include NaN or Inf")
+    basis = Stored(image_to_basis(image, layout, k), meta.basis.scale, meta.basis.bias)
+    coeffs = [Stored(_read_texture(e, (meta.height, meta.width)), e.scale, e.bias) for e in meta.coefficients]
+    return CompressedBTF(meta.sampling, meta.width, meta.height, basis, coeffs, meta.color_matrix, meta.codec.name,
+                         meta.working_space, meta.source, meta.interpolated, meta.ocio_config, meta.info)
 
 
 def folder_bytes(folder) -> int:

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ErrorSums", "error_report"]
+__all__ = ["ErrorSums"]
 
 
 @dataclass
@@ -62,10 +62,3 @@ class ErrorSums:
         empty sum) is None, so reports stay strict JSON."""
         out = {"percent": self.percent, "rmse": self.rmse, "psnr_db": self.psnr()}
         return {k: (v if np.isfinite(v) else None) for k, v in out.items()}
-
-
-def error_report(linear: ErrorSums, encoded: ErrorSums | None = None) -> dict:
-    out = {"linear": linear.report()}
-    if encoded is not None:
-        out["encoded"] = encoded.report()
-    return out

@@ -47,7 +47,7 @@ class RDTable:
         """bytes (k+1, J) and sqerr (k+1, J) of keeping the first 0..k components.
 
         ``factor`` (and ``basis_factor``, default the same) scale the entropy estimates to
-        what the codec really writes (measured by :func:`..core` on a probe encode)."""
+        what the codec really writes (measured on a probe encode by :mod:`.ratecontrol`)."""
         basis_factor = factor if basis_factor is None else basis_factor
         per_bytes = factor * self.coeff_bytes + basis_factor * self.basis_bytes + FILE_OVERHEAD_BYTES
         per_err = self.coeff_sqerr + self.basis_sqerr[None, :]

@@ -5,7 +5,7 @@ Both sources answer the same three questions, so the solver does not care which 
 * ``columns(texels)``      -> (S, 3 n) float32, curve-decoded values of some texels (the fit,
                               the held-out evaluation set);
 * ``project(u, mix, ks)``  -> coefficients (k, P, 3) of every texel (+ ||X||^2), see
-                              :class:`TileProjector`;
+                              :class:`~.projection.TileProjector`;
 * ``working_samples(rows)``-> (r, P, 3) float32 working-space images (the error curve).
 
 Values are "curve-decoded": integer codes through the per-channel curve of the OCIO
@@ -19,9 +19,9 @@ twice (pass 1 keeps only the requested texel columns and sample rows; pass 2 acc
 the projection chunk by chunk).  ``choose_source`` picks by a memory budget.
 
 Both project through the same fixed tiles (:func:`tile_samples` samples x one
-:data:`~.load.DEFAULT_BLOCK`-texel block, summed in sample order), so the coefficients
--- and every file written from them -- are bit-identical whichever source, chunk size or
-memory budget was used.
+:data:`~.load.DEFAULT_BLOCK`-texel block, summed in sample order: the fixed reduction of
+:mod:`.projection`), so the coefficients -- and every file written from them -- are
+bit-identical whichever source, chunk size or memory budget was used.
 """
 from __future__ import annotations
 
@@ -29,13 +29,17 @@ import collections
 import multiprocessing as mp
 from concurrent.futures import ProcessPoolExecutor
 
-import cv2
 import numpy as np
 
 from .. import colour
 from ..errors import BTFError
 from ..model import BTF, FileBTF
+from .curve import curve_samples
+from .factored import FactoredSource, uses_factors
 from .load import BlockedData, _forkable, _init, default_workers, load_encoded, texel_blocks
+from .options import CompressOptions
+from .projection import TileProjector, project_block
+from .texels import Texels
 
 #: Bytes of stored values the streaming source holds per chunk (whole projection tiles);
 #: up to workers + 1 chunks are in flight.
@@ -45,7 +49,7 @@ CHUNK_BYTES = 64e6
 _MAX_TILE_SAMPLES = 128
 _TILE_ROW_BYTES = 64e6
 
-__all__ = ["InMemorySource", "StreamingSource", "TileProjector", "choose_source", "stored_bytes", "tile_samples"]
+__all__ = ["InMemorySource", "StreamingSource", "choose_source", "load_source", "stored_bytes", "tile_samples"]
 
 
 def _itemsize(btf: BTF) -> int:
@@ -66,77 +70,6 @@ def tile_samples(btf: BTF) -> int:
     while t > 8 and t * per_sample > _TILE_ROW_BYTES:
         t //= 2
     return t
-
-
-class TileProjector:
-    """Coefficients of every texel, accumulated tile by tile.
-
-    Y is the curve-decoded data with the 3x3 colour ``mix`` applied to each texel
-    (y = mix @ x: the decode's primaries matrix and the colour decorrelation in one), split
-    into colour planes j = 0, 1, 2.  Plane j is projected on the first ``ks[j]`` basis
-    vectors only, C_j = U[:, :k_j]^T Y_j: decorrelated chroma planes need far fewer vectors
-    than luminance, and the vectors they do not need are never computed (their coefficients
-    are zero).
-
-    A tile is ``tile`` consecutive samples x one texel block.  Every tile is one GEMM of a
-    fixed shape on contiguous operands, and each texel block sums its tiles in sample order
-    starting from zero: the float32 result does not depend on how a source chunks its reads.
-
-    u : (S, k) float32 basis; mix : (3, 3); ks : three ints <= k; curves : stored -> float32.
-    """
-
-    def __init__(self, u: np.ndarray, mix: np.ndarray, ks, curves, tile: int, *, energy: bool = False):
-        S = u.shape[0]
-        self.k = u.shape[1]
-        self.ks = [int(kj) for kj in ks]
-        self.mix = np.ascontiguousarray(mix, dtype=np.float32)
-        self.curves = curves
-        self.tile = tile
-        # Every plane on all k vectors: one GEMM per tile on the interleaved data, whose
-        # (k, 3 n) result is already the coefficients' layout.  Otherwise one per plane.
-        self.interleaved = len(set(self.ks)) == 1
-        widths = self.ks[:1] if self.interleaved else self.ks
-        # Per-tile basis panels (k_j, t), contiguous: the same GEMM operands in every source.
-        self.panels = [[np.ascontiguousarray(u[s0:s0 + tile, :kj].T) for s0 in range(0, S, tile)]
-                       for kj in widths]
-        self.energy = 0.0 if energy else None
-
-    def zeros(self, n: int) -> list[np.ndarray]:
-        """Accumulators of one texel block of n texels: (k, 3 n) interleaved, or (k_j, n)
-        float32 per plane."""
-        if self.interleaved:
-            return [np.zeros((self.ks[0], 3 * n), np.float32)]
-        return [np.zeros((kj, n), np.float32) for kj in self.ks]
-
-    def add(self, acc: list, s0: int, raw: np.ndarray) -> None:
-        """Add the tile of samples s0.. to a texel block's accumulators ``acc``.
-
-        raw : (t, 3 n) stored values of the block's texels (rows may be strided), t <= tile.
-        """
-        t, n = raw.shape[0], raw.shape[1] // 3
-        x = self.curves(raw)
-        tile = s0 // self.tile
-        if self.interleaved:
-            # Per texel y = mix @ x; OpenCV's SIMD transform is 4x faster than a K = 3 GEMM.
-            y = cv2.transform(x.reshape(t, n, 3), self.mix).reshape(t, 3 * n)
-            if self.ks[0]:
-                acc[0] += self.panels[0][tile] @ y
-        else:
-            y = np.matmul(self.mix, x.reshape(-1, 3).T)                  # (3, t n): planar
-            for j, kj in enumerate(self.ks):
-                if kj:
-                    acc[j] += self.panels[j][tile] @ y[j].reshape(t, n)
-        if self.energy is not None:
-            flat = y.reshape(1, -1)
-            self.energy += float(np.einsum("ij,ij->", flat, flat, dtype=np.float64))
-
-    def store(self, acc: list, coeff: np.ndarray, a: int, b: int) -> None:
-        """Write a block's accumulators into ``coeff`` (k, P, 3) at texels a..b."""
-        if self.interleaved:
-            coeff[:self.ks[0], a:b, :] = acc[0].reshape(self.ks[0], b - a, 3)
-            return
-        for j, kj in enumerate(self.ks):
-            coeff[:kj, a:b, j] = acc[j]
 
 
 class _Source:
@@ -188,16 +121,12 @@ class InMemorySource(_Source):
         return self.curves(raw)
 
     def project(self, u: np.ndarray, mix: np.ndarray, ks, *, energy: bool = False):
-        """Coefficients (k, P, 3) (see :class:`TileProjector`) and, if ``energy``, ||Y||^2
+        """Coefficients (k, P, 3) (see :class:`~.projection.TileProjector`) and, if ``energy``, ||Y||^2
         (the working-space energy when ``mix`` is the working matrix times an orthogonal one)."""
         proj = self._projector(u, mix, ks, energy)
         coeff = np.zeros((u.shape[1], self.stored.n_pixels, 3), np.float32)
         for a, b in texel_blocks(self.stored.n_pixels, self.stored.block):
-            raw = self.stored.span(a, b)
-            acc = proj.zeros(b - a)
-            for s0 in range(0, self.stored.n_samples, proj.tile):
-                proj.add(acc, s0, raw[s0:s0 + proj.tile])
-            proj.store(acc, coeff, a, b)
+            proj.store(project_block(proj, self.stored.span(a, b)), coeff, a, b)
         return coeff, proj.energy
 
     def working_samples(self, rows) -> np.ndarray:
@@ -313,3 +242,27 @@ def choose_source(btf: BTF, keep_texels: list, keep_rows, *, memory_budget: floa
     if stored_bytes(btf) <= memory_budget:
         return InMemorySource(btf, workers=workers)
     return StreamingSource(btf, keep_texels, keep_rows, workers=workers, chunk_bytes=chunk_bytes)
+
+
+def load_source(btf: BTF, texels: Texels, options: CompressOptions) -> _Source:
+    """The load step: where one compress reads its data from (:func:`choose_source`).
+
+    Parameters
+    ----------
+    btf : the BTF; its files are decoded (all at once, or streamed twice in chunks).
+    texels : the fitting and evaluation texels, whose columns a streaming source keeps on its
+        first pass (with the error curve's sample rows, :func:`.curve.curve_samples`).
+    options : ``memory_budget`` (bytes of stored values held in memory, else streamed),
+        ``chunk_bytes``, ``workers``.
+
+    Returns
+    -------
+    InMemorySource or StreamingSource : answers ``columns`` (S, 3 n), ``project`` and
+    ``working_samples`` (r, P, 3) the same way, bit for bit.  An input that exposes a
+    factorisation gets a :class:`~.factored.FactoredSource` instead (unless
+    ``options.expand_factors``): the same questions, answered from the factors.
+    """
+    if uses_factors(btf, options):
+        return FactoredSource(btf, options)
+    return choose_source(btf, [texels.fit, texels.evaluation], curve_samples(btf.n_samples),
+                         memory_budget=options.memory_budget, workers=options.workers, chunk_bytes=options.chunk_bytes)

@@ -2,8 +2,9 @@
 
 usd-core has no Hydra, so this is how the Storm/MaterialX shading code is run: the same
 ``btf_core.glsl`` inside :func:`usdbtf.gpu.shaders.harness_fragment`, fed the textures
-packaging writes, under the CPU renderer's scene model (:mod:`usdbtf.render.scene`:
-pinhole camera, white point and distant lights, irradiance relative to the capture light).
+packaging writes, under the CPU renderer's scene model (:class:`usdbtf.mesh.Mesh`,
+:class:`usdbtf.camera.Camera`, :mod:`usdbtf.render.scene` lights: white point and distant
+lights, irradiance relative to the capture light).
 
     >>> from usdbtf.gpu.headless import HeadlessRenderer
     >>> gl = HeadlessRenderer(gpu_layout(cbtf))            # or layout_from_asset("a.usda")
@@ -19,10 +20,11 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import BTFError
+from ..mesh import Mesh
 from . import shaders
 from .tables import MAX_PACKS, GpuLayout
 
-__all__ = ["HeadlessRenderer", "create_context", "egl_unavailable_reason", "psnr", "uv_sphere"]
+__all__ = ["HeadlessRenderer", "create_context", "psnr", "uv_sphere"]
 
 _MAX_CODE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}
 
@@ -37,15 +39,6 @@ def create_context():
         return moderngl.create_context(standalone=True, backend="egl")
     except Exception as exc:  # moderngl/glcontext raise plain Exceptions for a missing EGL
         raise BTFError(f"cannot create a headless OpenGL context through EGL: {' '.join(str(exc).split())}") from None
-
-
-def egl_unavailable_reason() -> str | None:
-    """Why no headless context can be made here, or None when one can."""
-    try:
-        create_context().release()
-    except BTFError as exc:
-        return str(exc)
-    return None
 
 
 def psnr(image: np.ndarray, reference: np.ndarray, mask: np.ndarray | None = None) -> float:
@@ -63,11 +56,9 @@ def psnr(image: np.ndarray, reference: np.ndarray, mask: np.ndarray | None = Non
     return 10.0 * np.log10(max(peak, 1e-30) ** 2 / mse)
 
 
-def uv_sphere(radius: float, columns: int = 48, rows: int = 24):
-    """A UV sphere (Y up, metres) as a :class:`usdbtf.render.scene.RenderMesh`: st =
-    (longitude, latitude), tangent = +s, bitangent = +t (the sample's image axes)."""
-    from ..render.assets import render_mesh_from_arrays
-
+def uv_sphere(radius: float, columns: int = 48, rows: int = 24) -> Mesh:
+    """A UV sphere (Y up, metres): st = (longitude, latitude), tangent = +s, bitangent = +t
+    (the sample's image axes)."""
     s, t = np.meshgrid(np.linspace(0, 1, columns + 1), np.linspace(0, 1, rows + 1))
     phi, theta = 2 * np.pi * s, np.pi * t
     normal = np.stack([np.sin(theta) * np.cos(phi), -np.cos(theta), -np.sin(theta) * np.sin(phi)], -1)
@@ -76,7 +67,8 @@ def uv_sphere(radius: float, columns: int = 48, rows: int = 24):
     faces = np.concatenate([np.stack([a, a + 1, a + columns + 2], 1), np.stack([a, a + columns + 2, a + columns + 1], 1)])
     flat = [x.reshape(-1, x.shape[-1]) for x in (normal * radius, np.stack([s, t], -1), normal, tangent,
                                                   np.cross(normal, tangent))]
-    return render_mesh_from_arrays(flat[0], faces, flat[1], *flat[2:])
+    return Mesh(flat[0], faces, uv=flat[1], normals=flat[2], tangents=flat[3], bitangents=flat[4],
+                name="uv_sphere", source="uv_sphere")
 
 
 def _normalised(pixels: np.ndarray) -> np.ndarray:
@@ -87,13 +79,13 @@ def _normalised(pixels: np.ndarray) -> np.ndarray:
 
 
 def _clip_space(camera, points: np.ndarray) -> np.ndarray:
-    """(n, 3) world points -> (n, 4) clip coordinates of ``camera`` (usdbtf.render.scene.Camera):
+    """(n, 3) world points -> (n, 4) clip coordinates of ``camera`` (usdbtf.camera.Camera):
     the same pinhole projection as the CPU renderer, with w = depth along the view axis."""
     cam = (points - camera.eye) @ camera.basis().T
     depth = cam[:, 2]
     near = max(float(depth[depth > 0].min()) * 0.5, 1e-6) if (depth > 0).any() else 1e-3
     far = max(float(depth.max()) * 2.0, near * 4.0)
-    focal = 0.5 * camera.height / np.tan(np.radians(camera.fov) / 2)
+    focal = camera.focal_px
     clip = np.empty((len(points), 4))
     clip[:, 0] = 2.0 * focal / camera.width * cam[:, 0]
     clip[:, 1] = 2.0 * focal / camera.height * cam[:, 1]
@@ -184,11 +176,14 @@ class HeadlessRenderer:
         out = self._draw(w, h, clip, np.zeros((n, 3)), *frame, st, [*view, 0.0], [(light, 0.0, intensity)], k)
         return out[:, :, :3]
 
-    def render(self, mesh, camera, lights, k: int | None = None) -> np.ndarray:
-        """(H, W, 4) float32 RGBA of ``mesh`` (usdbtf.render.scene.RenderMesh) seen by
-        ``camera`` under ``lights`` (scene.Light), alpha = coverage; no shadows."""
-        corners = mesh.corners.reshape(-1, 3)
-        attrs = [a.reshape(-1, a.shape[-1]) for a in (mesh.normals, mesh.tangents, mesh.bitangents, mesh.st)]
+    def render(self, mesh: Mesh, camera, lights, k: int | None = None) -> np.ndarray:
+        """(H, W, 4) float32 RGBA of ``mesh`` (with texture coordinates; frames its own or
+        computed, :meth:`~usdbtf.mesh.Mesh.corner_frames`) seen by ``camera``
+        (usdbtf.camera.Camera) under ``lights`` (render.scene.Light), alpha = coverage; no shadows."""
+        surface = mesh.corner_frames()
+        corners = surface.points.reshape(-1, 3)
+        attrs = [a.reshape(-1, a.shape[-1]) for a in (surface.normals, surface.tangents, surface.bitangents,
+                                                      surface.uv)]
         lights_gl = [(lt.vector, 1.0 if lt.kind == "point" else 0.0, lt.intensity) for lt in lights]
         return self._draw(camera.width, camera.height, _clip_space(camera, corners), corners, *attrs,
                           [*camera.eye, 1.0], lights_gl, k)

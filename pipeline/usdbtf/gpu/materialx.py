@@ -19,7 +19,7 @@ __all__ = ["materialx_dir", "load_document", "validate", "generate_glsl"]
 
 def materialx_dir() -> Path:
     """The plugin folder holding the usdbtf nodedefs and their genglsl implementation."""
-    from ..usd.plugin import plugin_dir
+    from ..plugin_folder import plugin_dir
 
     return plugin_dir() / "usdBtf" / "resources" / "materialx"
 

@@ -9,7 +9,7 @@ fixed "ghost" texels.  Block matching then sees what lies across the border on t
 surface, so the chart grows to continue its neighbours, and the ghosts stay in the chart's
 rim (the texels just outside its triangles that bilinear filtering reads), so at the border
 itself the texture is the neighbour's continued (measured: the squared difference across
-chart borders falls 2-3x, see tests/test_quilt_atlas.py).  (The tangent frames on the two
+chart borders falls 2-3x, see tests/test_unwrap.py).  (The tangent frames on the two
 sides still differ by the charts' relative rotation: no atlas can avoid that.)  Charts are
 visited breadth-first over the chart adjacency graph from the largest, so every chart but
 the first of each connected piece has a done neighbour.
@@ -19,23 +19,26 @@ mip filtering near chart edges never read unrelated data.
 """
 from __future__ import annotations
 
+import logging
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
 
 from ..compress.format import CompressedBTF
 from ..errors import BTFError
-from ..render.raster import pixel_barycentrics, rasterize
-from ..unwrap.layer import UnwrappedMesh
-from ..unwrap.meshes import weld
-from .core import Quilt, QuiltOptions, prepare_source, quilt_record
+from ..mesh import Mesh, weld
+from ..raster import pixel_barycentrics, rasterize, st_to_texels
+from ..unwrap import UnwrapResult, read_unwrap
+from .core import QuiltOptions, QuiltResult, prepare_source, quilt_record
 from .engine import Grid, grid_for, place_blocks
 from .seams import pair_error, seam_error_all_samples
 
 __all__ = ["quilt_atlas", "face_neighbours", "chart_border_error"]
 
 _RINGS = 2
+log = logging.getLogger(__name__)
 
 
 def face_neighbours(faces_welded: np.ndarray) -> np.ndarray:
@@ -146,26 +149,39 @@ def _chart_order(charts: np.ndarray, face_chart: np.ndarray, neighbours: np.ndar
     return order
 
 
-def quilt_atlas(cbtf: CompressedBTF, layer: UnwrappedMesh, charts: np.ndarray, opts: QuiltOptions | None = None,
-                *, ghosts: bool = True, log=None) -> Quilt:
-    """Quilt ``cbtf`` into the atlas of ``layer`` (chart map ``charts`` (H, W), -1 = gutter)."""
-    say = log or (lambda msg: None)
-    opts = (opts or QuiltOptions()).resolved(cbtf)
+def corner_texels(mesh: Mesh, width: int, height: int) -> np.ndarray:
+    """(F, 3, 2) triangle corners of an unwrapped ``mesh`` in the texels of its
+    ``width`` x ``height`` atlas (x right, y down)."""
+    return st_to_texels(mesh.corner(mesh.uv), width, height)
+
+
+def quilt_atlas(cbtf: CompressedBTF, atlas, opts: QuiltOptions | None = None) -> QuiltResult:
+    """Quilt ``cbtf`` into the atlas of ``atlas``: an :class:`~usdbtf.unwrap.UnwrapResult`
+    (:func:`usdbtf.unwrap.unwrap`: its mesh's per-corner st and charts, and the chart map) or
+    the path of an ``usdbtf unwrap`` layer (read by :func:`~usdbtf.unwrap.read_unwrap`, and
+    recorded).  ``opts.ghosts``: match chart borders against their quilted neighbours."""
+    layer_path = None
+    if not isinstance(atlas, UnwrapResult):
+        layer_path = Path(atlas)
+        atlas = read_unwrap(layer_path)
+    unwrapped, opts = atlas, (opts or QuiltOptions()).resolved(cbtf)
+    ghosts = opts.ghosts
     if opts.tileable:
         raise BTFError("--tileable does not apply to an atlas")
-    H, W = int(layer.atlas["height"]), int(layer.atlas["width"])
+    layer, charts = unwrapped.mesh, unwrapped.chart_map
+    H, W = unwrapped.atlas.height, unwrapped.atlas.width
     if charts.shape != (H, W):
         raise BTFError(f"chart map is {charts.shape[1]}x{charts.shape[0]}, the atlas {W}x{H}")
     t0 = time.perf_counter()
     source = prepare_source(cbtf, opts)
     rng = np.random.default_rng(opts.seed)
     welded_ids = weld(layer.points)
-    welded = welded_ids[layer.faces]
+    welded = welded_ids[layer.triangles]
     welded_points = np.zeros((int(welded_ids.max()) + 1, 3))
     welded_points[welded_ids] = layer.points
     neighbours = face_neighbours(welded)
-    corner_xy = layer.corner_texels()
-    face_chart = layer.face_chart
+    corner_xy = corner_texels(layer, W, H)
+    face_chart = layer.charts
     n_charts = int(face_chart.max()) + 1
     done = np.zeros(n_charts, bool)
     positions = np.full((H, W), -1, np.int32)
@@ -201,13 +217,15 @@ def quilt_atlas(cbtf: CompressedBTF, layer: UnwrappedMesh, charts: np.ndarray, o
     seconds = time.perf_counter() - t0
     seam = seam_error_all_samples(positions, source.image, cbtf.width, cbtf.n_samples, labels=charts)
     border = chart_border_error(positions, layer, neighbours, source.image, cbtf.width, cbtf.n_samples)
-    say(f"atlas {W}x{H}: {n_charts} charts, {blocks} blocks, {ghost_texels} ghost texels, "
+    log.info(f"atlas {W}x{H}: {n_charts} charts, {blocks} blocks, {ghost_texels} ghost texels, "
         f"seam error {seam:.4g} (inside charts), {border:.4g} (across chart borders)")
     record = quilt_record(cbtf, opts, W, H, blocks=blocks, seam=seam, seconds=seconds,
                           atlas={"charts": n_charts, "ghost_texels": int(ghost_texels), "ghosts": bool(ghosts),
                                  "chart_border_error": border, "coverage": float(valid.mean()),
-                                 "texels_per_metre": layer.atlas.get("texels_per_metre")})
-    return Quilt(positions, valid, opts, record)
+                                 "texels_per_metre": unwrapped.atlas.texels_per_metre or None})
+    if layer_path is not None:
+        record["atlas"]["layer"] = str(layer_path)
+    return QuiltResult(positions, valid, opts, record, cbtf)
 
 
 def _place_ghosts(canvas, c, origin, positions, face_chart, done, neighbours, welded, points, corner_xy) -> int:
@@ -245,19 +263,22 @@ def _fill_gutters(positions: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return positions.ravel()[owners[labels.ravel() - 1]].reshape(positions.shape).astype(np.int32)
 
 
-def chart_border_error(positions: np.ndarray, layer: UnwrappedMesh, neighbours: np.ndarray,
+def chart_border_error(positions: np.ndarray, layer: Mesh, neighbours: np.ndarray,
                        image_features: np.ndarray, source_width: int, n_samples: int) -> float:
     """Mean squared image difference across chart borders on the surface: along every mesh edge
     whose two faces lie in different charts, points one texel apart are looked up on both
-    sides (each face's own texture coordinates, nearest texel), all samples averaged."""
-    corner_xy = layer.corner_texels()
+    sides (each face's own texture coordinates, nearest texel), all samples averaged.
+
+    layer : the unwrapped mesh (per-corner st, charts) of the atlas ``positions`` (H, W) covers."""
+    H, W = positions.shape
+    corner_xy = corner_texels(layer, W, H)
     f, i = np.nonzero(neighbours >= 0)
     g = neighbours[f, i]
-    cross = (layer.face_chart[f] != layer.face_chart[g]) & (f < g)
+    cross = (layer.charts[f] != layer.charts[g]) & (f < g)
     f, i, g = f[cross], i[cross], g[cross]
     if not len(f):
         return 0.0
-    welded = weld(layer.points)[layer.faces]
+    welded = weld(layer.points)[layer.triangles]
     a_f, b_f = corner_xy[f, i], corner_xy[f, (i + 1) % 3]
     va, vb = welded[f, i], welded[f, (i + 1) % 3]
     # The same two vertices in g (its corner order may differ).
@@ -267,7 +288,6 @@ def chart_border_error(positions: np.ndarray, layer: UnwrappedMesh, neighbours: 
     n = np.maximum(1, np.ceil(np.linalg.norm(b_f - a_f, axis=1)).astype(np.int64))
     edge = np.repeat(np.arange(len(f)), n)
     t = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n) + 0.5) / np.repeat(n, n)
-    H, W = positions.shape
 
     def lookup(a, b):
         p = a[edge] + t[:, None] * (b[edge] - a[edge])

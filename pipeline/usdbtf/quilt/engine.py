@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import BTFError
+from ..errors import UsageError
 from .cut import keep_old_mask
 from .matcher import Matcher
 
@@ -45,7 +45,7 @@ class Source:
         """match : (Hs, Ws, C); image : (Hs*Ws, D)."""
         h, w, c = match.shape
         if block > min(h, w):
-            raise BTFError(f"block size {block} is larger than the {w}x{h} source")
+            raise UsageError(f"block size {block} is larger than the {w}x{h} source")
         return cls(h, w, block, np.ascontiguousarray(match.reshape(-1, c)), image, Matcher(match, block))
 
 
@@ -84,7 +84,7 @@ def grid_for(width: int, height: int, block: int, overlap: int, *, torus: bool =
     """
     step = block - overlap
     if step < 1:
-        raise BTFError(f"overlap {overlap} must be smaller than the block size {block}")
+        raise UsageError(f"overlap {overlap} must be smaller than the block size {block}")
 
     def corners(size):
         if torus:
@@ -94,7 +94,7 @@ def grid_for(width: int, height: int, block: int, overlap: int, *, torus: bool =
         return np.arange(n) * step
 
     if torus and min(width, height) < 2 * block:
-        raise BTFError(f"--tileable needs an output of at least two blocks per side ({2 * block} texels), "
+        raise UsageError(f"--tileable needs an output of at least two blocks per side ({2 * block} texels), "
                        f"got {width}x{height}")
     ys, xs = corners(height), corners(width)
     shape = (height, width) if torus else (int(ys[-1]) + block, int(xs[-1]) + block)

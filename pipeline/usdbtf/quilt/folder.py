@@ -14,6 +14,7 @@ Extra entries in the metadata:
 from __future__ import annotations
 
 import copy
+import logging
 import shutil
 from dataclasses import replace
 from pathlib import Path
@@ -24,15 +25,17 @@ from ..atomic import atomic_dir
 from ..compress.codecs import Stored, get_codec
 from ..compress.format import CompressedBTF, coefficient_file, write_basis, write_metadata
 from ..imageio import write_image
-from .core import Quilt
+from .core import QuiltResult
 
-__all__ = ["POSITION_MAP", "write_quilted", "quilted_btf", "position_image", "read_position_map"]
+__all__ = ["POSITION_MAP", "write_quilt", "quilted_btf", "position_image", "read_position_map"]
+
+log = logging.getLogger(__name__)
 
 POSITION_MAP = "quilt_positions.exr"
 _CURVE_FILES = ("error_curve.csv", "error_curve.png")
 
 
-def position_image(q: Quilt, source_width: int) -> np.ndarray:
+def position_image(q: QuiltResult, source_width: int) -> np.ndarray:
     """(H, W, 3) float32: source column, source row, synthesised flag."""
     y, x = np.divmod(q.positions, source_width)
     return np.stack([x, y, q.valid], axis=-1).astype(np.float32)
@@ -52,9 +55,10 @@ def _gather(stored: Stored, flat: np.ndarray, shape) -> Stored:
     return Stored(pixels, stored.scale, stored.bias)
 
 
-def quilted_btf(cbtf: CompressedBTF, q: Quilt) -> CompressedBTF:
+def quilted_btf(q: QuiltResult) -> CompressedBTF:
     """The quilt as an in-memory CompressedBTF (all k textures held: for small outputs; files
-    go through :func:`write_quilted`, which streams)."""
+    go through :func:`write_quilt`, which streams)."""
+    cbtf = q.source
     shape = q.positions.shape
     flat = q.positions.ravel()
     info = dict(cbtf.info, quilt=dict(q.record))
@@ -62,11 +66,11 @@ def quilted_btf(cbtf: CompressedBTF, q: Quilt) -> CompressedBTF:
                    coefficients=[_gather(st, flat, shape) for st in cbtf.coefficients])
 
 
-def write_quilted(cbtf: CompressedBTF, q: Quilt, out, *, source_folder=None, log=None) -> dict:
+def write_quilt(q: QuiltResult, out) -> dict:
     """Write the quilted compressed BTF to folder ``out`` atomically; returns its metadata's
-    ``bytes`` record.  ``source_folder`` (the compressed input) is recorded, and its error-curve
-    files are copied when present (they describe the same basis)."""
-    say = log or (lambda msg: None)
+    ``bytes`` record.  The source's folder (``q.source_folder``, when it was read from one) is
+    recorded, and its error-curve files are copied when present (they describe the same basis)."""
+    cbtf, source_folder = q.source, q.source_folder
     # Quilts are large (1024^2+ x k textures): encode time, not bytes, is what matters here.
     codec = get_codec(cbtf.codec).fastest()
     H, W = q.positions.shape
@@ -96,7 +100,7 @@ def write_quilted(cbtf: CompressedBTF, q: Quilt, out, *, source_folder=None, log
             # Metadata needs only each texture's scale, bias and dtype: keep no pixels around.
             headers.append(Stored(np.empty((0, 0, st.pixels.shape[-1]), st.pixels.dtype), st.scale, st.bias))
             if (i + 1) % 50 == 0:
-                say(f"  wrote {i + 1}/{cbtf.k} coefficient textures")
+                log.info(f"  wrote {i + 1}/{cbtf.k} coefficient textures")
         header = replace(cbtf, width=W, height=H, coefficients=headers, info=info)
         basis_bytes = write_basis(header, tmp)
         header.info["bytes"] = {"basis": basis_bytes, "coefficients": int(sum(per)),

@@ -1,9 +1,10 @@
 """CPU reference renderer for compressed BTFs (equation 2 with barycentric interpolation over
-triangulated view and light hemispheres).  File handling (what ``usdbtf render ASSET`` means)
-is in :mod:`.assets`."""
-from .core import RenderOptions, Renderer, render, render_swatch
+triangulated view and light hemispheres): ``render(cbtf, mesh, camera, lights, RenderOptions)
+-> RenderResult`` and ``write_render(result, path)``.  Meshes are :class:`usdbtf.mesh.Mesh`,
+cameras :class:`usdbtf.camera.Camera`."""
+from .core import RenderOptions, Renderer, RenderResult, render, render_swatch
 from .output import to_display, write_render
-from .scene import Camera, Light, RenderMesh, auto_camera, parse_camera, parse_light
+from .scene import Light, parse_light
 
-__all__ = ["RenderOptions", "Renderer", "render", "render_swatch", "to_display", "write_render", "Camera", "Light",
-           "RenderMesh", "auto_camera", "parse_camera", "parse_light"]
+__all__ = ["RenderOptions", "RenderResult", "Renderer", "render", "render_swatch", "to_display", "write_render",
+           "Light", "parse_light"]

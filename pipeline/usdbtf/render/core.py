@@ -1,8 +1,9 @@
 """The CPU reference renderer: a mesh with a compressed BTF under point and distant lights.
 
 Inputs are plain: a :class:`~usdbtf.compress.format.CompressedBTF`, a
-:class:`~usdbtf.render.scene.RenderMesh` (triangles with positions, normals, tangent frames
-and st per corner), a :class:`~usdbtf.render.scene.Camera` and lights.  Per visible pixel:
+:class:`~usdbtf.mesh.Mesh` with texture coordinates (its own tangent frames, or frames
+computed from st: :meth:`~usdbtf.mesh.Mesh.corner_frames`), a :class:`~usdbtf.camera.Camera`
+and lights.  Per visible pixel:
 
 1. rasterise (z-buffer, back faces culled), perspective-correct barycentrics; triangles
    reaching behind the camera are dropped, not clipped (keep the camera outside the mesh);
@@ -13,7 +14,8 @@ and st per corner), a :class:`~usdbtf.render.scene.Camera` and lights.  Per visi
 4. equation 2: 3 view x 3 light basis rows blended (:mod:`.shading`), then one dot with the
    k coefficients, filtered bilinearly or trilinearly over mip levels (:mod:`.texture`).
 
-Output: (H, W, 4) float32 RGBA in the BTF's working colour space (alpha = coverage).
+Output: a :class:`RenderResult`, (H, W, 4) float32 RGBA in the BTF's working colour space
+(alpha = coverage); :func:`usdbtf.render.write_render` writes it as EXR and PNG.
 Pixels are shaded in chunks on a thread pool (numpy releases the GIL in the heavy parts);
 each chunk writes its own pixels, so the result does not depend on the thread count.
 
@@ -27,16 +29,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..camera import Camera
 from ..compress.format import CompressedBTF
 from ..errors import BTFError
+from ..mesh import CornerFrames, Mesh
+from ..raster import barycentrics, rasterize
 from .hemisphere import directions_to_vectors
-from .raster import barycentrics, rasterize
-from .scene import Camera, Light, RenderMesh
+from .scene import Light
 from .shading import BasisInterpolator
 from .shadows import ShadowMap
 from .texture import CoefficientTexture
 
-__all__ = ["RenderOptions", "Renderer", "render", "render_swatch"]
+__all__ = ["RenderOptions", "RenderResult", "Renderer", "render", "render_swatch"]
 
 
 @dataclass
@@ -94,13 +98,14 @@ class Renderer:
         return out.reshape(H, W, 3)
 
     # -- mesh --------------------------------------------------------------------------
-    def render(self, mesh: RenderMesh, camera: Camera, lights: list[Light]) -> np.ndarray:
+    def render(self, mesh: Mesh, camera: Camera, lights: list[Light]) -> np.ndarray:
         """(H, W, 4) float32 RGBA, working space."""
         if not lights:
             raise BTFError("give at least one --light")
-        front = _front_facing(mesh, camera.eye)
-        xy, depth = camera.project(mesh.corners)
-        near = 1e-6 * max(float(np.ptp(mesh.corners.reshape(-1, 3), axis=0).max()), 1e-9)
+        surface = mesh.corner_frames()
+        front = _front_facing(surface, camera.eye)
+        xy, depth = camera.project(surface.points)
+        near = 1e-6 * max(float(np.ptp(surface.points.reshape(-1, 3), axis=0).max()), 1e-9)
         keep = front & (depth > near).all(axis=1)
         tris = np.flatnonzero(keep)
         raster = rasterize(xy[tris], -1.0 / depth[tris], camera.width, camera.height)
@@ -111,11 +116,11 @@ class Renderer:
         tri = tris[raster.tri.ravel()[pix]]
         py, px = np.divmod(pix, camera.width)
         res = self.opts.shadow_resolution or max(camera.width, camera.height)
-        shadow_maps = [ShadowMap(mesh.corners, light, res) if self.opts.shadows else None
+        shadow_maps = [ShadowMap(surface.points, light, res) if self.opts.shadows else None
                        for light in lights]
 
         def task(sl):
-            return self._shade_pixels(mesh, camera, lights, shadow_maps, tri[sl], xy[tri[sl]], depth[tri[sl]],
+            return self._shade_pixels(surface, camera, lights, shadow_maps, tri[sl], xy[tri[sl]], depth[tri[sl]],
                                       px[sl] + 0.5, py[sl] + 0.5)
 
         rgb = self._shade_chunks(len(pix), task)
@@ -134,12 +139,12 @@ class Renderer:
             parts = [fn(sl) for sl in slices]
         return np.concatenate(parts) if parts else np.zeros((0, 3), np.float32)
 
-    def _shade_pixels(self, mesh, camera, lights, shadow_maps, tri, tri_xy, tri_depth, x, y) -> np.ndarray:
+    def _shade_pixels(self, surface, camera, lights, shadow_maps, tri, tri_xy, tri_depth, x, y) -> np.ndarray:
         b = _perspective_weights(tri_xy, tri_depth, x, y)
-        p = np.einsum("nk,nkd->nd", b, mesh.corners[tri])
-        normal, tangent, bitangent = _frame(b, mesh, tri)
-        st = np.einsum("nk,nkd->nd", b, mesh.st[tri])
-        lod = self._lod(tri_xy, tri_depth, mesh.st[tri], st, x, y) if self.opts.filter == "mip" else None
+        p = np.einsum("nk,nkd->nd", b, surface.points[tri])
+        normal, tangent, bitangent = _frame(b, surface, tri)
+        st = np.einsum("nk,nkd->nd", b, surface.uv[tri])
+        lod = self._lod(tri_xy, tri_depth, surface.uv[tri], st, x, y) if self.opts.filter == "mip" else None
         to_eye = camera.eye - p
         to_eye /= np.linalg.norm(to_eye, axis=1, keepdims=True)
         frame = np.stack([tangent, bitangent, normal], axis=1)                   # (n, 3, 3) rows
@@ -174,35 +179,45 @@ def _perspective_weights(tri_xy, tri_depth, x, y) -> np.ndarray:
     return b / b.sum(axis=1, keepdims=True)
 
 
-def _frame(b, mesh: RenderMesh, tri):
+def _frame(b, surface: CornerFrames, tri):
     """Orthonormal (normal, tangent, bitangent) per point: the interpolated normal, the tangent
     made perpendicular to it, bitangent = normal x tangent (flipped for mirrored texture)."""
-    n = np.einsum("nk,nkd->nd", b, mesh.normals[tri])
+    n = np.einsum("nk,nkd->nd", b, surface.normals[tri])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-    t = np.einsum("nk,nkd->nd", b, mesh.tangents[tri])
+    t = np.einsum("nk,nkd->nd", b, surface.tangents[tri])
     t -= n * np.einsum("nd,nd->n", t, n)[:, None]
     t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-300)
     bt = np.cross(n, t)
-    given = np.einsum("nk,nkd->nd", b, mesh.bitangents[tri])
+    given = np.einsum("nk,nkd->nd", b, surface.bitangents[tri])
     bt *= np.where(np.einsum("nd,nd->n", bt, given) < 0, -1.0, 1.0)[:, None]
     return n, t, bt
 
 
-def _front_facing(mesh: RenderMesh, eye: np.ndarray) -> np.ndarray:
+def _front_facing(surface: CornerFrames, eye: np.ndarray) -> np.ndarray:
     """(T,) triangles facing the eye; a triangle's side is the one its vertex normals point to
     (so the result does not depend on the winding order)."""
-    c = mesh.corners
+    c = surface.points
     g = np.cross(c[:, 1] - c[:, 0], c[:, 2] - c[:, 0])
-    g *= np.where(np.einsum("td,td->t", g, mesh.normals.sum(axis=1)) < 0, -1.0, 1.0)[:, None]
+    g *= np.where(np.einsum("td,td->t", g, surface.normals.sum(axis=1)) < 0, -1.0, 1.0)[:, None]
     return np.einsum("td,td->t", g, eye - c[:, 0]) > 0
 
 
-def render(cbtf: CompressedBTF, mesh: RenderMesh, camera: Camera, lights: list[Light],
-           opts: RenderOptions | None = None) -> np.ndarray:
-    """One frame: (H, W, 4) float32 RGBA, working space (see module docstring)."""
-    return Renderer(cbtf, opts).render(mesh, camera, lights)
+@dataclass
+class RenderResult:
+    """A rendered frame: ``image`` (H, W, 4) float32 RGBA (alpha = coverage; (H, W, 3) for a
+    swatch) in ``working_space`` of ``ocio_config`` (None: the default config)."""
+
+    image: np.ndarray
+    working_space: str
+    ocio_config: str | None = None
 
 
-def render_swatch(cbtf: CompressedBTF, view_deg, light_deg, opts: RenderOptions | None = None) -> np.ndarray:
-    """(H, W, 3) float32: the flat patch at (view, light) degrees, one pixel per texel."""
-    return Renderer(cbtf, opts).swatch(view_deg, light_deg)
+def render(cbtf: CompressedBTF, mesh: Mesh, camera: Camera, lights: list[Light],
+           options: RenderOptions | None = None) -> RenderResult:
+    """One frame of ``mesh`` with ``cbtf`` under ``lights`` (see the module docstring)."""
+    return RenderResult(Renderer(cbtf, options).render(mesh, camera, lights), cbtf.working_space, cbtf.ocio_config)
+
+
+def render_swatch(cbtf: CompressedBTF, view_deg, light_deg, options: RenderOptions | None = None) -> RenderResult:
+    """The flat patch at (view, light) degrees, one pixel per texel: (H, W, 3) float32."""
+    return RenderResult(Renderer(cbtf, options).swatch(view_deg, light_deg), cbtf.working_space, cbtf.ocio_config)

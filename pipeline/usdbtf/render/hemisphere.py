@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from ..errors import BTFError
-from .raster import edge_coefficients, rasterize
+from ..raster import edge_coefficients, rasterize
 
 __all__ = ["Triangulation", "project", "directions_to_vectors"]
 

@@ -1,6 +1,8 @@
 """Writing renders: a float EXR in the working space and an 8-bit PNG through an OCIO display view.
 
-Both files are written to temporary names and renamed only when both succeeded.
+Both files are written to temporary names and renamed only when both succeeded.  Each
+carries the image attribute ``usdbtf:output = "usdbtf-render"``, by which ``--force``
+recognises a previous render (and replaces nothing else).
 """
 from __future__ import annotations
 
@@ -15,6 +17,7 @@ from .. import colour
 from ..atomic import atomic_file
 from ..errors import BTFError
 from ..imageio import write_image
+from ..outputs import IMAGE_ATTRIBUTE, RENDER
 
 __all__ = ["display_processor", "to_display", "write_render", "DEFAULT_VIEW"]
 
@@ -49,23 +52,24 @@ def to_display(rgba: np.ndarray, working_space: str, *, display=None, view=None,
     return np.clip(np.rint(np.clip(out, 0.0, 1.0) * 255.0), 0, 255).astype(np.uint8)
 
 
-def write_render(exr_path, image: np.ndarray, working_space: str, *, png_path=None, display=None, view=None,
-                 config=None) -> dict:
-    """Write ``image`` (H, W, 3|4) float32 working space as EXR (and the PNG, if a path is given).
+def write_render(result, exr_path, *, png_path=None, display=None, view=None) -> dict:
+    """Write ``result`` (a :class:`~usdbtf.render.core.RenderResult`: (H, W, 3|4) float32 in its
+    working space) as EXR (and the PNG through an OCIO display view, if a path is given).
     Returns {"exr", "png", "display", "view"}."""
+    image, working_space, config = result.image, result.working_space, result.ocio_config
     exr_path = Path(exr_path)
     if exr_path.suffix.lower() != ".exr":
         raise BTFError(f"{exr_path}: the render is written as OpenEXR; name it *.exr")
     space = colour.resolve_space(working_space, config)
     info = {"exr": str(exr_path), "png": None}
     with contextlib.ExitStack() as stack:
-        tmp_exr = stack.enter_context(atomic_file(exr_path))
+        tmp_exr = stack.enter_context(atomic_file(exr_path, kind=RENDER))
         write_image(tmp_exr, np.ascontiguousarray(image, np.float32), color_space=space,
-                    attributes={"compression": "zip"})
+                    attributes={"compression": "zip", IMAGE_ATTRIBUTE: RENDER})
         if png_path is not None:
             _, disp, v = display_processor(working_space, display, view, config)
-            tmp_png = stack.enter_context(atomic_file(png_path))
+            tmp_png = stack.enter_context(atomic_file(png_path, kind=RENDER))
             write_image(tmp_png, to_display(image, working_space, display=disp, view=v, config=config),
-                        color_space=disp, attributes={"png:compressionLevel": 6})
+                        color_space=disp, attributes={"png:compressionLevel": 6, IMAGE_ATTRIBUTE: RENDER})
             info.update(png=str(png_path), display=disp, view=v)
     return info

@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .raster import rasterize
-from .scene import Camera, Light
+from ..raster import rasterize
+from ..camera import Camera
+from .scene import Light
 
 __all__ = ["ShadowMap"]
 

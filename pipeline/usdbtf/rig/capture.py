@@ -17,7 +17,7 @@ the same bytes as one that was not.
 from __future__ import annotations
 
 import fcntl
-import json
+import logging
 import os
 from pathlib import Path
 
@@ -28,9 +28,12 @@ from ..atomic import atomic_file
 from ..errors import BTFError
 from ..imageio import read_info, write_image
 from ..manifest import FORMAT, MANIFEST
+from ..progress import bar
 from .driver import RigDriver, RigRefused
 from .journal import Journal
 from .plan import CapturePlan
+
+log = logging.getLogger(__name__)
 
 __all__ = ["capture", "frame_name", "flat_gain", "decode_frame", "FLAT_FILE", "JOURNAL", "FRAMES"]
 
@@ -95,8 +98,8 @@ def _fmt(pair) -> str:
 class _Rig:
     """Moves the rig only when needed and checks each frame was taken where asked."""
 
-    def __init__(self, driver: RigDriver, log):
-        self.driver, self.log = driver, log
+    def __init__(self, driver: RigDriver):
+        self.driver = driver
         self.head = self.arm = None
         self.seen_reconnects = driver.reconnects
 
@@ -113,7 +116,7 @@ class _Rig:
             shot = self.driver.trigger(tag)
             if _close(shot["head"], head) and _close(shot["arm"], arm, axis_free=True):
                 return shot
-            self.log(f"capture: {tag} was exposed at head {_fmt(shot['head'])} arm {_fmt(shot['arm'])}, not head "
+            log.info(f"capture: {tag} was exposed at head {_fmt(shot['head'])} arm {_fmt(shot['arm'])}, not head "
                      f"{_fmt(head)} arm {_fmt(arm)}; moving again")
             self.head, self.arm = shot["head"], shot["arm"]
         raise BTFError(f"rig at {self.driver.url}: could not hold head {_fmt(head)} / arm {_fmt(arm)} for {tag}")
@@ -160,7 +163,7 @@ def decode_frame(pixels: np.ndarray, space: str) -> np.ndarray:
     return colour.processor(space).apply(pixels)
 
 
-def _flat_field(rig: _Rig, camera, frames: int, raw: Path, journal: Journal, log) -> str | None:
+def _flat_field(rig: _Rig, camera, frames: int, raw: Path, journal: Journal) -> str | None:
     """Shoot ``frames`` frames of the flat-field target, store the smoothed gain map."""
     if journal.flat is not None:
         return journal.flat["flat"]
@@ -169,7 +172,7 @@ def _flat_field(rig: _Rig, camera, frames: int, raw: Path, journal: Journal, log
     except RigRefused as exc:
         if exc.code != "UNKNOWN":
             raise
-        log("capture: the rig has no flat-field target (FLAT unknown); frames will not be flat-fielded")
+        log.info("capture: the rig has no flat-field target (FLAT unknown); frames will not be flat-fielded")
         return None
 
     def shots():
@@ -188,14 +191,13 @@ def _flat_field(rig: _Rig, camera, frames: int, raw: Path, journal: Journal, log
 
 
 def capture(driver: RigDriver, camera, raw, plan: CapturePlan, *, flat_frames: int = 4, board: dict | None = None,
-            extra: dict | None = None, frame_compression: str = "none", log=lambda msg: None, progress=None) -> dict:
+            extra: dict | None = None, frame_compression: str = "none") -> dict:
     """Run (or resume) the capture of ``plan`` into folder ``raw``; returns a summary.
 
     driver : an unopened :class:`RigDriver` (opened here, closed at the end).
     camera : an :class:`~usdbtf.rig.camera.OpenCVCamera` or :class:`~usdbtf.rig.camera.CommandCamera`.
     board : the board JSON to record for rectification (optional).
     frame_compression : "none" or "zip" (lossless deflate) for the stored frames.
-    progress : callable(done, total) -> object with update()/finish() (e.g. usdbtf.progress.Progress).
     """
     raw = Path(raw)
     if (raw / MANIFEST).exists() and not (raw / JOURNAL).exists():
@@ -207,18 +209,17 @@ def capture(driver: RigDriver, camera, raw, plan: CapturePlan, *, flat_frames: i
             stale.unlink()        # half-written by a killed run; the journal does not know them
         journal = Journal(raw / JOURNAL, plan.fingerprint(), {"samples": len(plan.sampling), "to_shoot": len(plan.order)})
         try:
-            return _run(driver, camera, raw, plan, journal, flat_frames, board, extra or {}, frame_compression, log,
-                        progress)
+            return _run(driver, camera, raw, plan, journal, flat_frames, board, extra or {}, frame_compression)
         finally:
             journal.close()
     finally:
         lock.release()
 
 
-def _run(driver, camera, raw, plan, journal, flat_frames, board, extra, frame_compression, log, progress) -> dict:
+def _run(driver, camera, raw, plan, journal, flat_frames, board, extra, frame_compression) -> dict:
     todo = [int(i) for i in plan.order if int(i) not in journal.shots]
     if journal.resumed:
-        log(f"capture: resuming {raw}: {len(journal.shots)} of {len(plan.order)} samples already shot")
+        log.info(f"capture: resuming {raw}: {len(journal.shots)} of {len(plan.order)} samples already shot")
     first = None
     if journal.shots:
         rec = journal.shots[min(journal.shots)]
@@ -228,15 +229,15 @@ def _run(driver, camera, raw, plan, journal, flat_frames, board, extra, frame_co
                                         "float": np.float32}[info.bit_depth])),
                  "color_space": colour.resolve_space(info.color_space)}
     flat = journal.flat["flat"] if journal.flat else None
-    bar = progress(len(journal.shots), len(plan.order)) if progress else None
+    progress = bar("capture", len(plan.order), len(journal.shots), logger=log)
     if todo or (flat_frames > 0 and journal.flat is None):
         driver.open()
         try:
             journal.append({"session": {"rig": driver.identity, "port": driver.url, "camera": camera.describe(),
                                         "resumed_with": len(journal.shots)}})
-            rig = _Rig(driver, log)
+            rig = _Rig(driver)
             if flat_frames > 0:
-                flat = _flat_field(rig, camera, flat_frames, raw, journal, log)
+                flat = _flat_field(rig, camera, flat_frames, raw, journal)
             for i in todo:
                 tag = f"s{i:05d}"
                 shot = rig.shoot(tag, plan.head[i], plan.arm[i])
@@ -246,13 +247,11 @@ def _run(driver, camera, raw, plan, journal, flat_frames, board, extra, frame_co
                 name = frame_name(i, plan.sampling.view[i], plan.sampling.light[i], ext)
                 _write_durable(raw / name, pixels, space, frame_compression)
                 journal.append({"shot": i, "image": name, "frame": shot["frame"]})
-                if bar:
-                    bar.update()
+                progress.update()
         finally:
             driver.close()
             camera.close()
-    if bar:
-        bar.finish()
+    progress.finish()
     if first is None:
         raise BTFError(f"{raw}: the plan has no sample to shoot (all {len(plan.sampling)} obstructed?)")
     return _write_manifest(raw, plan, journal, first, flat, board, extra, driver)
@@ -277,7 +276,7 @@ def _write_manifest(raw, plan, journal, first, flat, board, extra, driver) -> di
         info["obstruction"] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(plan.geometry).items()}
     doc = {"format": FORMAT, "color_space": first["color_space"], "width": first["width"], "height": first["height"],
            "raw_capture": info, "missing": missing, "samples": samples}
-    with atomic_file(raw / MANIFEST) as tmp:
+    with atomic_file(raw / MANIFEST, owner_checked=True) as tmp:
         tmp.write_text(jsontext.dumps(doc) + "\n")
     return {"shots": len(samples), "missing": len(missing), "resumed": journal.resumed, "reconnects": driver.reconnects,
             "resends": driver.resends, "manifest": str(raw / MANIFEST)}

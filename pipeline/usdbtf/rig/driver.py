@@ -21,10 +21,13 @@ Failure handling (why each case is handled the way it is):
 """
 from __future__ import annotations
 
+import logging
 import time
 
 from ..errors import BTFError
 from . import protocol as P
+
+log = logging.getLogger(__name__)
 
 __all__ = ["RigDriver", "RigRefused", "LinkDropped"]
 
@@ -66,15 +69,13 @@ class RigDriver:
     move_timeout : seconds to wait for a move (HEAD, ARM, HOME) to finish and reply.
     retries : resends after a timeout or a garbled reply, per command.
     reconnect_timeout : seconds to keep trying to reopen a dropped link (0: fail at once).
-    log : callable(str) for warnings (reconnects, retries); default silent.
     """
 
     #: A link that comes back but drops again at once this often is broken, not flaky.
     MAX_DROPS_PER_COMMAND = 10
 
     def __init__(self, url: str, *, timeout: float = 5.0, move_timeout: float = 120.0, retries: int = 3,
-                 reconnect_timeout: float = 30.0, reconnect_interval: float = 0.2, baudrate: int = 115200,
-                 log=None):
+                 reconnect_timeout: float = 30.0, reconnect_interval: float = 0.2, baudrate: int = 115200):
         self.url = str(url)
         self.timeout = float(timeout)
         self.move_timeout = float(move_timeout)
@@ -82,7 +83,6 @@ class RigDriver:
         self.reconnect_timeout = float(reconnect_timeout)
         self.reconnect_interval = float(reconnect_interval)
         self.baudrate = int(baudrate)
-        self.log = log or (lambda msg: None)
         self.reconnects = 0
         self.resends = 0
         self.identity: dict = {}
@@ -161,11 +161,11 @@ class RigDriver:
     def _reconnect(self, why: str) -> None:
         self.close()
         self.reconnects += 1
-        self.log(f"rig link to {self.url} dropped ({why}); reconnecting")
+        log.info(f"rig link to {self.url} dropped ({why}); reconnecting")
         if self.reconnect_timeout <= 0:
             raise BTFError(f"rig at {self.url}: link dropped ({why})")
         self._connect(self.reconnect_timeout)
-        self.log(f"rig link to {self.url} restored")
+        log.info(f"rig link to {self.url} restored")
 
     # -- one exchange -------------------------------------------------------------
     def _next_seq(self) -> int:
@@ -233,7 +233,7 @@ class RigDriver:
                     time.sleep(min(0.5, self.timeout / 4))
             if len(problems) <= self.retries:
                 self.resends += 1
-                self.log(f"rig at {self.url}: '{text}': {problems[-1]}; resending")
+                log.info(f"rig at {self.url}: '{text}': {problems[-1]}; resending")
         raise BTFError(f"rig at {self.url}: '{text}' failed after {len(problems)} tries; last: {problems[-1]}")
 
     def _drain(self) -> None:

@@ -1,7 +1,7 @@
 """What the simulated camera sees: a fiducial board with a BTF sample in its window.
 
-Pure functions: a :class:`Camera` (pinhole at (0, 0, D) in the lab frame of
-:mod:`usdbtf.rig.kinematics`, square pixels, principal point at the image centre), the
+Pure functions: a :class:`usdbtf.camera.Camera` (:meth:`~usdbtf.camera.Camera.framing`: a pinhole
+at (0, 0, D) in the lab frame of :mod:`usdbtf.rig.kinematics` looking at the origin), the
 board -> frame homography for a head position, and the frame itself.
 
 Photometry (all scene-linear, linear Rec.709, the units of :mod:`usdbtf.synth`):
@@ -22,48 +22,20 @@ every camera pixel integrates its area.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
+from ..camera import Camera
 from ..fiducials import Board, board_image, to_cv
 from ..synth import IRRADIANCE
 from .kinematics import rotation
 
-__all__ = ["Camera", "frame_homography", "texture_homography", "render_frame", "vignetting", "add_sensor_noise",
+__all__ = ["frame_homography", "texture_homography", "render_frame", "vignetting", "add_sensor_noise",
            "draw_arm", "PAPER_WHITE", "INK_BLACK", "ARM_GREY"]
 
 PAPER_WHITE = 0.86
 INK_BLACK = 0.04
 #: Radiance of the (matte black, unlit from the front) robot arm where it hides the view.
 ARM_GREY = 0.01
-
-
-@dataclass(frozen=True)
-class Camera:
-    """A pinhole camera looking at the lab origin.
-
-    width, height : frame size, pixels.
-    focal_px : focal length, pixels.
-    distance_m : camera to sample centre, metres.
-    vignetting : strength ``a`` of ``(1 + a (r/f)^2)^-2``; 0 disables.
-    read_noise, shot_noise : sensor noise, see the module docstring; 0 disables.
-    """
-
-    width: int = 1600
-    height: int = 1200
-    focal_px: float = 4000.0
-    distance_m: float = 1.0
-    vignetting: float = 1.0
-    read_noise: float = 0.001
-    shot_noise: float = 1e-4
-
-    @classmethod
-    def framing(cls, board: Board, width: int, height: int, fill: float = 0.62, **kw) -> "Camera":
-        """A camera whose head-on view of ``board`` spans ``fill`` of the frame height."""
-        distance = kw.pop("distance_m", 1.0)
-        focal = fill * height * distance / board.physical_size_m[1]
-        return cls(width=width, height=height, focal_px=focal, distance_m=distance, **kw)
 
 
 def _board_to_sample(board: Board) -> np.ndarray:

@@ -23,11 +23,11 @@ Three parts, each usable alone:
 """
 from __future__ import annotations
 
+import logging
 import math
 import os
 import select
 import socket
-import sys
 import time
 import tty
 import zlib
@@ -45,7 +45,7 @@ from . import protocol as P
 __all__ = ["RigState", "RigSimulator", "SceneRenderer", "serve_pty", "serve_socket", "CAMERA_SPACE"]
 
 CAMERA_SPACE = "sRGB Encoded Rec.709 (sRGB)"
-_LINEAR_709 = "Linear Rec.709 (sRGB)"
+log = logging.getLogger(__name__)
 #: Radiance of the flat-field target (a diffuser lit from behind): uniform, below clipping.
 FLAT_RADIANCE = 0.8
 
@@ -77,7 +77,7 @@ class RigSimulator:
 
     def __init__(self, renderer=None, *, fault_rate: float = 0.0, seed: int = 0, drop_every: int = 0,
                  reset_on_drop: bool = False, speed_deg_s: float = 0.0, model: str = "usdbtf-sim",
-                 serial: str = "SIM-0001", log=None):
+                 serial: str = "SIM-0001"):
         if not 0.0 <= fault_rate < 1.0:
             raise ValueError("fault_rate must be in [0, 1)")
         self.renderer = renderer
@@ -90,7 +90,6 @@ class RigSimulator:
         self.model, self.serial = model, serial
         self.requests = 0
         self.cut_link = False
-        self.log = log or (lambda msg: None)
 
     # -- request handling ---------------------------------------------------------
     def handle(self, line: bytes) -> bytes | None:
@@ -178,7 +177,7 @@ class RigSimulator:
         except ValueError:
             return self._err(seq, "SYNTAX", f"bad arguments for {cmd}: {' '.join(args)}")
         except Exception as exc:  # a renderer failure is a camera fault, reported, not a crash
-            self.log(f"rig-sim: fault during {cmd}: {exc}")
+            log.info(f"rig-sim: fault during {cmd}: {exc}")
             return self._err(seq, "FAULT", f"{cmd} failed: {type(exc).__name__}: {exc}")
         if cmd not in P.COMMANDS:
             return self._err(seq, "UNKNOWN", f"unknown command {cmd}")
@@ -204,7 +203,7 @@ class SceneRenderer:
         self.cache = synth.RenderCache(material, max_views=2)
         self.albedo = paper_albedo(board)
         self.vignette = vignetting(camera)[..., None]
-        self.encode = colour.processor(_LINEAR_709, CAMERA_SPACE)
+        self.encode = colour.processor(synth.RADIANCE_SPACE, CAMERA_SPACE)
         from .plan import ArmGeometry
         # The arm drawn into the frames is the one the capture plan's obstruction model assumes.
         self.arm_geometry = arm_geometry or ArmGeometry(camera_distance_m=camera.distance_m)
@@ -289,17 +288,16 @@ def _open_pty(link: str | None) -> tuple[int, int, str]:
     return master, slave, path
 
 
-def serve_pty(sim: RigSimulator, *, link: str | None = None, port_file: str | None = None, log=None) -> None:
+def serve_pty(sim: RigSimulator, *, link: str | None = None, port_file: str | None = None) -> None:
     """Serve on a pseudo-terminal until killed.  Prints the port (``link`` if given).
 
     The simulator keeps the slave end open itself, so a client may close and reopen
     the port freely; cutting the link closes both ends (the client sees a hang-up) and
     opens a fresh pty, re-pointing ``link`` at it.
     """
-    log = log or (lambda msg: None)
     master, slave, path = _open_pty(link)
     _announce(link or path, port_file)
-    log(f"rig-sim: pty {path}" + (f" (link {link})" if link else ""))
+    log.info(f"rig-sim: pty {path}" + (f" (link {link})" if link else ""))
     buf = bytearray()
     try:
         while True:
@@ -316,12 +314,12 @@ def serve_pty(sim: RigSimulator, *, link: str | None = None, port_file: str | No
             for line in _lines(buf):
                 reply = sim.handle(line)
                 if sim.cut_link:
-                    log("rig-sim: cutting the link")
+                    log.info("rig-sim: cutting the link")
                     os.close(master)
                     os.close(slave)
                     buf.clear()
                     master, slave, path = _open_pty(link)
-                    log(f"rig-sim: new pty {path}")
+                    log.info(f"rig-sim: new pty {path}")
                     break
                 if reply is not None:
                     os.write(master, reply)
@@ -335,15 +333,13 @@ def serve_pty(sim: RigSimulator, *, link: str | None = None, port_file: str | No
             os.unlink(link)      # leave no link to a pty that is gone
 
 
-def serve_socket(sim: RigSimulator, host: str = "127.0.0.1", port: int = 0, *, port_file: str | None = None,
-                 log=None) -> None:
+def serve_socket(sim: RigSimulator, host: str = "127.0.0.1", port: int = 0, *, port_file: str | None = None) -> None:
     """Serve on TCP until killed, one client at a time.  Prints ``socket://host:port``."""
-    log = log or (lambda msg: None)
     server = socket.create_server((host, port))
     _announce(f"socket://{host}:{server.getsockname()[1]}", port_file)
     while True:
         conn, peer = server.accept()
-        log(f"rig-sim: client {peer[0]}:{peer[1]}")
+        log.info(f"rig-sim: client {peer[0]}:{peer[1]}")
         conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         buf = bytearray()
         with conn:
@@ -359,7 +355,7 @@ def serve_socket(sim: RigSimulator, host: str = "127.0.0.1", port: int = 0, *, p
                 for line in _lines(buf):
                     reply = sim.handle(line)
                     if sim.cut_link:
-                        log("rig-sim: cutting the link")
+                        log.info("rig-sim: cutting the link")
                         cut = True
                         break
                     if reply is not None:
@@ -372,6 +368,3 @@ def serve_socket(sim: RigSimulator, host: str = "127.0.0.1", port: int = 0, *, p
                     break
         # A cut link: the connection closes and the next client is accepted.
 
-
-def stderr_log(msg: str) -> None:
-    print(msg, file=sys.stderr, flush=True)

@@ -8,22 +8,38 @@ the atlas width and height (about sqrt(area) x density, plus packing overhead). 
 exceeds ``max_resolution``, the density is lowered (recorded as ``texel_scale`` < 1: the
 material then looks that much coarser).
 
+Limits: the atlas side is at most ``max_resolution`` (16 .. :data:`MAX_ATLAS_SIDE` = 8192
+texels; a chart map and the quilted textures hold W x H texels each), and the density is
+lowered at most :data:`MIN_TEXEL_SCALE` = 1/8 (8x coarser than measured).  Past that the
+request is refused *before* xatlas runs, saying how large an atlas it would need: sqrt(area)
+x density texels per side is a lower bound (charts keep their surface area), so a unit
+mistake cannot make xatlas allocate gigabytes.
+
 Texture coordinates are USD's st (t up); atlas texel (row i, column j), row 0 at the top,
 covers ``s in [j/W, (j+1)/W]``, ``t in [1-(i+1)/H, 1-i/H]``.
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
 from ..compress.format import CompressedBTF
-from ..errors import BTFError
-from ..render.raster import rasterize
-from .meshes import TriMesh
+from ..errors import BTFError, UsageError
+from ..mesh import Mesh, mirrored_faces, uv_gradients
+from ..raster import rasterize, st_to_texels
 
-__all__ = ["Atlas", "texel_density", "make_atlas", "keep_uvs", "chart_map", "uv_problems"]
+log = logging.getLogger(__name__)
+
+__all__ = ["Atlas", "texel_density", "make_atlas", "keep_uvs", "chart_map", "uv_problems", "MAX_ATLAS_SIDE",
+           "MIN_TEXEL_SCALE", "check_atlas_size"]
+
+#: Largest atlas side (texels) ``usdbtf unwrap`` makes or ``quilt --atlas`` reads.
+MAX_ATLAS_SIDE = 8192
+#: Smallest allowed ratio of the atlas's texel density to the requested one.
+MIN_TEXEL_SCALE = 1.0 / 8.0
 
 
 @dataclass
@@ -54,8 +70,20 @@ class Atlas:
 
     def texel_coords(self) -> np.ndarray:
         """(F, 3, 2) corner positions in atlas texel units (x right, y down)."""
-        st = self.st[self.faces]
-        return np.stack([st[..., 0] * self.width, (1.0 - st[..., 1]) * self.height], axis=-1)
+        return st_to_texels(self.st[self.faces], self.width, self.height)
+
+    @classmethod
+    def from_mesh(cls, mesh: Mesh, width: int, height: int, texels_per_metre: float, texel_scale: float,
+                  method: str) -> "Atlas":
+        """The atlas of an unwrapped mesh (per-corner ``uv`` and ``charts``, e.g. read back from a
+        layer): atlas vertices are the mesh's points split where their corners' st differ."""
+        if mesh.uv is None or mesh.charts is None:
+            raise BTFError(f"{mesh.source}: the mesh has no texture coordinates or charts (not unwrapped)")
+        split = Mesh(mesh.points, mesh.triangles, uv=mesh.uv, source=mesh.source).split_corners()
+        vertex_of = np.zeros(len(split.points), np.int64)
+        vertex_of[split.triangles.ravel()] = mesh.triangles.ravel()
+        return cls(vertex_of, split.triangles, split.uv, mesh.charts, int(width), int(height),
+                   float(texels_per_metre), float(texel_scale), method)
 
 
 def texel_density(cbtf: CompressedBTF, where: str = "compressed BTF") -> float:
@@ -74,22 +102,48 @@ def texel_density(cbtf: CompressedBTF, where: str = "compressed BTF") -> float:
     return float(np.sqrt(dx * dy))
 
 
-def make_atlas(mesh: TriMesh, density: float, *, max_resolution: int = 4096, padding: int = 4,
-               log=None) -> Atlas:
-    """Charts and packing by xatlas at ``density`` texels per metre (capped, see module docstring)."""
+def check_atlas_size(area_m2: float, density: float, max_resolution: int, where: str = "mesh") -> float:
+    """The first texel scale to try for a mesh of ``area_m2`` square metres at ``density``
+    texels per metre: 1 when sqrt(area) x density fits ``max_resolution``, else the ratio
+    that makes it fit.  Raises (before anything large is allocated) past the limits of the
+    module docstring, saying how large an atlas the request needs."""
+    if not (density > 0 and np.isfinite(density)):
+        raise UsageError(f"texel density must be a positive number, got {density}")
+    if not 16 <= max_resolution <= MAX_ATLAS_SIDE:
+        raise UsageError(f"--max-resolution must be in 16..{MAX_ATLAS_SIDE}, got {max_resolution}")
+    estimate = np.sqrt(area_m2) * density          # a lower bound of the atlas side, texels
+    if estimate < 4:
+        raise BTFError(f"{where}: the mesh ({area_m2:.3g} m^2) is smaller than a few texels at {density:.4g} texels/m; "
+                       "is it in metres? (--meters-per-unit)")
+    if estimate <= max_resolution:
+        return 1.0
+    scale = max_resolution / estimate
+    if scale < MIN_TEXEL_SCALE:
+        raise UsageError(f"{where}: the mesh's {area_m2:.4g} m^2 at {density:.4g} texels/m need an atlas of at least "
+                         f"{estimate:.3g} x {estimate:.3g} texels ({estimate ** 2 * 4 / 2 ** 30:.3g} GiB per "
+                         f"32-bit channel); --max-resolution {max_resolution} would make the texture "
+                         f"{1 / scale:.3g}x coarser than measured (at most {1 / MIN_TEXEL_SCALE:g}x is allowed, "
+                         f"the atlas side is at most {MAX_ATLAS_SIDE}): lower the density to at most "
+                         f"{max_resolution / MIN_TEXEL_SCALE / np.sqrt(area_m2):.4g} texels/m or check "
+                         "the mesh's units (--meters-per-unit)")
+    return float(scale)
+
+
+def make_atlas(mesh: Mesh, density: float, *, max_resolution: int = 4096, padding: int = 4) -> Atlas:
+    """Charts and packing by xatlas at ``density`` texels per metre (capped, see module docstring).
+
+    mesh : per-vertex texture-less mesh with per-vertex normals (N, 3)."""
     import xatlas
 
-    say = log or (lambda msg: None)
-    if not (density > 0 and np.isfinite(density)):
-        raise BTFError(f"texel density must be a positive number, got {density}")
-    estimate = np.sqrt(mesh.area()) * density
-    if estimate < 4:
-        raise BTFError(f"the mesh ({mesh.area():.3g} m^2) is smaller than a few texels at {density:.4g} texels/m; "
-                       "is it in metres? (--meters-per-unit)")
-    scale = 1.0
+    scale = check_atlas_size(mesh.area(), density, max_resolution, mesh.source)
+    if scale < 1.0:
+        # Start where the atlas will about fit (charts plus packing overhead), not at a size
+        # xatlas could not allocate.
+        scale *= 0.98
+        log.info(f"the atlas at {density:.4g} texels/m would exceed {max_resolution}: texel density x {scale:.3f}")
     for _ in range(8):
         atlas = xatlas.Atlas()
-        atlas.add_mesh(mesh.points.astype(np.float32), mesh.faces.astype(np.uint32),
+        atlas.add_mesh(mesh.points.astype(np.float32), mesh.triangles.astype(np.uint32),
                        mesh.normals.astype(np.float32))
         chart_opts = xatlas.ChartOptions()
         chart_opts.fix_winding = True          # uv winding follows the faces': texture not mirrored
@@ -107,10 +161,16 @@ def make_atlas(mesh: TriMesh, density: float, *, max_resolution: int = 4096, pad
         if max(atlas.width, atlas.height) <= max_resolution:
             break
         shrink = max_resolution / max(atlas.width, atlas.height) * 0.98
-        say(f"atlas {atlas.width}x{atlas.height} exceeds {max_resolution}: texel density x {scale * shrink:.3f}")
+        log.info(f"atlas {atlas.width}x{atlas.height} exceeds {max_resolution}: texel density x {scale * shrink:.3f}")
         scale *= shrink
+        if scale < MIN_TEXEL_SCALE:
+            break
     else:
-        raise BTFError(f"cannot fit the atlas into {max_resolution} texels")
+        scale = 0.0
+    if not MIN_TEXEL_SCALE <= scale:
+        raise UsageError(f"{mesh.source}: cannot fit the atlas into {max_resolution} texels without making the "
+                         f"texture more than {1 / MIN_TEXEL_SCALE:g}x coarser than measured; lower the density or "
+                         "raise --max-resolution")
     vmap, faces, uv = atlas.get_mesh(0)
     face_chart = np.zeros(len(faces), np.int64)
     for c in range(atlas.get_mesh_chart_count(0)):
@@ -120,7 +180,7 @@ def make_atlas(mesh: TriMesh, density: float, *, max_resolution: int = 4096, pad
                  int(atlas.width), int(atlas.height), float(density * scale), float(scale), "xatlas")
 
 
-def uv_problems(mesh: TriMesh, width: int = 512) -> str | None:
+def uv_problems(mesh: Mesh, width: int = 512) -> str | None:
     """Why the mesh's own texture coordinates are unusable for a BTF atlas, or None if they are fine:
     missing, outside [0, 1], degenerate or mirrored triangles, or charts overlapping."""
     if mesh.uv is None:
@@ -128,14 +188,12 @@ def uv_problems(mesh: TriMesh, width: int = 512) -> str | None:
     uv = mesh.uv
     if not np.isfinite(uv).all() or uv.min() < 0 or uv.max() > 1:
         return "texture coordinates outside [0, 1]"
-    from .frames import mirrored_faces, uv_gradients
-
-    _, _, area = uv_gradients(mesh.points[mesh.faces], uv[mesh.faces])
+    _, _, area = uv_gradients(mesh.points[mesh.triangles], uv[mesh.triangles])
     if (np.abs(area) < 1e-14).any():
         return f"{int((np.abs(area) < 1e-14).sum())} triangles have zero texture area"
-    if mirrored_faces(mesh.points, mesh.faces, uv, mesh.normals).any():
+    if mirrored_faces(mesh.points, mesh.triangles, uv, mesh.normals).any():
         return "some triangles have mirrored texture coordinates"
-    xy = np.stack([uv[mesh.faces][..., 0] * width, (1 - uv[mesh.faces][..., 1]) * width], axis=-1)
+    xy = st_to_texels(uv[mesh.triangles], width, width)
     # Shrink every triangle a hair towards its centroid so neighbours sharing an edge do not
     # both claim texel centres lying exactly on it; then count texels claimed twice by
     # rasterising with the opposite tie order (a texel with two owners changes hands).
@@ -150,19 +208,19 @@ def uv_problems(mesh: TriMesh, width: int = 512) -> str | None:
     return None
 
 
-def keep_uvs(mesh: TriMesh, density: float) -> Atlas:
+def keep_uvs(mesh: Mesh, density: float) -> Atlas:
     """An atlas from the mesh's own texture coordinates (checked by :func:`uv_problems`), sized so
     the mean texel density matches ``density``; charts are connected components in uv space."""
     problem = uv_problems(mesh)
     if problem:
         raise BTFError(problem)
-    p = mesh.points[mesh.faces]
+    p = mesh.points[mesh.triangles]
     area3 = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1).sum()
-    u = mesh.uv[mesh.faces]
+    u = mesh.uv[mesh.triangles]
     area_uv = 0.5 * np.abs((u[:, 1, 0] - u[:, 0, 0]) * (u[:, 2, 1] - u[:, 0, 1])
                            - (u[:, 2, 0] - u[:, 0, 0]) * (u[:, 1, 1] - u[:, 0, 1])).sum()
     side = int(np.ceil(np.sqrt(area3 / area_uv) * density))
-    return Atlas(np.arange(len(mesh.points)), mesh.faces.copy(), mesh.uv.copy(), _uv_components(mesh.faces),
+    return Atlas(np.arange(len(mesh.points)), mesh.triangles.copy(), mesh.uv.copy(), _uv_components(mesh.triangles),
                  side, side, float(density), 1.0, "kept")
 
 

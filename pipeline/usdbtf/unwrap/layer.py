@@ -13,48 +13,22 @@ Layout (``mesh.usda``; metersPerUnit 1, the mesh's up axis, defaultPrim = the ro
                                           charts, method}, source = "<mesh file>"}
 
 Points stay shared across chart seams (the surface is watertight), the per-chart values are
-face-varying.  Packaging references this layer; ``usdbtf quilt --atlas`` and
-``usdbtf render --mesh`` read it with :func:`read_layer`.
+face-varying.  :func:`usdbtf.mesh.load_mesh` reads it like any USD mesh (frames and charts
+included); :func:`layer_atlas_info` reads the atlas record, :func:`usdbtf.unwrap.read_unwrap`
+both (with the chart map) for ``usdbtf quilt --atlas``.
 """
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from ..errors import BTFError
-from .atlas import Atlas
-from .meshes import TriMesh
+from ..mesh import Mesh
+from ..usdstage import open_usd, usd_warnings_silenced
+from .atlas import MAX_ATLAS_SIDE, Atlas
 
-__all__ = ["UnwrappedMesh", "write_layer", "read_layer"]
-
-
-@dataclass
-class UnwrappedMesh:
-    """A mesh with its atlas, as stored in the layer.
-
-    points (N, 3) metres; faces (F, 3) point indices; normals (N, 3); corner (F, 3) atlas-vertex
-    index per triangle corner; st, tangents, bitangents (M, ...) per atlas vertex;
-    face_chart (F,); atlas : dict (width, height, texels_per_metre, ...).
-    """
-
-    points: np.ndarray
-    faces: np.ndarray
-    normals: np.ndarray
-    corner: np.ndarray
-    st: np.ndarray
-    tangents: np.ndarray
-    bitangents: np.ndarray
-    face_chart: np.ndarray
-    atlas: dict
-    up_axis: str = "Y"
-
-    def corner_texels(self) -> np.ndarray:
-        """(F, 3, 2) corner positions in atlas texels (x right, y down)."""
-        st = self.st[self.corner]
-        return np.stack([st[..., 0] * self.atlas["width"], (1.0 - st[..., 1]) * self.atlas["height"]], axis=-1)
+__all__ = ["write_layer", "layer_atlas_info"]
 
 
 def _prim_name(name: str) -> str:
@@ -62,9 +36,18 @@ def _prim_name(name: str) -> str:
     return clean if not clean[0].isdigit() else "_" + clean
 
 
-def write_layer(path, mesh: TriMesh, atlas: Atlas, tangents: np.ndarray, bitangents: np.ndarray, *,
-                padding: int, source: str) -> None:
-    """Write the geometry layer at ``path`` (a new file; the caller makes it atomic)."""
+def _per_atlas_vertex(values: np.ndarray, atlas: Atlas) -> np.ndarray:
+    """(M, k) values per atlas vertex from per-corner values (F, 3, k) (corners sharing an atlas
+    vertex hold the same value)."""
+    out = np.zeros((len(atlas.st), values.shape[-1]))
+    out[atlas.faces.ravel()] = values.reshape(-1, values.shape[-1])
+    return out
+
+
+def write_layer(path, mesh: Mesh, atlas: Atlas, *, padding: int, source: str) -> None:
+    """Write the geometry layer of the unwrapped ``mesh`` (per-vertex normals, per-corner
+    tangents and bitangents; its triangles are ``atlas.vertex_of[atlas.faces]``) at ``path``
+    (a new file; the caller makes it atomic)."""
     from pxr import Kind, Sdf, Usd, UsdGeom, Vt
 
     stage = Usd.Stage.CreateNew(str(path))
@@ -77,8 +60,8 @@ def write_layer(path, mesh: TriMesh, atlas: Atlas, tangents: np.ndarray, bitange
     pts = mesh.points.astype(np.float32)
     geom.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts))
     geom.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([pts.min(axis=0), pts.max(axis=0)])))
-    geom.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(mesh.faces), 3, np.int32)))
-    geom.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(mesh.faces.astype(np.int32).ravel()))
+    geom.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(mesh.triangles), 3, np.int32)))
+    geom.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(mesh.triangles.astype(np.int32).ravel()))
     geom.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
     geom.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)
     geom.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(mesh.normals.astype(np.float32)))
@@ -88,9 +71,9 @@ def write_layer(path, mesh: TriMesh, atlas: Atlas, tangents: np.ndarray, bitange
     st = api.CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying)
     st.Set(Vt.Vec2fArray.FromNumpy(atlas.st.astype(np.float32)))
     st.SetIndices(corner)
-    for name, values in (("tangents", tangents), ("bitangents", bitangents)):
+    for name in ("tangents", "bitangents"):
         pv = api.CreatePrimvar(name, Sdf.ValueTypeNames.Vector3fArray, UsdGeom.Tokens.faceVarying)
-        pv.Set(Vt.Vec3fArray.FromNumpy(values.astype(np.float32)))
+        pv.Set(Vt.Vec3fArray.FromNumpy(_per_atlas_vertex(getattr(mesh, name), atlas).astype(np.float32)))
         pv.SetIndices(corner)
     chart = api.CreatePrimvar("usdbtf:chart", Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.uniform)
     chart.Set(Vt.IntArray.FromNumpy(atlas.face_chart.astype(np.int32)))
@@ -101,43 +84,26 @@ def write_layer(path, mesh: TriMesh, atlas: Atlas, tangents: np.ndarray, bitange
     stage.GetRootLayer().Save()
 
 
-def read_layer(path) -> UnwrappedMesh:
-    """Read a layer written by :func:`write_layer` (BTFError naming the file if it is not one)."""
-    from pxr import Tf, Usd, UsdGeom
+def layer_atlas_info(path) -> dict:
+    """The atlas record (width, height, texels_per_metre, texel_scale, padding, charts, method;
+    plus ``source``) of a layer :func:`write_layer` wrote; BTFError naming the file when it is
+    not one or the size is outside 1 .. MAX_ATLAS_SIDE."""
+    from pxr import UsdGeom
 
-    path = Path(path)
-    if not path.is_file():
-        raise BTFError(f"{path}: no such file (run `usdbtf unwrap` first)")
-    try:
-        stage = Usd.Stage.Open(str(path))
-    except Tf.ErrorException as exc:
-        raise BTFError(f"{path}: cannot open USD layer ({' '.join(str(exc).split())[:200]})") from None
+    with usd_warnings_silenced():
+        stage = open_usd(path)
     prims = [p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh) and p.GetCustomDataByKey("usdbtf")]
     if not prims:
         raise BTFError(f"{path}: no Mesh written by `usdbtf unwrap` (customData usdbtf missing)")
-    prim = prims[0]
-    geom = UsdGeom.Mesh(prim)
-    api = UsdGeom.PrimvarsAPI(prim)
+    if len(prims) > 1:
+        raise BTFError(f"{path}: {len(prims)} meshes written by `usdbtf unwrap`; expected one")
+    data = prims[0].GetCustomDataByKey("usdbtf")
     try:
-        atlas = dict(prim.GetCustomDataByKey("usdbtf")["atlas"])
-        atlas["width"], atlas["height"] = int(atlas["width"]), int(atlas["height"])
-        counts = np.asarray(geom.GetFaceVertexCountsAttr().Get(), np.int64)
-        if (counts != 3).any():
-            raise ValueError("faces are not triangles")
-        faces = np.asarray(geom.GetFaceVertexIndicesAttr().Get(), np.int64).reshape(-1, 3)
-        points = np.asarray(geom.GetPointsAttr().Get(), np.float64) * UsdGeom.GetStageMetersPerUnit(stage)
-        normals = np.asarray(geom.GetNormalsAttr().Get(), np.float64)
-        st_pv = api.GetPrimvar("st")
-        corner = np.asarray(st_pv.GetIndices(), np.int64).reshape(-1, 3)
-        values = {name: np.asarray(api.GetPrimvar(name).Get(), np.float64) for name in ("st", "tangents", "bitangents")}
-        face_chart = np.asarray(api.GetPrimvar("usdbtf:chart").Get(), np.int64)
-        ok = (len(corner) == len(faces) == len(face_chart) and normals.shape == points.shape
-              and faces.max() < len(points) and corner.max() < len(values["st"])
-              and len(values["tangents"]) == len(values["bitangents"]) == len(values["st"]))
-        if not ok:
-            raise ValueError("array sizes do not agree")
-    except (KeyError, TypeError, ValueError, AttributeError) as exc:
-        raise BTFError(f"{path}: not a valid `usdbtf unwrap` layer ({exc})") from None
-    up = str(UsdGeom.GetStageUpAxis(stage))
-    return UnwrappedMesh(points, faces, normals, corner, values["st"], values["tangents"], values["bitangents"],
-                         face_chart, atlas, up)
+        info = dict(data["atlas"])
+        info["width"], info["height"] = int(info["width"]), int(info["height"])
+        info["source"] = str(data.get("source", ""))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise BTFError(f"{path}: not a valid `usdbtf unwrap` layer (customData usdbtf.atlas: {exc})") from None
+    if not (1 <= info["width"] <= MAX_ATLAS_SIDE and 1 <= info["height"] <= MAX_ATLAS_SIDE):
+        raise BTFError(f"{path}: atlas size {info['width']}x{info['height']} is outside 1..{MAX_ATLAS_SIDE}")
+    return info

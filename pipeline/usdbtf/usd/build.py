@@ -18,27 +18,51 @@ excluded, as USD composes them), computes the material bound to every imageable 
 looked at again.  :func:`build` writes an SConstruct for those steps (compress, when the
 source is not already compressed, then package) and runs SCons with content signatures,
 so a second build with unchanged inputs runs nothing.
+
+Scene text is data, never code:
+
+* ``btf:build:options`` is split with :mod:`shlex` and parsed by the compress command's own
+  argument parser; only the options in :data:`usdbtf.compress.arguments.SCENE_OPTIONS`
+  are allowed, and what reaches the command line is rebuilt from the parsed, typed values.
+  Anything else is an error naming the prim and the attribute.
+* The SConstruct is fixed text; the steps (paths, options) are in ``steps.json`` beside it.
+  SCons nodes are made from the raw paths without substitution, and every step is a Python
+  function action that runs ``usdbtf`` with an argument list (no shell, no ``$`` expansion).
+* Outputs are never the scene (or a layer of its layer stack), never inside or around a
+  source, and are marked precious so SCons never deletes them before a rebuild: a failed
+  rebuild keeps the last good compressed folder and asset (each is replaced only when the
+  new one is complete).  An existing output this build did not write before is refused
+  unless ``--force`` (and even then only a usdbtf output of the same kind is replaced).
 """
 from __future__ import annotations
 
+import argparse
+import contextlib
 import json
 import os
+import shlex
 import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..atomic import atomic_file, related
 from ..compress.format import METADATA as COMPRESSED_METADATA
-from ..errors import BTFError
-from ..manifest import MANIFEST
+from ..errors import BTFError, OutputRefused, error_for_status
 from .material import NS
 
+__all__ = ["Recipe", "plan", "build", "sconstruct", "parse_options", "BUILD_DIR"]
+
 BUILD_DIR = ".usdbtf-build"
+_STEPS = "steps.json"
+_FAILURE = "failure.json"
+_OWNED = "outputs.json"
 
 
 @dataclass(frozen=True)
 class Recipe:
-    """What to build for one bound BTF material (absolute paths)."""
+    """What to build for one bound BTF material (absolute paths; ``options`` is the
+    checked, canonical compress argument list)."""
 
     material: str
     source: Path
@@ -52,6 +76,59 @@ class Recipe:
             return self.source
         return self.asset.parent / f"{self.asset.stem}_compressed"
 
+    def outputs(self) -> list[Path]:
+        """Every path this recipe writes (the intermediate compressed folder, the asset's pieces)."""
+        from .package import asset_pieces
+
+        pieces = [self.asset.parent / name for name, _, _ in asset_pieces(self.asset)]
+        return ([self.compressed] if self.compressed != self.source else []) + pieces
+
+
+class _OptionsParser(argparse.ArgumentParser):
+    def error(self, message):
+        raise _BadOptions(" ".join(str(message).split()))
+
+
+class _BadOptions(Exception):
+    pass
+
+
+def parse_options(text, where: str) -> tuple[str, ...]:
+    """``btf:build:options`` -> the canonical compress argument list, or BTFError naming ``where``.
+
+    Split like a shell would (quotes, no expansion), parsed by the compress command's
+    parser, restricted to :data:`~usdbtf.compress.arguments.SCENE_OPTIONS`, and rebuilt
+    from the typed values, so nothing of the original text reaches a command line."""
+    from ..compress.arguments import SCENE_OPTIONS, add_arguments
+
+    if text is None:
+        return ()
+    if not isinstance(text, str):
+        raise BTFError(f"{where}: must be a string of usdbtf compress options, got {type(text).__name__}")
+    try:
+        tokens = shlex.split(text, comments=False, posix=True)
+    except ValueError as exc:
+        raise BTFError(f"{where}: cannot split {text!r}: {exc}") from None
+    parser = _OptionsParser(prog="btf:build:options", add_help=False, allow_abbrev=False)
+    add_arguments(parser)
+    base = ["input", "-o", "output"]
+    try:
+        defaults = parser.parse_args(base)
+        parsed = parser.parse_args(base + tokens)
+    except _BadOptions as exc:
+        raise BTFError(f"{where}: {exc} (in {text!r})") from None
+    flags = {a.dest: a.option_strings[-1] for a in parser._actions if a.option_strings}
+    out = []
+    for dest, value in vars(parsed).items():
+        if value == getattr(defaults, dest, None):
+            continue
+        if dest not in SCENE_OPTIONS:
+            name = flags.get(dest, dest)
+            raise BTFError(f"{where}: {name} is not allowed in a scene (allowed: "
+                           f"{', '.join(flags[d] for d in SCENE_OPTIONS)})")
+        out += [flags[dest], repr(value) if isinstance(value, float) else str(value)]
+    return tuple(out)
+
 
 def _anchored(prim, name: str) -> Path | None:
     """Absolute path of an asset attribute, anchored to the layer that authored it
@@ -62,10 +139,12 @@ def _anchored(prim, name: str) -> Path | None:
     if not attr or not attr.HasAuthoredValue():
         return None
     value = attr.Get()
+    if not isinstance(value, Sdf.AssetPath) or not value.path or "\0" in value.path:
+        raise BTFError(f"{prim.GetPath()}: {NS}{name} must be an asset path, got {value!r}")
     for spec in attr.GetPropertyStack():
         if spec.HasDefaultValue():
-            return Path(Sdf.ComputeAssetPathRelativeToLayer(spec.layer, value.path))
-    return Path(value.path)
+            return Path(os.path.abspath(Sdf.ComputeAssetPathRelativeToLayer(spec.layer, value.path)))
+    return Path(os.path.abspath(value.path))
 
 
 def _bound_materials(stage) -> dict[str, list[str]]:
@@ -88,18 +167,36 @@ def _bound_materials(stage) -> dict[str, list[str]]:
     return bound
 
 
+def _check_outputs(scene: Path, path: str, recipe: Recipe, protected: list[Path]) -> None:
+    """The recipe's outputs must leave the scene's layers and the source alone."""
+    for out in recipe.outputs():
+        for p in protected:
+            rel = related(out, p)
+            if rel:
+                raise OutputRefused(f"{scene}: {path}: {NS}build:asset: {out} {rel} {p}, a layer of the scene "
+                                    "being built; choose another asset path")
+        if out != recipe.source:
+            rel = related(out, recipe.source)
+            if rel:
+                raise OutputRefused(f"{scene}: {path}: {NS}build:asset: {out} {rel} the source {recipe.source}; "
+                                    "choose another asset path")
+
+
 def plan(scene) -> tuple[list[Recipe], dict]:
     """(recipes of bound BTF materials, report) for ``scene``.
 
     The report lists ``bound`` materials with the prims bound to them and
     ``without_recipe`` (bound materials that have nothing to build)."""
-    from .read import open_usd, usd_warnings_silenced
+    from ..usdstage import open_usd, usd_warnings_silenced
+    from .package import ROOT_FORMATS
 
     scene = Path(scene)
     # Composition errors are expected before the first build: the materials reference
     # the assets this builds.
     with usd_warnings_silenced():
         stage = open_usd(scene, composition_errors=False)
+    protected = [Path(layer.realPath) for layer in stage.GetLayerStack(includeSessionLayers=False)
+                 if layer.realPath] + [scene]
     bound = _bound_materials(stage)
     recipes, without = [], []
     for path in sorted(bound):
@@ -109,13 +206,17 @@ def plan(scene) -> tuple[list[Recipe], dict]:
             without.append(path)
             continue
         asset = _anchored(prim, "build:asset")
-        if asset is None or asset.suffix != ".usda":
-            raise BTFError(f"{scene}: {path} has btf:build:source but no btf:build:asset (.usda) to write")
+        if asset is None or asset.suffix not in ROOT_FORMATS:
+            raise BTFError(f"{scene}: {path} has btf:build:source but no btf:build:asset "
+                           f"({'/'.join(ROOT_FORMATS)}) to write")
         if not source.exists():
             raise BTFError(f"{scene}: {path}: btf:build:source {source} does not exist")
-        options = tuple((prim.GetAttribute(NS + "build:options").Get() or "").split())
-        recipes.append(Recipe(path, source, options, asset))
-    outputs = [r.asset for r in recipes]
+        attr = prim.GetAttribute(NS + "build:options")
+        options = parse_options(attr.Get() if attr else None, f"{scene}: {path}: {NS}build:options")
+        recipe = Recipe(path, source, options, asset)
+        _check_outputs(scene, path, recipe, protected)
+        recipes.append(recipe)
+    outputs = [o for r in recipes for o in r.outputs()]
     if len(set(outputs)) != len(outputs):
         raise BTFError(f"{scene}: two materials write the same btf:build:asset")
     return recipes, {"bound": bound, "without_recipe": without}
@@ -128,70 +229,151 @@ def _source_files(folder: Path) -> list[str]:
     return sorted(str(Path(d) / f) for d, _, fs in os.walk(folder) for f in fs if not f.startswith("."))
 
 
-def sconstruct(recipes: list[Recipe]) -> str:
-    """The text of the SConstruct that builds ``recipes`` (targets are index files)."""
-    steps = []
+def steps(recipes: list[Recipe]) -> dict:
+    """The data the SConstruct builds from: one compress (when needed) and one package step
+    per recipe, each with its targets, sources and ``usdbtf`` argument list."""
+    out = []
     for r in recipes:
-        step = {"material": r.material, "asset": str(r.asset), "package_source": str(r.compressed / COMPRESSED_METADATA)}
+        step = {"material": r.material, "asset": str(r.asset),
+                "package_source": str(r.compressed / COMPRESSED_METADATA),
+                "package": ["package", "--force", "-q", "-o", str(r.asset), "--", str(r.compressed)]}
         if r.compressed != r.source:
-            step["compress"] = {"sources": _source_files(r.source), "input": str(r.source),
-                                "output": str(r.compressed), "options": list(r.options)}
+            step["compress"] = {"sources": _source_files(r.source),
+                                "argv": ["compress", "--force", "-q", *r.options, "-o", str(r.compressed), "--",
+                                         str(r.source)]}
         else:
             step["compressed_files"] = _source_files(r.source)
-        steps.append(step)
-    return _SCONSTRUCT.format(python=json.dumps(sys.executable), steps=json.dumps(steps, indent=1))
+        out.append(step)
+    return {"python": sys.executable, "failure": _FAILURE, "steps": out}
 
 
-_SCONSTRUCT = '''# Generated by `usdbtf build`: one compress (when needed) and one package step per
-# bound BTF material.  Content signatures: unchanged inputs rebuild nothing.
+def sconstruct(recipes: list[Recipe] | None = None) -> str:
+    """The SConstruct text: fixed, whatever the scene says (the steps are data in steps.json)."""
+    return _SCONSTRUCT
+
+
+_SCONSTRUCT = '''# Generated by `usdbtf build`: one compress (when needed) and one package step per bound
+# BTF material, read from steps.json.  Content signatures: unchanged inputs rebuild nothing.
+# Scene data never becomes code or a command line here: nodes are made from the raw paths
+# (no $ substitution) and each step is a Python function running usdbtf with an argument list.
 import json
+import os
+import subprocess
+import sys
+
 Decider("content")
 SConsignFile(".sconsign")
-env = Environment(ENV=dict(__import__("os").environ))
-PY = {python}
-STEPS = json.loads(r"""{steps}""")
+env = Environment(tools=[], ENV={})
+HERE = os.getcwd()
+with open(os.path.join(HERE, "steps.json")) as fh:
+    DATA = json.load(fh)
+
+
+def node(path):
+    return env.fs.File(path)
+
+
+def usdbtf_step(argv, label):
+    def run_step(target, source, env):
+        res = subprocess.run([DATA["python"], "-m", "usdbtf.cli", *argv], stdin=subprocess.DEVNULL,
+                             capture_output=True, text=True)
+        if res.returncode:
+            lines = [x for x in res.stderr.splitlines() if x.startswith("usdbtf ")] or \\
+                res.stderr.strip().splitlines() or ["exit status %d" % res.returncode]
+            with open(os.path.join(HERE, DATA["failure"]), "w") as out:
+                json.dump({"status": res.returncode, "message": lines[-1]}, out)
+            sys.stderr.write(res.stderr)
+        return res.returncode
+
+    return Action(run_step, strfunction=lambda target, source, env: label)
+
+
 targets = []
-for s in STEPS:
+for s in DATA["steps"]:
     if "compress" in s:
         c = s["compress"]
-        compressed = env.Command(s["package_source"], c["sources"],
-                                 [[PY, "-m", "usdbtf.cli", "compress", c["input"], "-o", c["output"], "-q"] + c["options"]])
-        sources = compressed
+        sources = env.Command(node(s["package_source"]), [node(p) for p in c["sources"]],
+                              usdbtf_step(c["argv"], "usdbtf-step compress " + json.dumps(s["material"])))
     else:
-        sources = [s["package_source"]] + s["compressed_files"]
-    targets += env.Command(s["asset"], sources,
-                           [[PY, "-m", "usdbtf.cli", "package", __import__("os").path.dirname(s["package_source"]),
-                             "-o", s["asset"], "-q"]])
+        sources = [node(s["package_source"])] + [node(p) for p in s["compressed_files"]]
+    targets += sources if "compress" in s else []
+    targets += env.Command(node(s["asset"]), sources,
+                           usdbtf_step(s["package"], "usdbtf-step package " + json.dumps(s["material"])))
+env.Precious(targets)    # never deleted before a rebuild: a failed one keeps the last good build
+env.NoClean(targets)
 Default(targets)
 '''
 
 
-def build(scene, *, log=None) -> dict:
-    """Build what ``scene`` needs; returns the report (plan + ``ran``: the commands SCons ran)."""
+def _owned(work: Path) -> set[str]:
+    try:
+        doc = json.loads((work / _OWNED).read_text())
+    except (OSError, ValueError):
+        return set()
+    return {p for p in doc if isinstance(p, str)} if isinstance(doc, list) else set()
+
+
+def _claim_outputs(scene: Path, recipes: list[Recipe], work: Path, force: bool) -> None:
+    """Refuse outputs that exist but this build did not write (unless ``force``), then
+    record every output as this build's."""
+    owned = _owned(work)
+    mine = []
+    for r in recipes:
+        for out in r.outputs():
+            if os.path.lexists(out) and str(out) not in owned and not force:
+                raise OutputRefused(f"{scene}: {r.material}: {out} exists and was not written by a build of this "
+                                    "scene; pass --force to replace it (if it is a usdbtf output of the same kind)")
+            mine.append(str(out))
+    work.mkdir(parents=True, exist_ok=True)
+    with atomic_file(work / _OWNED, owner_checked=True) as tmp:
+        tmp.write_text(json.dumps(sorted(owned | set(mine)), indent=1) + "\n")
+
+
+def build(scene, *, force: bool = False, log=None) -> dict:
+    """Build what ``scene`` needs; returns the report (plan + ``ran``: the steps SCons ran).
+
+    force : replace existing outputs this build did not write before (only usdbtf outputs
+        of the same kind; see the module docstring)."""
     log = log or (lambda msg: None)
     scene = Path(scene).resolve()
     recipes, report = plan(scene)
     for path in report["without_recipe"]:
         log(f"{path}: bound, no btf:build recipe (nothing to build)")
     work = scene.parent / BUILD_DIR / scene.stem
-    work.mkdir(parents=True, exist_ok=True)
-    text = sconstruct(recipes)
-    script = work / "SConstruct"
-    if not script.is_file() or script.read_text() != text:
-        script.write_text(text)
+    _claim_outputs(scene, recipes, work, force)
+    for name, text in (("SConstruct", sconstruct()), (_STEPS, json.dumps(steps(recipes), indent=1) + "\n")):
+        if not (work / name).is_file() or (work / name).read_text() != text:
+            with atomic_file(work / name, owner_checked=True) as tmp:
+                tmp.write_text(text)
+    (work / _FAILURE).unlink(missing_ok=True)
+    missing = [p for r in recipes for p in {r.compressed, r.asset.parent} if not os.path.lexists(p)]
     env = dict(os.environ)
     pipeline = str(Path(__file__).resolve().parents[2])
     env["PYTHONPATH"] = pipeline + os.pathsep + env.get("PYTHONPATH", "")
-    proc = subprocess.run([sys.executable, "-m", "SCons", "-Q", "-f", str(script), "-C", str(work)],
-                          capture_output=True, text=True, env=env)
-    ran = [line for line in proc.stdout.splitlines()
-           if "usdbtf.cli" in line and not line.startswith("scons:")]
+    proc = subprocess.run([sys.executable, "-m", "SCons", "-Q", "--no-site-dir", "-f", str(work / "SConstruct"),
+                           "-C", str(work)], capture_output=True, text=True, env=env, stdin=subprocess.DEVNULL)
+    ran = [line for line in proc.stdout.splitlines() if line.startswith("usdbtf-step ")]
     if proc.returncode:
-        detail = (proc.stderr.strip().splitlines() or proc.stdout.strip().splitlines() or ["?"])
-        usdbtf_err = [line for line in detail if line.startswith("usdbtf ")]
-        raise BTFError(f"{scene}: build failed: {(usdbtf_err or detail)[-1]}")
+        for p in sorted(missing, key=lambda q: len(q.parts), reverse=True):
+            with contextlib.suppress(OSError):
+                p.rmdir()              # a folder SCons made for a target it did not build
+        failure = _failure(work)
+        if failure is not None:
+            raise error_for_status(failure[0], f"{scene}: build failed: {failure[1]}")
+        detail = proc.stderr.strip().splitlines() or proc.stdout.strip().splitlines() or ["?"]
+        raise BTFError(f"{scene}: build failed: {detail[-1]}")
     for r in recipes:
         log(f"{r.material}: {r.asset}")
     log(f"{len(recipes)} bound BTF material(s); {len(ran)} step(s) run" + ("" if ran else " (all up to date)"))
     report.update(recipes=recipes, ran=ran)
     return report
+
+
+def _failure(work: Path) -> tuple[int, str] | None:
+    try:
+        doc = json.loads((work / _FAILURE).read_text())
+        (work / _FAILURE).unlink()
+        return int(doc["status"]), str(doc["message"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+

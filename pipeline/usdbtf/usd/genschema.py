@@ -117,18 +117,13 @@ def plug_info(source: Path, *, shader_resources: str | None = "shaders") -> str:
     return json.dumps(doc, indent=2, sort_keys=True) + "\n"
 
 
-def schema_version(source: Path) -> int:
-    """The ``schemaVersion`` recorded in /GLOBAL's customData (1 when absent)."""
-    return int(_library(_open(Path(source)), Path(source)).get("schemaVersion", 1))
-
-
 def generate(source: Path, out_dir: Path) -> list[Path]:
     """Write generatedSchema.usda and plugInfo.json into ``out_dir`` (atomically); returns the paths."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     written = []
     for name, text in ((GENERATED, generated_schema(source)), (PLUGINFO, plug_info(source))):
-        with atomic_file(out_dir / name) as tmp:
+        with atomic_file(out_dir / name, owner_checked=True) as tmp:   # generated files of the plugin
             Path(tmp).write_text(text)
         written.append(out_dir / name)
     return written

@@ -1,9 +1,14 @@
-"""A human-readable summary of the BTF materials on a stage (``usdbtf inspect``)."""
+"""What the BTF materials on a stage hold (``usdbtf inspect``): a summary dict and its text.
+
+:func:`summary` is the machine-readable form (``inspect --json``; keys in the README's
+"Scripting" section), :func:`describe` the human-readable one written from it.
+"""
 from __future__ import annotations
 
 import numpy as np
 
 from .material import LOD_VARIANT_SET, NS, btf_materials
+from ..usdstage import resolve_usd
 from .read import find_material, open_stage
 
 
@@ -26,15 +31,16 @@ def _error_at(prim, k: int) -> float | None:
 
 
 def _lod_levels(stage, prim) -> list[tuple[str, int]]:
-    """(variant name, basis count) for each lod variant of the material's asset root."""
+    """(variant name, basis count) for each ``lod`` variant of the material (its own set,
+    else the nearest ancestor's), largest first."""
     from pxr import Usd
 
-    root = prim
-    while root and not (root.HasVariantSets() and root.GetVariantSets().HasVariantSet(LOD_VARIANT_SET)):
-        root = root.GetParent()
-    if not root or root.IsPseudoRoot():
+    owner = prim
+    while owner and not (owner.HasVariantSets() and owner.GetVariantSets().HasVariantSet(LOD_VARIANT_SET)):
+        owner = owner.GetParent()
+    if not owner or owner.IsPseudoRoot():
         return []
-    vset = root.GetVariantSets().GetVariantSet(LOD_VARIANT_SET)
+    vset = owner.GetVariantSets().GetVariantSet(LOD_VARIANT_SET)
     current = vset.GetVariantSelection()
     levels = []
     with Usd.EditContext(stage, stage.GetSessionLayer()):
@@ -43,56 +49,99 @@ def _lod_levels(stage, prim) -> list[tuple[str, int]]:
             p = stage.GetPrimAtPath(prim.GetPath())
             count = p.GetAttribute(NS + "basisCount").Get() or len(p.GetAttribute(NS + "coefficients").Get() or [])
             levels.append((name, int(count)))
-        vset.SetVariantSelection(current)
+        if current:
+            vset.SetVariantSelection(current)
+        else:
+            vset.ClearVariantSelection()
     return sorted(levels, key=lambda x: -x[1])
 
 
-def describe(path) -> str:
-    """Multi-line summary of every BTF material reachable from ``path``."""
+def _theta_range(directions: np.ndarray) -> list[float] | None:
+    return [float(directions[:, 0].min()), float(directions[:, 0].max())] if len(directions) else None
+
+
+def material_summary(stage, prim) -> dict:
+    """One BTF material's entry of :func:`summary`."""
+    get = lambda name: prim.GetAttribute(NS + name).Get()  # noqa: E731
+    coeffs = list(get("coefficients") or [])
+    entry = {"path": str(prim.GetPath())}
+    if get("basis") is None or not coeffs:
+        source = get("build:source")
+        entry.update(built=False, recipe={"source": source.path if source else None,
+                                          "options": get("build:options") or "",
+                                          "asset": get("build:asset").path if get("build:asset") else None})
+        return entry
+    k = int(get("basisCount") or len(coeffs))
+    view = np.asarray(get("viewDirections") or [], float).reshape(-1, 2)
+    light = np.asarray(get("lightDirections") or [], float).reshape(-1, 2)
+    basis_bytes = asset_bytes(get("basis"))
+    coeff_bytes = sum(asset_bytes(a) for a in coeffs[:k])
+    size = get("physicalSize")
+    entry.update(
+        built=True, k=k, coefficients=len(coeffs), resolution=[int(x) for x in (get("resolution") or (0, 0))],
+        physical_size_m=[float(x) for x in size] if size and size[0] > 0 else None,
+        bytes={"total": basis_bytes + coeff_bytes, "basis": basis_bytes, "coefficients": coeff_bytes},
+        samples=len(view), views=len({tuple(v) for v in view}), lights=len({tuple(v) for v in light}),
+        view_theta_deg=_theta_range(view), light_theta_deg=_theta_range(light),
+        interpolated=len(get("interpolatedSamples") or []), error_percent=_error_at(prim, k),
+        color_space=get("colorSpace"), ocio_config=get("ocioConfig"),
+        source={"color_space": get("source:colorSpace"), "bit_depth": get("source:bitDepth")},
+        provenance={"solver": get("provenance:solver"), "codec": get("provenance:codec"),
+                    "version": get("provenance:version"), "source": get("provenance:source")},
+        lod=[{"name": name, "k": n, "error_percent": _error_at(prim, n)} for name, n in _lod_levels(stage, prim)])
+    return entry
+
+
+def summary(path) -> dict:
+    """{"asset", "resolved", "meters_per_unit", "up_axis", "composition_errors", "materials": [...]}
+    for every BTF material reachable from ``path`` (opened through the asset resolver)."""
     stage = open_stage(path)
     prims = btf_materials(stage)
     if not prims:
         find_material(stage)   # raises, naming the composition error that hid them if any
-    lines = [f"{path}: {len(prims)} BTF material(s); metersPerUnit "
-             f"{stage.GetMetadata('metersPerUnit')}, upAxis {stage.GetMetadata('upAxis')}"]
-    errors = stage.GetCompositionErrors()
+    return {"asset": str(path), "resolved": resolve_usd(path),
+            "meters_per_unit": stage.GetMetadata("metersPerUnit"), "up_axis": stage.GetMetadata("upAxis"),
+            "composition_errors": [" ".join(str(e).split()) for e in stage.GetCompositionErrors()],
+            "materials": [material_summary(stage, prim) for prim in prims]}
+
+
+def describe(path, info: dict | None = None) -> str:
+    """Multi-line summary of every BTF material reachable from ``path`` (or of ``info``,
+    a :func:`summary` already made)."""
+    info = info or summary(path)
+    lines = [f"{info['asset']}: {len(info['materials'])} BTF material(s); metersPerUnit "
+             f"{info['meters_per_unit']}, upAxis {info['up_axis']}"]
+    errors = info["composition_errors"]
     if errors:
-        lines.append(f"  composition errors: {len(errors)}, first: {' '.join(str(errors[0]).split())}")
-    for prim in prims:
-        get = lambda name: prim.GetAttribute(NS + name).Get()  # noqa: E731
-        coeffs = list(get("coefficients") or [])
-        if get("basis") is None or not coeffs:
-            source = get("build:source")
-            lines.append(f"  {prim.GetPath()}\n    no BTF data yet" +
-                         (f" (recipe: build from {source.path} with `usdbtf build`)" if source else ""))
+        lines.append(f"  composition errors: {len(errors)}, first: {errors[0]}")
+    for m in info["materials"]:
+        if not m["built"]:
+            source = m["recipe"]["source"]
+            lines.append(f"  {m['path']}\n    no BTF data yet" +
+                         (f" (recipe: build from {source} with `usdbtf build`)" if source else ""))
             continue
-        k = int(get("basisCount") or len(coeffs))
-        view = np.asarray(get("viewDirections") or [], float).reshape(-1, 2)
-        light = np.asarray(get("lightDirections") or [], float).reshape(-1, 2)
-        basis_bytes = asset_bytes(get("basis"))
-        coeff_bytes = [asset_bytes(a) for a in coeffs[:k]]
-        w, h = get("resolution") or (0, 0)
-        size = get("physicalSize")
-        lines.append(f"  {prim.GetPath()}")
-        lines.append(f"    k            {k} of {len(coeffs)} coefficient textures, {w}x{h} texels"
-                     + (f", tile {size[0] * 100:.2f} x {size[1] * 100:.2f} cm" if size and size[0] > 0 else ""))
-        lines.append(f"    bytes        {basis_bytes + sum(coeff_bytes)} (basis {basis_bytes}, coefficients "
-                     f"{sum(coeff_bytes)})")
-        if len(view):
-            lines.append(f"    directions   {len(view)} samples: {len({tuple(v) for v in view})} views "
-                         f"(theta {view[:, 0].min():g}..{view[:, 0].max():g} deg), "
-                         f"{len({tuple(v) for v in light})} lights (theta {light[:, 0].min():g}.."
-                         f"{light[:, 0].max():g} deg), {len(get('interpolatedSamples') or [])} interpolated")
-        err = _error_at(prim, k)
-        lines.append(f"    error        " + (f"{err:.3f} % at k = {k} (scene-linear, paper's metric)"
+        w, h = m["resolution"]
+        size = m["physical_size_m"]
+        lines.append(f"  {m['path']}")
+        lines.append(f"    k            {m['k']} of {m['coefficients']} coefficient textures, {w}x{h} texels"
+                     + (f", tile {size[0] * 100:.2f} x {size[1] * 100:.2f} cm" if size else ""))
+        b = m["bytes"]
+        lines.append(f"    bytes        {b['total']} (basis {b['basis']}, coefficients {b['coefficients']})")
+        if m["samples"]:
+            (v0, v1), (l0, l1) = m["view_theta_deg"], m["light_theta_deg"]
+            lines.append(f"    directions   {m['samples']} samples: {m['views']} views (theta {v0:g}..{v1:g} deg), "
+                         f"{m['lights']} lights (theta {l0:g}..{l1:g} deg), {m['interpolated']} interpolated")
+        err = m["error_percent"]
+        lines.append("    error        " + (f"{err:.3f} % at k = {m['k']} (scene-linear, paper's metric)"
                                              if err is not None else "not recorded"))
-        lines.append(f"    colour       {get('colorSpace')} ({get('ocioConfig')}); measured in "
-                     f"{get('source:colorSpace')} {get('source:bitDepth')}")
-        lines.append(f"    provenance   {get('provenance:solver')} solver, {get('provenance:codec')} codec, "
-                     f"usdbtf {get('provenance:version')}, from {get('provenance:source')}")
-        levels = _lod_levels(stage, prim)
-        if levels:
+        lines.append(f"    colour       {m['color_space']} ({m['ocio_config']}); measured in "
+                     f"{m['source']['color_space']} {m['source']['bit_depth']}")
+        p = m["provenance"]
+        lines.append(f"    provenance   {p['solver']} solver, {p['codec']} codec, usdbtf {p['version']}, "
+                     f"from {p['source']}")
+        if m["lod"]:
             lines.append("    lod          " + ", ".join(
-                f"{name} (k = {n}" + (f", {_error_at(prim, n):.2f} %" if _error_at(prim, n) is not None else "")
-                + ")" for name, n in levels))
+                f"{lv['name']} (k = {lv['k']}"
+                + (f", {lv['error_percent']:.2f} %" if lv["error_percent"] is not None else "") + ")"
+                for lv in m["lod"]))
     return "\n".join(lines)

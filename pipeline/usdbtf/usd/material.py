@@ -41,13 +41,20 @@ def _set(prim, name: str, value) -> None:
 
 
 def author_btf(material, cbtf: CompressedBTF, basis: str, coefficients: list[str], *,
-               physical_size: tuple[float, float] | None = None, error_curve: list | None = None) -> None:
+               physical_size: tuple[float, float] | None = None, error_curve: list | None = None,
+               provenance_source: str | None = None) -> None:
     """Apply BtfMaterialAPI to ``material`` (a Material prim) and author ``cbtf``'s description.
 
     basis, coefficients : asset paths (relative to the layer being edited) of the
         basis image and the k coefficient textures, energy order.
     physical_size : (width, height) of the tile in metres.
     error_curve : [(k, percent), ...] measured reconstruction errors.
+    provenance_source : what ``btf:provenance:source`` records (default: the path the
+        compressed BTF recorded; packaging passes one relative to the asset).
+
+    Every ``btf:`` attribute that holds numbers or textures is declared ``raw`` (data: codes,
+    de-quantisation, directions), overriding the working space the Material declares for
+    what the BTF reconstructs (``Usd.ColorSpaceAPI``, ``btf:colorSpace``).
     """
     from pxr import Gf, Sdf, Usd, Vt
 
@@ -91,7 +98,9 @@ def author_btf(material, cbtf: CompressedBTF, basis: str, coefficients: list[str
         _set(material, "errorCurve:k", Vt.IntArray([int(kk) for kk, _ in error_curve]))
         _set(material, "errorCurve:percent", Vt.FloatArray([float(p) for _, p in error_curve]))
     prov = cbtf.info.get("provenance", {})
-    _set(material, "provenance:source", str(prov.get("source", cbtf.source.get("path", ""))))
+    if provenance_source is None:
+        provenance_source = str(prov.get("source", cbtf.source.get("path", "")))
+    _set(material, "provenance:source", provenance_source)
     if cbtf.info.get("solver") in ("rsvd", "paper"):
         _set(material, "provenance:solver", cbtf.info["solver"])
     _set(material, "provenance:codec", cbtf.codec)
@@ -100,6 +109,17 @@ def author_btf(material, cbtf: CompressedBTF, basis: str, coefficients: list[str
     usd_space = usd_color_space(cbtf.working_space, cbtf.ocio_config)
     if usd_space:
         Usd.ColorSpaceAPI.Apply(material).CreateColorSpaceNameAttr(usd_space)
+    mark_data_attributes(material)
+
+
+_TEXT_TYPES = ("string", "token")
+
+
+def mark_data_attributes(material) -> None:
+    """Declare every authored ``btf:`` attribute holding numbers or assets ``raw``."""
+    for attr in material.GetAuthoredAttributes():
+        if attr.GetName().startswith(NS) and str(attr.GetTypeName()).rstrip("[]") not in _TEXT_TYPES:
+            attr.SetColorSpace("raw")
 
 
 # -- reading ---------------------------------------------------------------

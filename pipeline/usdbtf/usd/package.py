@@ -1,89 +1,166 @@
 """``usdbtf package``: a compressed BTF as a USD asset (USD asset structure guidelines).
 
-Files written for ``-o out/pebbles.usda``::
+``package(compressed, PackageOptions) -> PackageResult`` does the work in memory: the
+textures (the compressed BTF's files, portable; the fitted fallback maps; the Storm preview's
+tables and packs; the thumbnail) are encoded into bytes the way ``compress`` encodes its own
+(in-memory files), the mesh is read and the fallback fitted.  ``write_package(result, out)``
+authors the layers, stages every file beside ``out``, validates them and publishes them as one
+group.  Files written for ``out = out/pebbles.usda`` (or ``.usdc``)::
 
     out/pebbles.usda             root layer: /pebbles (Xform, kind component, defaultPrim),
-                                 metersPerUnit 1, upAxis Y, assetInfo, the ``lod`` variant
-                                 set, and a payload arc to:
-    out/pebbles_payload.usda     the heavy part: geo/ (swatch quad at physical size, or the
-                                 given mesh) and mtl/BtfMaterial (BtfMaterialAPI, the preview
-                                 network), bound with MaterialBindingAPI
-    out/pebbles_textures/        basis.png|exr, coeff/c000.png ..., preview_albedo.png
+                                 metersPerUnit 1, upAxis Y, assetInfo, extentsHint, the
+                                 thumbnail (UsdMedia.AssetPreviewsAPI), the ``lod`` variant
+                                 sets (usd.lod), and a payload arc to:
+    out/pebbles_payload.usdc     the heavy part (``--payload-format usdc``, the default, or
+                                 usda): geo/ (swatch quad at physical size, or the given mesh)
+                                 and mtl/BtfMaterial (BtfMaterialAPI, the fitted
+                                 UsdPreviewSurface fallback, the Storm preview), bound
+    out/pebbles_textures/        basis, coeff/c000 ..., fallback/ (usd.fallback), gpu/
+                                 (usd.storm), thumbnail.png
     out/pebbles.usdz             with --usdz: the same, packaged (variants and payload kept)
+    out/pebbles_ar.usdz          with --usdz-ar: one usdc layer for AR viewers (usd.arkit)
+
+Why the layers are authored by ``write_package`` and not held as anonymous layers: the names
+in them (the root prim, ``<stem>_textures``, the relative provenance) follow ``out``, and
+USD's crate (usdc) writer lays out a file in the order its specs were authored into a
+file-backed layer, so authoring straight into the staged files keeps a given asset's bytes
+what they have always been.  :func:`asset_layers` authors the same layers into anonymous,
+in-memory ones (for inspection and tests).
 
 Textures are re-encoded losslessly into formats every USD consumer reads (JPEG XL and
-TIFF become PNG holding the same integer codes; PNG, JPEG and EXR are copied), so a
-reconstruction from the asset equals one from the compressed folder bit for bit.
-Every asset path is relative.  Everything is written into a staging folder, checked
-with every UsdValidation validator, and only then moved into place (root layer last):
-a failure leaves no half-written asset behind.
+TIFF become PNG holding the same integer codes; PNG, JPEG and EXR are copied), or into
+tiled, mip-mapped files with ``--texture-format`` (usd.textures; those are made from the
+in-memory bytes while staging, as OIIO's maketx writes only files); a reconstruction from
+the asset equals one from the compressed folder bit for bit.  Every asset path is relative,
+and so is the provenance (the source's path relative to the asset).  Everything is written
+into a staging folder beside the asset, checked for non-finite numbers and with every
+UsdValidation validator on every ``lod`` selection, and only then moved into place as one
+:func:`usdbtf.atomic.atomic_group` (:func:`asset_pieces`: textures, payload, usdz files,
+root layer last): a failure leaves the previous asset byte-identical, and a run killed
+while moving the pieces in is finished by the next one.  Every layer carries
+``customLayerData = {"usdbtf": {"output": "usdbtf-asset"}, ...}`` (usd.layers), so
+``--force`` recognises a previous asset (and replaces nothing else).
 """
 from __future__ import annotations
 
 import csv
+import hashlib
+import logging
 import os
-import shutil
-import tempfile
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
-from ..colour import processor
-from ..compress.codecs import Codec
-from ..compress.format import METADATA, CompressedBTF, basis_file, coefficient_file, read_compressed
-from ..errors import BTFError
-from ..imageio import write_image
-from . import geometry, preview, storm  # storm: issue 7 (Hydra preview)
+from ..atomic import atomic_group
+from ..compress.codecs import get_codec
+from ..compress.format import METADATA, CompressedBTF, EncodedTextures, basis_file, coefficient_file, read_compressed
+from ..errors import BTFError, UsageError
+from ..mesh import Mesh, load_mesh
+from ..mesh.author import author_mesh
+from ..outputs import ASSET, ASSET_TEXTURES
+from ..render.core import default_wrap
+from ..svbrdf import SvbrdfMaps
+from . import fallback, lod, storm, thumbnail
+from .arkit import AR_SUFFIX
+from .finite import non_finite_in_stage, non_finite_values
+from .layers import MATERIAL, make_usdz, stage_metadata, usd_write, valid_name
+from .lod import FULL_LOD, default_lods
 from .material import LOD_VARIANT_SET, author_btf
+from .textures import TEXTURE_FORMATS, USDZ_FORMATS, TextureSet, package_textures
 from .validate import validate_layer
 
-MATERIAL = "BtfMaterial"
-FULL_LOD = "full"
-#: Extensions every USD consumer (and the usdz spec) reads; others are re-encoded.
-_PORTABLE = {".png", ".jpg", ".jpeg", ".exr"}
+__all__ = ["PackageOptions", "PackageResult", "package", "write_package", "asset_layers", "read_input",
+           "asset_pieces", "check_root_layer", "make_usdz", "default_lods", "LOD_VARIANT_SET", "FULL_LOD",
+           "MATERIAL", "ROOT_FORMATS", "PAYLOAD_FORMATS", "read_error_curve", "physical_size_of",
+           "provenance_path"]
+
+ROOT_FORMATS = (".usda", ".usdc", ".usd")
+PAYLOAD_FORMATS = ("usdc", "usda")
+log = logging.getLogger(__name__)
 
 
-def default_lods(k: int) -> list[int]:
-    """Levels of detail for ``k`` vectors: k, then halvings down to no fewer than 4."""
-    levels, n = [], k // 2
-    while n >= 4 and len(levels) < 3:
-        levels.append(n)
-        n //= 2
-    return levels
+@dataclass
+class PackageOptions:
+    """What ``usdbtf package`` writes besides the root layer.
+
+    mesh : mesh with texture coordinates (OBJ/PLY/STL/GLB/USD); None for a swatch quad.
+    usdz / usdz_ar : also write ``<stem>.usdz`` (everything, variants and payload kept) /
+        ``<stem>_ar.usdz`` (one usdc layer for AR viewers, usd.arkit).
+    lods : basis counts of the ``lod`` variants besides "full" (default :func:`default_lods`).
+    physical_size : (width, height) in metres; default the source's ``physical_size_m``.
+    payload_format : "usdc" (default) or "usda".
+    texture_format : "png" (default), "tx" or "exr" (usd.textures).
+    asset_name : assetInfo name (default the file stem); asset_version : assetInfo version
+        (none unless given); creator : assetInfo and layer metadata (none unless given).
+    thumbnail : render and declare a thumbnail (UsdMedia.AssetPreviewsAPI).
+    validate : run every UsdValidation validator before publishing.
+    """
+
+    mesh: Path | None = None
+    usdz: bool = False
+    usdz_ar: bool = False
+    lods: list | None = None
+    physical_size: tuple | None = None
+    payload_format: str = "usdc"
+    texture_format: str = "png"
+    asset_name: str | None = None
+    asset_version: str | None = None
+    creator: str | None = None
+    thumbnail: bool = True
+    validate: bool = True
+
+    def check(self) -> None:
+        """Raise UsageError for options that contradict each other or are out of range."""
+        if self.payload_format not in PAYLOAD_FORMATS:
+            raise UsageError(f"--payload-format {self.payload_format!r}: choose from {', '.join(PAYLOAD_FORMATS)}")
+        if self.texture_format not in TEXTURE_FORMATS:
+            raise UsageError(f"--texture-format {self.texture_format!r}: choose from {', '.join(TEXTURE_FORMATS)}")
+        if self.usdz and self.texture_format not in USDZ_FORMATS:
+            raise UsageError(f"--usdz cannot hold {self.texture_format} textures (the usdz spec allows PNG, JPEG, "
+                             f"EXR): use --texture-format {' or '.join(USDZ_FORMATS)}")
+        for flag, value in (("--asset-name", self.asset_name), ("--asset-version", self.asset_version),
+                            ("--creator", self.creator)):
+            if value is not None and (not value.strip() or any(ord(ch) < 32 for ch in value)):
+                raise UsageError(f"{flag} {value!r}: must be non-empty text without control characters")
 
 
-def _portable_copy(src: Path, dst_no_ext: Path) -> str:
-    """Copy ``src`` (PNG/JPEG/EXR) or re-encode it as PNG (same integer codes); returns the new suffix."""
-    suffix = src.suffix.lower()
-    if suffix in _PORTABLE:
-        dst = dst_no_ext.with_suffix(suffix)
-        shutil.copyfile(src, dst)
-        return suffix
-    pixels = Codec.read(src)
-    if pixels.dtype not in (np.uint8, np.uint16):
-        raise BTFError(f"{src}: cannot re-encode {pixels.dtype} texture as PNG")
-    write_image(dst_no_ext.with_suffix(".png"), pixels, color_space="data", attributes={"png:compressionLevel": 6})
-    return ".png"
+@dataclass
+class PackageResult:
+    """A packaged BTF in memory, everything but the layers (which name the files they sit
+    beside: :func:`write_package` authors them, :func:`asset_layers` in memory).
+
+    compressed : the compressed BTF; options : the :class:`PackageOptions`; mesh : the geometry
+    (the swatch quad or the loaded mesh, in metres); physical_size : (w, h) metres; levels :
+    the ``lod`` basis counts below k (descending); curve : [(k, percent)] error curve;
+    source : the provenance source as recorded (made relative to the asset when written).
+    textures : the ``<stem>_textures`` folder's files (:class:`~usdbtf.usd.textures.TextureSet`):
+    ``basis``, ``coefficients`` (names of the BTF's textures), ``fallback`` ({map: name}),
+    ``gpu`` (:class:`~usdbtf.usd.storm.GpuTextures`, or None without a Storm preview),
+    ``thumbnail`` (its name, or None).  maps : the fitted fallback (svbrdf.SvbrdfMaps).
+    ar : (TextureSet, {map: name}) of the AR package with ``usdz_ar``, else None.
+    input_name : what was packaged, for messages (the folder, or "compressed BTF").
+    """
+
+    compressed: CompressedBTF
+    options: PackageOptions
+    mesh: Mesh
+    physical_size: tuple
+    levels: list
+    curve: list
+    source: str
+    textures: TextureSet
+    basis: str
+    coefficients: list
+    fallback: dict
+    gpu: storm.GpuTextures | None
+    thumbnail: str | None
+    maps: SvbrdfMaps
+    ar: tuple | None = None
+    input_name: str = "compressed BTF"
 
 
-def package_textures(cbtf: CompressedBTF, src: Path, dst: Path) -> tuple[str, list[str]]:
-    """Copy/re-encode the basis and the k coefficient textures from the compressed folder
-    ``src`` into ``dst``.  Returns their paths relative to ``dst``."""
-    from ..compress.codecs import get_codec
-
-    codec = get_codec(cbtf.codec)
-    (dst / "coeff").mkdir(parents=True, exist_ok=True)
-    basis_src = src / basis_file(codec)
-    basis = "basis" + _portable_copy(basis_src, dst / "basis")
-    coeffs = []
-    for i in range(cbtf.k):
-        rel = Path(coefficient_file(codec, i))
-        coeffs.append(str(rel.with_suffix(_portable_copy(src / rel, dst / rel.with_suffix("")))))
-    return basis, coeffs
-
-
-def error_curve(folder: Path, cbtf: CompressedBTF) -> list[tuple[int, float]]:
+def read_error_curve(folder: Path, cbtf: CompressedBTF) -> list[tuple[int, float]]:
     """[(k, percent)] from the compressed folder's error_curve.csv (empty when absent)."""
     name = (cbtf.info.get("error_curve") or {}).get("file", "error_curve.csv")
     path = folder / name
@@ -94,6 +171,20 @@ def error_curve(folder: Path, cbtf: CompressedBTF) -> list[tuple[int, float]]:
             return [(int(r["k"]), float(r["percent_error"])) for r in csv.DictReader(fh)]
     except (KeyError, ValueError) as exc:
         raise BTFError(f"{path}: unreadable error curve ({exc})") from None
+
+
+def read_input(folder) -> CompressedBTF:
+    """The compressed BTF folder ``folder`` as :func:`package` takes it: its codes, the bytes of
+    its texture files (``encoded``: the asset gets exact copies, not re-encodings) and its
+    error curve (``curve``, from error_curve.csv)."""
+    folder = Path(folder)
+    cbtf = read_compressed(folder)
+    codec = get_codec(cbtf.codec)
+    enc = EncodedTextures(cbtf.codec, (folder / basis_file(codec)).read_bytes(),
+                          tuple((folder / coefficient_file(codec, i)).read_bytes() for i in range(cbtf.k)),
+                          (cbtf.basis.pixels, *(st.pixels for st in cbtf.coefficients)))
+    curve = read_error_curve(folder, cbtf)
+    return replace(cbtf, encoded=enc, curve={"k": [k for k, _ in curve], "percent": [p for _, p in curve]})
 
 
 def physical_size_of(cbtf: CompressedBTF) -> tuple[float, float] | None:
@@ -109,179 +200,256 @@ def physical_size_of(cbtf: CompressedBTF) -> tuple[float, float] | None:
     return w, h
 
 
-def _prim_name(stem: str) -> str:
-    from pxr import Tf
-
-    return Tf.MakeValidIdentifier(stem)
-
-
-def _stage_metadata(layer, root: str) -> None:
-    from pxr import UsdGeom
-
-    layer.defaultPrim = root
-    layer.pseudoRoot.SetInfo(UsdGeom.Tokens.metersPerUnit, 1.0)
-    layer.pseudoRoot.SetInfo(UsdGeom.Tokens.upAxis, UsdGeom.Tokens.y)
-
-
-def _author_preview(stage, material, textures_rel: str, roughness: float) -> None:
-    """UsdPreviewSurface network: albedo texture (sRGB PNG) + fitted roughness."""
-    from pxr import Sdf, Usd, UsdShade
-
-    mpath = material.GetPath()
-    reader = UsdShade.Shader.Define(stage, mpath.AppendChild("StReader"))
-    reader.CreateIdAttr("UsdPrimvarReader_float2")
-    reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
-    reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
-    tex = UsdShade.Shader.Define(stage, mpath.AppendChild("AlbedoTexture"))
-    tex.CreateIdAttr("UsdUVTexture")
-    file_input = tex.CreateInput("file", Sdf.ValueTypeNames.Asset)
-    file_input.Set(Sdf.AssetPath(f"./{textures_rel}/preview_albedo.png"))
-    file_input.GetAttr().SetColorSpace("srgb_rec709_scene")
-    tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
-    tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
-    tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("repeat")
-    tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("repeat")
-    tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
-    surface = UsdShade.Shader.Define(stage, mpath.AppendChild("PreviewSurface"))
-    surface.CreateIdAttr("UsdPreviewSurface")
-    Usd.ColorSpaceAPI.Apply(surface.GetPrim()).CreateColorSpaceNameAttr("lin_rec709_scene")
-    surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(tex.ConnectableAPI(), "rgb")
-    surface.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(float(roughness))
-    surface.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(0.0)
-    surface.CreateOutput("surface", Sdf.ValueTypeNames.Token)
-    material.CreateSurfaceOutput().ConnectToSource(surface.ConnectableAPI(), "surface")
+def provenance_path(source: str, asset_dir: Path) -> str:
+    """``source`` (the path the compressed BTF records) as the asset should record it:
+    relative to the asset's folder, never absolute.  A relative record is taken relative to
+    the working directory (where compress ran, as far as anyone knows); a path that cannot
+    be made relative (another drive) is recorded as ``sha256:<hash of the absolute path>``."""
+    if not source:
+        return ""
+    absolute = Path(os.path.abspath(source))
+    try:
+        return Path(os.path.relpath(absolute, os.path.abspath(asset_dir))).as_posix()
+    except ValueError:
+        return "sha256:" + hashlib.sha256(str(absolute).encode()).hexdigest()
 
 
-def _write_albedo(cbtf: CompressedBTF, path: Path, white_level: float) -> None:
-    albedo = preview.mean_albedo(cbtf, white_level=white_level)
-    srgb = processor(cbtf.working_space, preview.ALBEDO_SPACE, cbtf.ocio_config).apply(albedo)
-    write_image(path, (np.clip(srgb, 0, 1) * 255 + 0.5).astype(np.uint8), color_space=preview.ALBEDO_SPACE)
+def check_root_layer(out) -> None:
+    """UsageError unless ``out`` names a root layer :data:`ROOT_FORMATS` allows."""
+    out = Path(out)
+    if out.suffix not in ROOT_FORMATS:
+        raise UsageError(f"{out}: the asset's root layer must be a {', '.join(ROOT_FORMATS)} file")
 
 
-def _write_payload(path: Path, root: str, cbtf: CompressedBTF, mesh: geometry.MeshData, textures_rel: str,
-                   basis: str, coeffs: list[str], *, physical_size, curve, roughness: float) -> None:
-    from pxr import Kind, Usd, UsdGeom, UsdShade
-
-    stage = Usd.Stage.CreateNew(str(path))
-    _stage_metadata(stage.GetRootLayer(), root)
-    asset = UsdGeom.Xform.Define(stage, f"/{root}")
-    Usd.ModelAPI(asset).SetKind(Kind.Tokens.component)
-    UsdGeom.Scope.Define(stage, f"/{root}/geo")
-    UsdGeom.Scope.Define(stage, f"/{root}/mtl")
-    material = UsdShade.Material.Define(stage, f"/{root}/mtl/{MATERIAL}")
-    author_btf(material.GetPrim(), cbtf, f"./{textures_rel}/{basis}", [f"./{textures_rel}/{c}" for c in coeffs],
-               physical_size=physical_size, error_curve=curve)
-    _author_preview(stage, material, textures_rel, roughness)
-    # Issue 7 hook: Storm glslfx preview (render context "glslfx") + GPU textures in <textures>/gpu/.
-    storm.author_gpu_preview(stage, material, cbtf, path.parent / textures_rel, textures_rel)
-    prim = geometry.author_mesh(stage, f"/{root}/geo/{_prim_name(mesh.name)}", mesh)
-    UsdShade.MaterialBindingAPI.Apply(prim).Bind(material)
-    stage.GetRootLayer().Save()
-
-
-def _write_root(path: Path, root: str, payload_name: str, coeffs_abs: list[str], levels: list[int], k: int) -> None:
-    from pxr import Kind, Sdf, Usd, UsdGeom
-
-    stage = Usd.Stage.CreateNew(str(path))
-    _stage_metadata(stage.GetRootLayer(), root)
-    prim = UsdGeom.Xform.Define(stage, f"/{root}").GetPrim()
-    Usd.ModelAPI(prim).SetKind(Kind.Tokens.component)
-    model = Usd.ModelAPI(prim)
-    model.SetAssetName(root)
-    model.SetAssetIdentifier(Sdf.AssetPath(f"./{path.name}"))
-    model.SetAssetVersion(__version__)
-    prim.GetPayloads().AddPayload(f"./{payload_name}")
-    # The variant set lives on the root prim, outside the payload, so a consumer can pick
-    # a level of detail before (or without) loading it.  Coefficients are energy-ordered:
-    # a level is the first n textures of the same files.
-    vset = prim.GetVariantSets().AddVariantSet(LOD_VARIANT_SET)
-    for name in [FULL_LOD] + [f"k{n}" for n in levels]:
-        vset.AddVariant(name)
-    for n in levels:
-        vset.SetVariantSelection(f"k{n}")
-        with vset.GetVariantEditContext():
-            mat = stage.OverridePrim(f"/{root}/mtl/{MATERIAL}")
-            mat.CreateAttribute("btf:basisCount", Sdf.ValueTypeNames.Int, custom=False, variability=Sdf.VariabilityUniform).Set(n)
-            mat.CreateAttribute("btf:coefficients", Sdf.ValueTypeNames.AssetArray, custom=False,
-                                variability=Sdf.VariabilityUniform).Set(
-                Sdf.AssetPathArray([Sdf.AssetPath(p) for p in coeffs_abs[:n]]))
-    vset.SetVariantSelection(FULL_LOD)
-    stage.GetRootLayer().Save()
-
-
-def _publish(staging: Path, out_dir: Path, names: list[str]) -> None:
-    """Move ``names`` from ``staging`` into ``out_dir`` in order, replacing what is there."""
-    for name in names:
-        src, dst = staging / name, out_dir / name
-        if dst.is_dir() and not dst.is_symlink():
-            old = out_dir / f".{name}.old-{os.getpid()}"
-            os.replace(dst, old)
-            os.replace(src, dst)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(src, dst)
-
-
-def package(compressed, out, *, mesh=None, usdz: bool = False, lods: list[int] | None = None,
-            physical_size: tuple[float, float] | None = None, validate: bool = True, log=None) -> dict:
-    """Package the compressed BTF folder ``compressed`` as ``out`` (.usda); returns the paths written.
-
-    mesh : path of a mesh (OBJ/PLY/STL/GLB/USD with texture coordinates); None for a swatch quad.
-    lods : basis counts of the ``lod`` variants besides "full" (default :func:`default_lods`).
-    physical_size : (width, height) in metres; default the source's ``physical_size_m``.
-    """
-    log = log or (lambda msg: None)
-    compressed, out = Path(compressed), Path(out)
-    if out.suffix != ".usda":
-        raise BTFError(f"{out}: the asset's root layer must be a .usda file")
-    cbtf = read_compressed(compressed)
-    size = physical_size or physical_size_of(cbtf)
+def package(compressed, options: PackageOptions | None = None) -> PackageResult:
+    """Package ``compressed`` -- a compressed BTF folder (read by :func:`read_input`) or a
+    :class:`CompressedBTF` (its ``encoded`` bytes and ``curve`` are used when it has them, e.g.
+    straight from ``compress``) -- in memory (module docstring); :func:`write_package` writes it.
+    UsageError for options that do not fit, BTFError for bad data."""
+    options = options or PackageOptions()
+    options.check()
+    name = where = "compressed BTF"
+    if not isinstance(compressed, CompressedBTF):
+        name, where = str(Path(compressed)), str(Path(compressed) / METADATA)
+        compressed = read_input(compressed)
+    cbtf = compressed
+    size = options.physical_size or physical_size_of(cbtf)
     if size is None:
-        raise BTFError(f"{compressed / METADATA}: no physical_size_m recorded; pass --physical-size W H (metres)")
-    levels = sorted({int(n) for n in (default_lods(cbtf.k) if lods is None else lods)} - {cbtf.k}, reverse=True)
+        raise BTFError(f"{where}: no physical_size_m recorded; pass --physical-size W H (metres)")
+    levels = sorted({int(n) for n in (default_lods(cbtf.k) if options.lods is None else options.lods)} - {cbtf.k},
+                    reverse=True)
     bad = [n for n in levels if not 1 <= n < cbtf.k]
     if bad:
-        raise BTFError(f"--lod {bad[0]} is outside 1..{cbtf.k} (the asset's k)")
-    shape = geometry.load_mesh(mesh) if mesh else geometry.swatch(*size)
-    white = float((cbtf.info.get("source_metadata") or {}).get("white_level", 1.0))
-    curve = error_curve(compressed, cbtf)
-    roughness, _ = preview.fit_roughness(cbtf)
+        raise UsageError(f"--lod {bad[0]} is outside 1..{cbtf.k} (the asset's k)")
+    shape = load_mesh(options.mesh, need_uv=True).compacted().with_normals() if options.mesh else Mesh.swatch(*size)
+    source_meta = cbtf.info.get("source_metadata") or {}
+    white = float(source_meta.get("white_level", 1.0))
+    if not (np.isfinite(white) and white > 0):
+        raise BTFError(f"{where}: white_level {white!r} must be a positive number")
+    curve = list(zip(cbtf.curve["k"], cbtf.curve["percent"])) if cbtf.curve else []
+    source = str((cbtf.info.get("provenance") or {}).get("source") or cbtf.source.get("path") or "")
 
-    stem, root = out.stem, _prim_name(out.stem)
-    textures_rel, payload_name = f"{stem}_textures", f"{stem}_payload.usda"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{stem}.staging-", dir=out.parent))
-    try:
-        tex_dir = staging / textures_rel
-        basis, coeffs = package_textures(cbtf, compressed, tex_dir)
-        _write_albedo(cbtf, tex_dir / "preview_albedo.png", white)
-        _write_payload(staging / payload_name, root, cbtf, shape, textures_rel, basis, coeffs,
-                       physical_size=size, curve=curve, roughness=roughness)
-        _write_root(staging / out.name, root, payload_name, [f"./{textures_rel}/{c}" for c in coeffs], levels, cbtf.k)
-        names = [textures_rel, payload_name]
-        if usdz:
-            names.append(make_usdz(staging / out.name, staging / f"{stem}.usdz").name)
-        if validate:
-            for name in names[1:] + [out.name]:
-                problems = validate_layer(staging / name)
-                if problems:
-                    raise BTFError(f"{out.parent / name}: fails USD validation: {problems[0]}"
-                                   + (f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""))
-        _publish(staging, out.parent, names + [out.name])
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
-    log(f"packaged {compressed} (k = {cbtf.k}, LODs {[cbtf.k] + levels}, roughness fit {roughness:.2f}) as {out}"
-        + (f" and {out.with_suffix('.usdz').name}" if usdz else ""))
-    written = {"root": out, "payload": out.parent / payload_name, "textures": out.parent / textures_rel}
+    from ..svbrdf import fit_svbrdf
+
+    textures = TextureSet(options.texture_format)
+    basis, coefficients = package_textures(cbtf, textures)
+    maps = fit_svbrdf(cbtf, white_level=white)
+    log.info(f"fallback fitted: median roughness {float(np.median(maps.roughness)):.2f}, "
+             f"{float(np.mean(maps.normal[..., 2] < 0.999)) * 100:.0f} % of texels with a normal")
+    maps_added = fallback.add_maps(maps, textures, cbtf.ocio_config)
+    gpu = storm.add_gpu_textures(cbtf, textures)
+    thumb = None
+    if options.thumbnail:
+        thumb = textures.add_file(thumbnail.THUMBNAIL_FILE, thumbnail.thumbnail_png(cbtf, shape))
+    ar = None
+    if options.usdz_ar:
+        from .arkit import ar_textures
+
+        ar = ar_textures(maps, cbtf.ocio_config)
+    return PackageResult(cbtf, options, shape, tuple(size), levels, curve, source, textures, basis, coefficients,
+                         maps_added, gpu, thumb, maps, ar, name)
+
+
+@dataclass
+class _Names:
+    """The names an asset written as ``out`` uses: the root prim, the texture folder and the
+    payload (relative to ``out``'s folder), and the asset name."""
+
+    stem: str
+    root: str
+    textures: str
+    payload: str
+    asset_name: str
+
+    @classmethod
+    def of(cls, out: Path, result: PackageResult) -> "_Names":
+        o = result.options
+        return cls(out.stem, valid_name(out.stem), f"{out.stem}_textures", f"{out.stem}_payload.{o.payload_format}",
+                   o.asset_name or out.stem)
+
+
+def _stage_metadata(layer, names: _Names, options: PackageOptions, what: str) -> None:
+    stage_metadata(layer, names.root, asset_name=names.asset_name, what=what, creator=options.creator)
+
+
+def _author_payload(stage, result: PackageResult, names: _Names, provenance: str) -> tuple[list, tuple | None]:
+    """The payload layer's content on ``stage`` (its root layer): the geometry and the bound
+    BTF material with its fallback and Storm preview.  Returns (the coefficient asset paths,
+    the Storm tuple for :func:`usdbtf.usd.lod.author_lod_variants`)."""
+    from pxr import Kind, Usd, UsdGeom, UsdShade
+
+    cbtf, textures = result.compressed, result.textures
+    _stage_metadata(stage.GetRootLayer(), names, result.options, "payload")
+    asset = UsdGeom.Xform.Define(stage, f"/{names.root}")
+    Usd.ModelAPI(asset).SetKind(Kind.Tokens.component)
+    UsdGeom.Scope.Define(stage, f"/{names.root}/geo")
+    UsdGeom.Scope.Define(stage, f"/{names.root}/mtl")
+    material = UsdShade.Material.Define(stage, f"/{names.root}/mtl/{MATERIAL}")
+    coefficients = [textures.texture(name, names.textures).path for name in result.coefficients]
+    author_btf(material.GetPrim(), cbtf, textures.texture(result.basis, names.textures).path, coefficients,
+               physical_size=result.physical_size, error_curve=result.curve, provenance_source=provenance)
+    maps = result.maps
+    summary = {"diffuse": np.median(maps.diffuse.reshape(-1, 3), axis=0),
+               "roughness": float(np.median(maps.roughness))}
+    wrap = default_wrap(cbtf)
+    fallback.author_fallback(stage, material, {m: textures.texture(name, names.textures)
+                                               for m, name in result.fallback.items()},
+                             wrap=wrap, summary=summary)
+    gpu = None
+    if result.gpu is not None:
+        g = result.gpu
+        gpu = storm.author_gpu_preview(stage, material, textures.texture(g.tables, names.textures),
+                                       [textures.texture(p, names.textures) for p in g.packs], g.k, wrap)
+    prim = author_mesh(stage, f"/{names.root}/geo/{valid_name(result.mesh.name)}", result.mesh)
+    UsdShade.MaterialBindingAPI.Apply(prim).Bind(material)
+    return coefficients, gpu
+
+
+def _author_root(stage, result: PackageResult, names: _Names, root_name: str, coefficients: list,
+                 gpu: tuple | None, payload: str | None = None) -> None:
+    """The root layer's content on ``stage``: the asset prim, its metadata and bounds, the
+    thumbnail, the payload arc and the ``lod`` variant sets (``root_name``: the layer's file;
+    ``payload``: the arc's asset path, default the payload file beside it).  The payload must
+    resolve: the variants' overrides of its prims are authored against what it defines."""
+    from pxr import Kind, Sdf, Usd, UsdGeom, Vt
+
+    options = result.options
+    _stage_metadata(stage.GetRootLayer(), names, options, "root layer")
+    prim = UsdGeom.Xform.Define(stage, f"/{names.root}").GetPrim()
+    model = Usd.ModelAPI(prim)
+    model.SetKind(Kind.Tokens.component)
+    model.SetAssetName(names.asset_name)
+    model.SetAssetIdentifier(Sdf.AssetPath(f"./{root_name}"))
+    if options.asset_version is not None:
+        model.SetAssetVersion(options.asset_version)
+    if options.creator is not None:
+        prim.SetAssetInfoByKey("creator", options.creator)
+    prim.GetPayloads().AddPayload(payload or f"./{names.payload}")
+    # Bounds above the payload: an unloaded asset still has its box.
+    UsdGeom.ModelAPI.Apply(prim).SetExtentsHint(Vt.Vec3fArray.FromNumpy(result.mesh.bounds().astype(np.float32)))
+    if result.thumbnail:
+        thumbnail.declare_thumbnail(prim, f"./{names.textures}/{result.thumbnail}")
+    lod.author_lod_variants(stage, f"/{names.root}", f"/{names.root}/mtl/{MATERIAL}", result.levels, coefficients,
+                            gpu)
+
+
+def _authored(path: Path, author):
+    """A new layer file at ``path`` with ``author(stage)``'s content, saved; returns what
+    ``author`` returned."""
+    from pxr import Usd
+
+    with usd_write(path):
+        stage = Usd.Stage.CreateNew(str(path))
+    made = author(stage)
+    with usd_write(path):
+        stage.GetRootLayer().Save()
+    return made
+
+
+def asset_layers(result: PackageResult, out) -> dict:
+    """{file name: Sdf.Layer} of the root layer and the payload :func:`write_package` would write
+    as ``out``, authored into anonymous, in-memory layers (no file is made)."""
+    from pxr import Sdf, Usd
+
+    out = Path(out)
+    names = _Names.of(out, result)
+    provenance = provenance_path(result.source, out.parent)
+    payload = Sdf.Layer.CreateAnonymous(names.payload)
+    coefficients, gpu = _author_payload(Usd.Stage.Open(payload), result, names, provenance)
+    root = Sdf.Layer.CreateAnonymous(out.name)
+    # The arc points at the in-memory payload while the root is authored (see _author_root),
+    # then at the payload's file name, as the written root layer has it.
+    _author_root(Usd.Stage.Open(root), result, names, out.name, coefficients, gpu, payload=payload.identifier)
+    root.GetPrimAtPath(f"/{names.root}").payloadList.prependedItems = [Sdf.Payload(f"./{names.payload}")]
+    return {out.name: root, names.payload: payload}
+
+
+def asset_pieces(out, *, usdz: bool = False, usdz_ar: bool = False,
+                 payload_format: str = PackageOptions.payload_format) -> list[tuple[str, bool, str]]:
+    """[(name, is_folder, output kind)] of the files ``package`` writes for root layer ``out``,
+    in the order they are published (the root layer last).  The texture folder holds the
+    thumbnail and every texture format's files (usdbtf.outputs recognises them)."""
+    out = Path(out)
+    stem = out.stem
+    pieces = [(f"{stem}_textures", True, ASSET_TEXTURES), (f"{stem}_payload.{payload_format}", False, ASSET)]
     if usdz:
-        written["usdz"] = out.with_suffix(".usdz")
-    return written
+        pieces.append((f"{stem}.usdz", False, ASSET))
+    if usdz_ar:
+        pieces.append((f"{stem}{AR_SUFFIX}.usdz", False, ASSET))
+    return pieces + [(out.name, False, ASSET)]
 
 
-def make_usdz(root_layer: Path, usdz: Path) -> Path:
-    """Package ``root_layer`` and everything it references into ``usdz`` (variants and payloads kept)."""
-    from pxr import Sdf, UsdUtils
+def _check_published(path: Path, shown: Path, validate: bool) -> None:
+    """The publish gate for one staged layer or package: no non-finite numbers (in a usdz, in
+    any layer it holds: the AR package's layer is nowhere else) and, when ``validate``, every
+    UsdValidation validator on every ``lod`` selection.  BTFError naming ``shown``."""
+    bad = non_finite_in_stage(path) if path.suffix == ".usdz" else non_finite_values(path)
+    if bad:
+        raise BTFError(f"{shown}: would hold non-finite numbers ({bad[0]}"
+                       + (f" and {len(bad) - 1} more" if len(bad) > 1 else "") + "); not published")
+    if validate:
+        problems = validate_layer(path)
+        if problems:
+            raise BTFError(f"{shown}: fails USD validation: {problems[0]}"
+                           + (f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""))
 
-    if not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(root_layer)), str(usdz)):
-        raise BTFError(f"{usdz}: usdz packaging failed")
-    return usdz
+
+def write_package(result: PackageResult, out) -> dict:
+    """Write ``result`` as the asset ``out`` (.usda/.usdc/.usd): every piece staged beside it,
+    checked and published together (module docstring).  Returns a summary: the paths written
+    ("root", "payload", "textures", "usdz", "usdz_ar"), "k", "lods" ([name, basis count]
+    pairs), "texture_format", "validated"."""
+    out = Path(out)
+    check_root_layer(out)
+    options, cbtf = result.options, result.compressed
+    names = _Names.of(out, result)
+    provenance = provenance_path(result.source, out.parent)
+    pieces = asset_pieces(out, usdz=options.usdz, usdz_ar=options.usdz_ar, payload_format=options.payload_format)
+    with atomic_group(out.parent, pieces, what="asset") as staging:
+        result.textures.write(staging / names.textures)
+        coefficients, gpu = _authored(staging / names.payload,
+                                      lambda stage: _author_payload(stage, result, names, provenance))
+        _authored(staging / out.name, lambda stage: _author_root(stage, result, names, out.name, coefficients, gpu))
+        published = [names.textures, names.payload]
+        if options.usdz:
+            published.append(make_usdz(staging / out.name, staging / f"{names.stem}.usdz").name)
+        if options.usdz_ar:
+            from .arkit import write_ar_usdz
+
+            ar_set, ar_names = result.ar
+            published.append(write_ar_usdz(staging, names.stem, names.root, result.mesh, ar_set, ar_names,
+                                           names.asset_name, options.asset_version, options.creator,
+                                           wrap=default_wrap(cbtf)).name)
+        for name in published[1:] + [out.name]:
+            _check_published(staging / name, out.parent / name, options.validate)
+    extra = published[2:]
+    log.info(f"packaged {result.input_name} (k = {cbtf.k}, LODs {[cbtf.k] + result.levels}) as {out}"
+             + (f" and {', '.join(extra)}" if extra else ""))
+    summary = {"root": out, "payload": out.parent / names.payload, "textures": out.parent / names.textures,
+               "k": cbtf.k, "lods": [[FULL_LOD, cbtf.k]] + [[lod.lod_name(n), n] for n in result.levels],
+               "texture_format": options.texture_format, "validated": options.validate}
+    if options.usdz:
+        summary["usdz"] = out.parent / f"{names.stem}.usdz"
+    if options.usdz_ar:
+        summary["usdz_ar"] = out.parent / f"{names.stem}{AR_SUFFIX}.usdz"
+    return summary

@@ -1,38 +1,99 @@
-"""Finding and registering the usdBtf schema plugin.
+"""Finding the usdBtf USD plugin and the environment that makes any USD process know it.
 
 The plugin is a folder (``plugin/`` at the top of the project) holding a
-``plugInfo.json`` that includes ``usdBtf/resources/`` (the generated schema and the
-Storm shaders).  USD must know it before its schema registry is first used (the
-first ``Usd.Stage`` or ``Usd.SchemaRegistry`` query), or ``BtfMaterialAPI`` is
-silently unknown for the life of the process; ``import usdbtf`` therefore calls
-:func:`register` before anything else can.  DCCs and usdview find it through
-``PXR_PLUGINPATH_NAME=<project>/plugin``.
+``plugInfo.json`` that includes ``usdBtf/resources/``: the generated ``BtfMaterialAPI``
+schema, the Storm shader's Sdr definition (``sdr/UsdBtfSurface.usda``), its glslfx
+(``shaders/``) and the MaterialX nodedefs (``materialx/``).
+
+Two USD mechanisms find them, both driven by environment variables that USD reads once,
+when its libraries load (:func:`environment` lists them; ``usdbtf env`` prints them as the
+shell lines a studio puts in its launcher):
+
+* ``PXR_PLUGINPATH_NAME`` -> the plugin folder: the schema (and ``$TOOLS/usdBtf/shaders``);
+* Sdr's filesystem discovery (``PXR_SDR_FS_PLUGIN_SEARCH_PATHS``, searched recursively,
+  and ``PXR_SDR_FS_PLUGIN_ALLOWED_EXTS``): a ``.usda`` file is parsed by usdShade's
+  shader-definition parser, which every USD build (usd-core included) has; the node's
+  identifier is the file's stem and its definition the root prim of that name, so
+  ``sdr/UsdBtfSurface.usda`` defines ``UsdBtfSurface`` and usdShadeValidators'
+  ShaderSdrCompliance finds it.  ``glslfx`` is allowed as well, for Storm: in a build
+  with imaging, ``shaders/UsdBtfSurface.glslfx`` becomes the ``glslfx`` node Storm asks
+  for; usd-core has no glslfx parser and ignores it.
+* ``PXR_MTLX_PLUGIN_SEARCH_PATHS`` -> the MaterialX nodedefs (builds with MaterialX).
+
+``import usdbtf`` applies the same environment to its own process (:func:`register`)
+before USD loads, so the process validates exactly what any other process set up by
+``usdbtf env`` sees; there is no registration in Python beyond that.
 """
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 from ..errors import BTFError
+from ..plugin_folder import SHADER_ID, plugin_dir
 
 API_SCHEMA = "BtfMaterialAPI"
-ENV_PLUGIN_DIR = "USDBTF_PLUGIN_DIR"
+#: Variables whose list separator is ':' on every platform (Tf splits extensions on ':').
+_COLON_LISTS = ("PXR_SDR_FS_PLUGIN_ALLOWED_EXTS",)
 
 
-def plugin_dir() -> Path:
-    """The folder to put on ``PXR_PLUGINPATH_NAME``: ``$USDBTF_PLUGIN_DIR``, else the
-    project's ``plugin/`` (source checkouts and editable installs)."""
-    override = os.environ.get(ENV_PLUGIN_DIR)
-    if override:
-        return Path(override)
-    return Path(__file__).resolve().parents[3] / "plugin"
+def resources_dir(plugin: Path | None = None) -> Path:
+    """``<plugin>/usdBtf/resources``: generatedSchema.usda, sdr/, shaders/, materialx/."""
+    return (plugin or plugin_dir()) / "usdBtf" / "resources"
+
+
+def environment(plugin: Path | None = None) -> dict[str, list[str]]:
+    """{variable: [entries usdbtf needs on it, in order]} for a USD process to know the
+    plugin: the schema, the Storm shader's Sdr definition (and glslfx), MaterialX nodedefs.
+    Entries are prepended to whatever the variable already holds."""
+    plugin = Path(plugin or plugin_dir()).resolve()
+    res = resources_dir(plugin)
+    return {"PXR_PLUGINPATH_NAME": [str(plugin)],
+            "PXR_SDR_FS_PLUGIN_SEARCH_PATHS": [str(res / "sdr"), str(res / "shaders")],
+            "PXR_SDR_FS_PLUGIN_ALLOWED_EXTS": ["usda", "glslfx"],
+            "PXR_MTLX_PLUGIN_SEARCH_PATHS": [str(res / "materialx")]}
+
+
+def list_separator(variable: str) -> str:
+    """How ``variable``'s entries are joined: ':' for extension lists, else the OS path separator."""
+    return ":" if variable in _COLON_LISTS else os.pathsep
+
+
+def merged_value(variable: str, entries: list[str], current: str | None) -> str:
+    """``current`` with the missing ``entries`` put in front (no duplicates)."""
+    sep = list_separator(variable)
+    have = [e for e in (current or "").split(sep) if e]
+    return sep.join([e for e in entries if e not in have] + have)
+
+
+def apply_environment(env=None, plugin: Path | None = None) -> bool:
+    """Put :func:`environment` into ``env`` (default ``os.environ``); True when anything
+    changed.  USD reads these when it loads, so this only affects USD in this process when
+    it runs before the first ``from pxr import ...`` (it always affects child processes)."""
+    env = os.environ if env is None else env
+    changed = False
+    for variable, entries in environment(plugin).items():
+        value = merged_value(variable, entries, env.get(variable))
+        if value != env.get(variable):
+            env[variable] = value
+            changed = True
+    return changed
 
 
 def register() -> bool:
-    """Register the plugin with USD (idempotent).  Returns False when the folder is absent."""
+    """Make the plugin known to this process (idempotent): apply :func:`environment`
+    (before USD loads, when ``import usdbtf`` comes first), then register the plugin folder
+    with Plug (which also works after USD has loaded, until the schema registry is first
+    used).  Returns False when the folder is absent."""
     folder = plugin_dir()
     if not (folder / "plugInfo.json").is_file():
         return False
+    usd_loaded = "pxr" in sys.modules
+    if apply_environment() and not usd_loaded:
+        # USD prints a banner for every overridden setting when it loads; in usdbtf's own
+        # process that would be noise on every command (an explicit choice wins).
+        os.environ.setdefault("TF_ENV_SETTING_ALERTS_ENABLED", "0")
     from pxr import Plug
 
     Plug.Registry().RegisterPlugins(str(folder))
@@ -46,3 +107,16 @@ def require_schema() -> None:
     if Usd.SchemaRegistry().FindAppliedAPIPrimDefinition(API_SCHEMA) is None:
         raise BTFError(f"the {API_SCHEMA} schema is not registered: set PXR_PLUGINPATH_NAME to {plugin_dir()} "
                        f"(or import usdbtf before creating any USD stage)")
+
+
+def shader_known() -> bool:
+    """Whether Sdr in this process has the Storm shader's definition (``UsdBtfSurface``)."""
+    from pxr import Sdr
+
+    return Sdr.Registry().GetShaderNodeByIdentifier(SHADER_ID) is not None
+
+
+def environment_hint() -> str:
+    """What to tell a user whose process lacks the plugin's environment."""
+    return ("start the process with the environment `usdbtf env` prints "
+            "(or import usdbtf before anything imports pxr)")

@@ -6,70 +6,16 @@
 
 ``load_btf`` returns the same :class:`~usdbtf.compress.format.CompressedBTF` that
 ``read_compressed`` gives for the compressed folder, so every tool that takes one
-(``reconstruct``, ``decompress_to_folder``, the renderer) takes an asset too.
+(``reconstruct``, :mod:`usdbtf.decompress`, the renderer) takes an asset too.
 """
 from __future__ import annotations
-
-import contextlib
-import os
-import re
-import sys
-import tempfile
-from pathlib import Path
 
 import numpy as np
 
 from ..compress.format import CompressedBTF, reconstruct
 from ..errors import BTFError
+from ..usdstage import open_usd, usd_warnings_silenced
 from .material import LOD_VARIANT_SET, btf_materials, read_btf
-
-USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
-
-
-def tf_message(exc) -> str:
-    """The useful part of a Tf error: the parser's 'file:line:col: message' when there is one."""
-    text = " ".join(str(exc).split())
-    found = re.search(r"'([^']*:\d+:\d+: [^']*)'", text)
-    return found.group(1) if found else re.sub(r"Error in '[^']*' at line \d+ in file \S+ : ", "", text)[:300]
-
-
-def open_usd(path, *, composition_errors: bool = True):
-    """``Usd.Stage.Open(path)`` with payloads loaded, raising BTFError naming the file for a
-    missing or unparsable layer and (optionally) for composition errors, e.g. a corrupt
-    payload or an unreadable referenced layer."""
-    from pxr import Tf, Usd
-
-    path = Path(path)
-    if not path.is_file():
-        raise BTFError(f"{path}: no such USD file")
-    try:
-        stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
-    except Tf.ErrorException as exc:
-        raise BTFError(f"{path}: cannot open USD layer: {tf_message(exc)}") from None
-    if stage is None:
-        raise BTFError(f"{path}: cannot open USD layer")
-    errors = stage.GetCompositionErrors() if composition_errors else []
-    if errors:
-        raise BTFError(f"{path}: composition error: {' '.join(str(errors[0]).split())}")
-    return stage
-
-
-@contextlib.contextmanager
-def usd_warnings_silenced():
-    """Hold back USD's own stderr warnings (composition errors we expect and report
-    ourselves, e.g. references to assets a build has not written yet).
-
-    USD prints from C++ straight to file descriptor 2, so the descriptor is pointed at
-    a scratch file for the duration and restored after."""
-    sys.stderr.flush()
-    saved = os.dup(2)
-    with tempfile.TemporaryFile() as sink:
-        os.dup2(sink.fileno(), 2)
-        try:
-            yield
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
 
 
 def open_stage(path, *, lod: str | None = None):

@@ -61,12 +61,12 @@ def run(ctx: Context) -> SectionResult:
     for block in cfg.quilt_blocks:
         runs = [("matched", m, None) for m in ms] + [("random placement", 1, RANDOM_TOLERANCE)]
         for method, m, tolerance in runs:
-            opts = QuiltOptions(block=block, m=m, seed=cfg.seed,
+            opts = QuiltOptions(size=(cfg.quilt_out, cfg.quilt_out), block=block, m=m, seed=cfg.seed,
                                 **({} if tolerance is None else {"tolerance": tolerance}))
             times = []
             for _ in range(cfg.repeats):
                 t = time.perf_counter()
-                q = quilt(cbtf, cfg.quilt_out, cfg.quilt_out, opts)
+                q = quilt(cbtf, opts)
                 times.append(time.perf_counter() - t)
             seam = float(q.record["seam_error"]["all_samples_mean"])
             row = dict(base, method=method, block=block, overlap=q.options.overlap, m=m, status="ok",

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Raster", "rasterize", "barycentrics", "pixel_barycentrics", "edge_coefficients"]
+__all__ = ["Raster", "rasterize", "barycentrics", "pixel_barycentrics", "edge_coefficients", "st_to_texels"]
 
 _EMPTY = np.iinfo(np.int64).max
 _TRI_BITS = 31
@@ -163,3 +163,11 @@ def pixel_barycentrics(tri_xy: np.ndarray, tri_map: np.ndarray):
     t = tri_map.ravel()[idx].astype(np.int64)
     y, x = np.divmod(idx, W)
     return idx, t, barycentrics(np.asarray(tri_xy, np.float64)[t], x + 0.5, y + 0.5)
+
+
+def st_to_texels(st: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Texture coordinates (..., 2) (USD st: s right, t up, [0, 1] over the image) -> texel
+    coordinates (..., 2) of a ``width`` x ``height`` image in this module's convention
+    (x right, y down, texel (i, j) centred at (j + 0.5, i + 0.5))."""
+    return np.stack([st[..., 0] * width, (1.0 - st[..., 1]) * height], axis=-1)
+

@@ -1,0 +1,178 @@
+#!/usr/bin/env python
+"""The UsdPreviewSurface fallback against the BTF it stands in for (issue 15 part 3).
+
+For each preset: the synthetic BTF (``usdbtf synth``, cached), compressed (``usdbtf compress
+--k K --codec png``, cached), then
+
+fitted   ``usdbtf.svbrdf.fit_svbrdf`` on the compressed BTF (timed, in this process), written
+         and read back exactly as the asset ships it (``usd.fallback.encode_maps`` /
+         ``decode_maps``: 8-bit sRGB colour maps, 8-bit roughness and normal maps);
+flat     the fallback usdbtf shipped before (the baseline, same run): per-texel median albedo
+         as an 8-bit sRGB texture, one fitted roughness, no normal map, metallic 0
+         (``svbrdf.flat_fallback``).
+
+Both are evaluated with UsdPreviewSurface's direct lighting (``svbrdf.evaluate``, the model of
+previewSurface.glslfx) at every measured (view, light) sample and compared, texel by texel,
+with (a) the measured samples (the synthetic originals) in the scene-linear working space
+("lin") and on the 8-bit file values with the prediction encoded the same way ("enc"), and
+(b) the compressed BTF's reconstruction (what the fit sees) in the working space.  Percent
+error is the paper's metric, 100 * sum|orig - pred| / sum(orig); RMSE and PSNR in the same
+run.  The compressed BTF's own error against the originals is printed for context.
+
+Usage (repository root)::
+
+    .venv/bin/python benchmarks/bench_fallback.py                 # paper sampling, 128^2, k 64
+    .venv/bin/python benchmarks/bench_fallback.py --quick         # small sampling, 64^2 (a check)
+
+Writes benchmarks/out/fallback_<timestamp>.json and prints a markdown block for RESULTS.md.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from common import OUT, cli_command, format_machine, machine_info, timestamp, write_json
+
+PRESETS = ("pebbles", "ridged_fabric", "fuzzy_moss")
+
+
+def say(msg: str = "") -> None:
+    print(msg, flush=True)
+
+
+#: --ablation: fits with one choice of fit_svbrdf undone (name -> keyword arguments).
+ABLATIONS = {"fitted, no normal map": {"normals": False}, "fitted, 512 fit samples": {"max_samples": 512}}
+
+
+def shipped_fallbacks(cbtf, white: float, ablation: bool = False) -> tuple[dict, float]:
+    """({"fitted": maps, "flat": maps, ablations...} as a renderer reads them from the asset,
+    seconds of the default fit)."""
+    from usdbtf import svbrdf
+    from usdbtf.usd.fallback import decode_maps, encode_maps
+
+    t = time.perf_counter()
+    fitted = svbrdf.fit_svbrdf(cbtf, white_level=white)
+    seconds = time.perf_counter() - t
+    flat = svbrdf.flat_fallback(cbtf, white_level=white)
+    maps = [("fitted", fitted), ("flat", flat)]
+    if ablation:
+        maps += [(name, svbrdf.fit_svbrdf(cbtf, white_level=white, **kw)) for name, kw in ABLATIONS.items()]
+    shipped = {name: decode_maps(encode_maps(m, cbtf.ocio_config), cbtf.working_space,
+                                 ocio_config=cbtf.ocio_config, white_level=white)
+               for name, m in maps}
+    # The old asset had no normal map and constant inputs: only its albedo went through a file.
+    old = shipped["flat"]
+    old.normal[:] = (0.0, 0.0, 1.0)
+    old.specular[:] = 0.04
+    old.roughness[:] = flat.roughness
+    return shipped, seconds
+
+
+def errors(orig, cbtf, fallbacks: dict, chunk: int = 128) -> dict:
+    """{name: {"linear", "encoded", "vs_reconstruction"}} for each fallback, and "reconstruction"
+    (the compressed BTF against the originals): one pass over the measured samples."""
+    from usdbtf import colour
+    from usdbtf.compress.format import reconstruct, working_coefficients
+    from usdbtf.compress.metrics import ErrorSums
+    from usdbtf.manifest import encode_for_file
+    from usdbtf.svbrdf import evaluate
+
+    to_file = colour.processor(orig.working_space, orig.color_space, orig.ocio_config)
+    top = {"uint8": 255.0, "uint16": 65535.0}.get(orig.bit_depth, 1.0)
+    coeff = working_coefficients(cbtf)
+    sums = {name: {"linear": ErrorSums(), "encoded": ErrorSums(), "vs_reconstruction": ErrorSums()}
+            for name in [*fallbacks, "reconstruction"]}
+    shape = (cbtf.height, cbtf.width, 3)
+    for a in range(0, orig.n_samples, chunk):
+        idx = np.arange(a, min(a + chunk, orig.n_samples))
+        stored = orig.read_encoded(idx)
+        truth = orig.decode(stored)
+        stored = stored.astype(np.float32) / top
+        recon = reconstruct(cbtf, idx, coefficients=coeff)
+        preds = {"reconstruction": recon}
+        for name, maps in fallbacks.items():
+            preds[name] = evaluate(maps, cbtf.sampling.view[idx], cbtf.sampling.light[idx]).reshape(len(idx), *shape)
+        for name, pred in preds.items():
+            sums[name]["linear"].add(truth, pred)
+            sums[name]["encoded"].add(stored, encode_for_file(pred, to_file, orig.bit_depth).astype(np.float32) / top)
+            if name != "reconstruction":
+                sums[name]["vs_reconstruction"].add(recon, pred)
+    return {name: {domain: s.report() for domain, s in by.items() if s.count} for name, by in sums.items()}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--presets", default=",".join(PRESETS))
+    ap.add_argument("--sampling", default="paper")
+    ap.add_argument("--size", type=int, default=128)
+    ap.add_argument("--k", type=int, default=64)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--quick", action="store_true", help="small sampling, 64^2 (a check, not a measurement)")
+    ap.add_argument("--ablation", action="store_true", help="also fit without the normal map and with 512 fit "
+                    "samples (the choices fit_svbrdf makes by default)")
+    args = ap.parse_args(argv)
+    if args.quick:
+        args.sampling, args.size = "small", 64
+
+    from usdbtf.bench.datasets import compressed, ensure_dataset
+    from usdbtf.io import open_btf
+
+    info = machine_info()
+    say("# bench_fallback: fitted UsdPreviewSurface vs the flat fallback, against the BTF")
+    say(format_machine(info))
+    say(f"- inputs: presets {args.presets}; sampling {args.sampling}, {args.size}x{args.size} texels, 8-bit sRGB "
+        f"PNG, synth seed {args.seed}; compressed with `usdbtf compress --k {args.k} --codec png` (rsvd)")
+    say(f"- command: {' '.join([Path(sys.executable).name, *sys.argv])}")
+    cli = cli_command()
+    rows, ablation_rows, doc = [], [], {"machine": info, "args": vars(args), "presets": {}}
+    for preset in args.presets.split(","):
+        say(f"\n## {preset}")
+        data = ensure_dataset(OUT / "data", preset, args.sampling, args.size, args.seed, say=say)
+        folder = OUT / "fallback" / f"{preset}-{args.sampling}-{args.size}-seed{args.seed}-k{args.k}"
+        cbtf = compressed(cli, Path(data["folder"]), folder, args.k)
+        orig = open_btf(data["folder"])
+        white = float((cbtf.info.get("source_metadata") or {}).get("white_level", 1.0))
+        shipped, fit_s = shipped_fallbacks(cbtf, white, args.ablation)
+        say(f"  fit: {fit_s:.1f} s for {cbtf.width}x{cbtf.height} texels, {cbtf.n_samples} samples, k {cbtf.k}")
+        t = time.perf_counter()
+        res = errors(orig, cbtf, shipped)
+        say(f"  evaluation over {orig.n_samples} samples: {time.perf_counter() - t:.1f} s")
+        for name, r in res.items():
+            parts = [f"{dom} {v['percent']:.2f} % (RMSE {v['rmse']:.4f}, PSNR {v['psnr_db']:.1f} dB)"
+                     for dom, v in r.items()]
+            say(f"  {name:15s} " + "; ".join(parts))
+            if name in ABLATIONS:
+                ablation_rows.append(f"| {preset} | {name} | {r['linear']['percent']:.2f} | {r['linear']['rmse']:.4f} | "
+                                     f"{r['encoded']['percent']:.2f} | {r['encoded']['rmse']:.4f} |")
+        doc["presets"][preset] = {"fit_seconds": fit_s, "errors": res, "samples": orig.n_samples,
+                                  "texels": cbtf.width * cbtf.height, "k": cbtf.k}
+        f, fl, rc = res["fitted"], res["flat"], res["reconstruction"]
+        for name in ("fitted", "flat"):
+            ablation_rows.append(f"| {preset} | {name} | {res[name]['linear']['percent']:.2f} | "
+                                 f"{res[name]['linear']['rmse']:.4f} | {res[name]['encoded']['percent']:.2f} | "
+                                 f"{res[name]['encoded']['rmse']:.4f} |")
+        rows.append(f"| {preset} | {f['linear']['percent']:.2f} | {fl['linear']['percent']:.2f} | "
+                    f"{fl['linear']['percent'] / f['linear']['percent']:.2f}x | {f['encoded']['percent']:.2f} | "
+                    f"{fl['encoded']['percent']:.2f} | {f['vs_reconstruction']['percent']:.2f} | "
+                    f"{fl['vs_reconstruction']['percent']:.2f} | {rc['linear']['percent']:.2f} | {fit_s:.1f} |")
+    say("\n## results (markdown for benchmarks/RESULTS.md)\n")
+    say("| preset | fitted % lin | flat % lin | flat / fitted | fitted % enc | flat % enc | fitted % vs recon | "
+        "flat % vs recon | BTF (k) % lin | fit s |")
+    say("|---|---|---|---|---|---|---|---|---|---|")
+    for row in rows:
+        say(row)
+    if args.ablation:
+        say("\n| preset | fallback | % lin | RMSE lin | % enc | RMSE enc |\n|---|---|---|---|---|---|")
+        for row in sorted(ablation_rows):
+            say(row)
+    path = write_json(OUT / f"fallback_{timestamp()}.json", doc)
+    say(f"\nwrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

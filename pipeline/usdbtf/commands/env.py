@@ -1,0 +1,40 @@
+"""``usdbtf env``: the environment any USD process needs to know the usdBtf plugin."""
+from __future__ import annotations
+
+import shlex
+
+ORDER = 95
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("env", help="print the shell lines that make any USD process know the usdBtf plugin "
+                       "(schema, Sdr shader definition, MaterialX nodedefs)")
+    p.add_argument("--json", action="store_true",
+                   help="print {variable: [entries], separator: {...}} as JSON instead of shell lines")
+    p.set_defaults(func=run)
+
+
+def shell_lines() -> list[str]:
+    """POSIX sh lines: each variable gets usdbtf's entries in front of whatever it holds."""
+    from .. import __version__
+    from ..usd.plugin import environment, list_separator
+
+    lines = [f"# usdbtf {__version__}: the usdBtf USD plugin for any USD process (eval in a launcher)"]
+    for variable, entries in environment().items():
+        sep = list_separator(variable)
+        value = shlex.quote(sep.join(entries))
+        lines.append(f'export {variable}={value}"${{{variable}:+{sep}${variable}}}"')
+    return lines
+
+
+def run(args) -> int:
+    from ..usd.plugin import environment, list_separator
+
+    if args.json:
+        from .. import jsontext
+
+        env = environment()
+        print(jsontext.dumps({"variables": env, "separators": {v: list_separator(v) for v in env}}))
+    else:
+        print("\n".join(shell_lines()))
+    return 0

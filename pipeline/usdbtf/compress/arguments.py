@@ -1,0 +1,50 @@
+"""The arguments of ``usdbtf compress``, defined once: the command uses them, and
+``usdbtf build`` parses a scene's ``btf:build:options`` with them (restricted to
+:data:`SCENE_OPTIONS`), so a scene can say nothing the command would not accept."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..argtypes import SEED, WORKERS, add_outside_paths_flag, float_in, int_in
+from .codecs import CODECS
+from .options import DEFAULT_CODEC, SOLVERS
+
+__all__ = ["SCENE_OPTIONS", "add_arguments"]
+
+#: Options a scene's ``btf:build:options`` may give (``usdbtf build``): everything that
+#: steers the result, nothing that names files or changes how the command runs.
+SCENE_OPTIONS = ("solver", "k", "target_error", "max_bytes", "codec", "seed", "fit_texels", "power_iterations",
+                 "region", "memory_budget")
+
+
+def add_arguments(p) -> None:
+    """The compress command's arguments (also used to parse a scene's build options)."""
+    p.add_argument("input", type=Path, help="manifest folder, btf.json, UBO2003/UTIA/ATRIUM zip or folder, or "
+                   "Bonn .btf file (UBO2014)")
+    p.add_argument("-o", "--output", required=True, type=Path)
+    p.add_argument("--solver", default="rsvd", choices=SOLVERS, help="rsvd (default) or paper (the 2003 method)")
+    p.add_argument("--k", type=int_in(1, 300), help="number of basis vectors, 1..300 (maximum when a target is "
+                   "given; default 150)")
+    p.add_argument("--target-error", type=float_in(0, 100, lo_open=True), metavar="PCT",
+                   help="percent error to reach (scene-linear)")
+    p.add_argument("--max-bytes", type=int_in(1), metavar="B", help="byte budget for basis + coefficient textures")
+    p.add_argument("--codec", choices=sorted(CODECS), help=f"texture storage (default {DEFAULT_CODEC['rsvd']}; "
+                   f"paper solver: {DEFAULT_CODEC['paper']})")
+    p.add_argument("--seed", type=SEED, default=0)
+    p.add_argument("--fit-texels", type=int_in(1, 1 << 26), help="rsvd: texels sampled to fit the basis "
+                   "(default 2048; 4096 with --max-bytes or --target-error)")
+    p.add_argument("--power-iterations", type=int_in(0, 20), default=1, help="rsvd: power iterations (0..20)")
+    p.add_argument("--region", type=int_in(1), help="paper: side of the central fitting region in texels")
+    p.add_argument("--workers", type=WORKERS, help="decode processes (default: CPU count)")
+    p.add_argument("--memory-budget", type=float_in(0, 1e4), default=1.0, metavar="GB",
+                   help="hold the stored values in memory up to this size, else stream them from disk "
+                        "twice (default 1.0)")
+    p.add_argument("--expand-factors", action="store_true",
+                   help="a factorised input (UBO2014 .btf, DFMF/FMF): expand its images and compress those, "
+                        "instead of transcoding from the factors (the default)")
+    p.add_argument("--factor-rows", type=int_in(1, 1 << 31), metavar="M",
+                   help="transcoding a nonlinear colour model (UBO2014's log Y, U/Y, V/Y): samples the "
+                        "coefficients are solved on (default 16 k; the number of samples or more = exact)")
+    add_outside_paths_flag(p)
+
+

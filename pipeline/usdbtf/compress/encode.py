@@ -1,0 +1,53 @@
+"""Encoding: quantised textures -> the codec's bytes, in memory, and what a reader will see.
+
+Nothing here touches a disk: the codec writes into an anonymous in-memory file
+(:func:`.codecs.memory_file`).  Lossy codecs are decoded back, so the encoded result holds
+exactly the values any reader of its files gets -- rate control then measures the error of
+what is stored, and the writer copies the bytes without encoding twice.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+from .codecs import Codec, Stored, get_codec
+from .format import CompressedBTF, EncodedTextures, decode_basis, encode_basis, truncate
+
+__all__ = ["encode", "truncate_encoded"]
+
+
+def encode(cbtf: CompressedBTF) -> CompressedBTF:
+    """Encode every texture of ``cbtf`` with its codec.
+
+    Parameters
+    ----------
+    cbtf : quantised textures (:func:`.quantise.quantise`), not yet encoded.
+
+    Returns
+    -------
+    A new CompressedBTF with ``encoded`` (the file bytes), ``info["bytes"]`` (their sizes:
+    basis, coefficients, payload, per_coefficient) and, for a lossy codec, the coefficient
+    textures and basis as decoded from those bytes.  ``cbtf`` is not changed.
+    """
+    codec = get_codec(cbtf.codec)
+    data = [codec.encode(st, "data") for st in cbtf.coefficients]
+    if not codec.lossless:
+        cbtf = replace(cbtf, coefficients=[Stored(Codec.decode(d), st.scale, st.bias)
+                                           for d, st in zip(data, cbtf.coefficients)])
+    return _with_basis(cbtf, data)
+
+
+def truncate_encoded(cbtf: CompressedBTF, k: int) -> CompressedBTF:
+    """The first ``k`` components of an encoded ``cbtf``: the coefficient textures' bytes are
+    kept, only the basis image (whose layout depends on k) is encoded again."""
+    return _with_basis(truncate(cbtf, k), cbtf.encoded.coefficients[:k])
+
+
+def _with_basis(cbtf: CompressedBTF, coefficient_bytes) -> CompressedBTF:
+    """``cbtf`` with its basis encoded (and decoded back for a lossy codec) and
+    ``coefficient_bytes`` as its coefficient textures' bytes."""
+    data = encode_basis(cbtf)
+    if not get_codec(cbtf.codec).lossless:
+        cbtf = replace(cbtf, basis=Stored(decode_basis(data, cbtf), cbtf.basis.scale, cbtf.basis.bias))
+    enc = EncodedTextures(cbtf.codec, data, tuple(coefficient_bytes),
+                          (cbtf.basis.pixels, *(st.pixels for st in cbtf.coefficients)))
+    return replace(cbtf, encoded=enc, info={**cbtf.info, "bytes": enc.sizes()})

@@ -1,0 +1,75 @@
+"""Evaluation: the error of what is stored, on held-out texels and as a curve over k.
+
+Both use the paper's percent error (Fig. 3: "the sum of the differences between original
+and reconstructed pixels divided by the sum of the original pixels"), here as
+100 sum|x - x'| / sum x over working-space (scene-linear) values, reconstructed by Eq. (2)
+from the stored -- quantised, encoded and decoded -- representation.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .curve import error_curve
+from .format import CompressedBTF, working_coefficient_texels
+from .metrics import ErrorSums
+from .texels import Texels
+
+__all__ = ["HeldOut", "held_out_set", "held_out_error", "error_curve"]
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """The texels error estimates are made on, with their true values.
+
+    Attributes
+    ----------
+    texels : (n,) int, sorted texel indices.
+    truth : (S, n, 3) float32 working-space values there (scene-linear).
+    disjoint : True when none of them was used in the fit (an out-of-sample estimate).
+    """
+
+    texels: np.ndarray
+    truth: np.ndarray
+    disjoint: bool
+
+
+def held_out_set(source, texels: Texels) -> HeldOut:
+    """The evaluation texels and their true values.
+
+    Parameters
+    ----------
+    source : where the data is read (see :mod:`.source`).
+    texels : ``texels.evaluation`` are read; ``texels.held_out`` says whether they are disjoint
+        from the fit.
+
+    Returns
+    -------
+    HeldOut : truth (S, n, 3) float32 in working space (scene-linear).
+    """
+    ev = texels.evaluation
+    truth = source.to_working(source.columns(ev)).reshape(source.btf.n_samples, len(ev), 3)
+    return HeldOut(ev, truth, texels.held_out)
+
+
+def held_out_error(cbtf: CompressedBTF, held: HeldOut, k: int | None = None) -> ErrorSums:
+    """Error of the stored representation, cut to its first ``k`` components, on the held-out
+    texels over all samples.
+
+    Parameters
+    ----------
+    cbtf : the stored representation (what a reader of its files gets).
+    held : texels and their working-space truth (S, n, 3).
+    k : components used (default all).
+
+    Returns
+    -------
+    ErrorSums : ``percent`` (the paper's metric), ``rmse`` (linear units), ``psnr()``.
+    """
+    k = cbtf.k if k is None else k
+    coeff = working_coefficient_texels(cbtf, held.texels, k)                     # (k, n, 3)
+    rec = (cbtf.basis_values(k) @ coeff.reshape(k, -1)).reshape(held.truth.shape)
+    sums = ErrorSums()
+    sums.add(held.truth, rec)
+    return sums

@@ -1,0 +1,107 @@
+"""What ``compress`` is asked to do: :class:`CompressOptions`, and the defaults that follow from it.
+
+Every choice that depends only on the options is made here, once: the codec a solver
+stores with, which quantiser that codec needs, how many basis vectors to fit.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from ..errors import BTFError
+from .codecs import get_codec
+
+__all__ = ["CompressOptions", "SOLVERS", "DEFAULT_CODEC", "DEFAULT_K", "BUDGET_K"]
+
+SOLVERS = ("rsvd", "paper")
+#: The codec each solver stores with when none is asked for.
+DEFAULT_CODEC = {"rsvd": "jxl", "paper": "jpeg"}
+#: Basis vectors kept for a plain run (the paper's 150).
+DEFAULT_K = 150
+#: With a byte or error target, rate-distortion may keep more components than the paper's
+#: 150: low-energy coefficients cost few bits once entropy coded (measured: at the paper's
+#: bytes, pebbles 9.1 % error at k <= 150, 8.0 % at k <= 300).
+BUDGET_K = 300
+
+
+@dataclass
+class CompressOptions:
+    """What ``compress`` does.  Units: ``target_error`` percent (paper's metric, scene-linear),
+    ``max_bytes`` bytes of stored textures (basis + coefficients)."""
+
+    solver: str = "rsvd"
+    k: int | None = None
+    target_error: float | None = None
+    max_bytes: int | None = None
+    codec: str | None = None              # default: DEFAULT_CODEC[solver]
+    seed: int = 0
+    fit_texels: int | None = None         # rsvd: texels sampled for the basis fit (default: texels.py)
+    power_iterations: int = 1
+    oversample: int = 16
+    region: int | None = None             # paper: side of the central square region (texels)
+    memory_budget: float = 1.0e9          # hold stored values in memory up to this many bytes, else stream
+    chunk_bytes: float = 64e6             # streaming: stored bytes per chunk (rounded to whole projection tiles)
+    eval_texels: int = 1024               # held-out texels for error estimates
+    workers: int | None = None
+    expand_factors: bool = False          # a factorised input (UBO2014 DFMF/FMF): expand its images instead of
+                                          # transcoding from the factors (see factored.py)
+    factor_rows: int | None = None        # transcoding a nonlinear colour model: samples the coefficients are
+                                          # solved on (default: factored.default_rows; >= S: all, exact)
+    extra: dict = field(default_factory=dict)
+
+    def validate(self):
+        if self.solver not in SOLVERS:
+            raise BTFError(f"unknown solver {self.solver!r}; choose from {', '.join(SOLVERS)}")
+        if self.k is not None and self.k < 1:
+            raise BTFError(f"--k must be at least 1, got {self.k}")
+        if self.target_error is not None and not (self.target_error > 0):
+            raise BTFError(f"--target-error must be a positive percentage, got {self.target_error}")
+        if self.max_bytes is not None and self.max_bytes <= 0:
+            raise BTFError(f"--max-bytes must be positive, got {self.max_bytes}")
+        if self.factor_rows is not None and self.factor_rows < 1:
+            raise BTFError(f"--factor-rows must be at least 1, got {self.factor_rows}")
+        get_codec(self.codec_name)
+
+    @property
+    def codec_name(self) -> str:
+        """The codec the textures are stored with: ``codec``, else the solver's default."""
+        return self.codec or DEFAULT_CODEC[self.solver]
+
+    @property
+    def quantiser(self) -> str:
+        """How coefficients and basis become stored integers (see :mod:`.quantise`):
+        "half" for exr, "minmax" (the paper's 8-bit scaling) for the paper solver or jpeg,
+        else "uniform" (one step chosen by rate-distortion)."""
+        if self.codec_name == "exr":
+            return "half"
+        if self.solver == "paper" or self.codec_name == "jpeg":
+            return "minmax"
+        return "uniform"
+
+    @property
+    def budgeted(self) -> bool:
+        """A byte budget or an error target is set (rate control chooses k and the step)."""
+        return self.max_bytes is not None or self.target_error is not None
+
+    @property
+    def target_k(self) -> int:
+        """Components to keep when no budget decides: ``k``, else :data:`DEFAULT_K`."""
+        return self.k or DEFAULT_K
+
+    def fit_k(self, n_samples: int, n_pixels: int) -> int:
+        """Basis vectors to fit for S samples of P texels: ``k`` (default 150, or 300 for the
+        default solver with a budget, see :data:`BUDGET_K`), at most min(S, 3 P)."""
+        default = BUDGET_K if self.budgeted and self.solver == "rsvd" else DEFAULT_K
+        return min(self.k or default, n_samples, 3 * n_pixels)
+
+    def recorded(self) -> dict:
+        """The options as the output's provenance records them (not ``extra``, not ``workers``;
+        the factor-input options only when set, so other inputs' records stay as they were)."""
+        out = {k: v for k, v in self.__dict__.items() if k not in ("extra", "workers")}
+        for key, default in _FACTOR_OPTIONS.items():
+            if out[key] == default:
+                del out[key]
+        return out
+
+
+#: Options that only steer factorised inputs, with their defaults.
+_FACTOR_OPTIONS = {"expand_factors": False, "factor_rows": None}

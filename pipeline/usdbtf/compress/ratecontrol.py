@@ -1,0 +1,196 @@
+"""Rate control: how many components to keep, at which quantisation step, for what was asked.
+
+Four cases, one function each, all returning an encoded :class:`CompressedBTF` (see
+:mod:`.encode`) and the ``choice`` the metadata records:
+
+* a plain k with the uniform quantiser: the step was chosen on the sampled texels before
+  the projection (:func:`step_for_k`); encode once;
+* ``--max-bytes``: (k, step) from the rate-distortion table (:mod:`.ratedist`), its entropy
+  model calibrated on a probe encode, then trailing components dropped while over budget;
+* ``--target-error``: (k, step) with the fewest modelled bytes, re-chosen up to three times
+  against the held-out error of what was really stored;
+* quantisers without a step (min-max, half floats): k alone meets the request.
+
+Every encode happens in memory; nothing is written.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import BTFError
+from . import ratedist
+from .codecs import get_codec
+from .decorrelate import planes_in_use
+from .encode import encode, truncate_encoded
+from .evaluate import HeldOut, held_out_error
+from .format import CompressedBTF, encode_basis
+from .options import CompressOptions
+from .quantise import Factorisation, quantise
+
+__all__ = ["rate_control", "step_for_k"]
+
+_GAUSS_L1_OVER_RMS = float(np.sqrt(2 / np.pi))  # E|e| / rms(e) for Gaussian errors
+
+
+def step_for_k(sampled: np.ndarray, basis: np.ndarray, outside: float, n_pixels: int,
+               options: CompressOptions) -> tuple[float | None, tuple]:
+    """The quantisation step and colour planes for a plain k, from sampled texels.
+
+    Chosen before the projection, so the projection can skip the components the step would
+    round to zero (:func:`.decorrelate.planes_in_use`).  Only the uniform quantiser without a
+    budget has such a step (:func:`.ratedist.choose_for_k`: quantisation adds at most a tenth
+    of the truncation error at k).
+
+    Parameters
+    ----------
+    sampled : (k_fit, n, 3) float32 decorrelated coefficients of sampled texels.
+    basis : (S, k_fit) float32 U.
+    outside : energy outside the basis (working space, linear units squared), whole image.
+    n_pixels : P, texels per image.
+    options : ``k``, ``seed``, and whether a budget or another quantiser applies.
+
+    Returns
+    -------
+    step : float, or None when rate control chooses later (budget) or there is no step.
+    planes : (k_0, k_1, k_2) components to project per colour plane (all k_fit with no step).
+    """
+    k_fit = basis.shape[1]
+    if options.budgeted or options.quantiser != "uniform":
+        return None, (k_fit,) * 3
+    k = min(options.target_k, k_fit)
+    inside = float(np.einsum("kpc,kpc->", sampled, sampled, dtype=np.float64)) * n_pixels / sampled.shape[1]
+    table = ratedist.rd_table(sampled[:k], basis[:, :k], inside + outside, n_texels=n_pixels, seed=options.seed,
+                              rates=False)
+    step = ratedist.choose_for_k(table, k)
+    return step, planes_in_use(sampled[:k], step)
+
+
+def rate_control(f: Factorisation, options: CompressOptions, held: HeldOut, log) -> tuple[CompressedBTF, dict]:
+    """Choose k (and the step) for ``options``, quantise and encode.
+
+    Parameters
+    ----------
+    f : the factorisation (``f.step`` set for a plain k, see :func:`step_for_k`).
+    options : ``k``, ``max_bytes`` (bytes of basis + coefficient textures), ``target_error``
+        (percent, the paper's metric), ``seed``, and the quantiser.
+    held : held-out texels, to check an error target on what is really stored.
+    log : callable(str) for progress lines.
+
+    Returns
+    -------
+    cbtf : the encoded result (:func:`.encode.encode`).
+    choice : what was chosen, for the metadata ("mode", "k", "step", "bytes", ...).
+    """
+    if options.quantiser != "uniform":
+        return _by_k_only(f, options, held)
+    if f.step is not None:
+        return _plain_k(f, options, log)
+    table = ratedist.rd_table(f.coefficients, f.basis, f.total_energy, seed=options.seed)
+    if options.max_bytes is not None:
+        return _max_bytes(f, options, table, log)
+    return _target_error(f, options, table, held, log)
+
+
+def _plain_k(f: Factorisation, options: CompressOptions, log) -> tuple[CompressedBTF, dict]:
+    # Components no colour plane was projected on are all zero: not worth a file.
+    in_use = np.flatnonzero(np.abs(f.coefficients).max(axis=(1, 2)) > 0)
+    k = min(options.target_k, f.k, int(in_use[-1]) + 1 if len(in_use) else 1)
+    cbtf = encode(quantise(f, k, f.step, options))
+    payload = cbtf.info["bytes"]["payload"]
+    log(f"  k = {k}, step = {f.step:.4g}, {payload} bytes")
+    return cbtf, {"mode": "k", "k": k, "step": f.step, "bytes": payload}
+
+
+def _attempt(f: Factorisation, options: CompressOptions, k: int, step: float, attempt: int, log) -> CompressedBTF:
+    cbtf = encode(quantise(f, k, step, options))
+    log(f"  try {attempt}: k = {k}, step = {step:.4g}, {cbtf.info['bytes']['payload']} bytes")
+    return cbtf
+
+
+def _max_bytes(f: Factorisation, options: CompressOptions, table, log) -> tuple[CompressedBTF, dict]:
+    budget = options.max_bytes
+    k, step = ratedist.choose_for_bytes(table, budget, 1.0)
+    # Calibrate the entropy model on a probe encode (a dozen textures + the basis),
+    # then encode once; if still over budget, drop trailing components (energy order:
+    # only the basis image is encoded again).
+    fc, fb = _probe_codec_factors(table, f, min(k, options.k or k), step, options)
+    k, step = ratedist.choose_for_bytes(table, 0.995 * budget, fc, fb)
+    k = min(k, options.k or k)
+    cbtf = _attempt(f, options, k, step, 1, log)
+    while cbtf.info["bytes"]["payload"] > budget:
+        k2 = _fit_k_to_budget(cbtf.info["bytes"], k, budget)
+        if k2 == 0 or k2 == k:
+            k2 = k - 1
+        if k2 < 1:
+            raise BTFError(f"cannot meet --max-bytes {budget}: even one basis vector does not fit")
+        cbtf = truncate_encoded(cbtf, k2)
+        log(f"  trimmed to k = {k2}: {cbtf.info['bytes']['payload']} bytes")
+        k = k2
+    return cbtf, {"mode": "max_bytes", "k": k, "step": step, "bytes": cbtf.info["bytes"]["payload"],
+                  "codec_factor": {"coefficients": fc, "basis": fb}}
+
+
+def _target_error(f: Factorisation, options: CompressOptions, table, held: HeldOut, log) -> tuple[CompressedBTF, dict]:
+    truth = held.truth
+    N = truth.size * f.btf.n_pixels / len(held.texels)
+    rms_target = options.target_error / 100.0 * float(truth.mean()) / _GAUSS_L1_OVER_RMS
+    scale, factor = 1.0, 1.0
+    for attempt in range(1, 4):
+        k, step = ratedist.choose_for_error(table, rms_target**2 * N * scale, factor)
+        cbtf = _attempt(f, options, k, step, attempt, log)
+        err = held_out_error(cbtf, held).percent
+        if err <= options.target_error:
+            break
+        scale *= (options.target_error / err) ** 2   # the L1/RMS ratio of these errors differs from Gaussian
+    return cbtf, {"mode": "target_error", "k": k, "step": step, "bytes": cbtf.info["bytes"]["payload"],
+                  "estimated_percent": err}
+
+
+def _fit_k_to_budget(sizes: dict, k: int, budget: int, margin: float = 0.995) -> int:
+    """Largest k' <= k whose measured textures fit ``margin * budget`` (basis bytes pro rata);
+    0 when not even one does.  The margin leaves room for the basis re-encode's rounding."""
+    per = np.cumsum(sizes["per_coefficient"]) + sizes["basis"] * np.arange(1, k + 1) / k
+    fits = np.flatnonzero(per <= margin * budget)
+    return int(fits[-1]) + 1 if len(fits) else 0
+
+
+def _probe_codec_factors(table, f: Factorisation, k: int, step: float, options: CompressOptions) -> tuple[float, float]:
+    """Measured bytes / entropy-model bytes for coefficient textures and for the basis,
+    from encoding (in memory) ~12 textures spread over the first k and the k-column basis."""
+    j = list(table.steps).index(step)
+    probe = np.unique(np.linspace(0, k - 1, min(k, 12)).round().astype(int))
+    cbtf = quantise(f, k, step, options)
+    codec = get_codec(cbtf.codec)
+    coeff_bytes = sum(len(codec.encode(cbtf.coefficients[i], "data")) for i in probe)
+    basis_bytes = len(encode_basis(cbtf))
+    overhead = len(probe) * ratedist.FILE_OVERHEAD_BYTES  # the model adds it unscaled
+    fc = max(coeff_bytes - overhead, 1.0) / max(float(table.coeff_bytes[probe, j].sum()), 1.0)
+    fb = basis_bytes / max(float(table.basis_bytes[:k, j].sum()), 1.0)
+    return float(fc), float(fb)
+
+
+def _by_k_only(f: Factorisation, options: CompressOptions, held: HeldOut) -> tuple[CompressedBTF, dict]:
+    """Quantisers without a step to tune: k alone meets the request."""
+    k = min(options.target_k, f.k)
+    cbtf = encode(quantise(f, k, 0.0, options))
+    choice = {"k": k}
+    if options.max_bytes is not None:
+        # Min-max storage does not depend on k: dropping trailing components is exact here.
+        sizes = cbtf.info["bytes"]
+        k = _fit_k_to_budget(sizes, k, options.max_bytes, margin=1.0)
+        if k == 0:
+            one = sizes["per_coefficient"][0] + sizes["basis"] / cbtf.k
+            raise BTFError(f"cannot meet --max-bytes {options.max_bytes}: one basis vector already needs {one:.0f} bytes")
+    elif options.target_error is not None:
+        lo, hi = 1, k
+        while lo < hi:  # smallest k meeting the target on held-out texels (error falls with k)
+            mid = (lo + hi) // 2
+            if held_out_error(cbtf, held, mid).percent <= options.target_error:
+                hi = mid
+            else:
+                lo = mid + 1
+        k = lo
+    if k != cbtf.k:
+        cbtf = truncate_encoded(cbtf, k)
+        choice["k"] = k
+    return cbtf, choice

@@ -1,0 +1,12 @@
+"""Meshes: the one :class:`Mesh` type, the one loader (:func:`load_mesh`), tangent frames.
+
+    >>> from usdbtf.mesh import load_mesh
+    >>> mesh = load_mesh("knot.obj")                      # or .ply/.stl/.glb/.gltf/.off/.usd*
+    >>> mesh.points.shape, mesh.triangles.shape, mesh.area()
+"""
+from .frames import mirrored_faces, tangent_frames, uv_gradients
+from .load import MESH_SUFFIXES, TRIMESH_SUFFIXES, USD_SUFFIXES, load_mesh
+from .model import ATTRIBUTES, CornerFrames, Mesh, degenerate_triangles, smooth_normals, weld
+
+__all__ = ["Mesh", "CornerFrames", "ATTRIBUTES", "load_mesh", "MESH_SUFFIXES", "TRIMESH_SUFFIXES", "USD_SUFFIXES",
+           "weld", "smooth_normals", "degenerate_triangles", "tangent_frames", "uv_gradients", "mirrored_faces"]

@@ -1,0 +1,261 @@
+"""What usdbtf writes, and how to recognise a previous output of each kind.
+
+``--force`` replaces an existing output only when it is a previous usdbtf output of the
+same kind, recognised here by the format's own marker *and* by holding nothing the
+format does not account for (a compressed folder into which someone copied their notes
+is not replaced).  This module only reads: it knows each format's marker file or
+attribute, not how to write one, so it sits below every writer.
+
+==========================  =======  ==========================================================
+kind                        what     recognised by
+==========================  =======  ==========================================================
+``btf-manifest/1``          folder   ``btf.json`` with that ``format``; only the listed images
+``btf-compressed/1``        folder   ``btf-compressed.json`` with that ``format``; only the
+                                     basis, coefficient, error-curve and position-map files
+``usdbtf-unwrap``           folder   ``unwrap.json`` with ``"tool": "usdbtf unwrap"``; only
+                                     ``mesh.usda``, ``charts.png``, ``unwrap.json``
+``usdbtf-capture``          folder   ``journal.jsonl``; only capture files (``frames/``, ...)
+``usdbtf-sim-frames``       folder   only the simulator's frame files (``latest.tif``, ...)
+``usdbtf-bench``            folder   ``results.json`` and ``report.md`` of ``usdbtf bench``
+``usdbtf-asset``            file     a USD layer (or usdz) whose layer metadata holds
+                                     ``customLayerData = {"usdbtf": {"output": ...}}``
+``usdbtf-asset-textures``   folder   ``<stem>_textures`` beside a usdbtf asset; only packaged
+                                     texture names (BTF codes, GPU tables and packs, the
+                                     fallback's maps, the thumbnail; any texture format)
+``usdbtf-render``           file     EXR/PNG with the image attribute ``usdbtf:output``
+``usdbtf-board-image``      file     PNG with the image attribute ``usdbtf:output``
+``usdbtf-board/1``          file     board JSON with that ``format``
+``usdbtf-port``             file     one line naming a rig port (``/dev/...``, ``socket://...``,
+                                     or a pty link)
+``usdbtf-pty-link``         link     a symbolic link to ``/dev/pts/N``
+==========================  =======  ==========================================================
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+from pathlib import Path
+
+__all__ = ["MANIFEST", "COMPRESSED", "UNWRAP", "CAPTURE", "SIM_FRAMES", "BENCH", "ASSET", "ASSET_TEXTURES",
+           "RENDER", "BOARD_IMAGE", "BOARD", "PORT", "PTY_LINK", "OWNED", "FOLDER_KINDS", "RESUMABLE_KINDS",
+           "IMAGE_ATTRIBUTE", "USD_MARKER_KEY", "identify", "is_kind", "usd_marker"]
+
+MANIFEST = "btf-manifest/1"
+COMPRESSED = "btf-compressed/1"
+UNWRAP = "usdbtf-unwrap"
+CAPTURE = "usdbtf-capture"
+SIM_FRAMES = "usdbtf-sim-frames"
+BENCH = "usdbtf-bench"
+ASSET = "usdbtf-asset"
+ASSET_TEXTURES = "usdbtf-asset-textures"
+RENDER = "usdbtf-render"
+BOARD_IMAGE = "usdbtf-board-image"
+BOARD = "usdbtf-board/1"
+PORT = "usdbtf-port"
+PTY_LINK = "usdbtf-pty-link"
+#: Not a recognised kind: a file its writer owns for its own reasons (the manifest inside
+#: a capture folder the writer holds, a generated file of the repository).
+OWNED = "owned"
+
+FOLDER_KINDS = {MANIFEST, COMPRESSED, UNWRAP, CAPTURE, SIM_FRAMES, BENCH, ASSET_TEXTURES}
+#: Kinds a command continues in place instead of replacing (capture resumes, the simulator
+#: keeps serving frames into its folder).
+RESUMABLE_KINDS = {CAPTURE, SIM_FRAMES}
+
+#: Image attribute (EXR header, PNG text chunk) naming the kind of a usdbtf-written image.
+IMAGE_ATTRIBUTE = "usdbtf:output"
+#: Key of the layer metadata (customLayerData) dictionary that marks a usdbtf-written layer.
+USD_MARKER_KEY = "usdbtf"
+
+# Marker file names, as the formats define them (tests check they match manifest.MANIFEST,
+# compress.format.METADATA, unwrap's RECORD, ...; importing those modules here would make
+# this module depend on every writer).
+_MANIFEST_FILE = "btf.json"
+_COMPRESSED_FILE = "btf-compressed.json"
+_COMPRESSED_EXTRAS = {"error_curve.csv", "error_curve.png", "quilt_positions.exr"}
+_UNWRAP_FILES = {"mesh.usda", "charts.png", "unwrap.json"}
+_CAPTURE_FILES = re.compile(r"(btf\.json|journal\.jsonl|flat\.exr|\.lock|\.(tmp|hook)-.*|frames/[^/]*)")
+_SIM_FRAME_FILES = re.compile(r"(latest|s\d+|flat\d+|\.tmp-[^/]*)\.tif|\.[^/]*\.tmp-[^/]*")
+# preview_albedo.png: the flat fallback of assets written before the fitted one.
+_TEXTURE_FILES = re.compile(r"(basis\.\w+|coeff/c\d+\.\w+|preview_albedo\.png|gpu/[\w.-]+|thumbnail\.png"
+                            r"|fallback/(diffuse|specular|roughness|normal)\.\w+)")
+#: Root and payload layer names a texture folder ``<stem>_textures`` sits beside.
+_ASSET_LAYERS = ("_payload.usdc", "_payload.usda", ".usda", ".usdc", ".usd")
+_PORT_TEXT = re.compile(r"(/dev/\S+|socket://\S+)\n?")
+_MAX_MARKER_BYTES = 256 << 20   # a marker JSON larger than this is not one of ours
+
+
+def usd_marker(kind: str = ASSET) -> dict:
+    """The customLayerData entry a usdbtf writer puts on its USD layers."""
+    return {USD_MARKER_KEY: {"output": kind}}
+
+
+def _json(path: Path):
+    try:
+        if not path.is_file() or path.is_symlink() or path.stat().st_size > _MAX_MARKER_BYTES:
+            return None
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _files(folder: Path) -> set[str] | None:
+    """Every entry below ``folder`` as a relative POSIX path (folders only when empty);
+    None when a symbolic link or something unreadable is in it."""
+    out = set()
+    try:
+        for d, dirs, fs in os.walk(folder, onerror=_raise):
+            base = Path(d)
+            for name in dirs + fs:
+                p = base / name
+                if p.is_symlink():
+                    return None
+            if not dirs and not fs and base != folder:
+                out.add(base.relative_to(folder).as_posix() + "/")
+            out.update((base / f).relative_to(folder).as_posix() for f in fs)
+    except OSError:
+        return None
+    return out
+
+
+def _raise(exc):
+    raise exc
+
+
+def _only(folder: Path, allowed) -> bool:
+    files = _files(folder)
+    if files is None:
+        return False
+    if callable(allowed):
+        return all(allowed(f) for f in files)
+    return files <= set(allowed)
+
+
+def _manifest(folder: Path) -> bool:
+    doc = _json(folder / _MANIFEST_FILE)
+    if not isinstance(doc, dict) or doc.get("format") != MANIFEST or not isinstance(doc.get("samples"), list):
+        return False
+    images = {s.get("image") for s in doc["samples"] if isinstance(s, dict)}
+    return _only(folder, {_MANIFEST_FILE} | {i for i in images if isinstance(i, str)})
+
+
+def _compressed(folder: Path) -> bool:
+    doc = _json(folder / _COMPRESSED_FILE)
+    if not isinstance(doc, dict) or doc.get("format") != COMPRESSED:
+        return False
+    entries = [doc.get("basis")] + list(doc.get("coefficients") or [])
+    names = {e.get("file") for e in entries if isinstance(e, dict)}
+    return _only(folder, {_COMPRESSED_FILE} | _COMPRESSED_EXTRAS | {n for n in names if isinstance(n, str)})
+
+
+def _unwrap(folder: Path) -> bool:
+    doc = _json(folder / "unwrap.json")
+    return isinstance(doc, dict) and doc.get("tool") == "usdbtf unwrap" and _only(folder, _UNWRAP_FILES)
+
+
+def _capture(folder: Path) -> bool:
+    return (folder / "journal.jsonl").is_file() and _only(folder, _CAPTURE_FILES.fullmatch)
+
+
+def _sim_frames(folder: Path) -> bool:
+    return _only(folder, _SIM_FRAME_FILES.fullmatch)
+
+
+def _bench(folder: Path) -> bool:
+    doc = _json(folder / "results.json")
+    return isinstance(doc, dict) and "machine" in doc and "sections" in doc and (folder / "report.md").is_file()
+
+
+def _asset_textures(folder: Path) -> bool:
+    if not folder.name.endswith("_textures"):
+        return False
+    stem = folder.name[:-len("_textures")]
+    beside = [folder.parent / f"{stem}{suffix}" for suffix in _ASSET_LAYERS]
+    return any(_usd_layer(p) == ASSET for p in beside) and _only(folder, _TEXTURE_FILES.fullmatch)
+
+
+def _usd_layer(path: Path) -> str | None:
+    if not path.is_file() or path.is_symlink():
+        return None
+    try:
+        from pxr import Sdf, Tf
+    except ImportError:      # pragma: no cover - usd-core is a dependency
+        return None
+    try:
+        layer = Sdf.Layer.OpenAsAnonymous(str(path), metadataOnly=True)
+    except Tf.ErrorException:
+        return None
+    if layer is None:
+        return None
+    mark = dict(layer.customLayerData).get(USD_MARKER_KEY)
+    return mark.get("output") if isinstance(mark, dict) else None
+
+
+def _image_kind(path: Path) -> str | None:
+    if not path.is_file() or path.is_symlink():
+        return None
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        oiio.geterror()      # clear it: OIIO prints unretrieved errors at exit
+        return None
+    try:
+        return inp.spec().get_string_attribute(IMAGE_ATTRIBUTE, "") or None
+    finally:
+        inp.close()
+
+
+def _port(path: Path) -> bool:
+    """One line naming a port: a device, a socket URL, or the pty link rig-sim keeps."""
+    try:
+        if not path.is_file() or path.is_symlink() or path.stat().st_size >= 4096:
+            return False
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError):
+        return False
+    line = text[:-1] if text.endswith("\n") else text
+    return _PORT_TEXT.fullmatch(text) is not None or (
+        bool(line) and "\n" not in line and "\0" not in line and os.path.islink(line))
+
+
+_FOLDERS = [(CAPTURE, _capture), (MANIFEST, _manifest), (COMPRESSED, _compressed), (UNWRAP, _unwrap),
+            (BENCH, _bench), (ASSET_TEXTURES, _asset_textures), (SIM_FRAMES, _sim_frames)]
+
+
+def identify(path) -> str | None:
+    """The kind of usdbtf output at ``path`` (see the module table), or None when it is
+    not one: missing, written by something else, or holding files the format does not
+    account for."""
+    path = Path(path)
+    if path.is_symlink():
+        try:
+            return PTY_LINK if re.fullmatch(r"/dev/pts/\d+", os.readlink(path)) else None
+        except OSError:
+            return None
+    if path.is_dir():
+        if not any(path.iterdir()):
+            return None
+        return next((kind for kind, test in _FOLDERS if test(path)), None)
+    if not path.is_file():
+        return None
+    suffix = path.suffix.lower()
+    if suffix in (".usda", ".usdc", ".usd", ".usdz"):
+        return ASSET if _usd_layer(path) == ASSET else None
+    if suffix in (".exr", ".png"):
+        kind = _image_kind(path)
+        return kind if kind in (RENDER, BOARD_IMAGE) else None
+    if suffix == ".json":
+        doc = _json(path)
+        return BOARD if isinstance(doc, dict) and doc.get("format") == BOARD else None
+    return PORT if _port(path) else None
+
+
+def is_kind(path, kind: str) -> bool:
+    """``identify(path) == kind``, checking only that kind (cheaper)."""
+    path = Path(path)
+    if kind in FOLDER_KINDS:
+        test = dict(_FOLDERS)[kind]
+        return path.is_dir() and not path.is_symlink() and any(path.iterdir()) and test(path)
+    return identify(path) == kind

@@ -1,0 +1,418 @@
+"""A spatially varying UsdPreviewSurface fitted to a BTF: what renderers without BTF support show.
+
+:func:`fit_svbrdf` is a pure function, compressed BTF -> :class:`SvbrdfMaps`: per texel a
+diffuse colour, a specular colour (F0), a roughness and a tangent-space normal, for
+UsdPreviewSurface's specular workflow.  :func:`evaluate` is that surface's direct lighting
+(previewSurface.glslfx: Lambert diffuse scaled by 1 - F, GGX D, Schlick-Smith G with
+k = alpha / 2, Schlick Fresnel between F0 and 1, alpha = roughness^2), so the error of a fit
+against the BTF is measured with the model a renderer evaluates.
+
+Units: a BTF value is ``I = W * pi * f(v, l) * (n . l)``, with W the source's white level
+(what a white Lambertian lit head-on reads; 1 unless recorded), i.e. the capture's light
+has irradiance ``pi * W``.  Directions are in the sample's tangent frame (x = image right,
+y = image up, z = normal); maps are (H, W, ...) arrays in the BTF's texel order.
+
+The fit, streamed over blocks of texels (the reconstruction of a block over the fit
+samples is all that is held; ``chunk_bytes`` bounds it):
+
+1. **Samples**: at most ``max_samples`` measured samples for the reflectance fit, half of
+   them the nearest to the mirror configuration, half evenly spread (:func:`fit_samples`);
+   every sample at the views nearest the normal with lights up to 60 degrees for the normals.
+2. **Normal** (photometric stereo): at near-normal views a diffuse surface's luminance is
+   ``rho (n . l)``, linear in ``g = rho n``; least squares over the lights, then again
+   without the samples whose residual is beyond 2.5 median absolute deviations (cast
+   shadows, highlights).  Tilt is limited to 60 degrees.
+3. **Reflectance**: with ``a = rho (1 - F0)`` the model is linear in (a, F0) per colour
+   channel: ``Y = a (1 - w) (n.l) / pi + F0 S (1 - w) (n.l) + S w (n.l)`` with
+   ``w = (1 - v.h)^5`` and ``S = D G / (4 (n.l)(n.v) + eps)``.  For every roughness on a
+   grid (0.2 to 1, :data:`ROUGHNESS_GRID`), least squares with a >= 0, 0 <= F0 <= 1, from
+   2x2 normal equations summed over samples; each texel keeps the roughness with the
+   smallest residual.  This is done with the flat normal (0, 0, 1) and with the
+   photometric one; a texel keeps its photometric normal only where that fit predicts
+   :data:`VALIDATION_SAMPLES` other measured samples better (a tilted normal with a sharp
+   lobe can fit the fit samples and still flash at directions they do not cover).
+
+:func:`flat_fallback` is the fallback usdbtf shipped before (median albedo, one roughness,
+no normal map), kept as the baseline ``benchmarks/bench_fallback.py`` measures against.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .compress.format import CompressedBTF, working_coefficient_texels
+from .sampling import to_vectors
+
+__all__ = ["SvbrdfMaps", "fit_svbrdf", "flat_fallback", "median_albedo", "fit_flat_roughness", "evaluate",
+           "fit_samples", "normal_samples", "validation_samples", "ROUGHNESS_GRID", "MIN_ROUGHNESS",
+           "VALIDATION_SAMPLES"]
+
+#: The roughness candidates.  None below 0.2: previewSurface.glslfx adds EPSILON = 0.001 to
+#: alpha^2 = roughness^4 in D's numerator, which dominates below roughness ~0.18 and makes
+#: the peak grow as 1 / roughness^8 -- fireflies at mirror directions the fit never saw.
+ROUGHNESS_GRID = np.array([0.2, 0.25, 0.3, 0.36, 0.43, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0], np.float32)
+MIN_ROUGHNESS = 0.001
+_EPS = 0.001                 # previewSurface.glslfx's EPSILON in D's numerator and the specular denominator
+_MAX_TILT_DEG = 60.0
+_NORMAL_VIEW_TOL_DEG = 1e-3
+_NORMAL_MAX_LIGHT_DEG = 60.0
+#: Samples (not fitted to) on which each texel's normal map must beat the flat normal.
+VALIDATION_SAMPLES = 1024
+
+
+@dataclass
+class SvbrdfMaps:
+    """Per-texel UsdPreviewSurface parameters (specular workflow).
+
+    diffuse : (H, W, 3) float32 diffuseColor, linear, in ``working_space``, [0, 1].
+    specular : (H, W, 3) float32 specularColor (F0 at normal incidence), same space, [0, 1].
+    roughness : (H, W) float32, [MIN_ROUGHNESS, 1].
+    normal : (H, W, 3) float32 unit tangent-space normals (x right, y up, z out), z > 0.
+    white_level : the BTF value a white Lambertian lit head-on reads (see module docstring).
+    """
+
+    diffuse: np.ndarray
+    specular: np.ndarray
+    roughness: np.ndarray
+    normal: np.ndarray
+    working_space: str
+    white_level: float = 1.0
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.roughness.shape
+
+
+def fit_samples(cbtf: CompressedBTF, most: int = 1536) -> np.ndarray:
+    """Indices of the samples the reflectance is fitted to: all, or ``most`` of them.  Half
+    are near the mirror configuration (the 4x as many samples with the smallest half-vector
+    angle, thinned evenly in view order so grazing views are among them): they pin the
+    highlight's height, and at grazing angles UsdPreviewSurface's Fresnel goes to 1 whatever
+    F0 is, so only samples there keep the roughness honest.  The other half is an even spread
+    (in sample order, which interleaves views and lights) of the rest."""
+    n = cbtf.n_samples
+    if n <= most:
+        return np.arange(n)
+    v, l = to_vectors(cbtf.sampling.view), to_vectors(cbtf.sampling.light)
+    h = v + l
+    cos_h = h[:, 2] / np.maximum(np.linalg.norm(h, axis=1), 1e-12)
+    half = most // 2
+    near = np.sort(np.argsort(-cos_h, kind="stable")[: 4 * half])       # sample order = view order
+    specular = near[np.unique(np.linspace(0, len(near) - 1, half).round().astype(int))]
+    rest = np.setdiff1d(np.arange(n), specular)
+    spread = rest[np.unique(np.linspace(0, len(rest) - 1, most - len(specular)).round().astype(int))]
+    return np.union1d(specular, spread)
+
+
+def normal_samples(cbtf: CompressedBTF) -> np.ndarray:
+    """Samples for photometric stereo: the views nearest the normal, lights up to 60 degrees."""
+    vt, lt = cbtf.sampling.view[:, 0], cbtf.sampling.light[:, 0]
+    near = vt <= vt.min() + _NORMAL_VIEW_TOL_DEG
+    sel = np.flatnonzero(near & (lt <= _NORMAL_MAX_LIGHT_DEG))
+    return sel if len(sel) >= 3 else np.flatnonzero(near)
+
+
+# ------------------------------------------------------------------ the model
+class _Geometry:
+    """Dot products of texel normals (T, 3) with sample directions (S, 3), each (S, T)
+    float32 and clamped at 0 as previewSurface.glslfx does; ``w`` = (1 - v.h)^5 is (S, 1)."""
+
+    def __init__(self, n: np.ndarray, v: np.ndarray, l: np.ndarray):
+        h = v + l
+        h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-12)
+        self.w = ((1.0 - np.clip(np.einsum("ij,ij->i", v, h), 0.0, 1.0)) ** 5).astype(np.float32)[:, None]
+        n = np.ascontiguousarray(n, np.float32).T
+        self.nl = np.maximum(l.astype(np.float32) @ n, 0.0)
+        self.nv = np.maximum(v.astype(np.float32) @ n, 0.0)
+        nh = np.maximum(h.astype(np.float32) @ n, 0.0)
+        self._nh2 = nh * nh
+        # n.l / (4 n.l n.v + eps): the roughness-independent part of the specular term times n.l
+        self._nl_over_q = self.nl / (4 * self.nl * self.nv + np.float32(_EPS))
+        self._tmp = np.empty_like(self.nl)
+
+    def specular_nl(self, roughness: float) -> np.ndarray:
+        """(S, T) n.l D G / (4 n.l n.v + eps) at ``roughness`` (alpha = roughness^2): the
+        specular term times n.l, without F.  In place, on scratch buffers (the fit's hot loop)."""
+        r = max(float(roughness), MIN_ROUGHNESS)
+        alpha = np.float32(r * r)
+        a2, k = alpha * alpha, alpha * np.float32(0.5)
+        out, tmp = np.empty_like(self.nl), self._tmp
+        np.multiply(self._nh2, a2 - 1, out=out)            # D = (a2 + eps) / (pi (nh^2 (a2 - 1) + 1)^2)
+        out += 1
+        np.multiply(out, out, out=out)
+        np.divide((a2 + np.float32(_EPS)) / np.float32(np.pi), out, out=out)
+        for dot in (self.nv, self.nl):                     # G = G1(n.v) G1(n.l), G1(x) = x / (x (1 - k) + k)
+            np.multiply(dot, 1 - k, out=tmp)
+            tmp += k
+            np.divide(dot, tmp, out=tmp)
+            out *= tmp
+        out *= self._nl_over_q
+        return out
+
+
+def evaluate(maps: SvbrdfMaps, view_deg: np.ndarray, light_deg: np.ndarray, texels=slice(None)) -> np.ndarray:
+    """(S, T, 3) float32 BTF values the surface predicts for samples (view, light) in degrees
+    (S, 2 each) at ``texels`` (a slice or index array into the H*W texels, row-major)."""
+    v, l = to_vectors(np.asarray(view_deg, float)), to_vectors(np.asarray(light_deg, float))
+    n = maps.normal.reshape(-1, 3)[texels].astype(np.float32)
+    rho = maps.diffuse.reshape(-1, 3)[texels].astype(np.float32)
+    f0 = maps.specular.reshape(-1, 3)[texels].astype(np.float32)
+    rough = maps.roughness.reshape(-1)[texels].astype(np.float32)
+    out = np.zeros((len(v), len(n), 3), np.float32)
+    for r in np.unique(rough):               # the GGX terms depend on roughness only through its value
+        sel = np.flatnonzero(rough == r)
+        geo = _Geometry(n[sel], v, l)
+        fres = f0[sel][None] * (1.0 - geo.w)[..., None] + geo.w[..., None]           # F = mix(F0, 1, w)
+        diffuse = rho[sel][None] / np.pi * (1.0 - fres) * geo.nl[..., None]
+        out[:, sel] = diffuse + geo.specular_nl(float(r))[..., None] * fres
+    return out * np.float32(np.pi * maps.white_level)
+
+
+# ------------------------------------------------------------------ the fit
+def _chunk_texels(n_samples: int, chunk_bytes: float) -> int:
+    # ~12 float32 (S, T) arrays live at once in the reflectance fit.
+    return int(max(256, chunk_bytes // (n_samples * 4 * 12)))
+
+
+def _reconstruct(cbtf: CompressedBTF, rows: np.ndarray, texels: slice) -> np.ndarray:
+    """(S, T, 3) float32 working-space values of samples with basis rows ``rows`` (S, k)."""
+    c = working_coefficient_texels(cbtf, texels)                      # (k, T, 3)
+    return (rows @ c.reshape(cbtf.k, -1)).reshape(len(rows), -1, 3)
+
+
+def _photometric_normals(y_lum: np.ndarray, light: np.ndarray) -> np.ndarray:
+    """(T, 3) unit normals from luminance ``y_lum`` (S, T) under unit lights (S, 3)."""
+    outer = (light[:, :, None] * light[:, None, :]).reshape(len(light), 9)        # l l^T per sample
+
+    def solve(weights):
+        a = (weights.T @ outer).reshape(-1, 3, 3) + np.eye(3, dtype=np.float32) * 1e-6
+        b = (weights * y_lum).T @ light
+        return np.linalg.solve(a, b[..., None])[..., 0]                           # (T, 3) = rho n
+
+    g = solve(np.ones_like(y_lum))
+    # Again without the outliers (cast shadows, highlights): residuals beyond 2.5 MADs.
+    resid = y_lum - light @ g.T
+    resid -= np.median(resid, axis=0)
+    mad = np.median(np.abs(resid), axis=0) + 1e-12
+    g = solve((np.abs(resid) <= 2.5 * 1.4826 * mad).astype(np.float32))
+    norm = np.linalg.norm(g, axis=1, keepdims=True)
+    n = np.where((norm > 1e-12) & (g[:, 2:3] > 0), g / np.maximum(norm, 1e-30), [0.0, 0.0, 1.0])
+    # Limit the tilt: beyond ~60 degrees photometric stereo at 13-odd lights is noise.
+    max_xy = np.sin(np.radians(_MAX_TILT_DEG))
+    xy = np.linalg.norm(n[:, :2], axis=1, keepdims=True)
+    scale = np.where(xy > max_xy, max_xy / np.maximum(xy, 1e-30), 1.0)
+    n[:, :2] *= scale
+    n[:, 2] = np.sqrt(np.maximum(1.0 - (n[:, :2] ** 2).sum(axis=1), 0.0))
+    return n.astype(np.float32)
+
+
+def _solve_channel(s11, s12, s22, b1, b2):
+    """Least squares of (a, F0) from sums, with a >= 0 and 0 <= F0 <= 1 (all (T,) arrays)."""
+    det = s11 * s22 - s12 * s12
+    ok = det > 1e-12 * (s11 * s22 + 1e-30)
+    a = np.where(ok, (b1 * s22 - b2 * s12) / np.where(ok, det, 1.0), 0.0)
+    f = np.where(ok, (b2 * s11 - b1 * s12) / np.where(ok, det, 1.0), 0.0)
+    # Active set: a parameter out of bounds is fixed at the bound, the other refitted.
+    f_only = np.clip(b2 / np.maximum(s22, 1e-30), 0.0, 1.0)
+    a_only = np.maximum(b1 / np.maximum(s11, 1e-30), 0.0)
+    bad_a, bad_f = (a < 0) | ~ok, (f < 0) | (f > 1)
+    f = np.where(bad_a, f_only, np.clip(f, 0.0, 1.0))
+    a = np.where(bad_a, 0.0, np.where(bad_f, np.maximum((b1 - f * s12) / np.maximum(s11, 1e-30), 0.0), a))
+    a = np.where(bad_a & bad_f & (f_only == 0), a_only, a)
+    return a, f
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Sum over samples of a * b: (S, T) x (S, T) -> (T,), or (S, T) x (3, S, T) -> (T, 3);
+    float32 sums (a few hundred terms) returned as float64 for the residual expansion."""
+    if a.ndim == b.ndim:
+        return np.einsum("st,st->t", a, b).astype(np.float64)
+    return np.stack([np.einsum("st,st->t", a, bc) for bc in b], axis=1).astype(np.float64)
+
+
+def _fit_reflectance(y: np.ndarray, n: np.ndarray, v: np.ndarray, l: np.ndarray, grid: np.ndarray):
+    """Best (a, F0, roughness, residual) per texel for normals ``n`` (T, 3) and values
+    ``y`` (3, S, T) already divided by pi W.  Residuals are expanded from sums over
+    samples, so each roughness costs a few passes over (S, T) arrays."""
+    t = y.shape[2]
+    geo = _Geometry(n, v, l)
+    x1 = (1 - geo.w) * geo.nl * np.float32(1 / np.pi)
+    s11, y1, y_sq = _dot(x1, x1), _dot(x1, y), sum(_dot(yc, yc) for yc in y)
+    best_res = np.full(t, np.inf)
+    best_a, best_f = np.zeros((t, 3), np.float32), np.zeros((t, 3), np.float32)
+    best_r = np.ones(t, np.float32)
+    for r in grid:
+        x3 = geo.specular_nl(float(r))
+        x2 = x3 * (1 - geo.w)
+        x3 *= geo.w
+        s12, s22, e13, e23, e33 = _dot(x1, x2), _dot(x2, x2), _dot(x1, x3), _dot(x2, x3), _dot(x3, x3)
+        y2, y3 = _dot(x2, y), _dot(x3, y)
+        res = 3 * e33 + y_sq - 2 * y3.sum(axis=1)                  # sum_c |y_c - x3|^2
+        b1, b2 = y1 - e13[:, None], y2 - e23[:, None]
+        a, f = _solve_channel(s11[:, None], s12[:, None], s22[:, None], b1, b2)
+        res += (-2 * (a * b1 + f * b2) + a * a * s11[:, None] + 2 * a * f * s12[:, None]
+                + f * f * s22[:, None]).sum(axis=1)
+        better = res < best_res
+        best_res = np.where(better, res, best_res)
+        best_a[better], best_f[better], best_r[better] = a[better], f[better], r
+    return best_a, best_f, best_r, best_res
+
+
+def _validation_residual(y: np.ndarray, n: np.ndarray, v: np.ndarray, l: np.ndarray, a, f, r) -> np.ndarray:
+    """(T,) sum over samples and channels of the squared error of the fitted (a, F0, roughness)
+    with normals ``n`` against ``y`` (3, S, T) (already divided by pi W)."""
+    geo = _Geometry(n, v, l)
+    out = np.zeros(y.shape[2])
+    x1 = (1 - geo.w) * geo.nl * np.float32(1 / np.pi)
+    for rv in np.unique(r):
+        sel = np.flatnonzero(r == rv)
+        spec = geo.specular_nl(float(rv))[:, sel]
+        x1s, w = x1[:, sel], geo.w
+        for c in range(3):
+            pred = a[sel, c] * x1s + f[sel, c] * spec * (1 - w) + spec * w
+            out[sel] += ((y[c][:, sel] - pred) ** 2).sum(axis=0, dtype=np.float64)
+    return out
+
+
+def validation_samples(cbtf: CompressedBTF, fit: np.ndarray, most: int = 1024) -> np.ndarray:
+    """Samples not fitted to, evenly spread: they decide whether a texel's normal map helps."""
+    rest = np.setdiff1d(np.arange(cbtf.n_samples), fit)
+    if len(rest) <= most:
+        return rest if len(rest) else fit
+    return rest[np.unique(np.linspace(0, len(rest) - 1, most).round().astype(int))]
+
+
+def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: int = 1536,
+               roughness_grid=ROUGHNESS_GRID, normals: bool = True, chunk_bytes: float = 64e6) -> SvbrdfMaps:
+    """Fit per-texel UsdPreviewSurface parameters to ``cbtf``'s reconstruction over its
+    measured samples (module docstring), streamed over blocks of texels.  ``normals=False``
+    fits no normal map (every texel keeps the flat normal)."""
+    if not white_level > 0:
+        raise ValueError(f"white_level must be positive, got {white_level}")
+    fit = fit_samples(cbtf, max_samples)
+    val = validation_samples(cbtf, fit, VALIDATION_SAMPLES)
+    vv, vl = to_vectors(cbtf.sampling.view[val]), to_vectors(cbtf.sampling.light[val])
+    ps = normal_samples(cbtf)
+    v, l = to_vectors(cbtf.sampling.view[fit]), to_vectors(cbtf.sampling.light[fit])
+    ps_light = to_vectors(cbtf.sampling.light[ps]).astype(np.float32)
+    basis = cbtf.basis_values()
+    fit_rows, ps_rows, val_rows = basis[fit], basis[ps], basis[val]
+    luma = _luminance_weights(cbtf)
+    grid = np.asarray(roughness_grid, np.float32)
+    texels = cbtf.width * cbtf.height
+    diffuse, specular = np.zeros((texels, 3), np.float32), np.zeros((texels, 3), np.float32)
+    rough, normal = np.ones(texels, np.float32), np.zeros((texels, 3), np.float32)
+    step = _chunk_texels(max(len(fit), len(ps)), chunk_bytes)
+    scale = np.float32(1.0 / (np.pi * white_level))
+    flat = np.array([0.0, 0.0, 1.0], np.float32)
+    for t0 in range(0, texels, step):
+        block = slice(t0, min(t0 + step, texels))
+        y = np.ascontiguousarray((_reconstruct(cbtf, fit_rows, block) * scale).transpose(2, 0, 1))
+        n_flat = np.broadcast_to(flat, (y.shape[2], 3))
+        a, f, r, res = _fit_reflectance(y, n_flat, v, l, grid)
+        n_ps = n_flat.copy()
+        if normals:
+            n_fit = _photometric_normals(_reconstruct(cbtf, ps_rows, block) @ luma, ps_light)
+            a1, f1, r1, _ = _fit_reflectance(y, n_fit, v, l, grid)
+            yv = np.ascontiguousarray((_reconstruct(cbtf, val_rows, block) * scale).transpose(2, 0, 1))
+            tilt = _validation_residual(yv, n_fit, vv, vl, a1, f1, r1) < \
+                _validation_residual(yv, n_flat, vv, vl, a, f, r)
+            a[tilt], f[tilt], r[tilt], n_ps[tilt] = a1[tilt], f1[tilt], r1[tilt], n_fit[tilt]
+        diffuse[block] = np.clip(a / np.maximum(1.0 - f, 1e-6), 0.0, 1.0)
+        specular[block], rough[block], normal[block] = f, r, n_ps
+    h, w = cbtf.height, cbtf.width
+    return SvbrdfMaps(diffuse.reshape(h, w, 3), specular.reshape(h, w, 3), rough.reshape(h, w),
+                      normal.reshape(h, w, 3), cbtf.working_space, float(white_level))
+
+
+# ------------------------------------------------------------------ the flat fallback (the baseline)
+def flat_fallback(cbtf: CompressedBTF, *, white_level: float = 1.0) -> SvbrdfMaps:
+    """The fallback usdbtf shipped before the fit, kept as the benchmark's baseline: per-texel
+    albedo (:func:`median_albedo`), one roughness for the whole material
+    (:func:`fit_flat_roughness`), no normal map, and UsdPreviewSurface's metallic-workflow
+    specular at metallic 0 (F0 = 0.04 from ior 1.5)."""
+    albedo = median_albedo(cbtf, white_level=white_level)
+    roughness, _ = fit_flat_roughness(cbtf)
+    h, w = albedo.shape[:2]
+    return SvbrdfMaps(albedo, np.full((h, w, 3), 0.04, np.float32), np.full((h, w), roughness, np.float32),
+                      np.broadcast_to(np.float32([0, 0, 1]), (h, w, 3)).copy(), cbtf.working_space,
+                      float(white_level))
+
+
+def albedo_samples(cbtf: CompressedBTF, max_light_theta: float = 60.0, most: int = 48) -> np.ndarray:
+    """Samples :func:`median_albedo` uses: the view ring nearest the normal, lights no lower
+    than ``max_light_theta`` degrees; at most ``most`` of them, evenly spread."""
+    view_theta = cbtf.sampling.view[:, 0]
+    near = view_theta <= view_theta.min() + 1e-6
+    sel = np.flatnonzero(near & (cbtf.sampling.light[:, 0] <= max_light_theta))
+    sel = sel if len(sel) else np.flatnonzero(near)
+    if len(sel) > most:
+        sel = sel[np.linspace(0, len(sel) - 1, most).round().astype(int)]
+    return sel
+
+
+def median_albedo(cbtf: CompressedBTF, *, white_level: float = 1.0, rows_per_chunk: int = 64) -> np.ndarray:
+    """(H, W, 3) float32 working-space albedo: per texel the median over lights of
+    ``I / cos(theta_l)`` at the views nearest the normal, divided by ``white_level``, in
+    [0, 1]; streamed over texel rows.  The median ignores highlights and cast shadows."""
+    sel = albedo_samples(cbtf)
+    cos_l = np.maximum(np.cos(np.radians(cbtf.sampling.light[sel, 0])), 0.1).astype(np.float32)
+    rows = (cbtf.basis_values()[sel] / cos_l[:, None]).T                  # (k, n)
+    out = np.empty((cbtf.height, cbtf.width, 3), np.float32)
+    for y0 in range(0, cbtf.height, rows_per_chunk):
+        y1 = min(y0 + rows_per_chunk, cbtf.height)
+        c = working_coefficient_texels(cbtf, slice(y0 * cbtf.width, y1 * cbtf.width))   # (k, h*W, 3)
+        per_texel = c.reshape(cbtf.k, -1).T @ rows                           # (h*W*3, n)
+        out[y0:y1] = np.median(per_texel, axis=1).reshape(y1 - y0, cbtf.width, 3)
+    return np.clip(out / white_level, 0.0, 1.0)
+
+
+_FLAT_ROUGHNESS_GRID = np.round(np.linspace(0.05, 1.0, 39), 4)
+
+
+def _flat_ggx_lobe(view: np.ndarray, light: np.ndarray, roughness: float) -> np.ndarray:
+    """(S,) GGX specular times cos(theta_l) for unit (S, 3) directions (F and G folded into the scale)."""
+    alpha2 = max(roughness, 0.02) ** 4
+    h = view + light
+    h /= np.linalg.norm(h, axis=1, keepdims=True)
+    nh = np.clip(h[:, 2], 0.0, 1.0)
+    d = alpha2 / (np.pi * (nh * nh * (alpha2 - 1.0) + 1.0) ** 2)
+    return d / (4.0 * np.maximum(view[:, 2], 0.1))
+
+
+def fit_flat_roughness(cbtf: CompressedBTF) -> tuple[float, float]:
+    """(roughness, relative residual) of the best diffuse + GGX fit to the texel-mean
+    apparent BRDF (non-negative least squares per roughness on a grid)."""
+    mean_c = np.stack([st.values().reshape(-1, 3).mean(axis=0) for st in cbtf.coefficients])   # (k, 3)
+    mean_c = mean_c @ np.asarray(cbtf.color_matrix).T
+    brdf = (cbtf.basis_values().astype(np.float64) @ mean_c).mean(axis=1)                    # (S,) grey
+    view, light = to_vectors(cbtf.sampling.view), to_vectors(cbtf.sampling.light)
+    keep = (cbtf.sampling.view[:, 0] <= 70) & (cbtf.sampling.light[:, 0] <= 75)
+    if keep.sum() < 3:
+        keep[:] = True
+    cos_l = np.maximum(light[keep, 2], 0.0)
+    norm = float(np.linalg.norm(brdf[keep])) or 1.0
+    best = (1.0, np.inf)
+    for r in _FLAT_ROUGHNESS_GRID:
+        design = np.stack([cos_l, _flat_ggx_lobe(view[keep], light[keep], float(r)) * cos_l], axis=1)
+        coef, *_ = np.linalg.lstsq(design, brdf[keep], rcond=None)
+        coef = np.maximum(coef, 0.0)   # a negative specular weight is not a surface
+        resid = float(np.linalg.norm(design @ coef - brdf[keep])) / norm
+        if resid < best[1] - 1e-12:
+            best = (float(r), resid)
+    return best
+
+
+#: Rec.709 luminance weights (ITU-R BT.709).
+_REC709_Y = np.array([0.2126, 0.7152, 0.0722])
+REC709_LINEAR = "Linear Rec.709 (sRGB)"
+
+
+def _luminance_weights(cbtf: CompressedBTF) -> np.ndarray:
+    """(3,) float32 luminance weights of the working space: Rec.709's Y row composed with
+    OCIO's (linear) working -> linear Rec.709 transform."""
+    from .colour import processor
+
+    to_709 = processor(cbtf.working_space, REC709_LINEAR, cbtf.ocio_config).apply(np.eye(3, dtype=np.float32))
+    return (to_709 @ _REC709_Y).astype(np.float32)

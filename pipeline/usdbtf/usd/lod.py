@@ -1,0 +1,88 @@
+"""Levels of detail of a packaged asset: the ``lod`` variant sets.
+
+Coefficients are energy-ordered, so a level of detail is the first n textures of the same
+files.  Two variant sets named ``lod``, both authored in the root layer (outside the
+payload, so they can be chosen before it loads):
+
+* on the **Material** (``/<root>/mtl/BtfMaterial``): variant ``k<n>`` sets
+  ``btf:basisCount`` and ``btf:coefficients`` to the first n, and on the Storm shader sets
+  ``inputs:basisCount`` and blocks the connections of the packs it no longer needs (Storm
+  then loads only those textures); variant ``full`` changes nothing.  A scene that
+  references only the material (``@asset.usda@</pebbles/mtl/BtfMaterial>``, the README's
+  scene pattern) switches it with its own ``variants = {lod = "k16"}``.
+* on the **root prim**: variant ``<name>`` selects the Material's variant ``<name>``, so
+  the asset's own selection drives it.
+
+Why the root layer: an opinion in a variant is weaker than a local opinion on the same
+prim in the same layer stack, but stronger than anything the root prim's payload brings
+in (LIVRPS), so the payload can hold the full values as plain local opinions.
+"""
+from __future__ import annotations
+
+__all__ = ["LOD_VARIANT_SET", "FULL_LOD", "default_lods", "lod_name", "author_lod_variants"]
+
+from .material import LOD_VARIANT_SET
+
+FULL_LOD = "full"
+
+
+def default_lods(k: int) -> list[int]:
+    """Levels of detail for ``k`` vectors: k, then halvings down to no fewer than 4."""
+    levels, n = [], k // 2
+    while n >= 4 and len(levels) < 3:
+        levels.append(n)
+        n //= 2
+    return levels
+
+
+def lod_name(n: int) -> str:
+    return f"k{n}"
+
+
+def author_lod_variants(stage, root_path: str, material_path: str, levels: list[int], coefficients: list[str],
+                        storm: tuple[str, int, int] | None = None) -> list[str]:
+    """Author both ``lod`` variant sets on ``stage`` (the root layer); returns the variant names.
+
+    levels : basis counts below k (descending); coefficients : the k coefficient asset
+    paths (relative to this layer).  storm : (Storm shader's name under the material, its
+    number of packs, the basis count its tables hold), or None without a Storm preview.
+    """
+    from pxr import Sdf
+
+    from ..gpu.shaders import pack_name
+    from ..gpu.tables import pack_count
+    from .material import NS
+
+    names = [FULL_LOD] + [lod_name(n) for n in levels]
+    material = stage.OverridePrim(material_path)
+    mset = material.GetVariantSets().AddVariantSet(LOD_VARIANT_SET)
+    for name in names:
+        mset.AddVariant(name)
+    for n in levels:
+        mset.SetVariantSelection(lod_name(n))
+        with mset.GetVariantEditContext():
+            count = material.CreateAttribute(NS + "basisCount", Sdf.ValueTypeNames.Int, custom=False,
+                                             variability=Sdf.VariabilityUniform)
+            count.Set(n)
+            coeffs = material.CreateAttribute(NS + "coefficients", Sdf.ValueTypeNames.AssetArray, custom=False,
+                                              variability=Sdf.VariabilityUniform)
+            coeffs.Set(Sdf.AssetPathArray([Sdf.AssetPath(p) for p in coefficients[:n]]))
+            for attr in (count, coeffs):
+                attr.SetColorSpace("raw")
+            if storm is not None:
+                shader_name, packs, gpu_k = storm
+                over = stage.OverridePrim(f"{material_path}/{shader_name}")
+                over.CreateAttribute("inputs:basisCount", Sdf.ValueTypeNames.Int).Set(min(n, gpu_k))
+                for p in range(pack_count(n), packs):
+                    over.CreateAttribute(f"inputs:{pack_name(p)}", Sdf.ValueTypeNames.Float).SetConnections([])
+    mset.ClearVariantSelection()      # no selection of its own: the root's (or a referencing scene's) decides
+
+    root = stage.GetPrimAtPath(root_path)
+    rset = root.GetVariantSets().AddVariantSet(LOD_VARIANT_SET)
+    for name in names:
+        rset.AddVariant(name)
+        rset.SetVariantSelection(name)
+        with rset.GetVariantEditContext():
+            stage.OverridePrim(material_path).GetVariantSets().SetSelection(LOD_VARIANT_SET, name)
+    rset.SetVariantSelection(FULL_LOD)
+    return names
