@@ -104,8 +104,7 @@ def test_storm_glslfx_compiles(textures, primvars, lights):
 @needs_glslang
 def test_glslang_rejects_a_broken_shader():
     """The control: the same check fails for a wrong call."""
-    text = shaders.storm_glslfx().replace("btfResolve(HdGetSampler_tables(), rows, packs, k)",
-                                          "btfResolve(HdGetSampler_tables(), rows, k)")
+    text = shaders.storm_glslfx().replace("btfResolve(tables, rows, packs, k)", "btfResolve(tables, rows, k)")
     with pytest.raises(BTFError, match="does not compile"):
         glslang.compile_glsl(glslang.storm_translation_unit(text, textures=["tables"]), "frag", "broken")
 

@@ -14,7 +14,7 @@ __all__ = ["SCENE_OPTIONS", "add_arguments"]
 #: Options a scene's ``btf:build:options`` may give (``usdbtf build``): everything that
 #: steers the result, nothing that names files or changes how the command runs.
 SCENE_OPTIONS = ("solver", "k", "target_error", "max_bytes", "codec", "seed", "fit_texels", "power_iterations",
-                 "region", "memory_budget")
+                 "region", "memory_budget", "domain")
 
 
 def add_arguments(p) -> None:
@@ -30,6 +30,13 @@ def add_arguments(p) -> None:
     p.add_argument("--max-bytes", type=int_in(1), metavar="B", help="byte budget for basis + coefficient textures")
     p.add_argument("--codec", choices=sorted(CODECS), help=f"texture storage (default {DEFAULT_CODEC['rsvd']}; "
                    f"paper solver: {DEFAULT_CODEC['paper']})")
+    p.add_argument("--domain", type=_domain, default="auto", metavar="auto|linear|srgb|gamma:G",
+                   help="working-domain curve the basis is fitted and quantised in; every reader applies its "
+                        "inverse after the dot product.  auto (default): chosen per material from x^(1/1.6), "
+                        "x^(1/2.2) and the sRGB curve by the unquantised held-out error of each one's basis, "
+                        "encoded and scene-linear together (rsvd); the input's own encoding curve for --solver "
+                        "paper (sRGB for 8-bit sRGB files: the paper fitted the camera's values); linear for a "
+                        "factorised input.  gamma:G is x^(1/G), G in 1..4")
     p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--fit-texels", type=int_in(1, 1 << 26), help="rsvd: texels sampled to fit the basis "
                    "(default 2048; 4096 with --max-bytes or --target-error)")
@@ -48,3 +55,17 @@ def add_arguments(p) -> None:
     add_outside_paths_flag(p)
 
 
+
+
+def _domain(text: str) -> str:
+    """argparse type of ``--domain``: the canonical name (auto, linear, srgb, gamma:G)."""
+    import argparse
+
+    from ..errors import UsageError
+    from .domain import parse_domain
+
+    try:
+        dom = parse_domain(text)
+    except UsageError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("--domain: ")) from None
+    return "auto" if dom is None else dom.name

@@ -29,7 +29,8 @@ from ..outputs import COMPRESSED as COMPRESSED_KIND
 from .curve import write_curve
 from .decorrelate import colour_decorrelation, rotate_colour
 from .evaluate import error_curve, held_out_error, held_out_set
-from .fit import HDR_NORM_RANGE, fit_source, require_signal, sampled_coefficients
+from .domain_choice import fit_in_domain
+from .fit import HDR_NORM_RANGE, require_signal, sampled_coefficients
 from .format import CompressedBTF, write_metadata, write_textures
 from .options import CompressOptions
 from .projection import project
@@ -64,11 +65,12 @@ def compress(btf: BTF, options: CompressOptions | None = None, *, log=None) -> C
     source = load_source(btf, texels, opts)
     say(f"loaded {btf.n_samples} samples of {btf.width}x{btf.height} ({source.kind}, {source.nbytes / 2**20:.0f} MiB) "
         f"in {clock.lap('load'):.2f} s")
-    fit = fit_source(source, texels.fit, opts.fit_k(btf.n_samples, btf.n_pixels), opts)
+    domain, fit, scores = fit_in_domain(source, texels, opts.fit_k(btf.n_samples, btf.n_pixels), opts, say)
     if fit.weighted:
         say(f"texel norms span more than {HDR_NORM_RANGE:g}: basis fitted with weights ||x_t||^-1/2")
     require_signal(fit, btf, texels, opts)
-    say(f"basis: {fit.k} vectors from {len(texels.fit)} texels ({opts.solver}) in {clock.lap('fit'):.2f} s")
+    say(f"basis: {fit.k} vectors from {len(texels.fit)} texels ({opts.solver}, {domain.name} domain) "
+        f"in {clock.lap('fit'):.2f} s")
     # Colour and (for a plain k) the quantisation step, from the sampled texels' coefficients,
     # before the projection: then the projection can skip what the step would zero out.
     held = held_out_set(source, texels)
@@ -81,7 +83,10 @@ def compress(btf: BTF, options: CompressOptions | None = None, *, log=None) -> C
     clock.lap("project")
     if energy is None:   # not measured: the coefficients' energy plus the estimate outside the basis
         energy = float(np.einsum("kpc,kpc->", coeff, coeff, dtype=np.float64)) + outside
-    cbtf, choice = rate_control(Factorisation(btf, fit.basis, coeff, colour, energy, planes, step), opts, held, say)
+    cbtf, choice = rate_control(Factorisation(btf, fit.basis, coeff, colour, energy, planes, step, domain),
+                                opts, held, say)
+    if scores is not None:
+        choice["domain_scores"] = scores
     clock.lap("encode")
     result = _described(cbtf, opts, dict(choice, planes=list(planes)), fit.singular_values, held,
                         held_out_error(cbtf, held), error_curve(cbtf, source), getattr(source, "provenance", None))

@@ -26,7 +26,9 @@ class HeldOut:
     Attributes
     ----------
     texels : (n,) int, sorted texel indices.
-    truth : (S, n, 3) float32 working-space values there (scene-linear).
+    truth : (S, n, 3) float32 values there in the compress's working domain (scene-linear
+        working space when the domain is linear; :func:`held_out_error` measures in
+        scene-linear either way).
     disjoint : True when none of them was used in the fit (an out-of-sample estimate).
     """
 
@@ -71,5 +73,6 @@ def held_out_error(cbtf: CompressedBTF, held: HeldOut, k: int | None = None) -> 
     coeff = working_coefficient_texels(cbtf, held.texels, k)                     # (k, n, 3)
     rec = (cbtf.basis_values(k) @ coeff.reshape(k, -1)).reshape(held.truth.shape)
     sums = ErrorSums()
-    sums.add(held.truth, rec)
+    dom = cbtf.domain
+    sums.add(dom.inverse(held.truth), dom.inverse(rec))       # scene-linear, whatever the domain
     return sums

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 from ..errors import BTFError
 from .codecs import get_codec
+from .domain import parse_domain
 
 __all__ = ["CompressOptions", "SOLVERS", "DEFAULT_CODEC", "DEFAULT_K", "BUDGET_K"]
 
@@ -46,6 +47,7 @@ class CompressOptions:
                                           # transcoding from the factors (see factored.py)
     factor_rows: int | None = None        # transcoding a nonlinear colour model: samples the coefficients are
                                           # solved on (default: factored.default_rows; >= S: all, exact)
+    domain: str = "auto"                  # working-domain curve: auto, linear, srgb, gamma:G (see domain.py)
     extra: dict = field(default_factory=dict)
 
     def validate(self):
@@ -60,6 +62,7 @@ class CompressOptions:
         if self.factor_rows is not None and self.factor_rows < 1:
             raise BTFError(f"--factor-rows must be at least 1, got {self.factor_rows}")
         get_codec(self.codec_name)
+        parse_domain(self.domain)
 
     @property
     def codec_name(self) -> str:

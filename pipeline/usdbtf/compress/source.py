@@ -98,6 +98,21 @@ class _Source:
     def _projector(self, u, mix, ks, energy) -> TileProjector:
         return TileProjector(u, mix, ks, self.curves, tile_samples(self.btf), energy=energy)
 
+    def set_domain(self, domain) -> None:
+        """From now on answer in the working ``domain`` (:mod:`.domain`): values are
+        ``domain.forward`` of the working-space values, per channel, so the primaries matrix
+        moves into the curves (it must act before the curve) and the colour mix is the
+        colour rotation alone.  A linear domain changes nothing."""
+        if domain.is_linear:
+            return
+        self._to_domain_kept(domain)
+        decode, matrix = self.curves, self.matrix
+        self.curves = lambda raw: domain.forward(decode(raw) if matrix is None else colour.mix_rgb(decode(raw), matrix))
+        self.matrix = None
+
+    def _to_domain_kept(self, domain) -> None:
+        """Convert values a source already holds (streaming: its kept columns and rows)."""
+
 
 class InMemorySource(_Source):
     """Every stored value in memory, block-major (see :mod:`.load`)."""
@@ -203,6 +218,11 @@ class StreamingSource(_Source):
             raise BTFError(block)
         return first, block
 
+    def _to_domain_kept(self, domain) -> None:
+        for _, dest in self._kept:
+            dest[:] = domain.forward(self.to_working(dest))
+        self._row_data[:] = domain.forward(self._row_data)
+
     def columns(self, texels: np.ndarray) -> np.ndarray:
         for t, dest in self._kept:
             if np.array_equal(t, texels):
@@ -262,7 +282,7 @@ def load_source(btf: BTF, texels: Texels, options: CompressOptions) -> _Source:
     factorisation gets a :class:`~.factored.FactoredSource` instead (unless
     ``options.expand_factors``): the same questions, answered from the factors.
     """
-    if uses_factors(btf, options):
-        return FactoredSource(btf, options)
+    if uses_factors(btf, options) and options.domain in ("auto", "linear"):
+        return FactoredSource(btf, options)       # transcoding's algebra holds in a linear domain only
     return choose_source(btf, [texels.fit, texels.evaluation], curve_samples(btf.n_samples),
                          memory_budget=options.memory_budget, workers=options.workers, chunk_bytes=options.chunk_bytes)
