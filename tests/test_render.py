@@ -205,13 +205,16 @@ def test_flat_plane_from_far_above_reproduces_the_swatch(renderer, light):
 
 
 def test_minified_texture_is_mip_filtered(renderer):
-    """Four texels per pixel: the mip filter averages them (the swatch box-filtered 4 x 4);
+    """Four texels per pixel: the mip filter averages them (the swatch box-filtered 4 x 4, in
+    the working domain: mip levels average coefficients, like a GPU's texture filter);
     plain bilinear would pick single texels instead."""
     half = PHYSICAL_SIZE / 2
     cam = Camera(np.array([0, 0, 50.0]), np.zeros(3), np.array([0, 1.0, 0]), np.degrees(2 * np.arctan(half / 50)),
                  12, 12)
     sun = Light("directional", directions_to_vectors([(45.0, 0.0)])[0], 1.0)
-    want = renderer.swatch((0.0, 0.0), (45.0, 0.0)).reshape(12, 4, 12, 4, 3).mean(axis=(1, 3))
+    dom = renderer.cbtf.domain
+    swatch = dom.forward(renderer.swatch((0.0, 0.0), (45.0, 0.0)))
+    want = dom.inverse(swatch.reshape(12, 4, 12, 4, 3).mean(axis=(1, 3)))
     mip = renderer.render(_plane(PHYSICAL_SIZE), cam, [sun])[..., :3]
     assert np.abs(mip - want).mean() < 5e-3 * np.abs(want).mean()
     plain = Renderer(renderer.cbtf, RenderOptions(filter="bilinear")).render(_plane(PHYSICAL_SIZE), cam, [sun])

@@ -110,10 +110,11 @@ class Domain:
 
 LINEAR = Domain()
 
-#: The curves ``--domain auto`` chooses from: in the research these three covered every
+#: The curves ``--domain auto`` chooses from.  In the research three curves covered every
 #: per-material choice (x^(1/1.6): pebbles, fabric, moss, stones, velvet; x^(1/2.2): satin;
-#: sRGB: metallic flakes).
-AUTO_CANDIDATES = (Domain("power", 1.6), Domain("power", 2.2), Domain("srgb"))
+#: sRGB: metallic flakes); linear comes first so that data a linear basis reconstructs
+#: exactly (low rank: rendered, HDR test patterns) keeps it (ties go to the first).
+AUTO_CANDIDATES = (LINEAR, Domain("power", 1.6), Domain("power", 2.2), Domain("srgb"))
 
 
 def parse_domain(text: str) -> Domain | None:
