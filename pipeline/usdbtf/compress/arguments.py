@@ -7,14 +7,14 @@ from pathlib import Path
 
 from ..argtypes import SEED, WORKERS, add_outside_paths_flag, float_in, int_in
 from .codecs import CODECS
-from .options import DEFAULT_CODEC, SOLVERS
+from .options import DEFAULT_CODEC, ERROR_DOMAINS, SOLVERS
 
 __all__ = ["SCENE_OPTIONS", "add_arguments"]
 
 #: Options a scene's ``btf:build:options`` may give (``usdbtf build``): everything that
 #: steers the result, nothing that names files or changes how the command runs.
 SCENE_OPTIONS = ("solver", "k", "target_error", "max_bytes", "codec", "seed", "fit_texels", "power_iterations",
-                 "region", "memory_budget", "domain")
+                 "region", "memory_budget", "domain", "error_domain")
 
 
 def add_arguments(p) -> None:
@@ -22,11 +22,19 @@ def add_arguments(p) -> None:
     p.add_argument("input", type=Path, help="manifest folder, btf.json, UBO2003/UTIA/ATRIUM zip or folder, or "
                    "Bonn .btf file (UBO2014)")
     p.add_argument("-o", "--output", required=True, type=Path)
-    p.add_argument("--solver", default="rsvd", choices=SOLVERS, help="rsvd (default) or paper (the 2003 method)")
+    p.add_argument("--solver", default="rsvd", choices=SOLVERS,
+                   help="rsvd (default) or paper: the 2003 method as the paper ran it (exact SVD of the central "
+                        "quarter-width square, k = 150, 8-bit min-max JPEG coefficients and basis) on the input's "
+                        "encoded values (with --domain auto: the input's encoding curve, sRGB for 8-bit sRGB files)")
     p.add_argument("--k", type=int_in(1, 300), help="number of basis vectors, 1..300 (maximum when a target is "
                    "given; default 150)")
     p.add_argument("--target-error", type=float_in(0, 100, lo_open=True), metavar="PCT",
-                   help="percent error to reach (scene-linear)")
+                   help="percent error to reach (the paper's metric, 100 sum|x - x'| / sum x, on held-out texels; "
+                        "see --error-domain)")
+    p.add_argument("--error-domain", choices=ERROR_DOMAINS, default="encoded",
+                   help="what --target-error is measured on: encoded (default: the values in the input's files, "
+                        "e.g. the 8-bit sRGB codes -- what a user comparing images sees; for float files the same "
+                        "as their linear values) or linear (scene-linear working space)")
     p.add_argument("--max-bytes", type=int_in(1), metavar="B", help="byte budget for basis + coefficient textures")
     p.add_argument("--codec", choices=sorted(CODECS), help=f"texture storage (default {DEFAULT_CODEC['rsvd']}; "
                    f"paper solver: {DEFAULT_CODEC['paper']})")

@@ -130,7 +130,8 @@ def _described(cbtf: CompressedBTF, opts: CompressOptions, choice: dict, singula
         "solver": opts.solver,
         "choice": choice,
         "singular_values": [float(s) for s in singular_values],
-        "estimated_error": {"linear": sums.report(), "texels": int(len(held.texels)),
+        "estimated_error": {"linear": sums.report(), "encoded": held_out_error(cbtf, held, domain="encoded").report(),
+                            "texels": int(len(held.texels)),
                             "note": ("held-out texels (not used in the fit)" if held.disjoint else
                                      "all texels (the image is smaller than the fitting sample: in-sample)")
                             + ", all samples, working space"},

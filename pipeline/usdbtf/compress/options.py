@@ -11,9 +11,11 @@ from ..errors import BTFError
 from .codecs import get_codec
 from .domain import parse_domain
 
-__all__ = ["CompressOptions", "SOLVERS", "DEFAULT_CODEC", "DEFAULT_K", "BUDGET_K"]
+__all__ = ["CompressOptions", "SOLVERS", "ERROR_DOMAINS", "DEFAULT_CODEC", "DEFAULT_K", "BUDGET_K"]
 
 SOLVERS = ("rsvd", "paper")
+#: What ``--target-error`` is measured on: the input file's values, or scene-linear.
+ERROR_DOMAINS = ("encoded", "linear")
 #: The codec each solver stores with when none is asked for.
 DEFAULT_CODEC = {"rsvd": "jxl", "paper": "jpeg"}
 #: Basis vectors kept for a plain run (the paper's 150).
@@ -26,7 +28,8 @@ BUDGET_K = 300
 
 @dataclass
 class CompressOptions:
-    """What ``compress`` does.  Units: ``target_error`` percent (paper's metric, scene-linear),
+    """What ``compress`` does.  Units: ``target_error`` percent (paper's metric, on the input's
+    encoded values or scene-linear per ``error_domain``),
     ``max_bytes`` bytes of stored textures (basis + coefficients)."""
 
     solver: str = "rsvd"
@@ -48,6 +51,7 @@ class CompressOptions:
     factor_rows: int | None = None        # transcoding a nonlinear colour model: samples the coefficients are
                                           # solved on (default: factored.default_rows; >= S: all, exact)
     domain: str = "auto"                  # working-domain curve: auto, linear, srgb, gamma:G (see domain.py)
+    error_domain: str = "encoded"         # target_error is on the input file's values ("encoded") or "linear"
     extra: dict = field(default_factory=dict)
 
     def validate(self):
@@ -63,6 +67,8 @@ class CompressOptions:
             raise BTFError(f"--factor-rows must be at least 1, got {self.factor_rows}")
         get_codec(self.codec_name)
         parse_domain(self.domain)
+        if self.error_domain not in ERROR_DOMAINS:
+            raise BTFError(f"--error-domain must be one of {', '.join(ERROR_DOMAINS)}, got {self.error_domain!r}")
 
     @property
     def codec_name(self) -> str:
