@@ -33,6 +33,7 @@ Run: ``.venv/bin/python benchmarks/bench_transcode.py [--quick] [--k 16]``
 from __future__ import annotations
 
 import argparse
+import logging
 import re
 import sys
 import tempfile
@@ -154,10 +155,27 @@ def steps_of(log_lines: list) -> dict:
     return {name: float(s) for name, s in _STEP.findall(log_lines[-1].split("(", 1)[1])}
 
 
+class _Lines(logging.Handler):
+    """Collects the messages of compress's logger (its last line has the step times)."""
+
+    def __init__(self):
+        super().__init__(logging.INFO)
+        self.lines = []
+
+    def emit(self, record):
+        self.lines.append(record.getMessage())
+
+
 def run_compress(btf, opts) -> dict:
-    lines = []
-    result, wall, cpu = timed(lambda: compress(btf, opts, log=lines.append))
-    return {"wall": wall, "cpu": cpu, "steps": steps_of(lines), "result": result}
+    handler, logger = _Lines(), logging.getLogger("usdbtf.compress.core")
+    logger.addHandler(handler)
+    level, logger.level = logger.level, logging.INFO
+    try:
+        result, wall, cpu = timed(lambda: compress(btf, opts))
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
+    return {"wall": wall, "cpu": cpu, "steps": steps_of(handler.lines), "result": result}
 
 
 def crop_of(path: Path, folder: Path, model: int) -> Path:

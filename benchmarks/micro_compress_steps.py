@@ -61,7 +61,7 @@ def main(argv):
             "held_out_set (evaluation texels, working)": lambda: held_out_set(source, texels),
             "colour decorrelation + step_for_k": colour_and_step,
             f"rate_control: quantise + encode in memory (k {result.k})": lambda: rate_control(
-                factors, opts, held, lambda msg: None),
+                factors, opts, held),
             "held_out_error": lambda: held_out_error(result, held),
             "error curve": lambda: error_curve(result, source),
             "write_compress (files: textures, metadata, curve)": lambda: write_compress(

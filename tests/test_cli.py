@@ -211,7 +211,7 @@ def test_max_bytes(capsys, src, tmp_path):
 
 def test_target_error(capsys, src, tmp_path):
     out = tmp_path / "te"
-    ok(capsys, "compress", src, "-o", out, "--target-error", "4", "-q")
+    ok(capsys, "compress", src, "-o", out, "--target-error", "4", "--error-domain", "linear", "-q")
     c = read_compressed(out)
     full = percent(read_manifest(src), lambda sel: reconstruct(c, sel))["linear"]["percent"]
     assert full <= 4 * 1.1

@@ -394,7 +394,8 @@ def test_paper_max_bytes_and_target_error(paper_small32, tmp_path):
     assert len(list((tmp_path / "mb" / "coeff").iterdir())) == c.k
     # Target: the paper's error at k = 16 (held-out estimate) is reachable with k <= 16.
     est16 = paper16.info["estimated_error"]["linear"]["percent"]
-    t = compress_into(btf, tmp_path / "te", CompressOptions(solver="paper", k=16, target_error=est16 * 1.05))
+    t = compress_into(btf, tmp_path / "te", CompressOptions(solver="paper", k=16, target_error=est16 * 1.05,
+                                                            error_domain="linear"))
     assert t.k <= 16
     assert t.info["estimated_error"]["linear"]["percent"] <= est16 * 1.05
     assert full_percent(btf, t) <= est16 * 1.05 * 1.1
@@ -429,13 +430,25 @@ def test_max_bytes_impossible_raises_and_writes_nothing(tiny32, tmp_path):
 @pytest.mark.parametrize("target", [6.0, 3.0])
 def test_target_error_met_on_full_data(tiny64, tmp_path, target):
     btf = read_manifest(tiny64)
-    c = compress_into(btf, tmp_path / "t", CompressOptions(target_error=target))
+    c = compress_into(btf, tmp_path / "t", CompressOptions(target_error=target, error_domain="linear"))
     assert c.info["estimated_error"]["linear"]["percent"] <= target
     assert full_percent(btf, read_compressed(tmp_path / "t")) <= target * 1.1
     # Not absurdly over-delivered either: a looser target never costs more bytes.
     if target == 3.0:
-        loose = compress_into(btf, tmp_path / "loose", CompressOptions(target_error=6.0))
+        loose = compress_into(btf, tmp_path / "loose", CompressOptions(target_error=6.0, error_domain="linear"))
         assert loose.info["bytes"]["payload"] < c.info["bytes"]["payload"]
+
+
+def test_target_error_on_the_encoded_values_by_default(tiny64, tmp_path):
+    """--target-error without --error-domain: on the input's 8-bit values (what a user
+    comparing images sees), measured on the full data after decompress's encoding."""
+    from usdbtf.compress.decompress import compare
+    btf = read_manifest(tiny64)
+    c = compress_into(btf, tmp_path / "t", CompressOptions(target_error=3.0))
+    assert c.info["estimated_error"]["encoded"]["percent"] <= 3.0
+    full = compare(btf, lambda sel: reconstruct(read_compressed(tmp_path / "t"), sel))
+    assert full["encoded"]["percent"] <= 3.0 * 1.1
+    assert c.info["estimated_error"]["linear"]["percent"] > 0
 
 
 @pytest.mark.parametrize("k", [3, 9])
@@ -659,6 +672,19 @@ def test_decompress_float_source_to_exr(rank4_exr, tmp_path):
     np.testing.assert_allclose(d.read_samples(slice(None)), btf.read_samples([1, 5]), rtol=0, atol=2e-3)
 
 
+def test_float_manifest_writer_clamps_ringing_below_zero_so_readers_accept_it(tmp_path):
+    """A truncated reconstruction rings below zero; the float files hold 0 there (as integer
+    depths clip), so `usdbtf error ORIG DECOMPRESSED` and every other reader can open them."""
+    s = preset("tiny")
+    data = rank_r_images(4, len(s), 8, seed=3) - 0.05          # some values below zero
+    assert (data < 0).any()
+    folder = write_manifest(tmp_path / "m", s, data, color_space=LIN709, bit_depth="half", ext="exr",
+                            array_space=LIN709)
+    back = read_manifest(folder).read_encoded(np.arange(len(s)))     # the file values (Rec.709 linear)
+    np.testing.assert_allclose(back, np.maximum(data, 0.0), rtol=2e-3, atol=1e-3)
+    assert back.min() == 0.0
+
+
 # ---------------------------------------------------------------- error curve
 
 
@@ -876,51 +902,116 @@ def test_write_compress_writes_the_carried_bytes_and_changes_nothing(tiny32, tmp
     assert read_compressed(tmp_path / "t").k == 3
 
 
+@pytest.mark.parametrize("tiles_per_shard", [1, 8])
 @pytest.mark.parametrize("ks", [(8, 8, 8), (8, 5, 0)], ids=["interleaved", "planar"])
-def test_projection_tiles_reduce_in_sample_order(small32, ks):
-    """The reduction :mod:`usdbtf.compress.projection` documents: every tile's partial,
-    computed in any order (as distributed workers would return them per shard of samples),
-    summed from zero in sample order per texel block, is bit-identical to the in-process
-    projection."""
-    from usdbtf.compress.load import texel_blocks
+def test_projection_reduces_tiles_then_shards_in_order(small32, ks, tiles_per_shard, monkeypatch):
+    """The reduction :mod:`usdbtf.compress.projection` documents, written out by hand: every
+    tile's partial, computed in any order (as distributed workers would), summed from zero
+    in sample order within its shard, the shards' sums added from zero in shard order, per
+    texel block -- bit-identical to the in-process projection; the energy summed in float64
+    tiles-in-shard, then block by block over the shards."""
+    from usdbtf.compress import projection
     from usdbtf.compress.projection import TileProjector
-    from usdbtf.compress.source import InMemorySource, tile_samples
+    from usdbtf.compress.source import InMemorySource, work_plan
+    monkeypatch.setattr(projection, "TILES_PER_SHARD", tiles_per_shard)
     btf = read_manifest(small32)
     src = InMemorySource(btf, workers=1)
     u = randomized_basis(src.columns(np.arange(btf.n_pixels)), 8, seed=0)[0]
     mix = src.working_mix(np.linalg.qr(np.random.default_rng(0).normal(size=(3, 3)))[0])
     want, energy = src.project(u, mix, ks, energy=True)
-    tile = tile_samples(btf)
-    assert tile < btf.n_samples, "the sampling must span several tiles"
-    proj = TileProjector(u, mix, ks, src.curves, tile, energy=True)
+    plan = work_plan(btf)
+    assert plan.tile < btf.n_samples, "the sampling must span several tiles"
+    assert len(plan.shards()) == (2 if tiles_per_shard == 1 else 1)
+    proj = TileProjector(u, mix, ks, src.curves, plan.tile, energy=True)
     stored = btf.read_encoded(slice(None)).reshape(btf.n_samples, -1)
     got = np.zeros_like(want)
-    for a, b in texel_blocks(btf.n_pixels):
-        starts = range(0, btf.n_samples, tile)
-        partials = {s0: proj.partial(s0, stored[s0:s0 + tile, 3 * a:3 * b]) for s0 in reversed(starts)}
-        acc = proj.zeros(b - a)
-        for s0 in starts:
-            proj.accumulate(acc, partials[s0])
-        proj.store(acc, got, a, b)
+    energies = {}
+    for a, b in plan.blocks():
+        starts = list(range(0, btf.n_samples, plan.tile))
+        partials = {s0: proj.partial(s0, stored[s0:s0 + plan.tile, 3 * a:3 * b]) for s0 in reversed(starts)}
+        total = [np.zeros_like(z) for z in proj.zeros(b - a)]
+        for n, (s0, s1) in enumerate(plan.shards()):
+            shard = [np.zeros_like(z) for z in proj.zeros(b - a)]
+            energies[a, n] = 0.0
+            for t0 in range(s0, s1, plan.tile):
+                for acc, p in zip(shard, partials[t0].products):
+                    if p is not None:
+                        acc += p
+                energies[a, n] += partials[t0].energy
+            for acc, part in zip(total, shard):
+                acc += part
+        if proj.interleaved:
+            got[:, a:b, :] = total[0].reshape(-1, b - a, 3)
+        else:
+            for j, kj in enumerate(proj.ks):
+                got[:kj, a:b, j] = total[j][:kj]
     assert np.array_equal(got, want)
-    assert proj.energy == pytest.approx(energy, rel=1e-12)
+    assert proj.energy and energy == sum(energies[key] for key in sorted(energies))
+
+
+def test_projection_refuses_shards_out_of_order(small32, monkeypatch):
+    from usdbtf.compress import projection
+    from usdbtf.compress.projection import ProjectionTotal, ShardSums, TileProjector
+    from usdbtf.compress.source import work_plan
+    monkeypatch.setattr(projection, "TILES_PER_SHARD", 1)
+    btf = read_manifest(small32)
+    plan = work_plan(btf)
+    proj = TileProjector(np.ones((btf.n_samples, 2), np.float32), np.eye(3), (2, 2, 2), lambda x: x.astype(np.float32),
+                         plan.tile)
+    total = ProjectionTotal(proj, plan)
+    with pytest.raises(RuntimeError, match="expected shard 0"):
+        total.add(1, ShardSums(proj, plan.blocks()))
+    total.add(0, ShardSums(proj, plan.blocks()))
+    with pytest.raises(RuntimeError, match="not every shard"):
+        total.result()
 
 
 # ---------------------------------------------------------------- streaming (memory-bounded) path
 
 
 @pytest.mark.parametrize("solver", ["rsvd", "paper"])
-def test_streaming_source_matches_in_memory(small32, tmp_path, solver):
-    """memory_budget=0 streams the files twice instead of holding them: same choice of k,
-    same bytes up to float summation order, same reconstruction to float32 rounding."""
+def test_streaming_source_matches_in_memory(small32, tmp_path, solver, monkeypatch):
+    """memory_budget=0 streams the files instead of holding them -- decoded once into an
+    anonymous spill file and read back, or (spill=False) decoded twice -- by forked decode
+    workers or serially: byte-identical folders.  The spill file never has a name: the
+    temporary folder stays empty throughout."""
+    spill_dir = tmp_path / "tmp"
+    spill_dir.mkdir()
+    monkeypatch.setenv("TMPDIR", str(spill_dir))
+    monkeypatch.setattr(tempfile, "tempdir", None)
     btf = read_manifest(small32)
-    mem = compress_into(btf, tmp_path / "mem", CompressOptions(solver=solver, k=12))
-    streamed = compress_into(btf, tmp_path / "str", CompressOptions(solver=solver, k=12, memory_budget=0))
-    assert streamed.k == mem.k == 12
-    assert abs(streamed.info["bytes"]["payload"] - mem.info["bytes"]["payload"]) <= 0.01 * mem.info["bytes"]["payload"]
-    a, b = reconstruct(read_compressed(tmp_path / "mem")), reconstruct(read_compressed(tmp_path / "str"))
-    assert np.abs(a - b).max() <= 0.02 * np.abs(a).max()
-    assert full_percent(btf, streamed) == pytest.approx(full_percent(btf, mem), rel=0.02)
+    runs = {"mem": {}, "spilled": dict(memory_budget=0, workers=2, chunk_bytes=1),
+            "spilled-serial": dict(memory_budget=0, workers=1), "twice": dict(memory_budget=0, spill=False, workers=2)}
+    out = {}
+    for name, kw in runs.items():
+        compress_into(btf, tmp_path / name, CompressOptions(solver=solver, k=12, **kw))
+        out[name] = folder_files(tmp_path / name)
+    assert all(out[name] == out["mem"] for name in runs), [n for n in runs if out[n] != out["mem"]]
+    assert list(spill_dir.iterdir()) == []
+
+
+@pytest.mark.parametrize("direct", [True, False], ids=["direct", "buffered"])
+def test_spill_file_is_anonymous_and_sized_by_free_space(tmp_path, monkeypatch, direct):
+    """Slots written from any offset, read back in order (direct I/O: aligned buffers, padded
+    slots; buffered where the file system refuses O_DIRECT); no name in the folder."""
+    import os
+
+    from usdbtf.compress import spill as spill_mod
+    if not direct:
+        monkeypatch.setattr(os, "O_DIRECT", 0, raising=False)
+    sp = spill_mod.Spill.create(3, 100_000, str(tmp_path))
+    assert sp is not None and list(tmp_path.iterdir()) == []
+    if not direct:
+        assert sp.direct is False                           # else O_DIRECT where the file system has it
+    data = np.arange(250_000, dtype=np.int64).astype(np.uint8)
+    pieces = [data[:100_000], data[100_000:200_000], data[200_000:]]
+    for n in (2, 0, 1):
+        sp.write(n, pieces[n])
+    got = [(slot, arr.copy()) for slot, arr in sp.read_ahead([(n, len(p)) for n, p in enumerate(pieces)], depth=1)]
+    assert [slot for slot, _ in got] == [0, 1, 2]
+    assert all(np.array_equal(arr, p) for (_, arr), p in zip(got, pieces))
+    sp.close()
+    assert spill_mod.Spill.create(1, 1 << 62, str(tmp_path)) is None      # more than the disk: decode twice
 
 
 def test_streaming_source_holds_only_requested_columns(small32):

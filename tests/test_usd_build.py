@@ -1,13 +1,14 @@
 """``usdbtf build SCENE``: only bound BTF materials are built, and only once."""
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 import usdbtf  # noqa: F401
-from cli_helpers import bad_input, ok
+from cli_helpers import bad_input, ok, run
 from usdbtf.cli import main
 from usdbtf.compress import read_compressed, reconstruct
 from usdbtf.usd.build import build, plan
@@ -169,6 +170,28 @@ def test_failed_step_reports_the_usdbtf_error(scene, capsys):
     assert not (scene.parent / "build" / "pebbles.usda").exists()
 
 
+def test_build_on_dask_gives_the_same_outputs_and_stays_up_to_date(scene, capsys):
+    """``usdbtf build --dask local:2``: the two bound materials' steps run as Dask tasks on a
+    LocalCluster; every output file is byte-identical to a build without --dask, and a
+    second build (on the cluster too) runs nothing."""
+    import shutil
+
+    scene.write_text(SCENE.replace('string look = "pebbles"', 'string look = "fabric"'))
+    out = scene.parent / "build"
+    first = build(scene)
+    assert len(first["ran"]) == 4                          # two materials: compress + package each
+    want = {p.relative_to(out): p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()}
+    shutil.rmtree(out)
+    shutil.rmtree(scene.parent / ".usdbtf-build")
+    code, _, err = run(capsys, "build", scene, "--dask", "local:2")
+    assert code == 0, err
+    assert "dask: local:2: 2 worker(s)" in err and "4 step(s) run" in err
+    steps = json.loads((scene.parent / ".usdbtf-build" / "scene" / "steps.json").read_text())
+    assert steps["dask"]["scheduler"].startswith("tcp://127.0.0.1:")      # the SConstruct submitted them
+    got = {p.relative_to(out): p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()}
+    assert got == want
+    again = build(scene, dask="local:2")
+    assert again["ran"] == []
 def test_build_json_report(scene, capsys):
     import json
 

@@ -6,11 +6,12 @@ Stages, one module each, all speaking the :class:`usdbtf.model.BTF` data model:
 schema, packaging, reading assets back), ...
 
 Importing the package sets up the usdBtf USD plugin for this process (the environment
-``usdbtf env`` prints, and Plug registration), so it must come before the process first
-imports pxr (see :mod:`usdbtf.usd.plugin`).
+``usdbtf env`` prints), so it must come before the process first imports pxr (see
+:mod:`usdbtf.usd.plugin`).  It does so without importing USD: ``usdbtf --version`` and
+``--help`` load no pxr, numpy or OIIO.
 """
 __version__ = "0.1.0"
 
-from .usd.plugin import register as _register_usd_plugin
+from .usd.plugin import register_lazily as _register_usd_plugin
 
 _register_usd_plugin()

@@ -13,14 +13,16 @@ Presets
            step sizes and counts, not the ring placement; these rings are ours.
 ``ubo81``  the Bonn UBO2003 set used for both view and light: rings at
            0/15/30/45/60/75 deg with 1/6/12/18/20/24 azimuths (81 x 81 samples).
+``ubo151`` UBO2014's size: 151 views x 151 lights (22,801 samples), the same set for
+           both, rings at 0/15/30/45/60/75 deg with 1/12/23/32/39/44 azimuths (about
+           proportional to each ring's circumference).  Bonn's own positions are in
+           the files (:mod:`usdbtf.ubo2014`); this set has their count and extent.
 ``small``  13 views x 13 lights (rings 0/30/60 with 1/6/6 azimuths).
 ``tiny``   4 views x 6 lights, for unit tests.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-
-import numpy as np
 
 __all__ = ["Sampling", "rings", "cross", "preset", "PRESETS", "to_vectors"]
 
@@ -38,6 +40,8 @@ class Sampling:
     light: np.ndarray
 
     def __post_init__(self):
+        import numpy as np   # here, not at module level: the command line lists PRESETS without numpy
+
         view = np.asarray(self.view, dtype=np.float64).reshape(-1, 2)
         light = np.asarray(self.light, dtype=np.float64).reshape(-1, 2)
         if view.shape != light.shape:
@@ -58,6 +62,8 @@ def rings(thetas, counts, phi_offset=0.0) -> np.ndarray:
 
     Returns (N, 2) degrees.  A ring at theta == 0 must have count 1 (the pole).
     """
+    import numpy as np
+
     out = []
     for theta, count in zip(thetas, counts):
         if theta == 0 and count != 1:
@@ -69,16 +75,20 @@ def rings(thetas, counts, phi_offset=0.0) -> np.ndarray:
 
 def cross(views: np.ndarray, lights: np.ndarray) -> Sampling:
     """Every light for every view, view-major."""
+    import numpy as np
+
     views = np.asarray(views, dtype=np.float64).reshape(-1, 2)
     lights = np.asarray(lights, dtype=np.float64).reshape(-1, 2)
     return Sampling(np.repeat(views, len(lights), axis=0), np.tile(lights, (len(views), 1)))
 
 
 _UBO_RINGS = ((0, 15, 30, 45, 60, 75), (1, 6, 12, 18, 20, 24))
+_UBO151_RINGS = ((0, 15, 30, 45, 60, 75), (1, 12, 23, 32, 39, 44))
 
 PRESETS = {
     "paper": lambda: cross(rings((10, 25, 40, 55, 70), (18,) * 5), rings((15, 30, 45, 60, 75), (24,) * 5)),
     "ubo81": lambda: cross(rings(*_UBO_RINGS), rings(*_UBO_RINGS)),
+    "ubo151": lambda: cross(rings(*_UBO151_RINGS), rings(*_UBO151_RINGS)),
     "small": lambda: cross(rings((0, 30, 60), (1, 6, 6)), rings((0, 30, 60), (1, 6, 6), phi_offset=30.0)),
     "tiny": lambda: cross(rings((0, 45), (1, 3)), rings((20, 60), (3, 3), phi_offset=30.0)),
 }
@@ -94,6 +104,8 @@ def preset(name: str) -> Sampling:
 
 def to_vectors(directions_deg: np.ndarray) -> np.ndarray:
     """(N, 2) degrees (theta, phi) -> (N, 3) unit vectors in the tangent frame."""
+    import numpy as np
+
     d = np.radians(np.asarray(directions_deg, dtype=np.float64).reshape(-1, 2))
     st = np.sin(d[:, 0])
     return np.stack([st * np.cos(d[:, 1]), st * np.sin(d[:, 1]), np.cos(d[:, 0])], axis=1)

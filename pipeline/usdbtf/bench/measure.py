@@ -127,6 +127,15 @@ def _rollup_kb(pid: int) -> tuple[int, int]:
     return rss, pss
 
 
+def _cmdline(pid: int) -> str:
+    """The first 160 characters of a process's command line ('' if it is gone)."""
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as fh:
+            return fh.read().replace(b"\0", b" ").decode(errors="replace").strip()[:160]
+    except OSError:
+        return ""
+
+
 class _TreeSampler(threading.Thread):
     """Samples the summed PSS/RSS of the descendants of ``pid`` (not ``pid`` itself) until stopped."""
 
@@ -135,6 +144,7 @@ class _TreeSampler(threading.Thread):
         self.pid, self.interval = pid, interval
         self.peak_pss_kb = self.peak_rss_sum_kb = 0
         self.peak_processes = 0
+        self.peak_rss_kb_by_pid: dict = {}     # pid -> (peak RSS kB, short command line)
         self.samples = 0
         self.available = os.path.exists("/proc/self/smaps_rollup")
         self._stop_event = threading.Event()
@@ -143,6 +153,9 @@ class _TreeSampler(threading.Thread):
         while self.available:
             pids = _descendants(self.pid)[1:]      # the tree below the wrapper process
             vals = [_rollup_kb(p) for p in pids]
+            for p, (r, _) in zip(pids, vals):
+                if r and r > self.peak_rss_kb_by_pid.get(p, (0, ""))[0]:
+                    self.peak_rss_kb_by_pid[p] = (r, self.peak_rss_kb_by_pid.get(p, (0, None))[1] or _cmdline(p))
             live = sum(1 for r, _ in vals if r)
             self.peak_rss_sum_kb = max(self.peak_rss_sum_kb, sum(r for r, _ in vals))
             self.peak_pss_kb = max(self.peak_pss_kb, sum(p for _, p in vals))
@@ -262,7 +275,9 @@ def run_measured(cmd, *, cwd=None, env=None, pss_interval: float = 0.2) -> RunRe
                      peak_tree_rss_sum_bytes=sampler.peak_rss_sum_kb * 1024 if use else None,
                      peak_tree_processes=sampler.peak_processes if use else None,
                      pss_samples=sampler.samples if sampler else 0, outer_wall_s=outer,
-                     stdout=stdout, stderr=stderr)
+                     stdout=stdout, stderr=stderr,
+                     extra={"peak_rss_by_process": [{"pid": p, "peak_rss_bytes": kb * 1024, "cmd": cmd} for p, (kb, cmd)
+                                                    in sorted(sampler.peak_rss_kb_by_pid.items())]} if use else {})
 
 
 def cli_command(name: str = "usdbtf") -> list:

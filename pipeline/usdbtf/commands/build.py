@@ -1,8 +1,9 @@
 """``usdbtf build``: build the BTF materials a scene binds (and nothing else), incrementally."""
 from __future__ import annotations
 
-import logging
 from pathlib import Path
+
+from ..cluster import ADDRESS_HELP, parse_address
 
 ORDER = 67
 
@@ -12,6 +13,8 @@ def add_parser(sub) -> None:
                        "content signatures)")
     p.add_argument("scene", type=Path, help="scene .usda whose bound BtfMaterialAPI materials carry btf:build:* recipes")
     p.add_argument("--dry-run", action="store_true", help="list what the scene needs without building")
+    p.add_argument("--dask", type=parse_address, metavar="ADDRESS", help=ADDRESS_HELP + "; the material builds "
+                   "run as tasks there, with the same outputs")
     p.add_argument("--json", action="store_true", help="print the build's report as JSON on stdout "
                    "(bound materials, recipes, steps run)")
     p.set_defaults(func=run)
@@ -35,8 +38,7 @@ def run(args) -> int:
         for path in report["without_recipe"]:
             print(f"{path}: bound, no recipe")
         return 0
-    # usd.build still takes a callable for its messages (it is being changed on another branch).
-    report = build(args.scene, force=args.force, log=logging.getLogger("usdbtf.usd.build").info)
+    report = build(args.scene, force=args.force, dask=args.dask)
     if args.json:
         return _print_report(args.scene, report["recipes"], report, dry_run=False)
     return 0

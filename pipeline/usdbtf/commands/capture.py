@@ -12,7 +12,7 @@ ORDER = 5
 
 
 def add_parser(sub) -> None:
-    from ..rig.plan import ORDERS
+    from ..rig import ORDERS
     from ..sampling import PRESETS as SAMPLINGS
     p = sub.add_parser("capture", help="capture frames over the rig's serial link (resumable)",
                        description="Shoots every (view, light) sample of the plan the arm does not obstruct, "

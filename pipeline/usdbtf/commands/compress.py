@@ -1,8 +1,6 @@
 """``usdbtf compress``: apparent-BRDF basis + coefficient textures."""
 from __future__ import annotations
 
-import logging
-
 from ..compress.arguments import add_arguments
 
 ORDER = 20
@@ -30,11 +28,11 @@ def run(args) -> int:
                           codec=args.codec, seed=args.seed, fit_texels=args.fit_texels,
                           power_iterations=args.power_iterations, region=args.region, workers=args.workers,
                           memory_budget=args.memory_budget * 1e9, expand_factors=args.expand_factors,
-                          factor_rows=args.factor_rows, domain=args.domain, error_domain=args.error_domain)
+                          factor_rows=args.factor_rows, dask=args.dask, progress=not args.quiet,
+                          domain=args.domain, error_domain=args.error_domain)
     extra = {key: v for key, v in btf.metadata.items() if not key.startswith("_")}
     opts.extra = {"source_metadata": extra} if extra else {}
-    # compress still takes a callable for its messages (it is being changed on another branch).
-    result = compress(btf, opts, log=logging.getLogger("usdbtf.compress").info)
+    result = compress(btf, opts)
     write_compress(result, args.output, force=getattr(args, "force", False))
     if args.json:
         from ..summary import compressed_summary

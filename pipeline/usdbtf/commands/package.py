@@ -9,8 +9,7 @@ ORDER = 60
 
 
 def add_parser(sub) -> None:
-    from ..usd.package import PAYLOAD_FORMATS
-    from ..usd.textures import TEXTURE_FORMATS
+    from ..usd.formats import PAYLOAD_FORMATS, TEXTURE_FORMATS
 
     p = sub.add_parser("package", help="a compressed BTF as a USD asset (.usda/.usdc, optional .usdz)")
     p.add_argument("input", type=Path, help="compressed BTF folder")

@@ -6,8 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..argtypes import SEED, WORKERS, add_outside_paths_flag, float_in, int_in
-from .codecs import CODECS
-from .options import DEFAULT_CODEC, ERROR_DOMAINS, SOLVERS
+from ..cluster import ADDRESS_HELP, parse_address
+from .options import CODEC_NAMES, DEFAULT_CODEC, ERROR_DOMAINS, SOLVERS
 
 __all__ = ["SCENE_OPTIONS", "add_arguments"]
 
@@ -36,7 +36,7 @@ def add_arguments(p) -> None:
                         "e.g. the 8-bit sRGB codes -- what a user comparing images sees; for float files the same "
                         "as their linear values) or linear (scene-linear working space)")
     p.add_argument("--max-bytes", type=int_in(1), metavar="B", help="byte budget for basis + coefficient textures")
-    p.add_argument("--codec", choices=sorted(CODECS), help=f"texture storage (default {DEFAULT_CODEC['rsvd']}; "
+    p.add_argument("--codec", choices=sorted(CODEC_NAMES), help=f"texture storage (default {DEFAULT_CODEC['rsvd']}; "
                    f"paper solver: {DEFAULT_CODEC['paper']})")
     p.add_argument("--domain", type=_domain, default="auto", metavar="auto|linear|srgb|gamma:G",
                    help="working-domain curve the basis is fitted and quantised in; every reader applies its "
@@ -52,8 +52,10 @@ def add_arguments(p) -> None:
     p.add_argument("--region", type=int_in(1), help="paper: side of the central fitting region in texels")
     p.add_argument("--workers", type=WORKERS, help="decode processes (default: CPU count)")
     p.add_argument("--memory-budget", type=float_in(0, 1e4), default=1.0, metavar="GB",
-                   help="hold the stored values in memory up to this size, else stream them from disk "
-                        "twice (default 1.0)")
+                   help="hold the stored values in memory up to this size, else stream them: decoded once "
+                        "into an anonymous spill file when the temporary folder has room, else twice (default 1.0)")
+    p.add_argument("--dask", type=parse_address, metavar="ADDRESS", help=ADDRESS_HELP + "; the output is "
+                   "byte-identical to a run without --dask")
     p.add_argument("--expand-factors", action="store_true",
                    help="a factorised input (UBO2014 .btf, DFMF/FMF): expand its images and compress those, "
                         "instead of transcoding from the factors (the default)")

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..errors import BTFError
 from ..imageio import encode_image, memory_file, read_image
+from .options import CODEC_NAMES
 
 __all__ = ["Codec", "CODECS", "get_codec", "Stored", "quantize_uniform", "quantize_minmax", "quantize_half",
            "memory_file"]
@@ -161,6 +162,9 @@ CODECS = {
     "jpeg": Codec("jpeg", "jpg", {"Compression": "jpeg:90", "jpeg:subsampling": "4:4:4"}, "tif",
                   {"compression": "none"}, False),
 }
+
+if tuple(CODECS) != CODEC_NAMES:
+    raise ImportError(f"usdbtf.compress.codecs: CODECS {tuple(CODECS)} differ from options.CODEC_NAMES {CODEC_NAMES}")
 
 
 def get_codec(name: str) -> Codec:

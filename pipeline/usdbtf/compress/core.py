@@ -17,6 +17,7 @@ anonymous in-memory files).  :func:`write_compress` writes its result as a folde
 """
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import replace
 
@@ -29,27 +30,29 @@ from ..outputs import COMPRESSED as COMPRESSED_KIND
 from .curve import write_curve
 from .decorrelate import colour_decorrelation, rotate_colour
 from .evaluate import error_curve, held_out_error, held_out_set
-from .domain_choice import fit_in_domain
-from .fit import HDR_NORM_RANGE, require_signal, sampled_coefficients
+from .domain_choice import choose_domain
+from .fit import HDR_NORM_RANGE, fit_source, require_signal, sampled_coefficients
 from .format import CompressedBTF, write_metadata, write_textures
 from .options import CompressOptions
+from .parallel import in_threads, one_blas_thread
 from .projection import project
 from .quantise import Factorisation
 from .ratecontrol import rate_control, step_for_k
-from .source import load_source
+from .select_source import load_source
 from .texels import sample_texels
+
+log = logging.getLogger(__name__)
 
 __all__ = ["compress", "write_compress"]
 
 
-def compress(btf: BTF, options: CompressOptions | None = None, *, log=None) -> CompressedBTF:
+def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
     """Compress ``btf`` into a basis and coefficient textures, in memory.
 
     Parameters
     ----------
     btf : the BTF (S samples of W x H texels); its files are read, nothing is written.
     options : what to do (default :class:`CompressOptions`()).
-    log : optional callable(str) for progress lines.
 
     Returns
     -------
@@ -59,41 +62,54 @@ def compress(btf: BTF, options: CompressOptions | None = None, *, log=None) -> C
     """
     opts = options or CompressOptions()
     opts.validate()
-    say = log or (lambda msg: None)
     clock = _Clock()
     texels = sample_texels(btf, opts)
-    source = load_source(btf, texels, opts)
-    say(f"loaded {btf.n_samples} samples of {btf.width}x{btf.height} ({source.kind}, {source.nbytes / 2**20:.0f} MiB) "
-        f"in {clock.lap('load'):.2f} s")
-    domain, fit, scores = fit_in_domain(source, texels, opts.fit_k(btf.n_samples, btf.n_pixels), opts, say)
-    if fit.weighted:
-        say(f"texel norms span more than {HDR_NORM_RANGE:g}: basis fitted with weights ||x_t||^-1/2")
-    require_signal(fit, btf, texels, opts)
-    say(f"basis: {fit.k} vectors from {len(texels.fit)} texels ({opts.solver}, {domain.name} domain) "
-        f"in {clock.lap('fit'):.2f} s")
-    # Colour and (for a plain k) the quantisation step, from the sampled texels' coefficients,
-    # before the projection: then the projection can skip what the step would zero out.
-    held = held_out_set(source, texels)
-    sampled, outside = sampled_coefficients(fit, source.to_working, held.truth, btf.n_pixels)
-    colour = np.eye(3) if opts.solver == "paper" else colour_decorrelation(sampled)
-    step, planes = step_for_k(rotate_colour(sampled, colour), fit.basis, outside, btf.n_pixels, opts)
-    del sampled
-    clock.lap("colour")
-    coeff, energy = project(source, fit.basis, colour, planes, energy=opts.target_error is not None)
-    clock.lap("project")
-    if energy is None:   # not measured: the coefficients' energy plus the estimate outside the basis
-        energy = float(np.einsum("kpc,kpc->", coeff, coeff, dtype=np.float64)) + outside
-    cbtf, choice = rate_control(Factorisation(btf, fit.basis, coeff, colour, energy, planes, step, domain),
-                                opts, held, say)
-    if scores is not None:
-        choice["domain_scores"] = scores
-    clock.lap("encode")
-    result = _described(cbtf, opts, dict(choice, planes=list(planes)), fit.singular_values, held,
-                        held_out_error(cbtf, held), error_curve(cbtf, source), getattr(source, "provenance", None))
-    clock.lap("evaluate")
-    say(f"k = {result.k}, {result.info['bytes']['payload']} bytes, estimated error "
+    # The source holds the data (and a spill file or a cluster, which closing releases).
+    # BLAS on one thread: the steps parallelise themselves, so no byte depends on thread
+    # counts (see .parallel).
+    with one_blas_thread(), load_source(btf, texels, opts) as source:
+        log.info(f"loaded {btf.n_samples} samples of {btf.width}x{btf.height} ({source.kind}, {source.nbytes / 2**20:.0f} MiB) "
+            f"in {clock.lap('load'):.2f} s")
+        # The working domain first (auto fits each candidate; the winner's fit is kept), then
+        # the held-out truth is read while the basis is fitted (independent steps, one
+        # thread each: the fit's serial parts leave a core free).
+        k_fit = opts.fit_k(btf.n_samples, btf.n_pixels)
+        domain, chosen, scores = choose_domain(source, texels, k_fit, opts)
+        fit, held = _side_by_side(lambda: chosen or fit_source(source, texels.fit, k_fit, opts),
+                                  lambda: held_out_set(source, texels))
+        if fit.weighted:
+            log.info(f"texel norms span more than {HDR_NORM_RANGE:g}: basis fitted with weights ||x_t||^-1/2")
+        require_signal(fit, btf, texels, opts)
+        log.info(f"basis: {fit.k} vectors from {len(texels.fit)} texels ({opts.solver}, {domain.name} domain) "
+                 f"in {clock.lap('fit'):.2f} s")
+        # Colour and (for a plain k) the quantisation step, from the sampled texels' coefficients,
+        # before the projection: then the projection can skip what the step would zero out.
+        sampled, outside = sampled_coefficients(fit, source.to_working, held.truth, btf.n_pixels)
+        colour = np.eye(3) if opts.solver == "paper" else colour_decorrelation(sampled)
+        step, planes = step_for_k(rotate_colour(sampled, colour), fit.basis, outside, btf.n_pixels, opts)
+        del sampled
+        clock.lap("colour")
+        coeff, energy = project(source, fit.basis, colour, planes, energy=opts.target_error is not None)
+        clock.lap("project")
+        if energy is None:   # not measured: the coefficients' energy plus the estimate outside the basis
+            energy = float(np.einsum("kpc,kpc->", coeff, coeff, dtype=np.float64)) + outside
+        cbtf, choice = rate_control(Factorisation(btf, fit.basis, coeff, colour, energy, planes, step, domain),
+                                    opts, held)
+        if scores is not None:
+            choice["domain_scores"] = scores
+        clock.lap("encode")
+        result = _described(cbtf, opts, dict(choice, planes=list(planes)), fit.singular_values, held,
+                            *_side_by_side(lambda: held_out_error(cbtf, held), lambda: error_curve(cbtf, source)),
+                            getattr(source, "provenance", None))
+        clock.lap("evaluate")
+    log.info(f"k = {result.k}, {result.info['bytes']['payload']} bytes, estimated error "
         f"{result.info['estimated_error']['linear']['percent']:.3f} % ({clock})")
     return result
+
+
+def _side_by_side(first, second) -> tuple:
+    """(first(), second()) run at once on two threads (steps that share no data)."""
+    return tuple(in_threads(lambda fn: fn(), [first, second], threads=2))
 
 
 def write_compress(result: CompressedBTF, path, *, force: bool = False) -> dict:

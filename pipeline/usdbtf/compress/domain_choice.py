@@ -17,14 +17,18 @@ algebra holds for linear decodes only.
 """
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from .. import colour
 from ..manifest import encode_for_file
 from .domain import AUTO_CANDIDATES, LINEAR, Domain, parse_domain
-from .fit import BasisFit, fit_basis, fit_source
+from .fit import BasisFit, fit_basis
 
-__all__ = ["fit_in_domain", "resolve_domain", "score_domains", "encoding_domain"]
+__all__ = ["choose_domain", "resolve_domain", "score_domains", "encoding_domain"]
+
+log = logging.getLogger(__name__)
 
 #: Every this-many-th sample is scored (halves the scorer's reconstruction cost).
 _SCORE_STRIDE = 2
@@ -40,19 +44,22 @@ def encoding_domain(btf) -> Domain:
     return Domain("srgb") if srgb else LINEAR
 
 
-def fit_in_domain(source, texels, k: int, options, log=None) -> tuple[Domain, BasisFit, dict | None]:
-    """The fit step with a working domain: resolve ``options.domain`` (:func:`resolve_domain`),
-    switch ``source`` to it (every later answer is in the domain) and fit the basis there
-    (reusing the chooser's fit).  Returns (domain, fit, scores or None)."""
-    domain, fit, scores = resolve_domain(source, texels, k, options, log)
+def choose_domain(source, texels, k: int, options) -> tuple[Domain, BasisFit | None, dict | None]:
+    """The domain step: resolve ``options.domain`` (:func:`resolve_domain`) and switch
+    ``source`` to it (every later answer -- columns, projection, rows -- is in the domain).
+
+    Returns (domain, the basis already fitted in it or None, scores or None).
+    """
+    domain, fit, scores = resolve_domain(source, texels, k, options)
+    if scores is not None:
+        log.info("domain: " + ", ".join(f"{n} {s['encoded']:.2f} % enc / {s['linear']:.2f} % lin"
+                                        for n, s in scores.items()) + f" -> {domain.name}")
     if not domain.is_linear:
         source.set_domain(domain)
-    if fit is None:
-        fit = fit_source(source, texels.fit, k, options)
     return domain, fit, scores
 
 
-def resolve_domain(source, texels, k: int, options, log=None) -> tuple[Domain, BasisFit | None, dict | None]:
+def resolve_domain(source, texels, k: int, options) -> tuple[Domain, BasisFit | None, dict | None]:
     """The working domain of one compress, with the basis fitted in it when choosing did so.
 
     Parameters
@@ -61,7 +68,6 @@ def resolve_domain(source, texels, k: int, options, log=None) -> tuple[Domain, B
     texels : the fitting and evaluation texels (:class:`.texels.Texels`).
     k : basis vectors to fit (``options.fit_k``).
     options : ``domain`` ("auto", "linear", "srgb", "gamma:G"), ``solver``.
-    log : optional callable(str).
 
     Returns
     -------
@@ -70,7 +76,7 @@ def resolve_domain(source, texels, k: int, options, log=None) -> tuple[Domain, B
     scores : {name: {"encoded", "linear", "score"}} for auto, else None.
     """
     asked = parse_domain(options.domain)
-    factored = not hasattr(source, "set_domain")
+    factored = not hasattr(source, "set_domain")       # a FactoredSource: linear algebra on the factors
     if asked is not None:
         return asked, None, None
     if factored:
@@ -79,9 +85,6 @@ def resolve_domain(source, texels, k: int, options, log=None) -> tuple[Domain, B
         return encoding_domain(source.btf), None, None
     scores, fits = score_domains(source, texels, k, options)
     best = min(scores, key=lambda name: scores[name]["score"])
-    if log is not None:
-        log("domain: " + ", ".join(f"{n} {s['encoded']:.2f} % enc / {s['linear']:.2f} % lin"
-                                   for n, s in scores.items()) + f" -> {best}")
     return fits[best][0], fits[best][1], scores
 
 
@@ -95,9 +98,9 @@ def score_domains(source, texels, k: int, options, candidates=AUTO_CANDIDATES) -
     """
     btf = source.btf
     S = btf.n_samples
-    x_lin = source.to_working(source.columns(texels.fit))                       # (S, 3 n)
+    x_lin = source.to_working(source.peek_columns(texels.fit))                  # (S, 3 n)
     ev = texels.evaluation
-    y_lin = source.to_working(source.columns(ev))                                 # (S, 3 m)
+    y_lin = source.to_working(source.peek_columns(ev))                            # (S, 3 m)
     rows = np.arange(0, S, _SCORE_STRIDE)
     truth = y_lin[rows]
     to_file = colour.processor(btf.working_space, btf.color_space, btf.ocio_config)

@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 from .codecs import Codec, Stored, get_codec
+from .parallel import in_threads
 from .format import CompressedBTF, EncodedTextures, decode_basis, encode_basis, truncate
 
 __all__ = ["encode", "truncate_encoded"]
@@ -29,10 +30,10 @@ def encode(cbtf: CompressedBTF) -> CompressedBTF:
     textures and basis as decoded from those bytes.  ``cbtf`` is not changed.
     """
     codec = get_codec(cbtf.codec)
-    data = [codec.encode(st, "data") for st in cbtf.coefficients]
+    data = in_threads(lambda st: codec.encode(st, "data"), cbtf.coefficients)
     if not codec.lossless:
-        cbtf = replace(cbtf, coefficients=[Stored(Codec.decode(d), st.scale, st.bias)
-                                           for d, st in zip(data, cbtf.coefficients)])
+        cbtf = replace(cbtf, coefficients=[Stored(px, st.scale, st.bias)
+                                           for px, st in zip(in_threads(Codec.decode, data), cbtf.coefficients)])
     return _with_basis(cbtf, data)
 
 

@@ -14,6 +14,7 @@ import numpy as np
 from .curve import error_curve
 from .format import CompressedBTF, working_coefficient_texels
 from .metrics import ErrorSums
+from .parallel import rows_gemm
 from .texels import Texels
 
 __all__ = ["HeldOut", "held_out_set", "held_out_error", "error_curve"]
@@ -90,7 +91,7 @@ def held_out_error(cbtf: CompressedBTF, held: HeldOut, k: int | None = None, dom
     """
     k = cbtf.k if k is None else k
     coeff = working_coefficient_texels(cbtf, held.texels, k)                     # (k, n, 3)
-    rec = (cbtf.basis_values(k) @ coeff.reshape(k, -1)).reshape(held.truth.shape)
+    rec = rows_gemm(cbtf.basis_values(k), coeff.reshape(k, -1)).reshape(held.truth.shape)
     sums = ErrorSums()
     dom = cbtf.domain
     truth, rec = dom.inverse(held.truth), dom.inverse(rec)        # scene-linear, whatever the domain

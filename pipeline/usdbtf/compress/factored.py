@@ -101,6 +101,15 @@ class FactoredSource:
         self._share = None         # the clamp's energy share on the fitting texels (linear path)
 
     # -- the questions every source answers ----------------------------------------------
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self) -> None:
+        """Release what the source holds (nothing: the factors belong to the input)."""
+
     def to_working(self, x: np.ndarray) -> np.ndarray:
         return x
 

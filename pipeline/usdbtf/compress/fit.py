@@ -15,6 +15,7 @@ from ..errors import BTFError
 from ..model import BTF
 from .linalg import exact_basis, randomized_basis
 from .options import CompressOptions
+from .parallel import rows_gemm
 from .texels import Texels
 
 __all__ = ["BasisFit", "fit_basis", "fit_source", "fit_weights", "norm_weights", "signal_only", "require_signal",
@@ -174,7 +175,7 @@ def sampled_coefficients(fit: BasisFit, to_working, truth: np.ndarray, n_pixels:
     """
     S, n, _ = truth.shape
     k = fit.k
-    c_eval = (fit.basis.T @ truth.reshape(S, -1)).reshape(k, n, 3)
+    c_eval = rows_gemm(fit.basis.T, truth.reshape(S, -1)).reshape(k, n, 3)
     sampled = c_eval if fit.coefficients is None else np.concatenate(
         [to_working(fit.coefficients).reshape(k, -1, 3), c_eval], axis=1)
     outside = float(np.einsum("ij,ij->", truth.reshape(S, -1), truth.reshape(S, -1), dtype=np.float64)

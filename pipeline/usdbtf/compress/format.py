@@ -42,6 +42,7 @@ from ..errors import BTFError
 from ..sampling import Sampling
 from .codecs import Codec, Stored, get_codec
 from .domain import LINEAR, Domain
+from .parallel import in_threads
 
 __all__ = ["FORMAT", "METADATA", "CompressedBTF", "EncodedTextures", "write_textures", "write_metadata",
            "metadata_document", "metadata_text", "read_compressed", "reconstruct", "reconstruct_rows",
@@ -280,12 +281,11 @@ def decode_basis(data: bytes, cbtf: CompressedBTF) -> np.ndarray:
 
 def encoded_textures(cbtf: CompressedBTF) -> EncodedTextures:
     """The bytes of every texture of ``cbtf``: ``cbtf.encoded`` when it still describes
-    ``cbtf``, else encoded now (serially on purpose: forked encoders deadlock in OpenEXR's
-    global thread pool once the parent process has used it)."""
+    ``cbtf``, else encoded now (in threads, :func:`.parallel.in_threads`)."""
     if cbtf.encoded is not None and cbtf.encoded.describes(cbtf):
         return cbtf.encoded
     codec = get_codec(cbtf.codec)
-    coeff = tuple(codec.encode(st, "data") for st in cbtf.coefficients)
+    coeff = tuple(in_threads(lambda st: codec.encode(st, "data"), cbtf.coefficients))
     return EncodedTextures(cbtf.codec, encode_basis(cbtf), coeff,
                            (cbtf.basis.pixels, *(st.pixels for st in cbtf.coefficients)))
 

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .parallel import one_blas_thread, rows_gemm
+
 __all__ = ["fix_signs", "exact_basis", "randomized_basis", "orthonormalize"]
 
 
@@ -27,22 +29,28 @@ def orthonormalize(y: np.ndarray) -> np.ndarray:
     CholeskyQR2: two rounds of Q = Y R^-1 with R from the Cholesky factor of the small
     Gram Y^T Y (computed in float64) -- GEMMs instead of Householder QR, 3x faster on
     10^4 x 166 panels and as orthogonal after the second round.  Falls back to QR when
-    the Gram is not positive definite (rank-deficient Y).
+    the Gram is not positive definite (rank-deficient Y).  The small factorisations run
+    on one BLAS thread (:func:`.parallel.one_blas_thread`): split over threads they gain
+    nothing at this size, spin-wait on a shared machine, and round differently with every
+    thread count.
     """
     q = y
     try:
         for _ in range(2):
             q64 = q.astype(np.float64)   # the Gram in float64: float32 overflows past ~1e19
             g = q64.T @ q64
-            r = np.linalg.cholesky(g).T                       # upper: g = r^T r
+            with one_blas_thread():
+                r = np.linalg.cholesky(g).T                   # upper: g = r^T r
+                r_inv = np.linalg.inv(r)
             # Y R^-1 as a GEMM with the small inverse: a triangular solve with an S-column
             # right-hand side costs 10x more, and the second round restores orthogonality.
-            q = (q64 @ np.linalg.inv(r)).astype(np.float32)
+            q = rows_gemm(q64, r_inv).astype(np.float32)
         if not np.isfinite(q).all():
             raise np.linalg.LinAlgError("CholeskyQR lost precision")
         return np.ascontiguousarray(q)
     except np.linalg.LinAlgError:
-        return np.linalg.qr(y)[0]
+        with one_blas_thread():
+            return np.linalg.qr(y)[0]
 
 
 def exact_basis(x: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -56,16 +64,16 @@ def exact_basis(x: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     if not np.any(x64):
         return np.zeros((s_rows, 0), np.float32), np.zeros(0)
     if m <= s_rows:
-        evals, v = np.linalg.eigh(x64.T @ x64)
+        evals, v = np.linalg.eigh(rows_gemm(x64.T, x64))
         order = np.argsort(evals)[::-1][:k]
         sv = np.sqrt(np.maximum(evals[order], 0.0))
         keep = sv > sv[0] * 1e-12 if len(sv) and sv[0] > 0 else np.zeros(len(sv), bool)
-        u = (x64 @ v[:, order[keep]]) / sv[keep]
+        u = rows_gemm(x64, v[:, order[keep]]) / sv[keep]
         # Re-orthonormalise: the Gram route loses orthogonality for tiny singular values.
         u, r = np.linalg.qr(u)
         u *= np.sign(np.diag(r))
     else:
-        evals, u = np.linalg.eigh(x64 @ x64.T)
+        evals, u = np.linalg.eigh(rows_gemm(x64, x64.T))
         order = np.argsort(evals)[::-1][:k]
         sv = np.sqrt(np.maximum(evals[order], 0.0))
         keep = sv > sv[0] * 1e-12 if len(sv) and sv[0] > 0 else np.zeros(len(sv), bool)
@@ -81,7 +89,9 @@ def randomized_basis(x: np.ndarray, k: int, *, oversample: int = 16, power_itera
 
     ``power_iterations`` passes of X X^T sharpen the spectrum; each costs two GEMMs of
     X with an (m, k + oversample) panel (the range finder one more).  The small core SVD
-    runs in float64.
+    runs in float64.  Large products are cut by rows over threads, each on one BLAS thread
+    (:func:`.parallel.rows_gemm`), small ones run on one: the result does not depend on
+    thread counts.
     Returns U (S, k) float32 with signs fixed, singular values (k,) float64, and with
     ``return_coefficients`` also U^T X (k, m) float32, which the fit has already computed.
     """
@@ -89,22 +99,25 @@ def randomized_basis(x: np.ndarray, k: int, *, oversample: int = 16, power_itera
     l = min(k + oversample, s_rows, m)
     rng = np.random.default_rng(seed)
     omega = rng.standard_normal((m, l), dtype=np.float32)
-    q = orthonormalize(x @ omega)
+    q = orthonormalize(rows_gemm(x, omega))
     if power_iterations < 1:
-        b = (q.T @ x).astype(np.float64)                                  # (l, m)
+        b = rows_gemm(q.T, x).astype(np.float64)                          # (l, m)
     else:
         for _ in range(power_iterations - 1):
-            q = orthonormalize(x @ orthonormalize(x.T @ q))
+            q = orthonormalize(rows_gemm(x, orthonormalize(rows_gemm(x.T, q))))
         # Last iteration: Y = X Z = Q R with Z orthonormal and X ~= X Z Z^T, so
         # B = Q^T X ~= R Z^T -- the small factors replace a fourth GEMM over X
         # (paper-scale pebbles and fuzzy moss: error within 0.1 % relative of Q^T X).
-        z = orthonormalize(x.T @ q).astype(np.float64)
-        q, r = np.linalg.qr((x @ z.astype(np.float32)).astype(np.float64))
+        z = orthonormalize(rows_gemm(x.T, q)).astype(np.float64)
+        y = rows_gemm(x, z.astype(np.float32)).astype(np.float64)
+        with one_blas_thread():
+            q, r = np.linalg.qr(y)
         b = r @ z.T                                                       # (l, m)
-    evals, ub = np.linalg.eigh(b @ b.T)              # (l, l): cheap
+    with one_blas_thread():
+        evals, ub = np.linalg.eigh(b @ b.T)          # (l, l): cheap
     order = np.argsort(evals)[::-1][:k]
     sv = np.sqrt(np.maximum(evals[order], 0.0))
-    u = np.ascontiguousarray(q.astype(np.float64) @ ub[:, order], dtype=np.float32)
+    u = np.ascontiguousarray(rows_gemm(q.astype(np.float64), ub[:, order]), dtype=np.float32)
     signs = fix_signs(u)
     if not return_coefficients:
         return u, sv

@@ -24,7 +24,7 @@ import numpy as np
 from ..errors import BTFError
 from ..model import BTF, FileBTF
 
-__all__ = ["BlockedData", "load_encoded", "default_workers", "texel_blocks", "DEFAULT_BLOCK"]
+__all__ = ["BlockedData", "load_encoded", "default_workers", "texel_blocks", "stored_dtype", "DEFAULT_BLOCK"]
 
 DEFAULT_BLOCK = 1024
 _STATE: dict = {}  # per-worker-process handles (set by the pool initializer in the forked child)
@@ -35,6 +35,11 @@ def texel_blocks(n_pixels: int, block: int = DEFAULT_BLOCK) -> list[tuple[int, i
     image is smaller), the last one short."""
     block = max(1, min(block, n_pixels))
     return [(a, min(a + block, n_pixels)) for a in range(0, n_pixels, block)]
+
+
+def stored_dtype(btf: BTF) -> np.dtype:
+    """The numpy type of ``btf``'s stored values."""
+    return np.dtype({"uint8": np.uint8, "uint16": np.uint16, "half": np.float16, "float": np.float32}[btf.bit_depth])
 
 
 def default_workers() -> int:
@@ -119,7 +124,7 @@ def load_encoded(btf: BTF, *, workers: int | None = None, block: int = DEFAULT_B
     binding holds the GIL while decoding, so threads do not help) straight into an
     anonymous shared mapping that the returned arrays own: no copy, nothing to clean up.
     """
-    dtype = np.dtype({"uint8": np.uint8, "uint16": np.uint16, "half": np.float16, "float": np.float32}[btf.bit_depth])
+    dtype = stored_dtype(btf)
     S, P = btf.n_samples, btf.n_pixels
     block = max(1, min(block, P))
     shape = (-(-P // block), S, 3 * block)
@@ -133,8 +138,9 @@ def load_encoded(btf: BTF, *, workers: int | None = None, block: int = DEFAULT_B
                 data.put(start + n, img)
         return data
     nbytes = int(np.prod(shape)) * dtype.itemsize
-    # MAP_POPULATE: fault the pages in now, in bulk, rather than one trap per page later.
-    flags = mmap.MAP_SHARED | mmap.MAP_ANONYMOUS | getattr(mmap, "MAP_POPULATE", 0)
+    # No MAP_POPULATE: the decode workers fault their own pages in, in parallel, instead of
+    # this process faulting all of them before any decoding starts.
+    flags = mmap.MAP_SHARED | mmap.MAP_ANONYMOUS
     data = BlockedData(np.frombuffer(mmap.mmap(-1, nbytes, flags=flags), dtype).reshape(shape), P, block)
     bounds = np.linspace(0, S, workers * 8 + 1).astype(int)
     # fork: the workers inherit ``btf`` and the mapping; nothing is pickled but the index ranges.

@@ -7,13 +7,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from ..errors import BTFError
-from .codecs import get_codec
-from .domain import parse_domain
+from ..errors import BTFError, UsageError
 
-__all__ = ["CompressOptions", "SOLVERS", "ERROR_DOMAINS", "DEFAULT_CODEC", "DEFAULT_K", "BUDGET_K"]
+__all__ = ["CompressOptions", "SOLVERS", "ERROR_DOMAINS", "CODEC_NAMES", "DEFAULT_CODEC", "DEFAULT_K", "BUDGET_K"]
 
 SOLVERS = ("rsvd", "paper")
+#: The codecs :mod:`.codecs` defines, by name (here, light, for the command line).
+CODEC_NAMES = ("jxl", "png", "exr", "jpeg")
 #: What ``--target-error`` is measured on: the input file's values, or scene-linear.
 ERROR_DOMAINS = ("encoded", "linear")
 #: The codec each solver stores with when none is asked for.
@@ -46,6 +46,9 @@ class CompressOptions:
     chunk_bytes: float = 64e6             # streaming: stored bytes per chunk (rounded to whole projection tiles)
     eval_texels: int = 1024               # held-out texels for error estimates
     workers: int | None = None
+    spill: bool = True                    # streaming: decoded values to an anonymous spill file, read back once
+    dask: str | None = None               # a Dask scheduler address or "local:N" (usdbtf.cluster.parse_address)
+    progress: bool = False                # a progress bar on stderr for long passes (the Dask ones)
     expand_factors: bool = False          # a factorised input (UBO2014 DFMF/FMF): expand its images instead of
                                           # transcoding from the factors (see factored.py)
     factor_rows: int | None = None        # transcoding a nonlinear colour model: samples the coefficients are
@@ -63,9 +66,20 @@ class CompressOptions:
             raise BTFError(f"--target-error must be a positive percentage, got {self.target_error}")
         if self.max_bytes is not None and self.max_bytes <= 0:
             raise BTFError(f"--max-bytes must be positive, got {self.max_bytes}")
+        if self.dask is not None:
+            import argparse
+
+            from ..cluster import parse_address
+
+            try:
+                parse_address(self.dask)
+            except argparse.ArgumentTypeError as exc:
+                raise UsageError(f"--dask: {exc}") from None
         if self.factor_rows is not None and self.factor_rows < 1:
             raise BTFError(f"--factor-rows must be at least 1, got {self.factor_rows}")
-        get_codec(self.codec_name)
+        if self.codec_name not in CODEC_NAMES:
+            raise BTFError(f"unknown codec {self.codec_name!r}; choose from {', '.join(CODEC_NAMES)}")
+        from .domain import parse_domain      # numpy: not at import (--help stays light)
         parse_domain(self.domain)
         if self.error_domain not in ERROR_DOMAINS:
             raise BTFError(f"--error-domain must be one of {', '.join(ERROR_DOMAINS)}, got {self.error_domain!r}")
@@ -103,14 +117,18 @@ class CompressOptions:
         return min(self.k or default, n_samples, 3 * n_pixels)
 
     def recorded(self) -> dict:
-        """The options as the output's provenance records them (not ``extra``, not ``workers``;
-        the factor-input options only when set, so other inputs' records stay as they were)."""
-        out = {k: v for k, v in self.__dict__.items() if k not in ("extra", "workers")}
+        """The options as the output's provenance records them: those that steer the result,
+        not how or where it was computed (memory budget, chunk size, workers, spill file,
+        cluster), which give the same bytes; the factor-input options only when set, so
+        other inputs' records stay as they were."""
+        out = {k: v for k, v in self.__dict__.items() if k not in _NOT_RECORDED}
         for key, default in _FACTOR_OPTIONS.items():
             if out[key] == default:
                 del out[key]
         return out
 
 
+#: Options that do not change a bit of the output (see :mod:`.projection`).
+_NOT_RECORDED = ("extra", "workers", "memory_budget", "chunk_bytes", "spill", "dask", "progress")
 #: Options that only steer factorised inputs, with their defaults.
 _FACTOR_OPTIONS = {"expand_factors": False, "factor_rows": None}

@@ -1,18 +1,25 @@
 """Projection: the coefficients c = U^T b of every texel (section III of Koudelka et al. 2003:
 "all pixels in the input BTF are projected onto the linear apparent BRDF basis").
 
-The unit of work is a **tile**: ``tile`` consecutive samples x one texel block (the
-:data:`~.load.DEFAULT_BLOCK` texels a source stores together).  A tile's contribution is one
-GEMM of a fixed shape, U_t^T Y_t (:meth:`TileProjector.partial`).
+The work is cut the same way whoever does it (:class:`WorkPlan`, a function of the data's
+shape only):
 
-**Reduction order (fixed).**  A texel block's coefficients are its tiles' partials summed in
-float32, in sample order, starting from zero: ``acc = 0; acc += P_0; acc += P_1; ...``
-(:meth:`TileProjector.accumulate`).  Every source follows it -- in memory one block at a
-time over all its tiles (:func:`project_block`), streamed one chunk of samples at a time
-over all blocks -- so the coefficients, and every file written from them, are bit-identical
-however the samples were read.  A distributed run keeps the same bytes by returning each
-tile's partial (per shard of samples, or per texel block) and reducing them in this order.
-Summing a shard's tiles first and then the shards would not be bit-identical.
+* a **tile** is ``tile`` consecutive samples x one texel block (the
+  :data:`~.load.DEFAULT_BLOCK` texels a source stores together); its contribution is one GEMM
+  of a fixed shape, U_t^T Y_t (:meth:`TileProjector.partial`);
+* a **shard** is :data:`TILES_PER_SHARD` consecutive tiles of samples (the last one short):
+  the unit a distributed worker decodes and projects.
+
+**Reduction order (fixed).**  For every texel block, each shard's tiles are summed in float32,
+in sample order, starting from zero (:class:`ShardSums`); the shards' sums are then added to
+the block's coefficients in shard order, starting from zero (:class:`ProjectionTotal`).  The
+energy ||Y||^2 is summed the same way in float64 (tiles within a shard, then blocks in
+order, each over its shards in order).  Every source follows this order -- in memory one
+block at a time, streamed one chunk of samples at a time, on a Dask cluster one shard (and
+group of blocks) per task, reduced by the client as the shards arrive -- so the
+coefficients, and every file written from them, are bit-identical however and wherever the
+samples were read.  (Summing all tiles in one run instead would not be: float addition is
+not associative.)
 """
 from __future__ import annotations
 
@@ -21,7 +28,63 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-__all__ = ["TileProjector", "TilePartial", "project", "project_block"]
+from .load import DEFAULT_BLOCK, texel_blocks
+
+__all__ = ["TILES_PER_SHARD", "WorkPlan", "TileProjector", "TilePartial", "ShardSums", "ProjectionTotal", "project"]
+
+#: Projection tiles per shard of samples (1024 samples with 128-sample tiles).
+TILES_PER_SHARD = 8
+#: A projection tile holds at most this many samples, fewer when that many samples of stored
+#: values would pass _TILE_ROW_BYTES (a streaming source holds a whole tile's samples).
+_MAX_TILE_SAMPLES = 128
+_TILE_ROW_BYTES = 64e6
+
+
+@dataclass(frozen=True)
+class WorkPlan:
+    """How the data matrix (S samples x P texels) is cut into tiles, shards and blocks.
+
+    A function of the data's shape and storage type only (:meth:`for_shape`), never of the
+    source, the chunk size, the memory budget or the number of workers: every way of
+    reading the data sums the same pieces in the same order.
+
+    Attributes
+    ----------
+    n_samples, n_pixels : S, P.
+    tile : samples per tile (128, halved down to 8 while 128 samples of stored values would
+        pass 64 MB).
+    block : texels per block (:data:`~.load.DEFAULT_BLOCK`, or P when smaller).
+    """
+
+    n_samples: int
+    n_pixels: int
+    tile: int
+    block: int
+
+    @classmethod
+    def for_shape(cls, n_samples: int, n_pixels: int, itemsize: int) -> "WorkPlan":
+        """The plan for S samples of P texels stored in ``itemsize``-byte channels."""
+        tile = _MAX_TILE_SAMPLES
+        while tile > 8 and tile * n_pixels * 3 * itemsize > _TILE_ROW_BYTES:
+            tile //= 2
+        return cls(n_samples, n_pixels, tile, max(1, min(DEFAULT_BLOCK, n_pixels)))
+
+    @property
+    def shard(self) -> int:
+        """Samples per shard."""
+        return self.tile * TILES_PER_SHARD
+
+    def shards(self) -> list[tuple[int, int]]:
+        """(first, end) sample ranges of the shards, in order."""
+        return [(a, min(a + self.shard, self.n_samples)) for a in range(0, self.n_samples, self.shard)]
+
+    def blocks(self) -> list[tuple[int, int]]:
+        """(first, end) texel ranges of the blocks, in order."""
+        return texel_blocks(self.n_pixels, self.block)
+
+    def tiles(self, a: int, b: int) -> list[tuple[int, int]]:
+        """(first, end) sample ranges of the tiles in samples a..b (a at a tile boundary)."""
+        return [(t, min(t + self.tile, b)) for t in range(a, b, self.tile)]
 
 
 @dataclass(frozen=True)
@@ -45,7 +108,7 @@ class TileProjector:
     are zero).
 
     u : (S, k) float32 basis; mix : (3, 3); ks : three ints <= k; curves : stored -> float32;
-    tile : samples per tile; energy : also sum ||Y||^2 (float64) over the tiles added.
+    tile : samples per tile; energy : also measure ||Y||^2 (float64) of every tile.
     """
 
     def __init__(self, u: np.ndarray, mix: np.ndarray, ks, curves, tile: int, *, energy: bool = False):
@@ -62,7 +125,7 @@ class TileProjector:
         # Per-tile basis panels (k_j, t), contiguous: the same GEMM operands in every source.
         self.panels = [[np.ascontiguousarray(u[s0:s0 + tile, :kj].T) for s0 in range(0, S, tile)]
                        for kj in widths]
-        self.energy = 0.0 if energy else None
+        self.energy = energy
 
     def zeros(self, n: int) -> list[np.ndarray]:
         """Accumulators of one texel block of n texels: (k, 3 n) interleaved, or (k_j, n)
@@ -88,51 +151,93 @@ class TileProjector:
             y = np.matmul(self.mix, x.reshape(-1, 3).T)                  # (3, t n): planar
             products = [self.panels[j][tile] @ y[j].reshape(t, n) if kj else None for j, kj in enumerate(self.ks)]
         energy = None
-        if self.energy is not None:
+        if self.energy:
             flat = y.reshape(1, -1)
             energy = float(np.einsum("ij,ij->", flat, flat, dtype=np.float64))
         return TilePartial(products, energy)
 
-    def accumulate(self, acc: list, part: TilePartial) -> None:
-        """Add a tile's partial to a texel block's accumulators ``acc`` (in place): the
-        reduction step, to be applied in sample order starting from :meth:`zeros`."""
-        for a, p in zip(acc, part.products):
-            if p is not None:
-                a += p
-        if self.energy is not None:
-            self.energy += part.energy
-
-    def add(self, acc: list, s0: int, raw: np.ndarray) -> None:
-        """:meth:`partial` then :meth:`accumulate`: add the tile of samples s0.. to ``acc``."""
-        self.accumulate(acc, self.partial(s0, raw))
-
-    def store(self, acc: list, coeff: np.ndarray, a: int, b: int) -> None:
-        """Write a block's accumulators into ``coeff`` (k, P, 3) at texels a..b."""
+    def add_into(self, acc: list, coeff: np.ndarray, a: int, b: int) -> None:
+        """Add a block's accumulators to ``coeff`` (k, P, 3) at texels a..b (elementwise
+        float32 additions: the layout does not change a bit of the sums)."""
         if self.interleaved:
-            coeff[:self.ks[0], a:b, :] = acc[0].reshape(self.ks[0], b - a, 3)
+            coeff[:self.ks[0], a:b, :] += acc[0].reshape(self.ks[0], b - a, 3)
             return
         for j, kj in enumerate(self.ks):
-            coeff[:kj, a:b, j] = acc[j]
+            if kj:
+                coeff[:kj, a:b, j] += acc[j]
 
 
-def project_block(projector: TileProjector, raw: np.ndarray) -> list[np.ndarray]:
-    """Coefficients of one texel block from all its samples: every tile in sample order,
-    summed from zero (the fixed reduction).
+class ShardSums:
+    """One shard's sums over some consecutive texel blocks: for each block, the shard's tiles
+    summed in sample order from zero (float32 products, float64 energy).  Plain arrays, so a
+    Dask worker can return it.
 
     Parameters
     ----------
-    projector : the tiles' basis panels and colour mix.
-    raw : (S, 3 n) stored values of the block's n texels, all samples.
-
-    Returns
-    -------
-    The block's accumulators (see :meth:`TileProjector.zeros`); :meth:`TileProjector.store`
-    puts them into the (k, P, 3) coefficients.
+    projector : the tiles' basis panels, colour mix and curves.
+    blocks : (first, end) texel ranges of consecutive blocks of the :class:`WorkPlan`.
     """
-    acc = projector.zeros(raw.shape[1] // 3)
-    for s0 in range(0, raw.shape[0], projector.tile):
-        projector.add(acc, s0, raw[s0:s0 + projector.tile])
-    return acc
+
+    def __init__(self, projector: TileProjector, blocks):
+        self.blocks = [(int(a), int(b)) for a, b in blocks]
+        self.accs = [projector.zeros(b - a) for a, b in self.blocks]
+        self.energy = np.zeros(len(self.blocks)) if projector.energy else None
+
+    def add_tile(self, projector: TileProjector, s0: int, rows: np.ndarray, which=None) -> None:
+        """Add the tile of samples s0.. (the next one in sample order).
+
+        rows : (t, 3 m) stored values of texels blocks[0][0].. of those samples (rows may be
+            strided), m >= the texels of every block here.
+        which : indices of the blocks to add it to (default all); threads may add the same
+            tile to disjoint sets of blocks at once.
+        """
+        first = self.blocks[0][0]
+        for i in range(len(self.blocks)) if which is None else which:
+            a, b = self.blocks[i]
+            part = projector.partial(s0, rows[:, 3 * (a - first):3 * (b - first)])
+            for acc, p in zip(self.accs[i], part.products):
+                if p is not None:
+                    acc += p
+            if self.energy is not None:
+                self.energy[i] += part.energy
+
+
+class ProjectionTotal:
+    """The coefficients (k, P, 3) float32 and ||Y||^2: every block's shard sums added in shard
+    order, starting from zero.  :meth:`add` refuses a shard out of order, so no caller can
+    change the arithmetic by accident."""
+
+    def __init__(self, projector: TileProjector, plan: WorkPlan):
+        self.projector, self.plan = projector, plan
+        self.coeff = np.zeros((projector.k, plan.n_pixels, 3), np.float32)
+        n_blocks = len(plan.blocks())
+        self._next = [0] * n_blocks
+        self._energy = np.zeros((len(plan.shards()), n_blocks)) if projector.energy else None
+
+    def add(self, shard: int, sums: ShardSums) -> None:
+        """Add shard ``shard``'s sums (each of their blocks must expect this shard next).
+        Threads may add sums of disjoint blocks at once."""
+        for i, (a, b) in enumerate(sums.blocks):
+            n = a // self.plan.block
+            if self._next[n] != shard:
+                raise RuntimeError(f"projection: block {n} got shard {shard}, expected shard {self._next[n]}")
+            self.projector.add_into(sums.accs[i], self.coeff, a, b)
+            self._next[n] += 1
+            if self._energy is not None:
+                self._energy[shard, n] = sums.energy[i]
+
+    def result(self) -> tuple[np.ndarray, float | None]:
+        """(coefficients (k, P, 3) float32, ||Y||^2 or None); every shard must be in."""
+        n_shards = len(self.plan.shards())
+        if any(n != n_shards for n in self._next):
+            raise RuntimeError("projection: not every shard was added")
+        energy = None
+        if self._energy is not None:
+            energy = 0.0
+            for n in range(self._energy.shape[1]):
+                for shard in range(n_shards):
+                    energy += float(self._energy[shard, n])
+        return self.coeff, energy
 
 
 def project(source, basis: np.ndarray, colour_matrix: np.ndarray, planes, *, energy: bool = False):
@@ -144,7 +249,7 @@ def project(source, basis: np.ndarray, colour_matrix: np.ndarray, planes, *, ene
 
     Parameters
     ----------
-    source : an :class:`~.source.InMemorySource` or :class:`~.source.StreamingSource`.
+    source : a source of :mod:`.source` (or :mod:`.distributed`).
     basis : (S, k) float32 U.
     colour_matrix : (3, 3) R, stored planes = working RGB @ R.
     planes : (k_0, k_1, k_2) components to project per plane (the rest are zero).

@@ -16,6 +16,7 @@ from .codecs import Stored, quantize_half, quantize_minmax, quantize_uniform
 from .domain import LINEAR, Domain
 from .format import CompressedBTF
 from .options import CompressOptions
+from .parallel import in_threads
 
 __all__ = ["Factorisation", "quantise", "QUANTISERS", "basis_steps"]
 
@@ -58,19 +59,21 @@ def _uniform(basis: np.ndarray, coeff: np.ndarray, textures: list, step: float):
     """One uniform step for every coefficient; basis column i gets step / sigma_i
     (reverse water-filling, see :mod:`.ratedist`)."""
     energy = np.einsum("kpc,kpc->k", coeff, coeff, dtype=np.float64)
-    return _quantize_basis_columns(basis, basis_steps(step, energy, basis)), [quantize_uniform(t, step) for t in textures]
+    return _quantize_basis_columns(basis, basis_steps(step, energy, basis)), in_threads(
+        lambda t: quantize_uniform(t, step), textures)
 
 
 def _minmax(basis: np.ndarray, coeff: np.ndarray, textures: list, step: float):
     """The paper's storage: each texture min-max scaled to 8 bits, each basis vector too."""
     st = quantize_minmax(basis[None, :, :], per_channel=True)      # channels = columns
-    return Stored(st.pixels[0][:, :, None], st.scale, st.bias), [quantize_minmax(t, per_channel=False) for t in textures]
+    return Stored(st.pixels[0][:, :, None], st.scale, st.bias), in_threads(
+        lambda t: quantize_minmax(t, per_channel=False), textures)
 
 
 def _half(basis: np.ndarray, coeff: np.ndarray, textures: list, step: float):
     """Half floats with a power-of-two scale per channel: no quantisation step at all."""
     st = quantize_half(basis[None, :, :])                              # channels = basis columns
-    return Stored(st.pixels[0][:, :, None], st.scale, st.bias), [quantize_half(t) for t in textures]
+    return Stored(st.pixels[0][:, :, None], st.scale, st.bias), in_threads(quantize_half, textures)
 
 
 #: name -> quantiser(basis (S, k), coefficients (k, P, 3), k textures (H, W, 3), step)

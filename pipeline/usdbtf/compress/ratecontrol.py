@@ -15,17 +15,21 @@ Every encode happens in memory; nothing is written.
 """
 from __future__ import annotations
 
+import logging
 import numpy as np
 
 from ..errors import BTFError
 from . import ratedist
 from .codecs import get_codec
+from .parallel import in_threads
 from .decorrelate import planes_in_use
 from .encode import encode, truncate_encoded
 from .evaluate import HeldOut, held_out_error
 from .format import CompressedBTF, encode_basis
 from .options import CompressOptions
 from .quantise import Factorisation, quantise
+
+log = logging.getLogger(__name__)
 
 __all__ = ["rate_control", "step_for_k"]
 
@@ -65,7 +69,7 @@ def step_for_k(sampled: np.ndarray, basis: np.ndarray, outside: float, n_pixels:
     return step, planes_in_use(sampled[:k], step)
 
 
-def rate_control(f: Factorisation, options: CompressOptions, held: HeldOut, log) -> tuple[CompressedBTF, dict]:
+def rate_control(f: Factorisation, options: CompressOptions, held: HeldOut) -> tuple[CompressedBTF, dict]:
     """Choose k (and the step) for ``options``, quantise and encode.
 
     Parameters
@@ -74,7 +78,6 @@ def rate_control(f: Factorisation, options: CompressOptions, held: HeldOut, log)
     options : ``k``, ``max_bytes`` (bytes of basis + coefficient textures), ``target_error``
         (percent, the paper's metric), ``seed``, and the quantiser.
     held : held-out texels, to check an error target on what is really stored.
-    log : callable(str) for progress lines.
 
     Returns
     -------
@@ -84,30 +87,30 @@ def rate_control(f: Factorisation, options: CompressOptions, held: HeldOut, log)
     if options.quantiser != "uniform":
         return _by_k_only(f, options, held)
     if f.step is not None:
-        return _plain_k(f, options, log)
+        return _plain_k(f, options)
     table = ratedist.rd_table(f.coefficients, f.basis, f.total_energy, seed=options.seed)
     if options.max_bytes is not None:
-        return _max_bytes(f, options, table, log)
-    return _target_error(f, options, table, held, log)
+        return _max_bytes(f, options, table)
+    return _target_error(f, options, table, held)
 
 
-def _plain_k(f: Factorisation, options: CompressOptions, log) -> tuple[CompressedBTF, dict]:
+def _plain_k(f: Factorisation, options: CompressOptions) -> tuple[CompressedBTF, dict]:
     # Components no colour plane was projected on are all zero: not worth a file.
     in_use = np.flatnonzero(np.abs(f.coefficients).max(axis=(1, 2)) > 0)
     k = min(options.target_k, f.k, int(in_use[-1]) + 1 if len(in_use) else 1)
     cbtf = encode(quantise(f, k, f.step, options))
     payload = cbtf.info["bytes"]["payload"]
-    log(f"  k = {k}, step = {f.step:.4g}, {payload} bytes")
+    log.info(f"  k = {k}, step = {f.step:.4g}, {payload} bytes")
     return cbtf, {"mode": "k", "k": k, "step": f.step, "bytes": payload}
 
 
-def _attempt(f: Factorisation, options: CompressOptions, k: int, step: float, attempt: int, log) -> CompressedBTF:
+def _attempt(f: Factorisation, options: CompressOptions, k: int, step: float, attempt: int) -> CompressedBTF:
     cbtf = encode(quantise(f, k, step, options))
-    log(f"  try {attempt}: k = {k}, step = {step:.4g}, {cbtf.info['bytes']['payload']} bytes")
+    log.info(f"  try {attempt}: k = {k}, step = {step:.4g}, {cbtf.info['bytes']['payload']} bytes")
     return cbtf
 
 
-def _max_bytes(f: Factorisation, options: CompressOptions, table, log) -> tuple[CompressedBTF, dict]:
+def _max_bytes(f: Factorisation, options: CompressOptions, table) -> tuple[CompressedBTF, dict]:
     budget = options.max_bytes
     k, step = ratedist.choose_for_bytes(table, budget, 1.0)
     # Calibrate the entropy model on a probe encode (a dozen textures + the basis),
@@ -116,7 +119,7 @@ def _max_bytes(f: Factorisation, options: CompressOptions, table, log) -> tuple[
     fc, fb = _probe_codec_factors(table, f, min(k, options.k or k), step, options)
     k, step = ratedist.choose_for_bytes(table, 0.995 * budget, fc, fb)
     k = min(k, options.k or k)
-    cbtf = _attempt(f, options, k, step, 1, log)
+    cbtf = _attempt(f, options, k, step, 1)
     while cbtf.info["bytes"]["payload"] > budget:
         k2 = _fit_k_to_budget(cbtf.info["bytes"], k, budget)
         if k2 == 0 or k2 == k:
@@ -124,20 +127,20 @@ def _max_bytes(f: Factorisation, options: CompressOptions, table, log) -> tuple[
         if k2 < 1:
             raise BTFError(f"cannot meet --max-bytes {budget}: even one basis vector does not fit")
         cbtf = truncate_encoded(cbtf, k2)
-        log(f"  trimmed to k = {k2}: {cbtf.info['bytes']['payload']} bytes")
+        log.info(f"  trimmed to k = {k2}: {cbtf.info['bytes']['payload']} bytes")
         k = k2
     return cbtf, {"mode": "max_bytes", "k": k, "step": step, "bytes": cbtf.info["bytes"]["payload"],
                   "codec_factor": {"coefficients": fc, "basis": fb}}
 
 
-def _target_error(f: Factorisation, options: CompressOptions, table, held: HeldOut, log) -> tuple[CompressedBTF, dict]:
+def _target_error(f: Factorisation, options: CompressOptions, table, held: HeldOut) -> tuple[CompressedBTF, dict]:
     truth = held.truth
     N = truth.size * f.btf.n_pixels / len(held.texels)
     rms_target = options.target_error / 100.0 * float(truth.mean()) / _GAUSS_L1_OVER_RMS
     scale, factor = 1.0, 1.0
     for attempt in range(1, 5):
         k, step = ratedist.choose_for_error(table, rms_target**2 * N * scale, factor)
-        cbtf = _attempt(f, options, k, step, attempt, log)
+        cbtf = _attempt(f, options, k, step, attempt)
         err = held_out_error(cbtf, held, domain=options.error_domain).percent
         if err <= options.target_error:
             break
@@ -161,7 +164,7 @@ def _probe_codec_factors(table, f: Factorisation, k: int, step: float, options: 
     probe = np.unique(np.linspace(0, k - 1, min(k, 12)).round().astype(int))
     cbtf = quantise(f, k, step, options)
     codec = get_codec(cbtf.codec)
-    coeff_bytes = sum(len(codec.encode(cbtf.coefficients[i], "data")) for i in probe)
+    coeff_bytes = sum(len(d) for d in in_threads(lambda i: codec.encode(cbtf.coefficients[i], "data"), probe))
     basis_bytes = len(encode_basis(cbtf))
     overhead = len(probe) * ratedist.FILE_OVERHEAD_BYTES  # the model adds it unscaled
     fc = max(coeff_bytes - overhead, 1.0) / max(float(table.coeff_bytes[probe, j].sum()), 1.0)

@@ -1,12 +1,14 @@
 """Where compression gets its data: all stored values in memory, or streamed from disk.
 
-Both sources answer the same three questions, so the solver does not care which it has:
+Every source answers the same questions, so the solver does not care which it has:
 
 * ``columns(texels)``      -> (S, 3 n) float32, curve-decoded values of some texels (the fit,
                               the held-out evaluation set);
 * ``project(u, mix, ks)``  -> coefficients (k, P, 3) of every texel (+ ||X||^2), see
-                              :class:`~.projection.TileProjector`;
-* ``working_samples(rows)``-> (r, P, 3) float32 working-space images (the error curve).
+                              :mod:`.projection`;
+* ``working_samples(rows)``-> (r, P, 3) float32 working-space images (the error curve);
+* ``close()``              -> releases what it holds (a spill file, a cluster); sources are
+                              context managers.
 
 Values are "curve-decoded": integer codes through the per-channel curve of the OCIO
 decode; the 3x3 primaries matrix (``matrix``) is left to the caller, who folds it into the
@@ -14,14 +16,17 @@ colour ``mix`` of the projection instead of applying it to S x P pixels.
 
 :class:`InMemorySource` decodes every file once into a block-major array of the stored
 type (0.53 GB for 90 x 120 samples at 128^2, 8 bit) and makes passes over it.
-:class:`StreamingSource` never holds more than a chunk of samples: it decodes the files
-twice (pass 1 keeps only the requested texel columns and sample rows; pass 2 accumulates
-the projection chunk by chunk).  ``choose_source`` picks by a memory budget.
+:class:`StreamingSource` never holds more than a few chunks of samples: its first pass
+decodes every file, keeps the requested texel columns and sample rows, and writes the
+stored values to an anonymous spill file (:mod:`.spill`) when the disk has room; the
+projection then reads the spill back (or, without one, decodes the files again).
+``choose_source`` picks by a memory budget; :mod:`.distributed` adds a source whose passes
+run on a Dask cluster.
 
-Both project through the same fixed tiles (:func:`tile_samples` samples x one
-:data:`~.load.DEFAULT_BLOCK`-texel block, summed in sample order: the fixed reduction of
-:mod:`.projection`), so the coefficients -- and every file written from them -- are
-bit-identical whichever source, chunk size or memory budget was used.
+All of them project through the same fixed pieces in the same order
+(:class:`~.projection.WorkPlan`, :class:`~.projection.ProjectionTotal`), so the
+coefficients -- and every file written from them -- are bit-identical whichever source,
+chunk size, memory budget or cluster was used.
 """
 from __future__ import annotations
 
@@ -34,42 +39,38 @@ import numpy as np
 from .. import colour
 from ..errors import BTFError
 from ..model import BTF, FileBTF
-from .curve import curve_samples
-from .factored import FactoredSource, uses_factors
-from .load import BlockedData, _forkable, _init, default_workers, load_encoded, texel_blocks
-from .options import CompressOptions
-from .projection import TileProjector, project_block
-from .texels import Texels
+from .domain import LINEAR
+from .load import _STATE, BlockedData, _forkable, _init, default_workers, load_encoded, stored_dtype
+from .parallel import cpu_count, in_threads, one_blas_thread, thread_map
+from .projection import ProjectionTotal, ShardSums, TileProjector, WorkPlan
+from .spill import Spill
 
-#: Bytes of stored values the streaming source holds per chunk (whole projection tiles);
+#: Bytes of stored values the streaming source decodes per chunk (whole projection tiles);
 #: up to workers + 1 chunks are in flight.
 CHUNK_BYTES = 64e6
-#: A projection tile holds at most this many samples, fewer when that many samples of stored
-#: values would pass _TILE_ROW_BYTES (the streaming source must hold a whole tile's samples).
-_MAX_TILE_SAMPLES = 128
-_TILE_ROW_BYTES = 64e6
 
-__all__ = ["InMemorySource", "StreamingSource", "choose_source", "load_source", "stored_bytes", "tile_samples"]
+__all__ = ["InMemorySource", "StreamingSource", "kept_values", "choose_source", "stored_bytes", "tile_samples",
+           "work_plan", "itemsize"]
 
 
-def _itemsize(btf: BTF) -> int:
-    return {"uint8": 1, "uint16": 2, "half": 2, "float": 4}[btf.bit_depth]
+def itemsize(btf: BTF) -> int:
+    """Bytes per stored channel value."""
+    return stored_dtype(btf).itemsize
 
 
 def stored_bytes(btf: BTF) -> int:
     """Bytes the stored values of ``btf`` take in their own type."""
-    return btf.n_samples * btf.n_pixels * 3 * _itemsize(btf)
+    return btf.n_samples * btf.n_pixels * 3 * itemsize(btf)
+
+
+def work_plan(btf: BTF) -> WorkPlan:
+    """The tiles, shards and blocks every source projects ``btf`` through."""
+    return WorkPlan.for_shape(btf.n_samples, btf.n_pixels, itemsize(btf))
 
 
 def tile_samples(btf: BTF) -> int:
-    """Samples per projection tile: 128, halved (down to 8) while 128 samples of stored
-    values would pass 64 MB.  A function of the data's shape only, never of the source,
-    so every source sums the same tiles."""
-    per_sample = btf.n_pixels * 3 * _itemsize(btf)
-    t = _MAX_TILE_SAMPLES
-    while t > 8 and t * per_sample > _TILE_ROW_BYTES:
-        t //= 2
-    return t
+    """Samples per projection tile (:meth:`.projection.WorkPlan.for_shape`)."""
+    return work_plan(btf).tile
 
 
 class _Source:
@@ -77,6 +78,7 @@ class _Source:
 
     def __init__(self, btf: BTF):
         self.btf = btf
+        self.plan = work_plan(btf)
         dec = btf.integer_decoder
         if dec is not None and dec.exact:
             self.curves = dec.decode_curves
@@ -84,6 +86,15 @@ class _Source:
         else:
             self.curves = lambda block: btf.decode(block.reshape(block.shape[0], -1, 3)).reshape(block.shape)
             self.matrix = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self) -> None:
+        """Release what the source holds (nothing here)."""
 
     def to_working(self, x: np.ndarray) -> np.ndarray:
         """(..., 3 n) or (..., 3) curve-decoded values -> working space."""
@@ -95,8 +106,11 @@ class _Source:
         m = np.eye(3) if self.matrix is None else self.matrix.astype(np.float64)
         return np.asarray(colour, np.float64) @ m
 
-    def _projector(self, u, mix, ks, energy) -> TileProjector:
-        return TileProjector(u, mix, ks, self.curves, tile_samples(self.btf), energy=energy)
+    def projector(self, u, mix, ks, energy) -> TileProjector:
+        return TileProjector(u, mix, ks, self.curves, self.plan.tile, energy=energy)
+
+    #: The working domain the answers are in (:meth:`set_domain`).
+    domain = LINEAR
 
     def set_domain(self, domain) -> None:
         """From now on answer in the working ``domain`` (:mod:`.domain`): values are
@@ -109,9 +123,15 @@ class _Source:
         decode, matrix = self.curves, self.matrix
         self.curves = lambda raw: domain.forward(decode(raw) if matrix is None else colour.mix_rgb(decode(raw), matrix))
         self.matrix = None
+        self.domain = domain
 
     def _to_domain_kept(self, domain) -> None:
-        """Convert values a source already holds (streaming: its kept columns and rows)."""
+        """Convert values a source already holds (kept columns and rows) to ``domain``."""
+
+    def peek_columns(self, texels: np.ndarray) -> np.ndarray:
+        """:meth:`columns` without handing them over (the working-domain choice reads the
+        fitting and evaluation columns before the fit and the evaluation do)."""
+        return self.columns(texels)
 
 
 class InMemorySource(_Source):
@@ -121,7 +141,7 @@ class InMemorySource(_Source):
 
     def __init__(self, btf: BTF, *, workers: int | None = None):
         super().__init__(btf)
-        self.stored: BlockedData = load_encoded(btf, workers=workers)
+        self.stored: BlockedData = load_encoded(btf, workers=workers, block=self.plan.block)
         self.nbytes = self.stored.nbytes
 
     def columns(self, texels: np.ndarray) -> np.ndarray:
@@ -136,22 +156,58 @@ class InMemorySource(_Source):
         return self.curves(raw)
 
     def project(self, u: np.ndarray, mix: np.ndarray, ks, *, energy: bool = False):
-        """Coefficients (k, P, 3) (see :class:`~.projection.TileProjector`) and, if ``energy``, ||Y||^2
-        (the working-space energy when ``mix`` is the working matrix times an orthogonal one)."""
-        proj = self._projector(u, mix, ks, energy)
-        coeff = np.zeros((u.shape[1], self.stored.n_pixels, 3), np.float32)
-        for a, b in texel_blocks(self.stored.n_pixels, self.stored.block):
-            proj.store(project_block(proj, self.stored.span(a, b)), coeff, a, b)
-        return coeff, proj.energy
+        """Coefficients (k, P, 3) (see :mod:`.projection`) and, if ``energy``, ||Y||^2
+        (the working-space energy when ``mix`` is the working matrix times an orthogonal one).
+        One block at a time (its stored values are contiguous), each over its shards in order."""
+        proj = self.projector(u, mix, ks, energy)
+        total = ProjectionTotal(proj, self.plan)
+
+        def block(ab):
+            raw = self.stored.span(*ab)
+            for n, (s0, s1) in enumerate(self.plan.shards()):
+                sums = ShardSums(proj, [ab])
+                for t0, t1 in self.plan.tiles(s0, s1):
+                    sums.add_tile(proj, t0, raw[t0:t1])
+                total.add(n, sums)
+
+        with one_blas_thread():       # blocks on one thread per core, each GEMM on one
+            in_threads(block, self.plan.blocks())
+        return total.result()
 
     def working_samples(self, rows) -> np.ndarray:
         """(n, P, 3) float32 working-space images of samples ``rows``."""
         return self.to_working(self.curves(self.stored.samples(rows)))
 
 
-def _read_chunk(bounds):
-    from .load import _STATE
+def kept_values(block: np.ndarray, a: int, keep_texels: list, keep_rows: np.ndarray):
+    """What a first pass keeps of samples a.. (``block``: (n, H, W, 3) stored values): the
+    stored values of each kept texel set ((n, 3 m) per set) and of the kept sample rows
+    ({sample: (P, 3)}): copies, no arithmetic."""
+    n = len(block)
+    flat = block.reshape(n, -1, 3)
+    cols = [np.ascontiguousarray(flat[:, t, :]).reshape(n, -1) for t in keep_texels]
+    return cols, {int(i): flat[i - a].copy() for i in keep_rows if a <= i < a + n}
 
+
+def _first_pass_chunk(btf: BTF, a: int, b: int, keep_texels: list, keep_rows: np.ndarray, spill: Spill | None,
+                      chunk: int = 1):
+    """Decode samples a..b: :func:`kept_values`, and the whole chunk written to ``spill`` in its
+    slot (a // chunk).  Runs in a decode worker or in the caller."""
+    block = btf.read_encoded(slice(a, b))
+    if spill is not None:
+        spill.write(a // chunk, block)
+    return kept_values(block, a, keep_texels, keep_rows)
+
+
+def _first_pass_worker(bounds):
+    state = _STATE
+    try:
+        return _first_pass_chunk(state["btf"], *bounds, *state["out"])
+    except BTFError as exc:
+        return str(exc)
+
+
+def _read_chunk(bounds):
     btf, (start, stop) = _STATE["btf"], bounds
     try:
         return np.stack([btf.read_one(i) for i in range(start, stop)])
@@ -159,130 +215,177 @@ def _read_chunk(bounds):
         return str(exc)
 
 
-class StreamingSource(_Source):
-    """Decode the files twice, holding one chunk of samples at a time.
+class _KeptSource(_Source):
+    """A source that keeps, from a first pass, only some texels' columns and some samples
+    (streamed, distributed): ``columns`` hands a set over, ``working_samples`` answers the rows."""
 
-    ``keep_texels`` (lists of sorted texel arrays) and ``keep_rows`` (sample indices) are
-    collected during the first pass; ``columns`` and ``working_samples`` answer only those.
-    Memory: the kept columns (S x 3 n float32) + up to workers + 1 chunks of stored values +
-    the coefficients (k x 3P float32).
-    """
-
-    kind = "streaming"
-
-    def __init__(self, btf: BTF, keep_texels: list, keep_rows, *, workers: int | None = None,
-                 chunk_bytes: float = CHUNK_BYTES):
-        super().__init__(btf)
-        # Whole projection tiles per chunk, as many as fit ``chunk_bytes`` of stored values.
-        tile = tile_samples(btf)
-        self.chunk = tile * int(max(1, chunk_bytes // (tile * btf.n_pixels * 3 * _itemsize(btf))))
-        self.workers = workers or default_workers()
-        S = btf.n_samples
-        self._kept = [(np.asarray(t), np.empty((S, 3 * len(t)), np.float32)) for t in keep_texels]
-        rows = np.asarray(keep_rows)
+    def _keep(self, keep_texels: list, keep_rows) -> tuple[list, np.ndarray]:
+        """Allocate what the first pass fills; returns (texel sets, rows) as arrays."""
+        S = self.btf.n_samples
+        keep_texels = [np.asarray(t) for t in keep_texels]
+        rows = np.asarray(keep_rows, dtype=int)
+        self._kept = [(t, np.empty((S, 3 * len(t)), np.float32)) for t in keep_texels]
         self._rows = {int(r): n for n, r in enumerate(rows)}
-        self._row_data = np.empty((len(rows), btf.n_pixels, 3), np.float32)
+        self._row_data = np.empty((len(rows), self.btf.n_pixels, 3), np.float32)
         self.nbytes = sum(d.nbytes for _, d in self._kept) + self._row_data.nbytes
-        for s0, block in self._chunks():
-            flat = block.reshape(len(block), -1, 3)
-            for t, dest in self._kept:
-                dest[s0:s0 + len(block)] = self.curves(np.ascontiguousarray(flat[:, t, :])).reshape(len(block), -1)
-            for i in range(s0, s0 + len(block)):
-                if i in self._rows:
-                    self._row_data[self._rows[i]] = self.to_working(self.curves(flat[i - s0]))
+        return keep_texels, rows
 
-    def _chunks(self):
-        """Yield (first sample, (n, H, W, 3) stored values) over all samples, in order."""
-        btf, S = self.btf, self.btf.n_samples
-        bounds = [(a, min(a + self.chunk, S)) for a in range(0, S, self.chunk)]
-        if isinstance(btf, FileBTF) and self.workers > 1 and _forkable(btf) and len(bounds) > 1:
-            with ProcessPoolExecutor(self.workers, mp_context=mp.get_context("fork"), initializer=_init,
-                                     initargs=(btf, None)) as pool:
-                # At most workers + 1 chunks in flight: pool.map would queue every decoded
-                # chunk in this process when the consumer is slower than the decoders.
-                pending = collections.deque()
-                for bound in bounds:
-                    pending.append((bound[0], pool.submit(_read_chunk, bound)))
-                    if len(pending) > self.workers:
-                        yield self._checked(*pending.popleft())
-                while pending:
-                    yield self._checked(*pending.popleft())
-        else:
-            for a, b in bounds:
-                yield a, btf.read_encoded(slice(a, b))
+    def _store(self, a: int, cols: list, rows: dict) -> None:
+        """Curve-decode and store :func:`kept_values` of samples a.. (elementwise: the same
+        values as in memory, whatever the chunking)."""
+        for (_, dest), c in zip(self._kept, cols):
+            dest[a:a + len(c)] = self.curves(c)
+        for i, image in rows.items():
+            self._row_data[self._rows[i]] = self.to_working(self.curves(image))
 
-    @staticmethod
-    def _checked(first: int, future):
-        block = future.result()
-        if isinstance(block, str):
-            raise BTFError(block)
-        return first, block
+    def columns(self, texels: np.ndarray) -> np.ndarray:
+        """(S, 3 n) float32 curve-decoded values of ``texels``, one of the sets requested up
+        front, handed over: the source forgets them (they are decoded for one use, and
+        holding the fit's columns through the projection would cost their size again)."""
+        for n, (t, dest) in enumerate(self._kept):
+            if np.array_equal(t, texels):
+                del self._kept[n]
+                return dest
+        raise ValueError(f"{type(self).__name__}.columns: texels were not requested up front (or were handed over)")
+
+    def peek_columns(self, texels: np.ndarray) -> np.ndarray:
+        for t, dest in self._kept:
+            if np.array_equal(t, texels):
+                return dest
+        raise ValueError(f"{type(self).__name__}.peek_columns: texels were not requested up front")
 
     def _to_domain_kept(self, domain) -> None:
         for _, dest in self._kept:
             dest[:] = domain.forward(self.to_working(dest))
         self._row_data[:] = domain.forward(self._row_data)
 
-    def columns(self, texels: np.ndarray) -> np.ndarray:
-        for t, dest in self._kept:
-            if np.array_equal(t, texels):
-                return dest
-        raise ValueError("StreamingSource.columns: texels were not requested up front")
-
-    def project(self, u: np.ndarray, mix: np.ndarray, ks, *, energy: bool = False):
-        """Second pass: the same tiles as :meth:`InMemorySource.project`, chunk by chunk."""
-        proj = self._projector(u, mix, ks, energy)
-        blocks = texel_blocks(self.btf.n_pixels)
-        accs = [proj.zeros(b - a) for a, b in blocks]
-        for s0, block in self._chunks():
-            flat = block.reshape(len(block), -1)
-            for t0 in range(0, len(block), proj.tile):
-                rows = flat[t0:t0 + proj.tile]
-                for (a, b), acc in zip(blocks, accs):
-                    proj.add(acc, s0 + t0, rows[:, 3 * a:3 * b])
-        # Block by block, freeing each accumulator as it is copied: the peak stays near
-        # one set of coefficients (np.zeros pages are committed only when written).
-        coeff = np.zeros((u.shape[1], self.btf.n_pixels, 3), np.float32)
-        for n, (a, b) in enumerate(blocks):
-            proj.store(accs[n], coeff, a, b)
-            accs[n] = None
-        return coeff, proj.energy
-
     def working_samples(self, rows) -> np.ndarray:
+        """(n, P, 3) float32 working-space images of samples ``rows`` (requested up front)."""
         try:
             return self._row_data[[self._rows[int(r)] for r in np.atleast_1d(rows)]]
         except KeyError:
-            raise ValueError("StreamingSource.working_samples: rows were not requested up front") from None
+            raise ValueError(f"{type(self).__name__}.working_samples: rows were not requested up front") from None
+
+
+class StreamingSource(_KeptSource):
+    """Decode once (twice without room for a spill file), holding a few chunks of samples.
+
+    ``keep_texels`` (lists of sorted texel arrays) and ``keep_rows`` (sample indices) are
+    collected during the first pass; ``columns`` and ``working_samples`` answer only those.
+    The first pass also writes the stored values to an anonymous spill file (:mod:`.spill`,
+    direct I/O where the file system allows) when ``spill`` and the temporary folder has room;
+    :meth:`project` reads it back, a few
+    chunks ahead in a thread, else decodes the files again.
+    Memory: the kept columns (S x 3 n float32) + up to workers + 1 chunks of stored values +
+    twice the coefficients (k x 3P float32: the total and one shard's sums).
+    """
+
+    kind = "streaming"
+
+    def __init__(self, btf: BTF, keep_texels: list, keep_rows, *, workers: int | None = None,
+                 chunk_bytes: float = CHUNK_BYTES, spill: bool = True):
+        super().__init__(btf)
+        # Whole projection tiles per chunk, as many as fit ``chunk_bytes`` of stored values.
+        tile = self.plan.tile
+        self.chunk = tile * int(max(1, chunk_bytes // (tile * btf.n_pixels * 3 * itemsize(btf))))
+        self.workers = workers or default_workers()
+        keep_texels, rows = self._keep(keep_texels, keep_rows)
+        n_chunks = -(-btf.n_samples // self.chunk)
+        self._spill = Spill.create(n_chunks, self.chunk * btf.n_pixels * 3 * itemsize(btf)) if spill else None
+        if self._spill is not None:
+            self.kind = "streaming, spilled"
+        try:
+            for a, (cols, kept_rows) in self._first_pass(keep_texels, rows):
+                self._store(a, cols, kept_rows)
+        except BaseException:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        if self._spill is not None:
+            self._spill.close()
+            self._spill = None
+
+    def _bounds(self) -> list[tuple[int, int]]:
+        S = self.btf.n_samples
+        return [(a, min(a + self.chunk, S)) for a in range(0, S, self.chunk)]
+
+    def _parallel(self, bounds) -> bool:
+        return isinstance(self.btf, FileBTF) and self.workers > 1 and _forkable(self.btf) and len(bounds) > 1
+
+    def _first_pass(self, keep_texels, rows):
+        """Yield (first sample, (kept columns, kept rows)) per chunk, in sample order."""
+        bounds = self._bounds()
+        if not self._parallel(bounds):
+            for a, b in bounds:
+                yield a, _first_pass_chunk(self.btf, a, b, keep_texels, rows, self._spill, self.chunk)
+            return
+        yield from self._in_pool(_first_pass_worker, bounds, (keep_texels, rows, self._spill, self.chunk))
+
+    def _in_pool(self, fn, bounds, extra):
+        """Yield (first sample, fn's result) over ``bounds``, in order, from forked decode
+        workers: at most workers + 1 chunks in flight (pool.map would queue every result in
+        this process when the consumer is slower than the decoders)."""
+        with ProcessPoolExecutor(self.workers, mp_context=mp.get_context("fork"), initializer=_init,
+                                 initargs=(self.btf, extra)) as pool:
+            pending = collections.deque()
+            for bound in bounds:
+                pending.append((bound[0], pool.submit(fn, bound)))
+                if len(pending) > self.workers:
+                    yield self._checked(*pending.popleft())
+            while pending:
+                yield self._checked(*pending.popleft())
+
+    def _chunks(self):
+        """Yield (first sample, (n, 3 P) stored values) over all samples, in order: from the
+        spill file, else decoded again."""
+        btf, bounds = self.btf, self._bounds()
+        width, dtype = btf.n_pixels * 3, stored_dtype(btf)
+        if self._spill is not None:
+            pieces = [(n, (b - a) * width * dtype.itemsize) for n, (a, b) in enumerate(bounds)]
+            for (a, _), (_, raw) in zip(bounds, self._spill.read_ahead(pieces)):
+                yield a, raw.view(dtype).reshape(-1, width)
+        elif self._parallel(bounds):
+            for a, block in self._in_pool(_read_chunk, bounds, None):
+                yield a, block.reshape(len(block), -1)
+        else:
+            for a, b in bounds:
+                yield a, btf.read_encoded(slice(a, b)).reshape(b - a, -1)
+
+    @staticmethod
+    def _checked(first: int, future):
+        result = future.result()
+        if isinstance(result, str):
+            raise BTFError(result)
+        return first, result
+
+    def project(self, u: np.ndarray, mix: np.ndarray, ks, *, energy: bool = False):
+        """Second pass: the same shards and blocks as :meth:`InMemorySource.project`, chunk by
+        chunk (a shard's sums for every block are added to the total when the shard ends)."""
+        proj = self.projector(u, mix, ks, energy)
+        total = ProjectionTotal(proj, self.plan)
+        blocks = self.plan.blocks()
+        # Each tile's blocks on one thread per core (disjoint sets of blocks), each GEMM on one.
+        parts = [p for p in np.array_split(np.arange(len(blocks)), min(len(blocks), cpu_count())) if len(p)]
+        shard, sums = -1, None
+        with one_blas_thread(), thread_map(len(parts)) as tmap:
+            for s0, flat in self._chunks():
+                for t0 in range(0, len(flat), proj.tile):
+                    n = (s0 + t0) // self.plan.shard
+                    if n != shard:
+                        if sums is not None:
+                            total.add(shard, sums)
+                        shard, sums = n, ShardSums(proj, blocks)
+                    rows = flat[t0:t0 + proj.tile]
+                    tmap(lambda which: sums.add_tile(proj, s0 + t0, rows, which), parts)
+        total.add(shard, sums)
+        return total.result()
 
 
 def choose_source(btf: BTF, keep_texels: list, keep_rows, *, memory_budget: float, workers=None,
-                  chunk_bytes: float = CHUNK_BYTES) -> _Source:
+                  chunk_bytes: float = CHUNK_BYTES, spill: bool = True) -> _Source:
     """In memory when the stored values fit ``memory_budget`` bytes, else streamed in chunks
     of about ``chunk_bytes`` stored bytes.  Either gives bit-identical projections."""
     if stored_bytes(btf) <= memory_budget:
         return InMemorySource(btf, workers=workers)
-    return StreamingSource(btf, keep_texels, keep_rows, workers=workers, chunk_bytes=chunk_bytes)
-
-
-def load_source(btf: BTF, texels: Texels, options: CompressOptions) -> _Source:
-    """The load step: where one compress reads its data from (:func:`choose_source`).
-
-    Parameters
-    ----------
-    btf : the BTF; its files are decoded (all at once, or streamed twice in chunks).
-    texels : the fitting and evaluation texels, whose columns a streaming source keeps on its
-        first pass (with the error curve's sample rows, :func:`.curve.curve_samples`).
-    options : ``memory_budget`` (bytes of stored values held in memory, else streamed),
-        ``chunk_bytes``, ``workers``.
-
-    Returns
-    -------
-    InMemorySource or StreamingSource : answers ``columns`` (S, 3 n), ``project`` and
-    ``working_samples`` (r, P, 3) the same way, bit for bit.  An input that exposes a
-    factorisation gets a :class:`~.factored.FactoredSource` instead (unless
-    ``options.expand_factors``): the same questions, answered from the factors.
-    """
-    if uses_factors(btf, options) and options.domain in ("auto", "linear"):
-        return FactoredSource(btf, options)       # transcoding's algebra holds in a linear domain only
-    return choose_source(btf, [texels.fit, texels.evaluation], curve_samples(btf.n_samples),
-                         memory_budget=options.memory_budget, workers=options.workers, chunk_bytes=options.chunk_bytes)
+    return StreamingSource(btf, keep_texels, keep_rows, workers=workers, chunk_bytes=chunk_bytes, spill=spill)

@@ -9,3 +9,6 @@
 * :mod:`.capture`    the capture loop writing a RAW manifest folder;
 * :mod:`.scene`, :mod:`.sim`  the simulated camera and controller behind ``usdbtf rig-sim``.
 """
+
+#: Capture orders (:func:`.plan.make_plan`); here so the command line lists them without numpy.
+ORDERS = ("travel", "sampling")

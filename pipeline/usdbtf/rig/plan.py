@@ -36,11 +36,11 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..sampling import Sampling, to_vectors
+from . import ORDERS
 from . import kinematics as K
 
 __all__ = ["ArmGeometry", "CapturePlan", "make_plan", "obstructed", "arm_travel", "head_travel", "ORDERS"]
 
-ORDERS = ("travel", "sampling")
 
 
 @dataclass(frozen=True)

@@ -36,6 +36,7 @@ Scene text is data, never code:
 """
 from __future__ import annotations
 
+import logging
 import argparse
 import contextlib
 import json
@@ -50,6 +51,8 @@ from ..atomic import atomic_file, related
 from ..compress.format import METADATA as COMPRESSED_METADATA
 from ..errors import BTFError, OutputRefused, error_for_status
 from .material import NS
+
+log = logging.getLogger(__name__)
 
 __all__ = ["Recipe", "plan", "build", "sconstruct", "parse_options", "BUILD_DIR"]
 
@@ -229,9 +232,10 @@ def _source_files(folder: Path) -> list[str]:
     return sorted(str(Path(d) / f) for d, _, fs in os.walk(folder) for f in fs if not f.startswith("."))
 
 
-def steps(recipes: list[Recipe]) -> dict:
+def steps(recipes: list[Recipe], dask: dict | None = None) -> dict:
     """The data the SConstruct builds from: one compress (when needed) and one package step
-    per recipe, each with its targets, sources and ``usdbtf`` argument list."""
+    per recipe, each with its targets, sources and ``usdbtf`` argument list; with ``dask``
+    (:func:`_cluster_info`) the steps run as tasks on that cluster."""
     out = []
     for r in recipes:
         step = {"material": r.material, "asset": str(r.asset),
@@ -244,7 +248,10 @@ def steps(recipes: list[Recipe]) -> dict:
         else:
             step["compressed_files"] = _source_files(r.source)
         out.append(step)
-    return {"python": sys.executable, "failure": _FAILURE, "steps": out}
+    doc = {"python": sys.executable, "failure": _FAILURE, "steps": out}
+    if dask is not None:
+        doc["dask"] = dask
+    return doc
 
 
 def sconstruct(recipes: list[Recipe] | None = None) -> str:
@@ -275,15 +282,21 @@ def node(path):
 
 def usdbtf_step(argv, label):
     def run_step(target, source, env):
-        res = subprocess.run([DATA["python"], "-m", "usdbtf.cli", *argv], stdin=subprocess.DEVNULL,
-                             capture_output=True, text=True)
-        if res.returncode:
-            lines = [x for x in res.stderr.splitlines() if x.startswith("usdbtf ")] or \\
-                res.stderr.strip().splitlines() or ["exit status %d" % res.returncode]
+        if "dask" in DATA:       # a task on the cluster (usdbtf build --dask)
+            from usdbtf.cluster import run_command
+
+            status, stderr = run_command(DATA["dask"], argv, label)
+        else:
+            res = subprocess.run([DATA["python"], "-m", "usdbtf.cli", *argv], stdin=subprocess.DEVNULL,
+                                 capture_output=True, text=True)
+            status, stderr = res.returncode, res.stderr
+        if status:
+            lines = [x for x in stderr.splitlines() if x.startswith("usdbtf ")] or \\
+                stderr.strip().splitlines() or ["exit status %d" % status]
             with open(os.path.join(HERE, DATA["failure"]), "w") as out:
-                json.dump({"status": res.returncode, "message": lines[-1]}, out)
-            sys.stderr.write(res.stderr)
-        return res.returncode
+                json.dump({"status": status, "message": lines[-1]}, out)
+            sys.stderr.write(stderr)
+        return status
 
     return Action(run_step, strfunction=lambda target, source, env: label)
 
@@ -329,29 +342,39 @@ def _claim_outputs(scene: Path, recipes: list[Recipe], work: Path, force: bool) 
         tmp.write_text(json.dumps(sorted(owned | set(mine)), indent=1) + "\n")
 
 
-def build(scene, *, force: bool = False, log=None) -> dict:
+def build(scene, *, force: bool = False, dask=None) -> dict:
     """Build what ``scene`` needs; returns the report (plan + ``ran``: the steps SCons ran).
 
     force : replace existing outputs this build did not write before (only usdbtf outputs
-        of the same kind; see the module docstring)."""
-    log = log or (lambda msg: None)
+        of the same kind; see the module docstring).
+    dask : a cluster address (:func:`usdbtf.cluster.parse_address`): the steps run as Dask
+        tasks there, as many at once as it has threads (each runs ``usdbtf`` on a worker,
+        which must read and write the same paths); the outputs are the same."""
     scene = Path(scene).resolve()
     recipes, report = plan(scene)
     for path in report["without_recipe"]:
-        log(f"{path}: bound, no btf:build recipe (nothing to build)")
+        log.info(f"{path}: bound, no btf:build recipe (nothing to build)")
     work = scene.parent / BUILD_DIR / scene.stem
     _claim_outputs(scene, recipes, work, force)
-    for name, text in (("SConstruct", sconstruct()), (_STEPS, json.dumps(steps(recipes), indent=1) + "\n")):
-        if not (work / name).is_file() or (work / name).read_text() != text:
-            with atomic_file(work / name, owner_checked=True) as tmp:
-                tmp.write_text(text)
-    (work / _FAILURE).unlink(missing_ok=True)
-    missing = [p for r in recipes for p in {r.compressed, r.asset.parent} if not os.path.lexists(p)]
-    env = dict(os.environ)
-    pipeline = str(Path(__file__).resolve().parents[2])
-    env["PYTHONPATH"] = pipeline + os.pathsep + env.get("PYTHONPATH", "")
-    proc = subprocess.run([sys.executable, "-m", "SCons", "-Q", "--no-site-dir", "-f", str(work / "SConstruct"),
-                           "-C", str(work)], capture_output=True, text=True, env=env, stdin=subprocess.DEVNULL)
+    with contextlib.ExitStack() as stack:
+        dask_info, jobs = None, 1
+        if dask is not None:
+            from ..cluster import command_info, session
+
+            dask_info, jobs = command_info(stack.enter_context(session(dask)))
+        for name, text in (("SConstruct", sconstruct()),
+                           (_STEPS, json.dumps(steps(recipes, dask_info), indent=1) + "\n")):
+            if not (work / name).is_file() or (work / name).read_text() != text:
+                with atomic_file(work / name, owner_checked=True) as tmp:
+                    tmp.write_text(text)
+        (work / _FAILURE).unlink(missing_ok=True)
+        missing = [p for r in recipes for p in {r.compressed, r.asset.parent} if not os.path.lexists(p)]
+        env = dict(os.environ)
+        pipeline = str(Path(__file__).resolve().parents[2])
+        env["PYTHONPATH"] = pipeline + os.pathsep + env.get("PYTHONPATH", "")
+        proc = subprocess.run([sys.executable, "-m", "SCons", "-Q", "--no-site-dir", "-j", str(jobs), "-f",
+                               str(work / "SConstruct"), "-C", str(work)], capture_output=True, text=True, env=env,
+                              stdin=subprocess.DEVNULL)
     ran = [line for line in proc.stdout.splitlines() if line.startswith("usdbtf-step ")]
     if proc.returncode:
         for p in sorted(missing, key=lambda q: len(q.parts), reverse=True):
@@ -363,8 +386,8 @@ def build(scene, *, force: bool = False, log=None) -> dict:
         detail = proc.stderr.strip().splitlines() or proc.stdout.strip().splitlines() or ["?"]
         raise BTFError(f"{scene}: build failed: {detail[-1]}")
     for r in recipes:
-        log(f"{r.material}: {r.asset}")
-    log(f"{len(recipes)} bound BTF material(s); {len(ran)} step(s) run" + ("" if ran else " (all up to date)"))
+        log.info(f"{r.material}: {r.asset}")
+    log.info(f"{len(recipes)} bound BTF material(s); {len(ran)} step(s) run" + ("" if ran else " (all up to date)"))
     report.update(recipes=recipes, ran=ran)
     return report
 

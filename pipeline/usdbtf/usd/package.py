@@ -69,6 +69,7 @@ from .lod import FULL_LOD, default_lods
 from .material import LOD_VARIANT_SET, author_btf
 from .textures import TEXTURE_FORMATS, USDZ_FORMATS, TextureSet, package_textures
 from .validate import validate_layer
+from .formats import PAYLOAD_FORMATS
 
 __all__ = ["PackageOptions", "PackageResult", "package", "write_package", "asset_layers", "read_input",
            "asset_pieces", "check_root_layer", "make_usdz", "default_lods", "LOD_VARIANT_SET", "FULL_LOD",
@@ -76,7 +77,6 @@ __all__ = ["PackageOptions", "PackageResult", "package", "write_package", "asset
            "provenance_path"]
 
 ROOT_FORMATS = (".usda", ".usdc", ".usd")
-PAYLOAD_FORMATS = ("usdc", "usda")
 log = logging.getLogger(__name__)
 
 

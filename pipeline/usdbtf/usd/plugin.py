@@ -100,6 +100,26 @@ def register() -> bool:
     return True
 
 
+def register_lazily() -> bool:
+    """Make the plugin known to USD without importing USD when it is not loaded yet.
+
+    USD reads :func:`environment`'s variables when its libraries load, so applying them
+    is enough before ``pxr`` is imported (and it costs no import: the
+    command line's ``--version``/``--help`` stay fast; child processes inherit it).  When
+    ``pxr`` is already loaded its registry may exist already: register now.  Idempotent.
+    Returns False when the folder is absent.
+    """
+    folder = plugin_dir()
+    if not (folder / "plugInfo.json").is_file():
+        return False
+    if "pxr" in sys.modules:
+        return register()
+    if apply_environment():
+        # USD prints a banner for every overridden setting when it loads (see register).
+        os.environ.setdefault("TF_ENV_SETTING_ALERTS_ENABLED", "0")
+    return True
+
+
 def require_schema() -> None:
     """Raise a clear BTFError when ``BtfMaterialAPI`` is not known to this process."""
     from pxr import Usd

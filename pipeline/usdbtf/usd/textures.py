@@ -35,6 +35,7 @@ from ..compress.codecs import get_codec
 from ..compress.format import CompressedBTF, basis_file, coefficient_file, encoded_textures
 from ..errors import BTFError
 from ..imageio import decode_image, encode_image, write_encoded
+from .formats import TEXTURE_FORMATS
 
 __all__ = ["DATA", "PORTABLE", "TEXTURE_FORMATS", "USDZ_FORMATS", "Texture", "TextureSet", "png_as_data",
            "portable_bytes", "package_textures"]
@@ -47,7 +48,6 @@ _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 #: Chunks that would make a reader colour-convert the codes.
 _COLOUR_CHUNKS = {b"gAMA", b"sRGB", b"iCCP", b"cHRM", b"cICP"}
 _GAMMA_ONE = 100000
-TEXTURE_FORMATS = ("png", "tx", "exr")
 #: Formats a .usdz may hold (its spec: PNG, JPEG, EXR, AVIF).
 USDZ_FORMATS = ("png", "exr")
 #: What a texture holds: BTF codes, [0, 1]-normalised data (GPU packs, roughness, normals),

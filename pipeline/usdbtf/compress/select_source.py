@@ -1,0 +1,55 @@
+"""The load step: which source answers compress's questions about one input.
+
+Three kinds answer them the same way, bit for bit: the images decoded in this process
+(:mod:`.source`: in memory or streamed), a Dask cluster decoding them (:mod:`.distributed`),
+or a factorised input's own factors (:mod:`.factored`).  This module only chooses; it sits
+above all three so that none of them imports another's chooser.
+"""
+from __future__ import annotations
+
+import logging
+from ..model import BTF
+from .curve import curve_samples
+from .factored import FactoredSource, uses_factors
+from .options import CompressOptions
+from .source import choose_source
+from .texels import Texels
+
+log = logging.getLogger(__name__)
+
+__all__ = ["load_source"]
+
+
+def load_source(btf: BTF, texels: Texels, options: CompressOptions):
+    """The load step: where one compress reads its data from (:func:`choose_source`, or a
+    Dask cluster when ``options.dask`` names one: :mod:`.distributed`).
+
+    Parameters
+    ----------
+    btf : the BTF; its files are decoded (all at once, or streamed in chunks).
+    texels : the fitting and evaluation texels, whose columns a streaming source keeps on its
+        first pass (with the error curve's sample rows, :func:`.curve.curve_samples`).
+    options : ``memory_budget`` (bytes of stored values held in memory, else streamed),
+        ``chunk_bytes``, ``workers``, ``spill``, ``dask``, ``progress``.
+
+    Returns
+    -------
+    A source (a context manager: close it, or use ``with``) that answers ``columns``
+    (S, 3 n), ``project`` and ``working_samples`` (r, P, 3) the same way, bit for bit.  An
+    input that exposes a factorisation gets a :class:`~.factored.FactoredSource` instead
+    (unless ``options.expand_factors``): the same questions, answered from the factors, in
+    this process even with ``options.dask`` (the factors are small and the transcoding
+    decodes no images; the bytes are those of a run without ``--dask``).
+    """
+    if uses_factors(btf, options) and options.domain in ("auto", "linear"):   # the algebra is linear-only
+        if options.dask:
+            log.info("transcoding from the input's factors in this process (--dask is for decoding images)")
+        return FactoredSource(btf, options)
+    keep = [texels.fit, texels.evaluation]
+    rows = curve_samples(btf.n_samples)
+    if options.dask:
+        from .distributed import DaskSource
+
+        return DaskSource(btf, keep, rows, options)
+    return choose_source(btf, keep, rows, memory_budget=options.memory_budget, workers=options.workers,
+                         chunk_bytes=options.chunk_bytes, spill=options.spill)
