@@ -26,37 +26,19 @@ import time
 
 import numpy as np
 
-from rlib import OUT, Timer, evaluate, header, load, preset_list, say, stride_rows
-from methods import direction_split, heldout_predictor, paper_cached, paper_method, proposed
+from rlib import OUT, Timer, evaluate, header, load, paper_budget_inputs, preset_list, say, stride_rows
+from methods import direction_split, heldout_errors, paper_cached, paper_method, proposed
 from paper_baseline import usdbtf_default
 
 
 def directions(data, stride: int) -> dict:
     """Held-out-direction errors of paper, default and proposal (see the module docstring)."""
-    from usdbtf.bench.heldout import neighbour_weights
-
     split = direction_split(data)
-    sel = split.held[::stride]
-    out = {}
     paper = paper_method(split.sub)
     budget = paper.bytes["payload"]
     default = usdbtf_default(split.sub, budget, folder=split.manifest(), tag="fit90")
     ours = proposed(split.sub, budget)
-    for name, f in (("paper", paper), ("default", default), ("proposal", ours)):
-        predict = heldout_predictor(f, split.fitted, split.query)
-        e = evaluate(data, lambda s: predict(split.position[s]), sel)
-        out[name] = {"encoded": e.encoded, "linear": e.linear, "bytes": f.bytes["payload"], "k": f.k}
-    # floor: the original fitted images blended the same way (linear, foreshortening per neighbour)
-    idx, w = neighbour_weights(split.fitted, split.query, 4)
-
-    def floor(s):
-        pos = split.position[s]
-        codes = np.asarray(data.codes[split.fit[idx[pos]].ravel()])
-        imgs = data.lut[codes].reshape(len(pos), idx.shape[1], -1, 3)
-        return np.einsum("qn,qnpc->qpc", w[pos].astype(np.float32), imgs)
-    e = evaluate(data, floor, sel, chunk=64)
-    out["floor"] = {"encoded": e.encoded, "linear": e.linear}
-    return out
+    return heldout_errors(data, split, split.held[::stride], {"paper": paper, "default": default, "proposal": ours})
 
 
 def main(argv=None) -> int:
@@ -69,12 +51,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     presets = preset_list(args.presets, tuning_only=False)
     header("issue 16: paper vs today's default vs the proposal at the paper's bytes",
-           [f"presets {', '.join(presets)}; held out (never tuned on): "
-            f"{', '.join(x for x in presets if x in HELDOUT_PRESETS) or '-'}",
-            "sampling paper (90 views x 120 lights = 10,800 samples), 128x128, 8-bit sRGB PNG, synth seed 0",
-            f"errors over every {args.stride}-th sample, all texels and channels; encoded = 8-bit sRGB file values, "
-            "linear = scene-linear ACEScg",
-            "budget = the paper method's stored bytes (basis + coefficient files) on the same data"])
+           paper_budget_inputs(presets, args.stride))
     results = {}
     for preset in presets:
         say(f"## {preset}{' (held out)' if preset in HELDOUT_PRESETS else ''}")

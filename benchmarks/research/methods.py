@@ -359,6 +359,31 @@ def direction_split(data: Data, fraction: float = 0.1, seed: int = 0) -> Directi
 
 
 
+def heldout_errors(data: Data, split: DirectionSplit, sel: np.ndarray, methods: dict) -> dict:
+    """Held-out-direction errors {name: {"encoded", "linear", "bytes", "k"}} of each stored
+    method (``name -> Factorised``-like: ``basis``, ``dom``, ``recon_rows``, ``bytes``, ``k``)
+    predicted by :func:`heldout_predictor`, plus "floor": the original fitted images blended
+    the same way (linear, foreshortening per neighbour).  ``sel``: held-out sample indices."""
+    from rlib import evaluate
+    from usdbtf.bench.heldout import neighbour_weights
+
+    out = {}
+    for name, f in methods.items():
+        predict = heldout_predictor(f, split.fitted, split.query)
+        e = evaluate(data, lambda s: predict(split.position[s]), sel)
+        out[name] = {"encoded": e.encoded, "linear": e.linear, "bytes": f.bytes["payload"], "k": f.k}
+    idx, w = neighbour_weights(split.fitted, split.query, 4)
+
+    def floor(s):
+        pos = split.position[s]
+        codes = np.asarray(data.codes[split.fit[idx[pos]].ravel()])
+        imgs = data.lut[codes].reshape(len(pos), idx.shape[1], -1, 3)
+        return np.einsum("qn,qnpc->qpc", w[pos].astype(np.float32), imgs)
+    e = evaluate(data, floor, sel, chunk=64)
+    out["floor"] = {"encoded": e.encoded, "linear": e.linear}
+    return out
+
+
 def heldout_predictor(f: Factorised, fitted_sampling, query_sampling, neighbours: int = 4, mode: str = "rows"):
     """``predict(positions) -> (n, P, 3)`` linear images of held-out directions from the
     stored fitted ones, the way a renderer would: blend the ``neighbours`` nearest basis rows

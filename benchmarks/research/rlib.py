@@ -195,6 +195,18 @@ def load(preset: str, sampling: str = "paper", size: int = 128, seed: int = 0, s
     return Data(preset, codes, btf.sampling, size, dec.lut[0].astype(np.float32), dec.matrix.astype(np.float32))
 
 
+def paper_budget_inputs(presets: list, stride: int) -> list[str]:
+    """The "inputs" lines of a comparison at the paper's bytes over ``presets`` (for :func:`header`)."""
+    from usdbtf.bench.datasets import HELDOUT_PRESETS
+
+    return [f"presets {', '.join(presets)}; held out (never tuned on): "
+            f"{', '.join(x for x in presets if x in HELDOUT_PRESETS) or '-'}",
+            "sampling paper (90 views x 120 lights = 10,800 samples), 128x128, 8-bit sRGB PNG, synth seed 0",
+            f"errors over every {stride}-th sample, all texels and channels; encoded = 8-bit sRGB file values, "
+            "linear = scene-linear ACEScg",
+            "budget = the paper method's stored bytes (basis + coefficient files) on the same data"]
+
+
 def stride_rows(data: Data, stride: int) -> np.ndarray:
     """Every ``stride``-th sample (an evaluation subset for sweeps)."""
     return np.arange(0, data.S, stride)
