@@ -12,7 +12,9 @@ Folder layout (``btf-compressed/1``)::
                                          ``grid`` = [rows, cols]; unused tiles are zero.  Neighbouring
                                          lights and views sit side by side, which the codec's
                                          predictor exploits (-24 % bytes vs columns on paper data).
-    coeff/c000.<ext> ...    one H x W x 3 texture per basis vector, energy order (c000 first)
+    coeff/c000.<ext> ...    one H x W x 3 texture per basis vector, energy order (c000 first);
+                            codec ``jxlp``: one H x 3W single-channel image each, the
+                            three channels side by side (planar, :mod:`.codecs`)
     error_curve.csv/.png    percent error vs k (diagnostics, not counted in the stored bytes)
 
 Reconstruction (equation 2 of Koudelka et al. 2003, with a colour matrix)::
@@ -376,10 +378,12 @@ def write_metadata(cbtf: CompressedBTF, folder: Path, sizes: dict | None = None)
     return len(text.encode())
 
 
-def _read_texture(entry, shape: tuple[int, int], channels: int | None = None) -> np.ndarray:
+def _read_texture(entry, shape: tuple[int, int], channels: int | None = None, codec: Codec | None = None) -> np.ndarray:
     """A stored texture's pixels, checked against the expected (height, width) and for
-    non-finite half floats."""
+    non-finite half floats (a planar codec's file unpacked to (H, W, 3) first)."""
     px = Codec.read(entry.file, channels=channels)
+    if codec is not None:
+        px = codec.texture(px, shape)
     if px.shape[:2] != shape:
         raise BTFError(f"{entry.file}: texture is {px.shape[1]}x{px.shape[0]}, expected {shape[1]}x{shape[0]}")
     if px.dtype.kind == "f" and not np.isfinite(px).all():
@@ -411,7 +415,8 @@ def read_compressed(folder) -> CompressedBTF:
     if image.dtype.kind == "f" and not np.isfinite(image).all():
         raise BTFError(f"{meta.basis.file}: stored values include NaN or Inf")
     basis = Stored(image_to_basis(image, layout, k), meta.basis.scale, meta.basis.bias)
-    coeffs = [Stored(_read_texture(e, (meta.height, meta.width)), e.scale, e.bias) for e in meta.coefficients]
+    coeffs = [Stored(_read_texture(e, (meta.height, meta.width), codec=meta.codec), e.scale, e.bias)
+              for e in meta.coefficients]
     return CompressedBTF(meta.sampling, meta.width, meta.height, basis, coeffs, meta.color_matrix, meta.codec.name,
                          meta.working_space, meta.source, meta.interpolated, meta.ocio_config, meta.info,
                          domain=meta.domain)

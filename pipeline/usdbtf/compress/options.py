@@ -13,11 +13,11 @@ __all__ = ["CompressOptions", "SOLVERS", "ERROR_DOMAINS", "CODEC_NAMES", "DEFAUL
 
 SOLVERS = ("rsvd", "paper")
 #: The codecs :mod:`.codecs` defines, by name (here, light, for the command line).
-CODEC_NAMES = ("jxl", "png", "exr", "jpeg")
+CODEC_NAMES = ("jxlp", "jxl", "png", "exr", "jpeg")
 #: What ``--target-error`` is measured on: the input file's values, or scene-linear.
 ERROR_DOMAINS = ("encoded", "linear")
 #: The codec each solver stores with when none is asked for.
-DEFAULT_CODEC = {"rsvd": "jxl", "paper": "jpeg"}
+DEFAULT_CODEC = {"rsvd": "jxlp", "paper": "jpeg"}
 #: Basis vectors kept for a plain run (the paper's 150).
 DEFAULT_K = 150
 #: With a byte or error target, rate-distortion may keep more components than the paper's
