@@ -33,8 +33,10 @@ log = logging.getLogger(__name__)
 #: Every this-many-th sample is scored (halves the scorer's reconstruction cost).
 _SCORE_STRIDE = 2
 #: The score truncates the basis to at most S / this many vectors: a basis of nearly S
-#: vectors reconstructs anything, whatever the curve (paper sampling: all 300 fitted).
+#: vectors reconstructs anything, whatever the curve.
 _PROBE_FRACTION = 4
+#: ... and to at most this many (the research scored 300 components).
+_PROBE_K = 300
 
 
 def encoding_domain(btf) -> Domain:
@@ -112,7 +114,7 @@ def score_domains(source, texels, k: int, options, candidates=AUTO_CANDIDATES) -
     scores, fits = {}, {}
     for dom in candidates:
         fit = fit_basis(dom.forward(x_lin), k, options)
-        u = fit.basis[:, :max(1, min(fit.k, S // _PROBE_FRACTION))]
+        u = fit.basis[:, :max(1, min(fit.k, _PROBE_K, S // _PROBE_FRACTION))]
         rec = dom.inverse(u[rows] @ (u.T @ dom.forward(y_lin)))
         e_lin = 100.0 * float(np.abs(rec - truth).sum(dtype=np.float64)) / max(lin_total, 1e-30)
         e_enc = 100.0 * float(np.abs(_encoded(rec, to_file, depth, top) - truth_enc).sum(dtype=np.float64)) \
