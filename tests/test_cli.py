@@ -101,7 +101,7 @@ def test_synth_float_exr(capsys, tmp_path):
 def test_compress_decompress_error_info_chain(capsys, src, compressed, work):
     orig = read_manifest(src)
     c = read_compressed(compressed)
-    assert c.k == 8 and c.codec == "jxl" and c.info["solver"] == "rsvd"
+    assert c.k == 8 and c.codec == "jxlp" and c.info["solver"] == "rsvd"
     assert (compressed / "basis.jxl").is_file() and len(list((compressed / "coeff").iterdir())) == 8
     assert (compressed / "error_curve.csv").is_file() and (compressed / "error_curve.png").is_file()
     # The source manifest's extra keys travel into the compressed metadata.
@@ -127,7 +127,7 @@ def test_compress_decompress_error_info_chain(capsys, src, compressed, work):
     assert 0.5 < report["linear"]["percent"] < 20
 
     info = ok(capsys, "info", compressed)
-    assert "compressed BTF (rsvd solver, jxl codec)" in info
+    assert "compressed BTF (rsvd solver, jxlp codec)" in info
     assert "samples     24  (32x32 texels)" in info
     assert "k           8" in info
     assert f"payload {c.info['bytes']['payload']} " in info
@@ -211,7 +211,7 @@ def test_max_bytes(capsys, src, tmp_path):
 
 def test_target_error(capsys, src, tmp_path):
     out = tmp_path / "te"
-    ok(capsys, "compress", src, "-o", out, "--target-error", "4", "-q")
+    ok(capsys, "compress", src, "-o", out, "--target-error", "4", "--error-domain", "linear", "-q")
     c = read_compressed(out)
     full = percent(read_manifest(src), lambda sel: reconstruct(c, sel))["linear"]["percent"]
     assert full <= 4 * 1.1

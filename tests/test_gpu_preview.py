@@ -58,10 +58,12 @@ def src(work) -> Path:
     return folder
 
 
-def _package(src: Path, work: Path, codec: str) -> Path:
-    compressed = work / f"c_{codec}"
-    assert main(["compress", str(src), "-o", str(compressed), "--k", "12", "--codec", codec, "-q"]) == 0
-    out = work / f"asset_{codec}" / "pebbles.usda"
+def _package(src: Path, work: Path, codec: str, domain: str = "auto") -> Path:
+    name = codec if domain == "auto" else f"{codec}_{domain.replace(':', '')}"
+    compressed = work / f"c_{name}"
+    assert main(["compress", str(src), "-o", str(compressed), "--k", "12", "--codec", codec, "--domain", domain,
+                 "-q"]) == 0
+    out = work / f"asset_{name}" / "pebbles.usda"
     assert main(["package", str(compressed), "-o", str(out), "--usdz", "-q"]) == 0
     return out
 
@@ -104,8 +106,7 @@ def test_storm_glslfx_compiles(textures, primvars, lights):
 @needs_glslang
 def test_glslang_rejects_a_broken_shader():
     """The control: the same check fails for a wrong call."""
-    text = shaders.storm_glslfx().replace("btfResolve(HdGetSampler_tables(), rows, packs, k)",
-                                          "btfResolve(HdGetSampler_tables(), rows, k)")
+    text = shaders.storm_glslfx().replace("btfResolve(tables, rows, packs, k)", "btfResolve(tables, rows, k)")
     with pytest.raises(BTFError, match="does not compile"):
         glslang.compile_glsl(glslang.storm_translation_unit(text, textures=["tables"]), "frag", "broken")
 
@@ -249,6 +250,31 @@ def test_lod_and_half_float_packs_match_cpu_renderer(egl, src, work):
     value = psnr(gl.swatch((30, 60), (45, 10)), cpu.swatch((30, 60), (45, 10)))
     print(f"half-float k6 swatch PSNR: {value:.1f} dB")
     assert value >= PSNR_MIN
+
+
+@pytest.mark.parametrize("domain", ["srgb", "linear"])
+def test_working_domain_curve_matches_cpu_renderer(egl, src, work, domain):
+    """The shader's inverse curve (tables texel 2) equals the CPU renderer's, with two lights
+    (each light's radiance after the curve) on a sphere."""
+    from usdbtf.camera import auto_camera
+    from usdbtf.gpu.headless import HeadlessRenderer, psnr, uv_sphere
+    from usdbtf.render import parse_light
+
+    asset = _package(src, work, "png", domain)
+    cbtf = load_btf(asset)
+    assert cbtf.domain.name == domain
+    layout, _, _ = storm.layout_from_asset(asset)
+    gl = HeadlessRenderer(layout, wrap="repeat", ctx=egl)
+    value = psnr(gl.swatch((30, 60), (45, 10)), _cpu(cbtf).swatch((30, 60), (45, 10)))
+    mesh = uv_sphere(0.05)
+    camera = auto_camera(mesh.corner(), 96, 96)
+    lights = [parse_light("dir:0.4,0.6,1"), parse_light("point:0.1,0.05,0.12:0.02")]
+    ref = _cpu(cbtf, wrap="repeat").render(mesh, camera, lights)
+    out = gl.render(mesh, camera, lights)
+    both = (ref[..., 3] > 0) & (out[..., 3] > 0)
+    sphere = psnr(out[..., :3], ref[..., :3], both)
+    print(f"{domain}: swatch PSNR {value:.1f} dB, sphere {sphere:.1f} dB")
+    assert value >= PSNR_MIN and sphere >= PSNR_MIN
 
 
 def test_preview_command_reports_psnr(asset, tmp_path, capsys, egl):

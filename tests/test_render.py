@@ -56,6 +56,10 @@ def test_swatch_at_measured_directions_equals_decompress(work, pebbles, capsys):
         assert file_info.bit_depth == "float"
         want = to_working.apply(pixels)                            # working space (ACEScg)
         assert np.abs(want).max() > 0.01
+        # The manifest writer clamps float values below 0 in the file's space (Rec.709): compare
+        # the swatch through the same clamp (a curve's reconstruction is >= 0 in ACEScg, whose
+        # wider gamut can still hold colours with a negative Rec.709 channel).
+        got = to_working.apply(np.maximum(colour.processor("scene_linear", manifest["color_space"]).apply(got), 0))
         np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4 * np.abs(want).max())
         png, png_info = read_image(out.with_suffix(".png"))
         # OIIO reads the PNG's sRGB chunk back as the sRGB encoding (same curve as the display).
@@ -205,13 +209,16 @@ def test_flat_plane_from_far_above_reproduces_the_swatch(renderer, light):
 
 
 def test_minified_texture_is_mip_filtered(renderer):
-    """Four texels per pixel: the mip filter averages them (the swatch box-filtered 4 x 4);
+    """Four texels per pixel: the mip filter averages them (the swatch box-filtered 4 x 4, in
+    the working domain: mip levels average coefficients, like a GPU's texture filter);
     plain bilinear would pick single texels instead."""
     half = PHYSICAL_SIZE / 2
     cam = Camera(np.array([0, 0, 50.0]), np.zeros(3), np.array([0, 1.0, 0]), np.degrees(2 * np.arctan(half / 50)),
                  12, 12)
     sun = Light("directional", directions_to_vectors([(45.0, 0.0)])[0], 1.0)
-    want = renderer.swatch((0.0, 0.0), (45.0, 0.0)).reshape(12, 4, 12, 4, 3).mean(axis=(1, 3))
+    dom = renderer.cbtf.domain
+    swatch = dom.forward(renderer.swatch((0.0, 0.0), (45.0, 0.0)))
+    want = dom.inverse(swatch.reshape(12, 4, 12, 4, 3).mean(axis=(1, 3)))
     mip = renderer.render(_plane(PHYSICAL_SIZE), cam, [sun])[..., :3]
     assert np.abs(mip - want).mean() < 5e-3 * np.abs(want).mean()
     plain = Renderer(renderer.cbtf, RenderOptions(filter="bilinear")).render(_plane(PHYSICAL_SIZE), cam, [sun])

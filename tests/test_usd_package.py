@@ -43,7 +43,7 @@ def src(work) -> Path:
     return folder
 
 
-@pytest.fixture(scope="module", params=["jxl", "exr", "jpeg"])
+@pytest.fixture(scope="module", params=["jxlp", "jxl", "exr", "jpeg"])
 def compressed(request, src, work) -> Path:
     out = work / f"c_{request.param}"
     solver = ["--solver", "paper"] if request.param == "jpeg" else []

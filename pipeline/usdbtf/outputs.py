@@ -43,6 +43,10 @@ __all__ = ["MANIFEST", "COMPRESSED", "UNWRAP", "CAPTURE", "SIM_FRAMES", "BENCH",
 
 MANIFEST = "btf-manifest/1"
 COMPRESSED = "btf-compressed/1"
+#: Every ``format`` a compressed folder may declare: ``/1.1`` adds a working-domain curve
+#: (``domain``; written only when it is not linear, so older readers refuse such a folder
+#: instead of reconstructing it without the curve).
+COMPRESSED_FORMATS = ("btf-compressed/1", "btf-compressed/1.1")
 UNWRAP = "usdbtf-unwrap"
 CAPTURE = "usdbtf-capture"
 SIM_FRAMES = "usdbtf-sim-frames"
@@ -142,7 +146,7 @@ def _manifest(folder: Path) -> bool:
 
 def _compressed(folder: Path) -> bool:
     doc = _json(folder / _COMPRESSED_FILE)
-    if not isinstance(doc, dict) or doc.get("format") != COMPRESSED:
+    if not isinstance(doc, dict) or doc.get("format") not in COMPRESSED_FORMATS:
         return False
     entries = [doc.get("basis")] + list(doc.get("coefficients") or [])
     names = {e.get("file") for e in entries if isinstance(e, dict)}

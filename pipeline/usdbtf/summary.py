@@ -13,7 +13,7 @@ __all__ = ["compressed_summary", "btf_summary", "direction_count", "image_size"]
 def compressed_summary(folder) -> dict:
     """What a ``btf-compressed/1`` folder holds: k, sizes, error, colour, provenance."""
     from .compress import read_compressed
-    from .compress.format import FORMAT, METADATA, folder_bytes
+    from .compress.format import FORMAT, FORMAT_DOMAIN, METADATA, folder_bytes
 
     folder = Path(folder)
     c = read_compressed(folder)
@@ -24,8 +24,9 @@ def compressed_summary(folder) -> dict:
     sizes["folder"] = folder_bytes(folder)
     estimated = (info.get("estimated_error") or {}).get("linear")
     prov = info.get("provenance") or {}
-    return {"path": str(folder), "kind": "compressed", "format": FORMAT,
+    return {"path": str(folder), "kind": "compressed", "format": FORMAT if c.domain.is_linear else FORMAT_DOMAIN,
             "solver": info.get("solver"), "codec": c.codec, "k": c.k, "samples": c.n_samples,
+            "domain": c.domain.metadata(),
             "width": c.width, "height": c.height, "bytes": sizes,
             "estimated_error": ({"percent": estimated.get("percent"), "rmse": estimated.get("rmse"),
                                  "psnr_db": estimated.get("psnr_db"), "domain": "linear"} if estimated else None),

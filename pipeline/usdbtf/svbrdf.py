@@ -178,7 +178,7 @@ def _chunk_texels(n_samples: int, chunk_bytes: float) -> int:
 def _reconstruct(cbtf: CompressedBTF, rows: np.ndarray, texels: slice) -> np.ndarray:
     """(S, T, 3) float32 working-space values of samples with basis rows ``rows`` (S, k)."""
     c = working_coefficient_texels(cbtf, texels)                      # (k, T, 3)
-    return (rows @ c.reshape(cbtf.k, -1)).reshape(len(rows), -1, 3)
+    return cbtf.domain.inverse(rows @ c.reshape(cbtf.k, -1)).reshape(len(rows), -1, 3)
 
 
 def _photometric_normals(y_lum: np.ndarray, light: np.ndarray) -> np.ndarray:
@@ -358,12 +358,16 @@ def median_albedo(cbtf: CompressedBTF, *, white_level: float = 1.0, rows_per_chu
     [0, 1]; streamed over texel rows.  The median ignores highlights and cast shadows."""
     sel = albedo_samples(cbtf)
     cos_l = np.maximum(np.cos(np.radians(cbtf.sampling.light[sel, 0])), 0.1).astype(np.float32)
-    rows = (cbtf.basis_values()[sel] / cos_l[:, None]).T                  # (k, n)
+    dom = cbtf.domain
+    # Linear domain: 1 / cos folded into the rows (exact); else after the inverse curve.
+    rows = (cbtf.basis_values()[sel] / (cos_l[:, None] if dom.is_linear else 1.0)).T       # (k, n)
     out = np.empty((cbtf.height, cbtf.width, 3), np.float32)
     for y0 in range(0, cbtf.height, rows_per_chunk):
         y1 = min(y0 + rows_per_chunk, cbtf.height)
         c = working_coefficient_texels(cbtf, slice(y0 * cbtf.width, y1 * cbtf.width))   # (k, h*W, 3)
         per_texel = c.reshape(cbtf.k, -1).T @ rows                           # (h*W*3, n)
+        if not dom.is_linear:
+            per_texel = dom.inverse(per_texel) / cos_l
         out[y0:y1] = np.median(per_texel, axis=1).reshape(y1 - y0, cbtf.width, 3)
     return np.clip(out / white_level, 0.0, 1.0)
 
@@ -386,7 +390,8 @@ def fit_flat_roughness(cbtf: CompressedBTF) -> tuple[float, float]:
     apparent BRDF (non-negative least squares per roughness on a grid)."""
     mean_c = np.stack([st.values().reshape(-1, 3).mean(axis=0) for st in cbtf.coefficients])   # (k, 3)
     mean_c = mean_c @ np.asarray(cbtf.color_matrix).T
-    brdf = (cbtf.basis_values().astype(np.float64) @ mean_c).mean(axis=1)                    # (S,) grey
+    # In a curve's domain the inverse of the mean texel's values (close to the mean apparent BRDF).
+    brdf = cbtf.domain.inverse(cbtf.basis_values().astype(np.float64) @ mean_c).astype(np.float64).mean(axis=1)
     view, light = to_vectors(cbtf.sampling.view), to_vectors(cbtf.sampling.light)
     keep = (cbtf.sampling.view[:, 0] <= 70) & (cbtf.sampling.light[:, 0] <= 75)
     if keep.sum() < 3:

@@ -320,17 +320,28 @@ def _pebbles(size: int, seed: int) -> Material:
     height = amp * stone_amp[ident] * dome * (0.7 + 0.3 * bulge)
     height += amp * (0.05 * grain * dome + 0.06 * soil * (1.0 - dome))
 
-    grey = np.array([0.95, 0.95, 0.95])
-    brown = np.array([1.08, 0.90, 0.68])
-    tint = stone_tint[ident][..., None]
-    stone_col = stone_lum[ident][..., None] * ((1.0 - tint) * grey + tint * brown)
+    stone_col = _tinted(stone_lum[ident], stone_tint[ident], np.array([0.95, 0.95, 0.95]), np.array([1.08, 0.90, 0.68]))
     stone_col = stone_col * (1.0 + 0.12 * mottle[..., None]) * (0.75 + 0.25 * dome[..., None])
     soil_col = np.array([0.09, 0.07, 0.05]) * (1.0 + 0.2 * soil[..., None])
     m = np.clip(dome * 3.0, 0.0, 1.0)[..., None]
-    albedo = soil_col * (1.0 - m) + stone_col * m
-    specular = 0.02 + 0.02 * m[..., 0]
-    roughness = 0.8 * (1.0 - m[..., 0]) + stone_alpha[ident] * m[..., 0]
+    albedo, specular, roughness = _stones_over_gaps(stone_col, soil_col, m, stone_alpha[ident], 0.02)
     return _pack("pebbles", n, height, albedo, specular, roughness, 0.0)
+
+
+def _tinted(lum: np.ndarray, tint: np.ndarray, cool, warm) -> np.ndarray:
+    """(n, n, 3) colours of luminance ``lum`` (n, n) between a ``cool`` and a ``warm`` RGB,
+    ``tint`` (n, n) in [0, 1] the warm share."""
+    t = tint[..., None]
+    return lum[..., None] * ((1.0 - t) * cool + t * warm)
+
+
+def _stones_over_gaps(stone_col, gap_col, m, stone_alpha, spec_gain):
+    """Albedo (n, n, 3), F0 and GGX alpha (n, n) of stones (weight ``m`` (n, n, 1)) over a
+    matte filling (alpha 0.8) between them; F0 rises from 0.02 by ``spec_gain`` on stone."""
+    albedo = gap_col * (1.0 - m) + stone_col * m
+    specular = 0.02 + spec_gain * m[..., 0]
+    roughness = 0.8 * (1.0 - m[..., 0]) + stone_alpha * m[..., 0]
+    return albedo, specular, roughness
 
 
 _DYES = np.array(
@@ -463,16 +474,10 @@ def _crevice_stones(size: int, seed: int) -> Material:
     floor = -0.05 * amp + 0.03 * amp * grit
     height = floor + (top - floor) * flank
 
-    grey = np.array([0.95, 0.95, 0.93])
-    buff = np.array([1.06, 0.95, 0.80])
-    tint = stone_tint[ident][..., None]
-    stone_col = stone_lum[ident][..., None] * ((1.0 - tint) * grey + tint * buff)
+    stone_col = _tinted(stone_lum[ident], stone_tint[ident], np.array([0.95, 0.95, 0.93]), np.array([1.06, 0.95, 0.80]))
     stone_col = stone_col * (1.0 + 0.1 * mottle[..., None])
     grit_col = np.array([0.12, 0.10, 0.085]) * (1.0 + 0.25 * grit[..., None])
-    m = flank[..., None] ** 2
-    albedo = grit_col * (1.0 - m) + stone_col * m
-    specular = 0.02 + 0.015 * m[..., 0]
-    roughness = 0.8 * (1.0 - m[..., 0]) + stone_alpha[ident] * m[..., 0]
+    albedo, specular, roughness = _stones_over_gaps(stone_col, grit_col, flank[..., None] ** 2, stone_alpha[ident], 0.015)
     return _pack("crevice_stones", n, height, albedo, specular, roughness, 0.0)
 
 

@@ -96,3 +96,20 @@ def blend_rows(rows: np.ndarray, idx: np.ndarray, w: np.ndarray) -> np.ndarray:
     """(Q, ...) weighted sums of ``rows[idx]``: rows (S, ...), idx and w (Q, n)."""
     picked = rows[idx]                                                       # (Q, n, ...)
     return np.einsum("qn,qn...->q...", w.astype(rows.dtype), picked)
+
+
+def blend_compressed(cbtf, coefficients: np.ndarray, idx: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(Q, H, W, 3) working-space predictions of a compressed BTF from its rows ``idx`` (Q, n)
+    with weights ``w`` (Q, n): rows blended in the working domain with the weights
+    normalised to sum 1, the inverse curve, then the weights' sum (the light's
+    foreshortening, a radiance factor) as a gain.  In a linear domain this is exactly
+    ``blend_rows`` dotted with the coefficients."""
+    from ..compress.format import reconstruct_rows
+
+    rows = cbtf.basis_values(coefficients.shape[0])
+    if cbtf.domain.is_linear:
+        return reconstruct_rows(cbtf, blend_rows(rows, idx, w), coefficients)
+    total = w.sum(axis=1)
+    norm = np.where(total != 0, total, 1.0)
+    out = reconstruct_rows(cbtf, blend_rows(rows, idx, w / norm[:, None]), coefficients)
+    return out * total.astype(np.float32)[:, None, None, None]

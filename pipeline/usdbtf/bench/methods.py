@@ -61,9 +61,8 @@ class CompressedReconstruction(Reconstruction):
         return reconstruct(self.cbtf, np.asarray(positions), coefficients=self.coeff)
 
     def blend(self, idx, w) -> np.ndarray:
-        c = self.cbtf
-        rows = blend_rows(c.basis_values(), idx, w)                             # (q, k)
-        return (rows @ self.coeff.reshape(c.k, -1)).reshape(len(rows), c.height, c.width, 3)
+        from .heldout import blend_compressed
+        return blend_compressed(self.cbtf, self.coeff, idx, w)
 
 
 class ManifestReconstruction(Reconstruction):

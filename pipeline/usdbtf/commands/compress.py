@@ -28,7 +28,8 @@ def run(args) -> int:
                           codec=args.codec, seed=args.seed, fit_texels=args.fit_texels,
                           power_iterations=args.power_iterations, region=args.region, workers=args.workers,
                           memory_budget=args.memory_budget * 1e9, expand_factors=args.expand_factors,
-                          factor_rows=args.factor_rows, dask=args.dask, progress=not args.quiet)
+                          factor_rows=args.factor_rows, dask=args.dask, progress=not args.quiet,
+                          domain=args.domain, error_domain=args.error_domain)
     extra = {key: v for key, v in btf.metadata.items() if not key.startswith("_")}
     opts.extra = {"source_metadata": extra} if extra else {}
     result = compress(btf, opts)

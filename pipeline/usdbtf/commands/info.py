@@ -46,6 +46,7 @@ def compressed_text(s: dict) -> str:
     lines = [f"{s['path']}: compressed BTF ({s['solver'] or '?'} solver, {s['codec']} codec)",
              f"  samples     {s['samples']}  ({s['width']}x{s['height']} texels)",
              f"  k           {s['k']}",
+             f"  domain      {_domain_text(s.get('domain') or {'curve': 'linear'})}",
              f"  bytes       payload {b.get('payload', '?')} (basis {b.get('basis', '?')}, coefficients "
              f"{b.get('coefficients', '?')}), metadata {b['metadata']}, folder {b['folder']}"]
     if est:
@@ -54,6 +55,12 @@ def compressed_text(s: dict) -> str:
     lines.append(f"  colour      working {s['working_space']}; source {s['source']['color_space']} "
                  f"{s['source']['bit_depth']}")
     return "\n".join(lines)
+
+
+def _domain_text(d: dict) -> str:
+    """``{"curve": "power", "gamma": 1.6}`` -> "x^(1/1.6) (fitted and quantised on it; inverse after the dot product)"."""
+    curve = {"linear": "linear", "srgb": "sRGB curve"}.get(d["curve"]) or f"x^(1/{d.get('gamma', 1):g})"
+    return curve if d["curve"] == "linear" else f"{curve} (fitted and quantised on it; readers invert it)"
 
 
 def describe_btf(path, btf, summary: dict | None = None) -> list[str]:

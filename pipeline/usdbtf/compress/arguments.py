@@ -7,14 +7,14 @@ from pathlib import Path
 
 from ..argtypes import SEED, WORKERS, add_outside_paths_flag, float_in, int_in
 from ..cluster import ADDRESS_HELP, parse_address
-from .options import CODEC_NAMES, DEFAULT_CODEC, SOLVERS
+from .options import CODEC_NAMES, DEFAULT_CODEC, ERROR_DOMAINS, SOLVERS
 
 __all__ = ["SCENE_OPTIONS", "add_arguments"]
 
 #: Options a scene's ``btf:build:options`` may give (``usdbtf build``): everything that
 #: steers the result, nothing that names files or changes how the command runs.
 SCENE_OPTIONS = ("solver", "k", "target_error", "max_bytes", "codec", "seed", "fit_texels", "power_iterations",
-                 "region", "memory_budget")
+                 "region", "memory_budget", "domain", "error_domain")
 
 
 def add_arguments(p) -> None:
@@ -22,14 +22,29 @@ def add_arguments(p) -> None:
     p.add_argument("input", type=Path, help="manifest folder, btf.json, UBO2003/UTIA/ATRIUM zip or folder, or "
                    "Bonn .btf file (UBO2014)")
     p.add_argument("-o", "--output", required=True, type=Path)
-    p.add_argument("--solver", default="rsvd", choices=SOLVERS, help="rsvd (default) or paper (the 2003 method)")
+    p.add_argument("--solver", default="rsvd", choices=SOLVERS,
+                   help="rsvd (default) or paper: the 2003 method as the paper ran it (exact SVD of the central "
+                        "quarter-width square, k = 150, 8-bit min-max JPEG coefficients and basis) on the input's "
+                        "encoded values (with --domain auto: the input's encoding curve, sRGB for 8-bit sRGB files)")
     p.add_argument("--k", type=int_in(1, 300), help="number of basis vectors, 1..300 (maximum when a target is "
                    "given; default 150)")
     p.add_argument("--target-error", type=float_in(0, 100, lo_open=True), metavar="PCT",
-                   help="percent error to reach (scene-linear)")
+                   help="percent error to reach (the paper's metric, 100 sum|x - x'| / sum x, on held-out texels; "
+                        "see --error-domain)")
+    p.add_argument("--error-domain", choices=ERROR_DOMAINS, default="encoded",
+                   help="what --target-error is measured on: encoded (default: the values in the input's files, "
+                        "e.g. the 8-bit sRGB codes -- what a user comparing images sees; for float files the same "
+                        "as their linear values) or linear (scene-linear working space)")
     p.add_argument("--max-bytes", type=int_in(1), metavar="B", help="byte budget for basis + coefficient textures")
     p.add_argument("--codec", choices=sorted(CODEC_NAMES), help=f"texture storage (default {DEFAULT_CODEC['rsvd']}; "
                    f"paper solver: {DEFAULT_CODEC['paper']})")
+    p.add_argument("--domain", type=_domain, default="auto", metavar="auto|linear|srgb|gamma:G",
+                   help="working-domain curve the basis is fitted and quantised in; every reader applies its "
+                        "inverse after the dot product.  auto (default): chosen per material from x^(1/1.6), "
+                        "x^(1/2.2) and the sRGB curve by the unquantised held-out error of each one's basis, "
+                        "encoded and scene-linear together (rsvd); the input's own encoding curve for --solver "
+                        "paper (sRGB for 8-bit sRGB files: the paper fitted the camera's values); linear for a "
+                        "factorised input.  gamma:G is x^(1/G), G in 1..4")
     p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--fit-texels", type=int_in(1, 1 << 26), help="rsvd: texels sampled to fit the basis "
                    "(default 2048; 4096 with --max-bytes or --target-error)")
@@ -50,3 +65,17 @@ def add_arguments(p) -> None:
     add_outside_paths_flag(p)
 
 
+
+
+def _domain(text: str) -> str:
+    """argparse type of ``--domain``: the canonical name (auto, linear, srgb, gamma:G)."""
+    import argparse
+
+    from ..errors import UsageError
+    from .domain import parse_domain
+
+    try:
+        dom = parse_domain(text)
+    except UsageError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("--domain: ")) from None
+    return "auto" if dom is None else dom.name

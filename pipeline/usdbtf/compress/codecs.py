@@ -6,8 +6,13 @@ renderer (or UsdUVTexture's scale/bias) can undo it.
 
 Codecs
 ------
-``jxl``   (default) uniform-step integers, lossless JPEG XL: within ~15% of the
-          entropy of the quantised symbols, which is where the bytes go.
+``jxlp``  (default) uniform-step integers, lossless JPEG XL at effort 7, each coefficient
+          texture **planar**: one single-channel H x 3W image, the three decorrelated colour
+          planes side by side (JPEG XL's 3-channel lossless path models the very unequal
+          decorrelated channels badly: planar files are 20-25 % smaller, effort 7 ~9 % more;
+          issue 16's research, ``benchmarks/research/``).  Readers see (H, W, 3) as ever.
+``jxl``   the same integers as one RGB JPEG XL per texture at effort 2 (the default before
+          issue 16): within ~15% of the entropy of the quantised symbols.
 ``png``   the same integers, lossless PNG: larger, readable everywhere.
 ``exr``   half floats with a power-of-two scale per channel, ZIP: no quantisation beyond
           half precision (11 significant bits), any magnitude float32 holds.
@@ -27,7 +32,7 @@ from ..imageio import encode_image, memory_file, read_image
 from .options import CODEC_NAMES
 
 __all__ = ["Codec", "CODECS", "get_codec", "Stored", "quantize_uniform", "quantize_minmax", "quantize_half",
-           "memory_file"]
+           "memory_file", "to_planar"]
 
 
 @dataclass(frozen=True)
@@ -101,6 +106,7 @@ class Codec:
     basis_ext: str
     basis_attributes: dict
     lossless: bool
+    planar: bool = False         # coefficient textures as one H x 3W single-channel image
 
     def encode(self, stored: Stored, color_space: str, *, basis: bool = False) -> bytes:
         """The file's bytes for ``stored.pixels``, encoded in memory (no file is created).
@@ -110,11 +116,12 @@ class Codec:
         """
         attrs = self.basis_attributes if basis else self.attributes
         ext = self.basis_ext if basis else self.ext
-        data = encode_image(stored.pixels, ext, color_space=color_space, attributes=attrs)
-        if self.name == "jxl" and len(data) < _JXL_MIN_READABLE:
+        pixels = stored.pixels if basis or not self.planar else to_planar(stored.pixels)
+        data = encode_image(pixels, ext, color_space=color_space, attributes=attrs)
+        if ext == "jxl" and len(data) < _JXL_MIN_READABLE:
             # OpenImageIO's JPEG XL reader needs 128 bytes to recognise a file; a constant
             # texture compresses below that.  A description box (useful anyway) pads it.
-            data = encode_image(stored.pixels, ext, color_space=color_space,
+            data = encode_image(pixels, ext, color_space=color_space,
                                 attributes=dict(attrs, ImageDescription=_DESCRIPTION))
         return data
 
@@ -135,10 +142,22 @@ class Codec:
         """The same format at its quickest lossless setting (JPEG XL effort 1: ~12x faster
         than effort 2 for ~10 % more bytes on 1024^2 textures); other codecs unchanged.
         For large outputs where encode time dominates, e.g. quilted atlases."""
-        if self.name != "jxl":
+        if self.ext != "jxl":
             return self
-        return Codec(self.name, self.ext, dict(self.attributes, **{"jpegxl:effort": 1}), self.basis_ext,
-                     self.basis_attributes, self.lossless)
+        # Planar (single-channel) files at effort 1 do not decode (libjxl, measured with OIIO
+        # 3.2): effort 2 for them.
+        effort = 2 if self.planar else 1
+        return Codec(self.name, self.ext, dict(self.attributes, **{"jpegxl:effort": effort}), self.basis_ext,
+                     self.basis_attributes, self.lossless, self.planar)
+
+    def texture(self, pixels: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+        """A coefficient texture as read from its file -> (H, W, 3) (planar files unpacked)."""
+        if not self.planar:
+            return pixels
+        H, W = shape
+        if pixels.shape[:2] != (H, 3 * W):
+            return pixels                  # the caller's shape check names the file
+        return np.ascontiguousarray(pixels[:, :, 0].reshape(H, 3, W).transpose(0, 2, 1))
 
     @staticmethod
     def read(path: Path, channels: int | None = None) -> np.ndarray:
@@ -149,13 +168,16 @@ class Codec:
         return pixels
 
 
-# Effort 2 for the many coefficient textures (effort 7 saves ~13 % at 10x the time);
-# effort 3 for the single basis image, where it saves ~8 % for 0.1 s.
+# jxl: effort 2 for the many coefficient textures (effort 7 saves ~13 % at 10x the time);
+# effort 3 for the single basis image, where it saves ~8 % for 0.1 s.  jxlp: effort 7 for
+# both (at the paper's bytes the bytes buy components: the issue 16 research measured it).
 _JXL = {"jpegxl:distance": 0.0, "jpegxl:effort": 2}
+_JXL7 = {"jpegxl:distance": 0.0, "jpegxl:effort": 7}
 _JXL_MIN_READABLE = 128
 _DESCRIPTION = ("usdbtf compressed-BTF texture: integer codes; value = code * scale + bias, "
                 "scale and bias per channel in btf-compressed.json")
 CODECS = {
+    "jxlp": Codec("jxlp", "jxl", _JXL7, "jxl", _JXL7, True, planar=True),
     "jxl": Codec("jxl", "jxl", _JXL, "jxl", dict(_JXL, **{"jpegxl:effort": 3}), True),
     "png": Codec("png", "png", {"png:compressionLevel": 6}, "png", {"png:compressionLevel": 6}, True),
     "exr": Codec("exr", "exr", {"compression": "zip"}, "exr", {"compression": "zip"}, True),
@@ -165,6 +187,11 @@ CODECS = {
 
 if tuple(CODECS) != CODEC_NAMES:
     raise ImportError(f"usdbtf.compress.codecs: CODECS {tuple(CODECS)} differ from options.CODEC_NAMES {CODEC_NAMES}")
+
+
+def to_planar(pixels: np.ndarray) -> np.ndarray:
+    """(H, W, 3) -> (H, 3W, 1): the three channels side by side (``jxlp``'s file layout)."""
+    return np.ascontiguousarray(np.concatenate([pixels[:, :, c] for c in range(pixels.shape[2])], axis=1)[:, :, None])
 
 
 def get_codec(name: str) -> Codec:

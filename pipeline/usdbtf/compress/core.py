@@ -30,6 +30,7 @@ from ..outputs import COMPRESSED as COMPRESSED_KIND
 from .curve import write_curve
 from .decorrelate import colour_decorrelation, rotate_colour
 from .evaluate import error_curve, held_out_error, held_out_set
+from .domain_choice import choose_domain
 from .fit import HDR_NORM_RANGE, fit_source, require_signal, sampled_coefficients
 from .format import CompressedBTF, write_metadata, write_textures
 from .options import CompressOptions
@@ -69,15 +70,18 @@ def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
     with one_blas_thread(), load_source(btf, texels, opts) as source:
         log.info(f"loaded {btf.n_samples} samples of {btf.width}x{btf.height} ({source.kind}, {source.nbytes / 2**20:.0f} MiB) "
             f"in {clock.lap('load'):.2f} s")
-        # The held-out truth is read while the basis is fitted (independent steps, one
+        # The working domain first (auto fits each candidate; the winner's fit is kept), then
+        # the held-out truth is read while the basis is fitted (independent steps, one
         # thread each: the fit's serial parts leave a core free).
-        fit, held = _side_by_side(lambda: fit_source(source, texels.fit, opts.fit_k(btf.n_samples, btf.n_pixels),
-                                                     opts),
+        k_fit = opts.fit_k(btf.n_samples, btf.n_pixels)
+        domain, chosen, scores = choose_domain(source, texels, k_fit, opts)
+        fit, held = _side_by_side(lambda: chosen or fit_source(source, texels.fit, k_fit, opts),
                                   lambda: held_out_set(source, texels))
         if fit.weighted:
             log.info(f"texel norms span more than {HDR_NORM_RANGE:g}: basis fitted with weights ||x_t||^-1/2")
         require_signal(fit, btf, texels, opts)
-        log.info(f"basis: {fit.k} vectors from {len(texels.fit)} texels ({opts.solver}) in {clock.lap('fit'):.2f} s")
+        log.info(f"basis: {fit.k} vectors from {len(texels.fit)} texels ({opts.solver}, {domain.name} domain) "
+                 f"in {clock.lap('fit'):.2f} s")
         # Colour and (for a plain k) the quantisation step, from the sampled texels' coefficients,
         # before the projection: then the projection can skip what the step would zero out.
         sampled, outside = sampled_coefficients(fit, source.to_working, held.truth, btf.n_pixels)
@@ -89,7 +93,10 @@ def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
         clock.lap("project")
         if energy is None:   # not measured: the coefficients' energy plus the estimate outside the basis
             energy = float(np.einsum("kpc,kpc->", coeff, coeff, dtype=np.float64)) + outside
-        cbtf, choice = rate_control(Factorisation(btf, fit.basis, coeff, colour, energy, planes, step), opts, held)
+        cbtf, choice = rate_control(Factorisation(btf, fit.basis, coeff, colour, energy, planes, step, domain),
+                                    opts, held)
+        if scores is not None:
+            choice["domain_scores"] = scores
         clock.lap("encode")
         result = _described(cbtf, opts, dict(choice, planes=list(planes)), fit.singular_values, held,
                             *_side_by_side(lambda: held_out_error(cbtf, held), lambda: error_curve(cbtf, source)),
@@ -139,7 +146,8 @@ def _described(cbtf: CompressedBTF, opts: CompressOptions, choice: dict, singula
         "solver": opts.solver,
         "choice": choice,
         "singular_values": [float(s) for s in singular_values],
-        "estimated_error": {"linear": sums.report(), "texels": int(len(held.texels)),
+        "estimated_error": {"linear": sums.report(), "encoded": held_out_error(cbtf, held, domain="encoded").report(),
+                            "texels": int(len(held.texels)),
                             "note": ("held-out texels (not used in the fit)" if held.disjoint else
                                      "all texels (the image is smaller than the fitting sample: in-sample)")
                             + ", all samples, working space"},

@@ -36,7 +36,8 @@ def error_curve(cbtf, data, *, texels_per_block: int = 16384) -> dict:
     Parameters
     ----------
     cbtf : the stored representation.
-    data : the source (``working_samples(rows)`` -> (r, P, 3) working-space truth).
+    data : the source (``working_samples(rows)`` -> (r, P, 3) truth in the working domain;
+        the error is measured after ``cbtf.domain``'s inverse curve, in scene-linear).
     texels_per_block : texels decoded from the coefficient textures at a time.
 
     Returns
@@ -45,9 +46,10 @@ def error_curve(cbtf, data, *, texels_per_block: int = 16384) -> dict:
     units), "samples" (the sample indices measured).
     """
     rows = curve_samples(cbtf.n_samples)
-    truth = data.working_samples(rows)                                   # (r, P, 3)
+    truth = data.working_samples(rows)                                   # (r, P, 3), working domain
     basis = cbtf.basis_values()[rows]                                    # (r, k)
-    total = float(truth.sum(dtype=np.float64))
+    dom = cbtf.domain
+    total = float(dom.inverse(truth).sum(dtype=np.float64))
     ks = curve_ks(cbtf.k)
     sums = [ErrorSums() for _ in ks]
     P = cbtf.width * cbtf.height
@@ -57,10 +59,14 @@ def error_curve(cbtf, data, *, texels_per_block: int = 16384) -> dict:
         coeff = working_coefficient_texels(cbtf, slice(t0, t1)).reshape(cbtf.k, -1)   # (k, 3 n)
         residual = np.array(truth[:, t0:t1].reshape(len(rows), -1))                    # (r, 3 n)
         done = 0
+        truth_lin = None if dom.is_linear else dom.inverse(truth[:, t0:t1].reshape(len(rows), -1))
         for k, acc in zip(ks, sums):
             residual -= basis[:, done:k] @ coeff[done:k]
             done = k
-            acc.add_difference(residual.reshape(-1))
+            if truth_lin is None:
+                acc.add_difference(residual.reshape(-1))
+            else:   # the error is scene-linear: truth - inverse(domain truth - domain residual)
+                acc.add(truth_lin, dom.inverse(truth[:, t0:t1].reshape(len(rows), -1) - residual))
     count = truth.size
     pct = [100.0 * acc.abs_err / total if total > 0 else float("nan") for acc in sums]
     rmse = [float(np.sqrt(acc.sq_err / count)) for acc in sums]

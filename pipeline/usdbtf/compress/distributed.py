@@ -98,11 +98,14 @@ def first_pass_task(job: _Job, a: int, b: int, keep_texels: list, keep_rows: np.
 
 
 def project_task(job: _Job, plan: WorkPlan, u: np.ndarray, mix: np.ndarray, ks, energy: bool, shard: tuple,
-                 blocks: list) -> ShardSums:
+                 blocks: list, domain=None) -> ShardSums:
     """One shard's sums over one group of blocks: its tiles in sample order, each decoded
-    only over the image rows that hold the group's texels."""
+    only over the image rows that hold the group's texels (in the working ``domain``)."""
     btf = job.checked(f"samples {shard[0]}..{shard[1]}")
-    proj = TileProjector(u, mix, ks, _Source(btf).curves, plan.tile, energy=energy)
+    decode = _Source(btf)
+    if domain is not None:
+        decode.set_domain(domain)
+    proj = TileProjector(u, mix, ks, decode.curves, plan.tile, energy=energy)
     first, end = blocks[0][0], blocks[-1][1]
     y0, y1 = first // btf.width, -(-end // btf.width)
     rows = None if (y0, y1) == (0, btf.height) else (y0, y1)
@@ -219,7 +222,7 @@ class DaskSource(_KeptSource):
             blocks, n = item
             key = f"usdbtf-project-{n}-{blocks[0][0]}-{tag}"
             pending.append((n, self.client.submit(project_task, self._job, self.plan, u_remote, proj.mix, proj.ks,
-                                                  energy, shards[n], blocks, pure=False, key=key)))
+                                                  energy, shards[n], blocks, self.domain, pure=False, key=key)))
             return True
 
         for _ in range(self.in_flight):

@@ -27,13 +27,21 @@ class HeldOut:
     Attributes
     ----------
     texels : (n,) int, sorted texel indices.
-    truth : (S, n, 3) float32 working-space values there (scene-linear).
+    truth : (S, n, 3) float32 values there in the compress's working domain (scene-linear
+        working space when the domain is linear; :func:`held_out_error` measures in
+        scene-linear either way).
     disjoint : True when none of them was used in the fit (an out-of-sample estimate).
     """
 
     texels: np.ndarray
     truth: np.ndarray
     disjoint: bool
+    encode: object = None
+
+    def encoded(self, linear: np.ndarray) -> np.ndarray:
+        """Scene-linear working-space values -> the input file's values, normalised to [0, 1]
+        for integer files (clipped and rounded the way a file of that depth holds them)."""
+        return self.encode(linear)
 
 
 def held_out_set(source, texels: Texels) -> HeldOut:
@@ -51,10 +59,21 @@ def held_out_set(source, texels: Texels) -> HeldOut:
     """
     ev = texels.evaluation
     truth = source.to_working(source.columns(ev)).reshape(source.btf.n_samples, len(ev), 3)
-    return HeldOut(ev, truth, texels.held_out)
+    return HeldOut(ev, truth, texels.held_out, file_encoder(source.btf))
 
 
-def held_out_error(cbtf: CompressedBTF, held: HeldOut, k: int | None = None) -> ErrorSums:
+def file_encoder(btf):
+    """callable(working-space float (..., 3)) -> ``btf``'s file values as float32, normalised
+    to [0, 1] for integer depths: what "error on the encoded values" compares."""
+    from .. import colour
+    from ..manifest import encode_for_file
+
+    to_file = colour.processor(btf.working_space, btf.color_space, btf.ocio_config)
+    top = np.float32({"uint8": 255.0, "uint16": 65535.0}.get(btf.bit_depth, 1.0))
+    return lambda lin: encode_for_file(lin, to_file, btf.bit_depth).astype(np.float32) / top
+
+
+def held_out_error(cbtf: CompressedBTF, held: HeldOut, k: int | None = None, domain: str = "linear") -> ErrorSums:
     """Error of the stored representation, cut to its first ``k`` components, on the held-out
     texels over all samples.
 
@@ -63,6 +82,8 @@ def held_out_error(cbtf: CompressedBTF, held: HeldOut, k: int | None = None) -> 
     cbtf : the stored representation (what a reader of its files gets).
     held : texels and their working-space truth (S, n, 3).
     k : components used (default all).
+    domain : "linear" (scene-linear working space) or "encoded" (the input file's values,
+        the reconstruction encoded as a file would hold it).
 
     Returns
     -------
@@ -72,5 +93,9 @@ def held_out_error(cbtf: CompressedBTF, held: HeldOut, k: int | None = None) -> 
     coeff = working_coefficient_texels(cbtf, held.texels, k)                     # (k, n, 3)
     rec = rows_gemm(cbtf.basis_values(k), coeff.reshape(k, -1)).reshape(held.truth.shape)
     sums = ErrorSums()
-    sums.add(held.truth, rec)
+    dom = cbtf.domain
+    truth, rec = dom.inverse(held.truth), dom.inverse(rec)        # scene-linear, whatever the domain
+    if domain == "encoded":
+        truth, rec = held.encoded(truth), held.encoded(rec)
+    sums.add(truth, rec)
     return sums

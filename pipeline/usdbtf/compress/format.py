@@ -12,17 +12,24 @@ Folder layout (``btf-compressed/1``)::
                                          ``grid`` = [rows, cols]; unused tiles are zero.  Neighbouring
                                          lights and views sit side by side, which the codec's
                                          predictor exploits (-24 % bytes vs columns on paper data).
-    coeff/c000.<ext> ...    one H x W x 3 texture per basis vector, energy order (c000 first)
+    coeff/c000.<ext> ...    one H x W x 3 texture per basis vector, energy order (c000 first);
+                            codec ``jxlp``: one H x 3W single-channel image each, the
+                            three channels side by side (planar, :mod:`.codecs`)
     error_curve.csv/.png    percent error vs k (diagnostics, not counted in the stored bytes)
 
 Reconstruction (equation 2 of Koudelka et al. 2003, with a colour matrix)::
 
     U[s, i]    = basis[s, i] * basis_scale[i] + basis_bias[i]
     c_i(x, y)  = coeff_i[y, x, :] * coeff_scale[i, :] + coeff_bias[i, :]
-    I_s(x, y)  = color_matrix @ sum_i U[s, i] * c_i(x, y)          (working space, linear)
+    d_s(x, y)  = color_matrix @ sum_i U[s, i] * c_i(x, y)          (working domain)
+    I_s(x, y)  = domain.inverse(d_s(x, y)), per channel            (working space, linear)
 
 ``color_matrix`` is the 3x3 that takes the stored (decorrelated) coefficient
-channels to working-space RGB: identity for the paper solver.
+channels to working-space RGB: identity for the paper solver.  ``domain`` (format
+``btf-compressed/1.1``) is the working-domain curve the basis was fitted in
+(:mod:`.domain`): ``{"curve": "power", "gamma": G}`` (inverse d^G) or ``{"curve": "srgb"}``
+(the sRGB decoding curve), negative d clamped to 0 first.  Without it (``btf-compressed/1``)
+the domain is linear and I = d.  Interpolated directions blend basis rows before the curve.
 """
 from __future__ import annotations
 
@@ -36,14 +43,18 @@ from .. import __version__, jsontext
 from ..errors import BTFError
 from ..sampling import Sampling
 from .codecs import Codec, Stored, get_codec
+from .domain import LINEAR, Domain
 from .parallel import in_threads
 
 __all__ = ["FORMAT", "METADATA", "CompressedBTF", "EncodedTextures", "write_textures", "write_metadata",
-           "metadata_document", "metadata_text", "read_compressed", "reconstruct", "working_coefficients",
+           "metadata_document", "metadata_text", "read_compressed", "reconstruct", "reconstruct_rows",
+           "working_coefficients", "FORMAT_DOMAIN",
            "working_coefficient_texels", "folder_bytes", "basis_layout", "encode_basis", "decode_basis",
            "encoded_textures", "basis_to_image", "image_to_basis", "cross_layout", "truncate", "write_basis"]
 
 FORMAT = "btf-compressed/1"
+#: The format of a folder with a non-linear working domain (older readers refuse it).
+FORMAT_DOMAIN = "btf-compressed/1.1"
 METADATA = "btf-compressed.json"
 
 
@@ -99,6 +110,8 @@ class CompressedBTF:
         else None (a writer then encodes them).
     curve : the error curve (:func:`.curve.error_curve`) ``compress`` measured, written beside
         the textures; None when not measured (e.g. a folder that was read).
+    domain : the working-domain curve (:mod:`.domain`); every reconstruction applies its
+        inverse after the dot product and the colour matrix.
     """
 
     sampling: Sampling
@@ -115,6 +128,7 @@ class CompressedBTF:
     info: dict = field(default_factory=dict)
     encoded: EncodedTextures | None = None
     curve: dict | None = None
+    domain: Domain = LINEAR
 
     @property
     def k(self) -> int:
@@ -144,15 +158,23 @@ def reconstruct(cbtf: CompressedBTF, indices=slice(None), *, k: int | None = Non
                 coefficients: np.ndarray | None = None) -> np.ndarray:
     """Working-space images of samples ``indices`` from the first ``k`` basis vectors.
 
-    Returns (n, H, W, 3) float32.  ``coefficients`` (k, H, W, 3), from
-    :func:`working_coefficients`, may be passed to avoid recomputing them per chunk.
+    Returns (n, H, W, 3) float32, scene-linear (the domain's inverse curve applied after the
+    dot product).  ``coefficients`` (k, H, W, 3), from :func:`working_coefficients`, may be
+    passed to avoid recomputing them per chunk.
     """
     k = cbtf.k if k is None else min(k, cbtf.k)
     idx = np.atleast_1d(np.arange(cbtf.n_samples)[indices])
+    return reconstruct_rows(cbtf, cbtf.basis_values(k)[idx], coefficients)
+
+
+def reconstruct_rows(cbtf: CompressedBTF, rows: np.ndarray, coefficients: np.ndarray | None = None) -> np.ndarray:
+    """Working-space images (n, H, W, 3) float32 for basis rows ``rows`` (n, k) -- measured
+    rows or rows blended for an interpolated direction (blended in the domain, before the
+    curve): ``domain.inverse(rows . c)``."""
+    k = rows.shape[1]
     coeff = working_coefficients(cbtf, k) if coefficients is None else coefficients[:k]
-    rows = cbtf.basis_values(k)[idx]                                  # (n, k)
-    flat = rows @ coeff.reshape(k, -1)                                # (n, H*W*3)
-    return flat.reshape(len(idx), cbtf.height, cbtf.width, 3)
+    flat = np.asarray(rows, np.float32) @ coeff.reshape(k, -1)       # (n, H*W*3)
+    return cbtf.domain.inverse(flat).reshape(len(rows), cbtf.height, cbtf.width, 3)
 
 
 def working_coefficients(cbtf: CompressedBTF, k: int | None = None) -> np.ndarray:
@@ -304,7 +326,7 @@ def metadata_document(cbtf: CompressedBTF) -> dict:
     """The JSON document describing ``cbtf`` (file names follow :func:`write_textures`)."""
     codec = get_codec(cbtf.codec)
     doc = {
-        "format": FORMAT,
+        "format": FORMAT if cbtf.domain.is_linear else FORMAT_DOMAIN,
         "usdbtf_version": __version__,
         "width": cbtf.width, "height": cbtf.height, "k": cbtf.k, "n_samples": cbtf.n_samples,
         "codec": cbtf.codec,
@@ -312,6 +334,7 @@ def metadata_document(cbtf: CompressedBTF) -> dict:
         "ocio_config": cbtf.ocio_config,
         "source": cbtf.source,
         "color_matrix": [_floats(r) for r in cbtf.color_matrix],
+        **({} if cbtf.domain.is_linear else {"domain": cbtf.domain.metadata()}),
         "basis": {"file": basis_file(codec), "scale": _floats(cbtf.basis.scale),
                   "bias": _floats(cbtf.basis.bias), "bit_depth": str(cbtf.basis.pixels.dtype),
                   "layout": basis_layout(cbtf.sampling, cbtf.k, cbtf.codec)},
@@ -355,10 +378,12 @@ def write_metadata(cbtf: CompressedBTF, folder: Path, sizes: dict | None = None)
     return len(text.encode())
 
 
-def _read_texture(entry, shape: tuple[int, int], channels: int | None = None) -> np.ndarray:
+def _read_texture(entry, shape: tuple[int, int], channels: int | None = None, codec: Codec | None = None) -> np.ndarray:
     """A stored texture's pixels, checked against the expected (height, width) and for
-    non-finite half floats."""
+    non-finite half floats (a planar codec's file unpacked to (H, W, 3) first)."""
     px = Codec.read(entry.file, channels=channels)
+    if codec is not None:
+        px = codec.texture(px, shape)
     if px.shape[:2] != shape:
         raise BTFError(f"{entry.file}: texture is {px.shape[1]}x{px.shape[0]}, expected {shape[1]}x{shape[0]}")
     if px.dtype.kind == "f" and not np.isfinite(px).all():
@@ -390,9 +415,11 @@ def read_compressed(folder) -> CompressedBTF:
     if image.dtype.kind == "f" and not np.isfinite(image).all():
         raise BTFError(f"{meta.basis.file}: stored values include NaN or Inf")
     basis = Stored(image_to_basis(image, layout, k), meta.basis.scale, meta.basis.bias)
-    coeffs = [Stored(_read_texture(e, (meta.height, meta.width)), e.scale, e.bias) for e in meta.coefficients]
+    coeffs = [Stored(_read_texture(e, (meta.height, meta.width), codec=meta.codec), e.scale, e.bias)
+              for e in meta.coefficients]
     return CompressedBTF(meta.sampling, meta.width, meta.height, basis, coeffs, meta.color_matrix, meta.codec.name,
-                         meta.working_space, meta.source, meta.interpolated, meta.ocio_config, meta.info)
+                         meta.working_space, meta.source, meta.interpolated, meta.ocio_config, meta.info,
+                         domain=meta.domain)
 
 
 def folder_bytes(folder) -> int:

@@ -13,6 +13,7 @@ import numpy as np
 from .. import colour
 from ..model import BTF
 from .codecs import Stored, quantize_half, quantize_minmax, quantize_uniform
+from .domain import LINEAR, Domain
 from .format import CompressedBTF
 from .options import CompressOptions
 from .parallel import in_threads
@@ -36,6 +37,8 @@ class Factorisation:
     planes : (k_0, k_1, k_2) components projected per colour plane.
     step : the uniform quantisation step already chosen for a plain k, or None (rate control
         chooses k and step; or the quantiser has no step).
+    domain : the working-domain curve (:mod:`.domain`) basis and coefficients live in; the
+        energies are in its units.
     """
 
     btf: BTF
@@ -45,6 +48,7 @@ class Factorisation:
     total_energy: float
     planes: tuple
     step: float | None = None
+    domain: Domain = LINEAR
 
     @property
     def k(self) -> int:
@@ -102,7 +106,7 @@ def quantise(f: Factorisation, k: int, step: float, options: CompressOptions) ->
         working_space=colour.resolve_space(btf.working_space, btf.ocio_config),
         source={"color_space": btf.color_space, "bit_depth": btf.bit_depth,
                 "path": btf.path},
-        interpolated=btf.interpolated, ocio_config=btf.ocio_config)
+        interpolated=btf.interpolated, ocio_config=btf.ocio_config, domain=f.domain)
 
 
 def _quantize_basis_columns(u: np.ndarray, steps: np.ndarray) -> Stored:

@@ -138,10 +138,10 @@ def _target_error(f: Factorisation, options: CompressOptions, table, held: HeldO
     N = truth.size * f.btf.n_pixels / len(held.texels)
     rms_target = options.target_error / 100.0 * float(truth.mean()) / _GAUSS_L1_OVER_RMS
     scale, factor = 1.0, 1.0
-    for attempt in range(1, 4):
+    for attempt in range(1, 5):
         k, step = ratedist.choose_for_error(table, rms_target**2 * N * scale, factor)
         cbtf = _attempt(f, options, k, step, attempt)
-        err = held_out_error(cbtf, held).percent
+        err = held_out_error(cbtf, held, domain=options.error_domain).percent
         if err <= options.target_error:
             break
         scale *= (options.target_error / err) ** 2   # the L1/RMS ratio of these errors differs from Gaussian
@@ -188,7 +188,7 @@ def _by_k_only(f: Factorisation, options: CompressOptions, held: HeldOut) -> tup
         lo, hi = 1, k
         while lo < hi:  # smallest k meeting the target on held-out texels (error falls with k)
             mid = (lo + hi) // 2
-            if held_out_error(cbtf, held, mid).percent <= options.target_error:
+            if held_out_error(cbtf, held, mid, options.error_domain).percent <= options.target_error:
                 hi = mid
             else:
                 lo = mid + 1

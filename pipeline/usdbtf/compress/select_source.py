@@ -41,7 +41,7 @@ def load_source(btf: BTF, texels: Texels, options: CompressOptions):
     this process even with ``options.dask`` (the factors are small and the transcoding
     decodes no images; the bytes are those of a run without ``--dask``).
     """
-    if uses_factors(btf, options):
+    if uses_factors(btf, options) and options.domain in ("auto", "linear"):   # the algebra is linear-only
         if options.dask:
             log.info("transcoding from the input's factors in this process (--dask is for decoding images)")
         return FactoredSource(btf, options)

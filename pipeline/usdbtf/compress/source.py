@@ -39,6 +39,7 @@ import numpy as np
 from .. import colour
 from ..errors import BTFError
 from ..model import BTF, FileBTF
+from .domain import LINEAR
 from .load import _STATE, BlockedData, _forkable, _init, default_workers, load_encoded, stored_dtype
 from .parallel import cpu_count, in_threads, one_blas_thread, thread_map
 from .projection import ProjectionTotal, ShardSums, TileProjector, WorkPlan
@@ -107,6 +108,30 @@ class _Source:
 
     def projector(self, u, mix, ks, energy) -> TileProjector:
         return TileProjector(u, mix, ks, self.curves, self.plan.tile, energy=energy)
+
+    #: The working domain the answers are in (:meth:`set_domain`).
+    domain = LINEAR
+
+    def set_domain(self, domain) -> None:
+        """From now on answer in the working ``domain`` (:mod:`.domain`): values are
+        ``domain.forward`` of the working-space values, per channel, so the primaries matrix
+        moves into the curves (it must act before the curve) and the colour mix is the
+        colour rotation alone.  A linear domain changes nothing."""
+        if domain.is_linear:
+            return
+        self._to_domain_kept(domain)
+        decode, matrix = self.curves, self.matrix
+        self.curves = lambda raw: domain.forward(decode(raw) if matrix is None else colour.mix_rgb(decode(raw), matrix))
+        self.matrix = None
+        self.domain = domain
+
+    def _to_domain_kept(self, domain) -> None:
+        """Convert values a source already holds (kept columns and rows) to ``domain``."""
+
+    def peek_columns(self, texels: np.ndarray) -> np.ndarray:
+        """:meth:`columns` without handing them over (the working-domain choice reads the
+        fitting and evaluation columns before the fit and the evaluation do)."""
+        return self.columns(texels)
 
 
 class InMemorySource(_Source):
@@ -222,6 +247,17 @@ class _KeptSource(_Source):
                 del self._kept[n]
                 return dest
         raise ValueError(f"{type(self).__name__}.columns: texels were not requested up front (or were handed over)")
+
+    def peek_columns(self, texels: np.ndarray) -> np.ndarray:
+        for t, dest in self._kept:
+            if np.array_equal(t, texels):
+                return dest
+        raise ValueError(f"{type(self).__name__}.peek_columns: texels were not requested up front")
+
+    def _to_domain_kept(self, domain) -> None:
+        for _, dest in self._kept:
+            dest[:] = domain.forward(self.to_working(dest))
+        self._row_data[:] = domain.forward(self._row_data)
 
     def working_samples(self, rows) -> np.ndarray:
         """(n, P, 3) float32 working-space images of samples ``rows`` (requested up front)."""

@@ -20,15 +20,16 @@ from ..imageio import BIT_DEPTHS
 from ..model import validate_sampling
 from ..resources import require_memory
 from ..sampling import Sampling
+from ..outputs import COMPRESSED_FORMATS
 from .codecs import CODECS, Codec
+from .domain import LINEAR, Domain, domain_from_metadata
 
 __all__ = ["Metadata", "TextureEntry", "check_metadata", "MAX_SIDE", "MAX_K"]
 
 #: Largest texture side and basis count a compressed BTF may declare.
 MAX_SIDE = 65536
 MAX_K = 4096
-_FORMAT = "btf-compressed/1"
-_KNOWN = {"format", "usdbtf_version", "width", "height", "k", "n_samples", "codec", "working_space",
+_KNOWN = {"format", "domain", "usdbtf_version", "width", "height", "k", "n_samples", "codec", "working_space",
           "ocio_config", "source", "color_matrix", "basis", "coefficients", "samples"}
 
 
@@ -61,6 +62,7 @@ class Metadata:
     ocio_config: str | None
     source: dict
     info: dict = field(default_factory=dict)
+    domain: Domain = LINEAR
 
 
 class _Doc:
@@ -187,8 +189,11 @@ def check_metadata(doc, folder, path) -> Metadata:
     d = _Doc(path)
     if not isinstance(doc, dict):
         d.fail("document", f"must be a JSON object, got {_kind(doc)}")
-    if doc.get("format") != _FORMAT:
-        d.fail("format", f"{_short(doc.get('format'))} is not {_FORMAT!r}")
+    if doc.get("format") not in COMPRESSED_FORMATS:
+        d.fail("format", f"{_short(doc.get('format'))} is not {' or '.join(map(repr, COMPRESSED_FORMATS))}")
+    domain = domain_from_metadata(doc.get("domain"), str(path))
+    if doc["format"] == COMPRESSED_FORMATS[0] and not domain.is_linear:
+        d.fail("domain", f"a {domain.name} working domain needs format {COMPRESSED_FORMATS[1]!r}")
     codec_name = d.string(d.get(doc, "codec"), "codec")
     if codec_name not in CODECS:
         d.fail("codec", f"unknown codec {codec_name!r} (known: {', '.join(CODECS)})")
@@ -248,4 +253,4 @@ def check_metadata(doc, folder, path) -> Metadata:
     info = {key: v for key, v in doc.items() if key not in _KNOWN}
     info["usdbtf_version"] = doc.get("usdbtf_version")
     return Metadata(width, height, k, CODECS[codec_name], sampling, interp, basis, layout, entries, matrix,
-                    working, ocio_config, source, info)
+                    working, ocio_config, source, info, domain)

@@ -112,12 +112,8 @@ surfaceShader(vec4 Peye, vec3 Neye, vec4 color, vec4 patchCoord)
         intensity *= light.hasShadow ? shadowing(/*lightIndex=*/i, Peye) : 1.0;
 #endif
         // One light at a time: a light's colour multiplies its whole contribution.
-        vec4 rows[BTF_MAX_GROUPS];
-        for (int g = 0; g < BTF_MAX_GROUPS; ++g) {{
-            rows[g] = vec4(0.0);
-        }}
-        btfAddLight(HdGetSampler_tables(), viewIndex, viewWeight, btfLocal(frame, l), intensity, rows);
-        c += light.diffuse.rgb * btfResolve(HdGetSampler_tables(), rows, packs, k);
+        c += light.diffuse.rgb * btfShadeLight(HdGetSampler_tables(), viewIndex, viewWeight, btfLocal(frame, l),
+                                               intensity, packs, k);
     }}
 #endif
     c *= HdGet_exposure();
@@ -204,13 +200,9 @@ void mx_{bsdf}(ClosureData closureData, sampler2D tables, {pack_args}, int basis
     ivec3 viewIndex;
     vec3 viewWeight;
     btfViewLookup(tables, btfLocal(frame, closureData.V), viewIndex, viewWeight);
-    vec4 rows[BTF_MAX_GROUPS];
-    for (int g = 0; g < BTF_MAX_GROUPS; ++g) {{
-        rows[g] = vec4(0.0);
-    }}
-    btfAddLight(tables, viewIndex, viewWeight, btfLocal(frame, closureData.L), 1.0, rows);
     int k = basisCount > 0 ? basisCount : {all_k};
-    bsdf.response = weight * closureData.occlusion * btfResolve(tables, rows, packs, k);
+    bsdf.response = weight * closureData.occlusion
+                  * btfShadeLight(tables, viewIndex, viewWeight, btfLocal(frame, closureData.L), 1.0, packs, k);
 }}
 """
 
@@ -323,19 +315,16 @@ void main()
     ivec3 viewIndex;
     vec3 viewWeight;
     btfViewLookup(uTables, btfLocal(frame, toEye), viewIndex, viewWeight);
-    vec4 rows[BTF_MAX_GROUPS];
-    for (int g = 0; g < BTF_MAX_GROUPS; ++g) {{
-        rows[g] = vec4(0.0);
-    }}
+    vec3 c = vec3(0.0);
     for (int i = 0; i < uLightCount; ++i) {{
         vec3 d = uLight[i].w > 0.5 ? uLight[i].xyz - vP : uLight[i].xyz;
         float scale = uIntensity[i];
         if (uLight[i].w > 0.5) {{
             scale /= max(dot(d, d), 1e-30);
         }}
-        btfAddLight(uTables, viewIndex, viewWeight, btfLocal(frame, normalize(d)), scale, rows);
+        c += btfShadeLight(uTables, viewIndex, viewWeight, btfLocal(frame, normalize(d)), scale, packs, uBasisCount);
     }}
-    fragColor = vec4(btfResolve(uTables, rows, packs, uBasisCount), 1.0);
+    fragColor = vec4(c, 1.0);
 }}
 """
 

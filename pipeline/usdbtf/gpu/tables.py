@@ -181,7 +181,7 @@ def gpu_layout(cbtf: CompressedBTF, k: int | None = None) -> GpuLayout:
     flat = image.reshape(-1, 4)
     flat[0] = [TABLE_WIDTH, V, L, groups]
     flat[1] = [k, basis_at, view_at, light_at]
-    flat[2] = [dequant_at, matrix_at, 0, 0]
+    flat[2] = [dequant_at, matrix_at, *cbtf.domain.shader_code]
     if table.size >= 2**24:
         raise BTFError(f"GPU tables need {table.size} texels; addresses must stay below 2^24 (float precision)")
     return GpuLayout(image, packs, k)

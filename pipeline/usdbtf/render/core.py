@@ -83,6 +83,7 @@ class Renderer:
         k = self.opts.k or cbtf.k
         self.cbtf = cbtf
         self.interp = BasisInterpolator(cbtf, k)
+        self.domain = cbtf.domain
         self.texture = CoefficientTexture(cbtf, k, self.opts.wrap or default_wrap(cbtf))
 
     # -- swatch ------------------------------------------------------------------------
@@ -93,9 +94,26 @@ class Renderer:
         st = np.stack([(j.ravel() + 0.5) / W, 1.0 - (i.ravel() + 0.5) / H], axis=1)
         view = self.interp.view_weights(directions_to_vectors([view_deg]))
         light = self.interp.light_weights(directions_to_vectors([light_deg]))
-        rows = self.interp.accumulate(np.zeros((1, self.interp.k), np.float32), view, light, intensity)
-        out = self._shade_chunks(len(st), lambda sl: self.texture.shade(np.repeat(rows, sl.stop - sl.start, 0), st[sl]))
+        if self.domain.is_linear:
+            rows = self.interp.accumulate(np.zeros((1, self.interp.k), np.float32), view, light, intensity)
+            out = self._shade_chunks(len(st), lambda sl: self.texture.shade(np.repeat(rows, sl.stop - sl.start, 0),
+                                                                            st[sl]))
+            return out.reshape(H, W, 3)
+        rows, after = self._domain_rows(view, light, np.full(1, intensity))
+        out = self._shade_chunks(len(st), lambda sl: self.domain.inverse(
+            self.texture.shade(np.repeat(rows, sl.stop - sl.start, 0), st[sl])) * np.float32(after[0]))
         return out.reshape(H, W, 3)
+
+    def _domain_rows(self, view, light, scale):
+        """Blended rows (n, k) and the factor (n,) that multiplies after the inverse curve, in a
+        non-linear working domain: rows blend with weights that sum to 1, while the light's
+        intensity (shadowing included) and its fade beyond the measured region -- both
+        radiance factors -- scale the scene-linear result."""
+        il, wl = light
+        fade = wl.sum(axis=1)
+        norm = np.where(fade > 0, fade, 1.0)
+        rows = self.interp.accumulate(np.zeros((len(il), self.interp.k), np.float32), view, (il, wl / norm[:, None]))
+        return rows, (np.asarray(scale, np.float64) * fade).astype(np.float32)
 
     # -- mesh --------------------------------------------------------------------------
     def render(self, mesh: Mesh, camera: Camera, lights: list[Light]) -> np.ndarray:
@@ -150,6 +168,7 @@ class Renderer:
         frame = np.stack([tangent, bitangent, normal], axis=1)                   # (n, 3, 3) rows
         view = self.interp.view_weights(np.einsum("nij,nj->ni", frame, to_eye))
         rows = np.zeros((len(tri), self.interp.k), np.float32)
+        out = None if self.domain.is_linear else np.zeros((len(tri), 3), np.float32)
         for light, smap in zip(lights, shadow_maps):
             to_light, scale = light.at(p)
             if smap is not None:
@@ -158,10 +177,16 @@ class Renderer:
             if not len(lit):
                 continue
             lw = self.interp.light_weights(np.einsum("nij,nj->ni", frame[lit], to_light[lit]))
+            vw = (view[0][lit], view[1][lit])
+            if out is not None:     # a curve: each light's radiance separately, after the inverse
+                sub, after = self._domain_rows(vw, lw, scale[lit])
+                d = self.texture.shade(sub, st[lit], None if lod is None else lod[lit])
+                out[lit] += self.domain.inverse(d) * after[:, None]
+                continue
             sub = np.zeros((len(lit), self.interp.k), np.float32)
-            self.interp.accumulate(sub, (view[0][lit], view[1][lit]), lw, scale[lit])
+            self.interp.accumulate(sub, vw, lw, scale[lit])
             rows[lit] += sub
-        return self.texture.shade(rows, st, lod)
+        return self.texture.shade(rows, st, lod) if out is None else out
 
     def _lod(self, tri_xy, tri_depth, tri_st, st, x, y) -> np.ndarray:
         """log2 of the texel footprint of one pixel: st at the next pixel right and below,

@@ -81,6 +81,10 @@ def author_btf(material, cbtf: CompressedBTF, basis: str, coefficients: list[str
     if sv:
         _set(material, "singularValues", Vt.DoubleArray([float(x) for x in sv[:k]]))
     _set(material, "colorMatrix", Gf.Matrix3d(*[float(x) for x in np.asarray(cbtf.color_matrix).ravel()]))
+    if not cbtf.domain.is_linear:                   # linear is the schema's fallback: older assets read the same
+        _set(material, "domain:curve", cbtf.domain.curve)
+        if cbtf.domain.curve == "power":
+            _set(material, "domain:gamma", float(cbtf.domain.gamma))
     _set(material, "resolution", Gf.Vec2i(cbtf.width, cbtf.height))
     _set(material, "viewDirections", Vt.Vec2dArray([Gf.Vec2d(*map(float, v)) for v in cbtf.sampling.view]))
     _set(material, "lightDirections", Vt.Vec2dArray([Gf.Vec2d(*map(float, v)) for v in cbtf.sampling.light]))
@@ -228,4 +232,17 @@ def read_btf(material, *, k: int | None = None) -> CompressedBTF:
     return CompressedBTF(sampling, width, height, basis, coefficients, matrix,
                          str(_get(material, "provenance:codec", required=False) or "png"),
                          str(_get(material, "colorSpace")), {key: v for key, v in source.items() if v}, interp,
-                         _get(material, "ocioConfig", required=False), info)
+                         _get(material, "ocioConfig", required=False), info, domain=_domain(material, path))
+
+
+def _domain(material, path):
+    """The working-domain curve of ``material`` (unauthored: linear), checked like a folder's."""
+    from ..compress.domain import domain_from_metadata
+
+    curve = _get(material, "domain:curve", required=False)
+    if curve is None or str(curve) == "linear":
+        return domain_from_metadata(None, str(path))
+    entry = {"curve": str(curve)}
+    if entry["curve"] == "power":
+        entry["gamma"] = _get(material, "domain:gamma", required=False)
+    return domain_from_metadata(entry, f"{path} btf:domain")

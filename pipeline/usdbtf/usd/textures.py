@@ -33,6 +33,7 @@ import numpy as np
 
 from ..compress.codecs import get_codec
 from ..compress.format import CompressedBTF, basis_file, coefficient_file, encoded_textures
+from ..compress.parallel import in_threads
 from ..errors import BTFError
 from ..imageio import decode_image, encode_image, write_encoded
 from .formats import TEXTURE_FORMATS
@@ -107,9 +108,16 @@ def package_textures(cbtf: CompressedBTF, textures: "TextureSet") -> tuple[str, 
     name = basis_file(codec)
     data, suffix = portable_bytes(enc.basis, Path(name).suffix, name)
     basis = textures.add("basis" + suffix, data, "codes")
+    blobs, ext = enc.coefficients, None
+    if codec.planar:
+        # The asset's coefficient textures are RGB (H, W, 3), what every shader samples: the
+        # planar files are re-laid out from their codes, losslessly, as PNG.
+        png = get_codec("png")
+        blobs, ext = in_threads(lambda st: png.encode(st, "data"), cbtf.coefficients), ".png"
     coeffs = []
-    for i, blob in enumerate(enc.coefficients):
+    for i, blob in enumerate(blobs):
         rel = Path(coefficient_file(codec, i))
+        rel = rel if ext is None else rel.with_suffix(ext)
         data, suffix = portable_bytes(blob, rel.suffix, str(rel))
         coeffs.append(textures.add(str(rel.with_suffix(suffix)), data, "codes"))
     return basis, coeffs

@@ -49,7 +49,7 @@ def run(ctx: Context) -> SectionResult:
     from ...compress.format import working_coefficients
     from ...render import RenderOptions, Renderer
     from ..datasets import compressed
-    from ..heldout import blend_rows
+    from ..heldout import blend_compressed
     from .compress import Dataset, spread
 
     cfg = ctx.config
@@ -81,12 +81,8 @@ def run(ctx: Context) -> SectionResult:
                 rows.append(dict(base, k=k, method="reconstruct (stored row)", directions=name, n=len(idx),
                                  wall_s=seconds, **_errors(truth[name], images)))
             else:
-                basis = cbtf.basis_values(k)
-                flat = coeff.reshape(k, -1)
-
                 def predict(p):
-                    row = blend_rows(basis, ds.nb_idx[[p]], ds.nb_w[[p]])
-                    return (row @ flat).reshape(cbtf.height, cbtf.width, 3)
+                    return blend_compressed(cbtf, coeff, ds.nb_idx[[p]], ds.nb_w[[p]])[0]
                 images, seconds = _timed(predict, pos)
                 rows.append(dict(base, k=k, method="nearest-direction rows (bench)", directions=name, n=len(idx),
                                  wall_s=seconds, **_errors(truth[name], images)))

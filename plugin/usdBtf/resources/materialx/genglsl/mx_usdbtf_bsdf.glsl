@@ -5,12 +5,13 @@
 // usdbtf BTF evaluation: equation 2 of Koudelka et al. 2003 at arbitrary view and light
 // directions, the GPU twin of usdbtf.render (hemisphere.py, shading.py, texture.py).
 //
-//   I(x, v, l) = M * sum_j w_j(v, l) * sum_i U[s_j, i] * c_i(x)
+//   I(x, v, l) = f^-1(M * sum_j w_j(v, l) * sum_i U[s_j, i] * c_i(x))
 //
 // s_j runs over the 3 x 3 samples of the view triangle and the light triangle that
 // enclose the local directions (barycentric weights w_j, triangles found on the disc of
 // the azimuthal equidistant projection p = theta / 90deg * (cos phi, sin phi)), U is the
-// basis, c_i the coefficient textures, M the colour matrix.  Outside the measured region
+// basis, c_i the coefficient textures, M the colour matrix, f the working-domain curve (its
+// inverse per channel; a light's intensity and fade multiply after it: btfShadeLight).  Outside the measured region
 // a direction takes the nearest boundary point; lights there fade with cos(theta).
 //
 // Everything but the coefficients lives in one RGBA float texture, "tables", addressed
@@ -18,7 +19,8 @@
 // usdbtf.gpu.tables:
 //   texel 0        (width, V, L, G)          G = stored basis groups (4 vectors per texel)
 //   texel 1        (K, basisOffset, viewHemisphere, lightHemisphere)
-//   texel 2        (dequantOffset, matrixOffset, 0, 0)
+//   texel 2        (dequantOffset, matrixOffset, curve, gamma)   working-domain curve:
+//                  0 linear, 1 power (inverse d^gamma), 2 sRGB (usdbtf.compress.domain)
 //   basis          basisOffset + (view * L + light) * G + g: vectors 4g..4g+3 of that sample
 //   hemisphere h   h+0 (origin.x, origin.y, cell, grid)   h+1 (candidateTexels, triangles,
 //                  boundaryEdges, 0)   h+2 (gridOffset, triangleOffset, boundaryOffset, 0)
@@ -195,7 +197,23 @@ void btfViewLookup(sampler2D tables, vec3 v, out ivec3 viewIndex, out vec3 viewW
     btfLookup(tables, int(btfFetch(tables, 1).z), v, viewIndex, viewWeight, unused);
 }
 
-// Working-space colour: the blended rows dotted with the first k coefficients.
+// The working domain's inverse curve, per channel (texel 2: z = curve, w = gamma);
+// negative values clamp to 0 first, as usdbtf.compress.domain.Domain.inverse does.
+vec3 btfInverseCurve(sampler2D tables, vec3 d)
+{
+    vec4 h2 = btfFetch(tables, 2);
+    int curve = int(h2.z);
+    if (curve == 0) {
+        return d;
+    }
+    d = max(d, vec3(0.0));
+    if (curve == 1) {
+        return pow(d, vec3(h2.w));
+    }
+    return mix(d / 12.92, pow((d + 0.055) / 1.055, vec3(2.4)), vec3(greaterThan(d, vec3(0.04045))));
+}
+
+// Working-space colour of one light's blended rows dotted with the first k coefficients.
 vec3 btfResolve(sampler2D tables, vec4 rows[BTF_MAX_GROUPS], vec4 packs[BTF_MAX_PACKS], int k)
 {
     vec4 h2 = btfFetch(tables, 2);
@@ -215,9 +233,30 @@ vec3 btfResolve(sampler2D tables, vec4 rows[BTF_MAX_GROUPS], vec4 packs[BTF_MAX_
             stored[c] += dot(r, value);
         }
     }
-    return vec3(dot(btfFetch(tables, matrix).xyz, stored),
-                dot(btfFetch(tables, matrix + 1).xyz, stored),
-                dot(btfFetch(tables, matrix + 2).xyz, stored));
+    return btfInverseCurve(tables, vec3(dot(btfFetch(tables, matrix).xyz, stored),
+                                        dot(btfFetch(tables, matrix + 1).xyz, stored),
+                                        dot(btfFetch(tables, matrix + 2).xyz, stored)));
+}
+
+// One light's working-space radiance: the 3 x 3 basis rows blended with weights summing to
+// 1 (in the working domain), resolved through the inverse curve, then times the light's
+// scale and its fade beyond the measured region -- radiance factors, so after the curve.
+vec3 btfShadeLight(sampler2D tables, ivec3 viewIndex, vec3 viewWeight, vec3 l, float scale,
+                   vec4 packs[BTF_MAX_PACKS], int k)
+{
+    if (scale <= 0.0) {
+        return vec3(0.0);
+    }
+    ivec3 lightIndex;
+    vec3 lightWeight;
+    float thetaUsed;
+    btfLookup(tables, int(btfFetch(tables, 1).w), l, lightIndex, lightWeight, thetaUsed);
+    vec4 rows[BTF_MAX_GROUPS];
+    for (int g = 0; g < BTF_MAX_GROUPS; ++g) {
+        rows[g] = vec4(0.0);
+    }
+    btfAccumulate(tables, viewIndex, viewWeight, lightIndex, lightWeight, 1.0, rows);
+    return (scale * btfLightFade(l, thetaUsed)) * btfResolve(tables, rows, packs, k);
 }
 
 // MaterialX genglsl implementation of ND_usdbtf_bsdf: called once per light with
@@ -237,11 +276,7 @@ void mx_usdbtf_bsdf(ClosureData closureData, sampler2D tables, vec4 pack00, vec4
     ivec3 viewIndex;
     vec3 viewWeight;
     btfViewLookup(tables, btfLocal(frame, closureData.V), viewIndex, viewWeight);
-    vec4 rows[BTF_MAX_GROUPS];
-    for (int g = 0; g < BTF_MAX_GROUPS; ++g) {
-        rows[g] = vec4(0.0);
-    }
-    btfAddLight(tables, viewIndex, viewWeight, btfLocal(frame, closureData.L), 1.0, rows);
     int k = basisCount > 0 ? basisCount : 32;
-    bsdf.response = weight * closureData.occlusion * btfResolve(tables, rows, packs, k);
+    bsdf.response = weight * closureData.occlusion
+                  * btfShadeLight(tables, viewIndex, viewWeight, btfLocal(frame, closureData.L), 1.0, packs, k);
 }

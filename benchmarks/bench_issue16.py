@@ -1,0 +1,163 @@
+#!/usr/bin/env python
+"""Issue 16 in the product: ``usdbtf compress`` (default options) against the paper's method at
+the paper's bytes, on the encoded values and in scene-linear, every preset.
+
+Per preset (tuning presets first, then the held-out presets no tuning run used):
+
+1. the paper's method as the paper ran it, on the 8-bit values (``research/methods.paper_method``,
+   cached per dataset under ``benchmarks/out/research/paper``): its stored bytes are the budget;
+2. ``usdbtf compress IN -o OUT --max-bytes <budget>`` with every other option at its default
+   (``--domain auto``: the working-domain curve chosen per material), as a subprocess, timed;
+3. optionally ``--domain linear`` (the default before issue 16) and ``--solver paper`` (the
+   product's paper solver, k = 150, on the input's encoding curve) under no budget;
+
+percent error over every sample (``--stride`` subsamples), texel and channel, on the 8-bit
+sRGB file values (exact encoder) and in scene-linear ACEScg (``research/rlib.evaluate``).
+With ``--heldout-directions``, 10 % of the light directions (every view) are removed, the
+product compresses the rest under the paper's budget for that subset, and the held-out images
+are predicted the way the renderer does (4 nearest stored directions, rows blended in the
+working domain, the inverse curve, the foreshortening after it).  Usage::
+
+    .venv/bin/python benchmarks/bench_issue16.py [--presets a,b] [--stride 1] [--linear] [--paper-solver]
+        [--heldout-directions]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE / "research"))
+
+from rlib import (DATA, OUT, REPO, Timer, evaluate, header, load, paper_budget_inputs, preset_list, say,  # noqa: E402
+                  stride_rows)
+from methods import direction_split, heldout_errors, paper_cached, paper_method  # noqa: E402
+
+PRODUCT = OUT.parent / "issue16"
+
+
+class Product:
+    """A ``usdbtf compress`` folder as the research evaluation reads it: ``recon_rows(rows)``
+    -> linear Rec.709 images, through the folder's working-domain inverse curve (in ACEScg)."""
+
+    def __init__(self, folder: Path, data):
+        from usdbtf.compress import read_compressed
+        from usdbtf.compress.format import working_coefficients
+
+        self.cbtf = read_compressed(folder)
+        c = self.cbtf
+        self.basis = c.basis_values()
+        self.coeff = working_coefficients(c).reshape(c.k, -1)
+        self.to_709 = np.linalg.inv(data.to_aces.astype(np.float64)).astype(np.float32)
+        self.bytes = dict(c.info["bytes"])
+        self.dom = type("NoGamma", (), {"gamma": None, "name": c.domain.name})()   # gain after the curve
+        self.k = c.k
+
+    def recon_rows(self, rows: np.ndarray, gain=None) -> np.ndarray:
+        from usdbtf.colour import mix_rgb
+
+        lin = self.cbtf.domain.inverse(rows.astype(np.float32) @ self.coeff)
+        if gain is not None:
+            lin *= np.asarray(gain, np.float32)[:, None]
+        return mix_rgb(lin.reshape(len(rows), -1, 3), self.to_709)
+
+    def recon(self, sel) -> np.ndarray:
+        return self.recon_rows(self.basis[sel])
+
+
+def compress_cli(folder: Path, out: Path, *args) -> float:
+    """``usdbtf compress folder -o out ARGS`` (reused when out exists); returns wall seconds."""
+    if (out / "btf-compressed.json").is_file():
+        return float(json.loads((out.parent / f"{out.name}.seconds").read_text()))
+    t = time.perf_counter()
+    subprocess.run([str(REPO / ".venv/bin/usdbtf"), "compress", str(folder), "-o", str(out), *map(str, args), "-q"],
+                   check=True)
+    secs = time.perf_counter() - t
+    (out.parent / f"{out.name}.seconds").write_text(f"{secs:.1f}")
+    return secs
+
+
+def directions(data, stride: int) -> dict:
+    """Held-out-direction errors of the paper and the product default (module docstring)."""
+    split = direction_split(data)
+    paper = paper_method(split.sub)
+    budget = paper.bytes["payload"]
+    out_dir = PRODUCT / f"{data.name}-fit90-auto-{budget}"
+    # The subset manifest lists the dataset's images by relative path outside its own folder.
+    compress_cli(split.manifest(), out_dir, "--max-bytes", budget, "--allow-outside-paths")
+    return heldout_errors(data, split, split.held[::stride], {"paper": paper, "product": Product(out_dir, split.sub)})
+
+
+def main(argv=None) -> int:
+    from usdbtf.bench.datasets import HELDOUT_PRESETS, TUNING_PRESETS
+
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--presets", default=",".join(TUNING_PRESETS + HELDOUT_PRESETS))
+    p.add_argument("--stride", type=int, default=1)
+    p.add_argument("--linear", action="store_true", help="also --domain linear (the default before issue 16)")
+    p.add_argument("--paper-solver", action="store_true", help="also --solver paper (no budget)")
+    p.add_argument("--heldout-directions", action="store_true")
+    args = p.parse_args(argv)
+    presets = preset_list(args.presets, tuning_only=False)
+    header("issue 16 in the product: usdbtf compress (defaults) vs the paper's method at the paper's bytes",
+           paper_budget_inputs(presets, args.stride))
+    PRODUCT.mkdir(parents=True, exist_ok=True)
+    results = {}
+    for preset in presets:
+        say(f"## {preset}{' (held out)' if preset in HELDOUT_PRESETS else ''}")
+        data = load(preset)
+        folder = DATA / f"{preset}-paper-{data.size}-seed0"
+        sel = stride_rows(data, args.stride)
+        r = results[preset] = {}
+        paper = paper_cached(data)
+        budget = paper.bytes["payload"]
+        runs = [("paper", paper, None)]
+        variants = [("default", ["--max-bytes", budget])]
+        if args.linear:
+            variants.append(("linear", ["--max-bytes", budget, "--domain", "linear"]))
+        if args.paper_solver:
+            variants.append(("paper solver", ["--solver", "paper"]))
+        for name, extra in variants:
+            out = PRODUCT / f"{preset}-{name.replace(' ', '_')}-{budget}"
+            secs = compress_cli(folder, out, *extra)
+            runs.append((name, Product(out, data), secs))
+        for name, f, secs in runs:
+            e = evaluate(data, f.recon, sel)
+            r[name] = {"k": f.k, "bytes": f.bytes["payload"], "basis_bytes": f.bytes["basis"],
+                       "encoded": e.encoded, "linear": e.linear, "seconds": secs, "domain": f.dom.name}
+            r[name]["ratio"] = [e.encoded / r["paper"]["encoded"], e.linear / r["paper"]["linear"]]
+            say(f"  {name:12s}: k {f.k:3d}, {f.bytes['payload']:,} B (basis {f.bytes['basis']:,}), domain "
+                f"{f.dom.name}: {e.row()}, ratio {r[name]['ratio'][0]:.3f} / {r[name]['ratio'][1]:.3f}"
+                + ("" if secs is None else f", {secs:.0f} s"))
+        if args.heldout_directions:
+            with Timer() as t:
+                r["directions"] = directions(data, args.stride)
+            say("  held-out directions (% enc / % lin): " + ", ".join(
+                f"{k} {v['encoded']:.2f} / {v['linear']:.2f}" for k, v in r["directions"].items()) + f" ({t.s:.0f} s)")
+        (PRODUCT / "results.json").write_text(json.dumps(results, indent=1, default=float))
+    say("\n| preset | paper bytes | paper % enc / lin | default domain | k | bytes (basis) | default % enc / lin | "
+        "**ratio enc / lin** | compress s | held-out dirs % enc / lin: floor; paper; default |")
+    say("|" + "---|" * 10)
+    for group in (TUNING_PRESETS, HELDOUT_PRESETS):
+        for preset in [x for x in presets if x in group]:
+            r = results[preset]
+            pa, de = r["paper"], r["default"]
+            dirs = r.get("directions")
+            dtxt = "; ".join(f"{dirs[k]['encoded']:.2f} / {dirs[k]['linear']:.2f}"
+                             for k in ("floor", "paper", "product")) if dirs else ""
+            name = ("**held out:** " if preset in HELDOUT_PRESETS else "") + preset
+            say(f"| {name} | {pa['bytes']:,} | {pa['encoded']:.2f} / {pa['linear']:.2f} | {de['domain']} | {de['k']} | "
+                f"{de['bytes']:,} ({de['basis_bytes']:,}) | {de['encoded']:.2f} / {de['linear']:.2f} | "
+                f"**{de['ratio'][0]:.3f} / {de['ratio'][1]:.3f}** | {de['seconds']:.0f} | {dtxt} |")
+    say(f"\nfinished {time.strftime('%Y-%m-%d %H:%M:%S')}; results: {PRODUCT / 'results.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,159 @@
+"""The working domain: a per-channel transfer curve the basis is fitted and quantised in.
+
+A least-squares fit on scene-linear values spends its components on the brightest texels
+(the paper's metric is an L1 sum, and a few clipped highlights decide what a linear basis
+represents).  Fitting and quantising ``d = f(x)`` instead, with ``x`` the scene-linear
+working-space value of one colour channel, spreads the components over the whole range
+(issue 16's research, ``benchmarks/research/``: at the paper's bytes the error fell by
+up to half, in both error domains).
+
+Every consumer reconstructs ``x = f^-1(M . sum_i U[s, i] c_i)``: the dot product and the
+colour matrix in the domain, **then** the inverse curve, per channel.  Interpolated
+directions blend basis rows before the inverse; a light's intensity multiplies after it.
+
+Curves (``Domain.curve``):
+
+``linear``  f(x) = x (every output before issue 16; a folder without a ``domain`` key).
+``power``   f(x) = x^(1/gamma), gamma in [1, 4].
+``srgb``    the IEC 61966-2-1 sRGB encoding curve (linear toe below 0.0031308), continued
+            above 1 by the same formula (HDR values stay finite and monotone).
+
+Negative values: ``forward`` clamps negative scene-linear input to 0 (a power curve has no
+real value there), ``inverse`` clamps negative reconstructions to 0 before the curve (one
+``max`` per value in a shader; the truth is never negative in such a domain, so the clamp
+only removes error).  ``linear`` leaves negatives as they are.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import BTFError, UsageError
+
+__all__ = ["Domain", "LINEAR", "parse_domain", "domain_from_metadata", "AUTO_CANDIDATES", "DOMAIN_CHOICES",
+           "GAMMA_RANGE"]
+
+#: The exponents a power curve may have (whitelisted for files and options).
+GAMMA_RANGE = (1.0, 4.0)
+#: What ``--domain`` accepts (plus ``gamma:G``).
+DOMAIN_CHOICES = ("auto", "linear", "srgb")
+
+_SRGB_CUT = 0.0031308          # scene-linear value where the sRGB toe ends
+_SRGB_CUT_ENCODED = 0.04045    # its encoded value
+
+
+@dataclass(frozen=True)
+class Domain:
+    """One working-domain curve.
+
+    Attributes
+    ----------
+    curve : "linear", "power" or "srgb".
+    gamma : the exponent of a power curve (f(x) = x^(1/gamma)); 1.0 otherwise.
+    """
+
+    curve: str = "linear"
+    gamma: float = 1.0
+
+    def __post_init__(self):
+        if self.curve not in ("linear", "power", "srgb"):
+            raise ValueError(f"unknown domain curve {self.curve!r}")
+        if self.curve == "power" and not (GAMMA_RANGE[0] <= self.gamma <= GAMMA_RANGE[1]):
+            raise ValueError(f"power-curve gamma {self.gamma} outside {GAMMA_RANGE}")
+
+    @property
+    def is_linear(self) -> bool:
+        return self.curve == "linear" or (self.curve == "power" and self.gamma == 1.0)
+
+    @property
+    def name(self) -> str:
+        """``linear``, ``srgb`` or ``gamma:G`` (what ``--domain`` accepts)."""
+        return "linear" if self.is_linear else ("srgb" if self.curve == "srgb" else f"gamma:{self.gamma:g}")
+
+    @property
+    def shader_code(self) -> tuple[int, float]:
+        """(curve id, gamma) as shaders read them: 0 linear, 1 power, 2 sRGB."""
+        return (0, 1.0) if self.is_linear else ((1, float(self.gamma)) if self.curve == "power" else (2, 1.0))
+
+    def forward(self, x: np.ndarray) -> np.ndarray:
+        """Scene-linear -> domain values, float32, same shape (negatives -> 0 unless linear)."""
+        x = np.asarray(x, np.float32)
+        if self.is_linear:
+            return x
+        x = np.maximum(x, np.float32(0.0))
+        if self.curve == "power":
+            return np.power(x, np.float32(1.0 / self.gamma))
+        return np.where(x <= np.float32(_SRGB_CUT), x * np.float32(12.92),
+                        np.float32(1.055) * np.power(x, np.float32(1 / 2.4)) - np.float32(0.055))
+
+    def inverse(self, d: np.ndarray) -> np.ndarray:
+        """Domain values -> scene-linear, float32, same shape (negatives -> 0 unless linear)."""
+        d = np.asarray(d, np.float32)
+        if self.is_linear:
+            return d
+        d = np.maximum(d, np.float32(0.0))
+        if self.curve == "power":
+            return np.power(d, np.float32(self.gamma))
+        return np.where(d <= np.float32(_SRGB_CUT_ENCODED), d * np.float32(1 / 12.92),
+                        np.power((d + np.float32(0.055)) * np.float32(1 / 1.055), np.float32(2.4)))
+
+    def metadata(self) -> dict:
+        """The ``domain`` entry of ``btf-compressed.json``."""
+        if self.is_linear:
+            return {"curve": "linear"}
+        if self.curve == "srgb":
+            return {"curve": "srgb"}
+        return {"curve": "power", "gamma": float(self.gamma)}
+
+
+LINEAR = Domain()
+
+#: The curves ``--domain auto`` chooses from.  In the research three curves covered every
+#: per-material choice (x^(1/1.6): pebbles, fabric, moss, stones, velvet; x^(1/2.2): satin;
+#: sRGB: metallic flakes); linear comes first so that data a linear basis reconstructs
+#: exactly (low rank: rendered, HDR test patterns) keeps it (ties go to the first).
+AUTO_CANDIDATES = (LINEAR, Domain("power", 1.6), Domain("power", 2.2), Domain("srgb"))
+
+
+def parse_domain(text: str) -> Domain | None:
+    """``--domain`` text -> Domain; None for ``auto``.  Raises UsageError for anything else
+    than auto, linear, srgb or gamma:G (G a number in [1, 4])."""
+    t = str(text).strip().lower()
+    if t == "auto":
+        return None
+    if t == "linear":
+        return LINEAR
+    if t == "srgb":
+        return Domain("srgb")
+    if t.startswith("gamma:"):
+        try:
+            g = float(t[6:])
+        except ValueError:
+            g = math.nan
+        if math.isfinite(g) and GAMMA_RANGE[0] <= g <= GAMMA_RANGE[1]:
+            return LINEAR if g == 1.0 else Domain("power", g)
+    raise UsageError(f"--domain: {text!r} is not one of auto, linear, srgb, gamma:G (G in "
+                     f"{GAMMA_RANGE[0]:g}..{GAMMA_RANGE[1]:g})")
+
+
+def domain_from_metadata(entry, where: str) -> Domain:
+    """The ``domain`` entry of a metadata file -> Domain (absent: linear, the format before
+    issue 16).  Raises BTFError naming ``where`` for anything outside the whitelist."""
+    if entry is None:
+        return LINEAR
+    if not isinstance(entry, dict) or entry.get("curve") not in ("linear", "power", "srgb"):
+        raise BTFError(f"{where}: domain: must be {{\"curve\": \"linear\"|\"power\"|\"srgb\"}}, got {entry!r:.80}")
+    extra = set(entry) - {"curve", "gamma"}
+    if extra:
+        raise BTFError(f"{where}: domain: unknown keys {sorted(extra)}")
+    if entry["curve"] != "power":
+        if "gamma" in entry:
+            raise BTFError(f"{where}: domain: gamma is only for the power curve")
+        return LINEAR if entry["curve"] == "linear" else Domain("srgb")
+    g = entry.get("gamma")
+    if isinstance(g, bool) or not isinstance(g, (int, float)) or not math.isfinite(g) \
+            or not GAMMA_RANGE[0] <= g <= GAMMA_RANGE[1]:
+        raise BTFError(f"{where}: domain.gamma: must be a number in {GAMMA_RANGE[0]:g}..{GAMMA_RANGE[1]:g}, got {g!r}")
+    return Domain("power", float(g))
