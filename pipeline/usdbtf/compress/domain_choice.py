@@ -25,6 +25,7 @@ from .. import colour
 from ..manifest import encode_for_file
 from .domain import AUTO_CANDIDATES, LINEAR, Domain, parse_domain
 from .fit import BasisFit, fit_basis
+from .parallel import rows_apply
 
 __all__ = ["choose_domain", "resolve_domain", "score_domains", "encoding_domain"]
 
@@ -112,10 +113,15 @@ def score_domains(source, texels, k: int, options, candidates=AUTO_CANDIDATES) -
     lin_total = float(np.abs(truth).sum(dtype=np.float64))
     enc_total = float(np.abs(truth_enc).sum(dtype=np.float64))
     scores, fits = {}, {}
+    # One buffer each for the candidates' fitting and evaluation values (the curves run in
+    # threads over rows; the same values as one call).
+    x_dom, y_dom = np.empty_like(x_lin), np.empty_like(y_lin)
     for dom in candidates:
-        fit = fit_basis(dom.forward(x_lin), k, options)
+        fit = fit_basis(x_lin if dom.is_linear else rows_apply(dom.forward, x_lin, x_dom), k, options)
         u = fit.basis[:, :max(1, min(fit.k, _PROBE_K, S // _PROBE_FRACTION))]
-        rec = dom.inverse(u[rows] @ (u.T @ dom.forward(y_lin)))
+        y = y_lin if dom.is_linear else rows_apply(dom.forward, y_lin, y_dom)
+        rec = u[rows] @ (u.T @ y)
+        rec = rows_apply(dom.inverse, rec, rec)
         e_lin = 100.0 * float(np.abs(rec - truth).sum(dtype=np.float64)) / max(lin_total, 1e-30)
         e_enc = 100.0 * float(np.abs(_encoded(rec, to_file, depth, top) - truth_enc).sum(dtype=np.float64)) \
             / max(enc_total, 1e-30)
@@ -128,5 +134,9 @@ def score_domains(source, texels, k: int, options, candidates=AUTO_CANDIDATES) -
 def _encoded(lin: np.ndarray, to_file, depth: str, top: float) -> np.ndarray:
     """(S, 3 m) working-space values -> the file's values normalised to [0, 1] (float32)."""
     shape = lin.shape
-    codes = encode_for_file(lin.reshape(shape[0], -1, 3), to_file, depth)
-    return (codes.astype(np.float32) / np.float32(top)).reshape(shape)
+
+    def block(rows: np.ndarray) -> np.ndarray:
+        codes = encode_for_file(rows.reshape(rows.shape[0], -1, 3), to_file, depth)
+        return (codes.astype(np.float32) / np.float32(top)).reshape(rows.shape)
+
+    return rows_apply(block, lin, np.empty(shape, np.float32))

@@ -7,14 +7,14 @@ from the stored -- quantised, encoded and decoded -- representation.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from .curve import error_curve
 from .format import CompressedBTF, working_coefficient_texels
 from .metrics import ErrorSums
-from .parallel import rows_gemm
+from .parallel import rows_apply, rows_gemm
 from .texels import Texels
 
 __all__ = ["HeldOut", "held_out_set", "held_out_error", "error_curve"]
@@ -37,11 +37,26 @@ class HeldOut:
     truth: np.ndarray
     disjoint: bool
     encode: object = None
+    _truths: dict = field(default_factory=dict, repr=False)
 
     def encoded(self, linear: np.ndarray) -> np.ndarray:
         """Scene-linear working-space values -> the input file's values, normalised to [0, 1]
         for integer files (clipped and rounded the way a file of that depth holds them)."""
         return self.encode(linear)
+
+    def truth_in(self, domain, error_domain: str) -> np.ndarray:
+        """The truth in scene-linear (``error_domain`` "linear") or as the file's values
+        ("encoded"), from :attr:`truth` in the working ``domain``; computed once (rate control
+        and the evaluation ask again and again)."""
+        key = (domain, error_domain)
+        if key not in self._truths:
+            linear = self._truths.get((domain, "linear"))
+            if linear is None:
+                linear = domain.inverse(self.truth)
+                self._truths[(domain, "linear")] = linear
+            if error_domain == "encoded":
+                self._truths[key] = self.encoded(linear)
+        return self._truths[key]
 
 
 def held_out_set(source, texels: Texels) -> HeldOut:
@@ -70,7 +85,11 @@ def file_encoder(btf):
 
     to_file = colour.processor(btf.working_space, btf.color_space, btf.ocio_config)
     top = np.float32({"uint8": 255.0, "uint16": 65535.0}.get(btf.bit_depth, 1.0))
-    return lambda lin: encode_for_file(lin, to_file, btf.bit_depth).astype(np.float32) / top
+    def encode(lin: np.ndarray) -> np.ndarray:
+        return rows_apply(lambda block: encode_for_file(block, to_file, btf.bit_depth).astype(np.float32) / top,
+                          lin, np.empty(lin.shape, np.float32))
+
+    return encode
 
 
 def held_out_error(cbtf: CompressedBTF, held: HeldOut, k: int | None = None, domain: str = "linear") -> ErrorSums:
@@ -94,8 +113,9 @@ def held_out_error(cbtf: CompressedBTF, held: HeldOut, k: int | None = None, dom
     rec = rows_gemm(cbtf.basis_values(k), coeff.reshape(k, -1)).reshape(held.truth.shape)
     sums = ErrorSums()
     dom = cbtf.domain
-    truth, rec = dom.inverse(held.truth), dom.inverse(rec)        # scene-linear, whatever the domain
+    truth = held.truth_in(dom, domain)                              # scene-linear, whatever the domain
+    rec = rows_apply(dom.inverse, rec, rec)
     if domain == "encoded":
-        truth, rec = held.encoded(truth), held.encoded(rec)
+        rec = held.encoded(rec)
     sums.add(truth, rec)
     return sums

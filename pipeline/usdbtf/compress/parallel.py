@@ -17,7 +17,7 @@ import contextlib
 import functools
 import os
 
-__all__ = ["cpu_count", "in_threads", "thread_map", "one_blas_thread", "rows_gemm"]
+__all__ = ["cpu_count", "in_threads", "thread_map", "one_blas_thread", "rows_gemm", "rows_apply"]
 
 
 def cpu_count() -> int:
@@ -65,6 +65,28 @@ def rows_gemm(a, b):
 
     with one_blas_thread():
         in_threads(piece, range(parts))
+    return out
+
+
+def rows_apply(fn, x, out):
+    """``out[...] = fn(x)`` for a row-wise ``fn`` (elementwise curves, colour transforms,
+    encoders: row i of the result depends on row i of ``x`` only), with the rows cut into one
+    block per CPU, each in a thread of its own: the same values as one call.  ``out`` has
+    ``fn(x)``'s shape and dtype; it may be ``x`` itself (each block reads its rows before it
+    writes them).  Returns ``out``."""
+    import numpy as np
+
+    n = x.shape[0]
+    parts = min(cpu_count(), max(1, n // 64))
+    if parts <= 1:
+        out[...] = fn(x)
+        return out
+    cuts = np.linspace(0, n, parts + 1).astype(int)
+
+    def piece(i):
+        out[cuts[i]:cuts[i + 1]] = fn(x[cuts[i]:cuts[i + 1]])
+
+    in_threads(piece, range(parts))
     return out
 
 

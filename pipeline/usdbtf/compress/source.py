@@ -41,7 +41,7 @@ from ..errors import BTFError
 from ..model import BTF, FileBTF
 from .domain import LINEAR
 from .load import _STATE, BlockedData, _forkable, _init, default_workers, load_encoded, stored_dtype
-from .parallel import cpu_count, in_threads, one_blas_thread, thread_map
+from .parallel import cpu_count, in_threads, one_blas_thread, rows_apply, thread_map
 from .projection import ProjectionTotal, ShardSums, TileProjector, WorkPlan
 from .spill import Spill
 
@@ -153,7 +153,7 @@ class InMemorySource(_Source):
         raw = np.empty((self.stored.n_samples, 3 * len(texels)), self.stored.blocks.dtype)
         for s0, e0 in zip(starts, ends):
             raw[:, 3 * s0:3 * e0] = self.stored.span(int(texels[s0]), int(texels[e0 - 1]) + 1)
-        return self.curves(raw)
+        return rows_apply(self.curves, raw, np.empty(raw.shape, self.curves(raw[:1]).dtype))
 
     def project(self, u: np.ndarray, mix: np.ndarray, ks, *, energy: bool = False):
         """Coefficients (k, P, 3) (see :mod:`.projection`) and, if ``energy``, ||Y||^2
@@ -256,8 +256,8 @@ class _KeptSource(_Source):
 
     def _to_domain_kept(self, domain) -> None:
         for _, dest in self._kept:
-            dest[:] = domain.forward(self.to_working(dest))
-        self._row_data[:] = domain.forward(self._row_data)
+            rows_apply(lambda block: domain.forward(self.to_working(block)), dest, dest)
+        rows_apply(domain.forward, self._row_data, self._row_data)
 
     def working_samples(self, rows) -> np.ndarray:
         """(n, P, 3) float32 working-space images of samples ``rows`` (requested up front)."""
