@@ -1,14 +1,14 @@
 """Which working domain (:mod:`.domain`) one compress uses: ``--domain auto|linear|srgb|gamma:G``.
 
 ``auto`` chooses per material, cheaply (issue 16's research, ``methods.domain_scores``):
-for each candidate curve (:data:`.domain.AUTO_CANDIDATES`) the basis is fitted exactly as
-the compress will fit it, the evaluation texels (disjoint from the fitting ones) are
-projected onto it, and the **unquantised** error of that basis is measured on every second
-sample, both on the input's encoded values and in scene-linear.  The candidate with the
-lowest ``log(encoded %) + log(linear %)`` wins: both errors at once, since a comparison
-against any fixed method (the paper's) divides each by a constant per material.  The
-winner's basis is the compress's basis (it was fitted on the same columns with the same
-seed), so ``auto`` costs one extra fit per further candidate.
+for each candidate curve (:data:`.domain.AUTO_CANDIDATES`) a basis is fitted as the
+compress fits it, on every other fitting texel; the evaluation texels (disjoint from the
+fitting ones) are projected onto it, and the **unquantised** error of that basis is
+measured on every second sample, both on the input's encoded values and in scene-linear.
+The candidate with the lowest ``log(encoded %) + log(linear %)`` wins: both errors at once,
+since a comparison against any fixed method (the paper's) divides each by a constant per
+material.  The compress then fits its basis in the winner's domain on every fitting texel,
+so ``auto`` costs about three half-size fits more than a fixed domain.
 
 No curve: ``--solver paper`` with ``auto`` fits the input's own encoding (sRGB for
 sRGB-encoded files, as the paper factorised the camera's 8-bit values; else linear), and an
@@ -25,7 +25,7 @@ from .. import colour
 from ..manifest import encode_for_file
 from .domain import AUTO_CANDIDATES, LINEAR, Domain, parse_domain
 from .fit import BasisFit, fit_basis
-from .parallel import rows_apply
+from .parallel import in_threads, rows_apply
 
 __all__ = ["choose_domain", "resolve_domain", "score_domains", "encoding_domain"]
 
@@ -38,6 +38,11 @@ _SCORE_STRIDE = 2
 _PROBE_FRACTION = 4
 #: ... and to at most this many (the research scored 300 components).
 _PROBE_K = 300
+#: The candidates' bases are fitted on every this-many-th fitting texel.
+_FIT_TEXEL_STRIDE = 2
+#: Samples per block of the scorer's streamed products and error sums (fixed: the sums do
+#: not depend on the number of CPUs).
+_SCORE_BLOCK = 256
 
 
 def encoding_domain(btf) -> Domain:
@@ -88,11 +93,16 @@ def resolve_domain(source, texels, k: int, options) -> tuple[Domain, BasisFit | 
         return encoding_domain(source.btf), None, None
     scores, fits = score_domains(source, texels, k, options)
     best = min(scores, key=lambda name: scores[name]["score"])
-    return fits[best][0], fits[best][1], scores
+    return fits[best][0], None, scores
 
 
 def score_domains(source, texels, k: int, options, candidates=AUTO_CANDIDATES) -> tuple[dict, dict]:
     """Unquantised held-out error of each candidate's basis (see the module docstring).
+
+    Streams over blocks of samples (``_SCORE_BLOCK`` rows, on one thread each): the scorer
+    holds the fitting columns in the candidate's domain and the evaluation texels' file
+    codes, never a reconstruction of every scored sample at once (at UBO2014's size that
+    would be ~0.6 GB more).
 
     Returns
     -------
@@ -101,42 +111,65 @@ def score_domains(source, texels, k: int, options, candidates=AUTO_CANDIDATES) -
     """
     btf = source.btf
     S = btf.n_samples
-    x_lin = source.to_working(source.peek_columns(texels.fit))                  # (S, 3 n)
-    ev = texels.evaluation
-    y_lin = source.to_working(source.peek_columns(ev))                            # (S, 3 m)
-    rows = np.arange(0, S, _SCORE_STRIDE)
-    truth = y_lin[rows]
+    # The columns as the source holds them (curve-decoded; the primaries matrix still to
+    # apply): converted to working space block by block, never copied whole.
+    x_src = source.peek_columns(texels.fit)                                      # (S, 3 n)
+    y_src = source.peek_columns(texels.evaluation)                               # (S, 3 m)
     to_file = colour.processor(btf.working_space, btf.color_space, btf.ocio_config)
-    depth = btf.bit_depth
-    top = {"uint8": 255.0, "uint16": 65535.0}.get(depth, 1.0)
-    truth_enc = _encoded(truth, to_file, depth, top)
-    lin_total = float(np.abs(truth).sum(dtype=np.float64))
-    enc_total = float(np.abs(truth_enc).sum(dtype=np.float64))
+    codes = _Codes(to_file, btf.bit_depth)
+    scored = np.arange(0, S, _SCORE_STRIDE)
+    blocks = [scored[a:a + _SCORE_BLOCK] for a in range(0, len(scored), _SCORE_BLOCK)]
+    truth = in_threads(lambda rows: source.to_working(y_src[rows]), blocks)     # scored rows, working space
+    truth_codes = in_threads(codes, truth)
+    lin_total = sum(float(np.abs(t).sum(dtype=np.float64)) for t in truth)
+    enc_total = sum(codes.total(c) for c in truth_codes)
+    del truth
+    samples = [slice(a, min(a + _SCORE_BLOCK, S)) for a in range(0, S, _SCORE_BLOCK)]
     scores, fits = {}, {}
-    # One buffer each for the candidates' fitting and evaluation values (the curves run in
-    # threads over rows; the same values as one call).
-    x_dom, y_dom = np.empty_like(x_lin), np.empty_like(y_lin)
+    # Every other fitting texel: the candidates' bases need not be the final one (which is
+    # fitted on all of them after the choice), and one buffer of half their columns keeps
+    # the scorer's memory at a quarter of the kept columns (0.28 GB at UBO2014's size).
+    half = x_src.reshape(S, -1, 3)[:, ::_FIT_TEXEL_STRIDE]
+    x_dom = np.empty((S, 3 * half.shape[1]), np.float32)
     for dom in candidates:
-        fit = fit_basis(x_lin if dom.is_linear else rows_apply(dom.forward, x_lin, x_dom), k, options)
+        fit = fit_basis(rows_apply(lambda b: dom.forward(source.to_working(b)).reshape(len(b), -1), half, x_dom),
+                        k, options)
         u = fit.basis[:, :max(1, min(fit.k, _PROBE_K, S // _PROBE_FRACTION))]
-        y = y_lin if dom.is_linear else rows_apply(dom.forward, y_lin, y_dom)
-        rec = u[rows] @ (u.T @ y)
-        rec = rows_apply(dom.inverse, rec, rec)
-        e_lin = 100.0 * float(np.abs(rec - truth).sum(dtype=np.float64)) / max(lin_total, 1e-30)
-        e_enc = 100.0 * float(np.abs(_encoded(rec, to_file, depth, top) - truth_enc).sum(dtype=np.float64)) \
-            / max(enc_total, 1e-30)
+        # Coefficients of the evaluation texels: U^T f(Y), summed over sample blocks in order.
+        c = sum(in_threads(lambda sl: (u[sl].T @ dom.forward(source.to_working(y_src[sl]))).astype(np.float64),
+                           samples))
+        c = c.astype(np.float32)
+
+        def errors(b: int) -> tuple[float, float]:
+            rows = blocks[b]
+            rec = dom.inverse(u[rows] @ c)
+            return (float(np.abs(rec - source.to_working(y_src[rows])).sum(dtype=np.float64)),
+                    codes.distance(codes(rec), truth_codes[b]))
+
+        sums = in_threads(errors, range(len(blocks)))
+        e_lin = 100.0 * sum(e for e, _ in sums) / max(lin_total, 1e-30)
+        e_enc = 100.0 * sum(e for _, e in sums) / max(enc_total, 1e-30)
         score = float(np.log(max(e_enc, 1e-9)) + np.log(max(e_lin, 1e-9)))
         scores[dom.name] = {"encoded": e_enc, "linear": e_lin, "score": score}
         fits[dom.name] = (dom, fit)
     return scores, fits
 
 
-def _encoded(lin: np.ndarray, to_file, depth: str, top: float) -> np.ndarray:
-    """(S, 3 m) working-space values -> the file's values normalised to [0, 1] (float32)."""
-    shape = lin.shape
+class _Codes:
+    """Working-space values (rows, 3 m) -> the file's codes (rows, 3 m) in its own dtype
+    (uint8/uint16 codes clipped and rounded as a file holds them; float files as floats),
+    and L1 sums of codes normalised to [0, 1]."""
 
-    def block(rows: np.ndarray) -> np.ndarray:
-        codes = encode_for_file(rows.reshape(rows.shape[0], -1, 3), to_file, depth)
-        return (codes.astype(np.float32) / np.float32(top)).reshape(rows.shape)
+    def __init__(self, to_file, depth: str):
+        self.to_file, self.depth = to_file, depth
+        self.top = {"uint8": 255.0, "uint16": 65535.0}.get(depth, 1.0)
 
-    return rows_apply(block, lin, np.empty(shape, np.float32))
+    def __call__(self, lin: np.ndarray) -> np.ndarray:
+        return encode_for_file(lin.reshape(lin.shape[0], -1, 3), self.to_file, self.depth).reshape(lin.shape)
+
+    def total(self, codes: np.ndarray) -> float:
+        return float(np.abs(codes).sum(dtype=np.float64)) / self.top
+
+    def distance(self, a: np.ndarray, b: np.ndarray) -> float:
+        diff = a.astype(np.int32) - b if a.dtype.kind == "u" else a.astype(np.float64) - b
+        return float(np.abs(diff).sum(dtype=np.float64)) / self.top

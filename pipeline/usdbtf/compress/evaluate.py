@@ -14,8 +14,11 @@ import numpy as np
 from .curve import error_curve
 from .format import CompressedBTF, working_coefficient_texels
 from .metrics import ErrorSums
-from .parallel import rows_apply, rows_gemm
+from .parallel import in_threads, one_blas_thread, rows_apply
 from .texels import Texels
+
+#: Samples per block of the held-out error (fixed: the sums do not depend on the CPUs).
+_EVAL_BLOCK = 256
 
 __all__ = ["HeldOut", "held_out_set", "held_out_error", "error_curve"]
 
@@ -37,26 +40,31 @@ class HeldOut:
     truth: np.ndarray
     disjoint: bool
     encode: object = None
-    _truths: dict = field(default_factory=dict, repr=False)
+    _codes: dict = field(default_factory=dict, repr=False)
 
     def encoded(self, linear: np.ndarray) -> np.ndarray:
         """Scene-linear working-space values -> the input file's values, normalised to [0, 1]
         for integer files (clipped and rounded the way a file of that depth holds them)."""
         return self.encode(linear)
 
-    def truth_in(self, domain, error_domain: str) -> np.ndarray:
-        """The truth in scene-linear (``error_domain`` "linear") or as the file's values
-        ("encoded"), from :attr:`truth` in the working ``domain``; computed once (rate control
-        and the evaluation ask again and again)."""
-        key = (domain, error_domain)
-        if key not in self._truths:
-            linear = self._truths.get((domain, "linear"))
-            if linear is None:
-                linear = domain.inverse(self.truth)
-                self._truths[(domain, "linear")] = linear
-            if error_domain == "encoded":
-                self._truths[key] = self.encoded(linear)
-        return self._truths[key]
+    def truth_block(self, domain, error_domain: str, samples: slice) -> np.ndarray:
+        """The truth of ``samples`` in scene-linear (``error_domain`` "linear") or as the
+        file's values ("encoded", normalised), from :attr:`truth` in the working ``domain``.
+        The encoded truth is computed once per block and kept (rate control asks again and
+        again)."""
+        linear = domain.inverse(self.truth[samples])
+        if error_domain != "encoded":
+            return linear
+        key = (domain, samples.start, samples.stop)
+        top, dtype = getattr(self.encode, "top", None), getattr(self.encode, "code_dtype", None)
+        if key in self._codes:
+            kept = self._codes[key]
+            return kept if dtype is None else kept.astype(np.float32) / np.float32(top)
+        values = self.encoded(linear)
+        # Integer files' values are kept as their codes (a quarter of the float32 size for
+        # 8-bit): code / top gives back the same float32 values.
+        self._codes[key] = values if dtype is None else np.rint(values * np.float32(top)).astype(dtype)
+        return values
 
 
 def held_out_set(source, texels: Texels) -> HeldOut:
@@ -89,6 +97,8 @@ def file_encoder(btf):
         return rows_apply(lambda block: encode_for_file(block, to_file, btf.bit_depth).astype(np.float32) / top,
                           lin, np.empty(lin.shape, np.float32))
 
+    encode.top = float(top)
+    encode.code_dtype = {"uint8": np.uint8, "uint16": np.uint16}.get(btf.bit_depth)
     return encode
 
 
@@ -109,13 +119,29 @@ def held_out_error(cbtf: CompressedBTF, held: HeldOut, k: int | None = None, dom
     ErrorSums : ``percent`` (the paper's metric), ``rmse`` (linear units), ``psnr()``.
     """
     k = cbtf.k if k is None else k
-    coeff = working_coefficient_texels(cbtf, held.texels, k)                     # (k, n, 3)
-    rec = rows_gemm(cbtf.basis_values(k), coeff.reshape(k, -1)).reshape(held.truth.shape)
-    sums = ErrorSums()
+    coeff = working_coefficient_texels(cbtf, held.texels, k).reshape(k, -1)      # (k, n * 3)
+    basis = cbtf.basis_values(k)                                                  # (S, k)
     dom = cbtf.domain
-    truth = held.truth_in(dom, domain)                              # scene-linear, whatever the domain
-    rec = rows_apply(dom.inverse, rec, rec)
-    if domain == "encoded":
-        rec = held.encoded(rec)
-    sums.add(truth, rec)
+    n = held.truth.shape[0]
+    shape = held.truth.shape[1:]
+
+    def block(a: int) -> ErrorSums:
+        # One block of samples at a time (a reconstruction of every sample at once would be
+        # as large as the held-out truth again, twice with the encoded copy).
+        sl = slice(a, min(a + _EVAL_BLOCK, n))
+        rec = dom.inverse(basis[sl] @ coeff).reshape((-1,) + shape)      # scene-linear, whatever the domain
+        if domain == "encoded":
+            rec = held.encoded(rec)
+        part = ErrorSums()
+        part.add(held.truth_block(dom, domain, sl), rec)
+        return part
+
+    sums = ErrorSums()
+    with one_blas_thread():                                           # the sums as on any machine
+        parts = in_threads(block, range(0, n, _EVAL_BLOCK))
+    for part in parts:                                                # added in block order
+        sums.abs_err += part.abs_err
+        sums.sq_err += part.sq_err
+        sums.total += part.total
+        sums.count += part.count
     return sums

@@ -68,25 +68,22 @@ def rows_gemm(a, b):
     return out
 
 
-def rows_apply(fn, x, out):
+def rows_apply(fn, x, out, *, rows: int = 256):
     """``out[...] = fn(x)`` for a row-wise ``fn`` (elementwise curves, colour transforms,
-    encoders: row i of the result depends on row i of ``x`` only), with the rows cut into one
-    block per CPU, each in a thread of its own: the same values as one call.  ``out`` has
-    ``fn(x)``'s shape and dtype; it may be ``x`` itself (each block reads its rows before it
-    writes them).  Returns ``out``."""
-    import numpy as np
-
+    encoders: row i of the result depends on row i of ``x`` only), with the rows cut into
+    block of ``rows`` rows mapped over the CPUs' threads: the same values as one call.  The
+    blocks do not depend on the number of CPUs (a vectorised kernel's remainder loop sits at
+    the same places on every machine).  ``out`` has ``fn(x)``'s shape and dtype; it may be
+    ``x`` itself (each block reads its rows before it writes them).  Returns ``out``."""
     n = x.shape[0]
-    parts = min(cpu_count(), max(1, n // 64))
-    if parts <= 1:
+    if n <= rows:
         out[...] = fn(x)
         return out
-    cuts = np.linspace(0, n, parts + 1).astype(int)
 
-    def piece(i):
-        out[cuts[i]:cuts[i + 1]] = fn(x[cuts[i]:cuts[i + 1]])
+    def piece(a):
+        out[a:a + rows] = fn(x[a:a + rows])
 
-    in_threads(piece, range(parts))
+    in_threads(piece, range(0, n, rows))
     return out
 
 
