@@ -75,13 +75,13 @@ def shipped_fallbacks(cbtf, white: float, ablation: bool = False) -> tuple[dict,
 def errors(orig, cbtf, fallbacks: dict, chunk: int = 128) -> dict:
     """{name: {"linear", "encoded", "vs_reconstruction"}} for each fallback, and "reconstruction"
     (the compressed BTF against the originals): one pass over the measured samples."""
-    from usdbtf import colour
+    from usdbtf import color
     from usdbtf.compress.format import reconstruct, working_coefficients
     from usdbtf.compress.metrics import ErrorSums
     from usdbtf.manifest import encode_for_file
     from usdbtf.svbrdf import evaluate
 
-    to_file = colour.processor(orig.working_space, orig.color_space, orig.ocio_config)
+    to_file = color.processor(orig.working_space, orig.color_space, orig.ocio_config)
     top = {"uint8": 255.0, "uint16": 65535.0}.get(orig.bit_depth, 1.0)
     coeff = working_coefficients(cbtf)
     sums = {name: {"linear": ErrorSums(), "encoded": ErrorSums(), "vs_reconstruction": ErrorSums()}

@@ -60,7 +60,7 @@ class Product:
         self.k = c.k
 
     def recon_rows(self, rows: np.ndarray, gain=None) -> np.ndarray:
-        from usdbtf.colour import mix_rgb
+        from usdbtf.color import mix_rgb
 
         lin = self.cbtf.domain.inverse(rows.astype(np.float32) @ self.coeff)
         if gain is not None:

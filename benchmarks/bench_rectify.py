@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 from common import OUT, format_machine, machine_info, median, timestamp, write_json
 
-from usdbtf import colour, synth
+from usdbtf import color, synth
 from usdbtf.camera import Camera
 from usdbtf.fiducials import apply_homography, detect_markers, fit_homography, make_board
 from usdbtf.imageio import read_image
@@ -91,7 +91,7 @@ def main(argv=None) -> int:
     camera = Camera.framing(board, width, height)
     plan = make_plan(preset("paper"))
     picks = plan.order[np.linspace(0, len(plan.order) - 1, args.frames).round().astype(int)]
-    to709 = colour.processor(colour.WORKING_SPACE, LIN709)
+    to709 = color.processor(color.WORKING_SPACE, LIN709)
     pts = board_points(board)
     print("\n## inputs")
     print(f"- board: {len(board.ids)} ArUco markers ({board.dictionary}), {board.image_size[0]} px, "

@@ -201,7 +201,7 @@ def ubo_size(folder: Path, model: int, k: int) -> None:
     crop_f = run_compress(read_ubo2014(crop), CompressOptions(k=k))
     crop_e = run_compress(read_ubo2014(crop), CompressOptions(k=k, expand_factors=True))
     scale = SIZE / CROP_ROWS
-    scaled = {n: s * (1 if n in ("fit", "colour") else scale) for n, s in crop_e["steps"].items()}
+    scaled = {n: s * (1 if n in ("fit", "color") else scale) for n, s in crop_e["steps"].items()}
     print("| run | wall s | CPU s | " + " | ".join(full["steps"]) + " |")
     print("|---|---|---|" + "---|" * len(full["steps"]))
     for name, r in ((f"factors, full {SIZE}x{SIZE}", full), (f"factors, crop {SIZE}x{CROP_ROWS}", crop_f),

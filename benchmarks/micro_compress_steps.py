@@ -22,8 +22,8 @@ import numpy as np
 
 from bench_compress import gemm_baseline
 from common import format_machine, machine_info, time_call
-from usdbtf.compress import (CompressOptions, Factorisation, colour_decorrelation, compress, error_curve, fit_basis,
-                             held_out_error, held_out_set, load_source, project, rate_control, rotate_colour,
+from usdbtf.compress import (CompressOptions, Factorisation, color_decorrelation, compress, error_curve, fit_basis,
+                             held_out_error, held_out_set, load_source, project, rate_control, rotate_color,
                              sample_texels, sampled_coefficients, step_for_k, write_compress)
 from usdbtf.io import open_btf
 
@@ -41,25 +41,25 @@ def main(argv):
     fit = fit_basis(x_fit, k_fit, opts)
     held = held_out_set(source, texels)
 
-    def colour_and_step():
+    def color_and_step():
         sampled, outside = sampled_coefficients(fit, source.to_working, held.truth, btf.n_pixels)
-        colour = colour_decorrelation(sampled)
-        return colour, outside, step_for_k(rotate_colour(sampled, colour), fit.basis, outside, btf.n_pixels, opts)
+        color = color_decorrelation(sampled)
+        return color, outside, step_for_k(rotate_color(sampled, color), fit.basis, outside, btf.n_pixels, opts)
 
-    colour, outside, (step, planes) = colour_and_step()
-    coeff, _ = project(source, fit.basis, colour, planes)
+    color, outside, (step, planes) = color_and_step()
+    coeff, _ = project(source, fit.basis, color, planes)
     energy = float(np.einsum("kpc,kpc->", coeff, coeff, dtype=np.float64)) + outside
-    factors = Factorisation(btf, fit.basis, coeff, colour, energy, planes, step)
+    factors = Factorisation(btf, fit.basis, coeff, color, energy, planes, step)
     with tempfile.TemporaryDirectory() as tmp:
         floor = {
             f"load: decode {btf.n_samples} files ({source.kind})": lambda: load_source(btf, texels, opts),
             "columns (fit texels)": lambda: source.columns(texels.fit),
             f"fit_basis: weights + randomized basis, {x_fit.shape[1]} columns": lambda: fit_basis(x_fit, k_fit, opts),
-            f"project: planes {list(planes)}": lambda: project(source, fit.basis, colour, planes),
+            f"project: planes {list(planes)}": lambda: project(source, fit.basis, color, planes),
         }
         rest = {
             "held_out_set (evaluation texels, working)": lambda: held_out_set(source, texels),
-            "colour decorrelation + step_for_k": colour_and_step,
+            "colour decorrelation + step_for_k": color_and_step,
             f"rate_control: quantise + encode in memory (k {result.k})": lambda: rate_control(
                 factors, opts, held),
             "held_out_error": lambda: held_out_error(result, held),

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from usdbtf import __version__, colour, jsontext, synth
+from usdbtf import __version__, color, jsontext, synth
 from usdbtf.atomic import atomic_dir
 from usdbtf.compress.format import cross_layout
 from usdbtf.imageio import write_image
@@ -59,7 +59,7 @@ def _cached(folder: Path, want: dict, n: int) -> bool:
 def _init(material, sampling, folder, fmt):
     _STATE.update(material=material, sampling=sampling, folder=folder, fmt=fmt,
                   cache=synth.RenderCache(material, max_views=2),
-                  proc=colour.processor(LINEAR_709, SRGB))
+                  proc=color.processor(LINEAR_709, SRGB))
 
 
 def _render_range(bounds):
@@ -101,7 +101,7 @@ def ensure_tiled(workdir: Path, preset: str = "pebbles", sampling: str = "ubo151
             for n in pool.map(_render_range, bounds):
                 done += n
                 say(f"    {done}/{len(s)} samples, {time.perf_counter() - t:.0f} s")
-        doc = {"format": FORMAT, "color_space": colour.resolve_space(SRGB, None), "width": size, "height": size,
+        doc = {"format": FORMAT, "color_space": color.resolve_space(SRGB, None), "width": size, "height": size,
                "physical_size_m": [0.1, 0.1], "synthetic": want,
                "samples": [{"image": _sample_file(i, s.view[i], s.light[i], fmt),
                             "view": [float(x) for x in s.view[i]], "light": [float(x) for x in s.light[i]]}

@@ -13,7 +13,7 @@ import argparse
 import cv2
 import numpy as np
 
-from usdbtf import colour
+from usdbtf import color
 from usdbtf.compress import read_compressed, reconstruct
 from usdbtf.imageio import write_image
 from usdbtf.io import open_btf
@@ -21,7 +21,7 @@ from usdbtf.io import open_btf
 
 def sheet(raw, cbtf, indices, *, scale: int = 2) -> np.ndarray:
     """(rows * (H*scale + label), cols * (W*scale + gap), 3) uint8 sRGB image."""
-    to_srgb = colour.processor(raw.working_space, "sRGB Encoded Rec.709 (sRGB)", raw.ocio_config)
+    to_srgb = color.processor(raw.working_space, "sRGB Encoded Rec.709 (sRGB)", raw.ocio_config)
     orig = raw.read_samples(indices)
     rec = reconstruct(cbtf, indices)
     diff = np.abs(orig - rec) * 4

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from usdbtf import colour, synth
+from usdbtf import color, synth
 from usdbtf.cli import main
 
 from cli_helpers import bad_input, bad_usage, ok, refused, run  # noqa: E402
@@ -79,7 +79,7 @@ def test_synth_writes_the_rendered_material(src):
     np.testing.assert_array_equal(btf.sampling.view, s.view)
     np.testing.assert_array_equal(btf.sampling.light, s.light)
     want = encode_for_file(synth.render_all(synth.make_material("pebbles", 32, 0), s),
-                           colour.processor(LIN709, SRGB), "uint8")
+                           color.processor(LIN709, SRGB), "uint8")
     assert np.array_equal(btf.read_encoded(np.arange(24)), want)
     assert btf.metadata["physical_size_m"] == [0.05, 0.05]
     assert btf.metadata["synthetic"]["preset"] == "pebbles"
@@ -156,7 +156,7 @@ def test_decompress_samples_and_k(capsys, src, compressed, work):
     assert d.n_samples == 5
     np.testing.assert_array_equal(d.sampling.view, orig.sampling.view[idx])
     np.testing.assert_array_equal(d.sampling.light, orig.sampling.light[idx])
-    want = encode_for_file(reconstruct(c, idx), colour.processor(c.working_space, SRGB), "uint8")
+    want = encode_for_file(reconstruct(c, idx), color.processor(c.working_space, SRGB), "uint8")
     assert np.array_equal(d.read_encoded(np.arange(5)), want)
     # `error` matches the partial reconstruction to the right original samples.
     report = json.loads(ok(capsys, "error", src, sub))

@@ -27,7 +27,7 @@ from usdbtf.compress.linalg import exact_basis, fix_signs, randomized_basis
 from usdbtf.compress.metrics import ErrorSums
 from usdbtf.errors import BTFError, OutputRefused
 from usdbtf.manifest import encode_for_file, read_manifest, write_manifest
-from usdbtf import colour
+from usdbtf import color
 from usdbtf.model import ArrayBTF
 from usdbtf.sampling import preset
 
@@ -639,7 +639,7 @@ def test_decompress_8bit_source_to_png_manifest(tiny32, tmp_path):
     np.testing.assert_array_equal(d.sampling.view, btf.sampling.view)
     np.testing.assert_array_equal(d.sampling.light, btf.sampling.light)
     # The files hold exactly the encoded reconstruction.
-    want = encode_for_file(reconstruct(r), colour.processor(r.working_space, SRGB), "uint8")
+    want = encode_for_file(reconstruct(r), color.processor(r.working_space, SRGB), "uint8")
     assert np.array_equal(d.read_encoded(np.arange(24)), want)
     assert json.loads((dec / "btf.json").read_text())["reconstructed_from_k"] == 8
     # Its error vs the original matches the in-memory reconstruction in the encoded domain.
@@ -660,7 +660,7 @@ def test_decompress_samples_subset_and_k_truncation(tiny32, tmp_path):
         assert d.n_samples == 5
         np.testing.assert_array_equal(d.sampling.view, btf.sampling.view[idx])
         np.testing.assert_array_equal(d.sampling.light, btf.sampling.light[idx])
-    want = encode_for_file(reconstruct(r, idx, k=2), colour.processor(r.working_space, SRGB), "uint8")
+    want = encode_for_file(reconstruct(r, idx, k=2), color.processor(r.working_space, SRGB), "uint8")
     assert np.array_equal(d_k2.read_encoded(np.arange(5)), want)
     assert json.loads((tmp_path / "k2" / "btf.json").read_text())["reconstructed_from_k"] == 2
     e_full = compare(btf, lambda sel: d_full.read_samples(np.searchsorted(idx, sel)), idx)["linear"]["percent"]
@@ -1048,7 +1048,7 @@ def test_mix_rgb_matches_matmul(shape):
     rng = np.random.default_rng(1)
     x = rng.uniform(-2, 5, shape).astype(np.float32)
     m = rng.normal(0, 1, (3, 3))
-    got = colour.mix_rgb(x, m)
+    got = color.mix_rgb(x, m)
     want = (x.reshape(-1, 3).astype(np.float64) @ m.T).reshape(shape)
     assert got.shape == shape and got.dtype == np.float32
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-5 * max(1.0, float(np.abs(want).max(initial=0))))

@@ -101,9 +101,9 @@ def test_gamma_folder_records_its_curve_and_decompresses_to_the_in_memory_result
     # decompress writes the source's 8-bit encoding: the in-memory reconstruction encoded the same way
     ok(capsys, "decompress", out, "-o", folder / "d_gamma", "--samples", "3,50,120", "-q")
     files = open_btf(folder / "d_gamma")
-    from usdbtf import colour
+    from usdbtf import color
     from usdbtf.manifest import encode_for_file
-    to_file = colour.processor(back.working_space, files.color_space)
+    to_file = color.processor(back.working_space, files.color_space)
     np.testing.assert_array_equal(files.read_encoded(slice(0, 3)), encode_for_file(want, to_file, "uint8"))
     # the estimated (held-out) error is the real error of the reconstruction, in scene-linear
     report = json.loads(ok(capsys, "error", raw, folder / "d_gamma"))

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from rig_helpers import ENV, USDBTF, Sim, run_capture, tree_bytes
 
-from usdbtf import colour, synth
+from usdbtf import color, synth
 from usdbtf.camera import Camera
 from usdbtf.cli import main
 from usdbtf.fiducials import apply_homography, detect_markers, load_board, make_board
@@ -109,7 +109,7 @@ def test_rectification_accuracy(scene128, view, light):
     err = np.linalg.norm(apply_homography(res.homography, corners) - apply_homography(h_true, corners), axis=1)
     assert err.mean() <= 0.5 and err.max() < 1.0
     assert res.residual_px <= 0.5
-    got = colour.processor(colour.WORKING_SPACE, LIN709).apply(res.image)
+    got = color.processor(color.WORKING_SPACE, LIN709).apply(res.image)
     assert psnr(got, np.clip(truth, 0, 1)) >= 30.0
 
 
@@ -121,7 +121,7 @@ def test_flat_field_corrects_vignetting(scene128):
     truth = np.clip(synth.render_sample(material, view, light), 0, 1)
     vig = vignetting(cam)[..., None]
     frame = add_sensor_noise(render_frame(board, truth, head, light, cam) * vig, cam, np.random.default_rng(1))
-    to709 = colour.processor(colour.WORKING_SPACE, LIN709)
+    to709 = color.processor(color.WORKING_SPACE, LIN709)
     flat = psnr(to709.apply(rectify_frame(frame / vig, board, 128).image), truth)
     plain = psnr(to709.apply(rectify_frame(frame, board, 128).image), truth)
     assert flat >= 30.0 and flat > plain + 3.0
@@ -225,7 +225,7 @@ def test_capture_rectify_compress(raw_capture, tmp_path, capsys):
     assert meta["physical_size_m"] == pytest.approx([0.12 * 600 / 1100] * 2)
     # Every measured sample matches the simulator's ground truth.
     material = synth.make_material("pebbles", 32, 0)
-    to709 = colour.processor(colour.WORKING_SPACE, LIN709)
+    to709 = color.processor(color.WORKING_SPACE, LIN709)
     scores = []
     for i in range(24):
         truth = np.clip(synth.render_sample(material, rect.sampling.view[i], rect.sampling.light[i]), 0, 1)

@@ -17,9 +17,9 @@ import pytest
 from cli_helpers import bad_input, bad_usage, ok
 from quilt_render_data import pebbles, work  # noqa: F401 (fixtures)
 from quilt_render_data import PHYSICAL_SIZE, plane_with_uv, write_sphere
-from usdbtf import colour
+from usdbtf import color
 from usdbtf.camera import Camera, parse_camera
-from usdbtf.colour import resolve_space
+from usdbtf.color import resolve_space
 from usdbtf.compress import read_compressed
 from usdbtf.imageio import read_image, read_info
 from usdbtf.mesh import Mesh
@@ -44,7 +44,7 @@ def test_swatch_at_measured_directions_equals_decompress(work, pebbles, capsys):
     # Read decompress's float files directly (a reconstruction may dip slightly below zero,
     # which the BTF reader rejects as input), converted to the working space through OCIO.
     manifest = json.loads((work / "recon" / "btf.json").read_text())
-    to_working = colour.processor(manifest["color_space"], "scene_linear")
+    to_working = color.processor(manifest["color_space"], "scene_linear")
     for n, s in enumerate(samples):
         view, light = cbtf.sampling.view[s], cbtf.sampling.light[s]
         out = work / f"swatch{s}.exr"
@@ -59,7 +59,7 @@ def test_swatch_at_measured_directions_equals_decompress(work, pebbles, capsys):
         # The manifest writer clamps float values below 0 in the file's space (Rec.709): compare
         # the swatch through the same clamp (a curve's reconstruction is >= 0 in ACEScg, whose
         # wider gamut can still hold colours with a negative Rec.709 channel).
-        got = to_working.apply(np.maximum(colour.processor("scene_linear", manifest["color_space"]).apply(got), 0))
+        got = to_working.apply(np.maximum(color.processor("scene_linear", manifest["color_space"]).apply(got), 0))
         np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-4 * np.abs(want).max())
         png, png_info = read_image(out.with_suffix(".png"))
         # OIIO reads the PNG's sRGB chunk back as the sRGB encoding (same curve as the display).

@@ -40,7 +40,7 @@ def _oetf_codes(x):
 
 
 def test_srgb_encoder_is_exact(research):
-    from usdbtf import colour
+    from usdbtf import color
     from usdbtf.manifest import encode_for_file
 
     rlib, _ = research
@@ -54,14 +54,14 @@ def test_srgb_encoder_is_exact(research):
     assert got[np.isnan(x) | (x == -np.inf)].max() == 0 and got[x == np.inf] == 255
     # OCIO's fast curve rounds a few random values differently, never by more than one code
     lin709 = np.repeat(x[:250_000, None], 3, axis=1)
-    to_srgb = colour.processor("Linear Rec.709 (sRGB)", "sRGB Encoded Rec.709 (sRGB)")
+    to_srgb = color.processor("Linear Rec.709 (sRGB)", "sRGB Encoded Rec.709 (sRGB)")
     ocio = encode_for_file(lin709, to_srgb, "uint8")[:, 0]
     diff = np.abs(ocio.astype(int) - got[:250_000].astype(int))
     assert diff.max() <= 1 and (diff > 0).mean() < 1e-3
 
 
 def test_evaluate_is_usdbtf_compare(research, small):
-    from usdbtf.colour import mix_rgb
+    from usdbtf.color import mix_rgb
     from usdbtf.compress.decompress import compare
     from usdbtf.io import open_btf
 

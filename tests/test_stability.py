@@ -52,7 +52,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from usdbtf import colour, synth
+from usdbtf import color, synth
 from usdbtf.compress import CompressOptions, read_compressed, reconstruct
 from usdbtf.compress import codecs as codecs_mod
 from usdbtf.compress.linalg import exact_basis, randomized_basis
@@ -692,7 +692,7 @@ def test_bad_pixel_in_memory_error_names_the_sample(tmp_path, entry):
         if entry == "from_linear":
             ArrayBTF.from_linear(s, x)
         else:   # an ArrayBTF built directly: the check happens while compressing
-            btf = ArrayBTF(sampling=s, width=8, height=8, color_space=colour.WORKING_SPACE, bit_depth="float", data=x)
+            btf = ArrayBTF(sampling=s, width=8, height=8, color_space=color.WORKING_SPACE, bit_depth="float", data=x)
             compress_into(btf, tmp_path / "c", CompressOptions(k=2))
     assert not (tmp_path / "c").exists()
     assert f"#{BAD_SAMPLE}" in str(exc.value), str(exc.value)

@@ -23,7 +23,7 @@ import pytest
 import bonn_btf_writer as w
 from cli_helpers import bad_usage, ok
 from compress_helpers import compress_into
-from usdbtf import colour, synth
+from usdbtf import color, synth
 from usdbtf.compress import CompressOptions, compress, load_source, sample_texels
 from usdbtf.compress.factor_algebra import FactorFrame, exact_coefficients, exact_fit, linear_decode
 from usdbtf.compress.factored import FactoredSource, uses_factors
@@ -65,7 +65,7 @@ def per_sample_rmse(original: Path, decompressed: Path) -> np.ndarray:
     orig = read_ubo2014(original)
     key = {tuple(np.round(np.r_[v, l], 3)): i for i, (v, l) in enumerate(zip(orig.sampling.view, orig.sampling.light))}
     manifest = json.loads((decompressed / "btf.json").read_text())
-    to_working = colour.processor(manifest["color_space"], orig.working_space)
+    to_working = color.processor(manifest["color_space"], orig.working_space)
     truth = orig.read_samples(slice(None))
     out = np.full(orig.n_samples, np.nan)
     for entry in manifest["samples"]:

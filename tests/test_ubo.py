@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from cli_helpers import run
-from usdbtf import cli, colour
+from usdbtf import cli, color
 from usdbtf.errors import BTFError
 from usdbtf.imageio import write_image
 from usdbtf.io import open_btf
@@ -91,7 +91,7 @@ def make_zip(folder: Path, zip_path: Path, top: str | None = None, extra: dict |
 def expected_linear(ext: str = "png") -> np.ndarray:
     """(S, H, W, 3) float32 scene-linear values in view-major order, decoded by OCIO itself."""
     codes = np.stack([sample_codes(vi, li, ext) for vi in range(len(VIEWS)) for li in range(len(LIGHTS))])
-    return colour.processor(SRGB, "scene_linear").apply(codes.astype(np.float32) / 255.0)
+    return color.processor(SRGB, "scene_linear").apply(codes.astype(np.float32) / 255.0)
 
 
 def expected_sampling():
@@ -163,7 +163,7 @@ def test_zip_jpeg_values_read_in_place(jpg_folder, tmp_path, private_tmpdir, top
     got = btf.read_samples(slice(None))
     # Compare in code values: re-encode the decoded linear values to sRGB; JPEG q95 on flat
     # 16x16 patches is within a few codes of the source.
-    back = colour.processor("scene_linear", SRGB).apply(got) * 255.0
+    back = color.processor("scene_linear", SRGB).apply(got) * 255.0
     codes = np.stack([sample_codes(vi, li, "jpg") for vi in range(len(VIEWS)) for li in range(len(LIGHTS))])
     assert np.abs(back - codes).max() <= 3.0
     # Read in place: nothing in $TMPDIR, nothing beside the zip, no descriptor left open.
@@ -190,14 +190,14 @@ def test_float_files_default_to_scene_linear_and_override(tmp_path):
     folder = make_dataset(tmp_path / "hdr", ext="exr", dtype=np.float16)
     btf = read_ubo(folder)
     assert btf.bit_depth == "half"
-    assert btf.color_space == colour.resolve_space("scene_linear")
+    assert btf.color_space == color.resolve_space("scene_linear")
     stored = np.stack([sample_codes(vi, li, "exr") for vi in range(len(VIEWS)) for li in range(len(LIGHTS))])
     stored = (stored / 255.0).astype(np.float16).astype(np.float32)
     np.testing.assert_array_equal(btf.read_samples(slice(None)), stored)
     other = read_ubo(folder, color_space="Linear Rec.709 (sRGB)")
     assert other.color_space == "Linear Rec.709 (sRGB)"
     np.testing.assert_allclose(other.read_samples([2])[0],
-                               colour.processor("Linear Rec.709 (sRGB)", "scene_linear").apply(stored[2]), rtol=1e-6)
+                               color.processor("Linear Rec.709 (sRGB)", "scene_linear").apply(stored[2]), rtol=1e-6)
 
 
 def test_non_image_and_hidden_members_are_listed_not_dropped(png_folder, tmp_path, capsys):
@@ -441,7 +441,7 @@ def test_utia_exr_is_xyz_d65_through_ocio(tmp_path, capsys, declared):
     btf = open_btf(folder)
     assert btf.color_space == "CIE XYZ-D65 - Scene-referred" and btf.bit_depth == "half"
     np.testing.assert_array_equal(btf.sampling.view, expected_sampling().view)
-    want = colour.processor("CIE XYZ-D65 - Scene-referred", "scene_linear").apply(stored)
+    want = color.processor("CIE XYZ-D65 - Scene-referred", "scene_linear").apply(stored)
     np.testing.assert_allclose(btf.read_samples(slice(None)), want, rtol=1e-6, atol=1e-7)
     assert not np.allclose(want, stored, atol=1e-3)  # the conversion did something
     code, out, err = run(capsys, "info", folder)

@@ -241,7 +241,7 @@ def test_bdi_matches_reference(tmp_path, sparse):
 # --------------------------------------------------------------------------- colour models
 
 
-def test_colour_model_inverses():
+def test_color_model_inverses():
     rgb = np.random.default_rng(7).uniform(0.05, 2.0, (50, 3))
     yuv = rgb @ w.RGB_TO_YUV.T
     y = yuv[:, :1]

@@ -16,7 +16,7 @@ import usdbtf  # noqa: F401  (registers the schema plugin first)
 from pxr import Sdf, Usd, UsdGeom, UsdShade
 
 from cli_helpers import bad_input, bad_usage, ok, refused, run
-from usdbtf import colour
+from usdbtf import color
 from usdbtf.cli import main
 from usdbtf.compress import read_compressed, reconstruct
 from usdbtf.compress.metrics import ErrorSums
@@ -181,7 +181,7 @@ def test_asset_info_thumbnail_and_provenance(compressed, tmp_path, capsys):
     assert Usd.ModelAPI(plain_root).GetAssetVersion() == "" and not plain_root.HasAPI("AssetPreviewsAPI")
 
 
-def test_data_is_raw_and_colour_is_declared(asset):
+def test_data_is_raw_and_color_is_declared(asset):
     from pxr import UsdShade as S
 
     stage = Usd.Stage.Open(str(asset))
@@ -325,7 +325,7 @@ def test_fallback_maps_recover_a_lambertian(tmp_path, capsys):
     albedo[:, :8] = (0.6, 0.3, 0.1)
     albedo[:, 8:] = (0.2, 0.5, 0.7)
     cos_l = np.clip(to_vectors(sampling.light)[:, 2], 0, 1).astype(np.float32)
-    working = colour.processor("Linear Rec.709 (sRGB)", "scene_linear").apply(albedo)
+    working = color.processor("Linear Rec.709 (sRGB)", "scene_linear").apply(albedo)
     data = 0.8 * working[None] * cos_l[:, None, None, None]          # white level 0.8
     btf = ArrayBTF.from_linear(sampling, data)
     btf.metadata.update(physical_size_m=[0.02, 0.02], white_level=0.8)
@@ -338,7 +338,7 @@ def test_fallback_maps_recover_a_lambertian(tmp_path, capsys):
     pkg.write_package(pkg.package(tmp_path / "c", pkg.PackageOptions(thumbnail=False)), tmp_path / "a" / "flat.usda")
     folder = tmp_path / "a" / "flat_textures" / "fallback"
     png, _ = read_image(folder / "diffuse.png")
-    lin = colour.processor(fallback.COLOUR_ENCODING, "Linear Rec.709 (sRGB)").apply(png.astype(np.float32) / 255)
+    lin = color.processor(fallback.COLOUR_ENCODING, "Linear Rec.709 (sRGB)").apply(png.astype(np.float32) / 255)
     np.testing.assert_allclose(lin[:, 2:6], albedo[:, 2:6], atol=0.02)
     np.testing.assert_allclose(lin[:, 10:14], albedo[:, 10:14], atol=0.02)
     spec, _ = read_image(folder / "specular.png")
@@ -360,7 +360,7 @@ def test_fit_recovers_a_ggx_surface_per_texel(alpha, tmp_path):
     material = synth.Material(height, np.full((n, n, 3), 0.5, np.float32), np.full((n, n), 0.04, np.float32),
                               np.full((n, n), alpha, np.float32))
     sampling = preset("small")
-    data = colour.processor("Linear Rec.709 (sRGB)", "scene_linear").apply(synth.render_all(material, sampling))
+    data = color.processor("Linear Rec.709 (sRGB)", "scene_linear").apply(synth.render_all(material, sampling))
     cbtf = compress(ArrayBTF.from_linear(sampling, data), CompressOptions(k=12, codec="exr"))
     maps = svbrdf.fit_svbrdf(cbtf)
     flat = slice(n // 2 + 1, None)

@@ -14,7 +14,7 @@ import numpy as np
 
 from rlib import Data, Domain, domain as get_domain, encode_bytes
 
-__all__ = ["Factorised", "paper_method", "fit_texels", "project", "colour_axes", "Storage", "uniform_store",
+__all__ = ["Factorised", "paper_method", "fit_texels", "project", "color_axes", "Storage", "uniform_store",
            "factorise", "parse_config", "run_config"]
 
 #: The paper's storage as usdbtf's --solver paper writes it: JPEG q90 4:4:4 coefficients,
@@ -120,7 +120,7 @@ def project(data: Data, u: np.ndarray, table: np.ndarray, chunk: int = 512):
     return acc.reshape(k, data.P, 3), energy
 
 
-def colour_axes(coeff: np.ndarray) -> np.ndarray:
+def color_axes(coeff: np.ndarray) -> np.ndarray:
     """Orthonormal (3, 3) R, columns the colour principal axes of the coefficients (k, P, 3),
     largest first, each column's largest entry positive.  Stored channels = coeff @ R."""
     gram = np.zeros((3, 3))
@@ -265,7 +265,7 @@ def factorise(data: Data, budget: int, *, dom="linear", k_max: int = 300, n_fit:
     u, sv = randomized_basis(x, min(k_max, data.S), power_iterations=power_iterations, seed=seed)
     del x
     coeff, total = project(data, u, table)
-    r = colour_axes(coeff)
+    r = color_axes(coeff)
     stored = (coeff.reshape(-1, 3) @ r.astype(np.float32)).reshape(coeff.shape)
     k, step, energy = _rd_choice(data, u, stored, total, budget, storage, seed)
     while True:
@@ -471,7 +471,7 @@ def domain_scores(data: Data, candidates, *, k_probe: int = 300, n_fit: int = 40
     sample), in both error domains.  Returns {name: (enc %, lin %, score)} with score =
     log(enc) + log(lin): lower is better in both domains at once (the paper's errors, which
     the ratios divide by, are constants per material)."""
-    from usdbtf.colour import mix_rgb
+    from usdbtf.color import mix_rgb
     from usdbtf.compress.linalg import randomized_basis
     from rlib import srgb_encode
 

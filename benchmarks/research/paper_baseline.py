@@ -31,7 +31,7 @@ from methods import Factorised, paper_method
 def usdbtf_default(data, budget: int, folder=None, tag: str = "") -> Factorised:
     """``usdbtf compress --max-bytes budget`` on the dataset's folder (or ``folder``, a manifest
     of a subset of it), read back (cached under benchmarks/out/research/cli)."""
-    from usdbtf.colour import mix_rgb
+    from usdbtf.color import mix_rgb
     from usdbtf.compress import read_compressed
     from usdbtf.compress.format import working_coefficients
     from rlib import domain

@@ -169,7 +169,7 @@ class Data:
 def load(preset: str, sampling: str = "paper", size: int = 128, seed: int = 0, say=say) -> Data:
     """The dataset ``usdbtf synth PRESET --sampling SAMPLING --size SIZE --seed SEED`` writes
     (generated once under benchmarks/out/data), as codes cached under benchmarks/out/research."""
-    from usdbtf import colour
+    from usdbtf import color
     from usdbtf.bench.datasets import ensure_dataset
     from usdbtf.io import open_btf
 
@@ -189,7 +189,7 @@ def load(preset: str, sampling: str = "paper", size: int = 128, seed: int = 0, s
         os.replace(tmp, cache)
         say(f"  decoded {btf.n_samples} files into {cache} in {time.perf_counter() - t:.1f} s")
     codes = np.load(cache, mmap_mode="r")
-    dec = colour.integer_decoder(btf.color_space, 8, btf.working_space)
+    dec = color.integer_decoder(btf.color_space, 8, btf.working_space)
     if not (dec.exact and dec.shared_curve and btf.color_space.startswith("sRGB")):
         raise SystemExit(f"{info['folder']}: expected 8-bit sRGB files with an exact table decode")
     return Data(preset, codes, btf.sampling, size, dec.lut[0].astype(np.float32), dec.matrix.astype(np.float32))
@@ -316,7 +316,7 @@ class Errors:
 def evaluate(data: Data, recon, rows=None, chunk: int = 256) -> Errors:
     """Errors of ``recon(rows) -> (n, P, 3) float32 linear Rec.709`` against ``data`` over the
     samples ``rows`` (default all): every texel and channel."""
-    from usdbtf.colour import mix_rgb
+    from usdbtf.color import mix_rgb
 
     rows = np.arange(data.S) if rows is None else np.asarray(rows)
     e = Errors()

@@ -1,7 +1,7 @@
 """Image files through OpenImageIO: read with clear errors, write with the colour space declared.
 
 Pixel data here is in the file's own encoding (integer codes or floats); colour
-conversion lives in :mod:`usdbtf.colour`.
+conversion lives in :mod:`usdbtf.color`.
 """
 from __future__ import annotations
 

@@ -18,7 +18,7 @@ from typing import Iterable
 
 import numpy as np
 
-from . import colour, jsontext
+from . import color, jsontext
 from .atomic import atomic_dir
 from .errors import BTFError
 from .imageio import numpy_dtype, read_info, write_image
@@ -95,7 +95,7 @@ def _image_path(folder: Path, real_folder: str, name: str, manifest: Path, label
     return path
 
 
-def read_manifest(folder, *, ocio_config: str | None = None, working_space: str = colour.WORKING_SPACE,
+def read_manifest(folder, *, ocio_config: str | None = None, working_space: str = color.WORKING_SPACE,
                   allow_outside_paths: bool | None = None) -> FileBTF:
     """Open a manifest folder as a streaming :class:`FileBTF` (pixels are read on demand).
 
@@ -119,7 +119,7 @@ def read_manifest(folder, *, ocio_config: str | None = None, working_space: str 
     if not isinstance(space, str) or not space:
         raise BTFError(f"{path}: \"color_space\" must name an OCIO colour space")
     try:
-        space = colour.resolve_space(space, ocio_config)
+        space = color.resolve_space(space, ocio_config)
     except BTFError as exc:
         raise BTFError(f"{path}: {exc}") from None
     samples = doc.get("samples")
@@ -150,7 +150,7 @@ def read_manifest(folder, *, ocio_config: str | None = None, working_space: str 
     return btf
 
 
-def encode_for_file(linear: np.ndarray, processor: colour.Processor, bit_depth: str) -> np.ndarray:
+def encode_for_file(linear: np.ndarray, processor: color.Processor, bit_depth: str) -> np.ndarray:
     """Working-space float (..., 3) -> file values in ``processor.dst`` at ``bit_depth``.
 
     Integer depths clip to [0, 1] and round to nearest; float depths clamp below at 0 and
@@ -171,7 +171,7 @@ def _sample_file(i: int, view, light, ext: str) -> str:
 
 
 def write_manifest(folder, sampling: Sampling, images: Iterable[np.ndarray], *, color_space: str,
-                   bit_depth: str = "uint8", ext: str = "png", array_space: str = colour.WORKING_SPACE,
+                   bit_depth: str = "uint8", ext: str = "png", array_space: str = color.WORKING_SPACE,
                    ocio_config: str | None = None, interpolated=None, metadata: dict | None = None,
                    attributes: dict | None = None) -> Path:
     """Write a manifest folder atomically.
@@ -185,8 +185,8 @@ def write_manifest(folder, sampling: Sampling, images: Iterable[np.ndarray], *, 
     interpolated : optional (S,) bool, marks filled samples.
     metadata : extra top-level keys (e.g. {"physical_size_m": [0.05, 0.05]}).
     """
-    space = colour.resolve_space(color_space, ocio_config)
-    proc = colour.processor(array_space, space, ocio_config)
+    space = color.resolve_space(color_space, ocio_config)
+    proc = color.processor(array_space, space, ocio_config)
     attrs = dict(FORMAT_ATTRIBUTES.get(ext, {}), **(attributes or {}))
     interpolated = np.zeros(len(sampling), bool) if interpolated is None else np.asarray(interpolated, bool)
     entries = []

@@ -19,7 +19,7 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
-from . import colour
+from . import color
 from .errors import BTFError
 from .imageio import read_image, read_info
 from .sampling import Sampling
@@ -97,7 +97,7 @@ class BTF:
     bit_depth: str = "float"
     names: list = field(default_factory=list)
     interpolated: np.ndarray | None = None
-    working_space: str = colour.WORKING_SPACE
+    working_space: str = color.WORKING_SPACE
     ocio_config: str | None = None
     metadata: dict = field(default_factory=dict)
     path: str = ""
@@ -127,10 +127,10 @@ class BTF:
 
     # -- colour ------------------------------------------------------------
     @property
-    def integer_decoder(self) -> colour.IntegerDecoder | None:
+    def integer_decoder(self) -> color.IntegerDecoder | None:
         """The verified table decode for integer encodings, else None."""
         if self.bit_depth in ("uint8", "uint16"):
-            return colour.integer_decoder(self.color_space, 8 if self.bit_depth == "uint8" else 16,
+            return color.integer_decoder(self.color_space, 8 if self.bit_depth == "uint8" else 16,
                                           self.working_space, self.ocio_config)
         return None
 
@@ -145,7 +145,7 @@ class BTF:
         if names is None and encoded.ndim >= 1 and encoded.shape[0] == self.n_samples:
             names = self.names
         check_finite(encoded, what or "BTF", names)
-        return colour.processor(self.color_space, self.working_space, self.ocio_config).apply(encoded)
+        return color.processor(self.color_space, self.working_space, self.ocio_config).apply(encoded)
 
     # -- pixel access (subclasses implement read_encoded) ------------------
     def read_encoded(self, indices, rows: tuple[int, int] | None = None) -> np.ndarray:
@@ -181,7 +181,7 @@ class ArrayBTF(BTF):
         if data.ndim != 4 or data.shape[-1] != 3 or data.shape[0] != len(sampling):
             raise BTFError(f"expected (S={len(sampling)}, H, W, 3) pixels, got {data.shape}")
         check_finite(data, "in-memory BTF", [f"#{i}" for i in range(len(data))])
-        kw.setdefault("working_space", colour.WORKING_SPACE)
+        kw.setdefault("working_space", color.WORKING_SPACE)
         return cls(sampling=sampling, width=data.shape[2], height=data.shape[1], color_space=kw["working_space"],
                    bit_depth="float", data=data, **kw)
 

@@ -33,7 +33,7 @@ from typing import Iterator
 
 import numpy as np
 
-from . import colour
+from . import color
 from .errors import BTFError
 from .fiducials import Board, apply_homography, detect_markers, fit_homography, make_board, parse_board, to_cv
 from .fill import combine, plan_fill
@@ -278,7 +278,7 @@ class RectifyResult:
     def to_btf(self) -> BTF:
         """The result as a :class:`usdbtf.model.BTF` (working-space floats, fills made when
         read; ``interpolated`` marks them), e.g. for :func:`usdbtf.compress.compress`."""
-        return RectifiedBTF(self.sampling, self.options.size, self.options.size, color_space=colour.WORKING_SPACE,
+        return RectifiedBTF(self.sampling, self.options.size, self.options.size, color_space=color.WORKING_SPACE,
                             interpolated=~self.available, metadata=dict(self.metadata), result=self)
 
 

@@ -417,7 +417,7 @@ REC709_LINEAR = "Linear Rec.709 (sRGB)"
 def _luminance_weights(cbtf: CompressedBTF) -> np.ndarray:
     """(3,) float32 luminance weights of the working space: Rec.709's Y row composed with
     OCIO's (linear) working -> linear Rec.709 transform."""
-    from .colour import processor
+    from .color import processor
 
     to_709 = processor(cbtf.working_space, REC709_LINEAR, cbtf.ocio_config).apply(np.eye(3, dtype=np.float32))
     return (to_709 @ _REC709_Y).astype(np.float32)

@@ -1164,10 +1164,10 @@ class SynthResult:
     def to_btf(self):
         """The samples as an in-memory :class:`usdbtf.model.ArrayBTF` in the working space
         (S x N x N x 12 bytes)."""
-        from . import colour
+        from . import color
         from .model import ArrayBTF
 
-        data = colour.processor(RADIANCE_SPACE, colour.WORKING_SPACE).apply(render_all(self.material, self.sampling))
+        data = color.processor(RADIANCE_SPACE, color.WORKING_SPACE).apply(render_all(self.material, self.sampling))
         btf = ArrayBTF.from_linear(self.sampling, data)
         btf.metadata.update(self.metadata)
         return btf

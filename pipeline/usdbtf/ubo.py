@@ -76,7 +76,7 @@ from pathlib import Path, PurePosixPath
 import numpy as np
 import OpenImageIO as oiio
 
-from . import colour
+from . import color
 from .errors import BTFError
 from .imageio import read_info
 from .model import BTF, FileBTF, validate_sampling
@@ -375,7 +375,7 @@ def _folder_members(folder: Path):
 
 
 def read_ubo(path, *, color_space: str | None = None, ocio_config: str | None = None,
-             working_space: str = colour.WORKING_SPACE) -> UBOBTF:
+             working_space: str = color.WORKING_SPACE) -> UBOBTF:
     """Open a UBO2003-layout zip archive or folder (UBO2003, UTIA, ATRIUM) as a streaming
     :class:`UBOBTF`.
 
@@ -447,7 +447,7 @@ def _probe(paths, sampling, names, ignored, source: Path, zf, color_space, ocio_
             header = _header(first)
             if header[0] in (5, 6, 7, 8):  # rotated by 90 degrees: width and height swap
                 info = type(info)(info.path, info.height, info.width, info.channels, info.bit_depth, info.color_space)
-            space = colour.resolve_space(color_space or _default_space(info, names[0], header), ocio_config)
+            space = color.resolve_space(color_space or _default_space(info, names[0], header), ocio_config)
             if info.bit_depth not in ("uint8", "uint16", "half", "float"):
                 raise BTFError(f"{first}: unsupported bit depth {info.bit_depth}")
             flavour = _flavour(names, PurePosixPath(names[0]).suffix.lower(), info.width)

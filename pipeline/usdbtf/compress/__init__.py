@@ -3,7 +3,7 @@
 :func:`compress` (pure, in memory) and :func:`write_compress` (the folder) are the stage;
 the steps :func:`compress` calls, in order, are public for benchmarks and distributed runs:
 :func:`sample_texels`, :func:`load_source`, :func:`fit_basis`, :func:`held_out_set`,
-:func:`sampled_coefficients`, :func:`colour_decorrelation`, :func:`step_for_k`,
+:func:`sampled_coefficients`, :func:`color_decorrelation`, :func:`step_for_k`,
 :func:`project`, :func:`rate_control` (:func:`quantise`, :func:`encode`),
 :func:`held_out_error`, :func:`error_curve`.
 
@@ -19,7 +19,7 @@ import types
 #: Public name -> the module of this package that defines it.
 _WHERE = {
     "compress": "core", "write_compress": "core",
-    "colour_decorrelation": "decorrelate", "rotate_colour": "decorrelate",
+    "color_decorrelation": "decorrelate", "rotate_color": "decorrelate",
     "encode": "encode", "truncate_encoded": "encode",
     "HeldOut": "evaluate", "error_curve": "evaluate", "held_out_error": "evaluate", "held_out_set": "evaluate",
     "BasisFit": "fit", "fit_basis": "fit", "sampled_coefficients": "fit",
@@ -35,7 +35,7 @@ _WHERE = {
 
 __all__ = ["SOLVERS", "CompressOptions", "compress", "write_compress", "CompressedBTF", "read_compressed",
            "reconstruct", "ErrorSums", "Texels", "sample_texels", "load_source", "BasisFit", "fit_basis",
-           "HeldOut", "held_out_set", "sampled_coefficients", "colour_decorrelation", "rotate_colour", "step_for_k",
+           "HeldOut", "held_out_set", "sampled_coefficients", "color_decorrelation", "rotate_color", "step_for_k",
            "project", "Factorisation", "rate_control", "quantise", "encode", "truncate_encoded", "held_out_error",
            "error_curve"]
 

@@ -28,7 +28,7 @@ from ..atomic import atomic_dir
 from ..model import BTF
 from ..outputs import COMPRESSED as COMPRESSED_KIND
 from .curve import write_curve
-from .decorrelate import colour_decorrelation, rotate_colour
+from .decorrelate import color_decorrelation, rotate_color
 from .evaluate import error_curve, held_out_error, held_out_set
 from .domain_choice import choose_domain
 from .fit import HDR_NORM_RANGE, fit_source, require_signal, sampled_coefficients
@@ -85,15 +85,15 @@ def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
         # Colour and (for a plain k) the quantisation step, from the sampled texels' coefficients,
         # before the projection: then the projection can skip what the step would zero out.
         sampled, outside = sampled_coefficients(fit, source.to_working, held.truth, btf.n_pixels)
-        colour = np.eye(3) if opts.solver == "paper" else colour_decorrelation(sampled)
-        step, planes = step_for_k(rotate_colour(sampled, colour), fit.basis, outside, btf.n_pixels, opts)
+        color = np.eye(3) if opts.solver == "paper" else color_decorrelation(sampled)
+        step, planes = step_for_k(rotate_color(sampled, color), fit.basis, outside, btf.n_pixels, opts)
         del sampled
-        clock.lap("colour")
-        coeff, energy = project(source, fit.basis, colour, planes, energy=opts.target_error is not None)
+        clock.lap("color")
+        coeff, energy = project(source, fit.basis, color, planes, energy=opts.target_error is not None)
         clock.lap("project")
         if energy is None:   # not measured: the coefficients' energy plus the estimate outside the basis
             energy = float(np.einsum("kpc,kpc->", coeff, coeff, dtype=np.float64)) + outside
-        cbtf, choice = rate_control(Factorisation(btf, fit.basis, coeff, colour, energy, planes, step, domain),
+        cbtf, choice = rate_control(Factorisation(btf, fit.basis, coeff, color, energy, planes, step, domain),
                                     opts, held)
         if scores is not None:
             choice["domain_scores"] = scores

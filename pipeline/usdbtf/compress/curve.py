@@ -109,12 +109,12 @@ def plot_curve(curves: dict, path, title: str = "Percent error vs number of basi
             cv2.line(img, (px(tick), top), (px(tick), H - bottom), grey, 1)
             cv2.putText(img, f"{tick:g}", (px(tick) - 10, H - bottom + 18), font, 0.4, black, 1, cv2.LINE_AA)
     cv2.rectangle(img, (left, top), (W - right, H - bottom), black, 1)
-    colours = [(31, 119, 180), (214, 39, 40), (44, 160, 44), (148, 103, 189)]  # RGB
+    colors = [(31, 119, 180), (214, 39, 40), (44, 160, 44), (148, 103, 189)]  # RGB
     for n, (label, c) in enumerate(curves.items()):
         pts = np.array([[px(k), py(v)] for k, v in zip(c["k"], c["percent"])], np.int32)
-        cv2.polylines(img, [pts], False, colours[n % 4], 2, cv2.LINE_AA)
+        cv2.polylines(img, [pts], False, colors[n % 4], 2, cv2.LINE_AA)
         if len(curves) > 1:
-            cv2.putText(img, label, (W - right - 200, top + 18 + 16 * n), font, 0.45, colours[n % 4], 1, cv2.LINE_AA)
+            cv2.putText(img, label, (W - right - 200, top + 18 + 16 * n), font, 0.45, colors[n % 4], 1, cv2.LINE_AA)
     cv2.putText(img, title, (left, 25), font, 0.5, black, 1, cv2.LINE_AA)
     cv2.putText(img, "number of basis vectors k", (W // 2 - 90, H - 15), font, 0.45, black, 1, cv2.LINE_AA)
     cv2.putText(img, "% error", (8, top - 10), font, 0.45, black, 1, cv2.LINE_AA)

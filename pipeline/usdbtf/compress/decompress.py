@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import colour
+from .. import color
 from ..errors import UsageError
 from ..manifest import encode_for_file, write_manifest
 from ..model import BTF
@@ -65,7 +65,7 @@ def compare(orig: BTF, recon_images, indices=None, *, chunk: int = 256) -> dict:
     """
     idx = np.arange(orig.n_samples) if indices is None else np.asarray(indices)
     lin, enc = ErrorSums(), ErrorSums()
-    to_file = colour.processor(orig.working_space, orig.color_space, orig.ocio_config)
+    to_file = color.processor(orig.working_space, orig.color_space, orig.ocio_config)
     top = {"uint8": 255.0, "uint16": 65535.0}.get(orig.bit_depth, 1.0)
     for a in range(0, len(idx), chunk):
         sel = idx[a:a + chunk]

@@ -12,16 +12,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import colour
+from .. import color
 
-__all__ = ["colour_decorrelation", "rotate_colour", "planes_in_use", "PLANE_TOLERANCE"]
+__all__ = ["color_decorrelation", "rotate_color", "planes_in_use", "PLANE_TOLERANCE"]
 
 #: A colour plane's component is projected while zeroing it would add more than this
 #: fraction of one component's quantisation noise (n step^2 / 12), estimated on the sample.
 PLANE_TOLERANCE = 0.01
 
 
-def colour_decorrelation(coeff: np.ndarray) -> np.ndarray:
+def color_decorrelation(coeff: np.ndarray) -> np.ndarray:
     """The colour rotation R: eigenvectors of the 3 x 3 Gram sum_t,i c_ti c_ti^T.
 
     Parameters
@@ -33,21 +33,21 @@ def colour_decorrelation(coeff: np.ndarray) -> np.ndarray:
     (3, 3) float64 orthonormal R, columns = colour principal axes, largest eigenvalue first,
     each column's largest-magnitude entry positive.  Stored planes are ``coeff @ R``.
     """
-    evals, vecs = np.linalg.eigh(_colour_gram(coeff))
+    evals, vecs = np.linalg.eigh(_color_gram(coeff))
     vecs = vecs[:, np.argsort(evals)[::-1]]
     vecs *= np.sign(vecs[np.argmax(np.abs(vecs), axis=0), [0, 1, 2]])
     return vecs
 
 
-def rotate_colour(coeff: np.ndarray, m: np.ndarray) -> np.ndarray:
+def rotate_color(coeff: np.ndarray, m: np.ndarray) -> np.ndarray:
     """``coeff @ m`` for (k, n, 3) float32 coefficients, in place, one component at a time
     (a float64 or full-size temporary would double the peak memory).  Returns ``coeff``."""
     for i in range(len(coeff)):
-        coeff[i] = colour.mix_rgb(coeff[i], m.T)
+        coeff[i] = color.mix_rgb(coeff[i], m.T)
     return coeff
 
 
-def _colour_gram(coeff: np.ndarray) -> np.ndarray:
+def _color_gram(coeff: np.ndarray) -> np.ndarray:
     """3x3 float64 sum of c c^T over every texel and component of ``coeff`` (k, P, 3),
     one component at a time (a float64 copy of the whole array would be 2x its size)."""
     gram = np.zeros((3, 3))

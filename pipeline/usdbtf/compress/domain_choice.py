@@ -21,7 +21,7 @@ import logging
 
 import numpy as np
 
-from .. import colour
+from .. import color
 from ..manifest import encode_for_file
 from .domain import AUTO_CANDIDATES, LINEAR, Domain, parse_domain
 from .fit import BasisFit, fit_basis
@@ -115,7 +115,7 @@ def score_domains(source, texels, k: int, options, candidates=AUTO_CANDIDATES) -
     # apply): converted to working space block by block, never copied whole.
     x_src = source.peek_columns(texels.fit)                                      # (S, 3 n)
     y_src = source.peek_columns(texels.evaluation)                               # (S, 3 m)
-    to_file = colour.processor(btf.working_space, btf.color_space, btf.ocio_config)
+    to_file = color.processor(btf.working_space, btf.color_space, btf.ocio_config)
     codes = _Codes(to_file, btf.bit_depth)
     scored = np.arange(0, S, _SCORE_STRIDE)
     blocks = [scored[a:a + _SCORE_BLOCK] for a in range(0, len(scored), _SCORE_BLOCK)]

@@ -88,10 +88,10 @@ def held_out_set(source, texels: Texels) -> HeldOut:
 def file_encoder(btf):
     """callable(working-space float (..., 3)) -> ``btf``'s file values as float32, normalised
     to [0, 1] for integer depths: what "error on the encoded values" compares."""
-    from .. import colour
+    from .. import color
     from ..manifest import encode_for_file
 
-    to_file = colour.processor(btf.working_space, btf.color_space, btf.ocio_config)
+    to_file = color.processor(btf.working_space, btf.color_space, btf.ocio_config)
     top = np.float32({"uint8": 255.0, "uint16": 65535.0}.get(btf.bit_depth, 1.0))
     def encode(lin: np.ndarray) -> np.ndarray:
         return rows_apply(lambda block: encode_for_file(block, to_file, btf.bit_depth).astype(np.float32) / top,

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import colour
+from .. import color
 from .fit import BasisFit, norm_weights, signal_only
 from .linalg import fix_signs
 
@@ -140,7 +140,7 @@ def working_map(btf):
     """(matrix (3, 3), offset (3,)) float64 of OCIO's conversion from the BTF's colour space to
     its working space (working = matrix @ rgb + offset), or None when it is not affine
     (checked on random colours to 1e-5 relative)."""
-    proc = colour.processor(btf.color_space, btf.working_space, btf.ocio_config)
+    proc = color.processor(btf.color_space, btf.working_space, btf.ocio_config)
     base = proc.apply(np.zeros((1, 3), np.float32))[0].astype(np.float64)
     matrix = (proc.apply(np.eye(3, dtype=np.float32)).astype(np.float64) - base).T          # column c = image of e_c
     values = np.random.default_rng(1).standard_normal((256, 3)).astype(np.float32) * 4

@@ -77,7 +77,7 @@ class FactoredSource:
     """Compression's data from a factorisation (see the module docstring).
 
     Values it hands out are already in the working space: ``to_working`` is the identity and
-    ``working_mix(colour)`` is ``colour``.
+    ``working_mix(color)`` is ``color``.
     """
 
     kind = "factors"
@@ -113,8 +113,8 @@ class FactoredSource:
     def to_working(self, x: np.ndarray) -> np.ndarray:
         return x
 
-    def working_mix(self, colour: np.ndarray) -> np.ndarray:
-        return np.asarray(colour, np.float64)
+    def working_mix(self, color: np.ndarray) -> np.ndarray:
+        return np.asarray(color, np.float64)
 
     def values(self, samples: np.ndarray, texels) -> np.ndarray:
         """(n, t, 3) float32 working-space values of ``samples`` x ``texels`` (a slice or an

@@ -240,18 +240,18 @@ class ProjectionTotal:
         return self.coeff, energy
 
 
-def project(source, basis: np.ndarray, colour_matrix: np.ndarray, planes, *, energy: bool = False):
+def project(source, basis: np.ndarray, color_matrix: np.ndarray, planes, *, energy: bool = False):
     """Project every texel of ``source`` onto the basis, in the decorrelated colour frame.
 
     c(t) = U^T b(t) per colour plane (the paper's projection; Eq. (2) reconstructs
-    I = U c), with b(t) in working space rotated by ``colour_matrix``: the source folds
+    I = U c), with b(t) in working space rotated by ``color_matrix``: the source folds
     the decode's primaries matrix and the rotation into one 3 x 3 mix per texel.
 
     Parameters
     ----------
     source : a source of :mod:`.source` (or :mod:`.distributed`).
     basis : (S, k) float32 U.
-    colour_matrix : (3, 3) R, stored planes = working RGB @ R.
+    color_matrix : (3, 3) R, stored planes = working RGB @ R.
     planes : (k_0, k_1, k_2) components to project per plane (the rest are zero).
     energy : also return ||Y||^2 (working space, linear units squared).
 
@@ -260,4 +260,4 @@ def project(source, basis: np.ndarray, colour_matrix: np.ndarray, planes, *, ene
     coefficients : (k, P, 3) float32, texels row-major.
     energy : float, or None unless asked for.
     """
-    return source.project(basis, source.working_mix(np.asarray(colour_matrix).T), planes, energy=energy)
+    return source.project(basis, source.working_mix(np.asarray(color_matrix).T), planes, energy=energy)

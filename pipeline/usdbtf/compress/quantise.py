@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import colour
+from .. import color
 from ..model import BTF
 from .codecs import Stored, quantize_half, quantize_minmax, quantize_uniform
 from .domain import LINEAR, Domain
@@ -31,7 +31,7 @@ class Factorisation:
     basis : (S, k) float32 U, orthonormal columns, energy order.
     coefficients : (k, P, 3) float32 c, decorrelated colour planes, texels row-major;
         components a plane was not projected on are zero.
-    colour_matrix : (3, 3) float64 R, stored planes -> working-space RGB.
+    color_matrix : (3, 3) float64 R, stored planes -> working-space RGB.
     total_energy : float, ||X||^2 of the whole BTF in working space (linear units squared;
         partly estimated): the rate-distortion residual outside the k components.
     planes : (k_0, k_1, k_2) components projected per colour plane.
@@ -44,7 +44,7 @@ class Factorisation:
     btf: BTF
     basis: np.ndarray
     coefficients: np.ndarray
-    colour_matrix: np.ndarray
+    color_matrix: np.ndarray
     total_energy: float
     planes: tuple
     step: float | None = None
@@ -102,8 +102,8 @@ def quantise(f: Factorisation, k: int, step: float, options: CompressOptions) ->
     basis, coeffs = QUANTISERS[options.quantiser](f.basis[:, :k], f.coefficients[:k], textures, step)
     return CompressedBTF(
         sampling=btf.sampling, width=btf.width, height=btf.height, basis=basis, coefficients=coeffs,
-        color_matrix=f.colour_matrix, codec=options.codec_name,
-        working_space=colour.resolve_space(btf.working_space, btf.ocio_config),
+        color_matrix=f.color_matrix, codec=options.codec_name,
+        working_space=color.resolve_space(btf.working_space, btf.ocio_config),
         source={"color_space": btf.color_space, "bit_depth": btf.bit_depth,
                 "path": btf.path},
         interpolated=btf.interpolated, ocio_config=btf.ocio_config, domain=f.domain)

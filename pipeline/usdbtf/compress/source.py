@@ -36,7 +36,7 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from .. import colour
+from .. import color
 from ..errors import BTFError
 from ..model import BTF, FileBTF
 from .domain import LINEAR
@@ -98,13 +98,13 @@ class _Source:
 
     def to_working(self, x: np.ndarray) -> np.ndarray:
         """(..., 3 n) or (..., 3) curve-decoded values -> working space."""
-        return x if self.matrix is None else colour.mix_rgb(x, self.matrix)
+        return x if self.matrix is None else color.mix_rgb(x, self.matrix)
 
-    def working_mix(self, colour: np.ndarray) -> np.ndarray:
-        """The projection's colour mix: ``colour`` (3, 3, acting on working-space RGB) after
+    def working_mix(self, color: np.ndarray) -> np.ndarray:
+        """The projection's colour mix: ``color`` (3, 3, acting on working-space RGB) after
         the decode's primaries matrix."""
         m = np.eye(3) if self.matrix is None else self.matrix.astype(np.float64)
-        return np.asarray(colour, np.float64) @ m
+        return np.asarray(color, np.float64) @ m
 
     def projector(self, u, mix, ks, energy) -> TileProjector:
         return TileProjector(u, mix, ks, self.curves, self.plan.tile, energy=energy)
@@ -121,7 +121,7 @@ class _Source:
             return
         self._to_domain_kept(domain)
         decode, matrix = self.curves, self.matrix
-        self.curves = lambda raw: domain.forward(decode(raw) if matrix is None else colour.mix_rgb(decode(raw), matrix))
+        self.curves = lambda raw: domain.forward(decode(raw) if matrix is None else color.mix_rgb(decode(raw), matrix))
         self.matrix = None
         self.domain = domain
 

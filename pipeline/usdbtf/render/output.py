@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import PyOpenColorIO as ocio
 
-from .. import colour
+from .. import color
 from ..atomic import atomic_file
 from ..errors import BTFError
 from ..imageio import write_image
@@ -29,16 +29,16 @@ DEFAULT_VIEW = "Un-tone-mapped"
 @functools.lru_cache(maxsize=8)
 def display_processor(working_space: str, display: str | None, view: str | None, config: str | None):
     """(CPU processor working space -> display, display name, view name) for ``config``."""
-    cfg = colour.get_config(config)
+    cfg = color.get_config(config)
     display = display or cfg.getDefaultDisplay()
     if display not in list(cfg.getDisplays()):
-        raise BTFError(f"display {display!r} is not in OCIO config {config or colour.DEFAULT_CONFIG!r} "
+        raise BTFError(f"display {display!r} is not in OCIO config {config or color.DEFAULT_CONFIG!r} "
                        f"(has {', '.join(cfg.getDisplays())})")
     views = list(cfg.getViews(display))
     view = view or (DEFAULT_VIEW if DEFAULT_VIEW in views else cfg.getDefaultView(display))
     if view not in views:
         raise BTFError(f"view {view!r} is not a view of display {display!r} (has {', '.join(views)})")
-    src = colour.resolve_space(working_space, config)
+    src = color.resolve_space(working_space, config)
     transform = ocio.DisplayViewTransform(src=src, display=display, view=view)
     return cfg.getProcessor(transform).getDefaultCPUProcessor(), display, view
 
@@ -60,7 +60,7 @@ def write_render(result, exr_path, *, png_path=None, display=None, view=None) ->
     exr_path = Path(exr_path)
     if exr_path.suffix.lower() != ".exr":
         raise BTFError(f"{exr_path}: the render is written as OpenEXR; name it *.exr")
-    space = colour.resolve_space(working_space, config)
+    space = color.resolve_space(working_space, config)
     info = {"exr": str(exr_path), "png": None}
     with contextlib.ExitStack() as stack:
         tmp_exr = stack.enter_context(atomic_file(exr_path, kind=RENDER))

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import colour
+from .. import color
 from ..errors import BTFError
 from ..imageio import read_image
 
@@ -36,7 +36,7 @@ class OpenCVCamera:
     def __init__(self, source: str, *, color_space: str | None = None):
         import cv2
         self.label = str(source)
-        self.color_space = colour.resolve_space(color_space or DEFAULT_SPACE)
+        self.color_space = color.resolve_space(color_space or DEFAULT_SPACE)
         self.source = int(source) if str(source).isdigit() else str(source)
         # A plain file is reopened per grab (its content changes between triggers).
         self.is_file = isinstance(self.source, str) and "://" not in self.source
@@ -88,7 +88,7 @@ class CommandCamera:
         if not any("{out}" in w for w in self.argv):
             raise BTFError(f"camera command {template!r} must write the frame to {{out}}")
         self.workdir = Path(workdir)
-        self.color_space = colour.resolve_space(color_space) if color_space else None
+        self.color_space = color.resolve_space(color_space) if color_space else None
         self.ext = ext.lstrip(".")
         self.timeout = float(timeout)
 
@@ -117,7 +117,7 @@ class CommandCamera:
             out.unlink(missing_ok=True)
         space = self.color_space or info.color_space or DEFAULT_SPACE
         try:
-            space = colour.resolve_space(space)
+            space = color.resolve_space(space)
         except BTFError:
             raise BTFError(f"camera frame {tag}: declared colour space {space!r} is unknown to OCIO; "
                            "pass --camera-space") from None

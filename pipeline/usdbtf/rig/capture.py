@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import colour, jsontext
+from .. import color, jsontext
 from ..atomic import atomic_file
 from ..errors import BTFError
 from ..imageio import read_info, write_image
@@ -159,8 +159,8 @@ def flat_gain(linear_frames) -> np.ndarray:
 def decode_frame(pixels: np.ndarray, space: str) -> np.ndarray:
     """Camera frame values -> (H, W, 3) float32 scene-linear working space (OCIO)."""
     if pixels.dtype.kind == "u":
-        return colour.integer_decoder(space, 8 if pixels.dtype == np.uint8 else 16).decode(pixels)
-    return colour.processor(space).apply(pixels)
+        return color.integer_decoder(space, 8 if pixels.dtype == np.uint8 else 16).decode(pixels)
+    return color.processor(space).apply(pixels)
 
 
 def _flat_field(rig: _Rig, camera, frames: int, raw: Path, journal: Journal) -> str | None:
@@ -227,7 +227,7 @@ def _run(driver, camera, raw, plan, journal, flat_frames, board, extra, frame_co
         first = {"width": info.width, "height": info.height,
                  "dtype": str(np.dtype({"uint8": np.uint8, "uint16": np.uint16, "half": np.float16,
                                         "float": np.float32}[info.bit_depth])),
-                 "color_space": colour.resolve_space(info.color_space)}
+                 "color_space": color.resolve_space(info.color_space)}
     flat = journal.flat["flat"] if journal.flat else None
     progress = bar("capture", len(plan.order), len(journal.shots), logger=log)
     if todo or (flat_frames > 0 and journal.flat is None):

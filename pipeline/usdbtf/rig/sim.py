@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import colour
+from .. import color
 from ..errors import BTFError
 from ..imageio import write_image
 from . import kinematics as K
@@ -203,7 +203,7 @@ class SceneRenderer:
         self.cache = synth.RenderCache(material, max_views=2)
         self.albedo = paper_albedo(board)
         self.vignette = vignetting(camera)[..., None]
-        self.encode = colour.processor(synth.RADIANCE_SPACE, CAMERA_SPACE)
+        self.encode = color.processor(synth.RADIANCE_SPACE, CAMERA_SPACE)
         from .plan import ArmGeometry
         # The arm drawn into the frames is the one the capture plan's obstruction model assumes.
         self.arm_geometry = arm_geometry or ArmGeometry(camera_distance_m=camera.distance_m)

@@ -28,7 +28,7 @@ Where the references disagree this package follows btflib, the format's authors:
   when loading (texture origin at the bottom), so btf-extractor's images are upside down
   relative to btflib's: ``usdbtf == extractor[::-1]``.
 * **Colour model 11** (log Y, U/Y, V/Y -- UBO2014's): btflib inverts U = c1 (Y + eps);
-  zeroeffects U = c1 Y + eps and clamps RGB to [0, 1] (see :mod:`.colour_models`).
+  zeroeffects U = c1 Y + eps and clamps RGB to [0, 1] (see :mod:`.color_models`).
 * **Angles** are radians in the file; btf-extractor reports degrees rounded to 0.1.
   Here they keep float32 precision, converted through the unit vector (btflib's way) and
   mapped to usdbtf's tangent frame (:func:`bonn_to_tangent_degrees`: the identity, see
@@ -47,7 +47,7 @@ colour model's inverse, the cosine, the clamp).  ``read_encoded(samples, rows)``
 any samples x row block.
 """
 from .binary import SIGNATURES, BonnHeader
-from .colour_models import MODEL_NAMES, undecorrelate
+from .color_models import MODEL_NAMES, undecorrelate
 from .formats import ChannelFactors, Factorisation
 from .reader import DEFAULT_SPACE, UBO2014BTF, bonn_to_tangent_degrees, is_ubo2014, read_ubo2014
 

@@ -47,7 +47,7 @@ import numpy as np
 
 from .binary import (BonnHeader, Cursor, read_common_header, read_directions, read_meta, read_rotations,
                      read_size)
-from .colour_models import check_model
+from .color_models import check_model
 
 __all__ = ["ChannelFactors", "Factorisation", "FactorDecoder", "PVFDecoder", "BDIDecoder", "PARSERS"]
 
@@ -103,7 +103,7 @@ class Factorisation:
         channels: the channels share one side, and each takes every nC-th row of the other).
     channels : per colour channel, :class:`ChannelFactors`.
     color_model, color_mean, color_matrix : the decorrelation to invert after multiplying out
-        (see :mod:`.colour_models`); model 0 for FMF.
+        (see :mod:`.color_models`); model 0 for FMF.
     dynamic_range_reduction : FMF's flag: the channels hold log(value + eps).
     """
 

@@ -7,12 +7,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import colour
+from .. import color
 from ..errors import BTFError
 from ..model import BTF
 from ..sampling import cross
 from .binary import MAX_SIGNATURE, SIGNATURES, BonnHeader, Cursor, sniff_signature
-from .colour_models import MODEL_NAMES, restore_dynamic_range, undecorrelate
+from .color_models import MODEL_NAMES, restore_dynamic_range, undecorrelate
 from .formats import PARSERS, Factorisation
 
 __all__ = ["UBO2014BTF", "read_ubo2014", "is_ubo2014", "bonn_to_tangent_degrees", "DEFAULT_SPACE"]
@@ -177,7 +177,7 @@ def is_ubo2014(path) -> bool:
 
 
 def read_ubo2014(path, *, color_space: str | None = None, ocio_config: str | None = None,
-                 working_space: str = colour.WORKING_SPACE) -> UBO2014BTF:
+                 working_space: str = color.WORKING_SPACE) -> UBO2014BTF:
     """Open a Bonn binary BTF (``.btf``: DFMF, FMF, PVF or BDI) as a lazy :class:`UBO2014BTF`.
 
     Parameters
@@ -228,7 +228,7 @@ def read_ubo2014(path, *, color_space: str | None = None, ocio_config: str | Non
                        "(cannot divide by cos(theta) = 0)")
     decoder.check_finite(cur)
     try:
-        space = colour.resolve_space(color_space or DEFAULT_SPACE, ocio_config)
+        space = color.resolve_space(color_space or DEFAULT_SPACE, ocio_config)
     except BTFError as exc:
         raise BTFError(f"{path}: {exc}") from None
     nl = header.n_lights

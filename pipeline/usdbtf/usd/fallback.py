@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..colour import processor
+from ..color import processor
 from ..imageio import encode_image
 from ..svbrdf import SvbrdfMaps
 

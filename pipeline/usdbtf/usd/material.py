@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..colour import usd_color_space
+from ..color import usd_color_space
 from ..compress.codecs import Codec, Stored
 from ..compress.format import CompressedBTF, basis_layout, image_to_basis
 from ..errors import BTFError

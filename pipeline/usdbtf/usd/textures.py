@@ -244,7 +244,7 @@ def _exr_values(buf, kind: str, src: Path):
         out.set_pixels(oiio.ROI(), np.asarray(pixels, np.float32))
         return out, DATA
     if kind == "srgb":
-        from ..colour import processor
+        from ..color import processor
 
         rgb = np.asarray(buf.get_pixels(oiio.FLOAT), np.float32)
         lin = processor("sRGB Encoded Rec.709 (sRGB)", "Linear Rec.709 (sRGB)").apply(rgb[..., :3].copy())
