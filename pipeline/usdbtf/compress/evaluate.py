@@ -52,15 +52,14 @@ class HeldOut:
         file's values ("encoded", normalised), from :attr:`truth` in the working ``domain``.
         The encoded truth is computed once per block and kept (rate control asks again and
         again)."""
-        linear = domain.inverse(self.truth[samples])
         if error_domain != "encoded":
-            return linear
+            return domain.inverse(self.truth[samples])
         key = (domain, samples.start, samples.stop)
         top, dtype = getattr(self.encode, "top", None), getattr(self.encode, "code_dtype", None)
         if key in self._codes:
             kept = self._codes[key]
             return kept if dtype is None else kept.astype(np.float32) / np.float32(top)
-        values = self.encoded(linear)
+        values = self.encoded(domain.inverse(self.truth[samples]))
         # Integer files' values are kept as their codes (a quarter of the float32 size for
         # 8-bit): code / top gives back the same float32 values.
         self._codes[key] = values if dtype is None else np.rint(values * np.float32(top)).astype(dtype)
@@ -140,8 +139,5 @@ def held_out_error(cbtf: CompressedBTF, held: HeldOut, k: int | None = None, dom
     with one_blas_thread():                                           # the sums as on any machine
         parts = in_threads(block, range(0, n, _EVAL_BLOCK))
     for part in parts:                                                # added in block order
-        sums.abs_err += part.abs_err
-        sums.sq_err += part.sq_err
-        sums.total += part.total
-        sums.count += part.count
+        sums.merge(part)
     return sums

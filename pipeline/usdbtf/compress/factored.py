@@ -51,6 +51,7 @@ from .factor_algebra import FactorFrame, exact_coefficients, exact_fit, linear_d
 from .fit import BasisFit, fit_basis
 from .options import CompressOptions
 from .row_sampling import default_rows, leverage_rows, solve_operators
+from .source import Closable
 
 __all__ = ["FactoredSource", "uses_factors", "CLAMP_TOLERANCE", "CLAMP_NEGLIGIBLE"]
 
@@ -73,7 +74,7 @@ def uses_factors(btf: BTF, options: CompressOptions) -> bool:
             and callable(getattr(btf, "channels_to_rgb", None)))
 
 
-class FactoredSource:
+class FactoredSource(Closable):
     """Compression's data from a factorisation (see the module docstring).
 
     Values it hands out are already in the working space: ``to_working`` is the identity and
@@ -101,15 +102,6 @@ class FactoredSource:
         self._share = None         # the clamp's energy share on the fitting texels (linear path)
 
     # -- the questions every source answers ----------------------------------------------
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-
-    def close(self) -> None:
-        """Release what the source holds (nothing: the factors belong to the input)."""
-
     def to_working(self, x: np.ndarray) -> np.ndarray:
         return x
 

@@ -45,6 +45,13 @@ class ErrorSums:
         self.abs_err += float(np.abs(diff).sum(dtype=np.float64))
         self.sq_err += float(np.einsum("i,i->", diff, diff, dtype=np.float64))
 
+    def merge(self, other: "ErrorSums") -> None:
+        """Add the sums of ``other`` (a part accumulated on its own, e.g. one block of samples)."""
+        self.abs_err += other.abs_err
+        self.total += other.total
+        self.sq_err += other.sq_err
+        self.count += other.count
+
     @property
     def percent(self) -> float:
         return 100.0 * self.abs_err / self.total if self.total > 0 else float("nan")

@@ -73,7 +73,21 @@ def tile_samples(btf: BTF) -> int:
     return work_plan(btf).tile
 
 
-class _Source:
+class Closable:
+    """A source as a context manager: leaving the ``with`` block calls :meth:`close`, which
+    releases what the source holds (a spill file, a cluster; nothing by default)."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self) -> None:
+        """Release what the source holds (nothing here)."""
+
+
+class _Source(Closable):
     """Shared decode plumbing: per-channel curves now, the 3x3 matrix later."""
 
     def __init__(self, btf: BTF):
@@ -86,15 +100,6 @@ class _Source:
         else:
             self.curves = lambda block: btf.decode(block.reshape(block.shape[0], -1, 3)).reshape(block.shape)
             self.matrix = None
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-
-    def close(self) -> None:
-        """Release what the source holds (nothing here)."""
 
     def to_working(self, x: np.ndarray) -> np.ndarray:
         """(..., 3 n) or (..., 3) curve-decoded values -> working space."""
