@@ -920,6 +920,7 @@ def test_projection_reduces_tiles_then_shards_in_order(small32, ks, tiles_per_sh
     from usdbtf.compress.projection import TileProjector
     from usdbtf.compress.source import InMemorySource, work_plan
     monkeypatch.setattr(projection, "TILES_PER_SHARD", tiles_per_shard)
+    monkeypatch.setattr(projection, "_MAX_TILE_SAMPLES", 128)     # two tiles of the small sampling
     btf = read_manifest(small32)
     src = InMemorySource(btf, workers=1)
     u = randomized_basis(src.columns(np.arange(btf.n_pixels)), 8, seed=0)[0]
@@ -960,6 +961,7 @@ def test_projection_refuses_shards_out_of_order(small32, monkeypatch):
     from usdbtf.compress.projection import ProjectionTotal, ShardSums, TileProjector
     from usdbtf.compress.source import work_plan
     monkeypatch.setattr(projection, "TILES_PER_SHARD", 1)
+    monkeypatch.setattr(projection, "_MAX_TILE_SAMPLES", 128)     # two shards of the small sampling
     btf = read_manifest(small32)
     plan = work_plan(btf)
     proj = TileProjector(np.ones((btf.n_samples, 2), np.float32), np.eye(3), (2, 2, 2), lambda x: x.astype(np.float32),

@@ -86,7 +86,7 @@ for S, k, n, t, ks, s0 in [(2160, 150, 1024, 128, (150,) * 3, 128), (2160, 150, 
                           (300, 20, 100, 44, (20, 5, 2), 256), (22801, 150, 1024, 17, (150, 60, 0), 22784)]:
     u = rng.standard_normal((S, k)).astype(np.float32)
     raw = rng.integers(0, 256, (t, 3 * n), dtype=np.uint8)
-    part = TileProjector(u, rng.standard_normal((3, 3)), ks, lambda r: lut[r], 128, energy=True).partial(s0, raw)
+    part = TileProjector(u, rng.standard_normal((3, 3)), ks, lambda r, out=None: lut[r], 128, energy=True).partial(s0, raw)
     for p in part.products:
         h.update(b"" if p is None else p.tobytes())
     h.update(np.float64(part.energy).tobytes())

@@ -447,8 +447,17 @@ def small_png(tmp_path_factory) -> Path:
                           bit_depth="uint8", ext="png", array_space=LIN709)
 
 
+@pytest.fixture
+def small_tiles(monkeypatch):
+    """Projection tiles of 64 samples (512 in production), so that the small samplings here
+    span several tiles and chunks."""
+    from usdbtf.compress import projection
+
+    monkeypatch.setattr(projection, "_MAX_TILE_SAMPLES", 64)
+
+
 @pytest.mark.parametrize("source", ["file-8bit", "array-float"])
-def test_projection_is_within_dot_product_bound_and_independent_of_chunks(small_png, source):
+def test_projection_is_within_dot_product_bound_and_independent_of_chunks(small_png, source, small_tiles):
     """U^T X in memory and streamed in chunks of 1, 2 and all projection tiles: each result
     is a float32 sum of S products, so within gamma_S |U|^T |X| of the exact (float64)
     product, gamma_S = S 2^-24 / (1 - S 2^-24); and all of them sum the same fixed tiles in
@@ -556,7 +565,7 @@ def test_two_runs_byte_identical(two_runs, solver, codec, kw):
 
 
 @pytest.mark.parametrize("codec", ["jxl", "exr"])
-def test_chunk_sizes_do_not_change_output(tmp_path, fixed_exr_dates, codec):
+def test_chunk_sizes_do_not_change_output(tmp_path, fixed_exr_dates, codec, small_tiles):
     """In memory, and streamed in chunks of one projection tile, of two tiles and of all
     samples: byte-identical folders at full k (fine quantisation), metadata included (how
     the data was read is not recorded: it changes nothing)."""
@@ -597,7 +606,7 @@ def test_output_does_not_depend_on_blas_threads(small_png, tmp_path, options):
 
 
 def _sampling_312():
-    """13 views x 24 lights: more samples than one projection tile (128)."""
+    """13 views x 24 lights: several projection tiles (of 64 samples, :func:`small_tiles`)."""
     return cross(rings((0, 30, 60), (1, 6, 6)), rings((15, 45, 75), (8, 8, 8)))
 
 

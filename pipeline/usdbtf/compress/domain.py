@@ -77,19 +77,23 @@ class Domain:
         """(curve id, gamma) as shaders read them: 0 linear, 1 power, 2 sRGB."""
         return (0, 1.0) if self.is_linear else ((1, float(self.gamma)) if self.curve == "power" else (2, 1.0))
 
-    def forward(self, x: np.ndarray) -> np.ndarray:
-        """Scene-linear -> domain values, float32, same shape (negatives -> 0 unless linear)."""
+    def forward(self, x: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """Scene-linear -> domain values, float32, same shape (negatives -> 0 unless linear).
+        ``out``: a float32 array of the same shape to write into (may be ``x`` itself)."""
         x = np.asarray(x, np.float32)
         if self.is_linear:
-            return x
-        # In place on one new array (fresh large arrays cost page faults): the same values
-        # as the plain expressions, operation for operation.
-        x = np.maximum(x, np.float32(0.0))
+            if out is None or out is x:
+                return x
+            out[...] = x
+            return out
+        # In place on one array (fresh large arrays cost page faults): the same values as
+        # the plain expressions, operation for operation.
+        x = np.maximum(x, np.float32(0.0), out=out)
         if self.curve == "power":
-            return np.power(x, np.float32(1.0 / self.gamma), out=x)
+            return _power(x, np.float32(1.0 / self.gamma))
         toe = x <= np.float32(_SRGB_CUT)
         low = x[toe] * np.float32(12.92)
-        np.power(x, np.float32(1 / 2.4), out=x)
+        _power(x, np.float32(1 / 2.4))
         x *= np.float32(1.055)
         x -= np.float32(0.055)
         x[toe] = low
@@ -102,12 +106,12 @@ class Domain:
             return d
         d = np.maximum(d, np.float32(0.0))
         if self.curve == "power":
-            return np.power(d, np.float32(self.gamma), out=d)
+            return _power(d, np.float32(self.gamma))
         toe = d <= np.float32(_SRGB_CUT_ENCODED)
         low = d[toe] * np.float32(1 / 12.92)
         d += np.float32(0.055)
         d *= np.float32(1 / 1.055)
-        np.power(d, np.float32(2.4), out=d)
+        _power(d, np.float32(2.4))
         d[toe] = low
         return d
 
@@ -118,6 +122,21 @@ class Domain:
         if self.curve == "srgb":
             return {"curve": "srgb"}
         return {"curve": "power", "gamma": float(self.gamma)}
+
+
+def _power(x: np.ndarray, exponent: np.float32) -> np.ndarray:
+    """``x **= exponent`` in place for float32 ``x >= 0`` (-0.0 allowed), exponent > 0: the
+    same bits as ``np.power``, without its slow path for zeros.  The SIMD power (SVML)
+    sends every vector holding a zero through a scalar routine: with a third of the values
+    zero (clamped reconstructions, black texels) it runs at 11 instead of 1.1 ns a value.
+    Zeros become ones for the power, then zeros again (0 ** e = +0 for e > 0)."""
+    zero = x == 0
+    if not zero.any():
+        return np.power(x, exponent, out=x)
+    np.add(x, zero, out=x)
+    np.power(x, exponent, out=x)
+    np.logical_not(zero, out=zero)
+    return np.multiply(x, zero, out=x)
 
 
 LINEAR = Domain()

@@ -111,15 +111,16 @@ def score_domains(source, texels, k: int, options, candidates=AUTO_CANDIDATES) -
     """
     btf = source.btf
     S = btf.n_samples
-    # The columns as the source holds them (curve-decoded; the primaries matrix still to
-    # apply): converted to working space block by block, never copied whole.
-    x_src = source.peek_columns(texels.fit)                                      # (S, 3 n)
-    y_src = source.peek_columns(texels.evaluation)                               # (S, 3 m)
+    # The columns as the source stores them, converted to each candidate's domain block by
+    # block (one table lookup per value for integer files: :meth:`~.source._Source.curves_in`).
+    x_raw = source.raw_columns(texels.fit)                                       # (S, 3 n) stored
+    y_raw = source.raw_columns(texels.evaluation)                                # (S, 3 m) stored
+    linear = source.curves_in(LINEAR)
     to_file = color.processor(btf.working_space, btf.color_space, btf.ocio_config)
     codes = _Codes(to_file, btf.bit_depth)
     scored = np.arange(0, S, _SCORE_STRIDE)
     blocks = [scored[a:a + _SCORE_BLOCK] for a in range(0, len(scored), _SCORE_BLOCK)]
-    truth = in_threads(lambda rows: source.to_working(y_src[rows]), blocks)     # scored rows, working space
+    truth = in_threads(lambda rows: linear(y_raw[rows]), blocks)                # scored rows, working space
     truth_codes = in_threads(codes, truth)
     lin_total = sum(float(np.abs(t).sum(dtype=np.float64)) for t in truth)
     enc_total = sum(codes.total(c) for c in truth_codes)
@@ -129,21 +130,21 @@ def score_domains(source, texels, k: int, options, candidates=AUTO_CANDIDATES) -
     # Every other fitting texel: the candidates' bases need not be the final one (which is
     # fitted on all of them after the choice), and one buffer of half their columns keeps
     # the scorer's memory at a quarter of the kept columns (0.28 GB at UBO2014's size).
-    half = x_src.reshape(S, -1, 3)[:, ::_FIT_TEXEL_STRIDE]
+    half = x_raw.reshape(S, -1, 3)[:, ::_FIT_TEXEL_STRIDE]
     x_dom = np.empty((S, 3 * half.shape[1]), np.float32)
     for dom in candidates:
-        fit = fit_basis(rows_apply(lambda b: dom.forward(source.to_working(b)).reshape(len(b), -1), half, x_dom),
+        forward = source.curves_in(dom)
+        fit = fit_basis(rows_apply(lambda b: forward(np.ascontiguousarray(b)).reshape(len(b), -1), half, x_dom),
                         k, options)
         u = fit.basis[:, :max(1, min(fit.k, _PROBE_K, S // _PROBE_FRACTION))]
         # Coefficients of the evaluation texels: U^T f(Y), summed over sample blocks in order.
-        c = sum(in_threads(lambda sl: (u[sl].T @ dom.forward(source.to_working(y_src[sl]))).astype(np.float64),
-                           samples))
+        c = sum(in_threads(lambda sl: (u[sl].T @ forward(y_raw[sl])).astype(np.float64), samples))
         c = c.astype(np.float32)
 
         def errors(b: int) -> tuple[float, float]:
             rows = blocks[b]
             rec = dom.inverse(u[rows] @ c)
-            return (float(np.abs(rec - source.to_working(y_src[rows])).sum(dtype=np.float64)),
+            return (float(np.abs(rec - linear(y_raw[rows])).sum(dtype=np.float64)),
                     codes.distance(codes(rec), truth_codes[b]))
 
         sums = in_threads(errors, range(len(blocks)))

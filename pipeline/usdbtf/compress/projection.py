@@ -25,19 +25,25 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
+from .. import color
+from .convert import Scratch
 from .load import DEFAULT_BLOCK, texel_blocks
 
 __all__ = ["TILES_PER_SHARD", "WorkPlan", "TileProjector", "TilePartial", "ShardSums", "ProjectionTotal", "project"]
 
-#: Projection tiles per shard of samples (1024 samples with 128-sample tiles).
-TILES_PER_SHARD = 8
+#: Projection tiles per shard of samples (1024 samples with 512-sample tiles).
+TILES_PER_SHARD = 2
 #: A projection tile holds at most this many samples, fewer when that many samples of stored
 #: values would pass _TILE_ROW_BYTES (a streaming source holds a whole tile's samples).
-_MAX_TILE_SAMPLES = 128
-_TILE_ROW_BYTES = 64e6
+#: Long tiles: each tile's products are added to accumulators of k x 3 x block floats that
+#: do not stay in cache, so the additions cost memory traffic per tile (with 128-sample
+#: tiles they took longer than the GEMMs at UBO2014's size; 512 samples: 23 -> 17 s at 256^2).
+_MAX_TILE_SAMPLES = 512
+_TILE_ROW_BYTES = 256e6
+#: Texels per piece of a block that :meth:`TileProjector.accumulate` handles at once.
+PIECE_TEXELS = 1 << 30
 
 
 @dataclass(frozen=True)
@@ -51,8 +57,8 @@ class WorkPlan:
     Attributes
     ----------
     n_samples, n_pixels : S, P.
-    tile : samples per tile (128, halved down to 8 while 128 samples of stored values would
-        pass 64 MB).
+    tile : samples per tile (512, halved down to 8 while a tile's samples of stored values
+        would pass 256 MB).
     block : texels per block (:data:`~.load.DEFAULT_BLOCK`, or P when smaller).
     """
 
@@ -126,6 +132,7 @@ class TileProjector:
         self.panels = [[np.ascontiguousarray(u[s0:s0 + tile, :kj].T) for s0 in range(0, S, tile)]
                        for kj in widths]
         self.energy = energy
+        self._scratch = Scratch()
 
     def zeros(self, n: int) -> list[np.ndarray]:
         """Accumulators of one texel block of n texels: (k, 3 n) interleaved, or (k_j, n)
@@ -134,27 +141,53 @@ class TileProjector:
             return [np.zeros((self.ks[0], 3 * n), np.float32)]
         return [np.zeros((kj, n), np.float32) for kj in self.ks]
 
-    def partial(self, s0: int, raw: np.ndarray) -> TilePartial:
-        """The tile of samples s0.. of one texel block: U_t^T Y_t, without accumulating.
+    def accumulate(self, s0: int, raw: np.ndarray, accs: list) -> float | None:
+        """Add the tile of samples s0.. of one texel block to its accumulators: acc += U_t^T Y_t.
+
+        The block is converted, mixed, multiplied and added :data:`PIECE_TEXELS` texels at
+        a time, so each piece's values, products and accumulators stay in the core's cache
+        (whole-block products were written out and read back by the additions: a fifth of
+        the projection at UBO2014's size).  Each accumulator element gets one float32
+        addition of its product element per tile, as before.
 
         raw : (t, 3 n) stored values of the block's texels (rows may be strided), t <= tile,
             s0 a multiple of ``tile``.
+        accs : the block's accumulators as :meth:`zeros` lays them out.
+
+        Returns ||Y_t||^2 (the pieces' float64 sums added in order), or None without energy.
         """
         t, n = raw.shape[0], raw.shape[1] // 3
-        x = self.curves(raw)
         tile = s0 // self.tile
-        if self.interleaved:
-            # Per texel y = mix @ x; OpenCV's SIMD transform is 4x faster than a K = 3 GEMM.
-            y = cv2.transform(x.reshape(t, n, 3), self.mix).reshape(t, 3 * n)
-            products = [self.panels[0][tile] @ y if self.ks[0] else None]
-        else:
-            y = np.matmul(self.mix, x.reshape(-1, 3).T)                  # (3, t n): planar
-            products = [self.panels[j][tile] @ y[j].reshape(t, n) if kj else None for j, kj in enumerate(self.ks)]
-        energy = None
-        if self.energy:
-            flat = y.reshape(1, -1)
-            energy = float(np.einsum("ij,ij->", flat, flat, dtype=np.float64))
-        return TilePartial(products, energy)
+        energy = 0.0 if self.energy else None
+        for a in range(0, n, PIECE_TEXELS):
+            b = min(n, a + PIECE_TEXELS)
+            part = raw[:, 3 * a:3 * b]
+            # Intermediates in this thread's reused arrays (fresh arrays cost page faults).
+            x = self.curves(part, out=self._scratch.get("x", part.shape))
+            if self.interleaved:
+                # Per texel y = mix @ x; OpenCV's SIMD transform is 4x faster than a K = 3 GEMM.
+                y = color.mix_rgb(x, self.mix, out=self._scratch.get("y", part.shape))
+                if self.ks[0]:
+                    panel = self.panels[0][tile]
+                    accs[0][:, 3 * a:3 * b] += np.matmul(panel, y, out=self._scratch.get("p", (self.ks[0], 3 * (b - a))))
+            else:
+                y = np.matmul(self.mix, x.reshape(-1, 3).T)              # (3, t m): planar
+                for j, kj in enumerate(self.ks):
+                    if kj:
+                        accs[j][:, a:b] += np.matmul(self.panels[j][tile], y[j].reshape(t, b - a),
+                                                     out=self._scratch.get("p", (kj, b - a)))
+            if energy is not None:
+                flat = y.reshape(1, -1)
+                energy += float(np.einsum("ij,ij->", flat, flat, dtype=np.float64))
+        return energy
+
+    def partial(self, s0: int, raw: np.ndarray) -> TilePartial:
+        """The tile of samples s0.. of one texel block alone: :meth:`accumulate` into zeros."""
+        n = raw.shape[1] // 3
+        accs = self.zeros(n)
+        energy = self.accumulate(s0, raw, accs)
+        widths = self.ks[:1] if self.interleaved else self.ks
+        return TilePartial([acc if kj else None for acc, kj in zip(accs, widths)], energy)
 
     def add_into(self, acc: list, coeff: np.ndarray, a: int, b: int) -> None:
         """Add a block's accumulators to ``coeff`` (k, P, 3) at texels a..b (elementwise
@@ -183,6 +216,15 @@ class ShardSums:
         self.accs = [projector.zeros(b - a) for a, b in self.blocks]
         self.energy = np.zeros(len(self.blocks)) if projector.energy else None
 
+    def reset(self) -> None:
+        """Back to zero, for the next shard (in place: fresh zeroed arrays cost a page fault,
+        and a TLB shootdown across threads, per page on their first write)."""
+        for accs in self.accs:
+            for acc in accs:
+                acc.fill(0)
+        if self.energy is not None:
+            self.energy.fill(0)
+
     def add_tile(self, projector: TileProjector, s0: int, rows: np.ndarray, which=None) -> None:
         """Add the tile of samples s0.. (the next one in sample order).
 
@@ -194,12 +236,9 @@ class ShardSums:
         first = self.blocks[0][0]
         for i in range(len(self.blocks)) if which is None else which:
             a, b = self.blocks[i]
-            part = projector.partial(s0, rows[:, 3 * (a - first):3 * (b - first)])
-            for acc, p in zip(self.accs[i], part.products):
-                if p is not None:
-                    acc += p
+            energy = projector.accumulate(s0, rows[:, 3 * (a - first):3 * (b - first)], self.accs[i])
             if self.energy is not None:
-                self.energy[i] += part.energy
+                self.energy[i] += energy
 
 
 class ProjectionTotal:

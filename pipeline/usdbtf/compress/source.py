@@ -31,6 +31,7 @@ chunk size, memory budget or cluster was used.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import multiprocessing as mp
 from concurrent.futures import ProcessPoolExecutor
 
@@ -39,6 +40,7 @@ import numpy as np
 from .. import color
 from ..errors import BTFError
 from ..model import BTF, FileBTF
+from .convert import Conversion
 from .domain import LINEAR
 from .load import _STATE, BlockedData, _forkable, _init, default_workers, load_encoded, stored_dtype
 from .parallel import cpu_count, in_threads, one_blas_thread, rows_apply, thread_map
@@ -88,18 +90,27 @@ class Closable:
 
 
 class _Source(Closable):
-    """Shared decode plumbing: per-channel curves now, the 3x3 matrix later."""
+    """Shared decode plumbing: per-channel curves now, the 3x3 matrix later; in a working
+    domain, one table per channel from stored code to domain value where the decode allows."""
 
     def __init__(self, btf: BTF):
         self.btf = btf
         self.plan = work_plan(btf)
         dec = btf.integer_decoder
-        if dec is not None and dec.exact:
-            self.curves = dec.decode_curves
-            self.matrix = dec.matrix
+        self._decoder = dec if dec is not None and dec.exact else None
+        if self._decoder is not None:
+            self._decode, self.matrix = dec.decode_curves, dec.matrix
         else:
-            self.curves = lambda block: btf.decode(block.reshape(block.shape[0], -1, 3)).reshape(block.shape)
-            self.matrix = None
+            def decode(block, out=None):
+                x = btf.decode(block.reshape(block.shape[0], -1, 3)).reshape(block.shape)
+                if out is not None:
+                    out[...] = x
+                return x if out is None else out
+
+            self._decode, self.matrix = decode, None
+        #: Stored values -> curve-decoded float32 (then, after :meth:`set_domain`, domain values).
+        self.curves = Conversion(self._decode)
+        self._domain_curves: dict = {}
 
     def to_working(self, x: np.ndarray) -> np.ndarray:
         """(..., 3 n) or (..., 3) curve-decoded values -> working space."""
@@ -117,26 +128,46 @@ class _Source(Closable):
     #: The working domain the answers are in (:meth:`set_domain`).
     domain = LINEAR
 
+    def curves_in(self, domain):
+        """callable: stored values (..., 3 n) -> ``domain.forward`` of their working-space
+        values (float32, same shape; the primaries matrix included).
+
+        Integer codes whose decode has no matrix (sRGB, Rec.709-primaried files) go through
+        one table per channel, ``forward`` of the decode's table: a lookup per value instead
+        of a lookup, a power and a clamp (the projection at UBO2014's size converts 10^10
+        values), and the same float32 value for a code wherever and however it is converted.
+        """
+        if self.domain is not LINEAR:
+            raise RuntimeError("curves_in: the source already answers in a working domain")
+        if domain not in self._domain_curves:
+            dec = self._decoder
+            if dec is not None and self.matrix is None:
+                table = dec if domain.is_linear else dataclasses.replace(dec, lut=domain.forward(dec.lut))
+                self._domain_curves[domain] = Conversion(table.decode_curves)
+            else:
+                self._domain_curves[domain] = Conversion(self._decode, self.matrix, domain)
+        return self._domain_curves[domain]
+
     def set_domain(self, domain) -> None:
         """From now on answer in the working ``domain`` (:mod:`.domain`): values are
         ``domain.forward`` of the working-space values, per channel, so the primaries matrix
         moves into the curves (it must act before the curve) and the colour mix is the
-        colour rotation alone.  A linear domain changes nothing."""
+        colour rotation alone (:meth:`curves_in`).  A linear domain changes nothing."""
         if domain.is_linear:
             return
-        self._to_domain_kept(domain)
-        decode, matrix = self.curves, self.matrix
-        self.curves = lambda raw: domain.forward(decode(raw) if matrix is None else color.mix_rgb(decode(raw), matrix))
+        self.curves = self.curves_in(domain)
         self.matrix = None
         self.domain = domain
 
-    def _to_domain_kept(self, domain) -> None:
-        """Convert values a source already holds (kept columns and rows) to ``domain``."""
+    def raw_columns(self, texels: np.ndarray) -> np.ndarray:
+        """(S, 3 n) stored values of sorted ``texels`` (for :meth:`curves_in`), without handing
+        them over (the working-domain choice reads the fitting and evaluation columns in
+        each candidate's domain before the fit and the evaluation take them)."""
+        raise NotImplementedError
 
-    def peek_columns(self, texels: np.ndarray) -> np.ndarray:
-        """:meth:`columns` without handing them over (the working-domain choice reads the
-        fitting and evaluation columns before the fit and the evaluation do)."""
-        return self.columns(texels)
+    def _decoded(self, raw: np.ndarray) -> np.ndarray:
+        """(S, 3 n) stored values -> the curves' float32 values (on every core)."""
+        return rows_apply(self.curves, raw, np.empty(raw.shape, np.float32))
 
 
 class InMemorySource(_Source):
@@ -149,16 +180,20 @@ class InMemorySource(_Source):
         self.stored: BlockedData = load_encoded(btf, workers=workers, block=self.plan.block)
         self.nbytes = self.stored.nbytes
 
-    def columns(self, texels: np.ndarray) -> np.ndarray:
-        """(S, 3 n) float32 after the curves for sorted ``texels``: runs of consecutive texels
-        (split at storage-block edges) are copied as stored values, then decoded in one call."""
+    def raw_columns(self, texels: np.ndarray) -> np.ndarray:
+        """(S, 3 n) stored values of sorted ``texels``: runs of consecutive texels (split at
+        storage-block edges) copied as stored."""
         texels = np.asarray(texels)
         breaks = np.flatnonzero((np.diff(texels) != 1) | (texels[1:] % self.stored.block == 0)) + 1
         starts, ends = np.r_[0, breaks], np.r_[breaks, len(texels)]
         raw = np.empty((self.stored.n_samples, 3 * len(texels)), self.stored.blocks.dtype)
         for s0, e0 in zip(starts, ends):
             raw[:, 3 * s0:3 * e0] = self.stored.span(int(texels[s0]), int(texels[e0 - 1]) + 1)
-        return rows_apply(self.curves, raw, np.empty(raw.shape, self.curves(raw[:1]).dtype))
+        return raw
+
+    def columns(self, texels: np.ndarray) -> np.ndarray:
+        """(S, 3 n) float32 after the curves for sorted ``texels``."""
+        return self._decoded(self.raw_columns(texels))
 
     def project(self, u: np.ndarray, mix: np.ndarray, ks, *, energy: bool = False):
         """Coefficients (k, P, 3) (see :mod:`.projection`) and, if ``energy``, ||Y||^2
@@ -169,11 +204,12 @@ class InMemorySource(_Source):
 
         def block(ab):
             raw = self.stored.span(*ab)
+            sums = ShardSums(proj, [ab])
             for n, (s0, s1) in enumerate(self.plan.shards()):
-                sums = ShardSums(proj, [ab])
                 for t0, t1 in self.plan.tiles(s0, s1):
                     sums.add_tile(proj, t0, raw[t0:t1])
                 total.add(n, sums)
+                sums.reset()
 
         with one_blas_thread():       # blocks on one thread per core, each GEMM on one
             in_threads(block, self.plan.blocks())
@@ -222,54 +258,52 @@ def _read_chunk(bounds):
 
 class _KeptSource(_Source):
     """A source that keeps, from a first pass, only some texels' columns and some samples
-    (streamed, distributed): ``columns`` hands a set over, ``working_samples`` answers the rows."""
+    (streamed, distributed), as stored values: ``columns`` decodes a set and hands it over,
+    ``working_samples`` decodes the rows (in the working domain of the moment, as in memory)."""
 
     def _keep(self, keep_texels: list, keep_rows) -> tuple[list, np.ndarray]:
         """Allocate what the first pass fills; returns (texel sets, rows) as arrays."""
         S = self.btf.n_samples
+        dtype = stored_dtype(self.btf)
         keep_texels = [np.asarray(t) for t in keep_texels]
         rows = np.asarray(keep_rows, dtype=int)
-        self._kept = [(t, np.empty((S, 3 * len(t)), np.float32)) for t in keep_texels]
+        self._kept = [(t, np.empty((S, 3 * len(t)), dtype)) for t in keep_texels]
         self._rows = {int(r): n for n, r in enumerate(rows)}
-        self._row_data = np.empty((len(rows), self.btf.n_pixels, 3), np.float32)
+        self._row_data = np.empty((len(rows), self.btf.n_pixels, 3), dtype)
         self.nbytes = sum(d.nbytes for _, d in self._kept) + self._row_data.nbytes
         return keep_texels, rows
 
     def _store(self, a: int, cols: list, rows: dict) -> None:
-        """Curve-decode and store :func:`kept_values` of samples a.. (elementwise: the same
-        values as in memory, whatever the chunking)."""
+        """Store :func:`kept_values` of samples a.. (copies of stored values)."""
         for (_, dest), c in zip(self._kept, cols):
-            dest[a:a + len(c)] = self.curves(c)
+            dest[a:a + len(c)] = c
         for i, image in rows.items():
-            self._row_data[self._rows[i]] = self.to_working(self.curves(image))
+            self._row_data[self._rows[i]] = image
+
+    def _kept_set(self, texels: np.ndarray, *, hand_over: bool) -> np.ndarray:
+        for n, (t, raw) in enumerate(self._kept):
+            if np.array_equal(t, texels):
+                if hand_over:
+                    del self._kept[n]
+                return raw
+        raise ValueError(f"{type(self).__name__}: texels were not requested up front (or were handed over)")
 
     def columns(self, texels: np.ndarray) -> np.ndarray:
         """(S, 3 n) float32 curve-decoded values of ``texels``, one of the sets requested up
         front, handed over: the source forgets them (they are decoded for one use, and
         holding the fit's columns through the projection would cost their size again)."""
-        for n, (t, dest) in enumerate(self._kept):
-            if np.array_equal(t, texels):
-                del self._kept[n]
-                return dest
-        raise ValueError(f"{type(self).__name__}.columns: texels were not requested up front (or were handed over)")
+        return self._decoded(self._kept_set(texels, hand_over=True))
 
-    def peek_columns(self, texels: np.ndarray) -> np.ndarray:
-        for t, dest in self._kept:
-            if np.array_equal(t, texels):
-                return dest
-        raise ValueError(f"{type(self).__name__}.peek_columns: texels were not requested up front")
-
-    def _to_domain_kept(self, domain) -> None:
-        for _, dest in self._kept:
-            rows_apply(lambda block: domain.forward(self.to_working(block)), dest, dest)
-        rows_apply(domain.forward, self._row_data, self._row_data)
+    def raw_columns(self, texels: np.ndarray) -> np.ndarray:
+        return self._kept_set(texels, hand_over=False)
 
     def working_samples(self, rows) -> np.ndarray:
         """(n, P, 3) float32 working-space images of samples ``rows`` (requested up front)."""
         try:
-            return self._row_data[[self._rows[int(r)] for r in np.atleast_1d(rows)]]
+            idx = [self._rows[int(r)] for r in np.atleast_1d(rows)]
         except KeyError:
             raise ValueError(f"{type(self).__name__}.working_samples: rows were not requested up front") from None
+        return self.to_working(self.curves(self._row_data[idx]))
 
 
 class StreamingSource(_KeptSource):
@@ -378,9 +412,12 @@ class StreamingSource(_KeptSource):
                 for t0 in range(0, len(flat), proj.tile):
                     n = (s0 + t0) // self.plan.shard
                     if n != shard:
-                        if sums is not None:
+                        if sums is None:
+                            sums = ShardSums(proj, blocks)
+                        else:
                             total.add(shard, sums)
-                        shard, sums = n, ShardSums(proj, blocks)
+                            sums.reset()          # reused: see ShardSums.reset
+                        shard = n
                     rows = flat[t0:t0 + proj.tile]
                     tmap(lambda which: sums.add_tile(proj, s0 + t0, rows, which), parts)
         total.add(shard, sums)

@@ -35,6 +35,10 @@ __all__ = ["Spill", "SPILL_MARGIN", "ALIGN"]
 SPILL_MARGIN = (0.1, 1e9)
 #: Alignment of direct I/O buffers, offsets and lengths (a page; covers 512 and 4096-byte sectors).
 ALIGN = 4096
+#: Largest staging buffer a direct write copies through (per process).
+STAGING_BYTES = 32 * 2**20
+#: Bytes of slots read ahead of the consumer (at least one slot).
+READ_AHEAD_BYTES = 256e6
 _STAGING: dict = {}   # pid -> aligned buffer for writes (each forked decode worker has its own)
 
 
@@ -85,23 +89,36 @@ class Spill:
 
     def write(self, slot: int, data: np.ndarray) -> None:
         """Write the bytes of ``data`` (at most ``slot_bytes``) into slot ``slot``; any process
-        sharing the descriptor may write its own slots."""
+        sharing the descriptor may write its own slots.  Direct I/O goes through an aligned
+        staging buffer of at most :data:`STAGING_BYTES`, piece by piece (a whole slot's copy
+        would double a decode worker's memory)."""
         view = memoryview(np.ascontiguousarray(data)).cast("B")
-        if self.direct:
-            staging = _STAGING.get(os.getpid())
-            if staging is None or len(staging) < _aligned(len(view)):
-                staging = _STAGING[os.getpid()] = _buffer(self.slot_bytes)
-            staging[:len(view)] = view
-            view = staging[:_aligned(len(view))]
+        base = slot * self.slot_bytes
+        if not self.direct:
+            self._pwrite_all(view, base)
+            return
+        piece = min(_aligned(len(view)), STAGING_BYTES)
+        staging = _STAGING.get(os.getpid())
+        if staging is None or len(staging) < piece:
+            staging = _STAGING[os.getpid()] = _buffer(piece)
+        for start in range(0, len(view), piece):
+            n = min(piece, len(view) - start)
+            staging[:n] = view[start:start + n]
+            self._pwrite_all(staging[:_aligned(n)], base + start)
+
+    def _pwrite_all(self, view: memoryview, offset: int) -> None:
         done = 0
         while done < len(view):
-            done += os.pwrite(self.fd, view[done:], slot * self.slot_bytes + done)
+            done += os.pwrite(self.fd, view[done:], offset + done)
 
-    def read_ahead(self, pieces, depth: int = 2):
+    def read_ahead(self, pieces, depth: int | None = None):
         """Yield (slot, uint8 array of nbytes) for ``pieces`` = [(slot, nbytes), ...] in order,
         read by a background thread ``depth`` slots ahead (reads release the GIL, so they
-        overlap with the caller's compute).  An array is valid until the next one is asked for."""
+        overlap with the caller's compute; default: 2, or 1 for slots past half of
+        :data:`READ_AHEAD_BYTES`).  An array is valid until the next one is asked for."""
         pieces = list(pieces)
+        if depth is None:
+            depth = max(1, min(2, int(READ_AHEAD_BYTES // self.slot_bytes)))
         buffers = [_buffer(self.slot_bytes) for _ in range(depth + 1)]
         slots = threading.Semaphore(depth)
         ready: deque = deque()
