@@ -238,11 +238,15 @@ class FileBTF(BTF):
             check_finite(pixels, path)
         return pixels
 
-    def read_encoded(self, indices, rows=None):
+    def read_encoded(self, indices, rows=None, out: np.ndarray | None = None):
+        """Stored values of samples ``indices`` (see :meth:`BTF.read_encoded`), into ``out``
+        when given ((n, h, W, 3) of the stored dtype: a decode worker reuses one array for
+        every chunk instead of faulting in fresh pages for each)."""
         idx = np.atleast_1d(np.arange(self.n_samples)[indices])
         h = self.height if rows is None else rows[1] - rows[0]
         first = self.read_one(int(idx[0]), rows)
-        out = np.empty((len(idx), h, self.width, 3), first.dtype)
+        if out is None:
+            out = np.empty((len(idx), h, self.width, 3), first.dtype)
         out[0] = first
         for n, i in enumerate(idx[1:], start=1):
             out[n] = self.read_one(int(i), rows)
