@@ -49,8 +49,11 @@ class Conversion:
         none).
     """
 
-    def __init__(self, decode, matrix=None, domain=LINEAR):
+    def __init__(self, decode, matrix=None, domain=LINEAR, *, nonnegative: bool = False):
         self.decode, self.matrix, self.domain = decode, matrix, domain
+        #: The decode and matrix never give a negative value (a table >= 0, a matrix >= 0,
+        #: as for sRGB files into ACEScg): the curve's clamp is skipped, with the same values.
+        self.nonnegative = nonnegative
         self._scratch = Scratch()
 
     def __call__(self, raw: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
@@ -62,4 +65,4 @@ class Conversion:
             x = self.decode(raw, out=out)
         else:
             x = color.mix_rgb(self.decode(raw, out=self._scratch.get("decoded", raw.shape)), self.matrix, out=out)
-        return self.domain.forward(x, out=x)
+        return self.domain.forward(x, out=x, nonnegative=self.nonnegative)

@@ -77,9 +77,10 @@ class Domain:
         """(curve id, gamma) as shaders read them: 0 linear, 1 power, 2 sRGB."""
         return (0, 1.0) if self.is_linear else ((1, float(self.gamma)) if self.curve == "power" else (2, 1.0))
 
-    def forward(self, x: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    def forward(self, x: np.ndarray, out: np.ndarray | None = None, *, nonnegative: bool = False) -> np.ndarray:
         """Scene-linear -> domain values, float32, same shape (negatives -> 0 unless linear).
-        ``out``: a float32 array of the same shape to write into (may be ``x`` itself)."""
+        ``out``: a float32 array of the same shape to write into (may be ``x`` itself).
+        ``nonnegative``: the caller knows ``x >= 0`` (no clamp: the same values, one pass less)."""
         x = np.asarray(x, np.float32)
         if self.is_linear:
             if out is None or out is x:
@@ -88,7 +89,14 @@ class Domain:
             return out
         # In place on one array (fresh large arrays cost page faults): the same values as
         # the plain expressions, operation for operation.
-        x = np.maximum(x, np.float32(0.0), out=out)
+        if nonnegative:
+            if out is not None and out is not x:
+                out[...] = x
+                x = out
+            elif out is None:
+                x = x.copy()
+        else:
+            x = np.maximum(x, np.float32(0.0), out=out)
         if self.curve == "power":
             return _power(x, np.float32(1.0 / self.gamma))
         toe = x <= np.float32(_SRGB_CUT)

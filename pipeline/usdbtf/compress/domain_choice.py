@@ -2,13 +2,15 @@
 
 ``auto`` chooses per material, cheaply (issue 16's research, ``methods.domain_scores``):
 for each candidate curve (:data:`.domain.AUTO_CANDIDATES`) a basis is fitted as the
-compress fits it, on every other fitting texel; the evaluation texels (disjoint from the
-fitting ones) are projected onto it, and the **unquantised** error of that basis is
-measured on every second sample, both on the input's encoded values and in scene-linear.
-The candidate with the lowest ``log(encoded %) + log(linear %)`` wins: both errors at once,
-since a comparison against any fixed method (the paper's) divides each by a constant per
-material.  The compress then fits its basis in the winner's domain on every fitting texel,
-so ``auto`` costs about three half-size fits more than a fixed domain.
+compress fits it, on every other fitting texel and every second sample (the scored ones);
+the evaluation texels (disjoint from the fitting ones) are projected onto it over those
+samples, and the **unquantised** error of that basis is measured there, both on the
+input's encoded values and in scene-linear.  The candidate with the lowest
+``log(encoded %) + log(linear %)`` wins: both errors at once, since a comparison against
+any fixed method (the paper's) divides each by a constant per material.  The compress then
+fits its basis in the winner's domain on every fitting texel and sample, so ``auto`` costs
+about one fit more than a fixed domain.  (Fitting the candidates on every sample instead
+chose the same curve on all seven presets and two UBO2014-sized inputs, at 1.6x the cost.)
 
 No curve: ``--solver paper`` with ``auto`` fits the input's own encoding (sRGB for
 sRGB-encoded files, as the paper factorised the camera's 8-bit values; else linear), and an
@@ -125,26 +127,28 @@ def score_domains(source, texels, k: int, options, candidates=AUTO_CANDIDATES) -
     lin_total = sum(float(np.abs(t).sum(dtype=np.float64)) for t in truth)
     enc_total = sum(codes.total(c) for c in truth_codes)
     del truth
-    samples = [slice(a, min(a + _SCORE_BLOCK, S)) for a in range(0, S, _SCORE_BLOCK)]
     scores, fits = {}, {}
-    # Every other fitting texel: the candidates' bases need not be the final one (which is
-    # fitted on all of them after the choice), and one buffer of half their columns keeps
-    # the scorer's memory at a quarter of the kept columns (0.28 GB at UBO2014's size).
-    half = x_raw.reshape(S, -1, 3)[:, ::_FIT_TEXEL_STRIDE]
-    x_dom = np.empty((S, 3 * half.shape[1]), np.float32)
+    # The candidates are fitted on the scored samples only (every other one) and every other
+    # fitting texel: a quarter of the columns the compress fits, so the four candidates cost
+    # about one fit; the compress then fits the winner's basis on all of them.  One buffer
+    # holds the candidate's columns (0.14 GB at UBO2014's size).
+    half = x_raw[scored].reshape(len(scored), -1, 3)[:, ::_FIT_TEXEL_STRIDE]
+    x_dom = np.empty((len(scored), 3 * half.shape[1]), np.float32)
+    local = np.cumsum([0] + [len(rows) for rows in blocks])              # block b: rows local[b]..local[b + 1]
     for dom in candidates:
         forward = source.curves_in(dom)
         fit = fit_basis(rows_apply(lambda b: forward(np.ascontiguousarray(b)).reshape(len(b), -1), half, x_dom),
                         k, options)
         u = fit.basis[:, :max(1, min(fit.k, _PROBE_K, S // _PROBE_FRACTION))]
-        # Coefficients of the evaluation texels: U^T f(Y), summed over sample blocks in order.
-        c = sum(in_threads(lambda sl: (u[sl].T @ forward(y_raw[sl])).astype(np.float64), samples))
+        # Coefficients of the evaluation texels: U^T f(Y) over the scored samples, summed over
+        # their blocks in order.
+        c = sum(in_threads(lambda b: (u[local[b]:local[b + 1]].T @ forward(y_raw[blocks[b]])).astype(np.float64),
+                           range(len(blocks))))
         c = c.astype(np.float32)
 
         def errors(b: int) -> tuple[float, float]:
-            rows = blocks[b]
-            rec = dom.inverse(u[rows] @ c)
-            return (float(np.abs(rec - linear(y_raw[rows])).sum(dtype=np.float64)),
+            rec = dom.inverse(u[local[b]:local[b + 1]] @ c)
+            return (float(np.abs(rec - linear(y_raw[blocks[b]])).sum(dtype=np.float64)),
                     codes.distance(codes(rec), truth_codes[b]))
 
         sums = in_threads(errors, range(len(blocks)))

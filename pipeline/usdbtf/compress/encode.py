@@ -30,11 +30,14 @@ def encode(cbtf: CompressedBTF) -> CompressedBTF:
     textures and basis as decoded from those bytes.  ``cbtf`` is not changed.
     """
     codec = get_codec(cbtf.codec)
-    data = in_threads(lambda st: codec.encode(st, "data"), cbtf.coefficients)
+    # The basis image (one large image, the longest single encode) first, in the same pool
+    # as the coefficient textures: it no longer runs alone on one core after them.
+    jobs = [lambda: encode_basis(cbtf)] + [lambda st=st: codec.encode(st, "data") for st in cbtf.coefficients]
+    basis_data, *data = in_threads(lambda job: job(), jobs)
     if not codec.lossless:
         cbtf = replace(cbtf, coefficients=[Stored(px, st.scale, st.bias)
                                            for px, st in zip(in_threads(Codec.decode, data), cbtf.coefficients)])
-    return _with_basis(cbtf, data)
+    return _with_basis(cbtf, data, basis_data)
 
 
 def truncate_encoded(cbtf: CompressedBTF, k: int) -> CompressedBTF:
@@ -43,10 +46,10 @@ def truncate_encoded(cbtf: CompressedBTF, k: int) -> CompressedBTF:
     return _with_basis(truncate(cbtf, k), cbtf.encoded.coefficients[:k])
 
 
-def _with_basis(cbtf: CompressedBTF, coefficient_bytes) -> CompressedBTF:
-    """``cbtf`` with its basis encoded (and decoded back for a lossy codec) and
-    ``coefficient_bytes`` as its coefficient textures' bytes."""
-    data = encode_basis(cbtf)
+def _with_basis(cbtf: CompressedBTF, coefficient_bytes, basis_bytes: bytes | None = None) -> CompressedBTF:
+    """``cbtf`` with its basis encoded (``basis_bytes`` when already encoded; decoded back for
+    a lossy codec) and ``coefficient_bytes`` as its coefficient textures' bytes."""
+    data = encode_basis(cbtf) if basis_bytes is None else basis_bytes
     if not get_codec(cbtf.codec).lossless:
         cbtf = replace(cbtf, basis=Stored(decode_basis(data, cbtf), cbtf.basis.scale, cbtf.basis.bias))
     enc = EncodedTextures(cbtf.codec, data, tuple(coefficient_bytes),

@@ -145,7 +145,9 @@ class _Source(Closable):
                 table = dec if domain.is_linear else dataclasses.replace(dec, lut=domain.forward(dec.lut))
                 self._domain_curves[domain] = Conversion(table.decode_curves)
             else:
-                self._domain_curves[domain] = Conversion(self._decode, self.matrix, domain)
+                nonnegative = dec is not None and bool(np.all(dec.lut >= 0)) and \
+                    (self.matrix is None or bool(np.all(self.matrix >= 0)))
+                self._domain_curves[domain] = Conversion(self._decode, self.matrix, domain, nonnegative=nonnegative)
         return self._domain_curves[domain]
 
     def set_domain(self, domain) -> None:
