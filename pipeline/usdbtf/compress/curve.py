@@ -8,6 +8,7 @@ import numpy as np
 
 from .format import working_coefficient_texels
 from .metrics import ErrorSums
+from .parallel import in_threads, one_blas_thread
 
 __all__ = ["error_curve", "write_curve", "plot_curve", "curve_samples", "curve_ks"]
 
@@ -51,11 +52,13 @@ def error_curve(cbtf, data, *, texels_per_block: int = 16384) -> dict:
     dom = cbtf.domain
     total = float(dom.inverse(truth).sum(dtype=np.float64))
     ks = curve_ks(cbtf.k)
-    sums = [ErrorSums() for _ in ks]
     P = cbtf.width * cbtf.height
-    # Over blocks of texels, so only a block of the k coefficient textures is decoded at a time.
-    for t0 in range(0, P, texels_per_block):
+
+    def block(t0: int) -> list:
+        """Every curve point's sums over texels t0.. (a block of the k coefficient textures
+        decoded at a time)."""
         t1 = min(t0 + texels_per_block, P)
+        sums = [ErrorSums() for _ in ks]
         coeff = working_coefficient_texels(cbtf, slice(t0, t1)).reshape(cbtf.k, -1)   # (k, 3 n)
         residual = np.array(truth[:, t0:t1].reshape(len(rows), -1))                    # (r, 3 n)
         done = 0
@@ -67,6 +70,16 @@ def error_curve(cbtf, data, *, texels_per_block: int = 16384) -> dict:
                 acc.add_difference(residual.reshape(-1))
             else:   # the error is scene-linear: truth - inverse(domain truth - domain residual)
                 acc.add(truth_lin, dom.inverse(truth[:, t0:t1].reshape(len(rows), -1) - residual))
+        return sums
+
+    # The blocks on every core (one BLAS thread each), their sums added in block order: the
+    # same numbers on any machine.
+    with one_blas_thread():
+        parts = in_threads(block, range(0, P, texels_per_block))
+    sums = [ErrorSums() for _ in ks]
+    for part in parts:
+        for acc, p in zip(sums, part):
+            acc.merge(p)
     count = truth.size
     pct = [100.0 * acc.abs_err / total if total > 0 else float("nan") for acc in sums]
     rmse = [float(np.sqrt(acc.sq_err / count)) for acc in sums]
