@@ -65,4 +65,5 @@ class Conversion:
             x = self.decode(raw, out=out)
         else:
             x = color.mix_rgb(self.decode(raw, out=self._scratch.get("decoded", raw.shape)), self.matrix, out=out)
-        return self.domain.forward(x, out=x, nonnegative=self.nonnegative)
+        self.domain.forward(x, out=x, nonnegative=self.nonnegative)     # x: a view of out
+        return out
