@@ -50,7 +50,8 @@ def add_arguments(p) -> None:
                    "(default 2048; 4096 with --max-bytes or --target-error)")
     p.add_argument("--power-iterations", type=int_in(0, 20), default=1, help="rsvd: power iterations (0..20)")
     p.add_argument("--region", type=int_in(1), help="paper: side of the central fitting region in texels")
-    p.add_argument("--workers", type=WORKERS, help="decode processes (default: CPU count)")
+    p.add_argument("--workers", type=WORKERS, help="decode processes (default: CPU count; with 2 or more, one more "
+                   "while a streamed input is spilled to disk, since each waits for its writes)")
     p.add_argument("--memory-budget", type=float_in(0, 1e4), default=1.0, metavar="GB",
                    help="hold the stored values in memory up to this size, else stream them: decoded once "
                         "into an anonymous spill file when the temporary folder has room, else twice (default 1.0)")

@@ -337,10 +337,11 @@ class StreamingSource(_KeptSource):
         # Whole projection tiles per chunk, as many as fit ``chunk_bytes`` of stored values.
         tile = self.plan.tile
         self.chunk = tile * int(max(1, chunk_bytes // (tile * btf.n_pixels * 3 * itemsize(btf))))
-        # One decode process more than CPUs when spilling: each process waits for its direct
-        # writes (a 246 MB chunk at UBO2014's size takes 0.2 s to write), and the extra one
-        # decodes meanwhile (UBO2014 size: first pass 32.4 -> 29.3 s, decoding alone 24.8 s).
-        self.workers = workers or default_workers() + (1 if spill else 0)
+        # One decode process more than asked for when spilling: each process waits for its
+        # direct writes (a 246 MB chunk at UBO2014's size takes 0.2 s to write), and the extra
+        # one decodes meanwhile (UBO2014 size: first pass 32.4 -> 29.3 s, decoding alone 24.8 s).
+        asked = workers or default_workers()
+        self.workers = asked + (1 if spill and asked > 1 else 0)
         keep_texels, rows = self._keep(keep_texels, keep_rows)
         n_chunks = -(-btf.n_samples // self.chunk)
         self._spill = Spill.create(n_chunks, self.chunk * btf.n_pixels * 3 * itemsize(btf)) if spill else None
