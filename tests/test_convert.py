@@ -3,6 +3,7 @@ reused buffers, without the slow paths it avoids; the spill's piecewise writes."
 from __future__ import annotations
 
 import dataclasses
+import os
 
 import numpy as np
 import pytest
@@ -121,7 +122,7 @@ def test_spill_writes_slots_through_a_small_staging_buffer(monkeypatch, tmp_path
     """A slot larger than the staging buffer is written piece by piece (aligned offsets, a
     short last piece) and reads back byte for byte, next to its neighbours."""
     monkeypatch.setattr(spill_module, "STAGING_BYTES", 2 * spill_module.ALIGN)
-    monkeypatch.setitem(spill_module._STAGING, __import__("os").getpid(), None)
+    monkeypatch.setitem(spill_module._STAGING, os.getpid(), None)
     slot_bytes = 5 * spill_module.ALIGN + 123
     spill = Spill.create(3, slot_bytes, folder=str(tmp_path))
     if spill is None:

@@ -153,11 +153,7 @@ def mix_rgb(rgb: np.ndarray, matrix: np.ndarray, out: np.ndarray | None = None) 
     x = np.ascontiguousarray(rgb, np.float32)
     m = np.asarray(matrix, np.float32)
     if x.size == 0 or x.size // 3 >= 2**31:
-        y = (x.reshape(-1, 3) @ m.T).reshape(x.shape)
-        if out is None:
-            return y
-        out[...] = y
-        return out
+        return _written((x.reshape(-1, 3) @ m.T).reshape(x.shape), out)
     dst = None if out is None else out.reshape(-1, 1, 3)
     return _written(cv2.transform(x.reshape(-1, 1, 3), m, dst=dst), out).reshape(x.shape)
 

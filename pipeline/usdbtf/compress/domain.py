@@ -89,14 +89,13 @@ class Domain:
             return out
         # In place on one array (fresh large arrays cost page faults): the same values as
         # the plain expressions, operation for operation.
-        if nonnegative:
-            if out is not None and out is not x:
-                out[...] = x
-                x = out
-            elif out is None:
-                x = x.copy()
-        else:
+        if not nonnegative:
             x = np.maximum(x, np.float32(0.0), out=out)
+        elif out is None:
+            x = x.copy()
+        elif out is not x:
+            out[...] = x
+            x = out
         if self.curve == "power":
             return _power(x, np.float32(1.0 / self.gamma))
         toe = x <= np.float32(_SRGB_CUT)

@@ -42,8 +42,6 @@ TILES_PER_SHARD = 2
 #: tiles they took longer than the GEMMs at UBO2014's size; 512 samples: 23 -> 17 s at 256^2).
 _MAX_TILE_SAMPLES = 512
 _TILE_ROW_BYTES = 256e6
-#: Texels per piece of a block that :meth:`TileProjector.accumulate` handles at once.
-PIECE_TEXELS = 1 << 30
 
 
 @dataclass(frozen=True)
@@ -142,44 +140,34 @@ class TileProjector:
         return [np.zeros((kj, n), np.float32) for kj in self.ks]
 
     def accumulate(self, s0: int, raw: np.ndarray, accs: list) -> float | None:
-        """Add the tile of samples s0.. of one texel block to its accumulators: acc += U_t^T Y_t.
-
-        The block is converted, mixed, multiplied and added :data:`PIECE_TEXELS` texels at
-        a time, so each piece's values, products and accumulators stay in the core's cache
-        (whole-block products were written out and read back by the additions: a fifth of
-        the projection at UBO2014's size).  Each accumulator element gets one float32
-        addition of its product element per tile, as before.
+        """Add the tile of samples s0.. of one texel block to its accumulators: acc += U_t^T Y_t
+        (one float32 addition of each product element per tile).
 
         raw : (t, 3 n) stored values of the block's texels (rows may be strided), t <= tile,
             s0 a multiple of ``tile``.
         accs : the block's accumulators as :meth:`zeros` lays them out.
 
-        Returns ||Y_t||^2 (the pieces' float64 sums added in order), or None without energy.
+        Returns ||Y_t||^2 (float64), or None without energy.
         """
         t, n = raw.shape[0], raw.shape[1] // 3
         tile = s0 // self.tile
-        energy = 0.0 if self.energy else None
-        for a in range(0, n, PIECE_TEXELS):
-            b = min(n, a + PIECE_TEXELS)
-            part = raw[:, 3 * a:3 * b]
-            # Intermediates in this thread's reused arrays (fresh arrays cost page faults).
-            x = self.curves(part, out=self._scratch.get("x", part.shape))
-            if self.interleaved:
-                # Per texel y = mix @ x; OpenCV's SIMD transform is 4x faster than a K = 3 GEMM.
-                y = color.mix_rgb(x, self.mix, out=self._scratch.get("y", part.shape))
-                if self.ks[0]:
-                    panel = self.panels[0][tile]
-                    accs[0][:, 3 * a:3 * b] += np.matmul(panel, y, out=self._scratch.get("p", (self.ks[0], 3 * (b - a))))
-            else:
-                y = np.matmul(self.mix, x.reshape(-1, 3).T)              # (3, t m): planar
-                for j, kj in enumerate(self.ks):
-                    if kj:
-                        accs[j][:, a:b] += np.matmul(self.panels[j][tile], y[j].reshape(t, b - a),
-                                                     out=self._scratch.get("p", (kj, b - a)))
-            if energy is not None:
-                flat = y.reshape(1, -1)
-                energy += float(np.einsum("ij,ij->", flat, flat, dtype=np.float64))
-        return energy
+        # Intermediates in this thread's reused arrays (fresh tile-sized arrays cost page
+        # faults, see .convert); each product is added before the thread's next one.
+        x = self.curves(raw, out=self._scratch.get("x", raw.shape))
+        if self.interleaved:
+            # Per texel y = mix @ x; OpenCV's SIMD transform is 4x faster than a K = 3 GEMM.
+            y = color.mix_rgb(x, self.mix, out=self._scratch.get("y", raw.shape))
+            if self.ks[0]:
+                accs[0] += np.matmul(self.panels[0][tile], y, out=self._scratch.get("p", (self.ks[0], 3 * n)))
+        else:
+            y = np.matmul(self.mix, x.reshape(-1, 3).T)                  # (3, t n): planar
+            for j, kj in enumerate(self.ks):
+                if kj:
+                    accs[j] += np.matmul(self.panels[j][tile], y[j].reshape(t, n), out=self._scratch.get("p", (kj, n)))
+        if self.energy:
+            flat = y.reshape(1, -1)
+            return float(np.einsum("ij,ij->", flat, flat, dtype=np.float64))
+        return None
 
     def partial(self, s0: int, raw: np.ndarray) -> TilePartial:
         """The tile of samples s0.. of one texel block alone: :meth:`accumulate` into zeros."""

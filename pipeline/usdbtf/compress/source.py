@@ -40,7 +40,7 @@ import numpy as np
 from .. import color
 from ..errors import BTFError
 from ..model import BTF, FileBTF
-from .convert import Conversion
+from .convert import Conversion, Scratch
 from .domain import LINEAR
 from .load import _STATE, BlockedData, _forkable, _init, default_workers, load_encoded, stored_dtype
 from .parallel import cpu_count, in_threads, one_blas_thread, rows_apply, thread_map
@@ -103,9 +103,10 @@ class _Source(Closable):
         else:
             def decode(block, out=None):
                 x = btf.decode(block.reshape(block.shape[0], -1, 3)).reshape(block.shape)
-                if out is not None:
-                    out[...] = x
-                return x if out is None else out
+                if out is None:
+                    return x
+                out[...] = x
+                return out
 
             self._decode, self.matrix = decode, None
         #: Stored values -> curve-decoded float32 (then, after :meth:`set_domain`, domain values).
@@ -232,17 +233,18 @@ def kept_values(block: np.ndarray, a: int, keep_texels: list, keep_rows: np.ndar
     return cols, {int(i): flat[i - a].copy() for i in keep_rows if a <= i < a + n}
 
 
+#: A decode worker's chunk array, reused from chunk to chunk (fresh ones fault in new pages).
+_CHUNK = Scratch()
+
+
 def _first_pass_chunk(btf: BTF, a: int, b: int, keep_texels: list, keep_rows: np.ndarray, spill: Spill | None,
                       chunk: int = 1, reuse: bool = False):
     """Decode samples a..b: :func:`kept_values`, and the whole chunk written to ``spill`` in its
     slot (a // chunk).  Runs in a decode worker (``reuse``: into the worker's one chunk array,
     kept between chunks) or in the caller."""
     if reuse and isinstance(btf, FileBTF):
-        shape = (b - a, btf.height, btf.width, 3)
-        held = _STATE.get("chunk")
-        if held is None or held.size < np.prod(shape):
-            held = _STATE["chunk"] = np.empty(int(np.prod(shape)), stored_dtype(btf))
-        block = btf.read_encoded(slice(a, b), out=held[:int(np.prod(shape))].reshape(shape))
+        out = _CHUNK.get("chunk", (b - a, btf.height, btf.width, 3), stored_dtype(btf))
+        block = btf.read_encoded(slice(a, b), out=out)
     else:
         block = btf.read_encoded(slice(a, b))
     if spill is not None:
