@@ -1,18 +1,28 @@
 #!/usr/bin/env bash
-# Do the working tree and git ref REF produce the same output bytes?
+# Do two runs of the example pipeline produce the same output bytes?
 #
-#   bash scripts/same_outputs.sh REF [--keep]
+#   bash scripts/same_outputs.sh REF [--keep]                  # git ref REF vs the working tree
+#   bash scripts/same_outputs.sh --env 'A=1 B=2' 'A=3' [--keep]  # the working tree in two environments
 #
-# Runs a representative subset of the example pipeline (examples/run_example.sh) twice --
-# once with the code of REF (a `git archive` of it in a temporary folder), once with the
-# working tree (uncommitted changes included) -- and compares the SHA-256 of every output
-# file (a .usdz by its members' names and bytes: USD stamps them with the packing time).
+# Runs a representative subset of the example pipeline (examples/run_example.sh) twice and
+# compares the SHA-256 of every output file (a .usdz by its members' names and bytes: USD
+# stamps them with the packing time).  With REF: once with the code of REF (a `git archive` of
+# it in a temporary folder), once with the working tree (uncommitted changes included).  With
+# --env: the working tree twice, each run with its own NAME=VALUE assignments added to the
+# environment (for example OPENBLAS_NUM_THREADS=1 against =4: no byte may differ).
 # Covered: board; synth (8-bit PNG and half EXR); compress with both solvers, every codec,
 # --k, --max-bytes, --target-error, in memory and streamed (--memory-budget 0); decompress;
 # info and error reports; quilt (tileable and into an atlas); unwrap; package (+ usdz; a
 # mesh with a usda payload, asset metadata and --usdz-ar; tx and exr textures); render
-# (swatch and mesh).  Not covered: capture and rectify (they need a rig).  Prints each differing file and exits 1 on any difference, 0 when every file
-# is identical, 2 when a stage fails.
+# (swatch and mesh).  Not covered: capture and rectify (they need a rig).  Prints each
+# differing file and exits 1 on any difference, 0 when every file is identical, 2 when a stage
+# fails.
+#
+# The numeric platform (the BLAS kernel and numpy's SIMD level: README "Same bytes on any
+# machine") decides the bits.  Both runs start from this checkout's pin (exported first, so a
+# REF from before the pin computes on the same platform); each run's platform is printed, and
+# when an --env changes it (OPENBLAS_CORETYPE=Nehalem, say) differing bytes are expected: the
+# script says so and exits 0 (3 if the two platforms' bytes are all equal, which proves nothing).
 #
 # Both runs use this checkout's .venv (REF's code goes first on PYTHONPATH), OCIO's built-in
 # default config, and the same absolute output path (each run happens in the same
@@ -21,17 +31,45 @@
 # Takes about a minute or two on two cores; --keep leaves the outputs in the printed folder.
 set -euo pipefail
 
-usage() { echo "usage: bash scripts/same_outputs.sh REF [--keep]" >&2; exit 2; }
+usage() {
+    echo "usage: bash scripts/same_outputs.sh REF [--keep]" >&2
+    echo "       bash scripts/same_outputs.sh --env 'NAME=VALUE ...' 'NAME=VALUE ...' [--keep]" >&2
+    exit 2
+}
 [ $# -ge 1 ] || usage
-REF=$1
-KEEP=${2:-}
-[ -z "$KEEP" ] || [ "$KEEP" = "--keep" ] || usage
-
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 PY="$ROOT/.venv/bin/python"
 [ -x "$PY" ] || { echo "same_outputs: no $PY (run scripts/bootstrap.sh)" >&2; exit 2; }
-COMMIT=$(git -C "$ROOT" rev-parse --verify --quiet "$REF^{commit}") \
-    || { echo "same_outputs: $REF is not a commit" >&2; exit 2; }
+
+# assignments TEXT: NAME=VALUE words -> one per line, each checked (never evaluated).
+assignments() {
+    local word
+    for word in $1; do
+        [[ "$word" =~ ^[A-Z_][A-Z0-9_]*=[A-Za-z0-9_.,:-]*$ ]] || { echo "same_outputs: not NAME=VALUE: $word" >&2; exit 2; }
+        printf '%s\n' "$word"
+    done
+}
+
+if [ "$1" = "--env" ]; then
+    [ $# -ge 3 ] || usage
+    MODE=env
+    mapfile -t ENV_A < <(assignments "$2")
+    mapfile -t ENV_B < <(assignments "$3")
+    LABEL_A="env [${2}]"
+    LABEL_B="env [${3}]"
+    KEEP=${4:-}
+else
+    MODE=ref
+    REF=$1
+    KEEP=${2:-}
+    COMMIT=$(git -C "$ROOT" rev-parse --verify --quiet "$REF^{commit}") \
+        || { echo "same_outputs: $REF is not a commit" >&2; exit 2; }
+    ENV_A=()
+    ENV_B=()
+    LABEL_A="$REF"
+    LABEL_B="working tree"
+fi
+[ -z "$KEEP" ] || [ "$KEEP" = "--keep" ] || usage
 
 WORK=$(mktemp -d "${TMPDIR:-/tmp}/usdbtf-same-outputs.XXXXXX")
 cleanup() {
@@ -39,8 +77,19 @@ cleanup() {
 }
 trap cleanup EXIT
 mkdir -p "$WORK/ref-code" "$WORK/logs"
-git -C "$ROOT" archive "$COMMIT" | tar -x -C "$WORK/ref-code"
+[ "$MODE" = env ] || git -C "$ROOT" archive "$COMMIT" | tar -x -C "$WORK/ref-code"
 export OCIO=ocio://default
+# Both runs on one numeric platform (the BLAS kernel and numpy's SIMD level decide the bits;
+# README "Same bytes on any machine"): this checkout's pin, exported before either run, so a
+# REF from before the pin computes on the same platform.  The platform is printed.
+eval "$(PYTHONPATH="$ROOT/pipeline" "$PY" -c 'import sys; from usdbtf.commands.env import numeric_lines; print("\n".join(numeric_lines()))')"
+
+# platform ASSIGNMENTS...: the numeric platform of the working tree's usdbtf with them.
+platform() { env "$@" PYTHONPATH="$ROOT/pipeline" "$PY" -c 'from usdbtf import numeric; print(numeric.platform_label())'; }
+PLATFORM_A=$(platform "${ENV_A[@]}")
+PLATFORM_B=$(platform "${ENV_B[@]}")
+echo "same_outputs: numeric platform of $LABEL_A: $PLATFORM_A"
+echo "same_outputs: numeric platform of $LABEL_B: $PLATFORM_B"
 
 # pipeline CODE_ROOT: every stage, in $WORK/run, with the usdbtf package of CODE_ROOT.
 pipeline() {
@@ -48,7 +97,7 @@ pipeline() {
     rm -rf "$run"
     mkdir -p "$run"
     cd "$run"
-    usdbtf() { PYTHONPATH="$code/pipeline" "$PY" -c 'import sys; from usdbtf.cli import main; sys.exit(main(sys.argv[1:]))' "$@"; }
+    usdbtf() { env "${RUN_ENV[@]}" PYTHONPATH="$code/pipeline" "$PY" -c 'import sys; from usdbtf.cli import main; sys.exit(main(sys.argv[1:]))' "$@"; }
     stage() {  # stage NAME command args...: run quietly, log to $WORK/logs, fail loudly
         local name=$1
         shift
@@ -117,22 +166,35 @@ for rel in paths:
 PYEOF
 }
 
-echo "same_outputs: running the pipeline with $REF ($COMMIT)"
-pipeline "$WORK/ref-code"
+if [ "$MODE" = env ]; then
+    echo "same_outputs: running the pipeline with the working tree, $LABEL_A"
+    RUN_ENV=("${ENV_A[@]}"); pipeline "$ROOT"
+else
+    echo "same_outputs: running the pipeline with $REF ($COMMIT)"
+    RUN_ENV=(); pipeline "$WORK/ref-code"
+fi
 mv "$WORK/run" "$WORK/ref"
-echo "same_outputs: running the pipeline with the working tree ($ROOT)"
-pipeline "$ROOT"
+echo "same_outputs: running the pipeline with the working tree${ENV_B:+, $LABEL_B}"
+RUN_ENV=("${ENV_B[@]}"); pipeline "$ROOT"
 mv "$WORK/run" "$WORK/tree"
 
 hashes "$WORK/ref" > "$WORK/ref.sha256"
 hashes "$WORK/tree" > "$WORK/tree.sha256"
 total=$(wc -l < "$WORK/tree.sha256")
 if diff -q "$WORK/ref.sha256" "$WORK/tree.sha256" > /dev/null; then
-    echo "same_outputs: all $total output files are byte-identical ($REF vs working tree)"
+    echo "same_outputs: all $total output files are byte-identical ($LABEL_A vs $LABEL_B)"
+    if [ "$PLATFORM_A" != "$PLATFORM_B" ]; then
+        echo "same_outputs: (on two numeric platforms: equal bytes there are luck, not a property)"
+        exit 3
+    fi
     exit 0
 fi
 differing=$(join -j 2 -a 1 -a 2 -e MISSING -o 0,1.1,2.1 <(sort -k 2 "$WORK/ref.sha256") <(sort -k 2 "$WORK/tree.sha256") \
-    | awk '$2 != $3 { if ($2 == "MISSING") s = "only in the working tree"; else if ($3 == "MISSING") s = "only in " ref; else s = "content differs"; print "  " $1 "  (" s ")" }' ref="$REF")
-echo "same_outputs: $(printf '%s\n' "$differing" | wc -l) of $total output files differ ($REF vs working tree):"
+    | awk '$2 != $3 { if ($2 == "MISSING") s = "only in " b; else if ($3 == "MISSING") s = "only in " a; else s = "content differs"; print "  " $1 "  (" s ")" }' a="$LABEL_A" b="$LABEL_B")
+echo "same_outputs: $(printf '%s\n' "$differing" | wc -l) of $total output files differ ($LABEL_A vs $LABEL_B):"
 printf '%s\n' "$differing"
+if [ "$PLATFORM_A" != "$PLATFORM_B" ]; then
+    echo "same_outputs: expected: the two runs compute on different numeric platforms"
+    exit 0
+fi
 exit 1

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import os
 
+import cv2
 import numpy as np
 import pytest
 
@@ -18,14 +19,21 @@ SRGB = "sRGB Encoded Rec.709 (sRGB)"
 CURVES = [Domain("power", 1.6), Domain("power", 2.2), Domain("srgb")]
 
 
+def _pow(x: np.ndarray, e) -> np.ndarray:
+    """OpenCV's power, the one the curves use (the same bits on every CPU: usdbtf.numeric)."""
+    a = np.ascontiguousarray(x, np.float32)
+    return cv2.pow(a.reshape(-1, 1), float(np.float32(e))).reshape(a.shape)
+
+
 def _plain_forward(d: Domain, x: np.ndarray) -> np.ndarray:
-    """The curve as plain numpy expressions (what Domain.forward computed before issue 17)."""
+    """The curve as plain expressions (what Domain.forward computed before issue 17, with
+    the power that issue 24 made platform-independent)."""
     x = np.maximum(np.asarray(x, np.float32), np.float32(0))
     if d.curve == "power":
-        return np.power(x, np.float32(1 / d.gamma))
+        return _pow(x, np.float32(1 / d.gamma))
     toe = x <= np.float32(0.0031308)
     low = x[toe] * np.float32(12.92)
-    x = np.power(x, np.float32(1 / 2.4))
+    x = _pow(x, np.float32(1 / 2.4))
     x *= np.float32(1.055)
     x -= np.float32(0.055)
     x[toe] = low
@@ -35,11 +43,11 @@ def _plain_forward(d: Domain, x: np.ndarray) -> np.ndarray:
 def _plain_inverse(d: Domain, v: np.ndarray) -> np.ndarray:
     v = np.maximum(np.asarray(v, np.float32), np.float32(0))
     if d.curve == "power":
-        return np.power(v, np.float32(d.gamma))
+        return _pow(v, np.float32(d.gamma))
     toe = v <= np.float32(0.04045)
     low = v[toe] * np.float32(1 / 12.92)
     v = (v + np.float32(0.055)) * np.float32(1 / 1.055)
-    v = np.power(v, np.float32(2.4))
+    v = _pow(v, np.float32(2.4))
     v[toe] = low
     return v
 

@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from usdbtf.cli import main
+from usdbtf.numeric import pinned_environment
 from usdbtf.usd.plugin import environment, plugin_dir
 
 HERE = Path(__file__).resolve().parent
@@ -56,7 +57,8 @@ def fresh_validate(setup: str, paths) -> dict:
 def test_env_prints_the_plugin_and_sdr_discovery_variables():
     text = usdbtf_env_lines()
     lines = [line for line in text.splitlines() if not line.startswith("#")]
-    assert [line.split("=", 1)[0] for line in lines] == [f"export {v}" for v in environment()]
+    numeric = [f"export {v}" for v in pinned_environment()]
+    assert [line.split("=", 1)[0] for line in lines] == [f"export {v}" for v in environment()] + numeric
     assert str(plugin_dir().resolve()) in text
     probe = subprocess.run(["bash", "-c", text + '\nprintf "%s\\n" "$PXR_PLUGINPATH_NAME" '
                             '"$PXR_SDR_FS_PLUGIN_SEARCH_PATHS" "$PXR_SDR_FS_PLUGIN_ALLOWED_EXTS"'],

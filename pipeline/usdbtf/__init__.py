@@ -9,9 +9,14 @@ Importing the package sets up the usdBtf USD plugin for this process (the enviro
 ``usdbtf env`` prints), so it must come before the process first imports pxr (see
 :mod:`usdbtf.usd.plugin`).  It does so without importing USD: ``usdbtf --version`` and
 ``--help`` load no pxr, numpy or OIIO.
+
+It also pins the numeric platform (:mod:`usdbtf.numeric`: the BLAS kernel and numpy's SIMD
+level) before numpy loads, so that any x86-64-v3 machine writes the same bytes.
 """
 __version__ = "0.1.0"
 
+from .numeric import pin as _pin_numeric_platform
 from .usd.plugin import register_lazily as _register_usd_plugin
 
+_pin_numeric_platform()
 _register_usd_plugin()

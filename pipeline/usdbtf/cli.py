@@ -99,7 +99,8 @@ def configure_logging(*, quiet: bool = False, verbose: bool = False, progress: b
 def build_parser() -> argparse.ArgumentParser:
     p = Parser(prog="usdbtf", description="Measured BTF materials to USD assets.", epilog=EXIT_STATUS,
                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--version", action="version", version=f"usdbtf {__version__}")
+    p.add_argument("--version", action="version", version=f"usdbtf {__version__}",
+                   help="print the version and exit (with --json: also the libraries and the numeric platform)")
     _add_message_flags(p, default=False)
     p.add_argument("--force", action="store_true", help="the same as the stage's --force: " + FORCE_HELP)
     p.add_argument("--allow-outside-paths", action="store_true", help=OUTSIDE_PATHS_HELP)
@@ -202,7 +203,41 @@ def _signals_raise():
             signal.signal(sig, handler)
 
 
+def version_report() -> dict:
+    """What ``usdbtf --version --json`` prints: usdbtf's version and code digest, Python's and
+    the computing libraries' versions, and the numeric platform with the variables that pin it
+    (``numeric``: the bits of every output depend on it; see :mod:`usdbtf.numeric`)."""
+    import os
+
+    from . import numeric
+    from .cluster import environment
+
+    env = dict(environment())
+    platform = {k: env.pop(k) for k in numeric.platform()}
+    pinned = {name: os.environ.get(name, "") for name in ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES")}
+    return {"usdbtf": env.pop("usdbtf"), "code": env.pop("usdbtf code"), "python": env.pop("python"),
+            "libraries": env,
+            "numeric": {**platform, "reference": platform["blas_kernel"] == numeric.REFERENCE["blas_kernel"]
+                        and platform["numpy_simd"] == numeric.REFERENCE["numpy_simd"],
+                        "environment": pinned}}
+
+
+def _version_json_asked(argv) -> bool:
+    """``--version --json`` (in either order) before any command name."""
+    head = []
+    for arg in argv:
+        if not arg.startswith("-"):
+            break
+        head.append(arg)
+    return "--version" in head and "--json" in head
+
+
 def main(argv=None) -> int:
+    if _version_json_asked(sys.argv[1:] if argv is None else list(argv)):
+        from . import jsontext
+
+        print(jsontext.dumps(version_report()))
+        return 0
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
     if extra:      # reported by the command's own parser, so the line names the command

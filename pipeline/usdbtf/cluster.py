@@ -30,6 +30,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+from . import numeric
 from .errors import BTFError, IOFailure
 
 log = logging.getLogger(__name__)
@@ -113,7 +114,9 @@ def parse_address(text) -> ClusterAddress:
 @functools.lru_cache(maxsize=1)
 def environment() -> dict:
     """What makes results byte-identical across processes: usdbtf's version and a digest of
-    its code, Python's version, and the versions of the libraries that compute values."""
+    its code, Python's version, the versions of the libraries that compute values, and the
+    numeric platform (:func:`usdbtf.numeric.platform`: the BLAS, its kernel and numpy's SIMD
+    level; thread counts change no bit, so they are not in it)."""
     import platform
 
     from . import __version__
@@ -129,11 +132,29 @@ def environment() -> dict:
             env[name] = str(__import__(module).__version__)
         except ImportError:
             env[name] = "missing"
+    env.update(numeric.platform())
     return env
 
 
 def _differences(theirs: dict, mine: dict) -> str:
-    return ", ".join(f"{k} {theirs.get(k, 'missing')} (here {mine[k]})" for k in mine if theirs.get(k) != mine[k])
+    """What differs, each side named: the numeric platform first, in its own words."""
+    names = set(_PLATFORM_KEYS)
+    plat = numeric.platform_differences({k: theirs.get(k, "missing") for k in names},
+                                        {k: mine[k] for k in mine if k in names})
+    rest = ", ".join(f"{k} {theirs.get(k, 'missing')} (here {mine[k]})"
+                     for k in mine if k not in names and theirs.get(k) != mine[k])
+    return ", ".join(part for part in (plat, rest) if part)
+
+
+def _advice(theirs: dict, mine: dict) -> str:
+    """How to make a worker match: the platform's variables when only they differ."""
+    if all(theirs.get(k) == mine[k] for k in mine if k not in _PLATFORM_KEYS):
+        return ("its arithmetic would write other bytes: start it with the environment `usdbtf env` prints "
+                "(the same OPENBLAS_CORETYPE and NPY_DISABLE_CPU_FEATURES as this process)")
+    return "install the same usdbtf (and libraries) on every worker"
+
+
+_PLATFORM_KEYS = ("blas", "blas_kernel", "numpy_simd")
 
 
 def require_environment(expected: dict, where: str) -> None:
@@ -141,8 +162,8 @@ def require_environment(expected: dict, where: str) -> None:
     (run on a worker, ``where`` naming it)."""
     mine = environment()
     if mine != expected:
-        raise BTFError(f"Dask worker {where}: its usdbtf or libraries differ from the client's: "
-                       f"{_differences(mine, expected)}; install the same usdbtf (and libraries) on every worker")
+        raise BTFError(f"Dask worker {where}: its usdbtf, libraries or numeric platform differ from the "
+                       f"client's: {_differences(mine, expected)}; {_advice(mine, expected)}")
 
 
 def _worker_environment():
@@ -187,8 +208,7 @@ def session(address, *, timeout: float = CONNECT_TIMEOUT):
         for worker, theirs in sorted(client.run(_worker_environment).items()):
             if theirs != mine:
                 raise BTFError(f"--dask {addr}: worker {worker} differs from this process: "
-                               f"{_differences(theirs, mine)}; install the same usdbtf (and libraries) on every "
-                               "worker")
+                               f"{_differences(theirs, mine)}; {_advice(theirs, mine)}")
         info = client.scheduler_info()
         n = len(info.get("workers", {}))
         threads = sum(w.get("nthreads", 1) for w in info.get("workers", {}).values())

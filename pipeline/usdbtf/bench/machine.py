@@ -139,6 +139,9 @@ def machine_info(extra_packages=()) -> dict:
     blas["thread_env"] = {k: os.environ[k] for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
                                                       "MKL_NUM_THREADS", "BLIS_NUM_THREADS") if k in os.environ}
     info["blas"] = blas
+    from .. import numeric
+
+    info["numeric_platform"] = numeric.platform()
     info["git"] = _git()
     return info
 
@@ -160,6 +163,8 @@ def _git() -> dict:
 
 def format_machine(info: dict) -> str:
     """Human-readable lines (also fine as a markdown list)."""
+    from .. import numeric
+
     cpu, mem, blas = info["cpu"], info["memory"], info.get("blas", {})
     cores = f"{cpu.get('usable_cpus')} usable / {cpu.get('logical_cpus')} logical CPUs"
     if cpu.get("physical_cores"):
@@ -188,6 +193,8 @@ def format_machine(info: dict) -> str:
         f"- RAM: {ram}",
         f"- OS: {info.get('os')}; Python {info.get('python')}",
         f"- BLAS (numpy): {blas_line}",
+        f"- numeric platform (decides the output bits): "
+        f"{numeric.platform_label(info['numeric_platform']) if info.get('numeric_platform') else '?'}",
         f"- versions: {vers}",
     ]
     if info.get("load_average_at_start"):

@@ -24,6 +24,21 @@ def shell_lines() -> list[str]:
         sep = list_separator(variable)
         value = shlex.quote(sep.join(entries))
         lines.append(f'export {variable}={value}"${{{variable}:+{sep}${variable}}}"')
+    return lines + numeric_lines()
+
+
+def numeric_lines() -> list[str]:
+    """The variables that pin the numeric platform (:mod:`usdbtf.numeric`), each unless the
+    shell sets it already: every process of a build or a Dask cluster started with them
+    writes the same bytes.  None on a CPU that cannot run the reference platform."""
+    from ..numeric import pinned_environment
+
+    pinned = pinned_environment()
+    if not pinned:
+        return []
+    lines = ["# the numeric platform (x86-64-v3: the same bytes on every such CPU), unless set already"]
+    for variable, value in pinned.items():
+        lines.append(f'export {variable}="${{{variable}:-{value}}}"')
     return lines
 
 
@@ -34,7 +49,10 @@ def run(args) -> int:
         from .. import jsontext
 
         env = environment()
-        print(jsontext.dumps({"variables": env, "separators": {v: list_separator(v) for v in env}}))
+        from ..numeric import pinned_environment
+
+        print(jsontext.dumps({"variables": env, "separators": {v: list_separator(v) for v in env},
+                              "numeric": pinned_environment()}))
     else:
         print("\n".join(shell_lines()))
     return 0

@@ -23,7 +23,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .. import __version__
+from .. import __version__, numeric
 from ..atomic import atomic_dir
 from ..model import BTF
 from ..outputs import COMPRESSED as COMPRESSED_KIND
@@ -152,8 +152,9 @@ def _described(cbtf: CompressedBTF, opts: CompressOptions, choice: dict, singula
                                      "all texels (the image is smaller than the fitting sample: in-sample)")
                             + ", all samples, working space"},
         "error_curve": {"file": "error_curve.csv", "plot": "error_curve.png"},
+        # The numeric platform decides the bits as much as the version does (usdbtf.numeric).
         "provenance": {"tool": "usdbtf", "version": __version__, "solver": opts.solver, "seed": opts.seed,
-                       "source": cbtf.source["path"], "options": opts.recorded()},
+                       "source": cbtf.source["path"], "options": opts.recorded(), "numeric": numeric.platform()},
     })
     if transcoded is not None:
         info["provenance"]["transcoded"] = transcoded

@@ -16,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import os
+import threading
 
 __all__ = ["cpu_count", "in_threads", "thread_map", "one_blas_thread", "rows_gemm", "rows_apply"]
 
@@ -89,13 +90,35 @@ def rows_apply(fn, x, out, *, rows: int = 256):
 
 @contextlib.contextmanager
 def one_blas_thread():
-    """BLAS on one thread inside the block (threadpoolctl; a no-op where it is missing)."""
+    """BLAS on one thread inside the block (threadpoolctl; a no-op where it is missing).
+
+    The BLAS thread count is a process-wide setting, and threads of one compress enter and
+    leave such blocks at once: the first to enter sets one thread, the last to leave puts
+    back what was there, so no block ever runs a GEMM on several BLAS threads (a thread
+    count changes how some kernels -- OpenBLAS's Haswell among them -- round a product).
+    Nested and concurrent blocks cost a lock and a counter."""
+    global _blas_depth, _blas_limiter
     controller = _controller()
     if controller is None:     # pragma: no cover - a declared dependency
         yield
         return
-    with controller.limit(limits=1, user_api="blas"):
+    with _blas_lock:
+        if _blas_depth == 0:
+            _blas_limiter = controller.limit(limits=1, user_api="blas")
+        _blas_depth += 1
+    try:
         yield
+    finally:
+        with _blas_lock:
+            _blas_depth -= 1
+            if _blas_depth == 0:
+                _blas_limiter.restore_original_limits()
+                _blas_limiter = None
+
+
+_blas_lock = threading.Lock()
+_blas_depth = 0
+_blas_limiter = None
 
 
 @functools.lru_cache(maxsize=1)

@@ -30,6 +30,7 @@ import numpy as np
 from .. import color
 from .convert import Scratch
 from .load import DEFAULT_BLOCK, texel_blocks
+from .parallel import one_blas_thread
 
 __all__ = ["TILES_PER_SHARD", "WorkPlan", "TileProjector", "TilePartial", "ShardSums", "ProjectionTotal", "project"]
 
@@ -148,7 +149,14 @@ class TileProjector:
         accs : the block's accumulators as :meth:`zeros` lays them out.
 
         Returns ||Y_t||^2 (float64), or None without energy.
+
+        The GEMMs run on one BLAS thread whoever calls (a compress, a Dask task, a test):
+        some kernels round a product differently on several threads.
         """
+        with one_blas_thread():
+            return self._accumulate(s0, raw, accs)
+
+    def _accumulate(self, s0: int, raw: np.ndarray, accs: list) -> float | None:
         t, n = raw.shape[0], raw.shape[1] // 3
         tile = s0 // self.tile
         # Intermediates in this thread's reused arrays (fresh tile-sized arrays cost page

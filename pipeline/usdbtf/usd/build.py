@@ -47,6 +47,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from .. import numeric
 from ..atomic import atomic_file, related
 from ..compress.format import METADATA as COMPRESSED_METADATA
 from ..errors import BTFError, OutputRefused, error_for_status
@@ -248,7 +249,9 @@ def steps(recipes: list[Recipe], dask: dict | None = None) -> dict:
         else:
             step["compressed_files"] = _source_files(r.source)
         out.append(step)
-    doc = {"python": sys.executable, "failure": _FAILURE, "steps": out}
+    # The numeric platform decides the bits of every step's output (usdbtf.numeric): a build
+    # cached on one platform is not another's, so it enters every step's signature.
+    doc = {"python": sys.executable, "failure": _FAILURE, "steps": out, "platform": numeric.platform()}
     if dask is not None:
         doc["dask"] = dask
     return doc
@@ -301,16 +304,18 @@ def usdbtf_step(argv, label):
     return Action(run_step, strfunction=lambda target, source, env: label)
 
 
+# The numeric platform (BLAS kernel, numpy SIMD level) decides the bits: part of every signature.
+PLATFORM = env.Value(json.dumps(DATA.get("platform", {}), sort_keys=True))
 targets = []
 for s in DATA["steps"]:
     if "compress" in s:
         c = s["compress"]
-        sources = env.Command(node(s["package_source"]), [node(p) for p in c["sources"]],
+        sources = env.Command(node(s["package_source"]), [node(p) for p in c["sources"]] + [PLATFORM],
                               usdbtf_step(c["argv"], "usdbtf-step compress " + json.dumps(s["material"])))
     else:
         sources = [node(s["package_source"])] + [node(p) for p in s["compressed_files"]]
     targets += sources if "compress" in s else []
-    targets += env.Command(node(s["asset"]), sources,
+    targets += env.Command(node(s["asset"]), list(sources) + [PLATFORM],
                            usdbtf_step(s["package"], "usdbtf-step package " + json.dumps(s["material"])))
 env.Precious(targets)    # never deleted before a rebuild: a failed one keeps the last good build
 env.NoClean(targets)
