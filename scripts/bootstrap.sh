@@ -4,28 +4,40 @@
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
-# System packages for the Hydra preview checks (issue 7): glslang-tools (GLSL compile
-# check) and Mesa's EGL + llvmpipe (headless OpenGL).  Installed only when missing and
-# running as root with apt; otherwise those tests skip and say why.
-apt_missing=()
-command -v glslangValidator >/dev/null 2>&1 || apt_missing+=(glslang-tools)
-if command -v dpkg-query >/dev/null 2>&1; then
-    for pkg in libegl1 libegl-mesa0 libgl1-mesa-dri; do
-        dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || apt_missing+=("$pkg")
-    done
-fi
-if [ "${#apt_missing[@]}" -gt 0 ]; then
+# System packages, installed only when missing and running as root with apt; otherwise what
+# needs them skips and says why:
+# - the Hydra preview checks (issue 7): glslang-tools (GLSL compile check) and Mesa's EGL +
+#   llvmpipe (headless OpenGL);
+# - the benchmark's H.265 video baseline (issue 29): Debian's ffmpeg, built with libx265.
+apt_install() {  # apt_install "what skips without them" package...
+    local skips="$1"
+    shift
+    [ "$#" -gt 0 ] || return 0
     if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
-        echo "bootstrap: installing ${apt_missing[*]} (apt)" >&2
-        if ! DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${apt_missing[@]}" >/dev/null 2>&1; then
+        echo "bootstrap: installing $* (apt)" >&2
+        if ! DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$@" >/dev/null 2>&1; then
             apt-get update -qq >/dev/null 2>&1 || true
-            DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${apt_missing[@]}" >/dev/null 2>&1 \
-                || echo "bootstrap: could not install ${apt_missing[*]}; the GPU preview tests will skip" >&2
+            DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$@" >/dev/null 2>&1 \
+                || echo "bootstrap: could not install $*; $skips" >&2
         fi
     else
-        echo "bootstrap: missing ${apt_missing[*]} (apt-get install as root); the GPU preview tests will skip" >&2
+        echo "bootstrap: missing $* (apt-get install as root); $skips" >&2
     fi
+}
+gl_missing=()
+command -v glslangValidator >/dev/null 2>&1 || gl_missing+=(glslang-tools)
+if command -v dpkg-query >/dev/null 2>&1; then
+    for pkg in libegl1 libegl-mesa0 libgl1-mesa-dri; do
+        dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || gl_missing+=("$pkg")
+    done
 fi
+apt_install "the GPU preview tests will skip" ${gl_missing[@]+"${gl_missing[@]}"}
+# (Captured, not piped into grep -q: under pipefail, ffmpeg killed by SIGPIPE would read as missing.)
+encoders="$(ffmpeg -hide_banner -encoders 2>/dev/null || true)"
+case "$encoders" in
+    *libx265*) ;;
+    *) apt_install "usdbtf bench skips its H.265 video baseline (its row says why)" ffmpeg ;;
+esac
 
 VENV=.venv
 STAMP="$VENV/.usdbtf-bootstrap.sha256"

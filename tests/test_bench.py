@@ -168,6 +168,83 @@ def test_smoke_quilt_and_render_tables_when_those_stages_exist(smoke):
         assert fitted[0]["percent"] > fitted[-1]["percent"]        # more basis vectors, smaller error
 
 
+def test_two_repeats_through_every_method_and_baseline(tmp_path, capsys):
+    """Issue 29: a repeat stores again what the run before it stored.  Each repeat writes a
+    folder of its own, and every baseline's output is a usdbtf output the guard recognises,
+    so the smallest configuration with two repeats measures every row (x265 where ffmpeg has
+    it, else skipped with the reason) and keeps only what --keep-outputs asks for."""
+    from usdbtf import outputs
+
+    out = tmp_path / "out"
+    code = main(["bench", "--smoke", "--repeats", "2", "--sections", "compress", "--k", "2", "--pca-view-k", "1",
+                 "--keep-outputs", "-o", str(out), "--workdir", str(tmp_path / "data")])
+    rows = read_csv(out / "compress.csv")
+    assert sorted(r["family"] for r in rows) == ["jpeg", "original", "paper", "pca-view", "rsvd", "video"]
+    exe, why = ffmpeg_x265()
+    for r in rows:
+        if r["family"] == "original":
+            assert r["status"] == "reference"
+        elif r["family"] == "video" and exe is None:
+            assert r["status"] == f"skipped: {why}" and why
+        else:
+            assert (r["status"], r["repeats"]) == ("ok", 2), r
+            assert 0 < r["wall_s_min"] <= r["wall_s_max"] and r["fit_percent"] > 0, r
+    doc = json.loads((out / "results.json").read_text())
+    assert (code, doc["status"], doc["failures"]) == (0, "ok", {})
+    # What each method stores is a usdbtf output of its kind (--force may replace it), and
+    # only the last repeat's output is kept.
+    stored = out / "stored" / "pebbles-tiny-32"
+    kinds = {"rsvd-jxl-2": outputs.COMPRESSED, "paper-jpeg-2": outputs.COMPRESSED,
+             "jpeg-jpeg-90": outputs.MANIFEST, "pca-view-jxl-1": outputs.BENCH_BASELINE}
+    if exe is not None:
+        kinds["video-x265-24"] = outputs.BENCH_BASELINE
+    for slug, kind in kinds.items():
+        assert sorted(p.name for p in (stored / slug).iterdir()) == ["run2"], slug
+        assert outputs.identify(stored / slug / "run2") == kind, slug
+    # So the baseline replaces its own previous output; one holding anything else is not
+    # usdbtf's to replace, even with --force.
+    from usdbtf.bench import baselines
+
+    pca = stored / "pca-view-jxl-1" / "run2"
+    argv = ["pca-view", "--k", "1", str(out / "inputs" / "pebbles-tiny-32-fitted"), str(pca)]
+    assert baselines.main(argv) == 0 and outputs.identify(pca) == outputs.BENCH_BASELINE
+    (pca / "notes.txt").write_text("mine")
+    assert outputs.identify(pca) is None
+    assert baselines.main(argv) == 2 and (pca / "notes.txt").read_text() == "mine"
+    assert "not a usdbtf usdbtf-bench-baseline/1" in capsys.readouterr().err
+
+
+def test_baseline_file_names_match_what_outputs_recognises():
+    """usdbtf.outputs (layer 0) knows the baselines' record and file names without importing them."""
+    from usdbtf import outputs
+    from usdbtf.bench import baselines
+
+    assert (outputs._BASELINE_FILE, outputs._BASELINE_VIDEO, outputs._BASELINE_VIEW) == (
+        baselines.RECORD, baselines.VIDEO_FILE, baselines.VIEW_FOLDER)
+
+
+def test_failed_row_is_named_in_the_summary(tmp_path):
+    """A row that fails (here: the JPEG baseline asked to replace a folder usdbtf did not
+    write) fails the run, and the one-line summary names its section and that row."""
+    from usdbtf.atomic import output_policy
+    from usdbtf.bench.suite import config_from, failure_summary, run_suite
+    from usdbtf.manifest import outside_paths_allowed
+
+    out = tmp_path / "out"
+    foreign = out / "stored" / "pebbles-tiny-32" / "jpeg-jpeg-90" / "run1"
+    foreign.mkdir(parents=True)
+    (foreign / "notes.txt").write_text("not usdbtf's")
+    cfg = config_from("smoke", solver_codecs=(("rsvd", "jxl"),), ks=(2,), pca_view_ks=(), video_crfs=())
+    with outside_paths_allowed(), output_policy(force=True):          # as `usdbtf bench` runs it
+        doc = run_suite(cfg, sections=["compress"], out=out, workdir=tmp_path / "data", say=lambda text: None)
+    assert doc["status"] == "failed" and list(doc["failures"]) == ["compress"]
+    line = failure_summary(doc)
+    assert "\n" not in line and line.startswith(f"{out}/report.md: section(s) compress failed; first: compress: ")
+    assert "method jpeg/jpeg, quality 90: failed: " in line and "is not a usdbtf btf-manifest/1" in line
+    assert (foreign / "notes.txt").read_text() == "not usdbtf's"
+    assert "## failures" in (out / "report.md").read_text()
+
+
 def test_video_baseline_without_ffmpeg_says_why(monkeypatch, tmp_path):
     import usdbtf.bench.baselines as baselines
     from usdbtf.errors import BTFError

@@ -6,29 +6,33 @@ format does not account for (a compressed folder into which someone copied their
 is not replaced).  This module only reads: it knows each format's marker file or
 attribute, not how to write one, so it sits below every writer.
 
-==========================  =======  ==========================================================
-kind                        what     recognised by
-==========================  =======  ==========================================================
-``btf-manifest/1``          folder   ``btf.json`` with that ``format``; only the listed images
-``btf-compressed/1``        folder   ``btf-compressed.json`` with that ``format``; only the
-                                     basis, coefficient, error-curve and position-map files
-``usdbtf-unwrap``           folder   ``unwrap.json`` with ``"tool": "usdbtf unwrap"``; only
-                                     ``mesh.usda``, ``charts.png``, ``unwrap.json``
-``usdbtf-capture``          folder   ``journal.jsonl``; only capture files (``frames/``, ...)
-``usdbtf-sim-frames``       folder   only the simulator's frame files (``latest.tif``, ...)
-``usdbtf-bench``            folder   ``results.json`` and ``report.md`` of ``usdbtf bench``
-``usdbtf-asset``            file     a USD layer (or usdz) whose layer metadata holds
-                                     ``customLayerData = {"usdbtf": {"output": ...}}``
-``usdbtf-asset-textures``   folder   ``<stem>_textures`` beside a usdbtf asset; only packaged
-                                     texture names (BTF codes, GPU tables and packs, the
-                                     fallback's maps, the thumbnail; any texture format)
-``usdbtf-render``           file     EXR/PNG with the image attribute ``usdbtf:output``
-``usdbtf-board-image``      file     PNG with the image attribute ``usdbtf:output``
-``usdbtf-board/1``          file     board JSON with that ``format``
-``usdbtf-port``             file     one line naming a rig port (``/dev/...``, ``socket://...``,
-                                     or a pty link)
-``usdbtf-pty-link``         link     a symbolic link to ``/dev/pts/N``
-==========================  =======  ==========================================================
+============================  =======  ==========================================================
+kind                          what     recognised by
+============================  =======  ==========================================================
+``btf-manifest/1``            folder   ``btf.json`` with that ``format``; only the listed images
+``btf-compressed/1``          folder   ``btf-compressed.json`` with that ``format``; only the
+                                       basis, coefficient, error-curve and position-map files
+``usdbtf-unwrap``             folder   ``unwrap.json`` with ``"tool": "usdbtf unwrap"``; only
+                                       ``mesh.usda``, ``charts.png``, ``unwrap.json``
+``usdbtf-capture``            folder   ``journal.jsonl``; only capture files (``frames/``, ...)
+``usdbtf-sim-frames``         folder   only the simulator's frame files (``latest.tif``, ...)
+``usdbtf-bench``              folder   ``results.json`` and ``report.md`` of ``usdbtf bench``
+``usdbtf-bench-baseline/1``   folder   ``baseline.json`` with that ``format``: a benchmark
+                                       baseline's storage (``usdbtf.bench.baselines``); only
+                                       ``video.mp4`` (``video``), or one ``btf-compressed/1``
+                                       folder ``viewNNNN`` per view it names (``pca-view``)
+``usdbtf-asset``              file     a USD layer (or usdz) whose layer metadata holds
+                                       ``customLayerData = {"usdbtf": {"output": ...}}``
+``usdbtf-asset-textures``     folder   ``<stem>_textures`` beside a usdbtf asset; only packaged
+                                       texture names (BTF codes, GPU tables and packs, the
+                                       fallback's maps, the thumbnail; any texture format)
+``usdbtf-render``             file     EXR/PNG with the image attribute ``usdbtf:output``
+``usdbtf-board-image``        file     PNG with the image attribute ``usdbtf:output``
+``usdbtf-board/1``            file     board JSON with that ``format``
+``usdbtf-port``               file     one line naming a rig port (``/dev/...``, ``socket://...``,
+                                       or a pty link)
+``usdbtf-pty-link``           link     a symbolic link to ``/dev/pts/N``
+============================  =======  ==========================================================
 """
 from __future__ import annotations
 
@@ -37,9 +41,9 @@ import os
 import re
 from pathlib import Path
 
-__all__ = ["MANIFEST", "COMPRESSED", "UNWRAP", "CAPTURE", "SIM_FRAMES", "BENCH", "ASSET", "ASSET_TEXTURES",
-           "RENDER", "BOARD_IMAGE", "BOARD", "PORT", "PTY_LINK", "OWNED", "FOLDER_KINDS", "RESUMABLE_KINDS",
-           "IMAGE_ATTRIBUTE", "USD_MARKER_KEY", "identify", "is_kind", "usd_marker"]
+__all__ = ["MANIFEST", "COMPRESSED", "UNWRAP", "CAPTURE", "SIM_FRAMES", "BENCH", "BENCH_BASELINE", "ASSET",
+           "ASSET_TEXTURES", "RENDER", "BOARD_IMAGE", "BOARD", "PORT", "PTY_LINK", "OWNED", "FOLDER_KINDS",
+           "RESUMABLE_KINDS", "IMAGE_ATTRIBUTE", "USD_MARKER_KEY", "identify", "is_kind", "usd_marker"]
 
 MANIFEST = "btf-manifest/1"
 COMPRESSED = "btf-compressed/1"
@@ -51,6 +55,7 @@ UNWRAP = "usdbtf-unwrap"
 CAPTURE = "usdbtf-capture"
 SIM_FRAMES = "usdbtf-sim-frames"
 BENCH = "usdbtf-bench"
+BENCH_BASELINE = "usdbtf-bench-baseline/1"
 ASSET = "usdbtf-asset"
 ASSET_TEXTURES = "usdbtf-asset-textures"
 RENDER = "usdbtf-render"
@@ -62,7 +67,7 @@ PTY_LINK = "usdbtf-pty-link"
 #: a capture folder the writer holds, a generated file of the repository).
 OWNED = "owned"
 
-FOLDER_KINDS = {MANIFEST, COMPRESSED, UNWRAP, CAPTURE, SIM_FRAMES, BENCH, ASSET_TEXTURES}
+FOLDER_KINDS = {MANIFEST, COMPRESSED, UNWRAP, CAPTURE, SIM_FRAMES, BENCH, BENCH_BASELINE, ASSET_TEXTURES}
 #: Kinds a command continues in place instead of replacing (capture resumes, the simulator
 #: keeps serving frames into its folder).
 RESUMABLE_KINDS = {CAPTURE, SIM_FRAMES}
@@ -80,6 +85,11 @@ _COMPRESSED_FILE = "btf-compressed.json"
 _COMPRESSED_EXTRAS = {"error_curve.csv", "error_curve.png", "quilt_positions.exr"}
 _UNWRAP_FILES = {"mesh.usda", "charts.png", "unwrap.json"}
 _CAPTURE_FILES = re.compile(r"(btf\.json|journal\.jsonl|flat\.exr|\.lock|\.(tmp|hook)-.*|frames/[^/]*)")
+# A benchmark baseline's record and stored files (usdbtf.bench.baselines: RECORD, VIDEO_FILE,
+# VIEW_FOLDER).
+_BASELINE_FILE = "baseline.json"
+_BASELINE_VIDEO = "video.mp4"
+_BASELINE_VIEW = "view{:04d}"
 _SIM_FRAME_FILES = re.compile(r"(latest|s\d+|flat\d+|\.tmp-[^/]*)\.tif|\.[^/]*\.tmp-[^/]*")
 # preview_albedo.png: the flat fallback of assets written before the fitted one.
 _TEXTURE_FILES = re.compile(r"(basis\.\w+|coeff/c\d+\.\w+|preview_albedo\.png|gpu/[\w.-]+|thumbnail\.png"
@@ -171,6 +181,24 @@ def _bench(folder: Path) -> bool:
     return isinstance(doc, dict) and "machine" in doc and "sections" in doc and (folder / "report.md").is_file()
 
 
+def _bench_baseline(folder: Path) -> bool:
+    doc = _json(folder / _BASELINE_FILE)
+    if not isinstance(doc, dict) or doc.get("format") != BENCH_BASELINE:
+        return False
+    if doc.get("baseline") == "video":
+        return _only(folder, {_BASELINE_FILE, _BASELINE_VIDEO})
+    views = doc.get("views")
+    if doc.get("baseline") != "pca-view" or not isinstance(views, int) or not 0 < views < 100_000:
+        return False
+    # Exactly the views the record names, each a compressed folder holding only its own files.
+    names = {_BASELINE_VIEW.format(v) for v in range(views)}
+    try:
+        found = {p.name for p in folder.iterdir()} - {_BASELINE_FILE}
+    except OSError:
+        return False
+    return found == names and all(not (folder / n).is_symlink() and _compressed(folder / n) for n in names)
+
+
 def _asset_textures(folder: Path) -> bool:
     if not folder.name.endswith("_textures"):
         return False
@@ -225,7 +253,8 @@ def _port(path: Path) -> bool:
 
 
 _FOLDERS = [(CAPTURE, _capture), (MANIFEST, _manifest), (COMPRESSED, _compressed), (UNWRAP, _unwrap),
-            (BENCH, _bench), (ASSET_TEXTURES, _asset_textures), (SIM_FRAMES, _sim_frames)]
+            (BENCH, _bench), (BENCH_BASELINE, _bench_baseline), (ASSET_TEXTURES, _asset_textures),
+            (SIM_FRAMES, _sim_frames)]
 
 
 def identify(path) -> str | None:

@@ -12,8 +12,11 @@ command as a subprocess (like ``usdbtf compress``) and then reads what it wrote 
               one H.265 video (ffmpeg + libx265, constant quality ``crf``, 4:4:4 chroma).
 
 Run as ``python -m usdbtf.bench.baselines KIND INPUT OUTPUT [options]``; the output folder is
-written atomically.  INPUT is any BTF :func:`usdbtf.io.open_btf` reads, with 8-bit files for
-``jpeg`` and ``video``.
+written atomically, and an existing one is replaced only when it is a previous output of the
+same baseline (:mod:`usdbtf.atomic`): ``jpeg`` writes a ``btf-manifest/1`` folder, ``pca-view``
+and ``video`` a ``usdbtf-bench-baseline/1`` folder whose record ``baseline.json`` names the
+baseline and its settings (:mod:`usdbtf.outputs` recognises both).  INPUT is any BTF
+:func:`usdbtf.io.open_btf` reads, with 8-bit files for ``jpeg`` and ``video``.
 """
 from __future__ import annotations
 
@@ -31,12 +34,15 @@ import numpy as np
 from .. import jsontext
 from ..atomic import atomic_dir
 from ..errors import BTFError
+from ..outputs import BENCH_BASELINE, MANIFEST
 
-__all__ = ["ffmpeg_x265", "encode_jpeg", "encode_pca_view", "encode_video", "decode_video", "VIEW_FOLDER",
-           "VIDEO_FILE", "main"]
+__all__ = ["ffmpeg_x265", "encode_jpeg", "encode_pca_view", "encode_video", "decode_video", "read_record",
+           "VIEW_FOLDER", "VIDEO_FILE", "RECORD", "main"]
 
 VIEW_FOLDER = "view{:04d}"
 VIDEO_FILE = "video.mp4"
+#: The record a ``pca-view`` or ``video`` output carries: its kind's marker and its settings.
+RECORD = "baseline.json"
 _JPEG = {"Compression": "jpeg:{q}", "jpeg:subsampling": "4:2:0"}
 _STATE: dict = {}
 
@@ -53,6 +59,24 @@ def ffmpeg_x265() -> tuple[str | None, str]:
     if "libx265" not in enc:
         return None, f"{exe} has no libx265 encoder"
     return exe, ""
+
+
+def _write_record(folder: Path, baseline: str, **settings) -> None:
+    """``folder / RECORD``: the usdbtf-bench-baseline/1 marker, the baseline's name, its settings."""
+    doc = {"format": BENCH_BASELINE, "baseline": baseline, **settings}
+    (folder / RECORD).write_text(json.dumps(doc) + "\n")
+
+
+def read_record(folder: Path, baseline: str) -> dict:
+    """The settings a ``baseline`` output in ``folder`` recorded (BTFError when it holds another)."""
+    path = Path(folder) / RECORD
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise BTFError(f"{path}: not a readable baseline record ({exc})") from None
+    if not isinstance(doc, dict) or doc.get("format") != BENCH_BASELINE or doc.get("baseline") != baseline:
+        raise BTFError(f"{path}: not a {baseline} baseline's record")
+    return doc
 
 
 def _require_8bit(btf, kind: str) -> None:
@@ -91,7 +115,7 @@ def encode_jpeg(btf, out: Path, quality: int = 90, workers: int | None = None) -
     workers = workers or default_workers()
     bounds = np.linspace(0, S, workers * 8 + 1).astype(int)
     ranges = [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
-    with atomic_dir(out) as tmp:
+    with atomic_dir(out, kind=MANIFEST) as tmp:
         if workers > 1 and S >= 64:
             with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"), initializer=_jpeg_init,
                                      initargs=(btf, tmp, quality)) as pool:
@@ -101,7 +125,7 @@ def encode_jpeg(btf, out: Path, quality: int = 90, workers: int | None = None) -
             names = [n for r in ranges for n in _jpeg_range(r)]
         samples = [{"image": n, "view": [float(x) for x in v], "light": [float(x) for x in l]}
                    for n, v, l in zip(names, btf.sampling.view, btf.sampling.light)]
-        doc = {"format": "btf-manifest/1", "color_space": btf.color_space, "width": btf.width,
+        doc = {"format": MANIFEST, "color_space": btf.color_space, "width": btf.width,
                "height": btf.height, "jpeg_quality": quality, "samples": samples}
         (tmp / "btf.json").write_text(jsontext.dumps(doc) + "\n")
     return out
@@ -118,11 +142,11 @@ def encode_pca_view(btf, out: Path, k: int, codec: str = "jxl", seed: int = 0) -
     if cross is None:
         raise BTFError("per-view PCA needs a view x light sampling (every light for every view)")
     V, L = cross
-    with atomic_dir(out) as tmp:
+    with atomic_dir(out, kind=BENCH_BASELINE) as tmp:
         for v in range(V):
             view = subset_btf(btf, np.arange(v * L, (v + 1) * L))
             write_compress(compress(view, CompressOptions(k=k, codec=codec, seed=seed)), tmp / VIEW_FOLDER.format(v))
-        (tmp / "views.json").write_text(json.dumps({"views": V, "lights": L, "k": k, "codec": codec}) + "\n")
+        _write_record(tmp, "pca-view", views=V, lights=L, k=k, codec=codec)
     return out
 
 
@@ -137,7 +161,7 @@ def encode_video(btf, out: Path, crf: int = 28, preset: str = "medium") -> Path:
            "-s", f"{btf.width}x{btf.height}", "-framerate", "30", "-i", "-",
            "-c:v", "libx265", "-preset", preset, "-crf", str(crf), "-pix_fmt", "yuv444p",
            "-x265-params", "log-level=error", "-tag:v", "hvc1"]
-    with atomic_dir(out) as tmp:
+    with atomic_dir(out, kind=BENCH_BASELINE) as tmp:
         proc = subprocess.Popen([*cmd, str(tmp / VIDEO_FILE)], stdin=subprocess.PIPE, stderr=subprocess.PIPE)
         try:
             for start in range(0, btf.n_samples, 64):
@@ -149,8 +173,7 @@ def encode_video(btf, out: Path, crf: int = 28, preset: str = "medium") -> Path:
         err = proc.stderr.read().decode(errors="replace")
         if proc.wait() != 0:
             raise BTFError(f"ffmpeg failed (exit {proc.returncode}): {' '.join(err.split())[-500:]}")
-        (tmp / "video.json").write_text(json.dumps({"frames": btf.n_samples, "width": btf.width,
-                                                    "height": btf.height, "crf": crf, "preset": preset}) + "\n")
+        _write_record(tmp, "video", frames=btf.n_samples, width=btf.width, height=btf.height, crf=crf, preset=preset)
     return out
 
 
@@ -160,7 +183,7 @@ def decode_video(folder: Path, keep) -> dict:
     exe, why = ffmpeg_x265()
     if exe is None:
         raise BTFError(why)
-    meta = json.loads((Path(folder) / "video.json").read_text())
+    meta = read_record(folder, "video")
     W, H, n = meta["width"], meta["height"], meta["frames"]
     keep = set(int(i) for i in keep)
     frame_bytes = W * H * 3

@@ -22,6 +22,7 @@ import datetime as _dt
 import json
 import os
 import resource
+import shutil
 import statistics
 import subprocess
 import sys
@@ -31,8 +32,9 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-__all__ = ["REPO", "default_out", "median", "time_call", "cpu_seconds", "run_measured", "run_repeated", "RunResult", "cli_command",
-           "warm_page_cache", "timestamp", "write_json", "fmt_bytes"]
+__all__ = ["REPO", "default_out", "median", "time_call", "cpu_seconds", "run_measured", "run_repeated",
+           "run_repeated_apart", "failure_reason", "RunResult", "cli_command", "warm_page_cache", "timestamp",
+           "write_json", "fmt_bytes"]
 
 
 def _find_repo() -> Path | None:
@@ -353,15 +355,16 @@ def fmt_bytes(n) -> str:
 def run_repeated(cmd, repeats: int, *, pss_interval: float = 0.2, on_run=None) -> dict:
     """Run ``cmd`` ``repeats`` times with :func:`run_measured`; stop at the first failure.
 
+    ``cmd`` is one argv list, or a callable ``cmd(i)`` giving repeat ``i``'s argv (0-based).
     ``on_run(i, RunResult)`` is called after each successful run (e.g. to read its output).
     Returns {"command", "runs", "wall_s_samples", "wall_s_median", "wall_s_min", "wall_s_max",
     "user_s_median", "sys_s_median", "cpu_s_median", "max_rss_bytes", "peak_tree_pss_bytes",
     "peak_memory_bytes" (worst run), "stderr" (last run's)} plus "error" (stderr tail) on failure.
     """
-    cmd = [os.fspath(c) for c in cmd]
+    argv = cmd if callable(cmd) else (lambda i: cmd)
     runs = []
     for i in range(repeats):
-        r = run_measured(cmd, pss_interval=pss_interval)
+        r = run_measured(argv(i), pss_interval=pss_interval)
         runs.append(r)
         if r.returncode != 0:
             break
@@ -369,7 +372,7 @@ def run_repeated(cmd, repeats: int, *, pss_interval: float = 0.2, on_run=None) -
             on_run(i, r)
     walls = [x.wall_s for x in runs]
     res = {
-        "command": " ".join(cmd),
+        "command": " ".join(runs[0].cmd),
         "runs": [x.to_dict() for x in runs],
         "wall_s_samples": walls,
         "wall_s_median": median(walls),
@@ -386,3 +389,33 @@ def run_repeated(cmd, repeats: int, *, pss_interval: float = 0.2, on_run=None) -
     if runs[-1].returncode != 0:
         res["error"] = runs[-1].stderr[-3000:] or f"exit status {runs[-1].returncode}"
     return res
+
+
+def run_repeated_apart(command, out, repeats: int, *, pss_interval: float = 0.2) -> tuple[dict, Path]:
+    """:func:`run_repeated` with each repeat writing an output of its own.
+
+    ``command(path)`` is the argv that writes its output at ``path``; repeat ``i`` (from 1)
+    writes ``out / "run<i>"``, a path no earlier run used.  So a repeat never replaces an
+    earlier one's output: every timed run does the same work (writing a new output, as a
+    first run does), and an output kind the output guard would not replace cannot stop a
+    benchmark.  Each earlier repeat's output is removed once the next one has succeeded
+    (untimed, between runs), so at most two are on disk.
+
+    Returns (run_repeated's dict, the folder of the last run: the one that failed, or the
+    output to evaluate).
+    """
+    paths = [Path(out) / f"run{i + 1}" for i in range(repeats)]
+
+    def drop_previous(i, _run):
+        if i > 0:
+            shutil.rmtree(paths[i - 1], ignore_errors=True)
+
+    res = run_repeated(lambda i: command(paths[i]), repeats, pss_interval=pss_interval, on_run=drop_previous)
+    return res, paths[len(res["runs"]) - 1]
+
+
+def failure_reason(res: dict) -> str:
+    """The last non-blank line of a failed :func:`run_repeated`'s error (the command's one-line
+    error message), or "?"."""
+    lines = [x for x in res.get("error", "").strip().splitlines() if x.strip()]
+    return lines[-1].strip() if lines else "?"

@@ -81,8 +81,8 @@ class _PerViewReconstruction(Reconstruction):
     """One compressed folder per view; position p is light p % L of view p // L."""
 
     def __init__(self, folder: Path):
-        from .baselines import VIEW_FOLDER
-        meta = json.loads((folder / "views.json").read_text())
+        from .baselines import VIEW_FOLDER, read_record
+        meta = read_record(folder, "pca-view")
         self.lights = meta["lights"]
         self.views = [CompressedReconstruction(folder / VIEW_FOLDER.format(v)) for v in range(meta["views"])]
 

@@ -7,7 +7,8 @@ output folder:
 ``report.md``        machine, configuration, every section's tables, notes and plots;
 ``<section>.csv``    one row per measurement, full precision;
 ``<section>/*.png``  plots;
-``results.json``     everything above plus the configuration, machine and timings.
+``results.json``     everything above plus the configuration, machine and timings, and
+                     ``failures``: per failed section, its error or its first failing row.
 
 Configurations: ``full`` (paper sampling, 64^2..512^2: hours on two cores), ``quick``
 (small sampling, 64^2: a couple of minutes) and ``smoke`` (tiny sampling, 32^2: seconds; the
@@ -26,7 +27,7 @@ from .measure import cli_command, default_out, timestamp, write_json
 from .report import write_csv
 from .sections import PLANNED, Context, discover, missing_modules
 
-__all__ = ["Config", "CONFIGS", "run_suite"]
+__all__ = ["Config", "CONFIGS", "run_suite", "describe_row", "failure_summary"]
 
 
 @dataclass(frozen=True)
@@ -148,12 +149,41 @@ def _rel(path: Path, base: Path) -> str:
         return str(path)
 
 
+# Row fields that say which measurement a row is, in the order a reader names them (each
+# section's rows carry some of them; ``param_name``/``param`` follow as "<name> <value>").
+_ROW_IDENTITY = ("preset", "sampling", "size", "samples", "mode", "method", "directions", "block", "m", "k")
+
+
+def describe_row(row: dict) -> str:
+    """Which measurement ``row`` is, e.g. "preset pebbles, sampling small, size 64, method
+    pca-view/jxl, k per view 1"."""
+    parts = [f"{key} {row[key]}" for key in _ROW_IDENTITY if row.get(key) not in (None, "")]
+    if row.get("param_name"):
+        parts.append(f"{row['param_name']} {row.get('param')}")
+    return ", ".join(parts) or "?"
+
+
+def _failed(row: dict) -> bool:
+    return str(row.get("status", "ok")).startswith("failed")
+
+
+def failure_summary(doc: dict) -> str:
+    """One line for a failed run's results document: the report, the failed sections, and
+    the first failure (its section, and its error or its first failing row)."""
+    failures = doc.get("failures") or {}
+    names = ", ".join(failures) or "?"
+    first = next(iter(failures.items()), None)
+    detail = f"; first: {first[0]}: {first[1]}" if first else ""
+    return " ".join(f"{doc.get('out')}/report.md: section(s) {names} failed{detail}".split())
+
+
 def run_suite(cfg: Config, *, sections=None, out: Path | None = None, workdir: Path | None = None,
               command: str = "", say=print) -> dict:
     """Run the sections named in ``sections`` (default: all available) and write the report.
 
     Returns the results document (also written as ``results.json``); its "status" is "ok",
-    or "failed" when a measurement failed or a section raised.
+    or "failed" when a measurement failed or a section raised; "failures" then maps each
+    failed section to its error or to its first failing row and that row's status.
     """
     validate(cfg)
     t_start = time.perf_counter()
@@ -177,7 +207,7 @@ def run_suite(cfg: Config, *, sections=None, out: Path | None = None, workdir: P
     ctx = Context(config=cfg, out=out, workdir=workdir, cli=cli_command(), say=say)
     report = [f"# usdbtf bench `{cfg.name}`, {stamp}", "", f"`{command}`" if command else "", "", "## machine", "",
               format_machine(machine), "", "## inputs", "", *_describe(cfg)]
-    failed = False
+    failures = {}
     for name in wanted:
         section = available.get(name)
         missing = missing_modules(section) if section else [PLANNED[name][0]]
@@ -191,12 +221,14 @@ def run_suite(cfg: Config, *, sections=None, out: Path | None = None, workdir: P
         try:
             res = section.run(ctx)
         except Exception as exc:  # noqa: BLE001 - one broken section must not lose the others' results
-            failed = True
-            doc["sections"][name] = {"error": f"{type(exc).__name__}: {exc}"}
+            failures[name] = f"{type(exc).__name__}: {exc}"
+            doc["sections"][name] = {"error": failures[name]}
             say(f"\n## {name}: FAILED: {type(exc).__name__}: {exc}")
             continue
         seconds = time.perf_counter() - t
-        failed |= any(str(r.get("status", "ok")).startswith("failed") for r in res.rows)
+        bad = next((r for r in res.rows if _failed(r)), None)
+        if bad is not None:
+            failures[name] = f"{describe_row(bad)}: {bad['status']}"
         csv_path = write_csv(res.rows, out / f"{name}.csv", res.csv_keys)
         doc["sections"][name] = {"title": section.title, "rows": res.rows, "summary": res.summary,
                                  "csv": str(csv_path), "plots": [str(p) for p in res.plots], "seconds": seconds}
@@ -208,7 +240,10 @@ def run_suite(cfg: Config, *, sections=None, out: Path | None = None, workdir: P
         report.append(f"- section time: {seconds:.1f} s")
     if doc["pending"]:
         report += ["", "## pending sections", ""] + [f"- `{n}`: {why}" for n, why in doc["pending"].items()]
-    doc["status"] = "failed" if failed else "ok"
+    if failures:
+        report += ["", "## failures", ""] + [f"- `{n}`: {why}" for n, why in failures.items()]
+    doc["failures"] = failures
+    doc["status"] = "failed" if failures else "ok"
     doc["total_seconds"] = time.perf_counter() - t_start
     doc["load_average_at_end"] = list(os.getloadavg())
     report += ["", f"total: {doc['total_seconds']:.1f} s; load average at end: "

@@ -92,7 +92,7 @@ def run(args) -> int:
     from dataclasses import replace
 
     from ..atomic import output_policy
-    from ..bench.suite import config_from, run_suite
+    from ..bench.suite import config_from, failure_summary, run_suite
     from ..errors import UsageError
     from ..manifest import outside_paths_allowed
 
@@ -109,10 +109,7 @@ def run(args) -> int:
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     if doc["status"] != "ok":
-        failed = sorted(name for name, sec in doc.get("sections", {}).items() if isinstance(sec, dict) and
-                        sec.get("error"))
         # A section that fails is a failed measurement (a bug or the machine), not bad input: status 1.
-        print(f"usdbtf bench: error: section(s) {', '.join(failed) or '?'} failed; see {doc.get('out')}/report.md",
-              file=sys.stderr)
+        print(f"usdbtf bench: error: {failure_summary(doc)}", file=sys.stderr)
         return 1
     return 0

@@ -6,7 +6,8 @@ Per dataset (material preset x image size, sampling from the configuration):
 1. split the samples (:func:`usdbtf.bench.heldout.split_lights`): the fitted ones become a
    manifest of their own, the held-out ones are never shown to any method;
 2. per method (:mod:`usdbtf.bench.methods`), ``repeats`` timed subprocess runs that store
-   the fitted samples (page cache warm; median wall time, worst peak memory);
+   the fitted samples, each into a new folder of its own (page cache warm; median wall time,
+   worst peak memory; the last run's output is evaluated);
 3. errors against the synthetic ground truth (the dataset's own files, decoded to the
    scene-linear working space): on fitted samples (what was stored), and on held-out
    samples predicted from the nearest fitted directions.  Percent error (the paper's
@@ -123,32 +124,34 @@ def _methods(cfg) -> list:
 
 
 def measure_method(ctx: Context, ds: Dataset, method, video_ok: tuple) -> dict:
-    """One row: time the method's command, then read its output back and evaluate it."""
-    from ..measure import run_repeated
+    """One row: time the method's command (each repeat into its own folder), then read the
+    last run's output back and evaluate it.  ``repeats`` in the row: the runs made."""
+    from ..measure import failure_reason, run_repeated_apart
 
     cfg = ctx.config
     row = {"preset": ds.preset, "sampling": ds.sampling_name, "size": ds.size, "n_fit": len(ds.fit_idx),
            "n_heldout": len(ds.held_idx), "family": method.family, "method": method.label, "codec": method.codec,
            "param_name": method.param_name, "param": method.param, "baseline": method.baseline,
-           "repeats": cfg.repeats, "raw_bytes": ds.raw_bytes}
+           "repeats": 0, "raw_bytes": ds.raw_bytes}
     if method.family == "video" and video_ok[0] is None:
         ctx.say(f"    {method.label} {method.param_name} {method.param}: skipped ({video_ok[1]})")
         return dict(row, status=f"skipped: {video_ok[1]}")
-    out = ctx.out / "stored" / ds.name / method.slug
-    cmd = method.command(ctx.cli, ds.fitted_dir, out)
-    res = run_repeated(cmd, cfg.repeats, pss_interval=cfg.pss_interval)
-    row.update(command=res["command"], wall_s=res["wall_s_median"], wall_s_min=res["wall_s_min"],
-               wall_s_max=res["wall_s_max"], cpu_s=res["cpu_s_median"], peak_mem_bytes=res["peak_memory_bytes"])
+    folder = ctx.out / "stored" / ds.name / method.slug
+    res, out = run_repeated_apart(lambda path: method.command(ctx.cli, ds.fitted_dir, path), folder, cfg.repeats,
+                                  pss_interval=cfg.pss_interval)
+    row.update(command=res["command"], repeats=len(res["runs"]), wall_s=res["wall_s_median"],
+               wall_s_min=res["wall_s_min"], wall_s_max=res["wall_s_max"], cpu_s=res["cpu_s_median"],
+               peak_mem_bytes=res["peak_memory_bytes"])
     if "error" in res:
-        why = [x for x in res["error"].strip().splitlines() if x.strip()] or ["?"]
-        ctx.say(f"    {method.label} {method.param_name} {method.param}: FAILED: {why[-1]}")
-        return dict(row, status=f"failed: {why[-1]}")
+        why = failure_reason(res)
+        ctx.say(f"    {method.label} {method.param_name} {method.param}: FAILED: {why}")
+        return dict(row, status=f"failed: {why}")
     stored = method.stored_bytes(out)
     row.update(method.details(out), stored_bytes=stored, ratio=ds.raw_bytes / stored if stored else None)
     row.update(ds.errors(method.open(out, ds.fitted, ds.needed)))
     row["status"] = "ok"
     if not cfg.keep_outputs:
-        shutil.rmtree(out, ignore_errors=True)
+        shutil.rmtree(folder, ignore_errors=True)
     held = f", held-out {row['held_percent']:.3f} %" if row.get("held_percent") is not None else ""
     ctx.say(f"    {method.label:16s} {method.param_name} {method.param:>4}: {row['wall_s']:7.2f} s, "
             f"{row['peak_mem_bytes'] / 1e6:6.0f} MB, {stored:>11,} B, fit {row['fit_percent']:.3f} %{held}")

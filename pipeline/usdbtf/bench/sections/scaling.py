@@ -77,7 +77,7 @@ def measure(ctx: Context) -> list:
     """One row per (size, view count, memory mode): timed ``usdbtf compress`` runs."""
     from ...sampling import preset as sampling_preset
     from ..datasets import ensure_dataset, first_views
-    from ..measure import run_repeated, warm_page_cache
+    from ..measure import failure_reason, run_repeated_apart, warm_page_cache
     from ..methods import Method
 
     cfg = ctx.config
@@ -97,17 +97,18 @@ def measure(ctx: Context) -> list:
                                   views=None if S == len(full) else views, say=ctx.say)
             warm_page_cache(info["folder"])
             for mode, extra in MODES.items():
-                out = ctx.out / "stored" / "scaling" / f"{size}-{S}-{mode}"
-                cmd = [*ctx.cli, "compress", info["folder"], "-o", out, "--k", str(cfg.scaling_k), *extra]
-                res = run_repeated(cmd, cfg.repeats, pss_interval=cfg.pss_interval)
+                folder = ctx.out / "stored" / "scaling" / f"{size}-{S}-{mode}"
+                res, out = run_repeated_apart(
+                    lambda path: [*ctx.cli, "compress", info["folder"], "-o", path, "--k", str(cfg.scaling_k), *extra],
+                    folder, cfg.repeats, pss_interval=cfg.pss_interval)
                 row = {"sampling": cfg.scaling_sampling, "size": size, "pixels": size * size, "views": views,
                        "samples": S, "values": S * size * size, "raw_bytes": raw, "mode": mode,
-                       "k": cfg.scaling_k, "repeats": cfg.repeats, "command": res["command"],
+                       "k": cfg.scaling_k, "repeats": len(res["runs"]), "command": res["command"],
                        "wall_s": res["wall_s_median"], "wall_s_min": res["wall_s_min"],
                        "wall_s_max": res["wall_s_max"], "cpu_s": res["cpu_s_median"],
                        "peak_mem_bytes": res["peak_memory_bytes"]}
                 if "error" in res:
-                    row["status"] = "failed: " + (res["error"].strip().splitlines() or ["?"])[-1]
+                    row["status"] = "failed: " + failure_reason(res)
                     ctx.say(f"  {size}x{size}, S {S}, {mode}: {row['status']}")
                 else:
                     found = _SOURCE.search(res["stderr"])
@@ -115,7 +116,7 @@ def measure(ctx: Context) -> list:
                                stored_bytes=Method("rsvd", "jxl", cfg.scaling_k).stored_bytes(out))
                     ctx.say(f"  {size:4d}x{size:<4d} S {S:6d} {mode:9s}: {row['wall_s']:7.2f} s "
                             f"(CPU {row['cpu_s']:6.2f} s), {row['peak_mem_bytes'] / 1e6:6.0f} MB ({row['source']})")
-                shutil.rmtree(out, ignore_errors=True)
+                shutil.rmtree(folder, ignore_errors=True)
                 rows.append(row)
     return rows
 
