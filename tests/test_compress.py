@@ -1035,6 +1035,46 @@ def test_streaming_source_holds_only_requested_columns(small32):
         src.columns(np.arange(3))
 
 
+def test_streaming_source_hands_over_sets_from_threads_at_once(small32, monkeypatch):
+    """compress takes the fitting and the held-out columns from two threads at once: each
+    thread gets its own set and every set is handed over once (before the lock, a deletion
+    between another thread's search and its own raised IndexError or removed the wrong set).
+    The comparison is slowed down so that the threads interleave inside the search."""
+    import threading
+    import time
+
+    from usdbtf.compress import source as source_module
+    from usdbtf.compress.source import StreamingSource
+    btf = read_manifest(small32)
+    sets = [np.arange(a, a + 4) for a in range(0, 64, 8)]
+    src = StreamingSource(btf, sets, [0], workers=1, chunk_bytes=1)
+    want = {int(t[0]): raw for t, raw in src._kept}
+    real = np.array_equal
+
+    def slow_equal(a, b):
+        time.sleep(0.002)
+        return real(a, b)
+
+    monkeypatch.setattr(source_module.np, "array_equal", slow_equal)
+    got, errors = {}, []
+    start = threading.Barrier(len(sets))
+
+    def take(texels):
+        start.wait()
+        try:
+            got[int(texels[0])] = src._kept_set(texels, hand_over=True)
+        except Exception as exc:       # noqa: BLE001 - collected, asserted below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=take, args=(t,)) for t in reversed(sets)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors and not src._kept
+    assert all(got[a] is want[a] for a in want)
+
+
 def test_curve_points():
     from usdbtf.compress.curve import curve_ks
     assert curve_ks(5).tolist() == [1, 2, 3, 4, 5]

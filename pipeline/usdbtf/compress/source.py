@@ -33,6 +33,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import multiprocessing as mp
+import threading
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
@@ -280,6 +281,7 @@ class _KeptSource(_Source):
         keep_texels = [np.asarray(t) for t in keep_texels]
         rows = np.asarray(keep_rows, dtype=int)
         self._kept = [(t, np.empty((S, 3 * len(t)), dtype)) for t in keep_texels]
+        self._kept_lock = threading.Lock()
         self._rows = {int(r): n for n, r in enumerate(rows)}
         self._row_data = np.empty((len(rows), self.btf.n_pixels, 3), dtype)
         self.nbytes = sum(d.nbytes for _, d in self._kept) + self._row_data.nbytes
@@ -293,11 +295,15 @@ class _KeptSource(_Source):
             self._row_data[self._rows[i]] = image
 
     def _kept_set(self, texels: np.ndarray, *, hand_over: bool) -> np.ndarray:
-        for n, (t, raw) in enumerate(self._kept):
-            if np.array_equal(t, texels):
-                if hand_over:
-                    del self._kept[n]
-                return raw
+        # Under a lock: compress hands over the fitting and the held-out sets from two
+        # threads at once (core._side_by_side), and a deletion between another thread's
+        # search and its own deletion would remove the wrong set, or none (an IndexError).
+        with self._kept_lock:
+            for n, (t, raw) in enumerate(self._kept):
+                if np.array_equal(t, texels):
+                    if hand_over:
+                        del self._kept[n]
+                    return raw
         raise ValueError(f"{type(self).__name__}: texels were not requested up front (or were handed over)")
 
     def columns(self, texels: np.ndarray) -> np.ndarray:
