@@ -29,12 +29,15 @@ OpenCV's SIMD dispatch (colour transforms, table lookups) was checked not to cha
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import sys
+import threading
 
 __all__ = ["REFERENCE", "pinned_environment", "pin", "platform", "platform_label", "platform_differences",
-           "cpu_flags", "runs_reference"]
+           "cpu_flags", "runs_reference", "one_blas_thread", "single_blas_thread",
+           "command_blas_thread"]
 
 #: The reference platform's settings (x86-64-v3): the BLAS kernel and numpy's SIMD ceiling.
 REFERENCE = {"blas_kernel": "Haswell", "numpy_simd": "X86_V3"}
@@ -160,3 +163,69 @@ def platform_differences(theirs: dict, mine: dict) -> str:
     names = {"blas": "BLAS", "blas_kernel": "BLAS kernel", "numpy_simd": "numpy SIMD"}
     return ", ".join(f"{names.get(k, k)} {theirs.get(k, 'missing')} (here {mine[k]})"
                      for k in mine if theirs.get(k) != mine[k])
+
+
+# -- thread counts -------------------------------------------------------------------------------
+def single_blas_thread(fn):
+    """Decorator: ``fn`` runs inside :func:`one_blas_thread` (a stage function whose output
+    comes from GEMMs, for library callers outside the CLI)."""
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        with one_blas_thread():
+            return fn(*args, **kwargs)
+    return wrapper
+
+
+@contextlib.contextmanager
+def command_blas_thread():
+    """:func:`one_blas_thread` for a whole command, loading numpy (hence its BLAS) first."""
+    import numpy  # noqa: F401 - loads the BLAS, so that threadpoolctl sees it
+
+    with one_blas_thread():
+        yield
+
+
+@contextlib.contextmanager
+def one_blas_thread():
+    """BLAS on one thread inside the block (threadpoolctl; a no-op where it is missing).
+
+    Every GEMM whose bits reach an output runs inside one: a thread count changes how some
+    kernels (OpenBLAS's Haswell among them) round a product, and usdbtf parallelises over
+    pieces of a fixed shape itself.  The CLI runs every command in one; stage functions whose
+    outputs come from GEMMs (compress, the fallback fit) take it themselves for library
+    callers.  The BLAS thread count is a process-wide setting and threads enter and leave such
+    blocks at once: the first to enter sets one thread, the last to leave puts back what was
+    there.  Nested and concurrent blocks cost a lock and a counter.  BLAS must be loaded
+    (numpy imported) before the first block: threadpoolctl finds the libraries loaded then."""
+    global _blas_depth, _blas_limiter
+    controller = _controller()
+    if controller is None:     # pragma: no cover - a declared dependency
+        yield
+        return
+    with _blas_lock:
+        if _blas_depth == 0:
+            _blas_limiter = controller.limit(limits=1, user_api="blas")
+        _blas_depth += 1
+    try:
+        yield
+    finally:
+        with _blas_lock:
+            _blas_depth -= 1
+            if _blas_depth == 0:
+                _blas_limiter.restore_original_limits()
+                _blas_limiter = None
+
+
+_blas_lock = threading.Lock()
+_blas_depth = 0
+_blas_limiter = None
+
+
+@functools.lru_cache(maxsize=1)
+def _controller():
+    """threadpoolctl's view of the loaded BLAS (scanning the libraries once per process)."""
+    try:
+        from threadpoolctl import ThreadpoolController
+    except ImportError:        # pragma: no cover
+        return None
+    return ThreadpoolController()

@@ -42,6 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .compress.format import CompressedBTF, working_coefficient_texels
+from .numeric import single_blas_thread
 from .sampling import to_vectors
 
 __all__ = ["SvbrdfMaps", "fit_svbrdf", "flat_fallback", "median_albedo", "fit_flat_roughness", "evaluate",
@@ -283,6 +284,7 @@ def validation_samples(cbtf: CompressedBTF, fit: np.ndarray, most: int = 1024) -
     return rest[np.unique(np.linspace(0, len(rest) - 1, most).round().astype(int))]
 
 
+@single_blas_thread
 def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: int = 1536,
                roughness_grid=ROUGHNESS_GRID, normals: bool = True, chunk_bytes: float = 64e6) -> SvbrdfMaps:
     """Fit per-texel UsdPreviewSurface parameters to ``cbtf``'s reconstruction over its

@@ -14,9 +14,9 @@ transforms, and OpenImageIO's encoders all release the GIL, so plain threads use
 from __future__ import annotations
 
 import contextlib
-import functools
 import os
-import threading
+
+from ..numeric import one_blas_thread
 
 __all__ = ["cpu_count", "in_threads", "thread_map", "one_blas_thread", "rows_gemm", "rows_apply"]
 
@@ -86,46 +86,3 @@ def rows_apply(fn, x, out, *, rows: int = 256):
 
     in_threads(piece, range(0, n, rows))
     return out
-
-
-@contextlib.contextmanager
-def one_blas_thread():
-    """BLAS on one thread inside the block (threadpoolctl; a no-op where it is missing).
-
-    The BLAS thread count is a process-wide setting, and threads of one compress enter and
-    leave such blocks at once: the first to enter sets one thread, the last to leave puts
-    back what was there, so no block ever runs a GEMM on several BLAS threads (a thread
-    count changes how some kernels -- OpenBLAS's Haswell among them -- round a product).
-    Nested and concurrent blocks cost a lock and a counter."""
-    global _blas_depth, _blas_limiter
-    controller = _controller()
-    if controller is None:     # pragma: no cover - a declared dependency
-        yield
-        return
-    with _blas_lock:
-        if _blas_depth == 0:
-            _blas_limiter = controller.limit(limits=1, user_api="blas")
-        _blas_depth += 1
-    try:
-        yield
-    finally:
-        with _blas_lock:
-            _blas_depth -= 1
-            if _blas_depth == 0:
-                _blas_limiter.restore_original_limits()
-                _blas_limiter = None
-
-
-_blas_lock = threading.Lock()
-_blas_depth = 0
-_blas_limiter = None
-
-
-@functools.lru_cache(maxsize=1)
-def _controller():
-    """threadpoolctl's view of the loaded BLAS (scanning the libraries once per process)."""
-    try:
-        from threadpoolctl import ThreadpoolController
-    except ImportError:        # pragma: no cover
-        return None
-    return ThreadpoolController()
