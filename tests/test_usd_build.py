@@ -133,6 +133,20 @@ def test_build_builds_bound_material_once(scene):
     assert np.array_equal(reconstruct(cbtf), reconstruct(read_compressed(out / "pebbles_compressed")))
 
 
+def test_another_numeric_platform_rebuilds(scene, monkeypatch):
+    """The numeric platform is in every step's signature: a build cached on one platform
+    (BLAS kernel, numpy SIMD level) is rebuilt on another, and the same platform rebuilds
+    nothing."""
+    from usdbtf import numeric
+
+    assert len(build(scene)["ran"]) == 2
+    assert build(scene)["ran"] == []
+    other = dict(numeric.platform(), blas_kernel="Nehalem")
+    monkeypatch.setattr(numeric, "platform", lambda: other)
+    assert len(build(scene)["ran"]) == 2
+    assert build(scene)["ran"] == []
+
+
 def test_changed_input_rebuilds_and_variant_switch_builds_the_other(scene, capsys):
     ok(capsys, "build", scene, "-q")
     image = sorted((scene.parent / "captures" / "pebbles").glob("*.png"))[0]
