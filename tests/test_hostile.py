@@ -576,6 +576,22 @@ def test_damaged_or_escaping_manifests(case, data, how, command):
     assert time.perf_counter() - t0 < 10        # refused up front, not after allocating
 
 
+@pytest.mark.parametrize("command", ["compress", "info"])
+def test_btf_json_that_is_a_symlink_loop_or_dangling(case, data, command):
+    """A manifest whose btf.json cannot be followed is named with the link's chain, not
+    called an "unrecognised BTF input (folder)"."""
+    m = copy(data / "src", case.work / "m")
+    (m / "btf.json").unlink()
+    (m / "btf.json").symlink_to("other.json")
+    (m / "other.json").symlink_to("btf.json")
+    argv = {"compress": ["compress", m, "-o", case.work / "c", "-q"], "info": ["info", m]}[command]
+    case(argv, code=IO, names=["btf.json", "symbolic link loop (btf.json -> other.json -> btf.json)"])
+    case([*argv[:1], m / "other.json", *argv[2:]], code=IO,
+         names=["other.json", "symbolic link loop (other.json -> btf.json -> other.json)"])
+    (m / "other.json").unlink()
+    case(argv, code=DATA, names=["btf.json", "dangling symbolic link (-> other.json: no such file)"])
+
+
 def test_allow_outside_paths_reads_them(tmp_path, data, capsys):
     m = _manifest(data, tmp_path / "m", _outside)
     assert main(["info", str(m), "--allow-outside-paths"]) == 0
