@@ -522,6 +522,29 @@ def test_missing_and_corrupt_texture_files(case, data):
     case(["decompress", c3, "-o", case.work / "d", "-q"], code=DATA, names=["btf-compressed.json", "not a readable"])
 
 
+def test_truncated_png_is_one_line(case, data):
+    """libpng prints its own "libpng error: ..." line on the C stderr while OIIO reads a
+    truncated PNG: every reader still prints exactly one line, with libpng's reason in it."""
+    c = copy(data / "c", case.work / "c")
+    whole = (c / "basis.png").read_bytes()
+    (c / "basis.png").write_bytes(whole[: len(whole) // 2])
+    names = ["basis.png", "corrupt or truncated", "end of file"]
+    case(["render", c, "--swatch", "--view", "0,0", "--light", "30,0", "-o", case.work / "r.exr", "-q"],
+         code=DATA, names=names)
+    case(["info", c], code=DATA, names=names)
+    case(["render", c, "--swatch", "--view", "0,0", "--light", "30,0", "-o", case.work / "r.exr", "-q"],
+         code=DATA, names=names, runner=subprocess_runner())
+
+
+def test_native_stderr_capture_keeps_what_is_not_libpng(capfd):
+    from usdbtf.imageio import native_stderr_captured
+
+    with native_stderr_captured(), native_stderr_captured():        # nested, as concurrent reads are
+        os.write(2, b"libpng warning: iCCP: known incorrect sRGB profile\nsomeone else's line\n")
+    os.write(2, b"after\n")
+    assert capfd.readouterr().err == "someone else's line\nafter\n"
+
+
 # ------------------------------------------------------------------ 4. manifests
 
 

@@ -26,7 +26,7 @@ Every message names the file, sample or option at fault; the CLI prints it as on
 from __future__ import annotations
 
 __all__ = ["BTFError", "UsageError", "OutputRefused", "IOFailure", "error_for_status", "os_error_message",
-           "OS_ERROR_WORDS", "link_error", "EXIT_OK", "EXIT_USAGE", "EXIT_DATA", "EXIT_CANT_CREATE", "EXIT_IO", "EXIT_INTERNAL"]
+           "OS_ERROR_WORDS", "link_error", "one_line", "EXIT_OK", "EXIT_USAGE", "EXIT_DATA", "EXIT_CANT_CREATE", "EXIT_IO", "EXIT_INTERNAL"]
 
 #: Words of operating-system errors inside the messages of libraries that do not raise
 #: OSError (USD's Tf errors, image writers): such a failure is an I/O error, status 74.
@@ -78,6 +78,12 @@ def error_for_status(status: int, message: str) -> BTFError:
     exc = BTFError(message)
     exc.exit_code = status
     return exc
+
+
+def one_line(text) -> str:
+    """``text`` with every run of whitespace, newlines included, as one space: library
+    messages (OIIO, libpng, USD) can span lines, and every usdbtf error is one line."""
+    return " ".join(str(text).split())
 
 
 def os_error_message(exc: OSError, path=None) -> str:
