@@ -545,6 +545,18 @@ def test_native_stderr_capture_keeps_what_is_not_libpng(capfd):
     assert capfd.readouterr().err == "someone else's line\nafter\n"
 
 
+def test_a_child_forked_during_a_capture_gets_its_stderr_back(capfd):
+    from usdbtf.imageio import native_stderr_captured
+
+    with native_stderr_captured():
+        pid = os.fork()
+        if pid == 0:                        # the child: fd 2 is the real stderr again
+            os.write(2, b"child line\n")
+            os._exit(0)
+        os.waitpid(pid, 0)
+    assert capfd.readouterr().err == "child line\n"
+
+
 # ------------------------------------------------------------------ 4. manifests
 
 

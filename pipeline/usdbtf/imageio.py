@@ -102,6 +102,22 @@ def native_stderr_captured():
                 _release(caught)
 
 
+def _reset_after_fork() -> None:
+    """In a forked child (compress's decode workers): a fresh lock, in case another thread
+    held it at the fork, and fd 2 given back if a capture was open then (its thread does
+    not exist in the child, so it would never end)."""
+    global _CAPTURE_LOCK
+    _CAPTURE_LOCK = threading.Lock()
+    if _CAPTURE[0]:
+        os.dup2(_CAPTURE[1], 2)
+        os.close(_CAPTURE[1])
+        os.close(_CAPTURE[2])
+    _CAPTURE[:] = [0, -1, -1]
+
+
+os.register_at_fork(after_in_child=_reset_after_fork)
+
+
 def _release(caught: bytes) -> None:
     """libpng's lines to the debug log, the rest back to fd 2 as it came."""
     others = []
