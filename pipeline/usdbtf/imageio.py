@@ -80,20 +80,27 @@ def native_stderr_captured():
     """
     with _CAPTURE_LOCK:
         if _CAPTURE[0] == 0:
-            sys.stderr.flush()          # Python's buffered text goes out before fd 2 moves
-            capture = os.memfd_create("usdbtf-stderr", os.MFD_CLOEXEC)
-            _CAPTURE[1:] = [os.dup(2), capture]
-            os.dup2(capture, 2)
+            with contextlib.suppress(Exception):
+                sys.stderr.flush()      # Python's buffered text goes out before fd 2 moves
+            try:
+                saved = os.dup(2)
+            except OSError:             # no fd 2 at all (a daemon): nothing to keep off it
+                saved = -1
+            if saved >= 0:
+                capture = os.memfd_create("usdbtf-stderr", os.MFD_CLOEXEC)
+                _CAPTURE[1:] = [saved, capture]
+                os.dup2(capture, 2)
         _CAPTURE[0] += 1
     try:
         yield
     finally:
         with _CAPTURE_LOCK:
             _CAPTURE[0] -= 1
-            if _CAPTURE[0] == 0:
+            if _CAPTURE[0] == 0 and _CAPTURE[1] >= 0:
                 with contextlib.suppress(Exception):
                     sys.stderr.flush()
                 saved, capture = _CAPTURE[1:]
+                _CAPTURE[1:] = [-1, -1]
                 os.dup2(saved, 2)
                 os.close(saved)
                 size = os.lseek(capture, 0, os.SEEK_END)
@@ -108,7 +115,7 @@ def _reset_after_fork() -> None:
     not exist in the child, so it would never end)."""
     global _CAPTURE_LOCK
     _CAPTURE_LOCK = threading.Lock()
-    if _CAPTURE[0]:
+    if _CAPTURE[0] and _CAPTURE[1] >= 0:
         os.dup2(_CAPTURE[1], 2)
         os.close(_CAPTURE[1])
         os.close(_CAPTURE[2])
