@@ -522,6 +522,41 @@ def test_missing_and_corrupt_texture_files(case, data):
     case(["decompress", c3, "-o", case.work / "d", "-q"], code=DATA, names=["btf-compressed.json", "not a readable"])
 
 
+def test_truncated_png_is_one_line(case, data):
+    """libpng prints its own "libpng error: ..." line on the C stderr while OIIO reads a
+    truncated PNG: every reader still prints exactly one line, with libpng's reason in it."""
+    c = copy(data / "c", case.work / "c")
+    whole = (c / "basis.png").read_bytes()
+    (c / "basis.png").write_bytes(whole[: len(whole) // 2])
+    names = ["basis.png", "corrupt or truncated", "end of file"]
+    case(["render", c, "--swatch", "--view", "0,0", "--light", "30,0", "-o", case.work / "r.exr", "-q"],
+         code=DATA, names=names)
+    case(["info", c], code=DATA, names=names)
+    case(["render", c, "--swatch", "--view", "0,0", "--light", "30,0", "-o", case.work / "r.exr", "-q"],
+         code=DATA, names=names, runner=subprocess_runner())
+
+
+def test_native_stderr_capture_keeps_what_is_not_libpng(capfd):
+    from usdbtf.imageio import native_stderr_captured
+
+    with native_stderr_captured(), native_stderr_captured():        # nested, as concurrent reads are
+        os.write(2, b"libpng warning: iCCP: known incorrect sRGB profile\nsomeone else's line\n")
+    os.write(2, b"after\n")
+    assert capfd.readouterr().err == "someone else's line\nafter\n"
+
+
+def test_a_child_forked_during_a_capture_gets_its_stderr_back(capfd):
+    from usdbtf.imageio import native_stderr_captured
+
+    with native_stderr_captured():
+        pid = os.fork()
+        if pid == 0:                        # the child: fd 2 is the real stderr again
+            os.write(2, b"child line\n")
+            os._exit(0)
+        os.waitpid(pid, 0)
+    assert capfd.readouterr().err == "child line\n"
+
+
 # ------------------------------------------------------------------ 4. manifests
 
 
@@ -574,6 +609,22 @@ def test_damaged_or_escaping_manifests(case, data, how, command):
     t0 = time.perf_counter()
     case(argv, code=DATA, names=names)
     assert time.perf_counter() - t0 < 10        # refused up front, not after allocating
+
+
+@pytest.mark.parametrize("command", ["compress", "info"])
+def test_btf_json_that_is_a_symlink_loop_or_dangling(case, data, command):
+    """A manifest whose btf.json cannot be followed is named with the link's chain, not
+    called an "unrecognised BTF input (folder)"."""
+    m = copy(data / "src", case.work / "m")
+    (m / "btf.json").unlink()
+    (m / "btf.json").symlink_to("other.json")
+    (m / "other.json").symlink_to("btf.json")
+    argv = {"compress": ["compress", m, "-o", case.work / "c", "-q"], "info": ["info", m]}[command]
+    case(argv, code=IO, names=["btf.json", "symbolic link loop (btf.json -> other.json -> btf.json)"])
+    case([*argv[:1], m / "other.json", *argv[2:]], code=IO,
+         names=["other.json", "symbolic link loop (other.json -> btf.json -> other.json)"])
+    (m / "other.json").unlink()
+    case(argv, code=DATA, names=["btf.json", "dangling symbolic link (-> other.json: no such file)"])
 
 
 def test_allow_outside_paths_reads_them(tmp_path, data, capsys):

@@ -59,6 +59,22 @@ def test_ar_package_is_the_fitted_fallback_only(asset):
     assert np.array_equal(ar_png, main_png)
 
 
+def test_ar_package_default_prim_has_the_geometry_extents_hint(asset):
+    """AR viewers and asset browsers frame a model by its default prim's extentsHint: the
+    geometry's bounds, the same box as the full asset's."""
+    from pxr import UsdGeom
+
+    stage = Usd.Stage.Open(str(asset.with_name("fabric_ar.usdz")))
+    hint = UsdGeom.ModelAPI(stage.GetDefaultPrim()).GetExtentsHint()
+    assert hint is not None and len(hint) == 2, "no extentsHint on the AR package's default prim"
+    box = UsdGeom.BBoxCache(Usd.TimeCode.Default(), ["default"]).ComputeUntransformedBound(
+        stage.GetDefaultPrim()).ComputeAlignedRange()
+    assert np.allclose(np.array(hint), [box.GetMin(), box.GetMax()], atol=1e-6)
+    assert (np.array(hint[1]) - np.array(hint[0])).max() > 0        # a real box, not a point
+    full = Usd.Stage.Open(str(asset))
+    assert np.allclose(np.array(hint), np.array(UsdGeom.ModelAPI(full.GetDefaultPrim()).GetExtentsHint()))
+
+
 def test_control_the_full_usdz_breaks_the_arkit_rules(asset):
     failed = "\n".join(check(asset.with_suffix(".usdz")))
     for rule in ("ARKitRootLayerChecker", "ARKitShaderChecker", "ARKitFileExtensionChecker"):

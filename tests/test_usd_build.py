@@ -182,6 +182,37 @@ def test_failed_step_reports_the_usdbtf_error(scene, capsys):
     line = bad_input(capsys, "build", scene, names="btf.json")
     assert "build failed" in line
     assert not (scene.parent / "build" / "pebbles.usda").exists()
+    assert not (scene.parent / ".usdbtf-build").exists()        # nothing was built: nothing left
+
+
+CYCLE_LAYERS = {
+    "references": ('#usda 1.0\n(\n    defaultPrim = "World"\n)\n\ndef Xform "World" (\n'
+                   '    prepend references = @./other.usda@\n)\n{\n}\n',
+                   '#usda 1.0\n(\n    defaultPrim = "Thing"\n)\n\ndef Xform "Thing" (\n'
+                   '    prepend references = @./scene.usda@\n)\n{\n}\n'),
+    "sublayers": ('#usda 1.0\n(\n    subLayers = [@./other.usda@]\n)\n',
+                  '#usda 1.0\n(\n    subLayers = [@./scene.usda@]\n)\n'),
+}
+
+
+@pytest.mark.parametrize("arc", sorted(CYCLE_LAYERS))
+def test_layers_in_a_cycle_are_named_and_nothing_is_left(scene, capsys, arc):
+    """A scene whose layers reference (or sublayer) each other in a cycle composes nothing:
+    the error is USD's own cycle report, naming both layers, and no build folder is made."""
+    scene_text, other_text = CYCLE_LAYERS[arc]
+    scene.write_text(scene_text)
+    (scene.parent / "other.usda").write_text(other_text)
+    line = bad_input(capsys, "build", scene, names="composition error: ")
+    assert f"@{scene}@" in line and f"@{scene.parent / 'other.usda'}@" in line
+    assert ("Cycle detected" if arc == "references" else "has cycles") in line
+    assert "anon:" not in line
+    assert not (scene.parent / ".usdbtf-build").exists()
+
+
+def test_scene_without_recipes_builds_nothing_and_leaves_nothing(scene, capsys):
+    scene.write_text(SCENE.replace("rel material:binding = </World/Looks/Pebbles>", ""))
+    assert build(scene)["ran"] == []
+    assert not (scene.parent / ".usdbtf-build").exists()
 
 
 def test_build_on_dask_gives_the_same_outputs_and_stays_up_to_date(scene, capsys):

@@ -26,7 +26,7 @@ from .numeric import command_blas_thread
 from .commands import command_modules
 from .argtypes import OUTSIDE_PATHS_HELP
 from .errors import EXIT_CANT_CREATE, EXIT_DATA, EXIT_INTERNAL, EXIT_IO, EXIT_OK, EXIT_USAGE, OS_ERROR_WORDS, \
-    BTFError, os_error_message
+    BTFError, one_line, os_error_message
 
 
 EXIT_STATUS = f"""\
@@ -120,16 +120,12 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _one_line(text) -> str:
-    return " ".join(str(text).split())
-
-
 def describe(exc: BaseException) -> tuple[int, str]:
     """(exit status, one-line message) for an exception that ended a command."""
     if isinstance(exc, BTFError):
-        return exc.exit_code, _one_line(exc)
+        return exc.exit_code, one_line(exc)
     if isinstance(exc, OSError):
-        return EXIT_IO, _one_line(os_error_message(exc))
+        return EXIT_IO, one_line(os_error_message(exc))
     if type(exc).__module__.startswith("pxr"):
         # A USD (Tf) error that no reader turned into a BTFError: USD reports a bad layer
         # or a failed write this way.
@@ -141,7 +137,7 @@ def describe(exc: BaseException) -> tuple[int, str]:
     if isinstance(exc, MemoryError):
         return EXIT_IO, ("out of memory: the machine cannot hold what this command needs "
                          "(use smaller inputs or options, or a larger machine)")
-    return EXIT_INTERNAL, (f"internal error ({type(exc).__name__}: {_one_line(exc)[:300]}); "
+    return EXIT_INTERNAL, (f"internal error ({type(exc).__name__}: {one_line(exc)[:300]}); "
                            "rerun with --debug for the traceback")
 
 
@@ -265,7 +261,8 @@ def main(argv=None) -> int:
 
             traceback.print_exc()
             message = message.replace("rerun with --debug for the traceback", "traceback above")
-        print(f"usdbtf {args.command}: error: {message}", file=sys.stderr)
+        # one_line again: the last line of defence for a message made outside describe().
+        print(f"usdbtf {args.command}: error: {one_line(message)}", file=sys.stderr)
         return status
 
 

@@ -26,7 +26,7 @@ Every message names the file, sample or option at fault; the CLI prints it as on
 from __future__ import annotations
 
 __all__ = ["BTFError", "UsageError", "OutputRefused", "IOFailure", "error_for_status", "os_error_message",
-           "OS_ERROR_WORDS", "EXIT_OK", "EXIT_USAGE", "EXIT_DATA", "EXIT_CANT_CREATE", "EXIT_IO", "EXIT_INTERNAL"]
+           "OS_ERROR_WORDS", "link_error", "one_line", "EXIT_OK", "EXIT_USAGE", "EXIT_DATA", "EXIT_CANT_CREATE", "EXIT_IO", "EXIT_INTERNAL"]
 
 #: Words of operating-system errors inside the messages of libraries that do not raise
 #: OSError (USD's Tf errors, image writers): such a failure is an I/O error, status 74.
@@ -80,6 +80,12 @@ def error_for_status(status: int, message: str) -> BTFError:
     return exc
 
 
+def one_line(text) -> str:
+    """``text`` with every run of whitespace, newlines included, as one space: library
+    messages (OIIO, libpng, USD) can span lines, and every usdbtf error is one line."""
+    return " ".join(str(text).split())
+
+
 def os_error_message(exc: OSError, path=None) -> str:
     """One line for an operating-system error: ``PATH: reason`` (the path the error names,
     else ``path``)."""
@@ -93,3 +99,38 @@ def os_error_message(exc: OSError, path=None) -> str:
     if exc.filename2 is not None:
         text += f" (-> {os.fsdecode(exc.filename2)})"
     return text
+
+
+#: Links followed before a chain counts as a loop (Linux's own limit is 40).
+_MAX_LINK_HOPS = 40
+
+
+def link_error(path) -> BTFError | None:
+    """The error for a symbolic link ``path`` that cannot be followed, its message one line
+    naming the link and its chain; None when ``path`` is not a link or leads to something
+    that exists.
+
+    A loop (``PATH: symbolic link loop (a -> b -> a)``) is the operating system's ELOOP, an
+    :class:`IOFailure` (74); a dangling link (``PATH: dangling symbolic link (-> t: no such
+    file)``) is a missing input, a :class:`BTFError` (65).  ``Path.exists`` and ``is_file``
+    answer False for both, so a reader that only asks them would call the input "missing" or
+    "unrecognised" instead of saying what is wrong.
+    """
+    import os
+
+    path = os.fspath(path)
+    if not os.path.islink(path) or os.path.exists(path):
+        return None
+    chain, seen, here = [os.path.basename(path)], {os.path.abspath(path)}, path
+    for _ in range(_MAX_LINK_HOPS):
+        target = os.readlink(here)
+        chain.append(target)
+        here = os.path.normpath(os.path.join(os.path.dirname(here), target))
+        if os.path.abspath(here) in seen:
+            return IOFailure(f"{path}: symbolic link loop ({' -> '.join(chain)})")
+        if not os.path.islink(here):
+            if os.path.lexists(here):
+                break           # the chain ends, but a folder on the way is a link that fails
+            return BTFError(f"{path}: dangling symbolic link (-> {' -> '.join(chain[1:])}: no such file)")
+        seen.add(os.path.abspath(here))
+    return IOFailure(f"{path}: symbolic link that cannot be followed ({' -> '.join(chain)} -> ...)")

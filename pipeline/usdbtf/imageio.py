@@ -6,18 +6,22 @@ conversion lives in :mod:`usdbtf.color`.
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
 import sys
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import OpenImageIO as oiio
 
-from .errors import BTFError, IOFailure, UsageError
+from .errors import BTFError, IOFailure, UsageError, one_line
 
 __all__ = ["ImageInfo", "read_info", "read_image", "write_image", "encode_image", "decode_image", "write_encoded",
-           "memory_file", "BIT_DEPTHS", "numpy_dtype"]
+           "memory_file", "BIT_DEPTHS", "numpy_dtype", "oiio_error", "native_stderr_captured"]
+
+log = logging.getLogger(__name__)
 
 FIXED_DATETIME = "1970:01:01 00:00:00"
 _TIMESTAMPED = {".exr", ".sxr", ".mxr", ".tif", ".tiff"}
@@ -49,16 +53,95 @@ class ImageInfo:
     color_space: str
 
 
-def _one_line(text: str) -> str:
-    """OIIO/libpng messages can span lines; errors here are one line."""
-    return " ".join(str(text).split())
+def oiio_error(*sources) -> str:
+    """OIIO's error for a failed call, as one line: the first non-empty ``geterror()`` of
+    ``sources`` (ImageInput, ImageOutput, ImageBuf), else OIIO's global error.  The global
+    one is always retrieved, which clears it (OIIO prints unretrieved errors at exit).
+    OIIO's messages can span lines (libpng's and OIIO's text joined by a newline)."""
+    own = next((text for text in (s.geterror() for s in sources) if text), "")
+    pending = oiio.geterror()
+    return one_line(own or pending)
+
+
+# fd 2 while native readers run: (lock, [depth, saved fd 2, capture fd]); see native_stderr_captured.
+_CAPTURE_LOCK = threading.Lock()
+_CAPTURE = [0, -1, -1]
+
+
+@contextlib.contextmanager
+def native_stderr_captured():
+    """Run OIIO's readers with the process's file descriptor 2 caught in an in-memory file.
+
+    libpng (inside OIIO) prints ``libpng error: ...`` / ``libpng warning: ...`` straight on
+    the C stderr, beside the error OIIO returns with the same text: a failed read would
+    print two lines.  Caught here, libpng's lines become debug records of this module's
+    logger (``-v`` shows them); anything else that reached fd 2 meanwhile (another thread's
+    output) is written back to fd 2 when the last nested or concurrent capture ends.
+    """
+    with _CAPTURE_LOCK:
+        if _CAPTURE[0] == 0:
+            with contextlib.suppress(Exception):
+                sys.stderr.flush()      # Python's buffered text goes out before fd 2 moves
+            try:
+                saved = os.dup(2)
+            except OSError:             # no fd 2 at all (a daemon): nothing to keep off it
+                saved = -1
+            if saved >= 0:
+                capture = os.memfd_create("usdbtf-stderr", os.MFD_CLOEXEC)
+                _CAPTURE[1:] = [saved, capture]
+                os.dup2(capture, 2)
+        _CAPTURE[0] += 1
+    try:
+        yield
+    finally:
+        with _CAPTURE_LOCK:
+            _CAPTURE[0] -= 1
+            if _CAPTURE[0] == 0 and _CAPTURE[1] >= 0:
+                with contextlib.suppress(Exception):
+                    sys.stderr.flush()
+                saved, capture = _CAPTURE[1:]
+                _CAPTURE[1:] = [-1, -1]
+                os.dup2(saved, 2)
+                os.close(saved)
+                size = os.lseek(capture, 0, os.SEEK_END)
+                caught = os.pread(capture, size, 0) if size else b""
+                os.close(capture)
+                _release(caught)
+
+
+def _reset_after_fork() -> None:
+    """In a forked child (compress's decode workers): a fresh lock, in case another thread
+    held it at the fork, and fd 2 given back if a capture was open then (its thread does
+    not exist in the child, so it would never end)."""
+    global _CAPTURE_LOCK
+    _CAPTURE_LOCK = threading.Lock()
+    if _CAPTURE[0] and _CAPTURE[1] >= 0:
+        os.dup2(_CAPTURE[1], 2)
+        os.close(_CAPTURE[1])
+        os.close(_CAPTURE[2])
+    _CAPTURE[:] = [0, -1, -1]
+
+
+os.register_at_fork(after_in_child=_reset_after_fork)
+
+
+def _release(caught: bytes) -> None:
+    """libpng's lines to the debug log, the rest back to fd 2 as it came."""
+    others = []
+    for line in caught.splitlines(keepends=True):
+        if line.startswith(b"libpng "):
+            log.debug("%s", line.decode(errors="replace").strip())
+        else:
+            others.append(line)
+    if others:
+        os.write(2, b"".join(others))
 
 
 def _open(path) -> "oiio.ImageInput":
     path = os.fspath(path)
     inp = oiio.ImageInput.open(path)
     if inp is None:
-        msg = oiio.geterror()
+        msg = oiio_error()
         # Checked only on failure: a stat per image adds up over 10^4 images.
         if os.path.isdir(path):
             raise IOFailure(f"{path}: is a folder, not an image file")
@@ -66,7 +149,7 @@ def _open(path) -> "oiio.ImageInput":
             raise BTFError(f"{path}: image file not found")
         if not os.access(path, os.R_OK):
             raise IOFailure(f"{path}: permission denied")
-        raise BTFError(f"{path}: cannot read image ({_one_line(msg) or 'unknown format'})")
+        raise BTFError(f"{path}: cannot read image ({msg or 'unknown format'})")
     return inp
 
 
@@ -78,11 +161,12 @@ def _info(path, inp) -> ImageInfo:
 
 def read_info(path) -> ImageInfo:
     """Header only: size, channels, bit depth, declared colour space."""
-    inp = _open(path)
-    try:
-        return _info(path, inp)
-    finally:
-        inp.close()
+    with native_stderr_captured():
+        inp = _open(path)
+        try:
+            return _info(path, inp)
+        finally:
+            inp.close()
 
 
 def read_image(path, *, expect: tuple[int, int] | None = None, rows: tuple[int, int] | None = None):
@@ -99,6 +183,18 @@ def read_image(path, *, expect: tuple[int, int] | None = None, rows: tuple[int, 
              Greyscale files are expanded to three equal channels; alpha is dropped.
     info : ImageInfo
     """
+    with native_stderr_captured():
+        data, info = _read_pixels(path, expect, rows)
+    data = np.asarray(data)
+    if data.ndim == 2:
+        data = data[:, :, None]
+    if data.shape[-1] == 1:
+        data = np.repeat(data, 3, axis=-1)
+    return data, info
+
+
+def _read_pixels(path, expect, rows):
+    """OIIO's pixels of ``path`` and its :class:`ImageInfo` (see :func:`read_image`)."""
     inp = _open(path)
     try:
         info = _info(path, inp)
@@ -116,14 +212,9 @@ def read_image(path, *, expect: tuple[int, int] | None = None, rows: tuple[int, 
             data = inp.read_scanlines(0, 0, y0, y1, 0, 0, nch, info.bit_depth)
         if data is None or inp.has_error:
             # libjpeg fills a truncated file with grey and only flags the error: check the flag too.
-            raise BTFError(f"{path}: image data is corrupt or truncated ({_one_line(inp.geterror() or oiio.geterror())})")
+            raise BTFError(f"{path}: image data is corrupt or truncated ({oiio_error(inp)})")
     finally:
         inp.close()
-    data = np.asarray(data)
-    if data.ndim == 2:
-        data = data[:, :, None]
-    if data.shape[-1] == 1:
-        data = np.repeat(data, 3, axis=-1)
     return data, info
 
 
@@ -166,15 +257,15 @@ def write_image(path, pixels: np.ndarray, *, color_space: str, attributes: dict 
         _check_room(path, pixels.nbytes)
     out = oiio.ImageOutput.create(file_type or str(path))
     if out is None:
-        raise UsageError(f"{path}: no image writer for this file type ({_one_line(oiio.geterror())})")
+        raise UsageError(f"{path}: no image writer for this file type ({oiio_error()})")
     try:
         if not out.open(str(path), spec):
-            raise IOFailure(f"{path}: cannot open for writing ({_one_line(out.geterror()) or _os_reason(path)})")
+            raise IOFailure(f"{path}: cannot open for writing ({oiio_error(out) or _os_reason(path)})")
         if not out.write_image(pixels):
-            raise IOFailure(f"{path}: write failed ({_one_line(out.geterror()) or _os_reason(path)})")
+            raise IOFailure(f"{path}: write failed ({oiio_error(out) or _os_reason(path)})")
     finally:
         if not out.close():
-            problem = _one_line(out.geterror())
+            problem = oiio_error(out)
             if problem and sys.exc_info()[0] is None:
                 raise IOFailure(f"{path}: write failed ({problem})")
     size = path.stat().st_size

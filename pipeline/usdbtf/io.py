@@ -15,7 +15,7 @@ import zipfile
 from pathlib import Path
 
 from . import manifest, ubo, ubo2014
-from .errors import BTFError
+from .errors import BTFError, link_error
 from .model import BTF
 
 __all__ = ["open_btf", "open_compressed", "ACCEPTED"]
@@ -46,6 +46,12 @@ def open_btf(path, *, color_space: str | None = None, **kw) -> BTF:
 
 def _read(p: Path, color_space: str | None, kw: dict) -> BTF:
     """The reader for ``p`` (see :func:`open_btf`)."""
+    # A link that cannot be followed (a loop, a dangling target) reads as absent to exists()
+    # and is_file(): say so, naming the link, rather than "missing" or "unrecognised".
+    for link in (p, p / manifest.MANIFEST):
+        error = link_error(link)
+        if error is not None:
+            raise error
     if not p.exists():
         raise BTFError(f"{p}: no such file or folder")
     is_manifest = (p.is_dir() and (p / manifest.MANIFEST).is_file()) or (p.is_file() and p.suffix.lower() == ".json")

@@ -78,7 +78,7 @@ import OpenImageIO as oiio
 
 from . import color
 from .errors import BTFError
-from .imageio import read_info
+from .imageio import native_stderr_captured, oiio_error, read_info
 from .model import BTF, FileBTF, validate_sampling
 from .sampling import Sampling
 
@@ -305,9 +305,10 @@ class UBOBTF(FileBTF):
 
 def _read_reoriented(path: str, btf: UBOBTF, rows) -> np.ndarray:
     """Read a whole image through OIIO's ImageBuf, apply its EXIF orientation, check it."""
-    buf = oiio.ImageBufAlgo.reorient(oiio.ImageBuf(path))
+    with native_stderr_captured():
+        buf = oiio.ImageBufAlgo.reorient(oiio.ImageBuf(path))
     if buf.has_error:
-        raise BTFError(f"{path}: cannot read image ({' '.join(buf.geterror().split())})")
+        raise BTFError(f"{path}: cannot read image ({oiio_error(buf)})")
     spec = buf.spec()
     if (spec.width, spec.height) != (btf.width, btf.height):
         raise BTFError(f"{path}: image is {spec.width}x{spec.height}, expected {btf.width}x{btf.height}")

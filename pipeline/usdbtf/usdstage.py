@@ -47,6 +47,21 @@ def usd_exists(path) -> bool:
     return str(path).lower().endswith(USD_SUFFIXES) and bool(str(Ar.GetResolver().Resolve(str(path))))
 
 
+def composition_error_text(error) -> str:
+    """One line for a Pcp composition error (``stage.GetCompositionErrors()``), as USD words it
+    (a cycle names every layer and prim on it), without the stage's anonymous session layer,
+    whose name holds a memory address (it would differ from run to run)."""
+    return re.sub(r",?@anon:[^@]*@", "", " ".join(str(error).split()))
+
+
+def composition_cycle(stage):
+    """The first arc or sublayer cycle among ``stage``'s composition errors, or None."""
+    from pxr import Pcp
+
+    cycles = (Pcp.ErrorType_ArcCycle, Pcp.ErrorType_SublayerCycle)
+    return next((e for e in stage.GetCompositionErrors() if e.errorType in cycles), None)
+
+
 def open_usd(path, *, composition_errors: bool = True):
     """``Usd.Stage.Open(path)`` with payloads loaded, the path found through the asset
     resolver (:func:`resolve_usd`); raises BTFError naming the file for a missing or
@@ -64,7 +79,7 @@ def open_usd(path, *, composition_errors: bool = True):
         raise BTFError(f"{path}: cannot open USD layer")
     errors = stage.GetCompositionErrors() if composition_errors else []
     if errors:
-        raise BTFError(f"{path}: composition error: {' '.join(str(errors[0]).split())}")
+        raise BTFError(f"{path}: composition error: {composition_error_text(errors[0])}")
     return stage
 
 

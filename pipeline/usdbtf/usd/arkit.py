@@ -9,7 +9,8 @@ ARKitRootLayerChecker):
 * one layer, ``<stem>_ar.usdc``, the package's first file (root layer checker);
 * only PNG textures next to it, stored uncompressed and 64-byte aligned
   (``UsdUtils.CreateNewUsdzPackage``; file extension, byte alignment, compression checkers);
-* ``/<root>`` (Xform, kind component, defaultPrim; metersPerUnit, upAxis) with the mesh and
+* ``/<root>`` (Xform, kind component, defaultPrim; metersPerUnit, upAxis; ``extentsHint``, the
+  mesh's bounds, which AR viewers and asset browsers frame by) with the mesh and
   ``mtl/BtfMaterial``: the fitted fallback (usd.fallback) in the metallic workflow at
   metallic 0 (AR renderers ignore UsdPreviewSurface's specular workflow): diffuse colour,
   roughness and the normal map (8-bit, raw, scale 2 bias -1: the normal-map checker);
@@ -42,7 +43,8 @@ def write_ar_usdz(staging: Path, stem: str, root: str, mesh, textures, names: di
                   asset_version: str | None = None, creator: str | None = None, *, wrap: str = "repeat") -> Path:
     """Write ``<staging>/<stem>_ar.usdz`` from ``mesh`` (a :class:`usdbtf.mesh.Mesh`) and the
     textures of :func:`ar_textures` (``textures``, ``names``); returns its path."""
-    from pxr import Kind, Sdf, Usd, UsdGeom, UsdShade
+    import numpy as np
+    from pxr import Kind, Sdf, Usd, UsdGeom, UsdShade, Vt
 
     from ..mesh.author import author_mesh
     from . import fallback
@@ -63,6 +65,8 @@ def write_ar_usdz(staging: Path, stem: str, root: str, mesh, textures, names: di
     model.SetAssetIdentifier(Sdf.AssetPath(f"./{layer_path.name}"))
     if asset_version is not None:
         model.SetAssetVersion(asset_version)
+    # The box viewers frame the model by, from the geometry (as the full asset's root prim has).
+    UsdGeom.ModelAPI.Apply(prim).SetExtentsHint(Vt.Vec3fArray.FromNumpy(mesh.bounds().astype(np.float32)))
     UsdGeom.Scope.Define(stage, f"/{root}/geo")
     UsdGeom.Scope.Define(stage, f"/{root}/mtl")
     material = UsdShade.Material.Define(stage, f"/{root}/mtl/{MATERIAL}")

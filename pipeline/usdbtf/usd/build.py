@@ -42,6 +42,7 @@ import contextlib
 import json
 import os
 import shlex
+import shutil
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -191,7 +192,7 @@ def plan(scene) -> tuple[list[Recipe], dict]:
 
     The report lists ``bound`` materials with the prims bound to them and
     ``without_recipe`` (bound materials that have nothing to build)."""
-    from ..usdstage import open_usd, usd_warnings_silenced
+    from ..usdstage import composition_cycle, composition_error_text, open_usd, usd_warnings_silenced
     from .package import ROOT_FORMATS
 
     scene = Path(scene)
@@ -199,6 +200,11 @@ def plan(scene) -> tuple[list[Recipe], dict]:
     # the assets this builds.
     with usd_warnings_silenced():
         stage = open_usd(scene, composition_errors=False)
+    # A cycle is never expected: the layers on it compose nothing, so the scene would seem to
+    # bind no material at all.
+    cycle = composition_cycle(stage)
+    if cycle is not None:
+        raise BTFError(f"{scene}: composition error: {composition_error_text(cycle)}")
     protected = [Path(layer.realPath) for layer in stage.GetLayerStack(includeSessionLayers=False)
                  if layer.realPath] + [scene]
     bound = _bound_materials(stage)
@@ -359,7 +365,12 @@ def build(scene, *, force: bool = False, dask=None) -> dict:
     recipes, report = plan(scene)
     for path in report["without_recipe"]:
         log.info(f"{path}: bound, no btf:build recipe (nothing to build)")
+    if not recipes:
+        log.info(f"{len(report['bound'])} bound BTF material(s), none with a btf:build recipe: nothing to build")
+        report.update(recipes=recipes, ran=[])
+        return report
     work = scene.parent / BUILD_DIR / scene.stem
+    made = [p for p in (work.parent, work) if not os.path.lexists(p)]
     _claim_outputs(scene, recipes, work, force)
     with contextlib.ExitStack() as stack:
         dask_info, jobs = None, 1
@@ -386,6 +397,8 @@ def build(scene, *, force: bool = False, dask=None) -> dict:
             with contextlib.suppress(OSError):
                 p.rmdir()              # a folder SCons made for a target it did not build
         failure = _failure(work)
+        if not any(os.path.lexists(o) for r in recipes for o in r.outputs()):
+            _remove_made(made)         # nothing was built: leave no build folder behind
         if failure is not None:
             raise error_for_status(failure[0], f"{scene}: build failed: {failure[1]}")
         detail = proc.stderr.strip().splitlines() or proc.stdout.strip().splitlines() or ["?"]
@@ -395,6 +408,16 @@ def build(scene, *, force: bool = False, dask=None) -> dict:
     log.info(f"{len(recipes)} bound BTF material(s); {len(ran)} step(s) run" + ("" if ran else " (all up to date)"))
     report.update(recipes=recipes, ran=ran)
     return report
+
+
+def _remove_made(made: list[Path]) -> None:
+    """Remove the build folders this run made (``made``: outermost first), once nothing in them
+    is a build output: a failed first build leaves the scene's folder as it found it."""
+    if made:
+        shutil.rmtree(made[-1], ignore_errors=True)
+    for folder in reversed(made[:-1]):
+        with contextlib.suppress(OSError):
+            folder.rmdir()             # only if empty: another scene's build may live there
 
 
 def _failure(work: Path) -> tuple[int, str] | None:

@@ -175,20 +175,23 @@ def read_rgba(path):
     import numpy as np
     import OpenImageIO as oiio
 
+    from ..imageio import native_stderr_captured, oiio_error
+
     config = oiio.ImageSpec()
     config.attribute("oiio:UnassociatedAlpha", 1)       # the fourth layer is data, not coverage
-    inp = oiio.ImageInput.open(str(path), config)
-    if inp is None:
-        raise BTFError(f"{path}: cannot open GPU texture ({' '.join(oiio.geterror().split())})")
-    try:
-        spec = inp.spec()
-        if spec.nchannels != 4:
-            raise BTFError(f"{path}: GPU texture has {spec.nchannels} channels, expected 4 (RGBA)")
-        data = inp.read_image(0, 0, 0, 4, spec.format)
-        if data is None or inp.has_error:
-            raise BTFError(f"{path}: GPU texture is corrupt or truncated ({' '.join(inp.geterror().split())})")
-    finally:
-        inp.close()
+    with native_stderr_captured():
+        inp = oiio.ImageInput.open(str(path), config)
+        if inp is None:
+            raise BTFError(f"{path}: cannot open GPU texture ({oiio_error()})")
+        try:
+            spec = inp.spec()
+            if spec.nchannels != 4:
+                raise BTFError(f"{path}: GPU texture has {spec.nchannels} channels, expected 4 (RGBA)")
+            data = inp.read_image(0, 0, 0, 4, spec.format)
+            if data is None or inp.has_error:
+                raise BTFError(f"{path}: GPU texture is corrupt or truncated ({oiio_error(inp)})")
+        finally:
+            inp.close()
     return np.asarray(data)
 
 

@@ -35,7 +35,7 @@ from ..compress.codecs import get_codec
 from ..compress.format import CompressedBTF, basis_file, coefficient_file, encoded_textures
 from ..compress.parallel import in_threads
 from ..errors import BTFError
-from ..imageio import decode_image, encode_image, write_encoded
+from ..imageio import decode_image, encode_image, native_stderr_captured, oiio_error, write_encoded
 from .formats import TEXTURE_FORMATS
 
 __all__ = ["DATA", "PORTABLE", "TEXTURE_FORMATS", "USDZ_FORMATS", "Texture", "TextureSet", "png_as_data",
@@ -210,8 +210,9 @@ def _make_texture(src: Path, dst: Path, kind: str, fmt: str) -> None:
     read_config = oiio.ImageSpec()
     read_config.attribute("oiio:UnassociatedAlpha", 1)      # RGBA packs: alpha is a data layer
     buf = oiio.ImageBuf(str(src), 0, 0, read_config)
-    if buf.has_error or not buf.read():
-        raise BTFError(f"{src}: cannot read texture for conversion ({' '.join(buf.geterror().split())})")
+    with native_stderr_captured():
+        if buf.has_error or not buf.read():
+            raise BTFError(f"{src}: cannot read texture for conversion ({oiio_error(buf)})")
     space = DATA
     if fmt == "exr":
         buf, space = _exr_values(buf, kind, src)
@@ -229,7 +230,7 @@ def _make_texture(src: Path, dst: Path, kind: str, fmt: str) -> None:
                        ("tile_height", _TILE), ("compression", "zip"), ("DateTime", "2000:01:01 00:00:00")):
         config.attribute(key, value)
     if not oiio.ImageBufAlgo.make_texture(oiio.MakeTxTexture, buf, str(dst), config):
-        raise BTFError(f"{dst}: maketx failed ({' '.join(oiio.geterror().split())})")
+        raise BTFError(f"{dst}: maketx failed ({oiio_error()})")
 
 
 def _exr_values(buf, kind: str, src: Path):
