@@ -17,24 +17,29 @@ def add_parser(sub) -> None:
 def shell_lines() -> list[str]:
     """POSIX sh lines: each variable gets usdbtf's entries in front of whatever it holds."""
     from .. import __version__
-    from ..usd.plugin import environment, list_separator
+    from ..usd.plugin import QUIET, defaults, environment, list_separator
 
-    lines = [f"# usdbtf {__version__}: the usdBtf USD plugin for any USD process (eval in a launcher)"]
+    lines = [f"# usdbtf {__version__}: the usdBtf USD plugin for any USD process (eval in a launcher);",
+             "# PXR_SDR_* for USD >= 25.05, PXR_NDR_* for USD 24.x-25.02 (each build reads its own)"]
     for variable, entries in environment().items():
         sep = list_separator(variable)
         value = shlex.quote(sep.join(entries))
         lines.append(f'export {variable}={value}"${{{variable}:+{sep}${variable}}}"')
+    lines.append(f"# {QUIET}=0: no 'is overridden' banner from USD for these settings (a value set before wins)")
+    for variable, value in defaults().items():
+        lines.append(f'export {variable}="${{{variable}:-{shlex.quote(value)}}}"')
     return lines
 
 
 def run(args) -> int:
-    from ..usd.plugin import environment, list_separator
+    from ..usd.plugin import defaults, environment, list_separator
 
     if args.json:
         from .. import jsontext
 
         env = environment()
-        print(jsontext.dumps({"variables": env, "separators": {v: list_separator(v) for v in env}}))
+        print(jsontext.dumps({"variables": env, "separators": {v: list_separator(v) for v in env},
+                              "defaults": defaults()}))
     else:
         print("\n".join(shell_lines()))
     return 0

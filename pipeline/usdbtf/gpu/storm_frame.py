@@ -1,0 +1,90 @@
+"""Render one frame of a USD stage in real Hydra Storm, headless: a script, not a module.
+
+Run by the Python of an environment whose ``pxr`` is a full USD build with imaging (the
+USD inside PyPI's ``bpy`` wheels: ``scripts/bootstrap.sh`` makes ``.venv-storm-<version>``),
+never imported by usdbtf (usd-core has no Hydra)::
+
+    .venv-storm-5.0/bin/python pipeline/usdbtf/gpu/storm_frame.py SCENE.usda OUT.exr \
+        --camera /Cam --size 64x64 [--no-camera-light] [--purpose render]
+
+It uses only the standard library, ``pxr``, ``moderngl`` (the EGL context) and ``numpy``.
+The OpenGL context is moderngl's standalone EGL context (Mesa llvmpipe on a machine
+without a GPU); the frame is drawn the way ``usdrecord`` draws it,
+``UsdAppUtils.FrameRecorder`` with ``HdStormRendererPlugin``, no colour correction (the
+file holds linear values).  USD's own warnings and shader compile errors go to stderr,
+which the caller reads (``usdbtf.usd.storm_check``).  A surfaceless context reports GL
+errors when Storm presents the frame; the frame is still written.
+
+Exit status: 0 written, 3 no imaging-capable pxr, 4 no EGL context, 5 nothing written.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import sys
+from pathlib import Path
+
+
+def _pxr_from_bpy() -> None:
+    """Put the ``pxr`` inside the bpy wheel on sys.path (importing bpy would start Blender)."""
+    spec = importlib.util.find_spec("bpy")
+    if spec is None or not spec.submodule_search_locations:
+        return
+    root = Path(list(spec.submodule_search_locations)[0])
+    for site in sorted(root.glob("*/python/lib/python3*/site-packages")):
+        if (site / "pxr").is_dir():
+            sys.path.insert(0, str(site))
+            return
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("scene")
+    parser.add_argument("output", help="image file (.exr keeps linear floats)")
+    parser.add_argument("--camera", required=True, help="UsdGeom.Camera prim path")
+    parser.add_argument("--size", default="64x64", help="WIDTHxHEIGHT in pixels")
+    parser.add_argument("--no-camera-light", action="store_true", help="only the stage's UsdLux lights")
+    parser.add_argument("--complexity", type=float, default=1.0)
+    args = parser.parse_args(argv)
+    width, height = (int(x) for x in args.size.lower().split("x"))
+
+    _pxr_from_bpy()
+    try:
+        from pxr import Usd, UsdAppUtils, UsdGeom
+    except ImportError as exc:
+        print(f"storm_frame: no imaging-capable pxr here ({exc})", file=sys.stderr)
+        return 3
+    try:
+        import moderngl
+
+        ctx = moderngl.create_context(standalone=True, backend="egl")
+    except Exception as exc:  # moderngl raises plain Exceptions for a missing EGL
+        print(f"storm_frame: no EGL OpenGL context ({' '.join(str(exc).split())})", file=sys.stderr)
+        return 4
+    fbo = ctx.simple_framebuffer((width, height))
+    fbo.use()
+
+    stage = Usd.Stage.Open(args.scene)
+    if stage is None:
+        print(f"storm_frame: {args.scene}: cannot open", file=sys.stderr)
+        return 5
+    camera = UsdGeom.Camera.Get(stage, args.camera)
+    if not camera:
+        print(f"storm_frame: {args.scene}: no UsdGeom.Camera at {args.camera}", file=sys.stderr)
+        return 5
+    recorder = UsdAppUtils.FrameRecorder("HdStormRendererPlugin", True)
+    recorder.SetImageWidth(width)
+    recorder.SetComplexity(args.complexity)
+    recorder.SetColorCorrectionMode("disabled")
+    recorder.SetCameraLightEnabled(not args.no_camera_light)
+    recorder.SetIncludedPurposes([UsdGeom.Tokens.default_, UsdGeom.Tokens.render])
+    ok = recorder.Record(stage, camera, Usd.TimeCode.Default(), args.output)
+    sys.stderr.flush()
+    if not ok or not Path(args.output).is_file():
+        print(f"storm_frame: {args.output}: Storm wrote no frame", file=sys.stderr)
+        return 5
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
