@@ -110,8 +110,9 @@ class HeadlessRenderer:
         self.program = self.ctx.program(vertex_shader=shaders.HARNESS_VERTEX,
                                         fragment_shader=shaders.harness_fragment())
         rows, width = layout.tables.shape[:2]
-        self.tables = self.ctx.texture((width, rows), 4, np.ascontiguousarray(layout.tables, np.float32).tobytes(),
-                                       dtype="f4")
+        # Bottom row first, as Storm and MaterialX upload every image (btfFetch counts from the top).
+        self.tables = self.ctx.texture((width, rows), 4,
+                                       np.ascontiguousarray(layout.tables[::-1], np.float32).tobytes(), dtype="f4")
         self.tables.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self.packs = []
         for pixels in layout.packs:

@@ -64,16 +64,22 @@ def _lines(template: str, count: int = MAX_PACKS) -> str:
 
 # ------------------------------------------------------------------ Storm
 _STORM_SURFACE = """\
-// Storm's view of the tangent frame: the packaged primvars:tangents / bitangents when the
-// mesh has them (object space -> eye space), else the frame of dP/dst from screen-space
-// derivatives (the same axes: +s = image right, +t = image up).
+// Storm's view of the tangent frame.  Storm's fragment stage has the eye-space position
+// and normal, the interpolated primvars (object space), the prim's own transform and the
+// view matrix, but not the instancers' transforms (instancing.glslfx is a vertex-stage
+// library).  So: the packaged primvars:tangents / bitangents (object space -> eye space)
+// on a prim that is not instanced; else, and where the primvars are absent, the frame of
+// dP/dst from screen-space derivatives (SurfaceHelpers.TangentSpace, what
+// UsdPreviewSurface's normal maps use: the same axes, +s = image right, +t = image up,
+// constant over a triangle).
 mat3 usdBtfFrame(vec3 Peye, vec3 Neye, vec2 st)
 {{
     mat3 tbn = ComputeTBNMatrix(Peye, Neye, st);
     vec3 tangent = tbn[0];
     vec3 bitangent = tbn[1];
-#if defined(HD_HAS_tangents) && defined(HD_HAS_bitangents) && defined(HD_HAS_transform)
-    MAT4 toEye = GetWorldToViewMatrix() * ApplyInstanceTransform(HdGet_transform());
+#if defined(HD_HAS_tangents) && defined(HD_HAS_bitangents) && defined(HD_HAS_transform) \
+    && !defined(HD_INSTANCER_NUM_LEVELS)
+    MAT4 toEye = GetWorldToViewMatrix() * HdGet_transform();
     vec3 t = vec3(toEye * vec4(HdGet_tangents().xyz, 0.0));
     vec3 b = vec3(toEye * vec4(HdGet_bitangents().xyz, 0.0));
     if (dot(t, t) > 0.0 && dot(b, b) > 0.0) {{    // a fallback (absent primvar) reads zero

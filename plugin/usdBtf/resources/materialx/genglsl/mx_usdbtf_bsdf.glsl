@@ -43,10 +43,13 @@
 // float32 rounding on shared edges and on the outermost ring.
 #define BTF_INSIDE_EPS 1e-5
 
+// Texel ``address`` of the tables, counted along the image's rows from its top row (the
+// file's first row).  Renderers upload an image bottom row first (Storm's Hio, MaterialX's
+// loaders: texture coordinate t = 0 at the bottom), so image row r is texture row h - 1 - r.
 vec4 btfFetch(sampler2D tables, int address)
 {
-    int width = textureSize(tables, 0).x;
-    return texelFetch(tables, ivec2(address % width, address / width), 0);
+    ivec2 size = textureSize(tables, 0);
+    return texelFetch(tables, ivec2(address % size.x, size.y - 1 - address / size.x), 0);
 }
 
 // Azimuthal equidistant projection of a tangent-frame direction (z = normal).
