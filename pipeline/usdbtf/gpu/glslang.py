@@ -94,7 +94,7 @@ uniform mat4 worldToViewMatrix;
 uniform mat4 modelMatrix;
 mat4 GetWorldToViewMatrix() {{ return worldToViewMatrix; }}
 MAT4 HdGet_transform() {{ return modelMatrix; }}
-MAT4 ApplyInstanceTransform(MAT4 m) {{ return m; }}
+// No ApplyInstanceTransform: instancing.glslfx is a vertex-stage library in Storm.
 in vec2 stIn;
 in vec3 tangentIn;
 in vec3 bitangentIn;

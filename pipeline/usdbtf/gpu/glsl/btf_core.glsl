@@ -11,12 +11,13 @@
 // a direction takes the nearest boundary point; lights there fade with cos(theta).
 //
 // Everything but the coefficients lives in one RGBA float texture, "tables", addressed
-// as a 1-D array of texels (row-major, width = the texture's width).  Layout, written by
-// usdbtf.gpu.tables:
+// as a 1-D array of texels (row-major from the image's top row, width = the texture's
+// width).  Layout, written by usdbtf.gpu.tables:
 //   texel 0        (width, V, L, G)          G = stored basis groups (4 vectors per texel)
 //   texel 1        (K, basisOffset, viewHemisphere, lightHemisphere)
 //   texel 2        (dequantOffset, matrixOffset, curve, gamma)   working-domain curve:
 //                  0 linear, 1 power (inverse d^gamma), 2 sRGB (usdbtf.compress.domain)
+//   texel 3        (directoryOffset, tileWidth, tileHeight, repeat)   1 = wrap, 0 = clamp
 //   basis          basisOffset + (view * L + light) * G + g: vectors 4g..4g+3 of that sample
 //   hemisphere h   h+0 (origin.x, origin.y, cell, grid)   h+1 (candidateTexels, triangles,
 //                  boundaryEdges, 0)   h+2 (gridOffset, triangleOffset, boundaryOffset, 0)
@@ -25,15 +26,17 @@
 //                  boundary e: (a.x, a.y, b.x, b.y) (i0, i1, 0, 0)
 //   dequant        pack p: dequantOffset + 2p = scale, + 2p + 1 = bias (stored = t * scale + bias)
 //   matrix         matrixOffset + r: row r of M
-// Coefficient pack p = 3 g + c holds colour channel c of vectors 4g..4g+3, sampled at st.
+//   directory      directoryOffset + p: (page, x0, y0, 0): pack p is the tile whose top-left
+//                  texel is column x0, image row y0 (from the top) of page `page`
+// Coefficient pack p = 3 g + c holds colour channel c of vectors 4g..4g+3; the packs are
+// tiles of at most BTF_MAX_PAGES RGBA textures ("pages"), filtered here (btfPack).
 //
 // Environments (Storm glslfx, MaterialX genglsl, the headless harness) include this text
-// unchanged and supply: the tables sampler, the packs sampled at st, the frame, the lights.
+// unchanged after the definitions usdbtf.gpu.shaders.core_source() puts in front of it
+// (BTF_PAGE_PARAMS / BTF_PAGE_ARGS: the page samplers as function parameters and arguments,
+// BTF_PAGE_FETCH: a texelFetch on page `page`), and supply: the tables sampler, the pages,
+// the texture coordinate, the frame, the lights.
 
-#ifndef BTF_MAX_GROUPS
-#define BTF_MAX_GROUPS 8
-#endif
-#define BTF_MAX_PACKS (3 * BTF_MAX_GROUPS)
 #define BTF_HALF_PI 1.5707963267948966
 // Query points this close outside a triangle (disc units) still count as inside:
 // float32 rounding on shared edges and on the outermost ring.
@@ -150,45 +153,6 @@ float btfLightFade(vec3 l, float thetaUsed)
     return cosQ < cosB ? max(cosQ, 0.0) / max(cosB, 1e-12) : 1.0;
 }
 
-// rows += scale * sum of the 9 weighted basis rows of (view triangle) x (light triangle).
-void btfAccumulate(sampler2D tables, ivec3 viewIndex, vec3 viewWeight, ivec3 lightIndex, vec3 lightWeight,
-                   float scale, inout vec4 rows[BTF_MAX_GROUPS])
-{
-    vec4 h0 = btfFetch(tables, 0);
-    int lights = int(h0.z);
-    int groups = int(h0.w);
-    int basis = int(btfFetch(tables, 1).y);
-    for (int a = 0; a < 3; ++a) {
-        for (int b = 0; b < 3; ++b) {
-            float w = viewWeight[a] * lightWeight[b] * scale;
-            if (w == 0.0) {
-                continue;
-            }
-            int base = basis + (viewIndex[a] * lights + lightIndex[b]) * groups;
-            for (int g = 0; g < BTF_MAX_GROUPS; ++g) {
-                if (g >= groups) {
-                    break;
-                }
-                rows[g] += w * btfFetch(tables, base + g);
-            }
-        }
-    }
-}
-
-// Adds one light (local direction l, irradiance scale) to rows.
-void btfAddLight(sampler2D tables, ivec3 viewIndex, vec3 viewWeight, vec3 l, float scale,
-                 inout vec4 rows[BTF_MAX_GROUPS])
-{
-    if (scale <= 0.0) {
-        return;
-    }
-    ivec3 lightIndex;
-    vec3 lightWeight;
-    float thetaUsed;
-    btfLookup(tables, int(btfFetch(tables, 1).w), l, lightIndex, lightWeight, thetaUsed);
-    btfAccumulate(tables, viewIndex, viewWeight, lightIndex, lightWeight * btfLightFade(l, thetaUsed), scale, rows);
-}
-
 // The view triangle of local view direction v.
 void btfViewLookup(sampler2D tables, vec3 v, out ivec3 viewIndex, out vec3 viewWeight)
 {
@@ -212,36 +176,51 @@ vec3 btfInverseCurve(sampler2D tables, vec3 d)
     return mix(d / 12.92, pow((d + 0.055) / 1.055, vec3(2.4)), vec3(greaterThan(d, vec3(0.04045))));
 }
 
-// Working-space colour of one light's blended rows dotted with the first k coefficients.
-vec3 btfResolve(sampler2D tables, vec4 rows[BTF_MAX_GROUPS], vec4 packs[BTF_MAX_PACKS], int k)
+// Texel (x, y) of page `page`, x from the left, y an image row from the top: renderers
+// upload an image bottom row first, so image row y is texture row height - 1 - y.
+vec4 btfPageTexel(BTF_PAGE_PARAMS, int page, int x, int y)
 {
-    vec4 h2 = btfFetch(tables, 2);
-    int dequant = int(h2.x);
-    int matrix = int(h2.y);
-    k = min(k, int(btfFetch(tables, 1).x));
-    vec3 stored = vec3(0.0);
-    for (int g = 0; g < BTF_MAX_GROUPS; ++g) {
-        if (4 * g >= k) {
-            break;
-        }
-        vec4 mask = vec4(greaterThan(ivec4(k), ivec4(4 * g) + ivec4(0, 1, 2, 3)));
-        vec4 r = rows[g] * mask;
-        for (int c = 0; c < 3; ++c) {
-            int p = 3 * g + c;
-            vec4 value = packs[p] * btfFetch(tables, dequant + 2 * p) + btfFetch(tables, dequant + 2 * p + 1);
-            stored[c] += dot(r, value);
-        }
-    }
-    return btfInverseCurve(tables, vec3(dot(btfFetch(tables, matrix).xyz, stored),
-                                        dot(btfFetch(tables, matrix + 1).xyz, stored),
-                                        dot(btfFetch(tables, matrix + 2).xyz, stored)));
+    BTF_PAGE_FETCH
+    return vec4(0.0);
 }
 
-// One light's working-space radiance: the 3 x 3 basis rows blended with weights summing to
-// 1 (in the working domain), resolved through the inverse curve, then times the light's
-// scale and its fade beyond the measured region -- radiance factors, so after the curve.
-vec3 btfShadeLight(sampler2D tables, ivec3 viewIndex, vec3 viewWeight, vec3 l, float scale,
-                   vec4 packs[BTF_MAX_PACKS], int k)
+// Coefficient pack p at texture coordinate st (t up, as the CPU renderer: texel centres at
+// (i + 0.5) / size), bilinear from the four nearest texels of its own tile, wrapped or
+// clamped inside the tile (texel 3.w), the CPU renderer's filter="bilinear".
+vec4 btfPack(sampler2D tables, BTF_PAGE_PARAMS, int p, vec2 st)
+{
+    vec4 h3 = btfFetch(tables, 3);
+    vec4 at = btfFetch(tables, int(h3.x) + p);
+    ivec2 size = ivec2(h3.yz);
+    vec2 f = vec2(st.x, 1.0 - st.y) * vec2(size) - 0.5;
+    vec2 base = floor(f);
+    vec2 w = f - base;
+    ivec2 i0 = ivec2(base);
+    ivec2 i1 = i0 + ivec2(1);
+    if (h3.w > 0.5) {
+        i0 = ((i0 % size) + size) % size;
+        i1 = ((i1 % size) + size) % size;
+    } else {
+        i0 = clamp(i0, ivec2(0), size - 1);
+        i1 = clamp(i1, ivec2(0), size - 1);
+    }
+    int page = int(at.x);
+    int x0 = int(at.y);
+    int y0 = int(at.z);
+    vec4 a = btfPageTexel(BTF_PAGE_ARGS, page, x0 + i0.x, y0 + i0.y);
+    vec4 b = btfPageTexel(BTF_PAGE_ARGS, page, x0 + i1.x, y0 + i0.y);
+    vec4 c = btfPageTexel(BTF_PAGE_ARGS, page, x0 + i0.x, y0 + i1.y);
+    vec4 d = btfPageTexel(BTF_PAGE_ARGS, page, x0 + i1.x, y0 + i1.y);
+    return mix(mix(a, b, w.x), mix(c, d, w.x), w.y);
+}
+
+// One light's working-space radiance at texture coordinate st from the first k basis
+// vectors: per group of 4 vectors, the 3 x 3 basis rows blended with weights summing to 1
+// (in the working domain) dotted with the group's 3 packs, then the colour matrix and the
+// inverse curve, then times the light's scale and its fade beyond the measured region --
+// radiance factors, so after the curve.  No arrays: any k.
+vec3 btfShadeLight(sampler2D tables, BTF_PAGE_PARAMS, ivec3 viewIndex, vec3 viewWeight, vec3 l, float scale,
+                   vec2 st, int k)
 {
     if (scale <= 0.0) {
         return vec3(0.0);
@@ -250,10 +229,36 @@ vec3 btfShadeLight(sampler2D tables, ivec3 viewIndex, vec3 viewWeight, vec3 l, f
     vec3 lightWeight;
     float thetaUsed;
     btfLookup(tables, int(btfFetch(tables, 1).w), l, lightIndex, lightWeight, thetaUsed);
-    vec4 rows[BTF_MAX_GROUPS];
-    for (int g = 0; g < BTF_MAX_GROUPS; ++g) {
-        rows[g] = vec4(0.0);
+    vec4 h0 = btfFetch(tables, 0);
+    vec4 h1 = btfFetch(tables, 1);
+    vec4 h2 = btfFetch(tables, 2);
+    int lights = int(h0.z);
+    int groups = int(h0.w);
+    int basis = int(h1.y);
+    int dequant = int(h2.x);
+    int matrix = int(h2.y);
+    k = min(k, int(h1.x));
+    vec3 stored = vec3(0.0);
+    for (int g = 0; 4 * g < k && g < groups; ++g) {
+        vec4 row = vec4(0.0);
+        for (int a = 0; a < 3; ++a) {
+            for (int b = 0; b < 3; ++b) {
+                float w = viewWeight[a] * lightWeight[b];
+                if (w != 0.0) {
+                    row += w * btfFetch(tables, basis + (viewIndex[a] * lights + lightIndex[b]) * groups + g);
+                }
+            }
+        }
+        row *= vec4(greaterThan(ivec4(k), ivec4(4 * g) + ivec4(0, 1, 2, 3)));
+        for (int c = 0; c < 3; ++c) {
+            int p = 3 * g + c;
+            vec4 value = btfPack(tables, BTF_PAGE_ARGS, p, st) * btfFetch(tables, dequant + 2 * p)
+                       + btfFetch(tables, dequant + 2 * p + 1);
+            stored[c] += dot(row, value);
+        }
     }
-    btfAccumulate(tables, viewIndex, viewWeight, lightIndex, lightWeight, 1.0, rows);
-    return (scale * btfLightFade(l, thetaUsed)) * btfResolve(tables, rows, packs, k);
+    vec3 working = btfInverseCurve(tables, vec3(dot(btfFetch(tables, matrix).xyz, stored),
+                                                dot(btfFetch(tables, matrix + 1).xyz, stored),
+                                                dot(btfFetch(tables, matrix + 2).xyz, stored)));
+    return (scale * btfLightFade(l, thetaUsed)) * working;
 }
