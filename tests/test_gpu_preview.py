@@ -175,8 +175,13 @@ def test_pages_hold_the_stored_codes_and_lods_load_only_their_pages(asset):
     flat = layout.tables.reshape(-1, 4)
     directory = flat[int(flat[3, 0]):int(flat[3, 0]) + pack_count(cbtf.k)].astype(int)
     assert (int(flat[3, 1]), int(flat[3, 2])) == (cbtf.width, cbtf.height)
-    pages = [cv2.imread(str(gpu / f"{shaders.page_name(i)}.png"), cv2.IMREAD_UNCHANGED)[:, :, [2, 1, 0, 3]]
-             for i in range(len(layout.pages))]             # read by an independent PNG decoder
+    pages = []
+    for i in range(len(layout.pages)):
+        png = gpu / f"{shaders.page_name(i)}.png"
+        if png.is_file():                                  # 8-bit codes: read by an independent PNG decoder
+            pages.append(cv2.imread(str(png), cv2.IMREAD_UNCHANGED)[:, :, [2, 1, 0, 3]])
+        else:                                              # 16-bit codes: float32 EXR of code / 65535
+            pages.append(np.rint(storm.read_rgba(gpu / f"{shaders.page_name(i)}.exr") * 65535.0))
     for p, (page, x0, y0, _) in enumerate(directory):
         g, c = divmod(p, 3)
         want = np.stack([cbtf.coefficients[4 * g + j].pixels[:, :, c] for j in range(4)], axis=-1)

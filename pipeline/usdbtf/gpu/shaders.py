@@ -113,7 +113,10 @@ surfaceShader(vec4 Peye, vec3 Neye, vec4 color, vec4 patchCoord)
 {pages}
     ivec3 viewIndex;
     vec3 viewWeight;
-    btfViewLookup(HdGetSampler_tables(), btfLocal(frame, normalize(-Peye.xyz)), viewIndex, viewWeight);
+    // Towards the eye: from the point to the eye, or the view axis under an orthographic
+    // camera (projection[3][3] == 1, as hdSt's volume shader tells them apart).
+    vec3 toEye = abs(GetProjectionMatrix()[3][3] - 1.0) < 1e-5 ? vec3(0.0, 0.0, 1.0) : normalize(-Peye.xyz);
+    btfViewLookup(HdGetSampler_tables(), btfLocal(frame, toEye), viewIndex, viewWeight);
 #if NUM_LIGHTS > 0
     for (int i = 0; i < NUM_LIGHTS; ++i) {{
         LightSource light = GetLightSource(i);

@@ -147,26 +147,32 @@ class HemisphereTable:
                           [grid_at, tri_at, bound_at, 0]])
 
 
-def _pack(cbtf: CompressedBTF, k: int) -> tuple[list, np.ndarray, np.ndarray]:
-    """Coefficient packs plus per-pack (scale, bias) (P, 4) for normalised GPU reads."""
+def _pack(cbtf: CompressedBTF, k: int, breaks: list[int]) -> tuple[list, np.ndarray, np.ndarray]:
+    """Coefficient packs plus per-pack (scale, bias) (P, 4) for normalised GPU reads.  The
+    packs between two ``breaks`` (pack indices: where pages must begin) share one storage
+    type, the widest of their codes (uint8 codes in a uint16 pack keep their values: the
+    scale follows the type), so storage types never split a level's pages."""
+    groups = -(-k // 4)
+    bounds = sorted({0, groups, *(b // 3 for b in breaks)})
     packs, scales, biases = [], [], []
-    for g in range(-(-k // 4)):
-        layers = cbtf.coefficients[4 * g:min(4 * g + 4, k)]
+    for start, end in zip(bounds, bounds[1:]):
+        layers = cbtf.coefficients[4 * start:min(4 * end, k)]
         dtypes = {np.dtype(st.pixels.dtype) for st in layers}
         dtype = np.dtype(np.float16) if np.dtype(np.float16) in dtypes else \
             np.dtype(np.uint16) if np.dtype(np.uint16) in dtypes else np.dtype(np.uint8)
         if not dtypes <= set(_MAX_CODE) or (np.dtype(np.float16) in dtypes and len(dtypes) > 1):
-            raise BTFError(f"coefficient textures {4 * g}..{4 * g + len(layers) - 1}: cannot pack storage types "
-                           f"{sorted(str(d) for d in dtypes)} into one texture")
-        for c in range(3):
-            pix = np.zeros((cbtf.height, cbtf.width, 4), dtype)
-            scale, bias = np.zeros(4), np.zeros(4)
-            for j, st in enumerate(layers):
-                pix[:, :, j] = st.pixels[:, :, c]
-                scale[j], bias[j] = float(st.scale[c]) * _MAX_CODE[dtype], float(st.bias[c])
-            packs.append(pix)
-            scales.append(scale)
-            biases.append(bias)
+            raise BTFError(f"coefficient textures {4 * start}..{4 * start + len(layers) - 1}: cannot pack storage "
+                           f"types {sorted(str(d) for d in dtypes)} into one texture")
+        for g in range(start, end):
+            for c in range(3):
+                pix = np.zeros((cbtf.height, cbtf.width, 4), dtype)
+                scale, bias = np.zeros(4), np.zeros(4)
+                for j, st in enumerate(cbtf.coefficients[4 * g:min(4 * g + 4, k)]):
+                    pix[:, :, j] = st.pixels[:, :, c]
+                    scale[j], bias[j] = float(st.scale[c]) * _MAX_CODE[dtype], float(st.bias[c])
+                packs.append(pix)
+                scales.append(scale)
+                biases.append(bias)
     return packs, np.asarray(scales), np.asarray(biases)
 
 
@@ -218,8 +224,9 @@ def gpu_layout(cbtf: CompressedBTF, k: int | None = None, lods=(), wrap: str = "
     lights = Triangulation.from_directions(cbtf.sampling.light[:L], "light directions")
     basis = np.zeros((V * L, groups * 4), np.float32)
     basis[:, :k] = cbtf.basis_values(k)
-    packs, scales, biases = _pack(cbtf, k)
-    pages, first_packs, directory = _pages(packs, page_breaks(k, lods))
+    breaks = page_breaks(k, lods)
+    packs, scales, biases = _pack(cbtf, k, breaks)
+    pages, first_packs, directory = _pages(packs, breaks)
     if len(pages) > MAX_PAGES:
         raise BTFError(f"k = {k} coefficient textures of {cbtf.width}x{cbtf.height} texels need {len(pages)} GPU "
                        f"pages; a material binds at most {MAX_PAGES} (use a smaller k or texture)")

@@ -14,9 +14,10 @@ next to the UsdPreviewSurface fallback::
     <stem>_textures/gpu/tables.exr   basis rows, hemisphere lookups, de-quantisation, the
                                      packs' directory (float32)
     <stem>_textures/gpu/pageNN.png   coefficient packs (4 layers per RGBA tile) laid out on at
-                                     most 15 atlas pages (PNG, or EXR for half-float codecs),
-                                     the stored codes exactly: with the tables, at most 16
-                                     samplers for any k (usdbtf.gpu.tables)
+                                     most 15 atlas pages: 8-bit codes as PNG, 16-bit codes as
+                                     float32 EXR (code / 65535), half floats as EXR; the stored
+                                     codes exactly: with the tables, at most 16 samplers for
+                                     any k (usdbtf.gpu.tables)
     <stem>_textures/gpu/usdbtf.mtlx  the same material as a MaterialX document (usdbtf_surface)
 
 Renderers pick by render context: Storm takes ``glslfx``, every other renderer the
@@ -93,7 +94,12 @@ def add_gpu_textures(cbtf: CompressedBTF, textures, lods=()) -> GpuTextures | No
                                                                  attributes={"compression": "zip"}), "float")
     pages = []
     for p, pixels in enumerate(layout.pages):
-        if pixels.dtype == np.float16:
+        if pixels.dtype != np.uint8:
+            # Half floats as they are; 16-bit codes as the float32 values a unorm16 read would
+            # return (code / 65535, exact to float32 rounding): Storm's image readers load a
+            # 16-bit PNG as 8 bits, which would drop the low byte of every code.
+            if pixels.dtype == np.uint16:
+                pixels = (pixels.astype(np.float64) / 65535.0).astype(np.float32)
             data = encode_image(pixels, "exr", color_space="data", attributes={"compression": "zip"})
             pages.append(textures.add(f"{GPU_DIR}/{shaders.page_name(p)}.exr", data, "float"))
         else:
