@@ -13,7 +13,7 @@ does not compile, a node Sdr does not know.
 :func:`swatch_scene` writes the stage the accuracy check renders: the asset referenced, an
 orthographic camera looking down the swatch's normal (one pixel per texel) and one
 ``UsdLux.DistantLight`` from a given direction whose irradiance is 1 -- the capture light
-(see :func:`distant_intensity`).
+(see :func:`usdbtf.usd.scene.distant_intensity`).
 """
 from __future__ import annotations
 
@@ -21,7 +21,6 @@ import math
 import os
 import re
 import subprocess
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,12 +30,10 @@ from ..errors import BTFError
 from ..plugin_folder import plugin_dir
 
 __all__ = ["STORM_ENVIRONMENTS", "StormFrames", "storm_pythons", "storm_environment", "render_frames",
-           "shader_problems", "distant_intensity", "swatch_scene", "DISTANT_ANGLE", "LIGHT_KINDS"]
+           "shader_problems", "swatch_scene", "LIGHT_KINDS"]
 
 #: USD version -> (the bpy wheel that carries it, its virtual environment under the project root).
 STORM_ENVIRONMENTS = {"25.02": ("bpy==4.5.15", ".venv-storm-4.5"), "25.08": ("bpy==5.0.1", ".venv-storm-5.0")}
-#: UsdLux.DistantLight's default angular diameter (degrees).
-DISTANT_ANGLE = 0.53
 FRAME_SCRIPT = Path(__file__).resolve().parent.parent / "gpu" / "storm_frame.py"
 #: Exit statuses of storm_frame.py that mean "this machine cannot", not "the asset is broken".
 _CANNOT = {3: "no imaging-capable pxr", 4: "no EGL OpenGL context"}
@@ -108,13 +105,6 @@ def render_frames(python: Path, frames: list[tuple[Path, Path]], camera: str, si
     return StormFrames(images, proc.stderr, shader_problems(proc.stderr))
 
 
-def distant_intensity(angle_deg: float = DISTANT_ANGLE) -> float:
-    """The ``inputs:intensity`` of a UsdLux.DistantLight of angular diameter ``angle_deg`` whose
-    irradiance is 1: Storm (and the UsdLux spec) take a distant light's intensity as radiance
-    over its disc, irradiance = intensity x solid angle 2 pi (1 - cos(angle / 2))."""
-    return 1.0 / (2.0 * math.pi * (1.0 - math.cos(math.radians(angle_deg) / 2.0)))
-
-
 #: Light kinds :func:`swatch_scene` places: UsdLux schemas Storm's lighting context takes.
 LIGHT_KINDS = ("distant", "sphere", "rect", "none")
 #: How far sphere and rect lights are put (scene units): far enough to be one direction.
@@ -134,17 +124,10 @@ def swatch_scene(asset: Path, out: Path, light_deg, *, lod: str | None = None, k
     from pxr import Gf, Usd, UsdGeom, UsdLux
 
     from .read import load_btf
+    from .scene import add_distant, new_scene, orient_towards
 
     cbtf = load_btf(asset, lod=lod)
-    stage = Usd.Stage.CreateNew(str(out))
-    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
-    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
-    world = UsdGeom.Xform.Define(stage, "/World")
-    stage.SetDefaultPrim(world.GetPrim())
-    ref = stage.DefinePrim("/World/Asset")
-    ref.GetReferences().AddReference(os.path.relpath(asset, out.parent))
-    if lod:
-        ref.GetVariantSets().GetVariantSet("lod").SetVariantSelection(lod)
+    stage, ref = new_scene(asset, out, lod)
     box = UsdGeom.BBoxCache(Usd.TimeCode.Default(), [UsdGeom.Tokens.default_, UsdGeom.Tokens.render])
     rng = box.ComputeWorldBound(ref).ComputeAlignedRange()
     if rng.IsEmpty():
@@ -161,19 +144,17 @@ def swatch_scene(asset: Path, out: Path, light_deg, *, lod: str | None = None, k
     if kind not in LIGHT_KINDS:
         raise BTFError(f"light kind {kind!r}: choose from {', '.join(LIGHT_KINDS)}")
     theta, phi = (math.radians(float(a)) for a in light_deg)
-    towards = Gf.Vec3d(math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta))
+    towards = (math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta))
     if kind == "distant":
-        light = UsdLux.DistantLight.Define(stage, "/World/Light")
-        light.CreateAngleAttr(DISTANT_ANGLE)
-        light.CreateIntensityAttr(distant_intensity(DISTANT_ANGLE) if intensity is None else intensity)
+        light = add_distant(stage, "/World/Light", towards)
+        if intensity is not None:
+            light.GetIntensityAttr().Set(intensity)
     elif kind in ("sphere", "rect"):
         light = (UsdLux.SphereLight.Define(stage, "/World/Light") if kind == "sphere"
                  else UsdLux.RectLight.Define(stage, "/World/Light"))
         light.AddTranslateOp().Set(Gf.Vec3d(*(centre[i] + FAR * towards[i] for i in range(3))))
         light.CreateIntensityAttr(1.0 if intensity is None else intensity)
-    if kind != "none":
-        # Distant and rect lights shine along their -Z: rotate +Z onto the direction towards the light.
-        light.AddOrientOp().Set(Gf.Quatf(Gf.Rotation(Gf.Vec3d(0, 0, 1), towards).GetQuat()))
+        orient_towards(light, towards)
     stage.GetRootLayer().customLayerData = {"usdbtf": {"output": "storm-check-scene"}}
     stage.Save()
     return "/World/Camera", (cbtf.width, cbtf.height)
