@@ -76,7 +76,8 @@ _STORM_SURFACE = """\
 // and normal, the interpolated primvars (object space), the prim's own transform and the
 // view matrix, but not the instancers' transforms (instancing.glslfx is a vertex-stage
 // library).  So: the packaged primvars:tangents / bitangents (object space -> eye space)
-// on a prim that is not instanced; else, and where the primvars are absent, the frame of
+// on a prim that is not instanced (Storm defines HD_INSTANCER_NUM_LEVELS 0 then); else, and
+// where the primvars are absent, the frame of
 // dP/dst from screen-space derivatives (SurfaceHelpers.TangentSpace, what
 // UsdPreviewSurface's normal maps use: the same axes, +s = image right, +t = image up,
 // constant over a triangle).
@@ -85,8 +86,8 @@ mat3 usdBtfFrame(vec3 Peye, vec3 Neye, vec2 st)
     mat3 tbn = ComputeTBNMatrix(Peye, Neye, st);
     vec3 tangent = tbn[0];
     vec3 bitangent = tbn[1];
-#if defined(HD_HAS_tangents) && defined(HD_HAS_bitangents) && defined(HD_HAS_transform) \
-    && !defined(HD_INSTANCER_NUM_LEVELS)
+#if defined(HD_HAS_tangents) && defined(HD_HAS_bitangents) && defined(HD_HAS_transform) && \\
+    (!defined(HD_INSTANCER_NUM_LEVELS) || HD_INSTANCER_NUM_LEVELS == 0)
     MAT4 toEye = GetWorldToViewMatrix() * HdGet_transform();
     vec3 t = vec3(toEye * vec4(HdGet_tangents().xyz, 0.0));
     vec3 b = vec3(toEye * vec4(HdGet_bitangents().xyz, 0.0));

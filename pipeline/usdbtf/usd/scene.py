@@ -121,7 +121,7 @@ def _camera(prim, width: int, meters: float) -> Camera:
 def read_scene(path, camera_path: str, width: int) -> tuple[Camera, list[Light]]:
     """(camera, lights) of the stage at ``path``: the UsdGeom.Camera ``camera_path`` (its
     frame ``width`` pixels wide, the height from its apertures, as usdrecord frames it) and
-    its UsdLux lights in the CPU renderer's units (module docstring)."""
+    its UsdLux lights in the CPU renderer's units (module docstring; possibly none)."""
     from pxr import Gf, Usd, UsdGeom, UsdLux
 
     from ..usdstage import open_usd
@@ -156,8 +156,6 @@ def read_scene(path, camera_path: str, width: int) -> tuple[Camera, list[Light]]
         else:
             log.info(f"{path}: {light.GetPath()} ({light.GetTypeName()}) adds nothing: a BTF measures "
                      "directional light only")
-    if not lights:
-        raise BTFError(f"{path}: no UsdLux distant, sphere, disk or rect light")
     return camera, lights
 
 
