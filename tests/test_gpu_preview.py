@@ -106,7 +106,7 @@ def test_storm_glslfx_compiles(textures, primvars, lights):
 @needs_glslang
 def test_glslang_rejects_a_broken_shader():
     """The control: the same check fails for a wrong call."""
-    text = shaders.storm_glslfx().replace("btfPack(tables, BTF_PAGE_ARGS, p, st)", "btfPack(tables, p, st)")
+    text = shaders.storm_glslfx().replace("btfPack(btfTables, BTF_PAGE_ARGS, p, st)", "btfPack(btfTables, p, st)")
     with pytest.raises(BTFError, match="does not compile"):
         glslang.compile_glsl(glslang.storm_translation_unit(text, textures=["tables"]), "frag", "broken")
 

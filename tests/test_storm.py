@@ -213,3 +213,36 @@ def test_storm_matches_usdbtf_render_of_the_same_stage_on_a_curved_mesh(version,
     # The control: the CPU frame at half the exposure fails the threshold.
     dark = psnr(srgb_encoded(image[..., :3]), srgb_encoded(cpu[..., :3] * 0.5), both)
     assert dark < 35.0
+
+
+def test_materialx_node_renders_through_storms_materialx_path(assets, tmp_path):
+    """USD 25.08 (usdMtlx, hdMtlx): the usdbtf BSDF node, authored as a MaterialX network in
+    USD (ND_surface <- ND_usdbtf_bsdf on the asset's tables and pages) and bound to the swatch,
+    is generated and compiled by Storm's MaterialX path and draws the measured sample."""
+    from pxr import Usd, UsdShade
+
+    from usdbtf.decompress import DecompressOptions, decompress
+    from usdbtf.usd.read import load_btf
+    from usdbtf.usd.storm import author_materialx_preview, layout_from_asset
+
+    asset = assets[64]
+    cbtf = load_btf(asset)
+    index, light = measured_samples(asset)[0]
+    scene = tmp_path / "mtlx.usda"
+    camera, size = hydra.swatch_scene(asset, scene, light)
+    layout, _, k = layout_from_asset(asset)
+    gpu = asset.parent / "satin_textures" / "gpu"
+    pages = [str(next(gpu.glob(f"page{p:02d}.*"))) for p in range(len(layout.pages))]
+    stage = Usd.Stage.Open(str(scene))
+    material = author_materialx_preview(stage, "/World/Looks/BtfMaterialX", str(gpu / "tables.exr"), pages, k)
+    swatch = stage.GetPrimAtPath("/World/Asset/geo/swatch")
+    UsdShade.MaterialBindingAPI.Apply(swatch).Bind(material, UsdShade.Tokens.strongerThanDescendants)
+    stage.Save()
+    result = render("25.08", [(scene, scene.with_suffix(".exr"))], camera, size)
+    assert result.problems == [], "\n".join(result.problems)
+    ref = decompress(cbtf, DecompressOptions(samples=str(index))).btf.read_samples([0])[0]
+    img = result.images[0][..., :3]
+    gain = float((img * ref).sum() / (img * img).sum())
+    steps = float(np.abs(srgb8(img * gain) - srgb8(ref)).mean())
+    print(f"USD 25.08 MaterialX path: gain {gain:.4f}, mean |d| {steps:.3f} 8-bit steps")
+    assert abs(gain - 1.0) < 0.05 and steps <= MAX_STEPS

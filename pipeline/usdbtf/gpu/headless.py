@@ -124,7 +124,7 @@ class HeadlessRenderer:
         self.empty = self.ctx.texture((1, 1), 4, np.zeros(4, np.float32).tobytes(), dtype="f4")
         self.program["uTables"].value = 0
         for p in range(MAX_PAGES):
-            self.program[shaders.page_name(p)].value = p + 1
+            self.program[shaders.page_sampler(p)].value = p + 1
 
     # -- drawing -------------------------------------------------------------------------
     def _draw(self, width: int, height: int, clip, p, n, t, b, st, eye, lights, k) -> np.ndarray:

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import os
 import sys
 from pathlib import Path
 
@@ -32,6 +33,11 @@ def _pxr_from_bpy() -> None:
     if spec is None or not spec.submodule_search_locations:
         return
     root = Path(list(spec.submodule_search_locations)[0])
+    # The wheel's usdMtlx looks for MaterialX's libraries where Blender's build machine had
+    # them; Blender points it at its own copy when it starts, and so does this (before pxr loads).
+    libraries = root / "lib" / "materialx" / "libraries"
+    if libraries.is_dir():
+        os.environ.setdefault("PXR_MTLX_STDLIB_SEARCH_PATHS", str(libraries))
     for site in sorted(root.glob("*/python/lib/python3*/site-packages")):
         if (site / "pxr").is_dir():
             sys.path.insert(0, str(site))

@@ -48,7 +48,7 @@ from ..gpu import shaders
 from ..gpu.tables import MAX_PAGES, gpu_layout
 
 __all__ = ["plugin_dir_resources", "GPU_DIR", "STORM_SURFACE", "GpuTextures", "add_gpu_textures",
-           "author_gpu_preview", "materialx_document", "storm_shader", "layout_from_asset", "read_rgba"]
+           "author_gpu_preview", "author_materialx_preview", "materialx_document", "storm_shader", "layout_from_asset", "read_rgba"]
 
 GPU_DIR = "gpu"
 STORM_SURFACE = "StormSurface"
@@ -180,6 +180,35 @@ def author_gpu_preview(stage, material, tables, pages: list, k: int, wrap: str,
     surface.CreateOutput("surface", Sdf.ValueTypeNames.Token)
     material.CreateSurfaceOutput(_RENDER_CONTEXT).ConnectToSource(surface.ConnectableAPI(), "surface")
     return STORM_SURFACE, list(first_packs), k
+
+
+def author_materialx_preview(stage, material_path: str, tables: str, pages: list[str], k: int):
+    """A Material at ``material_path`` whose ``outputs:mtlx:surface`` is the usdbtf node in
+    Hydra's MaterialX path: ``ND_surface`` <- ``ND_usdbtf_bsdf`` (the tables and pages as
+    asset inputs, ``texcoord`` from ``ND_texcoord_vector2``, ``basisCount`` = ``k``).  Storm
+    25.08 generates and compiles it (``tests/test_storm.py``); the ``usdbtf_surface`` node
+    graph cannot be used there: Storm's MaterialX code defines a macro named after each texture
+    input, which rewrites the graph function's parameters of the same name.  Returns the
+    UsdShade.Material."""
+    from pxr import Sdf, UsdShade
+
+    material = UsdShade.Material.Define(stage, material_path)
+    bsdf = UsdShade.Shader.Define(stage, f"{material_path}/BtfBsdf")
+    bsdf.CreateIdAttr(f"ND_{shaders.MTLX_BSDF}")
+    bsdf.CreateInput("tables", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(tables))
+    for p, page in enumerate(pages):
+        bsdf.CreateInput(shaders.page_name(p), Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(page))
+    bsdf.CreateInput("basisCount", Sdf.ValueTypeNames.Int).Set(int(k))
+    st = UsdShade.Shader.Define(stage, f"{material_path}/TexCoord")
+    st.CreateIdAttr("ND_texcoord_vector2")
+    bsdf.CreateInput("texcoord", Sdf.ValueTypeNames.Float2).ConnectToSource(
+        st.CreateOutput("out", Sdf.ValueTypeNames.Float2))
+    surface = UsdShade.Shader.Define(stage, f"{material_path}/Surface")
+    surface.CreateIdAttr("ND_surface")
+    surface.CreateInput("bsdf", Sdf.ValueTypeNames.Token).ConnectToSource(
+        bsdf.CreateOutput("out", Sdf.ValueTypeNames.Token))
+    material.CreateSurfaceOutput("mtlx").ConnectToSource(surface.CreateOutput("out", Sdf.ValueTypeNames.Token))
+    return material
 
 
 # ------------------------------------------------------------------ reading back

@@ -33,9 +33,11 @@
 //
 // Environments (Storm glslfx, MaterialX genglsl, the headless harness) include this text
 // unchanged after the definitions usdbtf.gpu.shaders.core_source() puts in front of it
-// (BTF_PAGE_PARAMS / BTF_PAGE_ARGS: the page samplers as function parameters and arguments,
-// BTF_PAGE_FETCH: a texelFetch on page `page`), and supply: the tables sampler, the pages,
-// the texture coordinate, the frame, the lights.
+// (BTF_PAGE_PARAMS / BTF_PAGE_ARGS: the page samplers btfPage00.. as function parameters and
+// arguments, BTF_PAGE_FETCH: a texelFetch on page `page`), and supply: the tables sampler, the
+// pages, the texture coordinate, the frame, the lights.  Parameter names carry a btf prefix:
+// Storm's MaterialX code defines a macro named after every texture input ("tables",
+// "page00"), which would rewrite a parameter of that name.
 
 #define BTF_HALF_PI 1.5707963267948966
 // Query points this close outside a triangle (disc units) still count as inside:
@@ -45,10 +47,10 @@
 // Texel ``address`` of the tables, counted along the image's rows from its top row (the
 // file's first row).  Renderers upload an image bottom row first (Storm's Hio, MaterialX's
 // loaders: texture coordinate t = 0 at the bottom), so image row r is texture row h - 1 - r.
-vec4 btfFetch(sampler2D tables, int address)
+vec4 btfFetch(sampler2D btfTables, int address)
 {
-    ivec2 size = textureSize(tables, 0);
-    return texelFetch(tables, ivec2(address % size.x, size.y - 1 - address / size.x), 0);
+    ivec2 size = textureSize(btfTables, 0);
+    return texelFetch(btfTables, ivec2(address % size.x, size.y - 1 - address / size.x), 0);
 }
 
 // Azimuthal equidistant projection of a tangent-frame direction (z = normal).
@@ -80,11 +82,11 @@ vec3 btfLocal(mat3 frame, vec3 d)
 
 // The measured samples enclosing local direction d on hemisphere table h: indices,
 // weights (summing to 1) and the polar angle (degrees) of the point interpolated.
-void btfLookup(sampler2D tables, int h, vec3 d, out ivec3 index, out vec3 weight, out float thetaUsed)
+void btfLookup(sampler2D btfTables, int h, vec3 d, out ivec3 index, out vec3 weight, out float thetaUsed)
 {
-    vec4 h0 = btfFetch(tables, h);
-    vec4 h1 = btfFetch(tables, h + 1);
-    vec4 h2 = btfFetch(tables, h + 2);
+    vec4 h0 = btfFetch(btfTables, h);
+    vec4 h1 = btfFetch(btfTables, h + 1);
+    vec4 h2 = btfFetch(btfTables, h + 2);
     vec2 q = btfProject(d);
     int grid = int(h0.w);
     int candidateTexels = int(h1.x);
@@ -97,22 +99,22 @@ void btfLookup(sampler2D tables, int h, vec3 d, out ivec3 index, out vec3 weight
         if (all(greaterThanEqual(cell, ivec2(0))) && all(lessThan(cell, ivec2(grid)))) {
             int base = int(h2.x) + (cell.y * grid + cell.x) * candidateTexels;
             for (int c = 0; c < candidateTexels; ++c) {
-                vec4 ids = btfFetch(tables, base + c);
+                vec4 ids = btfFetch(btfTables, base + c);
                 for (int j = 0; j < 4; ++j) {
                     int t = int(ids[j]);
                     if (t < 0) {
                         continue;
                     }
                     int at = int(h2.y) + 3 * t;
-                    vec4 a = btfFetch(tables, at);
-                    vec4 inv = btfFetch(tables, at + 1);
+                    vec4 a = btfFetch(btfTables, at);
+                    vec4 inv = btfFetch(btfTables, at + 1);
                     vec2 rel = q - a.xy;
                     vec2 uv = vec2(inv.x * rel.x + inv.y * rel.y, inv.z * rel.x + inv.w * rel.y);
                     vec3 bary = vec3(1.0 - uv.x - uv.y, uv.x, uv.y);
                     float score = min(bary.x, min(bary.y, bary.z));
                     if (score > best) {
                         best = score;
-                        index = ivec3(int(a.z), int(a.w), int(btfFetch(tables, at + 2).x));
+                        index = ivec3(int(a.z), int(a.w), int(btfFetch(btfTables, at + 2).x));
                         weight = bary;
                     }
                 }
@@ -128,8 +130,8 @@ void btfLookup(sampler2D tables, int h, vec3 d, out ivec3 index, out vec3 weight
     float nearest = 1e30;
     int edges = int(h1.z);
     for (int e = 0; e < edges; ++e) {
-        vec4 ab = btfFetch(tables, int(h2.z) + 2 * e);
-        vec4 ids = btfFetch(tables, int(h2.z) + 2 * e + 1);
+        vec4 ab = btfFetch(btfTables, int(h2.z) + 2 * e);
+        vec4 ids = btfFetch(btfTables, int(h2.z) + 2 * e + 1);
         vec2 along = ab.zw - ab.xy;
         float len2 = dot(along, along);
         float t = len2 > 0.0 ? clamp(dot(q - ab.xy, along) / len2, 0.0, 1.0) : 0.0;
@@ -154,17 +156,17 @@ float btfLightFade(vec3 l, float thetaUsed)
 }
 
 // The view triangle of local view direction v.
-void btfViewLookup(sampler2D tables, vec3 v, out ivec3 viewIndex, out vec3 viewWeight)
+void btfViewLookup(sampler2D btfTables, vec3 v, out ivec3 viewIndex, out vec3 viewWeight)
 {
     float unused;
-    btfLookup(tables, int(btfFetch(tables, 1).z), v, viewIndex, viewWeight, unused);
+    btfLookup(btfTables, int(btfFetch(btfTables, 1).z), v, viewIndex, viewWeight, unused);
 }
 
 // The working domain's inverse curve, per channel (texel 2: z = curve, w = gamma);
 // negative values clamp to 0 first, as usdbtf.compress.domain.Domain.inverse does.
-vec3 btfInverseCurve(sampler2D tables, vec3 d)
+vec3 btfInverseCurve(sampler2D btfTables, vec3 d)
 {
-    vec4 h2 = btfFetch(tables, 2);
+    vec4 h2 = btfFetch(btfTables, 2);
     int curve = int(h2.z);
     if (curve == 0) {
         return d;
@@ -187,10 +189,10 @@ vec4 btfPageTexel(BTF_PAGE_PARAMS, int page, int x, int y)
 // Coefficient pack p at texture coordinate st (t up, as the CPU renderer: texel centres at
 // (i + 0.5) / size), bilinear from the four nearest texels of its own tile, wrapped or
 // clamped inside the tile (texel 3.w), the CPU renderer's filter="bilinear".
-vec4 btfPack(sampler2D tables, BTF_PAGE_PARAMS, int p, vec2 st)
+vec4 btfPack(sampler2D btfTables, BTF_PAGE_PARAMS, int p, vec2 st)
 {
-    vec4 h3 = btfFetch(tables, 3);
-    vec4 at = btfFetch(tables, int(h3.x) + p);
+    vec4 h3 = btfFetch(btfTables, 3);
+    vec4 at = btfFetch(btfTables, int(h3.x) + p);
     ivec2 size = ivec2(h3.yz);
     vec2 f = vec2(st.x, 1.0 - st.y) * vec2(size) - 0.5;
     vec2 base = floor(f);
@@ -219,7 +221,7 @@ vec4 btfPack(sampler2D tables, BTF_PAGE_PARAMS, int p, vec2 st)
 // (in the working domain) dotted with the group's 3 packs, then the colour matrix and the
 // inverse curve, then times the light's scale and its fade beyond the measured region --
 // radiance factors, so after the curve.  No arrays: any k.
-vec3 btfShadeLight(sampler2D tables, BTF_PAGE_PARAMS, ivec3 viewIndex, vec3 viewWeight, vec3 l, float scale,
+vec3 btfShadeLight(sampler2D btfTables, BTF_PAGE_PARAMS, ivec3 viewIndex, vec3 viewWeight, vec3 l, float scale,
                    vec2 st, int k)
 {
     if (scale <= 0.0) {
@@ -228,10 +230,10 @@ vec3 btfShadeLight(sampler2D tables, BTF_PAGE_PARAMS, ivec3 viewIndex, vec3 view
     ivec3 lightIndex;
     vec3 lightWeight;
     float thetaUsed;
-    btfLookup(tables, int(btfFetch(tables, 1).w), l, lightIndex, lightWeight, thetaUsed);
-    vec4 h0 = btfFetch(tables, 0);
-    vec4 h1 = btfFetch(tables, 1);
-    vec4 h2 = btfFetch(tables, 2);
+    btfLookup(btfTables, int(btfFetch(btfTables, 1).w), l, lightIndex, lightWeight, thetaUsed);
+    vec4 h0 = btfFetch(btfTables, 0);
+    vec4 h1 = btfFetch(btfTables, 1);
+    vec4 h2 = btfFetch(btfTables, 2);
     int lights = int(h0.z);
     int groups = int(h0.w);
     int basis = int(h1.y);
@@ -245,20 +247,20 @@ vec3 btfShadeLight(sampler2D tables, BTF_PAGE_PARAMS, ivec3 viewIndex, vec3 view
             for (int b = 0; b < 3; ++b) {
                 float w = viewWeight[a] * lightWeight[b];
                 if (w != 0.0) {
-                    row += w * btfFetch(tables, basis + (viewIndex[a] * lights + lightIndex[b]) * groups + g);
+                    row += w * btfFetch(btfTables, basis + (viewIndex[a] * lights + lightIndex[b]) * groups + g);
                 }
             }
         }
         row *= vec4(greaterThan(ivec4(k), ivec4(4 * g) + ivec4(0, 1, 2, 3)));
         for (int c = 0; c < 3; ++c) {
             int p = 3 * g + c;
-            vec4 value = btfPack(tables, BTF_PAGE_ARGS, p, st) * btfFetch(tables, dequant + 2 * p)
-                       + btfFetch(tables, dequant + 2 * p + 1);
+            vec4 value = btfPack(btfTables, BTF_PAGE_ARGS, p, st) * btfFetch(btfTables, dequant + 2 * p)
+                       + btfFetch(btfTables, dequant + 2 * p + 1);
             stored[c] += dot(row, value);
         }
     }
-    vec3 working = btfInverseCurve(tables, vec3(dot(btfFetch(tables, matrix).xyz, stored),
-                                                dot(btfFetch(tables, matrix + 1).xyz, stored),
-                                                dot(btfFetch(tables, matrix + 2).xyz, stored)));
+    vec3 working = btfInverseCurve(btfTables, vec3(dot(btfFetch(btfTables, matrix).xyz, stored),
+                                                dot(btfFetch(btfTables, matrix + 1).xyz, stored),
+                                                dot(btfFetch(btfTables, matrix + 2).xyz, stored)));
     return (scale * btfLightFade(l, thetaUsed)) * working;
 }
