@@ -193,18 +193,21 @@ def test_pages_hold_the_stored_codes_and_lods_load_only_their_pages(asset):
         assert (got_k, len(layout.pages)) == (k, n_pages)
 
 
-@pytest.mark.parametrize("k, size, lods", [(300, 32, (150, 75, 37)), (300, 1024, (150, 75, 37)), (64, 2048, ())])
+@pytest.mark.parametrize("k, size, lods", [(300, 32, (150, 75, 37)), (300, 1024, (150, 75, 37)), (300, 2048, ()),
+                                           (64, 4096, (32, 16, 8))])
 def test_every_k_fits_sixteen_samplers(k, size, lods):
     """Issue 25: at most 1 + MAX_PAGES samplers for any k the packager writes (compress
-    allows k <= 300); a level of detail's pages are its own."""
-    from usdbtf.gpu.tables import MAX_PAGES, _pages, page_breaks
+    allows k <= 300) at texture sizes up to 2048 (4096 at k = 64); a level of detail's pages
+    are its own; no two packs share a tile, no page exceeds PAGE_SIZE."""
+    from usdbtf.gpu.tables import MAX_PAGES, PAGE_SIZE, page_breaks, page_plan
 
-    packs = [np.zeros((size, size, 4), np.uint8) for _ in range(pack_count(k))]
-    pages, first, directory = _pages(packs, page_breaks(k, lods))
-    assert 1 + len(pages) <= 16 and len(pages) <= MAX_PAGES
-    assert all(pack_count(n) in first for n in lods)
-    assert sum(p.shape[0] * p.shape[1] for p in pages) >= len(packs) * size * size
-    assert len({tuple(row[:3]) for row in directory}) == len(packs)       # no two packs share a tile
+    plan, directory = page_plan(pack_count(k), size, size, page_breaks(k, lods))
+    assert 1 + len(plan) <= 16 and len(plan) <= MAX_PAGES
+    assert all(pack_count(n) in [first for first, *_ in plan] for n in lods)
+    assert all(cols * size <= PAGE_SIZE and rows * size <= PAGE_SIZE and end - first <= cols * rows
+               for first, end, cols, rows in plan)
+    assert len({tuple(row[:3]) for row in directory}) == pack_count(k)
+    assert all(int(row[0]) == i for i, (first, end, *_) in enumerate(plan) for row in directory[first:end])
 
 
 def test_gpu_layout_refuses_a_sampling_without_every_light_at_every_view(asset):

@@ -30,7 +30,7 @@ from ..compress.format import CompressedBTF, cross_layout
 from ..errors import BTFError
 
 __all__ = ["MAX_PAGES", "PAGE_SIZE", "TABLE_WIDTH", "GpuLayout", "gpu_layout", "pack_count", "page_breaks",
-           "with_wrap", "HemisphereTable"]
+           "page_plan", "with_wrap", "HemisphereTable"]
 
 #: Atlas textures ("pages") of coefficient packs a material binds: with the tables, 16
 #: samplers, for every k.
@@ -176,32 +176,45 @@ def _pack(cbtf: CompressedBTF, k: int, breaks: list[int]) -> tuple[list, np.ndar
     return packs, np.asarray(scales), np.asarray(biases)
 
 
+def page_plan(n_packs: int, width: int, height: int, breaks: list[int], dtypes=None):
+    """Where ``n_packs`` tiles of ``width`` x ``height`` texels go: a new page at every break
+    (pack index), at every change of storage type (``dtypes``, one per pack) and when a page
+    is full (``PAGE_SIZE``); tiles fill a page row by row, the page as square as its tile
+    count allows.  Returns ([(first pack, end, columns, rows)] per page, directory (P, 4):
+    page, tile column x0, tile row y0 (image rows from the top), 0)."""
+    if height > PAGE_SIZE or width > PAGE_SIZE:
+        raise BTFError(f"coefficient textures of {width}x{height} texels do not fit a {PAGE_SIZE}-texel GPU page")
+    per_page = (PAGE_SIZE // width) * (PAGE_SIZE // height)
+    dtypes = [None] * n_packs if dtypes is None else list(dtypes)
+    plan, start = [], 0
+    directory = np.zeros((n_packs, 4), np.float32)
+    for p in range(1, n_packs + 1):
+        if p < n_packs and p not in breaks and dtypes[p] == dtypes[start] and p - start < per_page:
+            continue
+        n = p - start
+        cols = min(PAGE_SIZE // width, max(1, int(np.ceil(np.sqrt(n * height / width)))))
+        if -(-n // cols) * height > PAGE_SIZE:             # a tall page: fill whole rows first
+            cols = PAGE_SIZE // width
+        for j in range(n):
+            directory[start + j] = [len(plan), (j % cols) * width, (j // cols) * height, 0]
+        plan.append((start, p, cols, -(-n // cols)))
+        start = p
+    return plan, directory
+
+
 def _pages(packs: list, breaks: list[int]) -> tuple[list, list, np.ndarray]:
-    """Lay ``packs`` out on pages: a new page at every break, at every change of storage
-    type and when a page is full (``PAGE_SIZE``); tiles fill a page row by row, the page as
-    square as its tile count allows.  Returns (pages, first pack of each page, directory
-    (P, 4): page, tile column x0, tile row y0 (image rows from the top), 0)."""
+    """``packs`` laid out on pages as :func:`page_plan` says.  Returns (pages, first pack of
+    each page, directory)."""
     h, w = packs[0].shape[:2]
-    if h > PAGE_SIZE or w > PAGE_SIZE:
-        raise BTFError(f"coefficient textures of {w}x{h} texels do not fit a {PAGE_SIZE}-texel GPU page")
-    per_page = (PAGE_SIZE // w) * (PAGE_SIZE // h)
-    runs, start = [], 0
-    for p in range(1, len(packs) + 1):
-        if p == len(packs) or p in breaks or packs[p].dtype != packs[start].dtype or p - start == per_page:
-            runs.append((start, p))
-            start = p
-    pages, directory = [], np.zeros((len(packs), 4), np.float32)
-    for index, (first, end) in enumerate(runs):
-        n = end - first
-        cols = min(PAGE_SIZE // w, max(1, int(np.ceil(np.sqrt(n * h / w)))))
-        rows = -(-n // cols)
+    plan, directory = page_plan(len(packs), w, h, breaks, [p.dtype for p in packs])
+    pages = []
+    for first, end, cols, rows in plan:
         page = np.zeros((rows * h, cols * w, 4), packs[first].dtype)
-        for j, p in enumerate(range(first, end)):
-            y0, x0 = (j // cols) * h, (j % cols) * w
+        for p in range(first, end):
+            _, x0, y0, _ = (int(v) for v in directory[p])
             page[y0:y0 + h, x0:x0 + w] = packs[p]
-            directory[p] = [index, x0, y0, 0]
         pages.append(page)
-    return pages, [first for first, _ in runs], directory
+    return pages, [first for first, *_ in plan], directory
 
 
 def gpu_layout(cbtf: CompressedBTF, k: int | None = None, lods=(), wrap: str = "clamp") -> GpuLayout:
