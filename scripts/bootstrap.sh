@@ -78,3 +78,35 @@ if [ ! -e "$EXTRACTOR_STAMP" ] && ! "$PY" -c "import ubo2014_cy" >/dev/null 2>&1
         echo "bootstrap: could not build btf-extractor; the UBO2014 cross-reader tests will skip" >&2
     fi
 fi
+
+# Real Hydra Storm for tests/test_storm.py (issue 25): the USD inside PyPI's bpy wheels is a
+# full build with imaging (bpy 4.5.15: USD 25.02, which needs numpy < 2; bpy 5.0.1: USD
+# 25.08). Each goes into its own environment, away from usd-core's pxr; both are CPython 3.11
+# wheels of about 370 MB. Tried once per environment (delete .venv-storm-*/.usdbtf-tried to
+# retry); a failure never fails the bootstrap: those tests then skip and say why.
+storm_env() {  # storm_env FOLDER REQUIREMENTS...
+    local folder="$1" py311=""
+    shift
+    [ -e "$folder/.usdbtf-tried" ] && return 0
+    for candidate in python3.11 python3; do
+        if command -v "$candidate" >/dev/null 2>&1 \
+            && "$candidate" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' >/dev/null 2>&1; then
+            py311="$candidate"
+            break
+        fi
+    done
+    if [ -z "$py311" ]; then
+        echo "bootstrap: no CPython 3.11 for $folder ($*); the Storm tests will skip" >&2
+        return 0
+    fi
+    echo "bootstrap: installing $* into $folder (about 370 MB, first run only)" >&2
+    if "$py311" -m venv "$folder" >/dev/null 2>&1 \
+        && "$folder/bin/python" -m pip install --quiet --disable-pip-version-check "$@" moderngl >/dev/null 2>&1; then
+        echo "bootstrap: $folder ready" >&2
+    else
+        echo "bootstrap: could not install $* into $folder; the Storm tests will skip" >&2
+    fi
+    mkdir -p "$folder" && touch "$folder/.usdbtf-tried"
+}
+storm_env .venv-storm-4.5 "bpy==4.5.15" "numpy<2" || true
+storm_env .venv-storm-5.0 "bpy==5.0.1" numpy || true

@@ -93,8 +93,8 @@ def test_plugin_shaders_are_current_and_assembled_from_the_core():
 # ------------------------------------------------------------------ glslang
 @needs_glslang
 @pytest.mark.parametrize("textures, primvars, lights", [
-    (["tables"] + [shaders.pack_name(p) for p in range(24)], True, 2),   # everything connected
-    (["tables", "pack00", "pack01", "pack02"], False, 1),                  # k <= 4, derivative frame
+    (["tables"] + [shaders.page_name(p) for p in range(15)], True, 2),   # every page connected
+    (["tables", "page00"], False, 1),                                      # a small LOD, derivative frame
     ([], True, 0),                                                         # nothing bound, no lights
 ])
 def test_storm_glslfx_compiles(textures, primvars, lights):
@@ -106,7 +106,7 @@ def test_storm_glslfx_compiles(textures, primvars, lights):
 @needs_glslang
 def test_glslang_rejects_a_broken_shader():
     """The control: the same check fails for a wrong call."""
-    text = shaders.storm_glslfx().replace("btfResolve(tables, rows, packs, k)", "btfResolve(tables, rows, k)")
+    text = shaders.storm_glslfx().replace("btfPack(btfTables, BTF_PAGE_ARGS, p, st)", "btfPack(btfTables, p, st)")
     with pytest.raises(BTFError, match="does not compile"):
         glslang.compile_glsl(glslang.storm_translation_unit(text, textures=["tables"]), "frag", "broken")
 
@@ -125,7 +125,7 @@ def test_materialx_definitions_and_packaged_document_validate(asset, tmp_path):
     doc = asset.parent / "pebbles_textures" / storm.GPU_DIR / storm.MTLX_FILE
     mtlx.validate(doc)
     text = doc.read_text()
-    assert 'name="basisCount" type="integer" value="12"' in text and "pack08.png" in text
+    assert 'name="basisCount" type="integer" value="12"' in text and "page01.png" in text
     bad = tmp_path / "bad.mtlx"                     # the control: a wrong input type is caught
     bad.write_text(text.replace('type="integer" value="12"', 'type="float" value="12.5"'))
     with pytest.raises(BTFError, match="invalid MaterialX"):
@@ -163,22 +163,51 @@ def test_asset_has_storm_shader_beside_the_fallback_and_passes_every_validator(a
     with zipfile.ZipFile(asset.with_suffix(".usdz")) as z:
         names = z.namelist()
     assert not [n for n in names if n.endswith(".glslfx")]
-    assert "pebbles_textures/gpu/tables.exr" in names and "pebbles_textures/gpu/pack08.png" in names
+    assert "pebbles_textures/gpu/tables.exr" in names and "pebbles_textures/gpu/page01.png" in names
 
 
-def test_packs_hold_the_stored_codes_and_lods_load_only_their_packs(asset):
+def test_pages_hold_the_stored_codes_and_lods_load_only_their_pages(asset):
     import cv2
 
     cbtf = load_btf(asset)
     gpu = asset.parent / "pebbles_textures" / storm.GPU_DIR
-    for p in range(pack_count(cbtf.k)):                 # read by an independent PNG decoder
-        raw = cv2.imread(str(gpu / f"{shaders.pack_name(p)}.png"), cv2.IMREAD_UNCHANGED)[:, :, [2, 1, 0, 3]]
+    layout, _, _ = storm.layout_from_asset(asset)
+    flat = layout.tables.reshape(-1, 4)
+    directory = flat[int(flat[3, 0]):int(flat[3, 0]) + pack_count(cbtf.k)].astype(int)
+    assert (int(flat[3, 1]), int(flat[3, 2])) == (cbtf.width, cbtf.height)
+    pages = []
+    for i in range(len(layout.pages)):
+        png = gpu / f"{shaders.page_name(i)}.png"
+        if png.is_file():                                  # 8-bit codes: read by an independent PNG decoder
+            pages.append(cv2.imread(str(png), cv2.IMREAD_UNCHANGED)[:, :, [2, 1, 0, 3]])
+        else:                                              # 16-bit codes: float32 EXR of code / 65535
+            pages.append(np.rint(storm.read_rgba(gpu / f"{shaders.page_name(i)}.exr") * 65535.0))
+    for p, (page, x0, y0, _) in enumerate(directory):
         g, c = divmod(p, 3)
         want = np.stack([cbtf.coefficients[4 * g + j].pixels[:, :, c] for j in range(4)], axis=-1)
-        np.testing.assert_array_equal(raw, want)
-    for lod, k, packs in ((None, 12, 9), ("full", 12, 9), ("k6", 6, 6)):
+        np.testing.assert_array_equal(pages[page][y0:y0 + cbtf.height, x0:x0 + cbtf.width], want)
+    # k 12 with the level k6: a page ends at pack 6; each level loads only its pages.
+    assert layout.first_packs == [0, 6]
+    for lod, k, n_pages in ((None, 12, 2), ("full", 12, 2), ("k6", 6, 1)):
         layout, _, got_k = storm.layout_from_asset(asset, lod=lod)
-        assert (got_k, len(layout.packs)) == (k, packs)
+        assert (got_k, len(layout.pages)) == (k, n_pages)
+
+
+@pytest.mark.parametrize("k, size, lods", [(300, 32, (150, 75, 37)), (300, 1024, (150, 75, 37)), (300, 2048, ()),
+                                           (64, 4096, (32, 16, 8))])
+def test_every_k_fits_sixteen_samplers(k, size, lods):
+    """Issue 25: at most 1 + MAX_PAGES samplers for any k the packager writes (compress
+    allows k <= 300) at texture sizes up to 2048 (4096 at k = 64); a level of detail's pages
+    are its own; no two packs share a tile, no page exceeds PAGE_SIZE."""
+    from usdbtf.gpu.tables import MAX_PAGES, PAGE_SIZE, page_breaks, page_plan
+
+    plan, directory = page_plan(pack_count(k), size, size, page_breaks(k, lods))
+    assert 1 + len(plan) <= 16 and len(plan) <= MAX_PAGES
+    assert all(pack_count(n) in [first for first, *_ in plan] for n in lods)
+    assert all(cols * size <= PAGE_SIZE and rows * size <= PAGE_SIZE and end - first <= cols * rows
+               for first, end, cols, rows in plan)
+    assert len({tuple(row[:3]) for row in directory}) == pack_count(k)
+    assert all(int(row[0]) == i for i, (first, end, *_) in enumerate(plan) for row in directory[first:end])
 
 
 def test_gpu_layout_refuses_a_sampling_without_every_light_at_every_view(asset):
@@ -241,10 +270,10 @@ def test_lod_and_half_float_packs_match_cpu_renderer(egl, src, work):
     from usdbtf.gpu.headless import HeadlessRenderer, psnr
 
     exr = _package(src, work, "exr")
-    assert (exr.parent / "pebbles_textures" / storm.GPU_DIR / "pack00.exr").is_file()
+    assert (exr.parent / "pebbles_textures" / storm.GPU_DIR / "page00.exr").is_file()
     assert validation_issues(exr.with_suffix(".usdz")) == []
     layout, wrap, k = storm.layout_from_asset(exr, lod="k6")
-    assert layout.packs[0].dtype == np.float16 and k == 6
+    assert layout.pages[0].dtype == np.float16 and k == 6
     gl = HeadlessRenderer(layout, wrap=wrap, ctx=egl)
     cpu = _cpu(load_btf(exr, lod="k6"))
     value = psnr(gl.swatch((30, 60), (45, 10)), cpu.swatch((30, 60), (45, 10)))

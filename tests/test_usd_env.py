@@ -9,6 +9,7 @@ PXR_PLUGINPATH_NAME (what the issue's reporter had) the Storm shader is unknown 
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -17,11 +18,12 @@ import pytest
 
 from usdbtf.cli import main
 from usdbtf.numeric import pinned_environment
-from usdbtf.usd.plugin import environment, plugin_dir
+from usdbtf.usd.plugin import defaults, environment, plugin_dir
 
 HERE = Path(__file__).resolve().parent
 SCRIPT = HERE / "fresh_usd_validate.py"
-BARE_ENV = {"PATH": "/usr/bin:/bin"}
+# Nothing but PATH (and PYTHONPATH, so the usdbtf printing the lines is the tree under test).
+BARE_ENV = {"PATH": "/usr/bin:/bin", **{k: v for k, v in os.environ.items() if k == "PYTHONPATH"}}
 
 
 @pytest.fixture(scope="module")
@@ -58,17 +60,27 @@ def test_env_prints_the_plugin_and_sdr_discovery_variables():
     text = usdbtf_env_lines()
     lines = [line for line in text.splitlines() if not line.startswith("#")]
     numeric = [f"export {v}" for v in pinned_environment()]
-    assert [line.split("=", 1)[0] for line in lines] == [f"export {v}" for v in environment()] + numeric
+    assert [line.split("=", 1)[0] for line in lines] == \
+        [f"export {v}" for v in [*environment(), *defaults()]] + numeric
+    # Both discovery families: Ndr's names (USD 24.x-25.02) and Sdr's (25.05 on), same folders.
+    env = environment()
+    assert env["PXR_NDR_FS_PLUGIN_SEARCH_PATHS"] == env["PXR_SDR_FS_PLUGIN_SEARCH_PATHS"]
+    assert env["PXR_NDR_FS_PLUGIN_ALLOWED_EXTS"] == env["PXR_SDR_FS_PLUGIN_ALLOWED_EXTS"] == ["usda", "glslfx"]
     assert str(plugin_dir().resolve()) in text
     probe = subprocess.run(["bash", "-c", text + '\nprintf "%s\\n" "$PXR_PLUGINPATH_NAME" '
                             '"$PXR_SDR_FS_PLUGIN_SEARCH_PATHS" "$PXR_SDR_FS_PLUGIN_ALLOWED_EXTS"'],
                            capture_output=True, text=True, env={**BARE_ENV, "PXR_SDR_FS_PLUGIN_ALLOWED_EXTS": "oso"})
-    plugin, search, exts = probe.stdout.splitlines()
+    plugin, search, exts = probe.stdout.splitlines()[:3]
     assert plugin == str(plugin_dir().resolve())
     assert search.split(":")[0].endswith("usdBtf/resources/sdr") and Path(search.split(":")[0]).is_dir()
     assert exts == "usda:glslfx:oso"          # a studio's own setting is kept, behind usdbtf's
     as_json = subprocess.run([sys.executable, "-m", "usdbtf.cli", "env", "--json"], capture_output=True, text=True)
     assert json.loads(as_json.stdout)["variables"] == environment()
+    assert json.loads(as_json.stdout)["defaults"] == {"TF_ENV_SETTING_ALERTS_ENABLED": "0"}
+    # The banner switch is a default: a user's own choice survives the lines.
+    alerts = subprocess.run(["bash", "-c", text + '\nprintf "%s\\n" "$TF_ENV_SETTING_ALERTS_ENABLED"'],
+                            capture_output=True, text=True, env={**BARE_ENV, "TF_ENV_SETTING_ALERTS_ENABLED": "1"})
+    assert alerts.stdout.strip() == "1"
 
 
 def test_fresh_process_with_usdbtf_env_validates_every_output_and_lod_clean(outputs):

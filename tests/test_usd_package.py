@@ -200,7 +200,7 @@ def test_data_is_raw_and_color_is_declared(asset):
         shader = S.Shader(prim)
         if shader and shader.GetIdAttr().Get() == "UsdUVTexture":
             files[prim.GetName()] = (space(shader.GetInput("file").GetAttr()), shader.GetInput("sourceColorSpace").Get())
-    for name in ("StormTables", "StormPack00", "RoughnessTexture", "NormalTexture"):
+    for name in ("StormTables", "StormPage00", "RoughnessTexture", "NormalTexture"):
         assert files[name] == ("raw", "raw"), name
     for name in ("DiffuseTexture", "SpecularTexture"):
         assert files[name] == ("srgb_rec709_scene", "sRGB"), name
@@ -209,7 +209,7 @@ def test_data_is_raw_and_color_is_declared(asset):
     assert space(surface.GetInput("roughness").GetAttr()) == "raw"
     # The files say it too: OIIO reads the data PNGs as linear, not sRGB-encoded.
     tex = asset.with_name("pebbles_textures")
-    for rel in ("coeff/c000.png", "gpu/pack00.png", "fallback/normal.png"):
+    for rel in ("coeff/c000.png", "gpu/page00.png", "fallback/normal.png"):
         if (tex / rel).is_file():
             assert read_info_space(tex / rel) != "srgb_rec709_scene", rel
     assert read_info_space(tex / "fallback" / "diffuse.png") == "srgb_rec709_scene"
@@ -258,8 +258,8 @@ def Xform "World"
     assert low.GetVariantSets().GetVariantSet("lod").GetVariantNames() == ["full", "k6"]
     assert low.GetAttribute("btf:basisCount").Get() == 6 and full.GetAttribute("btf:basisCount").Get() == 12
     assert low.GetPrimAtPath("StormSurface").GetAttribute("inputs:basisCount").Get() == 6
-    assert not UsdShade.Shader(low.GetPrimAtPath("StormSurface")).GetInput("pack08").HasConnectedSource()
-    assert UsdShade.Shader(full.GetPrimAtPath("StormSurface")).GetInput("pack08").HasConnectedSource()
+    assert not UsdShade.Shader(low.GetPrimAtPath("StormSurface")).GetInput("page01").HasConnectedSource()
+    assert UsdShade.Shader(full.GetPrimAtPath("StormSurface")).GetInput("page01").HasConnectedSource()
     cb = load_btf(stage, material="/World/Looks/Pebbles")
     assert cb.k == 6 and np.array_equal(reconstruct(cb), reconstruct(read_compressed(compressed), k=6))
 
@@ -491,14 +491,14 @@ def test_texture_formats_are_tiled_mipmapped_and_bit_exact(compressed, tmp_path,
     assert np.array_equal(reconstruct(load_btf(out)), want)                     # level 0 holds the codes
     assert np.array_equal(reconstruct(load_btf(out, lod="k6")), reconstruct(read_compressed(compressed), k=6))
     assert validate_layer(out) == []
-    # The GPU packs hold what the sampler read from the PNG packs.
+    # The GPU pages hold what the sampler read from the PNG pages.
     from usdbtf.usd import storm
 
     layout, _, _ = storm.layout_from_asset(out)
     png_layout, _, _ = storm.layout_from_asset(pkg.write_package(pkg.package(compressed, pkg.PackageOptions(
         thumbnail=False)), tmp_path / "png" / "p.usda")["root"])
-    assert len(layout.packs) == len(png_layout.packs)
-    for got, ref in zip(layout.packs, png_layout.packs):
+    assert len(layout.pages) == len(png_layout.pages)
+    for got, ref in zip(layout.pages, png_layout.pages):
         if fmt == "exr" and np.issubdtype(ref.dtype, np.integer):          # normalised, as a sampler reads it
             got = np.rint(np.asarray(got, np.float64) * np.iinfo(ref.dtype).max)
         assert np.array_equal(np.asarray(got, np.float64), np.asarray(ref, np.float64))

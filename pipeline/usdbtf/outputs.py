@@ -24,7 +24,7 @@ kind                          what     recognised by
 ``usdbtf-asset``              file     a USD layer (or usdz) whose layer metadata holds
                                        ``customLayerData = {"usdbtf": {"output": ...}}``
 ``usdbtf-asset-textures``     folder   ``<stem>_textures`` beside a usdbtf asset; only packaged
-                                       texture names (BTF codes, GPU tables and packs, the
+                                       texture names (BTF codes, GPU tables and pages, the
                                        fallback's maps, the thumbnail; any texture format)
 ``usdbtf-render``             file     EXR/PNG with the image attribute ``usdbtf:output``
 ``usdbtf-board-image``        file     PNG with the image attribute ``usdbtf:output``

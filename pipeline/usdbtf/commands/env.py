@@ -17,13 +17,17 @@ def add_parser(sub) -> None:
 def shell_lines() -> list[str]:
     """POSIX sh lines: each variable gets usdbtf's entries in front of whatever it holds."""
     from .. import __version__
-    from ..usd.plugin import environment, list_separator
+    from ..usd.plugin import QUIET, defaults, environment, list_separator
 
-    lines = [f"# usdbtf {__version__}: the usdBtf USD plugin for any USD process (eval in a launcher)"]
+    lines = [f"# usdbtf {__version__}: the usdBtf USD plugin for any USD process (eval in a launcher);",
+             "# PXR_SDR_* for USD >= 25.05, PXR_NDR_* for USD 24.x-25.02 (each build reads its own)"]
     for variable, entries in environment().items():
         sep = list_separator(variable)
         value = shlex.quote(sep.join(entries))
         lines.append(f'export {variable}={value}"${{{variable}:+{sep}${variable}}}"')
+    lines.append(f"# {QUIET}=0: no 'is overridden' banner from USD for these settings (a value set before wins)")
+    for variable, value in defaults().items():
+        lines.append(f'export {variable}="${{{variable}:-{shlex.quote(value)}}}"')
     return lines + numeric_lines()
 
 
@@ -43,7 +47,7 @@ def numeric_lines() -> list[str]:
 
 
 def run(args) -> int:
-    from ..usd.plugin import environment, list_separator
+    from ..usd.plugin import defaults, environment, list_separator
 
     if args.json:
         from .. import jsontext
@@ -52,7 +56,7 @@ def run(args) -> int:
         from ..numeric import pinned_environment
 
         print(jsontext.dumps({"variables": env, "separators": {v: list_separator(v) for v in env},
-                              "numeric": pinned_environment()}))
+                              "defaults": defaults(), "numeric": pinned_environment()}))
     else:
         print("\n".join(shell_lines()))
     return 0

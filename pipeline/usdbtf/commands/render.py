@@ -25,7 +25,8 @@ def add_scene_arguments(p, *, mesh_help: str) -> None:
                    help="swatch: THETA,PHI degrees (distant light); mesh: point:X,Y,Z[:I] or dir:X,Y,Z[:I] "
                         "(repeatable; I = irradiance relative to the capture light, point lights I/d^2)")
     p.add_argument("--camera", metavar="SPEC", help='"eye=X,Y,Z target=X,Y,Z [up=X,Y,Z] [fov=DEG]" '
-                   "(default: frame the mesh)")
+                   "(default: frame the mesh), or the prim path of a UsdGeom.Camera of a USD scene (/World/Cam): "
+                   "then the scene's UsdLux lights light it too, and the frame's height follows the apertures")
     p.add_argument("--size", type=int_in(1, MAX_FRAME_SIDE), nargs=2, default=(512, 512), metavar=("W", "H"),
                    help=f"frame size, 1..{MAX_FRAME_SIDE} each (default 512 512)")
 
@@ -106,6 +107,32 @@ def check_frame_args(args) -> None:
     require_memory(float(W) * H * BYTES_PER_PIXEL, f"a {W}x{H} frame", error=UsageError)
 
 
+def scene_view(args):
+    """(camera, lights) for a mesh frame: ``--camera`` as a spec, or as the prim path of a
+    UsdGeom.Camera of the USD scene ``args.asset`` (whose UsdLux lights join ``--light``'s),
+    else the mesh framed automatically (camera None)."""
+    from ..camera import parse_camera
+    from ..errors import UsageError
+    from ..render import parse_light
+    from ..usdstage import USD_SUFFIXES
+
+    W, H = args.size
+    lights = [parsed(parse_light, spec) for spec in args.light]
+    camera = None
+    if args.camera and args.camera.startswith("/"):
+        if args.asset.suffix.lower() not in USD_SUFFIXES:
+            raise UsageError(f"--camera {args.camera}: a camera prim needs a USD scene as the input")
+        from ..usd.scene import read_scene
+
+        camera, scene_lights = read_scene(args.asset, args.camera, W)
+        lights += scene_lights
+    elif args.camera:
+        camera = parsed(lambda text: parse_camera(text, W, H), args.camera)
+    if not lights:
+        raise UsageError("give at least one --light point:X,Y,Z[:I] or dir:X,Y,Z[:I] (or a scene with UsdLux lights)")
+    return camera, lights
+
+
 def parsed(parse, text):
     """A --light/--camera value parsed, its errors as usage errors (exit status 2)."""
     from ..errors import BTFError, UsageError
@@ -121,9 +148,9 @@ def parsed(parse, text):
 def run(args) -> int:
     import time
 
-    from ..camera import auto_camera, parse_camera
+    from ..camera import auto_camera
     from ..errors import UsageError
-    from ..render import RenderOptions, parse_light, render, render_swatch, write_render
+    from ..render import RenderOptions, render, render_swatch, write_render
 
     t0 = time.perf_counter()
     W, H = args.size
@@ -143,10 +170,7 @@ def run(args) -> int:
     else:
         if args.view is not None:
             raise UsageError("--view is for --swatch; place the camera with --camera")
-        lights = [parsed(parse_light, spec) for spec in args.light]
-        if not lights:
-            raise UsageError("give at least one --light point:X,Y,Z[:I] or dir:X,Y,Z[:I]")
-        camera = parsed(lambda text: parse_camera(text, W, H), args.camera) if args.camera else None
+        camera, lights = scene_view(args)
         cbtf = open_asset(args.asset)
         mesh = scene_mesh(args.asset, args.mesh)
         if mesh is None:
@@ -155,7 +179,7 @@ def run(args) -> int:
             log.info(f"{mesh.source}: {note}")
         camera = camera or auto_camera(mesh.corner(), W, H)
         result = render(cbtf, mesh, camera, lights, opts)
-        what = f"{W}x{H} frame, {len(mesh.triangles)} triangles, {len(lights)} light(s)"
+        what = f"{camera.width}x{camera.height} frame, {len(mesh.triangles)} triangles, {len(lights)} light(s)"
     png = None if args.no_png else (args.png or args.output.with_suffix(".png"))
     info = write_render(result, args.output, png_path=png, display=args.display, view=args.display_view)
     log.info(f"rendered {what} in {time.perf_counter() - t0:.2f} s -> {info['exr']}"

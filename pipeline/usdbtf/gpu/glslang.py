@@ -93,8 +93,10 @@ vec4 ApplyColorOverrides(vec4 c) {{ return c; }}
 uniform mat4 worldToViewMatrix;
 uniform mat4 modelMatrix;
 mat4 GetWorldToViewMatrix() {{ return worldToViewMatrix; }}
+uniform mat4 projectionMatrix;
+mat4 GetProjectionMatrix() {{ return projectionMatrix; }}
 MAT4 HdGet_transform() {{ return modelMatrix; }}
-MAT4 ApplyInstanceTransform(MAT4 m) {{ return m; }}
+// No ApplyInstanceTransform: instancing.glslfx is a vertex-stage library in Storm.
 in vec2 stIn;
 in vec3 tangentIn;
 in vec3 bitangentIn;

@@ -22,7 +22,7 @@ import numpy as np
 from ..errors import BTFError
 from ..mesh import Mesh
 from . import shaders
-from .tables import MAX_PACKS, GpuLayout
+from .tables import MAX_PAGES, GpuLayout, with_wrap
 
 __all__ = ["HeadlessRenderer", "create_context", "psnr", "uv_sphere"]
 
@@ -97,34 +97,34 @@ def _clip_space(camera, points: np.ndarray) -> np.ndarray:
 class HeadlessRenderer:
     """Renders a :class:`~usdbtf.gpu.tables.GpuLayout` with the shared shader.
 
-    wrap : "clamp" or "repeat" for the coefficient packs (the CPU renderer's ``wrap``).
+    wrap : "clamp" or "repeat" for the coefficient packs (the CPU renderer's ``wrap``; the
+    shader filters them itself, as in Storm: the tables say which).
     """
 
     def __init__(self, layout: GpuLayout, wrap: str = "clamp", ctx=None):
-        if wrap not in ("clamp", "repeat"):
-            raise BTFError(f"wrap must be 'clamp' or 'repeat', got {wrap!r}")
         import moderngl
 
+        layout = with_wrap(layout, wrap)
         self.layout = layout
         self.ctx = ctx or create_context()
         self.program = self.ctx.program(vertex_shader=shaders.HARNESS_VERTEX,
                                         fragment_shader=shaders.harness_fragment())
         rows, width = layout.tables.shape[:2]
-        self.tables = self.ctx.texture((width, rows), 4, np.ascontiguousarray(layout.tables, np.float32).tobytes(),
-                                       dtype="f4")
+        # Bottom row first, as Storm and MaterialX upload every image (btfFetch counts from the top).
+        self.tables = self.ctx.texture((width, rows), 4,
+                                       np.ascontiguousarray(layout.tables[::-1], np.float32).tobytes(), dtype="f4")
         self.tables.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        self.packs = []
-        for pixels in layout.packs:
+        self.pages = []
+        for pixels in layout.pages:
             h, w = pixels.shape[:2]
-            # Image row 0 is the top (t = 1); GL's first row is t = 0.
+            # Image row 0 is the top (t = 1); GL's first row is t = 0 (as Storm uploads it).
             tex = self.ctx.texture((w, h), 4, np.ascontiguousarray(_normalised(pixels)[::-1]).tobytes(), dtype="f4")
-            tex.filter = (moderngl.LINEAR, moderngl.LINEAR)
-            tex.repeat_x = tex.repeat_y = wrap == "repeat"
-            self.packs.append(tex)
+            tex.filter = (moderngl.NEAREST, moderngl.NEAREST)       # read with texelFetch only
+            self.pages.append(tex)
         self.empty = self.ctx.texture((1, 1), 4, np.zeros(4, np.float32).tobytes(), dtype="f4")
         self.program["uTables"].value = 0
-        for p in range(MAX_PACKS):
-            self.program[f"u{shaders.pack_name(p)}"].value = p + 1
+        for p in range(MAX_PAGES):
+            self.program[shaders.page_sampler(p)].value = p + 1
 
     # -- drawing -------------------------------------------------------------------------
     def _draw(self, width: int, height: int, clip, p, n, t, b, st, eye, lights, k) -> np.ndarray:
@@ -141,8 +141,8 @@ class HeadlessRenderer:
             fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
             self.ctx.enable(self.ctx.DEPTH_TEST)
             self.tables.use(0)
-            for i in range(MAX_PACKS):
-                (self.packs[i] if i < len(self.packs) else self.empty).use(i + 1)
+            for i in range(MAX_PAGES):
+                (self.pages[i] if i < len(self.pages) else self.empty).use(i + 1)
             light_vec = np.zeros((shaders.HARNESS_MAX_LIGHTS, 4), np.float32)
             light_int = np.zeros(shaders.HARNESS_MAX_LIGHTS, np.float32)
             for i, (vec, w, intensity) in enumerate(lights):
@@ -165,7 +165,7 @@ class HeadlessRenderer:
         renderer's :meth:`~usdbtf.render.core.Renderer.swatch`)."""
         from ..render.hemisphere import directions_to_vectors
 
-        h, w = self.layout.packs[0].shape[:2]
+        h, w = (int(x) for x in self.layout.tables.reshape(-1, 4)[3, 2:0:-1])     # tile height, width
         corners = np.array([[-1, -1], [1, -1], [1, 1], [-1, -1], [1, 1], [-1, 1]], np.float64)
         n = len(corners)
         clip = np.c_[corners, np.zeros(n), np.ones(n)]
@@ -189,6 +189,6 @@ class HeadlessRenderer:
                           [*camera.eye, 1.0], lights_gl, k)
 
     def release(self) -> None:
-        for tex in [self.tables, self.empty, *self.packs]:
+        for tex in [self.tables, self.empty, *self.pages]:
             tex.release()
         self.program.release()

@@ -73,8 +73,9 @@ def generate_glsl(path, material: str | None = None) -> tuple[str, str]:
     generator = mx_glsl.GlslShaderGenerator.create()
     context = mx_gen.GenContext(generator)
     default = mx.getDefaultDataSearchPath()
-    # Includes in the usdbtf implementation are relative to MaterialX's libraries folder,
-    # which is how Hydra (PXR_MATERIALX_STDLIB_DIR) registers it.
+    # The usdbtf implementation includes "libraries/pbrlib/...": Storm 25.08 resolves an
+    # include against the folder that holds MaterialX's "libraries" (measured: the path
+    # relative to the libraries folder itself is not found there).
     for folder in (default, mx.FileSearchPath(os.path.join(os.path.dirname(mx.__file__), "libraries")),
                    mx.FileSearchPath(str(materialx_dir()))):
         context.registerSourceCodeSearchPath(folder)

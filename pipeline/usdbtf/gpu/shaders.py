@@ -24,9 +24,9 @@ import sys
 from pathlib import Path
 
 from ..plugin_folder import SHADER_ID
-from .tables import MAX_GROUPS, MAX_PACKS
+from .tables import MAX_PAGES
 
-__all__ = ["SHADER_ID", "INPUTS", "PRIMVARS", "core_source", "pack_name", "storm_glslfx", "sdr_definition_usda",
+__all__ = ["SHADER_ID", "INPUTS", "PRIMVARS", "core_source", "page_name", "page_sampler", "storm_glslfx", "sdr_definition_usda",
            "materialx_impl", "materialx_defs", "harness_fragment", "HARNESS_VERTEX", "plugin_files",
            "write_plugin_files", "stale_plugin_files"]
 
@@ -37,43 +37,63 @@ GLSL_DIR = Path(__file__).resolve().parent / "glsl"
 PRIMVARS = ("st", "tangents", "bitangents")
 
 
-def pack_name(p: int) -> str:
-    """Shader input of coefficient pack ``p`` (3 g + c)."""
-    return f"pack{p:02d}"
+def page_name(page: int) -> str:
+    """Shader input of coefficient page ``page`` (an atlas of packs, usdbtf.gpu.tables)."""
+    return f"page{page:02d}"
 
 
 # (name, Sdf type, glslfx default, doc) of the Storm shader's inputs, in order.
 INPUTS = ([("basisCount", "int", 0, "Basis vectors to use; 0 = all the tables hold (a LOD uses fewer)."),
-           ("exposure", "float", 1.0, "Multiplier on the result (Storm light units differ from the capture's)."),
-           ("tables", "float", 0.0, "The tables texture (basis, hemisphere lookups, de-quantisation); "
-                                    "connect a UsdUVTexture, read with texelFetch.")]
-          + [(pack_name(p), "float", 0.0, f"Coefficient pack {p}: channel {'RGB'[p % 3]} of basis vectors "
-                                          f"{4 * (p // 3)}..{4 * (p // 3) + 3} (all 4 texture channels are read).")
-             for p in range(MAX_PACKS)])
+           ("exposure", "float", 1.0, "Multiplier on the result (1: a light of irradiance 1 is the capture light)."),
+           ("tables", "float", 0.0, "The tables texture (basis, hemisphere lookups, de-quantisation, the packs' "
+                                    "directory); connect a UsdUVTexture, read with texelFetch.")]
+          + [(page_name(p), "float", 0.0, f"Coefficient page {p}: tiles of coefficient packs (the tables' "
+                                          "directory says which), read with texelFetch (all 4 channels).")
+             for p in range(MAX_PAGES)])
+
+
+def page_sampler(page: int) -> str:
+    """The GLSL name of page ``page``'s sampler in the core's functions (and the harness)."""
+    return f"btfPage{page:02d}"
 
 
 def core_source() -> str:
-    """The shared GLSL (functions only, no #version), with the group limit fixed."""
-    text = (GLSL_DIR / "btf_core.glsl").read_text()
-    return f"#define BTF_MAX_GROUPS {MAX_GROUPS}\n" + text
+    """The shared GLSL (functions only, no #version) after the page macros it uses: the
+    samplers ``btfPage00`` .. as parameters and arguments, and the fetch of texel (x, y)
+    (image row y from the top) of page ``page``."""
+    names = [page_sampler(p) for p in range(MAX_PAGES)]
+    fetch = " ".join(f"if (page == {p}) {{ return texelFetch({n}, ivec2(x, textureSize({n}, 0).y - 1 - y), 0); }}"
+                     for p, n in enumerate(names))
+    return (f"#define BTF_MAX_PAGES {MAX_PAGES}\n"
+            f"#define BTF_PAGE_PARAMS {', '.join(f'sampler2D {n}' for n in names)}\n"
+            f"#define BTF_PAGE_ARGS {', '.join(names)}\n"
+            f"#define BTF_PAGE_FETCH {fetch}\n"
+            + (GLSL_DIR / "btf_core.glsl").read_text())
 
 
-def _lines(template: str, count: int = MAX_PACKS) -> str:
-    return "".join(template.format(p=p, name=pack_name(p)) for p in range(count))
+def _lines(template: str, count: int = MAX_PAGES) -> str:
+    return "".join(template.format(p=p, name=page_name(p)) for p in range(count))
 
 
 # ------------------------------------------------------------------ Storm
 _STORM_SURFACE = """\
-// Storm's view of the tangent frame: the packaged primvars:tangents / bitangents when the
-// mesh has them (object space -> eye space), else the frame of dP/dst from screen-space
-// derivatives (the same axes: +s = image right, +t = image up).
+// Storm's view of the tangent frame.  Storm's fragment stage has the eye-space position
+// and normal, the interpolated primvars (object space), the prim's own transform and the
+// view matrix, but not the instancers' transforms (instancing.glslfx is a vertex-stage
+// library).  So: the packaged primvars:tangents / bitangents (object space -> eye space)
+// on a prim that is not instanced (Storm defines HD_INSTANCER_NUM_LEVELS 0 then); else, and
+// where the primvars are absent, the frame of
+// dP/dst from screen-space derivatives (SurfaceHelpers.TangentSpace, what
+// UsdPreviewSurface's normal maps use: the same axes, +s = image right, +t = image up,
+// constant over a triangle).
 mat3 usdBtfFrame(vec3 Peye, vec3 Neye, vec2 st)
 {{
     mat3 tbn = ComputeTBNMatrix(Peye, Neye, st);
     vec3 tangent = tbn[0];
     vec3 bitangent = tbn[1];
-#if defined(HD_HAS_tangents) && defined(HD_HAS_bitangents) && defined(HD_HAS_transform)
-    MAT4 toEye = GetWorldToViewMatrix() * ApplyInstanceTransform(HdGet_transform());
+#if defined(HD_HAS_tangents) && defined(HD_HAS_bitangents) && defined(HD_HAS_transform) && \\
+    (!defined(HD_INSTANCER_NUM_LEVELS) || HD_INSTANCER_NUM_LEVELS == 0)
+    MAT4 toEye = GetWorldToViewMatrix() * HdGet_transform();
     vec3 t = vec3(toEye * vec4(HdGet_tangents().xyz, 0.0));
     vec3 b = vec3(toEye * vec4(HdGet_bitangents().xyz, 0.0));
     if (dot(t, t) > 0.0 && dot(b, b) > 0.0) {{    // a fallback (absent primvar) reads zero
@@ -93,12 +113,16 @@ surfaceShader(vec4 Peye, vec3 Neye, vec4 color, vec4 patchCoord)
 #if defined(HD_HAS_COORD_tables) && defined(HD_HAS_st)
     vec2 st = HdGet_st().xy;
     mat3 frame = usdBtfFrame(Peye.xyz, Neye, st);
-    int k = HdGet_basisCount() > 0 ? HdGet_basisCount() : {all_k};
-    vec4 packs[BTF_MAX_PACKS];
-{packs}
+    int k = HdGet_basisCount() > 0 ? HdGet_basisCount() : 1 << 20;     // 0: all the tables hold
+    // Pages without a texture (a level of detail's blocked ones) read the tables: never
+    // addressed, as the directory names only the pages the first k vectors use.
+{pages}
     ivec3 viewIndex;
     vec3 viewWeight;
-    btfViewLookup(HdGetSampler_tables(), btfLocal(frame, normalize(-Peye.xyz)), viewIndex, viewWeight);
+    // Towards the eye: from the point to the eye, or the view axis under an orthographic
+    // camera (projection[3][3] == 1, as hdSt's volume shader tells them apart).
+    vec3 toEye = abs(GetProjectionMatrix()[3][3] - 1.0) < 1e-5 ? vec3(0.0, 0.0, 1.0) : normalize(-Peye.xyz);
+    btfViewLookup(HdGetSampler_tables(), btfLocal(frame, toEye), viewIndex, viewWeight);
 #if NUM_LIGHTS > 0
     for (int i = 0; i < NUM_LIGHTS; ++i) {{
         LightSource light = GetLightSource(i);
@@ -112,8 +136,8 @@ surfaceShader(vec4 Peye, vec3 Neye, vec4 color, vec4 patchCoord)
         intensity *= light.hasShadow ? shadowing(/*lightIndex=*/i, Peye) : 1.0;
 #endif
         // One light at a time: a light's colour multiplies its whole contribution.
-        c += light.diffuse.rgb * btfShadeLight(HdGetSampler_tables(), viewIndex, viewWeight, btfLocal(frame, l),
-                                               intensity, packs, k);
+        c += light.diffuse.rgb * btfShadeLight(HdGetSampler_tables(), BTF_PAGE_ARGS, viewIndex, viewWeight,
+                                               btfLocal(frame, l), intensity, st, k);
     }}
 #endif
     c *= HdGet_exposure();
@@ -132,9 +156,9 @@ def storm_glslfx() -> str:
         "techniques": {"default": {"surfaceShader": {"source": ["SurfaceHelpers.TangentSpace", "UsdBtf.Core",
                                                                 "UsdBtf.Surface"]}}},
     }
-    packs = _lines("    packs[{p}] = vec4(0.0);\n#ifdef HD_HAS_COORD_{name}\n"
-                   "    packs[{p}] = texture(HdGetSampler_{name}(), st);\n#endif\n").rstrip("\n")
-    surface = _STORM_SURFACE.format(packs=packs, all_k=4 * MAX_GROUPS)
+    pages = _lines("#ifdef HD_HAS_COORD_{name}\n    #define btfPage{p:02d} HdGetSampler_{name}()\n#else\n"
+                   "    #define btfPage{p:02d} HdGetSampler_tables()\n#endif\n").rstrip("\n")
+    surface = _STORM_SURFACE.format(pages=pages)
     return ("-- glslfx version 0.1\n\n"
             "// usdbtf: measured BTF (Koudelka et al. 2003) preview for Hydra Storm.\n"
             "// GENERATED by usdbtf.gpu.shaders from pipeline/usdbtf/gpu/glsl/btf_core.glsl; do not edit.\n\n"
@@ -187,8 +211,8 @@ _MTLX_FUNCTION = """\
 // closureData.L / .V (world space, towards the light / the eye); the response is the
 // measured BTF value, which already holds the light's foreshortening.  No environment
 // term: the measurement has no such thing.
-void mx_{bsdf}(ClosureData closureData, sampler2D tables, {pack_args}, int basisCount, float weight,
-               vec3 normal, vec3 tangent, vec3 bitangent, inout BSDF bsdf)
+void mx_{bsdf}(ClosureData closureData, sampler2D btfTables, BTF_PAGE_PARAMS, vec2 texcoord, int basisCount,
+               float weight, vec3 normal, vec3 tangent, vec3 bitangent, inout BSDF bsdf)
 {{
     bsdf.throughput = vec3(0.0);
     bsdf.response = vec3(0.0);
@@ -196,64 +220,60 @@ void mx_{bsdf}(ClosureData closureData, sampler2D tables, {pack_args}, int basis
         return;
     }}
     mat3 frame = btfFrame(normal, tangent, bitangent);
-    vec4 packs[BTF_MAX_PACKS] = vec4[BTF_MAX_PACKS]({pack_list});
     ivec3 viewIndex;
     vec3 viewWeight;
-    btfViewLookup(tables, btfLocal(frame, closureData.V), viewIndex, viewWeight);
-    int k = basisCount > 0 ? basisCount : {all_k};
+    btfViewLookup(btfTables, btfLocal(frame, closureData.V), viewIndex, viewWeight);
+    int k = basisCount > 0 ? basisCount : 1 << 20;
     bsdf.response = weight * closureData.occlusion
-                  * btfShadeLight(tables, viewIndex, viewWeight, btfLocal(frame, closureData.L), 1.0, packs, k);
+                  * btfShadeLight(btfTables, BTF_PAGE_ARGS, viewIndex, viewWeight, btfLocal(frame, closureData.L), 1.0,
+                                  texcoord, k);
 }}
 """
 
 
 def materialx_impl() -> str:
     """genglsl source of ND_usdbtf_bsdf (the shared core plus the closure wrapper)."""
-    names = [pack_name(p) for p in range(MAX_PACKS)]
     return ("// GENERATED by usdbtf.gpu.shaders from pipeline/usdbtf/gpu/glsl/btf_core.glsl; do not edit.\n"
-            '#include "pbrlib/genglsl/lib/mx_closure_type.glsl"\n\n' + core_source() + "\n"
-            + _MTLX_FUNCTION.format(bsdf=MTLX_BSDF, pack_args=", ".join(f"vec4 {n}" for n in names),
-                                    pack_list=", ".join(names), all_k=4 * MAX_GROUPS))
+            '#include "libraries/pbrlib/genglsl/lib/mx_closure_type.glsl"\n\n' + core_source() + "\n"
+            + _MTLX_FUNCTION.format(bsdf=MTLX_BSDF))
 
 
 def materialx_defs() -> str:
     """The nodedefs, the genglsl implementation element and the usdbtf_surface graph."""
-    packs = [pack_name(p) for p in range(MAX_PACKS)]
+    pages = [page_name(p) for p in range(MAX_PAGES)]
     doc = "Measured BTF (Koudelka et al. 2003), equation 2 per light; textures written by usdbtf package."
+    files = ['    <input name="tables" type="filename" uniform="true" />']
+    files += [f'    <input name="{n}" type="filename" uniform="true" />' for n in pages]
     out = ['<?xml version="1.0"?>',
            "<!-- GENERATED by usdbtf.gpu.shaders; do not edit. Put this folder on PXR_MTLX_PLUGIN_SEARCH_PATHS"
            " (Hydra) or a MaterialX library search path. -->",
            '<materialx version="1.39">',
-           f'  <nodedef name="ND_{MTLX_BSDF}" node="{MTLX_BSDF}" nodegroup="pbr" doc="{doc}">',
-           '    <input name="tables" type="filename" uniform="true" />']
-    out += [f'    <input name="{n}" type="vector4" value="0, 0, 0, 0" />' for n in packs]
-    out += ['    <input name="basisCount" type="integer" value="0" uniform="true" />',
-            '    <input name="weight" type="float" value="1.0" />',
-            '    <input name="normal" type="vector3" defaultgeomprop="Nworld" />',
-            '    <input name="tangent" type="vector3" defaultgeomprop="Tworld" />',
-            '    <input name="bitangent" type="vector3" defaultgeomprop="Bworld" />',
-            '    <output name="out" type="BSDF" />',
-            "  </nodedef>",
-            f'  <implementation name="IM_{MTLX_BSDF}_genglsl" nodedef="ND_{MTLX_BSDF}" '
-            f'file="genglsl/mx_{MTLX_BSDF}.glsl" function="mx_{MTLX_BSDF}" target="genglsl" />',
-            f'  <nodedef name="ND_{MTLX_SURFACE}" node="{MTLX_SURFACE}" nodegroup="pbr" '
-            f'doc="{doc} The packs are sampled at the texcoord, the tables read texel by texel.">',
-            '    <input name="tables" type="filename" uniform="true" />']
-    out += [f'    <input name="{n}" type="filename" uniform="true" />' for n in packs]
-    out += ['    <input name="basisCount" type="integer" value="0" uniform="true" />',
-            '    <input name="texcoord" type="vector2" defaultgeomprop="UV0" />',
-            '    <output name="out" type="surfaceshader" />',
-            "  </nodedef>",
-            f'  <nodegraph name="NG_{MTLX_SURFACE}" nodedef="ND_{MTLX_SURFACE}">']
-    for n in packs:
-        out += [f'    <image name="{n}" type="vector4">',
-                f'      <input name="file" type="filename" interfacename="{n}" />',
-                '      <input name="texcoord" type="vector2" interfacename="texcoord" />',
-                "    </image>"]
-    out += [f'    <{MTLX_BSDF} name="btf" type="BSDF">',
-            '      <input name="tables" type="filename" interfacename="tables" />']
-    out += [f'      <input name="{n}" type="vector4" nodename="{n}" />' for n in packs]
-    out += ['      <input name="basisCount" type="integer" interfacename="basisCount" />',
+           # nodegroup texture2d: Storm's MaterialX path binds the filename inputs of texture
+           # nodes only (a pbr node's files would reach the shader as unbound HdGetSampler_*).
+           f'  <nodedef name="ND_{MTLX_BSDF}" node="{MTLX_BSDF}" nodegroup="texture2d" doc="{doc} The tables and '
+           'the coefficient pages are read texel by texel (the shader filters the packs itself).">',
+           *files,
+           '    <input name="texcoord" type="vector2" defaultgeomprop="UV0" />',
+           '    <input name="basisCount" type="integer" value="0" uniform="true" />',
+           '    <input name="weight" type="float" value="1.0" />',
+           '    <input name="normal" type="vector3" defaultgeomprop="Nworld" />',
+           '    <input name="tangent" type="vector3" defaultgeomprop="Tworld" />',
+           '    <input name="bitangent" type="vector3" defaultgeomprop="Bworld" />',
+           '    <output name="out" type="BSDF" />',
+           "  </nodedef>",
+           f'  <implementation name="IM_{MTLX_BSDF}_genglsl" nodedef="ND_{MTLX_BSDF}" '
+           f'file="genglsl/mx_{MTLX_BSDF}.glsl" function="mx_{MTLX_BSDF}" target="genglsl" />',
+           f'  <nodedef name="ND_{MTLX_SURFACE}" node="{MTLX_SURFACE}" nodegroup="pbr" doc="{doc}">',
+           *files,
+           '    <input name="basisCount" type="integer" value="0" uniform="true" />',
+           '    <input name="texcoord" type="vector2" defaultgeomprop="UV0" />',
+           '    <output name="out" type="surfaceshader" />',
+           "  </nodedef>",
+           f'  <nodegraph name="NG_{MTLX_SURFACE}" nodedef="ND_{MTLX_SURFACE}">',
+           f'    <{MTLX_BSDF} name="btf" type="BSDF">']
+    out += [f'      <input name="{n}" type="filename" interfacename="{n}" />' for n in ["tables", *pages]]
+    out += ['      <input name="texcoord" type="vector2" interfacename="texcoord" />',
+            '      <input name="basisCount" type="integer" interfacename="basisCount" />',
             f"    </{MTLX_BSDF}>",
             '    <surface name="surface" type="surfaceshader">',
             '      <input name="bsdf" type="BSDF" nodename="btf" />',
@@ -309,8 +329,6 @@ out vec4 fragColor;
 void main()
 {{
     mat3 frame = btfFrame(vN, vT, vB);
-    vec4 packs[BTF_MAX_PACKS];
-{packs}
     vec3 toEye = uEye.w > 0.5 ? normalize(uEye.xyz - vP) : normalize(uEye.xyz);
     ivec3 viewIndex;
     vec3 viewWeight;
@@ -322,7 +340,8 @@ void main()
         if (uLight[i].w > 0.5) {{
             scale /= max(dot(d, d), 1e-30);
         }}
-        c += btfShadeLight(uTables, viewIndex, viewWeight, btfLocal(frame, normalize(d)), scale, packs, uBasisCount);
+        c += btfShadeLight(uTables, BTF_PAGE_ARGS, viewIndex, viewWeight, btfLocal(frame, normalize(d)), scale, vSt,
+                           uBasisCount);
     }}
     fragColor = vec4(c, 1.0);
 }}
@@ -333,8 +352,7 @@ def harness_fragment() -> str:
     """Fragment shader of the headless harness: the core lit by white point/distant lights,
     exactly the CPU renderer's light model."""
     return ("#version 330\n" + core_source() + "\n"
-            + _HARNESS_MAIN.format(samplers=_lines("uniform sampler2D u{name};\n").rstrip("\n"),
-                                   packs=_lines("    packs[{p}] = texture(u{name}, vSt);\n").rstrip("\n"),
+            + _HARNESS_MAIN.format(samplers=_lines("uniform sampler2D btfPage{p:02d};\n").rstrip("\n"),
                                    max_lights=HARNESS_MAX_LIGHTS))
 
 

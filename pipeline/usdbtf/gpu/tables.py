@@ -1,4 +1,4 @@
-"""GPU layout of a compressed BTF: one float "tables" texture and RGBA coefficient packs.
+"""GPU layout of a compressed BTF: one float "tables" texture and RGBA coefficient pages.
 
 The layout is documented texel by texel at the top of ``glsl/btf_core.glsl`` (the shader
 that reads it); this module writes it.  Pure arrays in, arrays out:
@@ -6,14 +6,19 @@ that reads it); this module writes it.  Pure arrays in, arrays out:
 * ``tables`` (R, TABLE_WIDTH, 4) float32: a header, the basis rows (sample-major, 4 basis
   vectors per texel), a point-location table for the view and for the light hemisphere
   (the triangulations of :mod:`usdbtf.render.hemisphere`, so the GPU interpolates exactly as
-  the CPU renderer does), the de-quantisation of every pack and the colour matrix;
-* ``packs`` 3 * ceil(k / 4) arrays (H, W, 4): pack ``p = 3 g + c`` holds colour channel
-  ``c`` of basis vectors ``4g .. 4g+3`` as the stored integer codes (uint8/uint16) or halves,
-  so a pack written as PNG/EXR reproduces the compressed values exactly.  Energy order
-  makes a level of detail of k' vectors the first ``3 * ceil(k' / 4)`` packs.
-
-At most ``4 * MAX_GROUPS`` basis vectors reach the GPU (the texture budget, see
-:data:`MAX_GROUPS`).
+  the CPU renderer does), the de-quantisation of every pack, the colour matrix and the
+  directory of the packs (which page, where);
+* coefficient *packs*, 3 * ceil(k / 4) tiles (H, W, 4): pack ``p = 3 g + c`` holds colour
+  channel ``c`` of basis vectors ``4g .. 4g+3`` as the stored integer codes (uint8/uint16)
+  or halves, so a page written as PNG/EXR reproduces the compressed values exactly.  Energy
+  order makes a level of detail of k' vectors the first ``3 * ceil(k' / 4)`` packs;
+* ``pages``: the packs laid out as tiles of at most :data:`MAX_PAGES` atlas textures
+  (``pages``), so a material binds at most ``1 + MAX_PAGES`` = 16 samplers for any k: the
+  limit of the GPUs studios preview on (Metal's Hgi allows 31 per stage, GL without bindless
+  textures 16 to 32).  A page ends where a level of detail ends (``lods``), so a level loads
+  only its own pages, and where the storage type changes.  The shader filters a pack itself
+  (bilinear from four texel fetches, wrapped or clamped inside its own tile), so tiles need
+  no padding and no sampler state or GPU filter (anisotropy, mip maps) changes a value.
 """
 from __future__ import annotations
 
@@ -24,34 +29,46 @@ import numpy as np
 from ..compress.format import CompressedBTF, cross_layout
 from ..errors import BTFError
 
-__all__ = ["MAX_GROUPS", "MAX_PACKS", "TABLE_WIDTH", "GpuLayout", "gpu_layout", "pack_count", "HemisphereTable"]
+__all__ = ["MAX_PAGES", "PAGE_SIZE", "TABLE_WIDTH", "GpuLayout", "gpu_layout", "pack_count", "page_breaks",
+           "page_plan", "with_wrap", "HemisphereTable"]
 
-#: Groups of 4 basis vectors the shaders handle: 8 groups = k <= 32 = 24 coefficient
-#: textures, which with the tables texture stays inside the 32 texture units of a
-#: fragment shader without bindless textures (GL_MAX_TEXTURE_IMAGE_UNITS is 32 on
-#: current desktop GPUs and on Mesa llvmpipe).
-MAX_GROUPS = 8
-MAX_PACKS = 3 * MAX_GROUPS
+#: Atlas textures ("pages") of coefficient packs a material binds: with the tables, 16
+#: samplers, for every k.
+MAX_PAGES = 15
+#: Largest width and height of a page (texels): what GL 4.x and Metal GPUs all sample.
+PAGE_SIZE = 16384
 TABLE_WIDTH = 512
 _GRID = 32
-_HEADER = 3
+_HEADER = 4
 #: Largest code of each storage type: what a GPU's normalised read divides by.
 _MAX_CODE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0, np.dtype(np.float16): 1.0}
 
 
 def pack_count(k: int) -> int:
-    """Coefficient packs (RGBA textures) holding the first ``k`` basis vectors."""
-    return 3 * -(-min(k, 4 * MAX_GROUPS) // 4)
+    """Coefficient packs (RGBA tiles) holding the first ``k`` basis vectors."""
+    return 3 * -(-k // 4)
 
 
 @dataclass
 class GpuLayout:
-    """tables : (R, TABLE_WIDTH, 4) float32.  packs : list of (H, W, 4) arrays (uint8,
-    uint16 or float16), see the module docstring.  k : basis vectors on the GPU."""
+    """tables : (R, TABLE_WIDTH, 4) float32.  pages : list of (H, W, 4) arrays (uint8,
+    uint16 or float16), the packs as tiles (module docstring).  k : basis vectors on the
+    GPU.  first_packs : the first pack of each page (ascending, first_packs[0] = 0)."""
 
     tables: np.ndarray
-    packs: list
+    pages: list
     k: int
+    first_packs: list
+
+    def pages_for(self, k: int) -> int:
+        """How many pages (from the first) hold the packs of the first ``k`` basis vectors."""
+        return sum(1 for first in self.first_packs if first < pack_count(min(k, self.k)))
+
+
+def page_breaks(k: int, lods=()) -> list[int]:
+    """Pack indices where a page must begin: where each level of detail in ``lods`` (basis
+    counts) ends, so that a level's packs fill whole pages."""
+    return sorted({pack_count(n) for n in lods if 0 < n < k})
 
 
 class _Texels:
@@ -130,46 +147,102 @@ class HemisphereTable:
                           [grid_at, tri_at, bound_at, 0]])
 
 
-def _pack(cbtf: CompressedBTF, k: int) -> tuple[list, np.ndarray, np.ndarray]:
-    """Coefficient packs plus per-pack (scale, bias) (P, 4) for normalised GPU reads."""
+def _pack(cbtf: CompressedBTF, k: int, breaks: list[int]) -> tuple[list, np.ndarray, np.ndarray]:
+    """Coefficient packs plus per-pack (scale, bias) (P, 4) for normalised GPU reads.  The
+    packs between two ``breaks`` (pack indices: where pages must begin) share one storage
+    type, the widest of their codes (uint8 codes in a uint16 pack keep their values: the
+    scale follows the type), so storage types never split a level's pages."""
+    groups = -(-k // 4)
+    bounds = sorted({0, groups, *(b // 3 for b in breaks)})
     packs, scales, biases = [], [], []
-    for g in range(-(-k // 4)):
-        layers = cbtf.coefficients[4 * g:min(4 * g + 4, k)]
+    for start, end in zip(bounds, bounds[1:]):
+        layers = cbtf.coefficients[4 * start:min(4 * end, k)]
         dtypes = {np.dtype(st.pixels.dtype) for st in layers}
         dtype = np.dtype(np.float16) if np.dtype(np.float16) in dtypes else \
             np.dtype(np.uint16) if np.dtype(np.uint16) in dtypes else np.dtype(np.uint8)
         if not dtypes <= set(_MAX_CODE) or (np.dtype(np.float16) in dtypes and len(dtypes) > 1):
-            raise BTFError(f"coefficient textures {4 * g}..{4 * g + len(layers) - 1}: cannot pack storage types "
-                           f"{sorted(str(d) for d in dtypes)} into one texture")
-        for c in range(3):
-            pix = np.zeros((cbtf.height, cbtf.width, 4), dtype)
-            scale, bias = np.zeros(4), np.zeros(4)
-            for j, st in enumerate(layers):
-                pix[:, :, j] = st.pixels[:, :, c]
-                scale[j], bias[j] = float(st.scale[c]) * _MAX_CODE[dtype], float(st.bias[c])
-            packs.append(pix)
-            scales.append(scale)
-            biases.append(bias)
+            raise BTFError(f"coefficient textures {4 * start}..{4 * start + len(layers) - 1}: cannot pack storage "
+                           f"types {sorted(str(d) for d in dtypes)} into one texture")
+        for g in range(start, end):
+            for c in range(3):
+                pix = np.zeros((cbtf.height, cbtf.width, 4), dtype)
+                scale, bias = np.zeros(4), np.zeros(4)
+                for j, st in enumerate(cbtf.coefficients[4 * g:min(4 * g + 4, k)]):
+                    pix[:, :, j] = st.pixels[:, :, c]
+                    scale[j], bias[j] = float(st.scale[c]) * _MAX_CODE[dtype], float(st.bias[c])
+                packs.append(pix)
+                scales.append(scale)
+                biases.append(bias)
     return packs, np.asarray(scales), np.asarray(biases)
 
 
-def gpu_layout(cbtf: CompressedBTF, k: int | None = None) -> GpuLayout:
-    """The tables texture and coefficient packs for the first ``k`` (default all, at most
-    ``4 * MAX_GROUPS``) basis vectors of ``cbtf``, which must sample every light at every view."""
+def page_plan(n_packs: int, width: int, height: int, breaks: list[int], dtypes=None):
+    """Where ``n_packs`` tiles of ``width`` x ``height`` texels go: a new page at every break
+    (pack index), at every change of storage type (``dtypes``, one per pack) and when a page
+    is full (``PAGE_SIZE``); tiles fill a page row by row, the page as square as its tile
+    count allows.  Returns ([(first pack, end, columns, rows)] per page, directory (P, 4):
+    page, tile column x0, tile row y0 (image rows from the top), 0)."""
+    if height > PAGE_SIZE or width > PAGE_SIZE:
+        raise BTFError(f"coefficient textures of {width}x{height} texels do not fit a {PAGE_SIZE}-texel GPU page")
+    per_page = (PAGE_SIZE // width) * (PAGE_SIZE // height)
+    dtypes = [None] * n_packs if dtypes is None else list(dtypes)
+    plan, start = [], 0
+    directory = np.zeros((n_packs, 4), np.float32)
+    for p in range(1, n_packs + 1):
+        if p < n_packs and p not in breaks and dtypes[p] == dtypes[start] and p - start < per_page:
+            continue
+        n = p - start
+        cols = min(PAGE_SIZE // width, max(1, int(np.ceil(np.sqrt(n * height / width)))))
+        if -(-n // cols) * height > PAGE_SIZE:             # a tall page: fill whole rows first
+            cols = PAGE_SIZE // width
+        for j in range(n):
+            directory[start + j] = [len(plan), (j % cols) * width, (j // cols) * height, 0]
+        plan.append((start, p, cols, -(-n // cols)))
+        start = p
+    return plan, directory
+
+
+def _pages(packs: list, breaks: list[int]) -> tuple[list, list, np.ndarray]:
+    """``packs`` laid out on pages as :func:`page_plan` says.  Returns (pages, first pack of
+    each page, directory)."""
+    h, w = packs[0].shape[:2]
+    plan, directory = page_plan(len(packs), w, h, breaks, [p.dtype for p in packs])
+    pages = []
+    for first, end, cols, rows in plan:
+        page = np.zeros((rows * h, cols * w, 4), packs[first].dtype)
+        for p in range(first, end):
+            _, x0, y0, _ = (int(v) for v in directory[p])
+            page[y0:y0 + h, x0:x0 + w] = packs[p]
+        pages.append(page)
+    return pages, [first for first, *_ in plan], directory
+
+
+def gpu_layout(cbtf: CompressedBTF, k: int | None = None, lods=(), wrap: str = "clamp") -> GpuLayout:
+    """The tables texture and coefficient pages for the first ``k`` (default all) basis
+    vectors of ``cbtf``, which must sample every light at every view; pages break where the
+    levels of detail ``lods`` (basis counts) end; ``wrap`` ("clamp" or "repeat"): how the
+    shader filters at a tile's edges."""
     from ..render.hemisphere import Triangulation   # OpenCV: imported only when needed
 
     layout = cross_layout(cbtf.sampling)
     if layout is None:
         raise BTFError("the GPU preview needs every light at every view (a V x L sampling, view-major); "
                        f"this BTF's {cbtf.n_samples} samples are not")
+    if wrap not in ("clamp", "repeat"):
+        raise BTFError(f"wrap must be 'clamp' or 'repeat', got {wrap!r}")
     V, L = layout
-    k = min(cbtf.k if k is None else k, 4 * MAX_GROUPS)
+    k = min(cbtf.k if k is None else k, cbtf.k)
     groups = -(-k // 4)
     views = Triangulation.from_directions(cbtf.sampling.view[::L], "view directions")
     lights = Triangulation.from_directions(cbtf.sampling.light[:L], "light directions")
     basis = np.zeros((V * L, groups * 4), np.float32)
     basis[:, :k] = cbtf.basis_values(k)
-    packs, scales, biases = _pack(cbtf, k)
+    breaks = page_breaks(k, lods)
+    packs, scales, biases = _pack(cbtf, k, breaks)
+    pages, first_packs, directory = _pages(packs, breaks)
+    if len(pages) > MAX_PAGES:
+        raise BTFError(f"k = {k} coefficient textures of {cbtf.width}x{cbtf.height} texels need {len(pages)} GPU "
+                       f"pages; a material binds at most {MAX_PAGES} (use a smaller k or texture)")
 
     table = _Texels()
     basis_at = table.add(basis)
@@ -177,11 +250,22 @@ def gpu_layout(cbtf: CompressedBTF, k: int | None = None) -> GpuLayout:
     light_at = HemisphereTable.from_triangulation(lights).write(table)
     dequant_at = table.add(np.stack([scales, biases], axis=1))
     matrix_at = table.add(np.c_[np.asarray(cbtf.color_matrix, np.float64), np.zeros(3)])
+    directory_at = table.add(directory)
     image = table.image()
     flat = image.reshape(-1, 4)
     flat[0] = [TABLE_WIDTH, V, L, groups]
     flat[1] = [k, basis_at, view_at, light_at]
     flat[2] = [dequant_at, matrix_at, *cbtf.domain.shader_code]
+    flat[3] = [directory_at, cbtf.width, cbtf.height, 1.0 if wrap == "repeat" else 0.0]
     if table.size >= 2**24:
         raise BTFError(f"GPU tables need {table.size} texels; addresses must stay below 2^24 (float precision)")
-    return GpuLayout(image, packs, k)
+    return GpuLayout(image, pages, k, first_packs)
+
+
+def with_wrap(layout: GpuLayout, wrap: str) -> GpuLayout:
+    """``layout`` with its tiles filtered as ``wrap`` ("clamp" or "repeat"; tables texel 3.w)."""
+    if wrap not in ("clamp", "repeat"):
+        raise BTFError(f"wrap must be 'clamp' or 'repeat', got {wrap!r}")
+    tables = layout.tables.copy()
+    tables.reshape(-1, 4)[3, 3] = 1.0 if wrap == "repeat" else 0.0
+    return GpuLayout(tables, layout.pages, layout.k, layout.first_packs)

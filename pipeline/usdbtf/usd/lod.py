@@ -6,8 +6,9 @@ payload, so they can be chosen before it loads):
 
 * on the **Material** (``/<root>/mtl/BtfMaterial``): variant ``k<n>`` sets
   ``btf:basisCount`` and ``btf:coefficients`` to the first n, and on the Storm shader sets
-  ``inputs:basisCount`` and blocks the connections of the packs it no longer needs (Storm
-  then loads only those textures); variant ``full`` changes nothing.  A scene that
+  ``inputs:basisCount`` and blocks the connections of the coefficient pages it no longer
+  needs (pages end where levels end, so Storm then loads only its own textures); variant
+  ``full`` changes nothing.  A scene that
   references only the material (``@asset.usda@</pebbles/mtl/BtfMaterial>``, the README's
   scene pattern) switches it with its own ``variants = {lod = "k16"}``.
 * on the **root prim**: variant ``<name>`` selects the Material's variant ``<name>``, so
@@ -40,16 +41,17 @@ def lod_name(n: int) -> str:
 
 
 def author_lod_variants(stage, root_path: str, material_path: str, levels: list[int], coefficients: list[str],
-                        storm: tuple[str, int, int] | None = None) -> list[str]:
+                        storm: tuple[str, list, int] | None = None) -> list[str]:
     """Author both ``lod`` variant sets on ``stage`` (the root layer); returns the variant names.
 
     levels : basis counts below k (descending); coefficients : the k coefficient asset
-    paths (relative to this layer).  storm : (Storm shader's name under the material, its
-    number of packs, the basis count its tables hold), or None without a Storm preview.
+    paths (relative to this layer).  storm : (Storm shader's name under the material, the
+    first pack of each of its pages, the basis count its tables hold), or None without a
+    Storm preview.
     """
     from pxr import Sdf
 
-    from ..gpu.shaders import pack_name
+    from ..gpu.shaders import page_name
     from ..gpu.tables import pack_count
     from .material import NS
 
@@ -70,11 +72,12 @@ def author_lod_variants(stage, root_path: str, material_path: str, levels: list[
             for attr in (count, coeffs):
                 attr.SetColorSpace("raw")
             if storm is not None:
-                shader_name, packs, gpu_k = storm
+                shader_name, first_packs, gpu_k = storm
                 over = stage.OverridePrim(f"{material_path}/{shader_name}")
                 over.CreateAttribute("inputs:basisCount", Sdf.ValueTypeNames.Int).Set(min(n, gpu_k))
-                for p in range(pack_count(n), packs):
-                    over.CreateAttribute(f"inputs:{pack_name(p)}", Sdf.ValueTypeNames.Float).SetConnections([])
+                for page, first in enumerate(first_packs):
+                    if first >= pack_count(min(n, gpu_k)):       # a page of vectors beyond n only
+                        over.CreateAttribute(f"inputs:{page_name(page)}", Sdf.ValueTypeNames.Float).SetConnections([])
     mset.ClearVariantSelection()      # no selection of its own: the root's (or a referencing scene's) decides
 
     root = stage.GetPrimAtPath(root_path)

@@ -257,7 +257,7 @@ def package(compressed, options: PackageOptions | None = None) -> PackageResult:
     log.info(f"fallback fitted: median roughness {float(np.median(maps.roughness)):.2f}, "
              f"{float(np.mean(maps.normal[..., 2] < 0.999)) * 100:.0f} % of texels with a normal")
     maps_added = fallback.add_maps(maps, textures, cbtf.ocio_config)
-    gpu = storm.add_gpu_textures(cbtf, textures)
+    gpu = storm.add_gpu_textures(cbtf, textures, levels)
     thumb = None
     if options.thumbnail:
         thumb = textures.add_file(thumbnail.THUMBNAIL_FILE, thumbnail.thumbnail_png(cbtf, shape))
@@ -319,7 +319,8 @@ def _author_payload(stage, result: PackageResult, names: _Names, provenance: str
     if result.gpu is not None:
         g = result.gpu
         gpu = storm.author_gpu_preview(stage, material, textures.texture(g.tables, names.textures),
-                                       [textures.texture(p, names.textures) for p in g.packs], g.k, wrap)
+                                       [textures.texture(p, names.textures) for p in g.pages], g.k, wrap,
+                                       g.first_packs)
     prim = author_mesh(stage, f"/{names.root}/geo/{valid_name(result.mesh.name)}", result.mesh)
     UsdShade.MaterialBindingAPI.Apply(prim).Bind(material)
     return coefficients, gpu

@@ -11,7 +11,9 @@ shell lines a studio puts in its launcher):
 
 * ``PXR_PLUGINPATH_NAME`` -> the plugin folder: the schema (and ``$TOOLS/usdBtf/shaders``);
 * Sdr's filesystem discovery (``PXR_SDR_FS_PLUGIN_SEARCH_PATHS``, searched recursively,
-  and ``PXR_SDR_FS_PLUGIN_ALLOWED_EXTS``): a ``.usda`` file is parsed by usdShade's
+  and ``PXR_SDR_FS_PLUGIN_ALLOWED_EXTS``; before USD 25.05 the same discovery was Ndr's and
+  read ``PXR_NDR_FS_PLUGIN_SEARCH_PATHS`` / ``PXR_NDR_FS_PLUGIN_ALLOWED_EXTS``, so both
+  families are set and each build reads its own): a ``.usda`` file is parsed by usdShade's
   shader-definition parser, which every USD build (usd-core included) has; the node's
   identifier is the file's stem and its definition the root prim of that name, so
   ``sdr/UsdBtfSurface.usda`` defines ``UsdBtfSurface`` and usdShadeValidators'
@@ -19,6 +21,11 @@ shell lines a studio puts in its launcher):
   with imaging, ``shaders/UsdBtfSurface.glslfx`` becomes the ``glslfx`` node Storm asks
   for; usd-core has no glslfx parser and ignores it.
 * ``PXR_MTLX_PLUGIN_SEARCH_PATHS`` -> the MaterialX nodedefs (builds with MaterialX).
+
+USD announces every overridden ``TfEnvSetting`` (the Sdr variables are such settings from
+25.05 on) with a banner on stderr when it loads; ``TF_ENV_SETTING_ALERTS_ENABLED``, itself a
+TfEnvSetting of libtf, is USD's switch for those banners: :data:`QUIET` sets it to 0 unless
+the user chose otherwise (:func:`defaults`).
 
 ``import usdbtf`` applies the same environment to its own process (:func:`register`)
 before USD loads, so the process validates exactly what any other process set up by
@@ -35,7 +42,12 @@ from ..plugin_folder import SHADER_ID, plugin_dir
 
 API_SCHEMA = "BtfMaterialAPI"
 #: Variables whose list separator is ':' on every platform (Tf splits extensions on ':').
-_COLON_LISTS = ("PXR_SDR_FS_PLUGIN_ALLOWED_EXTS",)
+_COLON_LISTS = ("PXR_SDR_FS_PLUGIN_ALLOWED_EXTS", "PXR_NDR_FS_PLUGIN_ALLOWED_EXTS")
+#: USD's switch for the "X is overridden" banners it prints when it loads (libtf's
+#: TF_ENV_SETTING_ALERTS_ENABLED); usdbtf's environment overrides settings by design.
+QUIET = "TF_ENV_SETTING_ALERTS_ENABLED"
+#: Sdr's filesystem-discovery variables, per USD release: Ndr's names before 25.05.
+DISCOVERY_FAMILIES = ("PXR_SDR_FS_PLUGIN", "PXR_NDR_FS_PLUGIN")
 
 
 def resources_dir(plugin: Path | None = None) -> Path:
@@ -49,10 +61,17 @@ def environment(plugin: Path | None = None) -> dict[str, list[str]]:
     Entries are prepended to whatever the variable already holds."""
     plugin = Path(plugin or plugin_dir()).resolve()
     res = resources_dir(plugin)
-    return {"PXR_PLUGINPATH_NAME": [str(plugin)],
-            "PXR_SDR_FS_PLUGIN_SEARCH_PATHS": [str(res / "sdr"), str(res / "shaders")],
-            "PXR_SDR_FS_PLUGIN_ALLOWED_EXTS": ["usda", "glslfx"],
-            "PXR_MTLX_PLUGIN_SEARCH_PATHS": [str(res / "materialx")]}
+    env = {"PXR_PLUGINPATH_NAME": [str(plugin)]}
+    for family in DISCOVERY_FAMILIES:          # USD >= 25.05 reads the first, 24.x-25.02 the second
+        env[f"{family}_SEARCH_PATHS"] = [str(res / "sdr"), str(res / "shaders")]
+        env[f"{family}_ALLOWED_EXTS"] = ["usda", "glslfx"]
+    env["PXR_MTLX_PLUGIN_SEARCH_PATHS"] = [str(res / "materialx")]
+    return env
+
+
+def defaults() -> dict[str, str]:
+    """{variable: value} set only where the variable is unset: the banners off (:data:`QUIET`)."""
+    return {QUIET: "0"}
 
 
 def list_separator(variable: str) -> str:
@@ -78,6 +97,8 @@ def apply_environment(env=None, plugin: Path | None = None) -> bool:
         if value != env.get(variable):
             env[variable] = value
             changed = True
+    for variable, value in defaults().items():
+        env.setdefault(variable, value)
     return changed
 
 
@@ -89,11 +110,7 @@ def register() -> bool:
     folder = plugin_dir()
     if not (folder / "plugInfo.json").is_file():
         return False
-    usd_loaded = "pxr" in sys.modules
-    if apply_environment() and not usd_loaded:
-        # USD prints a banner for every overridden setting when it loads; in usdbtf's own
-        # process that would be noise on every command (an explicit choice wins).
-        os.environ.setdefault("TF_ENV_SETTING_ALERTS_ENABLED", "0")
+    apply_environment()       # before USD loads, when import usdbtf comes first (banners off: defaults)
     from pxr import Plug
 
     Plug.Registry().RegisterPlugins(str(folder))
@@ -114,9 +131,7 @@ def register_lazily() -> bool:
         return False
     if "pxr" in sys.modules:
         return register()
-    if apply_environment():
-        # USD prints a banner for every overridden setting when it loads (see register).
-        os.environ.setdefault("TF_ENV_SETTING_ALERTS_ENABLED", "0")
+    apply_environment()
     return True
 
 

@@ -9,11 +9,15 @@ next to the UsdPreviewSurface fallback::
                                      (plugin/usdBtf/resources/sdr/UsdBtfSurface.usda, found
                                      by Sdr's filesystem discovery) is implementationSource
                                      "sourceAsset" with shaders/UsdBtfSurface.glslfx
-        StormTables, StormPackNN     UsdUVTexture (raw) of <stem>_textures/gpu/...
+        StormTables, StormPageNN     UsdUVTexture (raw) of <stem>_textures/gpu/...
 
-    <stem>_textures/gpu/tables.exr   basis rows, hemisphere lookups, de-quantisation (float32)
-    <stem>_textures/gpu/packNN.png   coefficient packs, 4 layers per RGBA texture (PNG, or EXR
-                                     for half-float codecs), the stored codes exactly
+    <stem>_textures/gpu/tables.exr   basis rows, hemisphere lookups, de-quantisation, the
+                                     packs' directory (float32)
+    <stem>_textures/gpu/pageNN.png   coefficient packs (4 layers per RGBA tile) laid out on at
+                                     most 15 atlas pages: 8-bit codes as PNG, 16-bit codes as
+                                     float32 EXR (code / 65535), half floats as EXR; the stored
+                                     codes exactly: with the tables, at most 16 samplers for
+                                     any k (usdbtf.gpu.tables)
     <stem>_textures/gpu/usdbtf.mtlx  the same material as a MaterialX document (usdbtf_surface)
 
 Renderers pick by render context: Storm takes ``glslfx``, every other renderer the
@@ -29,8 +33,9 @@ outright.  UsdPreviewSurface solves the same problem the same way: the asset nam
 shader, the plugin ships its definition (sourceAsset + glslfx).
 
 Levels of detail (:mod:`usdbtf.usd.lod`): the Material's ``lod`` variant ``k<n>``, in the
-root layer, sets ``basisCount`` and blocks the connections of the packs beyond
-``3 * ceil(n / 4)``, so Storm loads only those textures; the payload holds the full set.
+root layer, sets ``basisCount`` and blocks the connections of the pages beyond those
+holding its packs (pages end where levels end), so Storm loads only those textures; the
+payload holds the full set.
 """
 from __future__ import annotations
 
@@ -40,10 +45,10 @@ from pathlib import Path
 from ..compress.format import CompressedBTF
 from ..errors import BTFError
 from ..gpu import shaders
-from ..gpu.tables import MAX_GROUPS, gpu_layout
+from ..gpu.tables import MAX_PAGES, gpu_layout
 
 __all__ = ["plugin_dir_resources", "GPU_DIR", "STORM_SURFACE", "GpuTextures", "add_gpu_textures",
-           "author_gpu_preview", "materialx_document", "storm_shader", "layout_from_asset", "read_rgba"]
+           "author_gpu_preview", "author_materialx_preview", "materialx_document", "storm_shader", "layout_from_asset", "read_rgba"]
 
 GPU_DIR = "gpu"
 STORM_SURFACE = "StormSurface"
@@ -62,46 +67,53 @@ def plugin_dir_resources() -> Path:
 # ------------------------------------------------------------------ textures
 @dataclass(frozen=True)
 class GpuTextures:
-    """The Storm preview's files in a texture set: ``tables`` and ``packs`` (names), the basis
-    count ``k`` the tables hold."""
+    """The Storm preview's files in a texture set: ``tables`` and ``pages`` (names), the basis
+    count ``k`` the tables hold, the first pack of each page (``first_packs``)."""
 
     tables: str
-    packs: list
+    pages: list
     k: int
+    first_packs: list
 
 
-def add_gpu_textures(cbtf: CompressedBTF, textures) -> GpuTextures | None:
-    """Encode tables.exr, the coefficient packs and the MaterialX document (in memory) into
-    ``textures`` (a :class:`~usdbtf.usd.textures.TextureSet`, under ``gpu/``); None (nothing
-    added) for a BTF whose sampling is not every light at every view, which the preview
-    cannot interpolate."""
+def add_gpu_textures(cbtf: CompressedBTF, textures, lods=()) -> GpuTextures | None:
+    """Encode tables.exr, the coefficient pages and the MaterialX document (in memory) into
+    ``textures`` (a :class:`~usdbtf.usd.textures.TextureSet`, under ``gpu/``), pages ending
+    where the levels of detail ``lods`` (basis counts) end; None (nothing added) for a BTF
+    whose sampling is not every light at every view, which the preview cannot interpolate."""
     import numpy as np
 
     from ..compress.format import cross_layout
     from ..imageio import encode_image
+    from ..render.core import default_wrap
 
     if cross_layout(cbtf.sampling) is None:
         return None
-    layout = gpu_layout(cbtf)
+    layout = gpu_layout(cbtf, lods=lods, wrap=default_wrap(cbtf))
     tables = textures.add(f"{GPU_DIR}/tables.exr", encode_image(layout.tables, "exr", color_space="data",
                                                                  attributes={"compression": "zip"}), "float")
-    packs = []
-    for p, pixels in enumerate(layout.packs):
-        if pixels.dtype == np.float16:
+    pages = []
+    for p, pixels in enumerate(layout.pages):
+        if pixels.dtype != np.uint8:
+            # Half floats as they are; 16-bit codes as the float32 values a unorm16 read would
+            # return (code / 65535, exact to float32 rounding): Storm's image readers load a
+            # 16-bit PNG as 8 bits, which would drop the low byte of every code.
+            if pixels.dtype == np.uint16:
+                pixels = (pixels.astype(np.float64) / 65535.0).astype(np.float32)
             data = encode_image(pixels, "exr", color_space="data", attributes={"compression": "zip"})
-            packs.append(textures.add(f"{GPU_DIR}/{shaders.pack_name(p)}.exr", data, "float"))
+            pages.append(textures.add(f"{GPU_DIR}/{shaders.page_name(p)}.exr", data, "float"))
         else:
             # Alpha is the fourth coefficient layer, not coverage: OIIO must not
             # un-premultiply RGB by it (Storm's PNG reader takes the file's values as-is).
             data = encode_image(pixels, "png", color_space="data",
                                 attributes={"png:compressionLevel": 6, "oiio:UnassociatedAlpha": 1})
-            packs.append(textures.add(f"{GPU_DIR}/{shaders.pack_name(p)}.png", data, "unorm"))
-    document = materialx_document(Path(tables).name, [Path(name).name for name in packs], layout.k)
+            pages.append(textures.add(f"{GPU_DIR}/{shaders.page_name(p)}.png", data, "unorm"))
+    document = materialx_document(Path(tables).name, [Path(name).name for name in pages], layout.k)
     textures.add_file(f"{GPU_DIR}/{MTLX_FILE}", document.encode())
-    return GpuTextures(tables, packs, layout.k)
+    return GpuTextures(tables, pages, layout.k, layout.first_packs)
 
 
-def materialx_document(tables: str, packs: list[str], k: int) -> str:
+def materialx_document(tables: str, pages: list[str], k: int) -> str:
     """A MaterialX document instancing usdbtf_surface on the given texture files (paths
     relative to the document), bound to a surfacematerial named BtfMaterial."""
     lines = ['<?xml version="1.0"?>',
@@ -110,8 +122,8 @@ def materialx_document(tables: str, packs: list[str], k: int) -> str:
              '<materialx version="1.39">',
              '  <usdbtf_surface name="btf" type="surfaceshader">',
              f'    <input name="tables" type="filename" value="{tables}" />']
-    lines += [f'    <input name="{shaders.pack_name(p)}" type="filename" value="{name}" />'
-              for p, name in enumerate(packs)]
+    lines += [f'    <input name="{shaders.page_name(p)}" type="filename" value="{name}" />'
+              for p, name in enumerate(pages)]
     lines += [f'    <input name="basisCount" type="integer" value="{k}" />',
               "  </usdbtf_surface>",
               '  <surfacematerial name="BtfMaterial" type="material">',
@@ -133,12 +145,14 @@ def _texture(stage, path, texture, reader, wrap: str):
     return uv_texture(stage, path, texture, reader, wrap, ("r", Sdf.ValueTypeNames.Float))
 
 
-def author_gpu_preview(stage, material, tables, packs: list, k: int, wrap: str) -> tuple[str, int, int]:
+def author_gpu_preview(stage, material, tables, pages: list, k: int, wrap: str,
+                       first_packs: list) -> tuple[str, list, int]:
     """Author the Storm shader network in ``material`` (a UsdShade.Material on ``stage``, whose
-    layer sits next to the texture folder) on the GPU textures ``tables`` and ``packs``
+    layer sits next to the texture folder) on the GPU textures ``tables`` and ``pages``
     (:class:`~usdbtf.usd.textures.Texture`\\ s of :func:`add_gpu_textures`' files; the tables
-    hold ``k`` basis vectors; ``wrap`` for the packs).  Returns (the shader's name under the
-    material, number of packs, k) for the ``lod`` variants (:mod:`usdbtf.usd.lod`)."""
+    hold ``k`` basis vectors; ``wrap`` for the page nodes, which the shader reads texel by
+    texel; ``first_packs``: the first pack of each page).  Returns (the shader's name under the
+    material, ``first_packs``, k) for the ``lod`` variants (:mod:`usdbtf.usd.lod`)."""
     from pxr import Sdf, UsdShade
 
     from .fallback import st_reader
@@ -157,15 +171,44 @@ def author_gpu_preview(stage, material, tables, packs: list, k: int, wrap: str) 
     tex = _texture(stage, mpath.AppendChild(TABLES_NODE), tables, reader, "clamp")
     data_inputs.append(surface.CreateInput("tables", Sdf.ValueTypeNames.Float))
     data_inputs[-1].ConnectToSource(tex.ConnectableAPI(), "r")
-    for p, texture in enumerate(packs):
-        tex = _texture(stage, mpath.AppendChild(f"Storm{shaders.pack_name(p).capitalize()}"), texture, reader, wrap)
-        data_inputs.append(surface.CreateInput(shaders.pack_name(p), Sdf.ValueTypeNames.Float))
+    for p, texture in enumerate(pages):
+        tex = _texture(stage, mpath.AppendChild(f"Storm{shaders.page_name(p).capitalize()}"), texture, reader, wrap)
+        data_inputs.append(surface.CreateInput(shaders.page_name(p), Sdf.ValueTypeNames.Float))
         data_inputs[-1].ConnectToSource(tex.ConnectableAPI(), "r")
     for inp in data_inputs:             # data, not colour (the material declares its working space)
         inp.GetAttr().SetColorSpace("raw")
     surface.CreateOutput("surface", Sdf.ValueTypeNames.Token)
     material.CreateSurfaceOutput(_RENDER_CONTEXT).ConnectToSource(surface.ConnectableAPI(), "surface")
-    return STORM_SURFACE, len(packs), k
+    return STORM_SURFACE, list(first_packs), k
+
+
+def author_materialx_preview(stage, material_path: str, tables: str, pages: list[str], k: int):
+    """A Material at ``material_path`` whose ``outputs:mtlx:surface`` is the usdbtf node in
+    Hydra's MaterialX path: ``ND_surface`` <- ``ND_usdbtf_bsdf`` (the tables and pages as
+    asset inputs, ``texcoord`` from ``ND_texcoord_vector2``, ``basisCount`` = ``k``).  Storm
+    25.08 generates and compiles it (``tests/test_storm.py``); the ``usdbtf_surface`` node
+    graph cannot be used there: Storm's MaterialX code defines a macro named after each texture
+    input, which rewrites the graph function's parameters of the same name.  Returns the
+    UsdShade.Material."""
+    from pxr import Sdf, UsdShade
+
+    material = UsdShade.Material.Define(stage, material_path)
+    bsdf = UsdShade.Shader.Define(stage, f"{material_path}/BtfBsdf")
+    bsdf.CreateIdAttr(f"ND_{shaders.MTLX_BSDF}")
+    bsdf.CreateInput("tables", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(tables))
+    for p, page in enumerate(pages):
+        bsdf.CreateInput(shaders.page_name(p), Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(page))
+    bsdf.CreateInput("basisCount", Sdf.ValueTypeNames.Int).Set(int(k))
+    st = UsdShade.Shader.Define(stage, f"{material_path}/TexCoord")
+    st.CreateIdAttr("ND_texcoord_vector2")
+    bsdf.CreateInput("texcoord", Sdf.ValueTypeNames.Float2).ConnectToSource(
+        st.CreateOutput("out", Sdf.ValueTypeNames.Float2))
+    surface = UsdShade.Shader.Define(stage, f"{material_path}/Surface")
+    surface.CreateIdAttr("ND_surface")
+    surface.CreateInput("bsdf", Sdf.ValueTypeNames.Token).ConnectToSource(
+        bsdf.CreateOutput("out", Sdf.ValueTypeNames.Token))
+    material.CreateSurfaceOutput("mtlx").ConnectToSource(surface.CreateOutput("out", Sdf.ValueTypeNames.Token))
+    return material
 
 
 # ------------------------------------------------------------------ reading back
@@ -240,12 +283,16 @@ def layout_from_asset(asset, *, lod: str | None = None):
     tables, _ = texture("tables")
     if tables is None:
         raise BTFError(f"{asset}: {shader.GetPath()} has no tables texture connected")
-    packs, wrap = [], "clamp"
-    for p in range(3 * MAX_GROUPS):
-        pixels, pack_wrap = texture(shaders.pack_name(p))
+    tables = np.asarray(tables, np.float32)
+    pages, wrap = [], "clamp"
+    for p in range(MAX_PAGES):
+        pixels, page_wrap = texture(shaders.page_name(p))
         if pixels is None:
             break
-        packs.append(pixels)
-        wrap = pack_wrap
+        pages.append(pixels)
+        wrap = page_wrap
     k = int(shader.GetInput("basisCount").Get())
-    return GpuLayout(np.asarray(tables, np.float32), packs, k), wrap, k
+    flat = tables.reshape(-1, 4)
+    directory = flat[int(flat[3, 0]):int(flat[3, 0]) + 3 * -(-int(flat[1, 0]) // 4), 0].astype(int)
+    first_packs = [int(np.argmax(directory == page)) for page in range(int(directory.max()) + 1)]
+    return GpuLayout(tables, pages, k, first_packs), wrap, k

@@ -2,7 +2,7 @@
 
 Every texture a package writes is either *colour* (the fallback's diffuse and specular
 colours, the thumbnail: sRGB or scene-linear, declared as such) or *data* (the BTF's basis
-and coefficient codes, the GPU tables and packs, the fallback's roughness and normal
+and coefficient codes, the GPU tables and pages, the fallback's roughness and normal
 maps).  USD says which through the attribute's ``colorSpace`` (``raw`` for data) and
 UsdUVTexture's ``sourceColorSpace``; the files say it too, as far as their format can:
 EXR and TIFF carry ``oiio:ColorSpace = data``, and PNG, which has no word for data, gets a
@@ -15,7 +15,7 @@ decode to codes (OIIO reads such a PNG as linear, not ``srgb_rec709_scene``).
 ``tx``   tiled (64x64), mip-mapped TIFF through OIIO's ``make_texture`` (``maketx``), the
          pixel type unchanged, so level 0 holds the same codes;
 ``exr``  tiled, mip-mapped OpenEXR through ``make_texture``: the BTF's codes as float32
-         values (``value = code * scale + bias`` still holds exactly), GPU packs and data
+         values (``value = code * scale + bias`` still holds exactly), GPU pages and data
          maps as the normalised values a sampler returns from the PNG (float32), colour
          maps converted to linear Rec.709 half floats (declared ``lin_rec709_scene``).
 
@@ -51,7 +51,7 @@ _COLOUR_CHUNKS = {b"gAMA", b"sRGB", b"iCCP", b"cHRM", b"cICP"}
 _GAMMA_ONE = 100000
 #: Formats a .usdz may hold (its spec: PNG, JPEG, EXR, AVIF).
 USDZ_FORMATS = ("png", "exr")
-#: What a texture holds: BTF codes, [0, 1]-normalised data (GPU packs, roughness, normals),
+#: What a texture holds: BTF codes, [0, 1]-normalised data (GPU pages, roughness, normals),
 #: float data (GPU tables, half-float codes), sRGB-encoded colour.
 KINDS = ("codes", "unorm", "float", "srgb")
 _TILE = 64

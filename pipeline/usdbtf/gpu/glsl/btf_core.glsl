@@ -11,12 +11,13 @@
 // a direction takes the nearest boundary point; lights there fade with cos(theta).
 //
 // Everything but the coefficients lives in one RGBA float texture, "tables", addressed
-// as a 1-D array of texels (row-major, width = the texture's width).  Layout, written by
-// usdbtf.gpu.tables:
+// as a 1-D array of texels (row-major from the image's top row, width = the texture's
+// width).  Layout, written by usdbtf.gpu.tables:
 //   texel 0        (width, V, L, G)          G = stored basis groups (4 vectors per texel)
 //   texel 1        (K, basisOffset, viewHemisphere, lightHemisphere)
 //   texel 2        (dequantOffset, matrixOffset, curve, gamma)   working-domain curve:
 //                  0 linear, 1 power (inverse d^gamma), 2 sRGB (usdbtf.compress.domain)
+//   texel 3        (directoryOffset, tileWidth, tileHeight, repeat)   1 = wrap, 0 = clamp
 //   basis          basisOffset + (view * L + light) * G + g: vectors 4g..4g+3 of that sample
 //   hemisphere h   h+0 (origin.x, origin.y, cell, grid)   h+1 (candidateTexels, triangles,
 //                  boundaryEdges, 0)   h+2 (gridOffset, triangleOffset, boundaryOffset, 0)
@@ -25,24 +26,31 @@
 //                  boundary e: (a.x, a.y, b.x, b.y) (i0, i1, 0, 0)
 //   dequant        pack p: dequantOffset + 2p = scale, + 2p + 1 = bias (stored = t * scale + bias)
 //   matrix         matrixOffset + r: row r of M
-// Coefficient pack p = 3 g + c holds colour channel c of vectors 4g..4g+3, sampled at st.
+//   directory      directoryOffset + p: (page, x0, y0, 0): pack p is the tile whose top-left
+//                  texel is column x0, image row y0 (from the top) of page `page`
+// Coefficient pack p = 3 g + c holds colour channel c of vectors 4g..4g+3; the packs are
+// tiles of at most BTF_MAX_PAGES RGBA textures ("pages"), filtered here (btfPack).
 //
 // Environments (Storm glslfx, MaterialX genglsl, the headless harness) include this text
-// unchanged and supply: the tables sampler, the packs sampled at st, the frame, the lights.
+// unchanged after the definitions usdbtf.gpu.shaders.core_source() puts in front of it
+// (BTF_PAGE_PARAMS / BTF_PAGE_ARGS: the page samplers btfPage00.. as function parameters and
+// arguments, BTF_PAGE_FETCH: a texelFetch on page `page`), and supply: the tables sampler, the
+// pages, the texture coordinate, the frame, the lights.  Parameter names carry a btf prefix:
+// Storm's MaterialX code defines a macro named after every texture input ("tables",
+// "page00"), which would rewrite a parameter of that name.
 
-#ifndef BTF_MAX_GROUPS
-#define BTF_MAX_GROUPS 8
-#endif
-#define BTF_MAX_PACKS (3 * BTF_MAX_GROUPS)
 #define BTF_HALF_PI 1.5707963267948966
 // Query points this close outside a triangle (disc units) still count as inside:
 // float32 rounding on shared edges and on the outermost ring.
 #define BTF_INSIDE_EPS 1e-5
 
-vec4 btfFetch(sampler2D tables, int address)
+// Texel ``address`` of the tables, counted along the image's rows from its top row (the
+// file's first row).  Renderers upload an image bottom row first (Storm's Hio, MaterialX's
+// loaders: texture coordinate t = 0 at the bottom), so image row r is texture row h - 1 - r.
+vec4 btfFetch(sampler2D btfTables, int address)
 {
-    int width = textureSize(tables, 0).x;
-    return texelFetch(tables, ivec2(address % width, address / width), 0);
+    ivec2 size = textureSize(btfTables, 0);
+    return texelFetch(btfTables, ivec2(address % size.x, size.y - 1 - address / size.x), 0);
 }
 
 // Azimuthal equidistant projection of a tangent-frame direction (z = normal).
@@ -74,11 +82,11 @@ vec3 btfLocal(mat3 frame, vec3 d)
 
 // The measured samples enclosing local direction d on hemisphere table h: indices,
 // weights (summing to 1) and the polar angle (degrees) of the point interpolated.
-void btfLookup(sampler2D tables, int h, vec3 d, out ivec3 index, out vec3 weight, out float thetaUsed)
+void btfLookup(sampler2D btfTables, int h, vec3 d, out ivec3 index, out vec3 weight, out float thetaUsed)
 {
-    vec4 h0 = btfFetch(tables, h);
-    vec4 h1 = btfFetch(tables, h + 1);
-    vec4 h2 = btfFetch(tables, h + 2);
+    vec4 h0 = btfFetch(btfTables, h);
+    vec4 h1 = btfFetch(btfTables, h + 1);
+    vec4 h2 = btfFetch(btfTables, h + 2);
     vec2 q = btfProject(d);
     int grid = int(h0.w);
     int candidateTexels = int(h1.x);
@@ -91,22 +99,22 @@ void btfLookup(sampler2D tables, int h, vec3 d, out ivec3 index, out vec3 weight
         if (all(greaterThanEqual(cell, ivec2(0))) && all(lessThan(cell, ivec2(grid)))) {
             int base = int(h2.x) + (cell.y * grid + cell.x) * candidateTexels;
             for (int c = 0; c < candidateTexels; ++c) {
-                vec4 ids = btfFetch(tables, base + c);
+                vec4 ids = btfFetch(btfTables, base + c);
                 for (int j = 0; j < 4; ++j) {
                     int t = int(ids[j]);
                     if (t < 0) {
                         continue;
                     }
                     int at = int(h2.y) + 3 * t;
-                    vec4 a = btfFetch(tables, at);
-                    vec4 inv = btfFetch(tables, at + 1);
+                    vec4 a = btfFetch(btfTables, at);
+                    vec4 inv = btfFetch(btfTables, at + 1);
                     vec2 rel = q - a.xy;
                     vec2 uv = vec2(inv.x * rel.x + inv.y * rel.y, inv.z * rel.x + inv.w * rel.y);
                     vec3 bary = vec3(1.0 - uv.x - uv.y, uv.x, uv.y);
                     float score = min(bary.x, min(bary.y, bary.z));
                     if (score > best) {
                         best = score;
-                        index = ivec3(int(a.z), int(a.w), int(btfFetch(tables, at + 2).x));
+                        index = ivec3(int(a.z), int(a.w), int(btfFetch(btfTables, at + 2).x));
                         weight = bary;
                     }
                 }
@@ -122,8 +130,8 @@ void btfLookup(sampler2D tables, int h, vec3 d, out ivec3 index, out vec3 weight
     float nearest = 1e30;
     int edges = int(h1.z);
     for (int e = 0; e < edges; ++e) {
-        vec4 ab = btfFetch(tables, int(h2.z) + 2 * e);
-        vec4 ids = btfFetch(tables, int(h2.z) + 2 * e + 1);
+        vec4 ab = btfFetch(btfTables, int(h2.z) + 2 * e);
+        vec4 ids = btfFetch(btfTables, int(h2.z) + 2 * e + 1);
         vec2 along = ab.zw - ab.xy;
         float len2 = dot(along, along);
         float t = len2 > 0.0 ? clamp(dot(q - ab.xy, along) / len2, 0.0, 1.0) : 0.0;
@@ -147,57 +155,18 @@ float btfLightFade(vec3 l, float thetaUsed)
     return cosQ < cosB ? max(cosQ, 0.0) / max(cosB, 1e-12) : 1.0;
 }
 
-// rows += scale * sum of the 9 weighted basis rows of (view triangle) x (light triangle).
-void btfAccumulate(sampler2D tables, ivec3 viewIndex, vec3 viewWeight, ivec3 lightIndex, vec3 lightWeight,
-                   float scale, inout vec4 rows[BTF_MAX_GROUPS])
-{
-    vec4 h0 = btfFetch(tables, 0);
-    int lights = int(h0.z);
-    int groups = int(h0.w);
-    int basis = int(btfFetch(tables, 1).y);
-    for (int a = 0; a < 3; ++a) {
-        for (int b = 0; b < 3; ++b) {
-            float w = viewWeight[a] * lightWeight[b] * scale;
-            if (w == 0.0) {
-                continue;
-            }
-            int base = basis + (viewIndex[a] * lights + lightIndex[b]) * groups;
-            for (int g = 0; g < BTF_MAX_GROUPS; ++g) {
-                if (g >= groups) {
-                    break;
-                }
-                rows[g] += w * btfFetch(tables, base + g);
-            }
-        }
-    }
-}
-
-// Adds one light (local direction l, irradiance scale) to rows.
-void btfAddLight(sampler2D tables, ivec3 viewIndex, vec3 viewWeight, vec3 l, float scale,
-                 inout vec4 rows[BTF_MAX_GROUPS])
-{
-    if (scale <= 0.0) {
-        return;
-    }
-    ivec3 lightIndex;
-    vec3 lightWeight;
-    float thetaUsed;
-    btfLookup(tables, int(btfFetch(tables, 1).w), l, lightIndex, lightWeight, thetaUsed);
-    btfAccumulate(tables, viewIndex, viewWeight, lightIndex, lightWeight * btfLightFade(l, thetaUsed), scale, rows);
-}
-
 // The view triangle of local view direction v.
-void btfViewLookup(sampler2D tables, vec3 v, out ivec3 viewIndex, out vec3 viewWeight)
+void btfViewLookup(sampler2D btfTables, vec3 v, out ivec3 viewIndex, out vec3 viewWeight)
 {
     float unused;
-    btfLookup(tables, int(btfFetch(tables, 1).z), v, viewIndex, viewWeight, unused);
+    btfLookup(btfTables, int(btfFetch(btfTables, 1).z), v, viewIndex, viewWeight, unused);
 }
 
 // The working domain's inverse curve, per channel (texel 2: z = curve, w = gamma);
 // negative values clamp to 0 first, as usdbtf.compress.domain.Domain.inverse does.
-vec3 btfInverseCurve(sampler2D tables, vec3 d)
+vec3 btfInverseCurve(sampler2D btfTables, vec3 d)
 {
-    vec4 h2 = btfFetch(tables, 2);
+    vec4 h2 = btfFetch(btfTables, 2);
     int curve = int(h2.z);
     if (curve == 0) {
         return d;
@@ -209,36 +178,51 @@ vec3 btfInverseCurve(sampler2D tables, vec3 d)
     return mix(d / 12.92, pow((d + 0.055) / 1.055, vec3(2.4)), vec3(greaterThan(d, vec3(0.04045))));
 }
 
-// Working-space colour of one light's blended rows dotted with the first k coefficients.
-vec3 btfResolve(sampler2D tables, vec4 rows[BTF_MAX_GROUPS], vec4 packs[BTF_MAX_PACKS], int k)
+// Texel (x, y) of page `page`, x from the left, y an image row from the top: renderers
+// upload an image bottom row first, so image row y is texture row height - 1 - y.
+vec4 btfPageTexel(BTF_PAGE_PARAMS, int page, int x, int y)
 {
-    vec4 h2 = btfFetch(tables, 2);
-    int dequant = int(h2.x);
-    int matrix = int(h2.y);
-    k = min(k, int(btfFetch(tables, 1).x));
-    vec3 stored = vec3(0.0);
-    for (int g = 0; g < BTF_MAX_GROUPS; ++g) {
-        if (4 * g >= k) {
-            break;
-        }
-        vec4 mask = vec4(greaterThan(ivec4(k), ivec4(4 * g) + ivec4(0, 1, 2, 3)));
-        vec4 r = rows[g] * mask;
-        for (int c = 0; c < 3; ++c) {
-            int p = 3 * g + c;
-            vec4 value = packs[p] * btfFetch(tables, dequant + 2 * p) + btfFetch(tables, dequant + 2 * p + 1);
-            stored[c] += dot(r, value);
-        }
-    }
-    return btfInverseCurve(tables, vec3(dot(btfFetch(tables, matrix).xyz, stored),
-                                        dot(btfFetch(tables, matrix + 1).xyz, stored),
-                                        dot(btfFetch(tables, matrix + 2).xyz, stored)));
+    BTF_PAGE_FETCH
+    return vec4(0.0);
 }
 
-// One light's working-space radiance: the 3 x 3 basis rows blended with weights summing to
-// 1 (in the working domain), resolved through the inverse curve, then times the light's
-// scale and its fade beyond the measured region -- radiance factors, so after the curve.
-vec3 btfShadeLight(sampler2D tables, ivec3 viewIndex, vec3 viewWeight, vec3 l, float scale,
-                   vec4 packs[BTF_MAX_PACKS], int k)
+// Coefficient pack p at texture coordinate st (t up, as the CPU renderer: texel centres at
+// (i + 0.5) / size), bilinear from the four nearest texels of its own tile, wrapped or
+// clamped inside the tile (texel 3.w), the CPU renderer's filter="bilinear".
+vec4 btfPack(sampler2D btfTables, BTF_PAGE_PARAMS, int p, vec2 st)
+{
+    vec4 h3 = btfFetch(btfTables, 3);
+    vec4 at = btfFetch(btfTables, int(h3.x) + p);
+    ivec2 size = ivec2(h3.yz);
+    vec2 f = vec2(st.x, 1.0 - st.y) * vec2(size) - 0.5;
+    vec2 base = floor(f);
+    vec2 w = f - base;
+    ivec2 i0 = ivec2(base);
+    ivec2 i1 = i0 + ivec2(1);
+    if (h3.w > 0.5) {
+        i0 = ((i0 % size) + size) % size;
+        i1 = ((i1 % size) + size) % size;
+    } else {
+        i0 = clamp(i0, ivec2(0), size - 1);
+        i1 = clamp(i1, ivec2(0), size - 1);
+    }
+    int page = int(at.x);
+    int x0 = int(at.y);
+    int y0 = int(at.z);
+    vec4 a = btfPageTexel(BTF_PAGE_ARGS, page, x0 + i0.x, y0 + i0.y);
+    vec4 b = btfPageTexel(BTF_PAGE_ARGS, page, x0 + i1.x, y0 + i0.y);
+    vec4 c = btfPageTexel(BTF_PAGE_ARGS, page, x0 + i0.x, y0 + i1.y);
+    vec4 d = btfPageTexel(BTF_PAGE_ARGS, page, x0 + i1.x, y0 + i1.y);
+    return mix(mix(a, b, w.x), mix(c, d, w.x), w.y);
+}
+
+// One light's working-space radiance at texture coordinate st from the first k basis
+// vectors: per group of 4 vectors, the 3 x 3 basis rows blended with weights summing to 1
+// (in the working domain) dotted with the group's 3 packs, then the colour matrix and the
+// inverse curve, then times the light's scale and its fade beyond the measured region --
+// radiance factors, so after the curve.  No arrays: any k.
+vec3 btfShadeLight(sampler2D btfTables, BTF_PAGE_PARAMS, ivec3 viewIndex, vec3 viewWeight, vec3 l, float scale,
+                   vec2 st, int k)
 {
     if (scale <= 0.0) {
         return vec3(0.0);
@@ -246,11 +230,37 @@ vec3 btfShadeLight(sampler2D tables, ivec3 viewIndex, vec3 viewWeight, vec3 l, f
     ivec3 lightIndex;
     vec3 lightWeight;
     float thetaUsed;
-    btfLookup(tables, int(btfFetch(tables, 1).w), l, lightIndex, lightWeight, thetaUsed);
-    vec4 rows[BTF_MAX_GROUPS];
-    for (int g = 0; g < BTF_MAX_GROUPS; ++g) {
-        rows[g] = vec4(0.0);
+    btfLookup(btfTables, int(btfFetch(btfTables, 1).w), l, lightIndex, lightWeight, thetaUsed);
+    vec4 h0 = btfFetch(btfTables, 0);
+    vec4 h1 = btfFetch(btfTables, 1);
+    vec4 h2 = btfFetch(btfTables, 2);
+    int lights = int(h0.z);
+    int groups = int(h0.w);
+    int basis = int(h1.y);
+    int dequant = int(h2.x);
+    int matrix = int(h2.y);
+    k = min(k, int(h1.x));
+    vec3 stored = vec3(0.0);
+    for (int g = 0; 4 * g < k && g < groups; ++g) {
+        vec4 row = vec4(0.0);
+        for (int a = 0; a < 3; ++a) {
+            for (int b = 0; b < 3; ++b) {
+                float w = viewWeight[a] * lightWeight[b];
+                if (w != 0.0) {
+                    row += w * btfFetch(btfTables, basis + (viewIndex[a] * lights + lightIndex[b]) * groups + g);
+                }
+            }
+        }
+        row *= vec4(greaterThan(ivec4(k), ivec4(4 * g) + ivec4(0, 1, 2, 3)));
+        for (int c = 0; c < 3; ++c) {
+            int p = 3 * g + c;
+            vec4 value = btfPack(btfTables, BTF_PAGE_ARGS, p, st) * btfFetch(btfTables, dequant + 2 * p)
+                       + btfFetch(btfTables, dequant + 2 * p + 1);
+            stored[c] += dot(row, value);
+        }
     }
-    btfAccumulate(tables, viewIndex, viewWeight, lightIndex, lightWeight, 1.0, rows);
-    return (scale * btfLightFade(l, thetaUsed)) * btfResolve(tables, rows, packs, k);
+    vec3 working = btfInverseCurve(btfTables, vec3(dot(btfFetch(btfTables, matrix).xyz, stored),
+                                                dot(btfFetch(btfTables, matrix + 1).xyz, stored),
+                                                dot(btfFetch(btfTables, matrix + 2).xyz, stored)));
+    return (scale * btfLightFade(l, thetaUsed)) * working;
 }

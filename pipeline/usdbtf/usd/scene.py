@@ -1,0 +1,191 @@
+"""A USD stage's camera and lights as the CPU renderer's, and the other way round.
+
+So the CPU reference (``usdbtf render SCENE.usda --camera PRIM``) and Storm
+(``usdbtf preview --renderer storm``, :mod:`usdbtf.usd.hydra`) render the same stage.  The
+light convention is the one Storm applies (measured in Storm 25.02 and 25.08 on a
+Lambertian ``UsdPreviewSurface`` and on the BTF shader, ``tests/test_storm.py``), expressed
+as the CPU renderer's irradiance relative to the capture light (:mod:`usdbtf.render.scene`):
+
+============== ===================================================================== ========
+UsdLux         Storm's simple lighting                                               CPU light
+============== ===================================================================== ========
+DistantLight   radiance over its disc: irradiance = intensity x 2 pi (1 - cos(angle/2)) directional
+SphereLight    a point light at its centre: intensity x pi r^2 / d^2                  point
+DiskLight      a point light at its centre: intensity x pi r^2 / d^2                  point
+RectLight      a point light at its centre: intensity x width x height / d^2          point
+DomeLight      indirect: the BTF measures directional light only, so it adds nothing  (none)
+============== ===================================================================== ========
+
+Each is also multiplied by ``2^exposure`` and the mean of its colour (the CPU renderer's
+lights are white).  A DistantLight of intensity 1 is therefore 1 / 14880 of the capture
+light at the default 0.53 degree angle: black, not ignored (the schema's default intensity,
+50000, is 3.4 capture lights).  Lengths are scaled to metres by the stage's metersPerUnit.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..camera import Camera
+from ..errors import BTFError
+from ..render.scene import Light
+
+log = logging.getLogger(__name__)
+
+__all__ = ["read_scene", "write_scene", "new_scene", "add_distant", "orient_towards", "distant_intensity",
+           "POINT_RADIUS_M", "DISTANT_ANGLE"]
+
+#: Radius (metres) of the SphereLight that stands for a CPU point light in a written stage.
+POINT_RADIUS_M = 1e-3
+#: UsdLux.DistantLight's default angular diameter (degrees).
+DISTANT_ANGLE = 0.53
+
+
+def _solid_angle(angle_deg: float) -> float:
+    return 2.0 * math.pi * (1.0 - math.cos(math.radians(angle_deg) / 2.0))
+
+
+def distant_intensity(angle_deg: float = DISTANT_ANGLE) -> float:
+    """The ``inputs:intensity`` of a UsdLux.DistantLight of angular diameter ``angle_deg`` whose
+    irradiance is 1 (the capture light): 1 / (2 pi (1 - cos(angle / 2))), 14880 at 0.53 deg."""
+    return 1.0 / _solid_angle(angle_deg)
+
+
+def new_scene(asset: Path, out: Path, lod: str | None = None):
+    """A new stage at ``out`` (Y up, metres) whose default prim /World references ``asset``
+    (relative path) at /World/Asset with its ``lod`` selection.  Returns (stage, that prim)."""
+    import os
+
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.CreateNew(str(out))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    world = UsdGeom.Xform.Define(stage, "/World")
+    stage.SetDefaultPrim(world.GetPrim())
+    ref = stage.DefinePrim("/World/Asset")
+    ref.GetReferences().AddReference(os.path.relpath(asset, out.parent))
+    if lod:
+        ref.GetVariantSets().GetVariantSet("lod").SetVariantSelection(lod)
+    return stage, ref
+
+
+def orient_towards(xformable, towards) -> None:
+    """Rotate ``xformable``'s +Z onto ``towards`` (a distant or rect light shines along -Z)."""
+    from pxr import Gf
+
+    xformable.AddOrientOp().Set(Gf.Quatf(Gf.Rotation(Gf.Vec3d(0, 0, 1), Gf.Vec3d(*map(float, towards))).GetQuat()))
+
+
+def add_distant(stage, path: str, towards, irradiance: float = 1.0):
+    """A DistantLight at ``path`` shining from ``towards`` with ``irradiance`` (capture lights)."""
+    from pxr import UsdLux
+
+    light = UsdLux.DistantLight.Define(stage, path)
+    light.CreateAngleAttr(DISTANT_ANGLE)
+    light.CreateIntensityAttr(irradiance * distant_intensity(DISTANT_ANGLE))
+    orient_towards(light, towards)
+    return light
+
+
+def _scale(light, prim) -> float:
+    """2^exposure times the mean colour of a UsdLux light."""
+    from pxr import UsdLux
+
+    api = UsdLux.LightAPI(prim)
+    intensity = float(api.GetIntensityAttr().Get() or 0.0)
+    exposure = float(api.GetExposureAttr().Get() or 0.0)
+    colour = api.GetColorAttr().Get()
+    mean = float(np.mean(colour)) if colour is not None else 1.0
+    return intensity * 2.0 ** exposure * mean
+
+
+def _camera(prim, width: int, meters: float) -> Camera:
+    from pxr import Gf, UsdGeom
+
+    cam = UsdGeom.Camera(prim).GetCamera()
+    if cam.projection != Gf.Camera.Perspective:
+        raise BTFError(f"{prim.GetPath()}: the CPU renderer takes perspective cameras only")
+    m = cam.transform
+    eye = np.array(m.Transform(Gf.Vec3d(0, 0, 0))) * meters
+    forward = np.array(m.TransformDir(Gf.Vec3d(0, 0, -1)))
+    up = np.array(m.TransformDir(Gf.Vec3d(0, 1, 0)))
+    height = max(1, int(round(width * cam.verticalAperture / cam.horizontalAperture)))
+    fov = float(cam.GetFieldOfView(Gf.Camera.FOVVertical))
+    return Camera(eye, eye + forward / max(np.linalg.norm(forward), 1e-30), up, fov, width, height)
+
+
+def read_scene(path, camera_path: str, width: int) -> tuple[Camera, list[Light]]:
+    """(camera, lights) of the stage at ``path``: the UsdGeom.Camera ``camera_path`` (its
+    frame ``width`` pixels wide, the height from its apertures, as usdrecord frames it) and
+    its UsdLux lights in the CPU renderer's units (module docstring; possibly none)."""
+    from pxr import Gf, Usd, UsdGeom, UsdLux
+
+    from ..usdstage import open_usd
+
+    stage = open_usd(path)
+    meters = float(UsdGeom.GetStageMetersPerUnit(stage))
+    prim = stage.GetPrimAtPath(camera_path) if camera_path.startswith("/") else Usd.Prim()
+    if not prim or not prim.IsA(UsdGeom.Camera):
+        raise BTFError(f"{path}: no UsdGeom.Camera at {camera_path}")
+    camera = _camera(prim, width, meters)
+    cache = UsdGeom.XformCache()
+    lights = []
+    for light in stage.Traverse():
+        if not light.HasAPI(UsdLux.LightAPI):
+            continue
+        m = cache.GetLocalToWorldTransform(light)
+        centre = np.array(m.Transform(Gf.Vec3d(0, 0, 0))) * meters
+        lengths = [np.linalg.norm(m.TransformDir(Gf.Vec3d(*axis))) * meters for axis in np.eye(3)]
+        scale = _scale(light, light)
+        if light.IsA(UsdLux.DistantLight):
+            towards = np.array(m.TransformDir(Gf.Vec3d(0, 0, 1)))
+            angle = float(UsdLux.DistantLight(light).GetAngleAttr().Get())
+            lights.append(Light("directional", towards / np.linalg.norm(towards), scale * _solid_angle(angle)))
+        elif light.IsA(UsdLux.SphereLight) or light.IsA(UsdLux.DiskLight):
+            schema = UsdLux.SphereLight(light) if light.IsA(UsdLux.SphereLight) else UsdLux.DiskLight(light)
+            r = float(schema.GetRadiusAttr().Get()) * max(lengths)
+            lights.append(Light("point", centre, scale * math.pi * r * r))
+        elif light.IsA(UsdLux.RectLight):
+            rect = UsdLux.RectLight(light)
+            area = float(rect.GetWidthAttr().Get()) * lengths[0] * float(rect.GetHeightAttr().Get()) * lengths[1]
+            lights.append(Light("point", centre, scale * area))
+        else:
+            log.info(f"{path}: {light.GetPath()} ({light.GetTypeName()}) adds nothing: a BTF measures "
+                     "directional light only")
+    return camera, lights
+
+
+def write_scene(asset: Path, out: Path, camera: Camera, lights: list[Light], *, lod: str | None = None) -> str:
+    """Write ``out`` (.usda): ``asset`` referenced (its ``lod`` selection), ``camera`` as a
+    UsdGeom.Camera and ``lights`` as UsdLux lights of the same irradiance (directional: a
+    DistantLight; point: a SphereLight of radius :data:`POINT_RADIUS_M`), metres.  Returns the
+    camera's prim path."""
+    from pxr import Gf, UsdGeom, UsdLux
+
+    stage, _ = new_scene(asset, out, lod)
+    cam = UsdGeom.Camera.Define(stage, "/World/Camera")
+    right, up, forward = camera.basis()
+    focal = 50.0
+    vertical = 2.0 * focal * math.tan(math.radians(camera.fov) / 2.0)
+    cam.CreateFocalLengthAttr(focal)
+    cam.CreateVerticalApertureAttr(vertical)
+    cam.CreateHorizontalApertureAttr(vertical * camera.width / camera.height)
+    near = 1e-3
+    cam.CreateClippingRangeAttr(Gf.Vec2f(near, 1e4))
+    rows = [[*right, 0.0], [*up, 0.0], [*(-forward), 0.0], [*camera.eye, 1.0]]
+    cam.AddTransformOp().Set(Gf.Matrix4d(rows))
+    for i, light in enumerate(lights):
+        if light.kind == "directional":
+            add_distant(stage, f"/World/Light{i}", light.vector, light.intensity)
+        else:
+            lux = UsdLux.SphereLight.Define(stage, f"/World/Light{i}")
+            lux.CreateRadiusAttr(POINT_RADIUS_M)
+            lux.CreateIntensityAttr(light.intensity / (math.pi * POINT_RADIUS_M ** 2))
+            lux.AddTranslateOp().Set(Gf.Vec3d(*(float(x) for x in light.vector)))
+    stage.GetRootLayer().customLayerData = {"usdbtf": {"output": "scene"}}
+    stage.Save()
+    return "/World/Camera"
