@@ -22,6 +22,7 @@ from .compress.format import CompressedBTF, reconstruct
 from .errors import UsageError
 from .model import BTF
 from .resources import require_memory
+from .numeric import single_blas_thread
 
 __all__ = ["DecompressOptions", "DecompressResult", "ReconstructedBTF", "decompress", "write_decompress"]
 
@@ -71,6 +72,7 @@ class DecompressResult:
                                 compressed=c, indices=self.indices, k=self.k)
 
 
+@single_blas_thread
 def decompress(compressed: CompressedBTF, options: DecompressOptions | None = None) -> DecompressResult:
     """The reconstruction of ``options.samples`` of ``compressed`` from its first ``options.k``
     basis vectors, checked (UsageError for indices or a k out of range; the memory a written

@@ -191,9 +191,10 @@ def one_blas_thread():
 
     Every GEMM whose bits reach an output runs inside one: a thread count changes how some
     kernels (OpenBLAS's Haswell among them) round a product, and usdbtf parallelises over
-    pieces of a fixed shape itself.  The CLI runs every command in one; stage functions whose
-    outputs come from GEMMs (compress, the fallback fit) take it themselves for library
-    callers.  The BLAS thread count is a process-wide setting and threads enter and leave such
+    pieces of a fixed shape itself.  The CLI runs every command in one; for library callers
+    the stage functions take it themselves (:func:`single_blas_thread`: compress, synth,
+    rectify, decompress and ``reconstruct``, unwrap, quilt, render, package and the fallback
+    fit).  The BLAS thread count is a process-wide setting and threads enter and leave such
     blocks at once: the first to enter sets one thread, the last to leave puts back what was
     there.  Nested and concurrent blocks cost a lock and a counter.  BLAS must be loaded
     (numpy imported) before the first block: threadpoolctl finds the libraries loaded then."""

@@ -43,6 +43,7 @@ from .model import BTF
 from .progress import track
 from .resources import require_disk, require_memory
 from .sampling import Sampling
+from .numeric import single_blas_thread
 
 log = logging.getLogger(__name__)
 
@@ -326,6 +327,7 @@ class RectifiedBTF(BTF):
         return out if rows is None else out[:, rows[0]:rows[1]]
 
 
+@single_blas_thread
 def rectify(raw, options: RectifyOptions, *, board: Board | None = None, scratch=None) -> RectifyResult:
     """Rectify the frames of a RAW capture folder (``usdbtf capture``, or any manifest of board
     frames) into every sample of its plan.

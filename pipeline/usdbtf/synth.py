@@ -78,6 +78,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from .sampling import Sampling
+from .numeric import single_blas_thread
 
 __all__ = [
     "Material",
@@ -1173,6 +1174,7 @@ class SynthResult:
         return btf
 
 
+@single_blas_thread
 def synth(preset: str, options: SynthOptions | None = None) -> SynthResult:
     """The procedural material ``preset`` (a :data:`PRESETS` name) over ``options.sampling``.
 

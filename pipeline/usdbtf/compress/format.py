@@ -45,6 +45,7 @@ from ..sampling import Sampling
 from .codecs import Codec, Stored, get_codec
 from .domain import LINEAR, Domain
 from .parallel import in_threads
+from ..numeric import single_blas_thread
 
 __all__ = ["FORMAT", "METADATA", "CompressedBTF", "EncodedTextures", "write_textures", "write_metadata",
            "metadata_document", "metadata_text", "read_compressed", "reconstruct", "reconstruct_rows",
@@ -154,6 +155,7 @@ class CompressedBTF:
         return out
 
 
+@single_blas_thread
 def reconstruct(cbtf: CompressedBTF, indices=slice(None), *, k: int | None = None,
                 coefficients: np.ndarray | None = None) -> np.ndarray:
     """Working-space images of samples ``indices`` from the first ``k`` basis vectors.
@@ -167,6 +169,7 @@ def reconstruct(cbtf: CompressedBTF, indices=slice(None), *, k: int | None = Non
     return reconstruct_rows(cbtf, cbtf.basis_values(k)[idx], coefficients)
 
 
+@single_blas_thread
 def reconstruct_rows(cbtf: CompressedBTF, rows: np.ndarray, coefficients: np.ndarray | None = None) -> np.ndarray:
     """Working-space images (n, H, W, 3) float32 for basis rows ``rows`` (n, k) -- measured
     rows or rows blended for an interpolated direction (blended in the domain, before the

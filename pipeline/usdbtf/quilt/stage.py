@@ -18,10 +18,12 @@ from ..compress.format import CompressedBTF, read_compressed
 from ..errors import UsageError
 from .atlas import quilt_atlas
 from .core import QuiltOptions, QuiltResult, quilt_plane
+from ..numeric import single_blas_thread
 
 __all__ = ["quilt"]
 
 
+@single_blas_thread
 def quilt(source, options: QuiltOptions, *, atlas=None) -> QuiltResult:
     """Quilt ``source`` (a :class:`CompressedBTF`, or the folder of one) into a plane of
     ``options.size`` texels, or into the charts of ``atlas`` (an :class:`~usdbtf.unwrap.UnwrapResult`,

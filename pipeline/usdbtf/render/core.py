@@ -39,6 +39,7 @@ from .scene import Light
 from .shading import BasisInterpolator
 from .shadows import ShadowMap
 from .texture import CoefficientTexture
+from ..numeric import single_blas_thread
 
 __all__ = ["RenderOptions", "RenderResult", "Renderer", "render", "render_swatch"]
 
@@ -237,12 +238,14 @@ class RenderResult:
     ocio_config: str | None = None
 
 
+@single_blas_thread
 def render(cbtf: CompressedBTF, mesh: Mesh, camera: Camera, lights: list[Light],
            options: RenderOptions | None = None) -> RenderResult:
     """One frame of ``mesh`` with ``cbtf`` under ``lights`` (see the module docstring)."""
     return RenderResult(Renderer(cbtf, options).render(mesh, camera, lights), cbtf.working_space, cbtf.ocio_config)
 
 
+@single_blas_thread
 def render_swatch(cbtf: CompressedBTF, view_deg, light_deg, options: RenderOptions | None = None) -> RenderResult:
     """The flat patch at (view, light) degrees, one pixel per texel: (H, W, 3) float32."""
     return RenderResult(Renderer(cbtf, options).swatch(view_deg, light_deg), cbtf.working_space, cbtf.ocio_config)

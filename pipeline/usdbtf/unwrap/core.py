@@ -27,6 +27,7 @@ from ..imageio import read_image, write_image
 from ..mesh import Mesh, load_mesh, mirrored_faces, tangent_frames
 from .atlas import MAX_ATLAS_SIDE, Atlas, chart_map, keep_uvs, make_atlas, uv_problems
 from .layer import layer_atlas_info, write_layer
+from ..numeric import single_blas_thread
 
 log = logging.getLogger(__name__)
 
@@ -85,6 +86,7 @@ def _prepared(mesh: Mesh) -> Mesh:
     return mesh.split_corners().without_degenerate().compacted().with_normals()
 
 
+@single_blas_thread
 def unwrap(mesh: Mesh, options: UnwrapOptions) -> UnwrapResult:
     """Atlas, tangent frames and chart map of ``mesh`` at ``options.texels_per_metre`` (in
     memory; :func:`write_unwrap` writes it).  Degenerate triangles are dropped and points no

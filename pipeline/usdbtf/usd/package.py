@@ -70,6 +70,7 @@ from .material import LOD_VARIANT_SET, author_btf
 from .textures import TEXTURE_FORMATS, USDZ_FORMATS, TextureSet, package_textures
 from .validate import validate_layer
 from .formats import PAYLOAD_FORMATS
+from ..numeric import single_blas_thread
 
 __all__ = ["PackageOptions", "PackageResult", "package", "write_package", "asset_layers", "read_input",
            "asset_pieces", "check_root_layer", "make_usdz", "default_lods", "LOD_VARIANT_SET", "FULL_LOD",
@@ -221,6 +222,7 @@ def check_root_layer(out) -> None:
         raise UsageError(f"{out}: the asset's root layer must be a {', '.join(ROOT_FORMATS)} file")
 
 
+@single_blas_thread
 def package(compressed, options: PackageOptions | None = None) -> PackageResult:
     """Package ``compressed`` -- a compressed BTF folder (read by :func:`read_input`) or a
     :class:`CompressedBTF` (its ``encoded`` bytes and ``curve`` are used when it has them, e.g.
