@@ -37,16 +37,20 @@ no normal map), kept as the baseline ``benchmarks/bench_fallback.py`` measures a
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import logging
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .compress.format import CompressedBTF, working_coefficient_texels
+from .progress import track
 from .sampling import to_vectors
 
 __all__ = ["SvbrdfMaps", "fit_svbrdf", "flat_fallback", "median_albedo", "fit_flat_roughness", "evaluate",
            "fit_samples", "normal_samples", "validation_samples", "ROUGHNESS_GRID", "MIN_ROUGHNESS",
            "VALIDATION_SAMPLES"]
+
+log = logging.getLogger(__name__)
 
 #: The roughness candidates.  None below 0.2: previewSurface.glslfx adds EPSILON = 0.001 to
 #: alpha^2 = roughness^4 in D's numerator, which dominates below roughness ~0.18 and makes
@@ -82,6 +86,12 @@ class SvbrdfMaps:
     @property
     def shape(self) -> tuple[int, int]:
         return self.roughness.shape
+
+    def gathered(self, gather) -> "SvbrdfMaps":
+        """These maps with every per-texel array passed through ``gather`` ((H, W, ...) ->
+        (H', W', ...), e.g. :meth:`usdbtf.quilt.texels.QuiltTexels.gather`)."""
+        return replace(self, diffuse=gather(self.diffuse), specular=gather(self.specular),
+                       roughness=gather(self.roughness), normal=gather(self.normal))
 
 
 def fit_samples(cbtf: CompressedBTF, most: int = 1536) -> np.ndarray:
@@ -306,7 +316,7 @@ def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: in
     step = _chunk_texels(max(len(fit), len(ps)), chunk_bytes)
     scale = np.float32(1.0 / (np.pi * white_level))
     flat = np.array([0.0, 0.0, 1.0], np.float32)
-    for t0 in range(0, texels, step):
+    for t0 in track(range(0, texels, step), "fallback fit", -(-texels // step), logger=log):
         block = slice(t0, min(t0 + step, texels))
         y = np.ascontiguousarray((_reconstruct(cbtf, fit_rows, block) * scale).transpose(2, 0, 1))
         n_flat = np.broadcast_to(flat, (y.shape[2], 3))

@@ -20,14 +20,19 @@ reads back, so the benchmark measures the fallback as shipped.
 """
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from ..color import processor
 from ..imageio import encode_image
+from ..progress import track
 from ..svbrdf import SvbrdfMaps
 
 __all__ = ["COLOUR_ENCODING", "FALLBACK_DIR", "MAP_FILES", "encode_maps", "decode_maps", "add_maps",
            "author_fallback", "uv_texture", "st_reader"]
+
+log = logging.getLogger(__name__)
 
 #: The colour maps' file encoding: what UsdUVTexture decodes with sourceColorSpace "sRGB".
 COLOUR_ENCODING = "sRGB Encoded Rec.709 (sRGB)"
@@ -72,15 +77,22 @@ def decode_maps(pixels: dict[str, np.ndarray], working_space: str, *, ocio_confi
                       working_space, float(white_level))
 
 
-def add_maps(maps: SvbrdfMaps, textures, ocio_config: str | None = None, names=tuple(MAP_FILES)) -> dict:
+def add_maps(maps: SvbrdfMaps, textures, ocio_config: str | None = None, names=tuple(MAP_FILES),
+             texels=None) -> dict:
     """Encode the maps ``names`` as PNG files (in memory) into ``textures`` (a
-    textures.TextureSet, under :data:`FALLBACK_DIR`); {map: its name in ``textures``}."""
+    textures.TextureSet, under :data:`FALLBACK_DIR`); {map: its name in ``textures``}.
+    ``texels`` (a :class:`usdbtf.quilt.texels.QuiltTexels`): ``maps`` are those of its compact
+    source texels, and the encoded pixels are gathered through its index (encoding is per
+    texel, so this is the encoding of the gathered maps)."""
     from .textures import DATA
 
     added = {}
-    for name, pixels in encode_maps(maps, ocio_config).items():
+    encoded = encode_maps(maps, ocio_config)
+    for name, pixels in track(encoded.items(), "fallback maps", len(encoded), logger=log):
         if name not in names:
             continue
+        if texels is not None:
+            pixels = texels.gather(pixels)
         file, kind = MAP_FILES[name]
         space = COLOUR_ENCODING if kind == "srgb" else DATA
         data = encode_image(pixels, "png", color_space=space, attributes={"png:compressionLevel": 9})

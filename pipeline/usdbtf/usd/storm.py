@@ -34,6 +34,7 @@ root layer, sets ``basisCount`` and blocks the connections of the packs beyond
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,6 +45,8 @@ from ..gpu.tables import MAX_GROUPS, gpu_layout
 
 __all__ = ["plugin_dir_resources", "GPU_DIR", "STORM_SURFACE", "GpuTextures", "add_gpu_textures",
            "author_gpu_preview", "materialx_document", "storm_shader", "layout_from_asset", "read_rgba"]
+
+log = logging.getLogger(__name__)
 
 GPU_DIR = "gpu"
 STORM_SURFACE = "StormSurface"
@@ -70,23 +73,28 @@ class GpuTextures:
     k: int
 
 
-def add_gpu_textures(cbtf: CompressedBTF, textures) -> GpuTextures | None:
+def add_gpu_textures(cbtf: CompressedBTF, textures, texels=None) -> GpuTextures | None:
     """Encode tables.exr, the coefficient packs and the MaterialX document (in memory) into
     ``textures`` (a :class:`~usdbtf.usd.textures.TextureSet`, under ``gpu/``); None (nothing
     added) for a BTF whose sampling is not every light at every view, which the preview
-    cannot interpolate."""
+    cannot interpolate.  ``texels`` (a :class:`usdbtf.quilt.texels.QuiltTexels` of ``cbtf``):
+    the packs are made from its compact source texels and gathered through its index, one
+    at a time (the same codes, without the whole quilt-sized set of packs in memory)."""
     import numpy as np
 
     from ..compress.format import cross_layout
     from ..imageio import encode_image
+    from ..progress import track
 
     if cross_layout(cbtf.sampling) is None:
         return None
-    layout = gpu_layout(cbtf)
+    layout = gpu_layout(cbtf if texels is None else texels.compact)
     tables = textures.add(f"{GPU_DIR}/tables.exr", encode_image(layout.tables, "exr", color_space="data",
                                                                  attributes={"compression": "zip"}), "float")
     packs = []
-    for p, pixels in enumerate(layout.packs):
+    for p, pixels in enumerate(track(layout.packs, "GPU packs", len(layout.packs), logger=log)):
+        if texels is not None:
+            pixels = texels.gather(pixels)
         if pixels.dtype == np.float16:
             data = encode_image(pixels, "exr", color_space="data", attributes={"compression": "zip"})
             packs.append(textures.add(f"{GPU_DIR}/{shaders.pack_name(p)}.exr", data, "float"))

@@ -24,6 +24,7 @@ de-quantisation is affine.  Reading level 0 back gives the written codes bit for
 """
 from __future__ import annotations
 
+import logging
 import struct
 import zlib
 from dataclasses import dataclass
@@ -36,10 +37,13 @@ from ..compress.format import CompressedBTF, basis_file, coefficient_file, encod
 from ..compress.parallel import in_threads
 from ..errors import BTFError
 from ..imageio import decode_image, encode_image, write_encoded
+from ..progress import track
 from .formats import TEXTURE_FORMATS
 
 __all__ = ["DATA", "PORTABLE", "TEXTURE_FORMATS", "USDZ_FORMATS", "Texture", "TextureSet", "png_as_data",
            "portable_bytes", "package_textures"]
+
+log = logging.getLogger(__name__)
 
 #: OIIO colour-space name for data files.
 DATA = "data"
@@ -191,7 +195,7 @@ class TextureSet:
         """Create ``folder`` with every file (making the tiled formats' files now)."""
         folder = Path(folder)
         folder.mkdir(parents=True)
-        for final, f in self.files.items():
+        for final, f in track(self.files.items(), "writing textures", len(self.files), logger=log):
             src = folder / f.written
             src.parent.mkdir(parents=True, exist_ok=True)
             write_encoded(src, f.data)
