@@ -1,0 +1,307 @@
+#!/usr/bin/env python
+"""``usdbtf package --mesh`` of quilted atlases against atlas size (issue 32).
+
+The README's manual mesh route at several sizes: a 5 cm swatch (pebbles, sampling "small",
+64², ``--k 48 --codec png``); icospheres (4 subdivisions) of radius ``--radii`` metres,
+``usdbtf unwrap --btf`` (atlases at the swatch's texel density), ``usdbtf quilt --atlas``;
+then ``usdbtf package Q --mesh mesh.usda``.  Inputs are cached under ``--workdir``.
+
+Measured in the same run, each a subprocess (wall time, peak RSS; median of ``--repeats``):
+
+swatch       ``package`` of the source swatch (the fixed cost every asset pays);
+quilt        ``package Q --mesh`` of each quilted atlas, with its steps timed (read the folder,
+             the quilt's distinct source texels, the fallback fit, the fallback maps encoded, the
+             GPU tables and packs, the thumbnail, the texture folder written, validation) --
+             the command's own ``usdbtf.cli.main`` run in a child with each step's function
+             wrapped by a timer;
+write        the time to write the atlas's textures (baseline): every atlas-sized file the asset
+             holds, decoded once, then encoded again with the writer and settings ``package``
+             uses (GPU packs PNG level 6, fallback maps PNG level 9) or, for the BTF's
+             coefficient textures (which ``package`` copies), their bytes written; in a child;
+per-texel    the path before issue 32, on atlases up to ``--per-texel-max`` texels: the same
+             quilt folder without ``quilt_positions.exr`` (an older quilt), which ``package``
+             fits and packs texel by texel; its fit seconds per texel give the estimate printed
+             for the larger atlases (an extrapolation, marked as such);
+tx           with ``--tx``: the largest atlas packaged with ``--texture-format tx`` once (maketx of
+             every texture).
+
+Must show (issue 32): the largest (the 0.3 m sphere) <= 2 x (swatch + write) in time and
+<= 1.5 GB peak RSS.
+
+Usage (repository root)::
+
+    .venv/bin/python benchmarks/bench_package_quilt.py --tx          # radii 0.05 0.1 0.2 0.3, ~15 min on 2 cores
+    .venv/bin/python benchmarks/bench_package_quilt.py --quick       # radii 0.03 0.06, one repeat (a check)
+
+Writes benchmarks/out/package_quilt_<timestamp>.json and prints a markdown block for RESULTS.md.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import sys
+import time
+from pathlib import Path
+
+from common import OUT, cli_command, format_machine, machine_info, median, run_measured, timestamp, write_json
+
+TARGET_RATIO, TARGET_RSS = 2.0, 1.5e9
+#: The steps a child times: (module, attribute, label); module "TextureSet" is the class.
+STEPS = (("usdbtf.usd.package", "read_input", "read"), ("usdbtf.quilt.texels", "quilt_texels", "source texels"),
+         ("usdbtf.svbrdf", "fit_svbrdf", "fallback fit"), ("usdbtf.usd.fallback", "add_maps", "fallback maps"),
+         ("usdbtf.usd.storm", "add_gpu_textures", "GPU tables+packs"),
+         ("usdbtf.usd.thumbnail", "thumbnail_png", "thumbnail"),
+         ("usdbtf.usd.textures:TextureSet", "write", "texture folder"),
+         ("usdbtf.usd.package", "_check_published", "validation"))
+#: Writer settings of the atlas-sized textures ``package`` encodes, by folder (see usd.storm, usd.fallback).
+ENCODE = {"gpu": {"png:compressionLevel": 6, "oiio:UnassociatedAlpha": 1}, "fallback": {"png:compressionLevel": 9}}
+
+
+def say(msg: str = "") -> None:
+    print(msg, flush=True)
+
+
+# ------------------------------------------------------------------ children
+def child_steps(out_json: str, argv: list) -> int:
+    """Run ``usdbtf`` ``argv`` in this process with STEPS timed; write {label: seconds} to ``out_json``."""
+    import importlib
+
+    times: dict = {}
+
+    def timed(fn, label):
+        def run(*a, **kw):
+            t = time.perf_counter()
+            try:
+                return fn(*a, **kw)
+            finally:
+                times[label] = times.get(label, 0.0) + time.perf_counter() - t
+        return run
+
+    for where, name, label in STEPS:
+        module, _, cls = where.partition(":")
+        owner = importlib.import_module(module)
+        owner = getattr(owner, cls) if cls else owner
+        setattr(owner, name, timed(getattr(owner, name), label))
+    from usdbtf.cli import main
+
+    t = time.perf_counter()
+    code = main(argv)
+    times["total in process"] = time.perf_counter() - t
+    Path(out_json).write_text(json.dumps(times))
+    return code
+
+
+def child_write(textures: str, width: int, height: int, scratch: str, out_json: str) -> int:
+    """Time writing the asset's atlas-sized textures (module docstring, "write")."""
+    import OpenImageIO as oiio
+
+    from usdbtf.imageio import encode_image, write_encoded
+
+    jobs = []
+    for path in sorted(Path(textures).rglob("*.png")):
+        inp = oiio.ImageInput.open(str(path))
+        spec = inp.spec()
+        inp.close()
+        if (spec.width, spec.height) != (width, height):
+            continue
+        folder = path.relative_to(textures).parts[0]
+        config = oiio.ImageSpec()
+        config.attribute("oiio:UnassociatedAlpha", 1)
+        inp = oiio.ImageInput.open(str(path), config)
+        pixels = inp.read_image(0, 0, 0, spec.nchannels, spec.format)
+        inp.close()
+        jobs.append((path, folder, pixels))
+    Path(scratch).mkdir(parents=True, exist_ok=True)
+    t = time.perf_counter()
+    for i, (path, folder, pixels) in enumerate(jobs):
+        target = Path(scratch) / f"{i:03d}.png"
+        if folder in ENCODE:
+            write_encoded(target, encode_image(pixels, "png", color_space="data", attributes=ENCODE[folder]))
+        else:
+            write_encoded(target, path.read_bytes())
+    seconds = time.perf_counter() - t
+    shutil.rmtree(scratch)
+    Path(out_json).write_text(json.dumps({"seconds": seconds, "files": len(jobs),
+                                          "encoded": sum(f in ENCODE for _, f, _ in jobs)}))
+    return 0
+
+
+# ------------------------------------------------------------------ inputs
+def run_cli(cli, *args) -> None:
+    r = run_measured([*cli, *map(str, args)], pss_interval=0)
+    if r.returncode != 0:
+        raise SystemExit(f"{' '.join(map(str, args))} failed:\n{r.stderr[-2000:]}")
+
+
+def inputs(workdir: Path, radii: list, cli) -> dict:
+    """The swatch folder and {radius: (mesh layer, quilt folder, atlas (w, h), quilt seconds)}."""
+    workdir.mkdir(parents=True, exist_ok=True)
+    swatch = workdir / "pebbles64_k48"
+    if not (swatch / "btf-compressed.json").is_file():
+        run_cli(cli, "synth", "pebbles", "-o", workdir / "pebbles64", "--size", 64, "-q")
+        run_cli(cli, "compress", workdir / "pebbles64", "-o", swatch, "--k", 48, "--codec", "png", "-q")
+    quilts = {}
+    for radius in radii:
+        name = f"sphere_r{radius:g}"
+        mesh, quilt = workdir / name / "mesh.usda", workdir / f"{name}_Q"
+        if not mesh.is_file():
+            import trimesh
+
+            obj = workdir / f"{name}.obj"
+            trimesh.creation.icosphere(subdivisions=4, radius=radius).export(str(obj))
+            run_cli(cli, "unwrap", obj, "-o", workdir / name, "--btf", swatch, "-q")
+        seconds = None
+        if not (quilt / "btf-compressed.json").is_file():
+            t = time.perf_counter()
+            run_cli(cli, "quilt", swatch, "--atlas", mesh, "-o", quilt, "-q")
+            seconds = time.perf_counter() - t
+        atlas = json.loads((workdir / name / "unwrap.json").read_text())["atlas"]
+        quilts[radius] = (mesh, quilt, (atlas["width"], atlas["height"]), seconds)
+    return {"swatch": swatch, "quilts": quilts}
+
+
+# ------------------------------------------------------------------ measurements
+def package_run(source: Path, out: Path, repeats: int, *extra) -> dict:
+    """``package`` of ``source`` as ``out`` ``repeats`` times (steps timed): medians and the worst peak."""
+    walls, rss, steps = [], [], []
+    for i in range(repeats):
+        times = out.parent / "steps.json"
+        r = run_measured([sys.executable, __file__, "--child-steps", times, "--", "--force", "package", source,
+                          "-o", out, "-q", *extra])
+        if r.returncode != 0:
+            raise SystemExit(f"package {source} failed:\n{r.stderr[-3000:]}")
+        walls.append(r.wall_s)
+        rss.append(r.max_rss_bytes)
+        steps.append(json.loads(times.read_text()))
+    labels = [label for _, _, label in STEPS] + ["total in process"]
+    return {"wall_s": median(walls), "wall_s_samples": walls, "max_rss_bytes": max(rss),
+            "steps_s": {label: median(s.get(label, 0.0) for s in steps) for label in labels}}
+
+
+def write_baseline(textures: Path, atlas: tuple, repeats: int) -> dict:
+    seconds = []
+    doc = {}
+    for i in range(repeats):
+        result = textures.parent / "write.json"
+        r = run_measured([sys.executable, __file__, "--child-write", textures, *map(str, atlas), textures.parent / "scratch",
+                          result], pss_interval=0)
+        if r.returncode != 0:
+            raise SystemExit(f"write baseline failed:\n{r.stderr[-3000:]}")
+        doc = json.loads(result.read_text())
+        seconds.append(doc["seconds"])
+    return {"seconds": median(seconds), "samples": seconds, "files": doc["files"], "encoded": doc["encoded"]}
+
+
+def distinct_source_texels(quilt: Path) -> int:
+    from usdbtf.compress.format import read_compressed
+    from usdbtf.quilt.texels import quilt_texels
+
+    texels = quilt_texels(read_compressed(quilt), quilt)
+    return texels.compact.width if texels is not None else -1
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    os.environ.setdefault("OCIO", "ocio://default")
+    info = machine_info()
+    say(f"# bench_package_quilt\n{format_machine(info)}")
+    cli = cli_command()
+    radii = [0.03, 0.06] if args.quick else [float(r) for r in args.radii]
+    repeats = 1 if args.quick else args.repeats
+    data = inputs(args.workdir, radii, cli)
+    work = OUT / "package_quilt"
+    results = {"machine": info, "args": {k: str(v) for k, v in vars(args).items()}, "radii": radii}
+    say(f"\n## swatch ({data['swatch']})")
+    results["swatch"] = package_run(data["swatch"], work / "swatch" / "swatch.usda", repeats)
+    say(f"- {results['swatch']['wall_s']:.1f} s, {results['swatch']['max_rss_bytes'] / 1e9:.2f} GB")
+    rows = []
+    fit_per_texel = None
+    for radius in radii:
+        mesh, quilt, atlas, quilt_s = data["quilts"][radius]
+        texels = atlas[0] * atlas[1]
+        say(f"\n## sphere r = {radius:g} m: atlas {atlas[0]}x{atlas[1]} ({texels:,} texels)")
+        out = work / f"r{radius:g}" / "sphere.usda"
+        row = {"radius": radius, "atlas": atlas, "texels": texels, "quilt_s": quilt_s,
+               "distinct": distinct_source_texels(quilt),
+               "package": package_run(quilt, out, repeats, "--mesh", mesh),
+               "write": write_baseline(out.parent / "sphere_textures", atlas, repeats)}
+        bound = results["swatch"]["wall_s"] + row["write"]["seconds"]
+        row["ratio"] = row["package"]["wall_s"] / bound
+        say(f"- package {row['package']['wall_s']:.1f} s, {row['package']['max_rss_bytes'] / 1e9:.2f} GB; "
+            f"write {row['write']['seconds']:.1f} s; ratio {row['ratio']:.2f}")
+        if texels <= args.per_texel_max:
+            old = work / f"r{radius:g}_no_map"
+            shutil.rmtree(old, ignore_errors=True)
+            shutil.copytree(quilt, old)
+            (old / "quilt_positions.exr").unlink()
+            row["per_texel"] = package_run(old, work / f"r{radius:g}_per_texel" / "sphere.usda", 1, "--mesh", mesh)
+            fit_per_texel = row["per_texel"]["steps_s"]["fallback fit"] / texels
+            say(f"- per-texel path: {row['per_texel']['wall_s']:.1f} s, "
+                f"{row['per_texel']['max_rss_bytes'] / 1e9:.2f} GB")
+        rows.append(row)
+    for row in rows:
+        if "per_texel" not in row and fit_per_texel is not None:
+            row["per_texel_fit_estimate_s"] = fit_per_texel * row["texels"]
+    if args.tx:
+        mesh, quilt, atlas, _ = data["quilts"][radii[-1]]
+        say(f"\n## --texture-format tx, r = {radii[-1]:g} m")
+        results["tx"] = package_run(quilt, work / "tx" / "sphere.usda", 1, "--mesh", mesh, "--texture-format", "tx")
+        say(f"- {results['tx']['wall_s']:.1f} s, {results['tx']['max_rss_bytes'] / 1e9:.2f} GB")
+    results["rows"] = rows
+    path = write_json(OUT / f"package_quilt_{timestamp()}.json", results)
+    note = "(--quick: NOT the issue's sphere)\n" if args.quick else ""
+    say(f"\n## markdown (for benchmarks/RESULTS.md)\n\n{note}{markdown(results)}\n\nwrote {path}")
+    return 0
+
+
+def markdown(results: dict) -> str:
+    sw = results["swatch"]
+    labels = [label for _, _, label in STEPS]
+    lines = [f"Swatch (`package` of the 64² source, k 48): **{sw['wall_s']:.1f} s**, peak RSS "
+             f"{sw['max_rss_bytes'] / 1e9:.2f} GB.", "",
+             "| sphere r (m) | atlas | atlas texels | distinct source texels | package s | peak RSS GB | "
+             "write atlas textures s | **package / (swatch + write)** | per-texel path s |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for row in results["rows"]:
+        old = (f"{row['per_texel']['wall_s']:.1f} (measured; {row['per_texel']['max_rss_bytes'] / 1e9:.2f} GB)"
+               if "per_texel" in row else
+               f"~{row['per_texel_fit_estimate_s']:.0f} (fit alone, extrapolated)"
+               if "per_texel_fit_estimate_s" in row else "-")
+        lines.append(f"| {row['radius']:g} | {row['atlas'][0]}×{row['atlas'][1]} | {row['texels']:,} | "
+                     f"{row['distinct']:,} | {row['package']['wall_s']:.1f} | "
+                     f"{row['package']['max_rss_bytes'] / 1e9:.2f} | {row['write']['seconds']:.1f} | "
+                     f"**{row['ratio']:.2f}** | {old} |")
+    lines += ["", "Steps (median seconds, in the command's process):", "",
+              "| run | " + " | ".join(labels) + " |", "|---|" + "---|" * len(labels)]
+    runs = [("swatch", sw)] + [(f"r {row['radius']:g}", row["package"]) for row in results["rows"]]
+    runs += [(f"r {row['radius']:g} per-texel", row["per_texel"]) for row in results["rows"] if "per_texel" in row]
+    if "tx" in results:
+        runs.append((f"r {results['radii'][-1]:g} tx", results["tx"]))
+    for name, run in runs:
+        lines.append(f"| {name} | " + " | ".join(f"{run['steps_s'][label]:.2f}" for label in labels) + " |")
+    if "tx" in results:
+        lines += ["", f"`--texture-format tx` (r {results['radii'][-1]:g}): {results['tx']['wall_s']:.1f} s, "
+                      f"peak RSS {results['tx']['max_rss_bytes'] / 1e9:.2f} GB."]
+    return "\n".join(lines)
+
+
+def parse_args(argv=None):
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--quick", action="store_true", help="two small spheres, one repeat: a check")
+    p.add_argument("--radii", nargs="+", default=["0.05", "0.1", "0.2", "0.3"], help="sphere radii, metres")
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--per-texel-max", type=int, default=150_000,
+                   help="run the per-texel path on atlases up to this many texels")
+    p.add_argument("--tx", action="store_true", help="also package the largest atlas with --texture-format tx")
+    p.add_argument("--workdir", type=Path, default=OUT / "data" / "package_quilt", help="dataset cache")
+    return p.parse_args(argv)
+
+
+if __name__ == "__main__":
+    if len(sys.argv) > 2 and sys.argv[1] == "--child-steps":
+        sys.exit(child_steps(sys.argv[2], sys.argv[4:]))
+    if len(sys.argv) > 2 and sys.argv[1] == "--child-write":
+        sys.exit(child_write(sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), sys.argv[5], sys.argv[6]))
+    sys.exit(main())
