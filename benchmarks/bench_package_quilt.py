@@ -17,7 +17,9 @@ quilt        ``package Q --mesh`` of each quilted atlas, with its steps timed (r
 write        the time to write the atlas's textures (baseline): every atlas-sized file the asset
              holds, decoded once, then encoded again with the writer and settings ``package``
              uses (GPU packs PNG level 6, fallback maps PNG level 9) or, for the BTF's
-             coefficient textures (which ``package`` copies), their bytes written; in a child;
+             coefficient textures (which ``package`` copies), their bytes written; in a child,
+             one file after another ("serial") and a file per thread on every CPU, as
+             ``package`` encodes them ("threaded");
 per-texel    the path before issue 32, on atlases up to ``--per-texel-max`` texels: the same
              quilt folder without ``quilt_positions.exr`` (an older quilt), which ``package``
              fits and packs texel by texel; its fit seconds per texel give the estimate printed
@@ -98,6 +100,7 @@ def child_write(textures: str, width: int, height: int, scratch: str, out_json: 
     import OpenImageIO as oiio
 
     from usdbtf.imageio import encode_image, write_encoded
+    from usdbtf.usd.textures import encode_in_threads
 
     jobs = []
     for path in sorted(Path(textures).rglob("*.png")):
@@ -114,16 +117,22 @@ def child_write(textures: str, width: int, height: int, scratch: str, out_json: 
         inp.close()
         jobs.append((path, folder, pixels))
     Path(scratch).mkdir(parents=True, exist_ok=True)
+
+    def write(job):
+        i, (path, folder, pixels) = job
+        data = encode_image(pixels, "png", color_space="data", attributes=ENCODE[folder]) if folder in ENCODE \
+            else path.read_bytes()
+        write_encoded(Path(scratch) / f"{i:03d}.png", data)
+
     t = time.perf_counter()
-    for i, (path, folder, pixels) in enumerate(jobs):
-        target = Path(scratch) / f"{i:03d}.png"
-        if folder in ENCODE:
-            write_encoded(target, encode_image(pixels, "png", color_space="data", attributes=ENCODE[folder]))
-        else:
-            write_encoded(target, path.read_bytes())
-    seconds = time.perf_counter() - t
+    for job in enumerate(jobs):                             # one file after another
+        write(job)
+    serial = time.perf_counter() - t
+    t = time.perf_counter()
+    encode_in_threads(write, enumerate(jobs), "write")      # a file per thread on every CPU, as package encodes
+    threaded = time.perf_counter() - t
     shutil.rmtree(scratch)
-    Path(out_json).write_text(json.dumps({"seconds": seconds, "files": len(jobs),
+    Path(out_json).write_text(json.dumps({"serial": serial, "threaded": threaded, "files": len(jobs),
                                           "encoded": sum(f in ENCODE for _, f, _ in jobs)}))
     return 0
 
@@ -181,17 +190,17 @@ def package_run(source: Path, out: Path, repeats: int, *extra) -> dict:
 
 
 def write_baseline(textures: Path, atlas: tuple, repeats: int) -> dict:
-    seconds = []
-    doc = {}
+    """Medians of the "write" child's serial and threaded seconds."""
+    docs = []
     for i in range(repeats):
         result = textures.parent / "write.json"
-        r = run_measured([sys.executable, __file__, "--child-write", textures, *map(str, atlas), textures.parent / "scratch",
-                          result], pss_interval=0)
+        r = run_measured([sys.executable, __file__, "--child-write", textures, *map(str, atlas),
+                          textures.parent / "scratch", result], pss_interval=0)
         if r.returncode != 0:
             raise SystemExit(f"write baseline failed:\n{r.stderr[-3000:]}")
-        doc = json.loads(result.read_text())
-        seconds.append(doc["seconds"])
-    return {"seconds": median(seconds), "samples": seconds, "files": doc["files"], "encoded": doc["encoded"]}
+        docs.append(json.loads(result.read_text()))
+    return {"serial": median(d["serial"] for d in docs), "threaded": median(d["threaded"] for d in docs),
+            "samples": docs, "files": docs[-1]["files"], "encoded": docs[-1]["encoded"]}
 
 
 def distinct_source_texels(quilt: Path) -> int:
@@ -227,10 +236,11 @@ def main(argv=None) -> int:
                "distinct": distinct_source_texels(quilt),
                "package": package_run(quilt, out, repeats, "--mesh", mesh),
                "write": write_baseline(out.parent / "sphere_textures", atlas, repeats)}
-        bound = results["swatch"]["wall_s"] + row["write"]["seconds"]
-        row["ratio"] = row["package"]["wall_s"] / bound
-        say(f"- package {row['package']['wall_s']:.1f} s, {row['package']['max_rss_bytes'] / 1e9:.2f} GB; "
-            f"write {row['write']['seconds']:.1f} s; ratio {row['ratio']:.2f}")
+        row["ratio"] = {way: row["package"]["wall_s"] / (results["swatch"]["wall_s"] + row["write"][way])
+                        for way in ("serial", "threaded")}
+        say(f"- package {row['package']['wall_s']:.1f} s, {row['package']['max_rss_bytes'] / 1e9:.2f} GB; write "
+            f"{row['write']['serial']:.1f} s serial, {row['write']['threaded']:.1f} s threaded; ratio "
+            f"{row['ratio']['serial']:.2f} / {row['ratio']['threaded']:.2f}")
         if texels <= args.per_texel_max:
             old = work / f"r{radius:g}_no_map"
             shutil.rmtree(old, ignore_errors=True)
@@ -262,7 +272,8 @@ def markdown(results: dict) -> str:
     lines = [f"Swatch (`package` of the 64² source, k 48): **{sw['wall_s']:.1f} s**, peak RSS "
              f"{sw['max_rss_bytes'] / 1e9:.2f} GB.", "",
              "| sphere r (m) | atlas | atlas texels | distinct source texels | package s | peak RSS GB | "
-             "write atlas textures s | **package / (swatch + write)** | per-texel path s |",
+             "write atlas textures s (serial / threaded) | **package / (swatch + write)** (serial / threaded) | "
+             "per-texel path s |",
              "|---|---|---|---|---|---|---|---|---|"]
     for row in results["rows"]:
         old = (f"{row['per_texel']['wall_s']:.1f} (measured; {row['per_texel']['max_rss_bytes'] / 1e9:.2f} GB)"
@@ -271,8 +282,9 @@ def markdown(results: dict) -> str:
                if "per_texel_fit_estimate_s" in row else "-")
         lines.append(f"| {row['radius']:g} | {row['atlas'][0]}×{row['atlas'][1]} | {row['texels']:,} | "
                      f"{row['distinct']:,} | {row['package']['wall_s']:.1f} | "
-                     f"{row['package']['max_rss_bytes'] / 1e9:.2f} | {row['write']['seconds']:.1f} | "
-                     f"**{row['ratio']:.2f}** | {old} |")
+                     f"{row['package']['max_rss_bytes'] / 1e9:.2f} | {row['write']['serial']:.1f} / "
+                     f"{row['write']['threaded']:.1f} | **{row['ratio']['serial']:.2f} / {row['ratio']['threaded']:.2f}**"
+                     f" | {old} |")
     lines += ["", "Steps (median seconds, in the command's process):", "",
               "| run | " + " | ".join(labels) + " |", "|---|" + "---|" * len(labels)]
     runs = [("swatch", sw)] + [(f"r {row['radius']:g}", row["package"]) for row in results["rows"]]

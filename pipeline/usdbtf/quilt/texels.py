@@ -25,6 +25,7 @@ import numpy as np
 
 from ..compress.codecs import Stored, get_codec
 from ..compress.format import CompressedBTF
+from ..compress.parallel import in_threads
 from .folder import POSITION_MAP
 
 __all__ = ["QuiltTexels", "quilt_texels", "distinct_texels"]
@@ -95,13 +96,14 @@ def _texel_bytes(pixels: np.ndarray) -> np.ndarray:
 
 def _codes_agree(cbtf: CompressedBTF, first: np.ndarray, index: np.ndarray) -> bool:
     """True when every coefficient texture's codes equal, at every texel, the codes of its
-    distinct texel (one pass over the codes, one texture at a time)."""
+    distinct texel (one pass over the codes, a texture per thread at a time)."""
     flat_index = index.ravel()
-    for st in cbtf.coefficients:
+
+    def agree(st) -> bool:
         texels = _texel_bytes(st.pixels)
-        if not np.array_equal(texels[first][flat_index].view(np.uint8), texels.view(np.uint8)):
-            return False
-    return True
+        return np.array_equal(texels[first][flat_index].view(np.uint8), texels.view(np.uint8))
+
+    return all(in_threads(agree, cbtf.coefficients))
 
 
 def quilt_texels(cbtf: CompressedBTF, folder) -> QuiltTexels | None:

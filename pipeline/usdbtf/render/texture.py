@@ -18,6 +18,7 @@ import threading
 import numpy as np
 
 from ..compress.format import CompressedBTF
+from ..compress.parallel import in_threads
 
 __all__ = ["CoefficientTexture"]
 
@@ -78,12 +79,15 @@ class CoefficientTexture:
 
     def _build_level(self, n: int) -> np.ndarray:
         below = [m for m in self.levels if m < n]
-        if not below:                                 # gathered level 0: stream it a band at a time
+        if not below:                  # gathered level 0: stream it a band at a time, a band per thread
             h, w = self.level_shape(n)
             out = np.empty((h, w, 3, self.k), np.float32)
             band = max(1, 32 >> n)
-            for y0 in range(0, h, band):
+
+            def fill(y0):
                 out[y0:y0 + band] = self._rows(n, y0, min(h, y0 + band))
+
+            in_threads(fill, range(0, h, band))
             return out
         m = max(below)
         while m < n:

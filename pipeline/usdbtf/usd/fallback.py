@@ -20,19 +20,14 @@ reads back, so the benchmark measures the fallback as shipped.
 """
 from __future__ import annotations
 
-import logging
-
 import numpy as np
 
 from ..color import processor
 from ..imageio import encode_image
-from ..progress import track
 from ..svbrdf import SvbrdfMaps
 
 __all__ = ["COLOUR_ENCODING", "FALLBACK_DIR", "MAP_FILES", "encode_maps", "decode_maps", "add_maps",
            "author_fallback", "uv_texture", "st_reader"]
-
-log = logging.getLogger(__name__)
 
 #: The colour maps' file encoding: what UsdUVTexture decodes with sourceColorSpace "sRGB".
 COLOUR_ENCODING = "sRGB Encoded Rec.709 (sRGB)"
@@ -84,20 +79,18 @@ def add_maps(maps: SvbrdfMaps, textures, ocio_config: str | None = None, names=t
     ``texels`` (a :class:`usdbtf.quilt.texels.QuiltTexels`): ``maps`` are those of its compact
     source texels, and the encoded pixels are gathered through its index (encoding is per
     texel, so this is the encoding of the gathered maps)."""
-    from .textures import DATA
+    from .textures import DATA, encode_in_threads
 
-    added = {}
-    encoded = encode_maps(maps, ocio_config)
-    for name, pixels in track(encoded.items(), "fallback maps", len(encoded), logger=log):
-        if name not in names:
-            continue
-        if texels is not None:
-            pixels = texels.gather(pixels)
-        file, kind = MAP_FILES[name]
-        space = COLOUR_ENCODING if kind == "srgb" else DATA
-        data = encode_image(pixels, "png", color_space=space, attributes={"png:compressionLevel": 9})
-        added[name] = textures.add(f"{FALLBACK_DIR}/{file}", data, kind)
-    return added
+    encoded = {name: pixels for name, pixels in encode_maps(maps, ocio_config).items() if name in names}
+
+    def encode(name):
+        pixels = encoded[name] if texels is None else texels.gather(encoded[name])
+        space = COLOUR_ENCODING if MAP_FILES[name][1] == "srgb" else DATA
+        return encode_image(pixels, "png", color_space=space, attributes={"png:compressionLevel": 9})
+
+    files = encode_in_threads(encode, encoded, "fallback maps")
+    return {name: textures.add(f"{FALLBACK_DIR}/{MAP_FILES[name][0]}", data, MAP_FILES[name][1])
+            for name, data in zip(encoded, files)}
 
 
 # ------------------------------------------------------------------ authoring

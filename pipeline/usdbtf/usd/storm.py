@@ -34,7 +34,6 @@ root layer, sets ``basisCount`` and blocks the connections of the packs beyond
 """
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -45,8 +44,6 @@ from ..gpu.tables import MAX_GROUPS, gpu_layout
 
 __all__ = ["plugin_dir_resources", "GPU_DIR", "STORM_SURFACE", "GpuTextures", "add_gpu_textures",
            "author_gpu_preview", "materialx_document", "storm_shader", "layout_from_asset", "read_rgba"]
-
-log = logging.getLogger(__name__)
 
 GPU_DIR = "gpu"
 STORM_SURFACE = "StormSurface"
@@ -84,26 +81,27 @@ def add_gpu_textures(cbtf: CompressedBTF, textures, texels=None) -> GpuTextures 
 
     from ..compress.format import cross_layout
     from ..imageio import encode_image
-    from ..progress import track
+    from .textures import encode_in_threads
 
     if cross_layout(cbtf.sampling) is None:
         return None
     layout = gpu_layout(cbtf if texels is None else texels.compact)
     tables = textures.add(f"{GPU_DIR}/tables.exr", encode_image(layout.tables, "exr", color_space="data",
                                                                  attributes={"compression": "zip"}), "float")
-    packs = []
-    for p, pixels in enumerate(track(layout.packs, "GPU packs", len(layout.packs), logger=log)):
+
+    def encode(pixels):
+        """(suffix, bytes, kind) of one pack, gathered first for a quilt."""
         if texels is not None:
             pixels = texels.gather(pixels)
         if pixels.dtype == np.float16:
-            data = encode_image(pixels, "exr", color_space="data", attributes={"compression": "zip"})
-            packs.append(textures.add(f"{GPU_DIR}/{shaders.pack_name(p)}.exr", data, "float"))
-        else:
-            # Alpha is the fourth coefficient layer, not coverage: OIIO must not
-            # un-premultiply RGB by it (Storm's PNG reader takes the file's values as-is).
-            data = encode_image(pixels, "png", color_space="data",
-                                attributes={"png:compressionLevel": 6, "oiio:UnassociatedAlpha": 1})
-            packs.append(textures.add(f"{GPU_DIR}/{shaders.pack_name(p)}.png", data, "unorm"))
+            return ".exr", encode_image(pixels, "exr", color_space="data", attributes={"compression": "zip"}), "float"
+        # Alpha is the fourth coefficient layer, not coverage: OIIO must not
+        # un-premultiply RGB by it (Storm's PNG reader takes the file's values as-is).
+        return ".png", encode_image(pixels, "png", color_space="data",
+                                    attributes={"png:compressionLevel": 6, "oiio:UnassociatedAlpha": 1}), "unorm"
+
+    packs = [textures.add(f"{GPU_DIR}/{shaders.pack_name(p)}{suffix}", data, kind)
+             for p, (suffix, data, kind) in enumerate(encode_in_threads(encode, layout.packs, "GPU packs"))]
     document = materialx_document(Path(tables).name, [Path(name).name for name in packs], layout.k)
     textures.add_file(f"{GPU_DIR}/{MTLX_FILE}", document.encode())
     return GpuTextures(tables, packs, layout.k)
