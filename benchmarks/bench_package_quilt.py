@@ -6,7 +6,9 @@ The README's manual mesh route at several sizes: a 5 cm swatch (pebbles, samplin
 ``usdbtf unwrap --btf`` (atlases at the swatch's texel density), ``usdbtf quilt --atlas``;
 then ``usdbtf package Q --mesh mesh.usda``.  Inputs are cached under ``--workdir``.
 
-Measured in the same run, each a subprocess (wall time, peak RSS; median of ``--repeats``):
+Measured in the same run, each a subprocess (wall time, peak RSS; median of ``--repeats``,
+interleaved: each repeat runs the swatch, then every atlas and its write baseline, and the
+ratio is the median of the repeats' ratios, each from runs minutes apart at most):
 
 swatch       ``package`` of the source swatch (the fixed cost every asset pays);
 quilt        ``package Q --mesh`` of each quilted atlas, with its steps timed (read the folder,
@@ -25,7 +27,10 @@ per-texel    the path before issue 32, on atlases up to ``--per-texel-max`` texe
              fits and packs texel by texel; its fit seconds per texel give the estimate printed
              for the larger atlases (an extrapolation, marked as such);
 tx           with ``--tx``: the largest atlas packaged with ``--texture-format tx`` once (maketx of
-             every texture).
+             every texture);
+before       with ``--before PIPELINE``: the atlases up to ``--before-max`` texels packaged once by
+             an older usdbtf (its ``pipeline/`` folder on PYTHONPATH), e.g. the commit before
+             issue 32.
 
 Must show (issue 32): the largest (the 0.3 m sphere) <= 2 x (swatch + write) in time and
 <= 1.5 GB peak RSS.
@@ -83,7 +88,10 @@ def child_steps(out_json: str, argv: list) -> int:
 
     for where, name, label in STEPS:
         module, _, cls = where.partition(":")
-        owner = importlib.import_module(module)
+        try:
+            owner = importlib.import_module(module)
+        except ImportError:                   # --before: code older than the step
+            continue
         owner = getattr(owner, cls) if cls else owner
         setattr(owner, name, timed(getattr(owner, name), label))
     from usdbtf.cli import main
@@ -172,35 +180,34 @@ def inputs(workdir: Path, radii: list, cli) -> dict:
 
 
 # ------------------------------------------------------------------ measurements
-def package_run(source: Path, out: Path, repeats: int, *extra) -> dict:
-    """``package`` of ``source`` as ``out`` ``repeats`` times (steps timed): medians and the worst peak."""
-    walls, rss, steps = [], [], []
-    for i in range(repeats):
-        times = out.parent / "steps.json"
-        r = run_measured([sys.executable, __file__, "--child-steps", times, "--", "--force", "package", source,
-                          "-o", out, "-q", *extra])
-        if r.returncode != 0:
-            raise SystemExit(f"package {source} failed:\n{r.stderr[-3000:]}")
-        walls.append(r.wall_s)
-        rss.append(r.max_rss_bytes)
-        steps.append(json.loads(times.read_text()))
+def package_once(source: Path, out: Path, *extra, pipeline: Path | None = None) -> dict:
+    """One ``package`` of ``source`` as ``out`` in a child (steps timed): wall, peak RSS, steps.
+    ``pipeline``: run the ``usdbtf`` package in that folder instead (``--before``)."""
+    times = out.parent / "steps.json"
+    env = None if pipeline is None else dict(os.environ, PYTHONPATH=str(pipeline))
+    r = run_measured([sys.executable, __file__, "--child-steps", times, "--", "--force", "package", source,
+                      "-o", out, "-q", *extra], env=env)
+    if r.returncode != 0:
+        raise SystemExit(f"package {source} failed:\n{r.stderr[-3000:]}")
+    return {"wall_s": r.wall_s, "max_rss_bytes": r.max_rss_bytes, "steps_s": json.loads(times.read_text())}
+
+
+def summary(runs: list) -> dict:
+    """Median wall and steps, the worst peak RSS of ``package_once`` runs."""
     labels = [label for _, _, label in STEPS] + ["total in process"]
-    return {"wall_s": median(walls), "wall_s_samples": walls, "max_rss_bytes": max(rss),
-            "steps_s": {label: median(s.get(label, 0.0) for s in steps) for label in labels}}
+    return {"wall_s": median(r["wall_s"] for r in runs), "wall_s_samples": [r["wall_s"] for r in runs],
+            "max_rss_bytes": max(r["max_rss_bytes"] for r in runs),
+            "steps_s": {label: median(r["steps_s"].get(label, 0.0) for r in runs) for label in labels}}
 
 
-def write_baseline(textures: Path, atlas: tuple, repeats: int) -> dict:
-    """Medians of the "write" child's serial and threaded seconds."""
-    docs = []
-    for i in range(repeats):
-        result = textures.parent / "write.json"
-        r = run_measured([sys.executable, __file__, "--child-write", textures, *map(str, atlas),
-                          textures.parent / "scratch", result], pss_interval=0)
-        if r.returncode != 0:
-            raise SystemExit(f"write baseline failed:\n{r.stderr[-3000:]}")
-        docs.append(json.loads(result.read_text()))
-    return {"serial": median(d["serial"] for d in docs), "threaded": median(d["threaded"] for d in docs),
-            "samples": docs, "files": docs[-1]["files"], "encoded": docs[-1]["encoded"]}
+def write_once(textures: Path, atlas: tuple) -> dict:
+    """The "write" child's serial and threaded seconds for the asset's texture folder ``textures``."""
+    result = textures.parent / "write.json"
+    r = run_measured([sys.executable, __file__, "--child-write", textures, *map(str, atlas),
+                      textures.parent / "scratch", result], pss_interval=0)
+    if r.returncode != 0:
+        raise SystemExit(f"write baseline failed:\n{r.stderr[-3000:]}")
+    return json.loads(result.read_text())
 
 
 def distinct_source_texels(quilt: Path) -> int:
@@ -222,34 +229,49 @@ def main(argv=None) -> int:
     data = inputs(args.workdir, radii, cli)
     work = OUT / "package_quilt"
     results = {"machine": info, "args": {k: str(v) for k, v in vars(args).items()}, "radii": radii}
-    say(f"\n## swatch ({data['swatch']})")
-    results["swatch"] = package_run(data["swatch"], work / "swatch" / "swatch.usda", repeats)
-    say(f"- {results['swatch']['wall_s']:.1f} s, {results['swatch']['max_rss_bytes'] / 1e9:.2f} GB")
+    # Repeats interleaved (swatch, then each atlas and its write baseline), so that each ratio
+    # compares runs of the same minutes on a shared machine; the ratio is the median of the repeats'.
+    swatch_runs, package_runs, write_runs = [], {r: [] for r in radii}, {r: [] for r in radii}
+    for rep in range(repeats):
+        say(f"\n## repeat {rep + 1}/{repeats}")
+        swatch_runs.append(package_once(data["swatch"], work / "swatch" / "swatch.usda"))
+        say(f"- swatch {swatch_runs[-1]['wall_s']:.1f} s")
+        for radius in radii:
+            mesh, quilt, atlas, _ = data["quilts"][radius]
+            out = work / f"r{radius:g}" / "sphere.usda"
+            package_runs[radius].append(package_once(quilt, out, "--mesh", mesh))
+            write_runs[radius].append(write_once(out.parent / "sphere_textures", atlas))
+            say(f"- r {radius:g}: package {package_runs[radius][-1]['wall_s']:.1f} s, "
+                f"{package_runs[radius][-1]['max_rss_bytes'] / 1e9:.2f} GB; write "
+                f"{write_runs[radius][-1]['serial']:.1f} s serial, {write_runs[radius][-1]['threaded']:.1f} s threaded")
+    results["swatch"] = summary(swatch_runs)
     rows = []
     fit_per_texel = None
     for radius in radii:
         mesh, quilt, atlas, quilt_s = data["quilts"][radius]
         texels = atlas[0] * atlas[1]
-        say(f"\n## sphere r = {radius:g} m: atlas {atlas[0]}x{atlas[1]} ({texels:,} texels)")
-        out = work / f"r{radius:g}" / "sphere.usda"
+        writes = write_runs[radius]
         row = {"radius": radius, "atlas": atlas, "texels": texels, "quilt_s": quilt_s,
-               "distinct": distinct_source_texels(quilt),
-               "package": package_run(quilt, out, repeats, "--mesh", mesh),
-               "write": write_baseline(out.parent / "sphere_textures", atlas, repeats)}
-        row["ratio"] = {way: row["package"]["wall_s"] / (results["swatch"]["wall_s"] + row["write"][way])
-                        for way in ("serial", "threaded")}
-        say(f"- package {row['package']['wall_s']:.1f} s, {row['package']['max_rss_bytes'] / 1e9:.2f} GB; write "
-            f"{row['write']['serial']:.1f} s serial, {row['write']['threaded']:.1f} s threaded; ratio "
-            f"{row['ratio']['serial']:.2f} / {row['ratio']['threaded']:.2f}")
+               "distinct": distinct_source_texels(quilt), "package": summary(package_runs[radius]),
+               "write": {way: median(w[way] for w in writes) for way in ("serial", "threaded")} | {
+                   "samples": writes, "files": writes[-1]["files"], "encoded": writes[-1]["encoded"]},
+               "ratio": {way: median(p["wall_s"] / (s["wall_s"] + w[way]) for p, s, w in
+                                     zip(package_runs[radius], swatch_runs, writes)) for way in ("serial", "threaded")}}
         if texels <= args.per_texel_max:
+            say(f"\n## per-texel path, r = {radius:g} m")
             old = work / f"r{radius:g}_no_map"
             shutil.rmtree(old, ignore_errors=True)
             shutil.copytree(quilt, old)
             (old / "quilt_positions.exr").unlink()
-            row["per_texel"] = package_run(old, work / f"r{radius:g}_per_texel" / "sphere.usda", 1, "--mesh", mesh)
+            row["per_texel"] = summary([package_once(old, work / f"r{radius:g}_per_texel" / "sphere.usda",
+                                                     "--mesh", mesh)])
             fit_per_texel = row["per_texel"]["steps_s"]["fallback fit"] / texels
-            say(f"- per-texel path: {row['per_texel']['wall_s']:.1f} s, "
-                f"{row['per_texel']['max_rss_bytes'] / 1e9:.2f} GB")
+            say(f"- {row['per_texel']['wall_s']:.1f} s, {row['per_texel']['max_rss_bytes'] / 1e9:.2f} GB")
+        if args.before is not None and texels <= args.before_max:
+            say(f"\n## before (--before {args.before}), r = {radius:g} m")
+            row["before"] = summary([package_once(quilt, work / f"r{radius:g}_before" / "sphere.usda", "--mesh", mesh,
+                                                  pipeline=args.before)])
+            say(f"- {row['before']['wall_s']:.1f} s, {row['before']['max_rss_bytes'] / 1e9:.2f} GB")
         rows.append(row)
     for row in rows:
         if "per_texel" not in row and fit_per_texel is not None:
@@ -257,7 +279,8 @@ def main(argv=None) -> int:
     if args.tx:
         mesh, quilt, atlas, _ = data["quilts"][radii[-1]]
         say(f"\n## --texture-format tx, r = {radii[-1]:g} m")
-        results["tx"] = package_run(quilt, work / "tx" / "sphere.usda", 1, "--mesh", mesh, "--texture-format", "tx")
+        results["tx"] = summary([package_once(quilt, work / "tx" / "sphere.usda", "--mesh", mesh,
+                                              "--texture-format", "tx")])
         say(f"- {results['tx']['wall_s']:.1f} s, {results['tx']['max_rss_bytes'] / 1e9:.2f} GB")
     results["rows"] = rows
     path = write_json(OUT / f"package_quilt_{timestamp()}.json", results)
@@ -273,22 +296,25 @@ def markdown(results: dict) -> str:
              f"{sw['max_rss_bytes'] / 1e9:.2f} GB.", "",
              "| sphere r (m) | atlas | atlas texels | distinct source texels | package s | peak RSS GB | "
              "write atlas textures s (serial / threaded) | **package / (swatch + write)** (serial / threaded) | "
-             "per-texel path s |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "per-texel path s | before (--before) s |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for row in results["rows"]:
         old = (f"{row['per_texel']['wall_s']:.1f} (measured; {row['per_texel']['max_rss_bytes'] / 1e9:.2f} GB)"
                if "per_texel" in row else
                f"~{row['per_texel_fit_estimate_s']:.0f} (fit alone, extrapolated)"
                if "per_texel_fit_estimate_s" in row else "-")
+        before = (f"{row['before']['wall_s']:.1f} ({row['before']['max_rss_bytes'] / 1e9:.2f} GB)"
+                  if "before" in row else "-")
         lines.append(f"| {row['radius']:g} | {row['atlas'][0]}×{row['atlas'][1]} | {row['texels']:,} | "
                      f"{row['distinct']:,} | {row['package']['wall_s']:.1f} | "
                      f"{row['package']['max_rss_bytes'] / 1e9:.2f} | {row['write']['serial']:.1f} / "
                      f"{row['write']['threaded']:.1f} | **{row['ratio']['serial']:.2f} / {row['ratio']['threaded']:.2f}**"
-                     f" | {old} |")
+                     f" | {old} | {before} |")
     lines += ["", "Steps (median seconds, in the command's process):", "",
               "| run | " + " | ".join(labels) + " |", "|---|" + "---|" * len(labels)]
     runs = [("swatch", sw)] + [(f"r {row['radius']:g}", row["package"]) for row in results["rows"]]
     runs += [(f"r {row['radius']:g} per-texel", row["per_texel"]) for row in results["rows"] if "per_texel" in row]
+    runs += [(f"r {row['radius']:g} before", row["before"]) for row in results["rows"] if "before" in row]
     if "tx" in results:
         runs.append((f"r {results['radii'][-1]:g} tx", results["tx"]))
     for name, run in runs:
@@ -307,6 +333,9 @@ def parse_args(argv=None):
     p.add_argument("--per-texel-max", type=int, default=150_000,
                    help="run the per-texel path on atlases up to this many texels")
     p.add_argument("--tx", action="store_true", help="also package the largest atlas with --texture-format tx")
+    p.add_argument("--before", type=Path, help="a pipeline/ folder of an older usdbtf (e.g. `git archive REV "
+                   "pipeline`): package the atlases up to --before-max texels with it too")
+    p.add_argument("--before-max", type=int, default=400_000)
     p.add_argument("--workdir", type=Path, default=OUT / "data" / "package_quilt", help="dataset cache")
     return p.parse_args(argv)
 

@@ -80,6 +80,11 @@ def test_a_map_that_does_not_describe_the_codes_is_not_trusted(work, quilted, ca
     with caplog.at_level(logging.WARNING, logger="usdbtf"):
         assert quilt_texels(read_compressed(bad), bad) is None
     assert "not a position map of this 64x56 quilt" in caplog.text
+    (bad / POSITION_MAP).write_bytes(b"not an image")
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="usdbtf"):
+        assert quilt_texels(read_compressed(bad), bad) is None
+    assert POSITION_MAP in caplog.text and "per-texel work runs on every texel" in caplog.text
 
 
 def test_distinct_texels_dense_and_sparse_keys_agree_with_unique():

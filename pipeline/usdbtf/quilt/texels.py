@@ -26,6 +26,7 @@ import numpy as np
 from ..compress.codecs import Stored, get_codec
 from ..compress.format import CompressedBTF
 from ..compress.parallel import in_threads
+from ..errors import BTFError
 from .folder import POSITION_MAP
 
 __all__ = ["QuiltTexels", "quilt_texels", "distinct_texels"]
@@ -123,7 +124,11 @@ def quilt_texels(cbtf: CompressedBTF, folder) -> QuiltTexels | None:
         log.debug(f"{where}: {cbtf.codec} codes were re-encoded when quilted, so they are not copies of "
                   "the source's; per-texel work runs on every texel")
         return None
-    pixels, _ = read_image(path)
+    try:
+        pixels, _ = read_image(path)
+    except BTFError as exc:            # the map only saves work: without it the answer is the same
+        log.warning(f"{exc}; per-texel work runs on every texel")
+        return None
     keys = _map_keys(pixels) if pixels.shape[:2] == (cbtf.height, cbtf.width) else None
     if keys is None:
         log.warning(f"{path}: not a position map of this {cbtf.width}x{cbtf.height} quilt; per-texel work "

@@ -262,15 +262,16 @@ def package(compressed, options: PackageOptions | None = None) -> PackageResult:
     # runs once per distinct source texel and is gathered through the position map.
     texels = quilt_texels(cbtf, folder)
     fitted = fit_svbrdf(cbtf if texels is None else texels.compact, white_level=white)
-    maps = fitted if texels is None else fitted.gathered(texels.gather)
-    log.info(f"fallback fitted: median roughness {float(np.median(maps.roughness)):.2f}, "
-             f"{float(np.mean(maps.normal[..., 2] < 0.999)) * 100:.0f} % of texels with a normal"
-             + ("" if texels is None else f" (once per source texel: {texels.compact.width} of them)"))
     maps_added = fallback.add_maps(fitted, textures, cbtf.ocio_config, texels=texels)
     gpu = storm.add_gpu_textures(cbtf, textures, texels)
     thumb = None
     if options.thumbnail:
         thumb = textures.add_file(thumbnail.THUMBNAIL_FILE, thumbnail.thumbnail_png(cbtf, shape, texels=texels))
+    # The quilt-sized maps after the thumbnail, whose mip levels are the other large arrays.
+    maps = fitted if texels is None else fitted.gathered(texels.gather)
+    log.info(f"fallback fitted: median roughness {float(np.median(maps.roughness)):.2f}, "
+             f"{float(np.mean(maps.normal[..., 2] < 0.999)) * 100:.0f} % of texels with a normal"
+             + ("" if texels is None else f" (once per source texel: {texels.compact.width} of them)"))
     ar = None
     if options.usdz_ar:
         from .arkit import ar_textures
