@@ -308,8 +308,8 @@ def markdown(results: dict) -> str:
         lines.append(f"| {row['radius']:g} | {row['atlas'][0]}×{row['atlas'][1]} | {row['texels']:,} | "
                      f"{row['distinct']:,} | {row['package']['wall_s']:.1f} | "
                      f"{row['package']['max_rss_bytes'] / 1e9:.2f} | {row['write']['serial']:.1f} / "
-                     f"{row['write']['threaded']:.1f} | **{row['ratio']['serial']:.2f} / {row['ratio']['threaded']:.2f}**"
-                     f" | {old} | {before} |")
+                     f"{row['write']['threaded']:.1f} | "
+                     f"**{row['ratio']['serial']:.2f} / {row['ratio']['threaded']:.2f}** | {old} | {before} |")
     lines += ["", "Steps (median seconds, in the command's process):", "",
               "| run | " + " | ".join(labels) + " |", "|---|" + "---|" * len(labels)]
     runs = [("swatch", sw)] + [(f"r {row['radius']:g}", row["package"]) for row in results["rows"]]

@@ -7,7 +7,8 @@ tables and packs; the thumbnail) are encoded into bytes the way ``compress`` enc
 authors the layers, stages every file beside ``out``, validates them and publishes them as one
 group.  A quilted folder's per-texel work (the fallback fit and maps, the GPU packs, the
 thumbnail's texture) runs once per distinct source texel and is gathered through its position
-map (:mod:`usdbtf.quilt.texels`): the same files as texel by texel.  Files written for ``out = out/pebbles.usda`` (or ``.usdc``)::
+map (:mod:`usdbtf.quilt.texels`): the same files as texel by texel.  Files written for
+``out = out/pebbles.usda`` (or ``.usdc``)::
 
     out/pebbles.usda             root layer: /pebbles (Xform, kind component, defaultPrim),
                                  metersPerUnit 1, upAxis Y, assetInfo, extentsHint, the

@@ -33,9 +33,8 @@ def render_thumbnail(cbtf: CompressedBTF, mesh: Mesh, size: int = THUMBNAIL_SIZE
 
     camera = auto_camera(mesh.corner(), size, size)
     light = np.asarray(LIGHT_DIRECTION, np.float64)
-    renderer = Renderer(cbtf, RenderOptions(threads=2)) if texels is None else \
-        Renderer(texels.compact, RenderOptions(threads=2), texel_map=texels.index)
-    image = renderer.render(
+    source, texel_map = (cbtf, None) if texels is None else (texels.compact, texels.index)
+    image = Renderer(source, RenderOptions(threads=2), texel_map=texel_map).render(
         mesh, camera, [Light("directional", light / np.linalg.norm(light), 1.0)])
     return to_display(image, cbtf.working_space, config=cbtf.ocio_config)
 
