@@ -34,7 +34,7 @@ def quilted(work, pebbles):
 def _package(folder, caplog):
     caplog.clear()
     with caplog.at_level(logging.DEBUG, logger="usdbtf"):
-        return package(folder, PackageOptions())
+        return package(folder, PackageOptions(usdz_ar=True))
 
 
 def test_quilt_fallback_and_textures_equal_the_per_texel_path(work, quilted, caplog):
@@ -63,6 +63,8 @@ def test_quilt_fallback_and_textures_equal_the_per_texel_path(work, quilted, cap
     assert gathered.gpu is not None and gathered.thumbnail is not None
     for name, f in reference.textures.files.items():
         assert gathered.textures.files[name].data == f.data, name
+    for name, f in reference.ar[0].files.items():                      # the AR package's maps too
+        assert gathered.ar[0].files[name].data == f.data, name
 
 
 def test_a_map_that_does_not_describe_the_codes_is_not_trusted(work, quilted, caplog):

@@ -277,7 +277,7 @@ def package(compressed, options: PackageOptions | None = None) -> PackageResult:
     if options.usdz_ar:
         from .arkit import ar_textures
 
-        ar = ar_textures(maps, cbtf.ocio_config)
+        ar = ar_textures(fitted, cbtf.ocio_config, texels)
     return PackageResult(cbtf, options, shape, tuple(size), levels, curve, source, textures, basis, coefficients,
                          maps_added, gpu, thumb, maps, ar, name)
 
