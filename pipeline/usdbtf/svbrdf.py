@@ -37,17 +37,21 @@ no normal map), kept as the baseline ``benchmarks/bench_fallback.py`` measures a
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import logging
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .compress.format import CompressedBTF, working_coefficient_texels
 from .numeric import single_blas_thread
+from .progress import track
 from .sampling import to_vectors
 
 __all__ = ["SvbrdfMaps", "fit_svbrdf", "flat_fallback", "median_albedo", "fit_flat_roughness", "evaluate",
            "fit_samples", "normal_samples", "validation_samples", "ROUGHNESS_GRID", "MIN_ROUGHNESS",
            "VALIDATION_SAMPLES"]
+
+log = logging.getLogger(__name__)
 
 #: The roughness candidates.  None below 0.2: previewSurface.glslfx adds EPSILON = 0.001 to
 #: alpha^2 = roughness^4 in D's numerator, which dominates below roughness ~0.18 and makes
@@ -83,6 +87,12 @@ class SvbrdfMaps:
     @property
     def shape(self) -> tuple[int, int]:
         return self.roughness.shape
+
+    def gathered(self, gather) -> "SvbrdfMaps":
+        """These maps with every per-texel array passed through ``gather`` ((H, W, ...) ->
+        (H', W', ...), e.g. :meth:`usdbtf.quilt.texels.QuiltTexels.gather`)."""
+        return replace(self, diffuse=gather(self.diffuse), specular=gather(self.specular),
+                       roughness=gather(self.roughness), normal=gather(self.normal))
 
 
 def fit_samples(cbtf: CompressedBTF, most: int = 1536) -> np.ndarray:
@@ -179,7 +189,11 @@ def _chunk_texels(n_samples: int, chunk_bytes: float) -> int:
 def _reconstruct(cbtf: CompressedBTF, rows: np.ndarray, texels: slice) -> np.ndarray:
     """(S, T, 3) float32 working-space values of samples with basis rows ``rows`` (S, k)."""
     c = working_coefficient_texels(cbtf, texels)                      # (k, T, 3)
-    return cbtf.domain.inverse(rows @ c.reshape(cbtf.k, -1)).reshape(len(rows), -1, 3)
+    # The product in float64, rounded once: a float32 GEMM rounds a column by where it sits in
+    # the block (the kernels' edge loops), and a quilt's texels are fitted once per source
+    # texel in other blocks than a per-texel fit would put them in: their maps must agree.
+    d = (rows.astype(np.float64) @ c.reshape(cbtf.k, -1).astype(np.float64)).astype(np.float32)
+    return cbtf.domain.inverse(d).reshape(len(rows), -1, 3)
 
 
 def _photometric_normals(y_lum: np.ndarray, light: np.ndarray) -> np.ndarray:
@@ -308,7 +322,7 @@ def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: in
     step = _chunk_texels(max(len(fit), len(ps)), chunk_bytes)
     scale = np.float32(1.0 / (np.pi * white_level))
     flat = np.array([0.0, 0.0, 1.0], np.float32)
-    for t0 in range(0, texels, step):
+    for t0 in track(range(0, texels, step), "fallback fit", -(-texels // step), logger=log):
         block = slice(t0, min(t0 + step, texels))
         y = np.ascontiguousarray((_reconstruct(cbtf, fit_rows, block) * scale).transpose(2, 0, 1))
         n_flat = np.broadcast_to(flat, (y.shape[2], 3))

@@ -202,26 +202,31 @@ def page_plan(n_packs: int, width: int, height: int, breaks: list[int], dtypes=N
     return plan, directory
 
 
-def _pages(packs: list, breaks: list[int]) -> tuple[list, list, np.ndarray]:
-    """``packs`` laid out on pages as :func:`page_plan` says.  Returns (pages, first pack of
-    each page, directory)."""
-    h, w = packs[0].shape[:2]
+def _pages(packs: list, breaks: list[int], gather=None, shape=None) -> tuple[list, list, np.ndarray]:
+    """``packs`` laid out on pages as :func:`page_plan` says.  With ``gather`` (a quilt's
+    :meth:`usdbtf.quilt.texels.QuiltTexels.gather`) the packs are of its compact source texels
+    and each is gathered to ``shape`` (H, W) straight into its tile, one at a time.  Returns
+    (pages, first pack of each page, directory)."""
+    h, w = shape if gather is not None else packs[0].shape[:2]
     plan, directory = page_plan(len(packs), w, h, breaks, [p.dtype for p in packs])
     pages = []
     for first, end, cols, rows in plan:
         page = np.zeros((rows * h, cols * w, 4), packs[first].dtype)
         for p in range(first, end):
             _, x0, y0, _ = (int(v) for v in directory[p])
-            page[y0:y0 + h, x0:x0 + w] = packs[p]
+            page[y0:y0 + h, x0:x0 + w] = packs[p] if gather is None else gather(packs[p])
         pages.append(page)
     return pages, [first for first, *_ in plan], directory
 
 
-def gpu_layout(cbtf: CompressedBTF, k: int | None = None, lods=(), wrap: str = "clamp") -> GpuLayout:
+def gpu_layout(cbtf: CompressedBTF, k: int | None = None, lods=(), wrap: str = "clamp",
+               texels=None) -> GpuLayout:
     """The tables texture and coefficient pages for the first ``k`` (default all) basis
     vectors of ``cbtf``, which must sample every light at every view; pages break where the
     levels of detail ``lods`` (basis counts) end; ``wrap`` ("clamp" or "repeat"): how the
-    shader filters at a tile's edges."""
+    shader filters at a tile's edges.  ``texels`` (a :class:`usdbtf.quilt.texels.QuiltTexels`
+    of ``cbtf``): the packs are made from its compact source texels and gathered through its
+    index (the same codes, without every quilt-sized pack in memory at once)."""
     from ..render.hemisphere import Triangulation   # OpenCV: imported only when needed
 
     layout = cross_layout(cbtf.sampling)
@@ -238,8 +243,12 @@ def gpu_layout(cbtf: CompressedBTF, k: int | None = None, lods=(), wrap: str = "
     basis = np.zeros((V * L, groups * 4), np.float32)
     basis[:, :k] = cbtf.basis_values(k)
     breaks = page_breaks(k, lods)
-    packs, scales, biases = _pack(cbtf, k, breaks)
-    pages, first_packs, directory = _pages(packs, breaks)
+    if texels is None:
+        packs, scales, biases = _pack(cbtf, k, breaks)
+        pages, first_packs, directory = _pages(packs, breaks)
+    else:
+        packs, scales, biases = _pack(texels.compact, k, breaks)
+        pages, first_packs, directory = _pages(packs, breaks, texels.gather, (cbtf.height, cbtf.width))
     if len(pages) > MAX_PAGES:
         raise BTFError(f"k = {k} coefficient textures of {cbtf.width}x{cbtf.height} texels need {len(pages)} GPU "
                        f"pages; a material binds at most {MAX_PAGES} (use a smaller k or texture)")

@@ -76,16 +76,17 @@ def default_wrap(cbtf: CompressedBTF) -> str:
 
 class Renderer:
     """Everything that depends on the BTF only (texture, basis, triangulations): build once,
-    render many frames."""
+    render many frames.  ``texel_map`` (H, W), optional: the texture is ``cbtf``'s texels
+    gathered through it (:class:`~.texture.CoefficientTexture`; a quilt as its source texels)."""
 
-    def __init__(self, cbtf: CompressedBTF, opts: RenderOptions | None = None):
+    def __init__(self, cbtf: CompressedBTF, opts: RenderOptions | None = None, *, texel_map=None):
         self.opts = opts or RenderOptions()
         self.opts.validate(cbtf)
         k = self.opts.k or cbtf.k
         self.cbtf = cbtf
         self.interp = BasisInterpolator(cbtf, k)
         self.domain = cbtf.domain
-        self.texture = CoefficientTexture(cbtf, k, self.opts.wrap or default_wrap(cbtf))
+        self.texture = CoefficientTexture(cbtf, k, self.opts.wrap or default_wrap(cbtf), texel_map)
 
     # -- swatch ------------------------------------------------------------------------
     def swatch(self, view_deg, light_deg, intensity: float = 1.0) -> np.ndarray:

@@ -18,70 +18,108 @@ import threading
 import numpy as np
 
 from ..compress.format import CompressedBTF
+from ..compress.parallel import in_threads
 
 __all__ = ["CoefficientTexture"]
 
 
 class CoefficientTexture:
-    """Texel-major coefficients of ``cbtf`` (first ``k``); ``wrap`` "repeat" or "clamp"."""
+    """Texel-major coefficients of ``cbtf`` (first ``k``); ``wrap`` "repeat" or "clamp".
 
-    def __init__(self, cbtf: CompressedBTF, k: int, wrap: str = "clamp"):
+    ``texel_map`` (H, W) int, optional: the texture is H x W texels, texel (i, j) being
+    ``cbtf``'s texel ``texel_map[i, j]`` (flat, row-major) -- a quilt as the copies of its
+    distinct source texels (:class:`usdbtf.quilt.texels.QuiltTexels`).  Level 0 is then never
+    held: its taps are gathered from ``cbtf``'s texels, and a mip level is built from level-0
+    rows gathered a band at a time, so memory follows the levels a frame samples, not the
+    H x W x k level 0 (the same values, bit for bit, as from the full texture).
+    """
+
+    def __init__(self, cbtf: CompressedBTF, k: int, wrap: str = "clamp", texel_map: np.ndarray | None = None):
         self.k = k
         self.wrap = wrap
         # The colour matrix is applied to shaded colours (:meth:`shade`), not to the texture:
         # it is linear, so that is exact, and it keeps this build to one pass over the data.
         matrix = np.asarray(cbtf.color_matrix, np.float32)
         self.matrix = None if np.array_equal(matrix, np.eye(3, dtype=np.float32)) else matrix
-        H, W = cbtf.height, cbtf.width
-        level = np.empty((H, W, 3, k), np.float32)
-        rows = max(1, min(H, (1 << 22) // (W * 3 * k)))          # row blocks of ~16 MB
-        block = np.empty((k, rows * W * 3), np.float32)           # reused: no fresh pages per block
-        for y0 in range(0, H, rows):
-            y1 = min(H, y0 + rows)
-            n = (y1 - y0) * W * 3
-            for i, st in enumerate(cbtf.coefficients[:k]):        # exactly Stored.values(), on these rows
-                out = block[i, :n].reshape(y1 - y0, W, 3)
-                np.multiply(st.pixels[y0:y1], st.scale.astype(np.float32), out=out, casting="unsafe")
-                out += st.bias.astype(np.float32)
-            # One 2-D transpose (k, texels * 3) -> (texels * 3, k) into place (a 4-D transposing
-            # assignment is ~10x slower: it reads across cache lines).
-            level[y0:y1].reshape(n, k)[:] = block[:, :n].T
-        self.levels = [level]
+        texels = _texel_major(cbtf, k)
+        self.map = None if texel_map is None else np.asarray(texel_map)
+        if self.map is None:
+            self.levels = {0: texels}
+            self._texels = None
+            self._shape = (cbtf.height, cbtf.width)
+        else:
+            self.levels = {}
+            self._texels = texels.reshape(-1, 3, k)
+            self._shape = self.map.shape
         self._lock = threading.Lock()             # shading threads may ask for a new mip level at once
 
     @property
     def height(self) -> int:
-        return self.levels[0].shape[0]
+        return self._shape[0]
 
     @property
     def width(self) -> int:
-        return self.levels[0].shape[1]
+        return self._shape[1]
+
+    def level_shape(self, n: int) -> tuple[int, int]:
+        """(H_n, W_n): sizes halve (rounded up) per level."""
+        h, w = self._shape
+        for _ in range(n):
+            h, w = -(-h // 2), -(-w // 2)
+        return h, w
 
     def level(self, n: int) -> np.ndarray:
         """Mip level ``n`` (H_n, W_n, 3, k), built on demand; sizes halve (rounded up) to 1 x 1."""
-        if n < len(self.levels):
-            return self.levels[n]
-        with self._lock:
-            return self._build_level(n)
+        n = min(n, self.max_level)
+        if n not in self.levels:
+            with self._lock:
+                if n not in self.levels:
+                    self.levels[n] = self._build_level(n)
+        return self.levels[n]
 
     def _build_level(self, n: int) -> np.ndarray:
-        while len(self.levels) <= n:
-            prev = self.levels[-1]
-            h, w = prev.shape[:2]
-            if h == 1 and w == 1:
-                return prev
-            pad = np.pad(prev, ((0, h % 2), (0, w % 2), (0, 0), (0, 0)), mode="edge")
-            self.levels.append(0.25 * (pad[0::2, 0::2] + pad[1::2, 0::2] + pad[0::2, 1::2] + pad[1::2, 1::2]))
+        below = [m for m in self.levels if m < n]
+        if not below:                  # gathered level 0: stream it a band at a time, a band per thread
+            h, w = self.level_shape(n)
+            out = np.empty((h, w, 3, self.k), np.float32)
+            band = max(1, 32 >> n)
+
+            def fill(y0):
+                out[y0:y0 + band] = self._rows(n, y0, min(h, y0 + band))
+
+            in_threads(fill, range(0, h, band))
+            return out
+        m = max(below)
+        while m < n:
+            self.levels[m + 1] = _box(self.levels[m])
+            m += 1
         return self.levels[n]
+
+    def _rows(self, n: int, y0: int, y1: int) -> np.ndarray:
+        """Rows y0..y1 of level ``n`` (not necessarily held) as _box computes them."""
+        if n in self.levels:
+            return self.levels[n][y0:y1]
+        if n == 0:
+            return np.take(self._texels, self.map[y0:y1], axis=0)
+        h = self.level_shape(n - 1)[0]
+        rows = self._rows(n - 1, 2 * y0, min(h, 2 * y1))
+        if 2 * y1 > h:                                # the edge row repeated, as np.pad's "edge"
+            rows = np.concatenate([rows, rows[-1:]])
+        return _box(rows)
 
     @property
     def max_level(self) -> int:
         return int(np.ceil(np.log2(max(self.height, self.width, 1))))
 
+    def _tap_texels(self, n: int, idx: np.ndarray) -> np.ndarray:
+        """(p, 3, k) texels at flat indices ``idx`` of level ``n``."""
+        if n == 0 and self.map is not None:
+            return np.take(self._texels, self.map.ravel()[idx], axis=0)
+        return np.take(self.level(n).reshape(-1, 3, self.k), idx, axis=0)
+
     def _taps(self, n: int, st: np.ndarray):
         """Bilinear taps at level n: flat texel indices (4, m) and weights (4, m)."""
-        lv = self.level(n)
-        h, w = lv.shape[:2]
+        h, w = self.level_shape(n)
         x = st[:, 0] * w - 0.5
         y = (1.0 - st[:, 1]) * h - 0.5
         x0, y0 = np.floor(x), np.floor(y)
@@ -116,13 +154,57 @@ class CoefficientTexture:
                 if not use.any() or level > self.max_level:
                     continue
                 pick = sel[use]
-                flat = self.level(level).reshape(-1, 3, self.k)
                 idx, wt = self._taps(level, st[pick])
                 rp = r[pick]
                 for tap in range(4):
-                    coeffs = np.take(flat, idx[tap], axis=0)                     # (p, 3, k)
+                    coeffs = self._tap_texels(level, idx[tap])                   # (p, 3, k)
                     val = np.einsum("pk,pck->pc", rp, coeffs)
                     out[pick] += (wt[tap] * scale[use])[:, None].astype(np.float32) * val
         if self.matrix is not None:                      # stored channels -> working-space RGB
             out = np.einsum("dc,pc->pd", self.matrix, out)
         return out
+
+
+def _texel_major(cbtf: CompressedBTF, k: int) -> np.ndarray:
+    """(H, W, 3, k) float32 de-quantised coefficients of ``cbtf``, texel-major."""
+    H, W = cbtf.height, cbtf.width
+    level = np.empty((H, W, 3, k), np.float32)
+    rows = max(1, min(H, (1 << 22) // (W * 3 * k)))          # row blocks of ~16 MB
+    block = np.empty((k, rows * W * 3), np.float32)           # reused: no fresh pages per block
+    for y0 in range(0, H, rows):
+        y1 = min(H, y0 + rows)
+        n = (y1 - y0) * W * 3
+        for i, st in enumerate(cbtf.coefficients[:k]):        # exactly Stored.values(), on these rows
+            out = block[i, :n].reshape(y1 - y0, W, 3)
+            np.multiply(st.pixels[y0:y1], st.scale.astype(np.float32), out=out, casting="unsafe")
+            out += st.bias.astype(np.float32)
+        # One 2-D transpose (k, texels * 3) -> (texels * 3, k) into place (a 4-D transposing
+        # assignment is ~10x slower: it reads across cache lines).
+        level[y0:y1].reshape(n, k)[:] = block[:, :n].T
+    return level
+
+
+def _box(level: np.ndarray) -> np.ndarray:
+    """The next mip level of (h, w, 3, k) texels: 2 x 2 box, the last row / column repeated
+    when the size is odd -- ``0.25 * (p00 + p10 + p01 + p11)`` of the edge-padded level, in
+    that order, without making the padded copy (a level can be hundreds of MB)."""
+    h, w = level.shape[:2]
+    out = np.empty((-(-h // 2), -(-w // 2)) + level.shape[2:], level.dtype)
+    for r0, r1, ro in _pairs(h):
+        for c0, c1, co in _pairs(w):
+            o = out[ro, co]
+            np.add(level[r0, c0], level[r1, c0], out=o)
+            o += level[r0, c1]
+            o += level[r1, c1]
+            o *= 0.25
+    return out
+
+
+def _pairs(n: int) -> list[tuple[slice, slice, slice]]:
+    """(first of a pair, second of a pair, output) slices along an axis of ``n`` texels: the
+    even pairs, and for an odd ``n`` the last texel paired with itself."""
+    even = n - n % 2
+    pairs = [(slice(0, even, 2), slice(1, even, 2), slice(0, even // 2))]
+    if n % 2:
+        pairs.append((slice(n - 1, n), slice(n - 1, n), slice(even // 2, even // 2 + 1)))
+    return pairs

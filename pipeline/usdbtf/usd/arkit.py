@@ -29,14 +29,15 @@ AR_SUFFIX = "_ar"
 AR_MAPS = ("diffuse", "roughness", "normal")
 
 
-def ar_textures(maps, ocio_config: str | None = None):
+def ar_textures(maps, ocio_config: str | None = None, texels=None):
     """The AR package's PNG textures of the fitted ``maps`` (svbrdf.SvbrdfMaps), encoded in
-    memory: (textures.TextureSet, {map: name in it})."""
+    memory: (textures.TextureSet, {map: name in it}).  ``texels``: ``maps`` are a quilt's
+    source texels' (:func:`usdbtf.usd.fallback.add_maps`)."""
     from . import fallback
     from .textures import TextureSet
 
     textures = TextureSet("png")
-    return textures, fallback.add_maps(maps, textures, ocio_config, names=AR_MAPS)
+    return textures, fallback.add_maps(maps, textures, ocio_config, names=AR_MAPS, texels=texels)
 
 
 def write_ar_usdz(staging: Path, stem: str, root: str, mesh, textures, names: dict, asset_name: str,

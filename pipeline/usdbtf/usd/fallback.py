@@ -72,20 +72,25 @@ def decode_maps(pixels: dict[str, np.ndarray], working_space: str, *, ocio_confi
                       working_space, float(white_level))
 
 
-def add_maps(maps: SvbrdfMaps, textures, ocio_config: str | None = None, names=tuple(MAP_FILES)) -> dict:
+def add_maps(maps: SvbrdfMaps, textures, ocio_config: str | None = None, names=tuple(MAP_FILES),
+             texels=None) -> dict:
     """Encode the maps ``names`` as PNG files (in memory) into ``textures`` (a
-    textures.TextureSet, under :data:`FALLBACK_DIR`); {map: its name in ``textures``}."""
-    from .textures import DATA
+    textures.TextureSet, under :data:`FALLBACK_DIR`); {map: its name in ``textures``}.
+    ``texels`` (a :class:`usdbtf.quilt.texels.QuiltTexels`): ``maps`` are those of its compact
+    source texels, and the encoded pixels are gathered through its index (encoding is per
+    texel, so this is the encoding of the gathered maps)."""
+    from .textures import DATA, encode_in_threads
 
-    added = {}
-    for name, pixels in encode_maps(maps, ocio_config).items():
-        if name not in names:
-            continue
-        file, kind = MAP_FILES[name]
-        space = COLOUR_ENCODING if kind == "srgb" else DATA
-        data = encode_image(pixels, "png", color_space=space, attributes={"png:compressionLevel": 9})
-        added[name] = textures.add(f"{FALLBACK_DIR}/{file}", data, kind)
-    return added
+    encoded = {name: pixels for name, pixels in encode_maps(maps, ocio_config).items() if name in names}
+
+    def encode(name):
+        pixels = encoded[name] if texels is None else texels.gather(encoded[name])
+        space = COLOUR_ENCODING if MAP_FILES[name][1] == "srgb" else DATA
+        return encode_image(pixels, "png", color_space=space, attributes={"png:compressionLevel": 9})
+
+    files = encode_in_threads(encode, encoded, "fallback maps")
+    return {name: textures.add(f"{FALLBACK_DIR}/{MAP_FILES[name][0]}", data, MAP_FILES[name][1])
+            for name, data in zip(encoded, files)}
 
 
 # ------------------------------------------------------------------ authoring

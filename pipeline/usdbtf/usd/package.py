@@ -5,7 +5,10 @@ textures (the compressed BTF's files, portable; the fitted fallback maps; the St
 tables and packs; the thumbnail) are encoded into bytes the way ``compress`` encodes its own
 (in-memory files), the mesh is read and the fallback fitted.  ``write_package(result, out)``
 authors the layers, stages every file beside ``out``, validates them and publishes them as one
-group.  Files written for ``out = out/pebbles.usda`` (or ``.usdc``)::
+group.  A quilted folder's per-texel work (the fallback fit and maps, the GPU packs, the
+thumbnail's texture) runs once per distinct source texel and is gathered through its position
+map (:mod:`usdbtf.quilt.texels`): the same files as texel by texel.  Files written for
+``out = out/pebbles.usda`` (or ``.usdc``)::
 
     out/pebbles.usda             root layer: /pebbles (Xform, kind component, defaultPrim),
                                  metersPerUnit 1, upAxis Y, assetInfo, extentsHint, the
@@ -231,9 +234,11 @@ def package(compressed, options: PackageOptions | None = None) -> PackageResult:
     options = options or PackageOptions()
     options.check()
     name = where = "compressed BTF"
+    folder = None
     if not isinstance(compressed, CompressedBTF):
-        name, where = str(Path(compressed)), str(Path(compressed) / METADATA)
-        compressed = read_input(compressed)
+        folder = Path(compressed)
+        name, where = str(folder), str(folder / METADATA)
+        compressed = read_input(folder)
     cbtf = compressed
     size = options.physical_size or physical_size_of(cbtf)
     if size is None:
@@ -251,23 +256,30 @@ def package(compressed, options: PackageOptions | None = None) -> PackageResult:
     curve = list(zip(cbtf.curve["k"], cbtf.curve["percent"])) if cbtf.curve else []
     source = str((cbtf.info.get("provenance") or {}).get("source") or cbtf.source.get("path") or "")
 
+    from ..quilt.texels import quilt_texels
     from ..svbrdf import fit_svbrdf
 
     textures = TextureSet(options.texture_format)
     basis, coefficients = package_textures(cbtf, textures)
-    maps = fit_svbrdf(cbtf, white_level=white)
-    log.info(f"fallback fitted: median roughness {float(np.median(maps.roughness)):.2f}, "
-             f"{float(np.mean(maps.normal[..., 2] < 0.999)) * 100:.0f} % of texels with a normal")
-    maps_added = fallback.add_maps(maps, textures, cbtf.ocio_config)
-    gpu = storm.add_gpu_textures(cbtf, textures, levels)
+    # Per-texel work (the fallback fit, the GPU packs, the thumbnail's texture) on a quilt
+    # runs once per distinct source texel and is gathered through the position map.
+    texels = quilt_texels(cbtf, folder)
+    fitted = fit_svbrdf(cbtf if texels is None else texels.compact, white_level=white)
+    maps_added = fallback.add_maps(fitted, textures, cbtf.ocio_config, texels=texels)
+    gpu = storm.add_gpu_textures(cbtf, textures, levels, texels=texels)
     thumb = None
     if options.thumbnail:
-        thumb = textures.add_file(thumbnail.THUMBNAIL_FILE, thumbnail.thumbnail_png(cbtf, shape))
+        thumb = textures.add_file(thumbnail.THUMBNAIL_FILE, thumbnail.thumbnail_png(cbtf, shape, texels=texels))
+    # The quilt-sized maps after the thumbnail, whose mip levels are the other large arrays.
+    maps = fitted if texels is None else fitted.gathered(texels.gather)
+    log.info(f"fallback fitted: median roughness {float(np.median(maps.roughness)):.2f}, "
+             f"{float(np.mean(maps.normal[..., 2] < 0.999)) * 100:.0f} % of texels with a normal"
+             + ("" if texels is None else f" (once per source texel: {texels.compact.width} of them)"))
     ar = None
     if options.usdz_ar:
         from .arkit import ar_textures
 
-        ar = ar_textures(maps, cbtf.ocio_config)
+        ar = ar_textures(fitted, cbtf.ocio_config, texels)
     return PackageResult(cbtf, options, shape, tuple(size), levels, curve, source, textures, basis, coefficients,
                          maps_added, gpu, thumb, maps, ar, name)
 

@@ -76,38 +76,43 @@ class GpuTextures:
     first_packs: list
 
 
-def add_gpu_textures(cbtf: CompressedBTF, textures, lods=()) -> GpuTextures | None:
+def add_gpu_textures(cbtf: CompressedBTF, textures, lods=(), *, texels=None) -> GpuTextures | None:
     """Encode tables.exr, the coefficient pages and the MaterialX document (in memory) into
     ``textures`` (a :class:`~usdbtf.usd.textures.TextureSet`, under ``gpu/``), pages ending
     where the levels of detail ``lods`` (basis counts) end; None (nothing added) for a BTF
-    whose sampling is not every light at every view, which the preview cannot interpolate."""
+    whose sampling is not every light at every view, which the preview cannot interpolate.
+    ``texels`` (a :class:`usdbtf.quilt.texels.QuiltTexels` of ``cbtf``): the packs are made
+    from its compact source texels and gathered through its index (the same codes, without
+    the whole quilt-sized set of packs in memory)."""
     import numpy as np
 
     from ..compress.format import cross_layout
     from ..imageio import encode_image
     from ..render.core import default_wrap
+    from .textures import encode_in_threads
 
     if cross_layout(cbtf.sampling) is None:
         return None
-    layout = gpu_layout(cbtf, lods=lods, wrap=default_wrap(cbtf))
+    layout = gpu_layout(cbtf, lods=lods, wrap=default_wrap(cbtf), texels=texels)
     tables = textures.add(f"{GPU_DIR}/tables.exr", encode_image(layout.tables, "exr", color_space="data",
                                                                  attributes={"compression": "zip"}), "float")
-    pages = []
-    for p, pixels in enumerate(layout.pages):
+
+    def encode(pixels):
+        """(suffix, bytes, kind) of one page."""
         if pixels.dtype != np.uint8:
             # Half floats as they are; 16-bit codes as the float32 values a unorm16 read would
             # return (code / 65535, exact to float32 rounding): Storm's image readers load a
             # 16-bit PNG as 8 bits, which would drop the low byte of every code.
             if pixels.dtype == np.uint16:
                 pixels = (pixels.astype(np.float64) / 65535.0).astype(np.float32)
-            data = encode_image(pixels, "exr", color_space="data", attributes={"compression": "zip"})
-            pages.append(textures.add(f"{GPU_DIR}/{shaders.page_name(p)}.exr", data, "float"))
-        else:
-            # Alpha is the fourth coefficient layer, not coverage: OIIO must not
-            # un-premultiply RGB by it (Storm's PNG reader takes the file's values as-is).
-            data = encode_image(pixels, "png", color_space="data",
-                                attributes={"png:compressionLevel": 6, "oiio:UnassociatedAlpha": 1})
-            pages.append(textures.add(f"{GPU_DIR}/{shaders.page_name(p)}.png", data, "unorm"))
+            return ".exr", encode_image(pixels, "exr", color_space="data", attributes={"compression": "zip"}), "float"
+        # Alpha is the fourth coefficient layer, not coverage: OIIO must not
+        # un-premultiply RGB by it (Storm's PNG reader takes the file's values as-is).
+        return ".png", encode_image(pixels, "png", color_space="data",
+                                    attributes={"png:compressionLevel": 6, "oiio:UnassociatedAlpha": 1}), "unorm"
+
+    pages = [textures.add(f"{GPU_DIR}/{shaders.page_name(p)}{suffix}", data, kind)
+             for p, (suffix, data, kind) in enumerate(encode_in_threads(encode, layout.pages, "GPU pages"))]
     document = materialx_document(Path(tables).name, [Path(name).name for name in pages], layout.k)
     textures.add_file(f"{GPU_DIR}/{MTLX_FILE}", document.encode())
     return GpuTextures(tables, pages, layout.k, layout.first_packs)

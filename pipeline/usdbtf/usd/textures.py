@@ -24,6 +24,7 @@ de-quantisation is affine.  Reading level 0 back gives the written codes bit for
 """
 from __future__ import annotations
 
+import logging
 import struct
 import zlib
 from dataclasses import dataclass
@@ -33,13 +34,16 @@ import numpy as np
 
 from ..compress.codecs import get_codec
 from ..compress.format import CompressedBTF, basis_file, coefficient_file, encoded_textures
-from ..compress.parallel import in_threads
+from ..compress.parallel import cpu_count, in_threads
 from ..errors import BTFError
 from ..imageio import decode_image, encode_image, native_stderr_captured, oiio_error, write_encoded
+from ..progress import track
 from .formats import TEXTURE_FORMATS
 
 __all__ = ["DATA", "PORTABLE", "TEXTURE_FORMATS", "USDZ_FORMATS", "Texture", "TextureSet", "png_as_data",
-           "portable_bytes", "package_textures"]
+           "portable_bytes", "package_textures", "encode_in_threads"]
+
+log = logging.getLogger(__name__)
 
 #: OIIO colour-space name for data files.
 DATA = "data"
@@ -92,6 +96,18 @@ def portable_bytes(data: bytes, suffix: str, where: str) -> tuple[bytes, str]:
     if pixels.dtype not in (np.uint8, np.uint16):
         raise BTFError(f"{where}: cannot re-encode {pixels.dtype} texture as PNG")
     return encode_image(pixels, "png", color_space=DATA, attributes={"png:compressionLevel": 6}), ".png"
+
+
+def encode_in_threads(encode, items, label: str) -> list:
+    """``[encode(x) for x in items]`` on the CPUs' threads, in the order of ``items``, with a
+    progress bar ``label``: for the atlas-sized textures of a package (GPU packs, fallback
+    maps), whose encoding is its longest step on a large mesh.  OIIO's encoders release the
+    GIL while they compress; the bytes do not depend on the threads."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    items = list(items)
+    with ThreadPoolExecutor(max(1, min(cpu_count(), len(items)))) as pool:
+        return list(track(pool.map(encode, items), label, len(items), logger=log))
 
 
 def package_textures(cbtf: CompressedBTF, textures: "TextureSet") -> tuple[str, list[str]]:
@@ -191,7 +207,7 @@ class TextureSet:
         """Create ``folder`` with every file (making the tiled formats' files now)."""
         folder = Path(folder)
         folder.mkdir(parents=True)
-        for final, f in self.files.items():
+        for final, f in track(self.files.items(), "writing textures", len(self.files), logger=log):
             src = folder / f.written
             src.parent.mkdir(parents=True, exist_ok=True)
             write_encoded(src, f.data)

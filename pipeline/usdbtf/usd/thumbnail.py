@@ -23,26 +23,29 @@ THUMBNAIL_FILE = "thumbnail.png"
 LIGHT_DIRECTION = (-0.45, 0.55, 0.7)
 
 
-def render_thumbnail(cbtf: CompressedBTF, mesh: Mesh, size: int = THUMBNAIL_SIZE) -> np.ndarray:
+def render_thumbnail(cbtf: CompressedBTF, mesh: Mesh, size: int = THUMBNAIL_SIZE, texels=None) -> np.ndarray:
     """(size, size, 4) uint8 display-encoded RGBA of ``mesh`` (with texture coordinates; its
-    own frames, or frames from ``st``) wearing ``cbtf``."""
+    own frames, or frames from ``st``) wearing ``cbtf``.  ``texels``: ``cbtf`` as its source
+    texels (a :class:`usdbtf.quilt.texels.QuiltTexels`), which the renderer gathers (the same
+    image, without holding the quilt's texel-major texture)."""
     from ..camera import auto_camera
     from ..render import Light, RenderOptions, Renderer, to_display
 
     camera = auto_camera(mesh.corner(), size, size)
     light = np.asarray(LIGHT_DIRECTION, np.float64)
-    image = Renderer(cbtf, RenderOptions(threads=2)).render(
+    source, texel_map = (cbtf, None) if texels is None else (texels.compact, texels.index)
+    image = Renderer(source, RenderOptions(threads=2), texel_map=texel_map).render(
         mesh, camera, [Light("directional", light / np.linalg.norm(light), 1.0)])
     return to_display(image, cbtf.working_space, config=cbtf.ocio_config)
 
 
-def thumbnail_png(cbtf: CompressedBTF, mesh: Mesh, size: int = THUMBNAIL_SIZE) -> bytes:
-    """The thumbnail rendered and encoded as a PNG file's bytes, in memory (sRGB display
-    encoding, tagged as such)."""
+def thumbnail_png(cbtf: CompressedBTF, mesh: Mesh, size: int = THUMBNAIL_SIZE, texels=None) -> bytes:
+    """The thumbnail rendered (:func:`render_thumbnail`) and encoded as a PNG file's bytes, in
+    memory (sRGB display encoding, tagged as such)."""
     from ..imageio import encode_image
     from ..render.output import display_processor
 
-    pixels = render_thumbnail(cbtf, mesh, size)
+    pixels = render_thumbnail(cbtf, mesh, size, texels)
     _, display, _ = display_processor(cbtf.working_space, None, None, cbtf.ocio_config)
     return encode_image(pixels, "png", color_space=display, attributes={"png:compressionLevel": 9})
 
