@@ -40,9 +40,8 @@ from common import OUT, cli_command, format_machine, machine_info, median, run_m
 from usdbtf import numeric
 
 INPUTS = {"small": ("small", 64, 48), "paper": ("paper", 128, 150)}
-#: OpenBLAS kernels and the CPU flags each needs (those the CPU lacks are skipped, and said so).
-KERNELS = {"Haswell": {"avx2", "fma"}, "SkylakeX": {"avx512f", "avx512bw", "avx512vl", "avx512dq"},
-           "SandyBridge": {"avx"}, "Nehalem": {"sse4_2"}, "Prescott": {"pni"}}
+#: OpenBLAS kernels emulated (Zen runs Haswell's code: left out); those the CPU lacks are skipped.
+KERNELS = [k for k in numeric.OPENBLAS_KERNEL_FLAGS if k != "Zen"]
 PLATFORM_VARS = ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES", "USDBTF_NUMERIC", "OPENBLAS_NUM_THREADS")
 
 
@@ -96,9 +95,9 @@ def compress(src: Path, out: Path, k: int, config: str, threads: int) -> dict:
 def bytes_section(name: str, work: Path, threads_list: list[int]) -> list[dict]:
     src = input_folder(name)
     _, _, k = INPUTS[name]
-    flags = numeric.cpu_flags()
-    configs = ["pinned"] + [kern for kern, need in KERNELS.items() if need <= flags] + ["native"]
-    skipped = [kern for kern, need in KERNELS.items() if not need <= flags]
+    runnable = numeric.runnable_kernels()
+    configs = ["pinned"] + [kern for kern in KERNELS if kern in runnable] + ["native"]
+    skipped = [kern for kern in KERNELS if kern not in runnable]
     rows = []
     for config in configs:
         for threads in threads_list:

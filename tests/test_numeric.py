@@ -21,17 +21,13 @@ from usdbtf import cluster, numeric
 from usdbtf.cli import main
 from usdbtf.errors import BTFError
 
-#: OpenBLAS kernels and the CPU flags (/proc/cpuinfo) each needs to run.
-KERNELS = {"Haswell": {"avx2", "fma"}, "Zen": {"avx2", "fma"},
-           "SkylakeX": {"avx512f", "avx512bw", "avx512vl", "avx512dq", "avx512cd"},
-           "SandyBridge": {"avx"}, "Nehalem": {"sse4_2", "ssse3"}, "Prescott": {"pni"}}
 #: The variables that choose the platform; a run starts from an environment without them.
 PLATFORM_VARS = ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES", "USDBTF_NUMERIC", "OPENBLAS_NUM_THREADS",
                  "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 def runnable(kernel: str) -> bool:
-    return KERNELS[kernel] <= numeric.cpu_flags()
+    return kernel in numeric.runnable_kernels()
 
 
 def bare_env(**extra) -> dict:
@@ -108,7 +104,7 @@ def test_compress_bytes_depend_on_the_platform_only(small_btf, tmp_path):
     computes).  Kernels give other bytes where their arithmetic differs, and say so in the
     provenance: that is what the Dask check and build signatures compare."""
     runs = {}
-    kernels = [None] + [k for k in KERNELS if runnable(k)]
+    kernels = [None] + numeric.runnable_kernels()
     for kernel in kernels:
         for threads in (1, 2, 4) if kernel in (None, "Haswell") else (1, 4):
             env = {"OPENBLAS_NUM_THREADS": threads}

@@ -36,7 +36,7 @@ import sys
 import threading
 
 __all__ = ["REFERENCE", "pinned_environment", "pin", "platform", "platform_label", "platform_differences",
-           "cpu_flags", "runs_reference", "one_blas_thread", "single_blas_thread",
+           "cpu_flags", "runs_reference", "runnable_kernels", "OPENBLAS_KERNEL_FLAGS", "one_blas_thread", "single_blas_thread",
            "command_blas_thread"]
 
 #: The reference platform's settings (x86-64-v3): the BLAS kernel and numpy's SIMD ceiling.
@@ -47,6 +47,12 @@ _ABOVE_V3 = {"new": ("X86_V4", "AVX512_ICL", "AVX512_SPR"),
                      "AVX512_CNL", "AVX512_ICL", "AVX512_SPR", "AVX512FP16")}
 #: /proc/cpuinfo flags of x86-64-v3 (lzcnt is ``abm`` there).
 _V3_FLAGS = frozenset({"avx", "avx2", "fma", "bmi1", "bmi2", "f16c", "movbe", "abm", "sse4_2", "popcnt"})
+#: OpenBLAS kernels (``OPENBLAS_CORETYPE``) and the /proc/cpuinfo flags each needs to run:
+#: the CPUs the tests and bench_numeric emulate on one machine.
+OPENBLAS_KERNEL_FLAGS = {"Haswell": frozenset({"avx2", "fma"}), "Zen": frozenset({"avx2", "fma"}),
+                         "SkylakeX": frozenset({"avx512f", "avx512bw", "avx512vl", "avx512dq", "avx512cd"}),
+                         "SandyBridge": frozenset({"avx"}), "Nehalem": frozenset({"sse4_2", "ssse3"}),
+                         "Prescott": frozenset({"pni"})}
 #: The opt-out: ``USDBTF_NUMERIC=native`` leaves the libraries' choices alone.
 OPT_OUT = "USDBTF_NUMERIC"
 
@@ -62,6 +68,11 @@ def cpu_flags() -> frozenset:
     except OSError:
         pass
     return frozenset()
+
+
+def runnable_kernels() -> list[str]:
+    """The OpenBLAS kernels of :data:`OPENBLAS_KERNEL_FLAGS` this CPU can run."""
+    return [name for name, need in OPENBLAS_KERNEL_FLAGS.items() if need <= cpu_flags()]
 
 
 def runs_reference() -> bool:
