@@ -17,8 +17,9 @@ quilt        ``package Q --mesh`` of each quilted atlas, with its steps timed (r
              the command's own ``usdbtf.cli.main`` run in a child with each step's function
              wrapped by a timer;
 write        the time to write the atlas's textures (baseline): every atlas-sized file the asset
-             holds, decoded once, then encoded again with the writer and settings ``package``
-             uses (GPU packs PNG level 6, fallback maps PNG level 9) or, for the BTF's
+             holds (the GPU pages: atlas-sized packs as tiles), decoded once, then encoded again
+             with the writer and settings ``package`` uses (GPU pages PNG level 6, fallback maps
+             PNG level 9) or, for the BTF's
              coefficient textures (which ``package`` copies), their bytes written; in a child,
              one file after another ("serial") and a file per thread on every CPU, as
              ``package`` encodes them ("threaded");
@@ -58,7 +59,7 @@ TARGET_RATIO, TARGET_RSS = 2.0, 1.5e9
 #: The steps a child times: (module, attribute, label); module "TextureSet" is the class.
 STEPS = (("usdbtf.usd.package", "read_input", "read"), ("usdbtf.quilt.texels", "quilt_texels", "source texels"),
          ("usdbtf.svbrdf", "fit_svbrdf", "fallback fit"), ("usdbtf.usd.fallback", "add_maps", "fallback maps"),
-         ("usdbtf.usd.storm", "add_gpu_textures", "GPU tables+packs"),
+         ("usdbtf.usd.storm", "add_gpu_textures", "GPU tables+pages"),
          ("usdbtf.usd.thumbnail", "thumbnail_png", "thumbnail"),
          ("usdbtf.usd.textures:TextureSet", "write", "texture folder"),
          ("usdbtf.usd.package", "_check_published", "validation"))
@@ -115,9 +116,11 @@ def child_write(textures: str, width: int, height: int, scratch: str, out_json: 
         inp = oiio.ImageInput.open(str(path))
         spec = inp.spec()
         inp.close()
-        if (spec.width, spec.height) != (width, height):
-            continue
         folder = path.relative_to(textures).parts[0]
+        # Atlas-sized files, and the GPU pages: tiles of atlas-sized packs (usd.storm).
+        tiles = spec.width % width == 0 and spec.height % height == 0 and folder == "gpu"
+        if (spec.width, spec.height) != (width, height) and not tiles:
+            continue
         config = oiio.ImageSpec()
         config.attribute("oiio:UnassociatedAlpha", 1)
         inp = oiio.ImageInput.open(str(path), config)

@@ -22,6 +22,7 @@ that reads it); this module writes it.  Pure arrays in, arrays out:
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,13 +31,17 @@ from ..compress.format import CompressedBTF, cross_layout
 from ..errors import BTFError
 
 __all__ = ["MAX_PAGES", "PAGE_SIZE", "TABLE_WIDTH", "GpuLayout", "gpu_layout", "pack_count", "page_breaks",
-           "page_plan", "with_wrap", "HemisphereTable"]
+           "page_plan", "with_wrap", "HemisphereTable", "Pages", "PAGE_TEXELS"]
 
 #: Atlas textures ("pages") of coefficient packs a material binds: with the tables, 16
 #: samplers, for every k.
 MAX_PAGES = 15
 #: Largest width and height of a page (texels): what GL 4.x and Metal GPUs all sample.
 PAGE_SIZE = 16384
+#: Texels a page holds at most while the sampler budget allows more pages: a large atlas's
+#: packs spread over several pages, so pages are built and encoded a few at a time, on
+#: every CPU (one 16384-texel page of a quilted sphere took 13 s to encode on one core).
+PAGE_TEXELS = 4096 * 4096
 TABLE_WIDTH = 512
 _GRID = 32
 _HEADER = 4
@@ -51,8 +56,8 @@ def pack_count(k: int) -> int:
 
 @dataclass
 class GpuLayout:
-    """tables : (R, TABLE_WIDTH, 4) float32.  pages : list of (H, W, 4) arrays (uint8,
-    uint16 or float16), the packs as tiles (module docstring).  k : basis vectors on the
+    """tables : (R, TABLE_WIDTH, 4) float32.  pages : :class:`Pages`, (H, W, 4) arrays (uint8,
+    uint16 or float16) built when read, the packs as tiles (module docstring).  k : basis vectors on the
     GPU.  first_packs : the first pack of each page (ascending, first_packs[0] = 0)."""
 
     tables: np.ndarray
@@ -184,7 +189,12 @@ def page_plan(n_packs: int, width: int, height: int, breaks: list[int], dtypes=N
     page, tile column x0, tile row y0 (image rows from the top), 0)."""
     if height > PAGE_SIZE or width > PAGE_SIZE:
         raise BTFError(f"coefficient textures of {width}x{height} texels do not fit a {PAGE_SIZE}-texel GPU page")
-    per_page = (PAGE_SIZE // width) * (PAGE_SIZE // height)
+    # As many tiles as PAGE_TEXELS holds, more where the page count must stay in the sampler
+    # budget: every segment between breaks may end in a part-filled page.
+    fit = (PAGE_SIZE // width) * (PAGE_SIZE // height)
+    segments = 1 + len([b for b in breaks if 0 < b < n_packs])
+    spread = -(-n_packs // max(1, MAX_PAGES - segments))
+    per_page = min(fit, max(1, PAGE_TEXELS // (width * height), spread))
     dtypes = [None] * n_packs if dtypes is None else list(dtypes)
     plan, start = [], 0
     directory = np.zeros((n_packs, 4), np.float32)
@@ -202,21 +212,40 @@ def page_plan(n_packs: int, width: int, height: int, breaks: list[int], dtypes=N
     return plan, directory
 
 
-def _pages(packs: list, breaks: list[int], gather=None, shape=None) -> tuple[list, list, np.ndarray]:
-    """``packs`` laid out on pages as :func:`page_plan` says.  With ``gather`` (a quilt's
-    :meth:`usdbtf.quilt.texels.QuiltTexels.gather`) the packs are of its compact source texels
-    and each is gathered to ``shape`` (H, W) straight into its tile, one at a time.  Returns
+class Pages(Sequence):
+    """The coefficient pages, each built when it is read (``pages[i]``, iteration): a quilt's
+    pages are atlas-sized, and a writer that encodes them a few at a time holds only those.
+
+    packs : the packs (H, W, 4) or, with ``gather`` (a quilt's
+    :meth:`usdbtf.quilt.texels.QuiltTexels.gather`), (1, N, 4) packs of its compact source
+    texels, each gathered to ``shape`` (H, W) straight into its tile; plan, directory : as
+    :func:`page_plan` returns them."""
+
+    def __init__(self, packs: list, plan: list, directory: np.ndarray, shape, gather=None):
+        self._packs, self._plan, self._directory = packs, plan, directory
+        self._shape, self._gather = shape, gather
+
+    def __len__(self) -> int:
+        return len(self._plan)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        first, end, cols, rows = self._plan[i]
+        h, w = self._shape
+        page = np.zeros((rows * h, cols * w, 4), self._packs[first].dtype)
+        for p in range(first, end):
+            _, x0, y0, _ = (int(v) for v in self._directory[p])
+            page[y0:y0 + h, x0:x0 + w] = self._packs[p] if self._gather is None else self._gather(self._packs[p])
+        return page
+
+
+def _pages(packs: list, breaks: list[int], gather=None, shape=None) -> tuple[Pages, list, np.ndarray]:
+    """``packs`` laid out on pages as :func:`page_plan` says (see :class:`Pages`).  Returns
     (pages, first pack of each page, directory)."""
     h, w = shape if gather is not None else packs[0].shape[:2]
     plan, directory = page_plan(len(packs), w, h, breaks, [p.dtype for p in packs])
-    pages = []
-    for first, end, cols, rows in plan:
-        page = np.zeros((rows * h, cols * w, 4), packs[first].dtype)
-        for p in range(first, end):
-            _, x0, y0, _ = (int(v) for v in directory[p])
-            page[y0:y0 + h, x0:x0 + w] = packs[p] if gather is None else gather(packs[p])
-        pages.append(page)
-    return pages, [first for first, *_ in plan], directory
+    return Pages(packs, plan, directory, (h, w), gather), [first for first, *_ in plan], directory
 
 
 def gpu_layout(cbtf: CompressedBTF, k: int | None = None, lods=(), wrap: str = "clamp",

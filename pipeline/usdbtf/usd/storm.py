@@ -111,8 +111,10 @@ def add_gpu_textures(cbtf: CompressedBTF, textures, lods=(), *, texels=None) -> 
         return ".png", encode_image(pixels, "png", color_space="data",
                                     attributes={"png:compressionLevel": 6, "oiio:UnassociatedAlpha": 1}), "unorm"
 
+    # Each thread builds its page and encodes it: a few atlas-sized pages in memory at once.
+    encoded = encode_in_threads(lambda p: encode(layout.pages[p]), range(len(layout.pages)), "GPU pages")
     pages = [textures.add(f"{GPU_DIR}/{shaders.page_name(p)}{suffix}", data, kind)
-             for p, (suffix, data, kind) in enumerate(encode_in_threads(encode, layout.pages, "GPU pages"))]
+             for p, (suffix, data, kind) in enumerate(encoded)]
     document = materialx_document(Path(tables).name, [Path(name).name for name in pages], layout.k)
     textures.add_file(f"{GPU_DIR}/{MTLX_FILE}", document.encode())
     return GpuTextures(tables, pages, layout.k, layout.first_packs)
