@@ -1,0 +1,79 @@
+"""Physical scale as a checked property (issue 31): the texel density a BTF material has on
+each mesh bound to it, against the material's own.
+
+A material's density is its texture resolution over its physical size (``btf:resolution`` /
+``btf:physicalSize``, texels per metre; the geometric mean of the two axes).  On a mesh, the
+same textures cover the mesh's UV area, so the density there is
+``sqrt(W * H * uv_area / world_area)`` with the areas summed over the mesh's triangles (world
+space, metres).  A swatch stretched over a whole [0, 1] atlas shows up as a density far from
+the material's; an atlas made by ``usdbtf unwrap`` at the material's density matches it.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .material import NS
+
+__all__ = ["binding_densities", "density_problems", "MAX_DENSITY_MISMATCH"]
+
+#: Largest relative difference between the density on a mesh and the material's that passes.
+MAX_DENSITY_MISMATCH = 0.02
+
+
+def _mesh_density(mesh, width: int, height: int) -> float | None:
+    """Texels per metre of a (width, height) texture over ``mesh``'s UVs; None without UVs
+    or area."""
+    if mesh.uv is None:
+        return None
+    uv = mesh.corner(mesh.uv)                                   # (F, 3, 2)
+    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
+    world_area = mesh.area()
+    if not (uv_area > 0 and world_area > 0):
+        return None
+    return float(np.sqrt(width * height * uv_area / world_area))
+
+
+def binding_densities(stage) -> list[dict]:
+    """[{"prim", "material", "mesh_texels_per_metre", "material_texels_per_metre", "ratio"}]
+    for every Mesh prim bound (all purposes) to a BTF material with a resolution and a
+    physical size; ``mesh_texels_per_metre`` and ``ratio`` (mesh / material) are None when the
+    mesh has no UVs."""
+    from pxr import UsdGeom, UsdShade
+
+    from ..mesh import load_prim
+
+    out = []
+    for prim in stage.Traverse():
+        if not prim.IsA(UsdGeom.Mesh):
+            continue
+        material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
+        if not material:
+            continue
+        resolution = material.GetPrim().GetAttribute(NS + "resolution").Get()
+        size = material.GetPrim().GetAttribute(NS + "physicalSize").Get()
+        if not resolution or not size or min(resolution) <= 0 or min(size) <= 0:
+            continue
+        w, h = int(resolution[0]), int(resolution[1])
+        material_density = float(np.sqrt(w * h / (float(size[0]) * float(size[1]))))
+        on_mesh = _mesh_density(load_prim(prim), w, h)
+        out.append({"prim": str(prim.GetPath()), "material": str(material.GetPath()),
+                    "mesh_texels_per_metre": on_mesh, "material_texels_per_metre": material_density,
+                    "ratio": on_mesh / material_density if on_mesh is not None else None})
+    return out
+
+
+def density_problems(entries: list[dict]) -> list[str]:
+    """A validation line for every binding whose density on the mesh is missing or off by
+    more than :data:`MAX_DENSITY_MISMATCH`."""
+    lines = []
+    for e in entries:
+        where = f"{e['prim']} (bound to {e['material']})"
+        if e["ratio"] is None:
+            lines.append(f"[usdbtf:TexelDensity] {where}: the mesh has no texture coordinates (or no area), so "
+                         "the material has no physical scale on it")
+        elif abs(e["ratio"] - 1) > MAX_DENSITY_MISMATCH:
+            lines.append(f"[usdbtf:TexelDensity] {where}: {e['mesh_texels_per_metre']:.1f} texels/m on the mesh, "
+                         f"the material's is {e['material_texels_per_metre']:.1f} ({(e['ratio'] - 1) * 100:+.1f} %, "
+                         f"more than {MAX_DENSITY_MISMATCH * 100:g} %); `usdbtf build` unwraps and quilts it")
+    return lines
