@@ -1,0 +1,157 @@
+"""``usdbtf build SCENE`` on bound meshes (issue 31): every (material, mesh) binding gets an
+atlas at the material's measured density, a quilt across its charts and a packaged material,
+composed by the built scene without editing the user's file; ``inspect`` checks the density."""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+import usdbtf  # noqa: F401
+from cli_helpers import bad_input, ok
+from usdbtf.cli import main
+from usdbtf.usd.build import build
+from usdbtf.usd.density import binding_densities
+
+BOX = '''
+        int[] faceVertexCounts = [4, 4, 4, 4, 4, 4]
+        int[] faceVertexIndices = [0, 1, 3, 2, 4, 6, 7, 5, 0, 4, 5, 1, 2, 3, 7, 6, 0, 2, 6, 4, 1, 5, 7, 3]
+        point3f[] points = [(0, 0, 0), (0, 0, 0.15), (0, 0.1, 0), (0, 0.1, 0.15), (0.2, 0, 0), (0.2, 0, 0.15),
+                            (0.2, 0.1, 0), (0.2, 0.1, 0.15)]
+        texCoord2f[] primvars:st = [(0, 0), (0, 1), (1, 0), (1, 1), (1, 0), (1, 1), (0, 1), (0, 0)] (
+            interpolation = "vertex"
+        )
+        rel material:binding = </World/Looks/Pebbles>'''
+
+SCENE = '''#usda 1.0
+(
+    defaultPrim = "World"
+    metersPerUnit = 1
+    upAxis = "Y"
+)
+
+def Xform "World"
+{
+    def Mesh "Box" (prepend apiSchemas = ["MaterialBindingAPI"])
+    {''' + BOX + '''
+        double3 xformOp:translate = (0.5, 0, 0)
+        uniform token[] xformOpOrder = ["xformOp:translate"]
+    }
+    def Mesh "BoxCopy" (prepend apiSchemas = ["MaterialBindingAPI"])
+    {''' + BOX + '''
+        double3 xformOp:translate = (-0.5, 0, 0)
+        float xformOp:rotateY = 90
+        uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateY"]
+    }
+    def Mesh "Plane" (prepend apiSchemas = ["MaterialBindingAPI"])
+    {
+        int[] faceVertexCounts = [4]
+        int[] faceVertexIndices = [0, 1, 2, 3]
+        point3f[] points = [(0, 0, 0), (0.3, 0, 0), (0.3, 0, 0.2), (0, 0, 0.2)]
+        rel material:binding = </World/Looks/Moss>
+        double3 xformOp:scale = (2, 2, 2)
+        uniform token[] xformOpOrder = ["xformOp:scale"]
+    }
+    def Scope "Looks"
+    {
+        def Material "Pebbles" (
+            prepend apiSchemas = ["BtfMaterialAPI"]
+            prepend references = @./build/pebbles.usda@</pebbles/mtl/BtfMaterial>
+        )
+        {
+            uniform asset btf:build:source = @./captures/pebbles@
+            uniform string btf:build:options = "--k 4 --codec png"
+            uniform asset btf:build:asset = @./build/pebbles.usda@
+        }
+        def Material "Moss" (
+            prepend apiSchemas = ["BtfMaterialAPI"]
+            prepend references = @./build/moss.usda@</moss/mtl/BtfMaterial>
+        )
+        {
+            uniform asset btf:build:source = @./captures/moss@
+            uniform string btf:build:options = "--k 4 --codec png"
+            uniform asset btf:build:asset = @./build/moss.usda@
+        }
+    }
+}
+'''
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    """The scene built once: (scene path, the first build's report, the scene's bytes before)."""
+    root = tmp_path_factory.mktemp("meshes")
+    for preset, name in (("pebbles", "pebbles"), ("fuzzy_moss", "moss")):
+        assert main(["synth", preset, "-o", str(root / "captures" / name), "--sampling", "tiny", "--size", "16",
+                     "-q"]) == 0
+    scene = root / "scene.usda"
+    scene.write_text(SCENE)
+    return scene, build(scene), scene.read_bytes()
+
+
+def _open(path):
+    from pxr import Usd
+
+    return Usd.Stage.Open(str(path))
+
+
+def test_every_binding_has_the_materials_density_after_build(built):
+    scene, report, before = built
+    assert scene.read_bytes() == before                           # the user's file is never edited
+    # Before: a 16-texel swatch over the box's [0, 1] UVs is about a third of its density; the
+    # plane has no UVs at all.
+    stretched = {e["prim"]: e for e in binding_densities(_open(scene))}
+    assert stretched["/World/Box"]["ratio"] == pytest.approx(0.34, abs=0.01)
+    assert stretched["/World/Plane"]["ratio"] is None
+    entries = binding_densities(_open(report["built_scene"]))
+    assert sorted(e["prim"] for e in entries) == ["/World/Box", "/World/BoxCopy", "/World/Plane"]
+    for e in entries:
+        # 16 texels over the synthetic swatch's 5 cm: 320 texels per metre.
+        assert e["material_texels_per_metre"] == pytest.approx(320.0, rel=1e-6)
+        assert abs(e["ratio"] - 1) <= 0.02, e
+        assert e["material"].startswith("/UsdbtfBindings/")
+
+
+def test_identical_meshes_of_a_material_share_one_quilt(built):
+    scene, report, _ = built
+    chains = {c.material: c for c in report["bindings"]}
+    assert len(report["bindings"]) == 2                            # the rotated copy shares the box's
+    assert chains["/World/Looks/Pebbles"].prims == ["/World/Box", "/World/BoxCopy"]
+    steps = [line.split()[1] for line in report["ran"]]
+    assert sorted(steps) == sorted(["compress", "package"] * 2 + ["unwrap", "quilt", "package"] * 2)
+    # The shared quilt is the atlas's size and the material's data (k = 4).
+    stage = _open(report["built_scene"])
+    unwrap = json.loads((chains["/World/Looks/Pebbles"].unwrap.parent / "unwrap.json").read_text())
+    from usdbtf.usd.material import NS
+    from pxr import UsdShade
+
+    for prim in ("/World/Box", "/World/BoxCopy"):
+        material, _ = UsdShade.MaterialBindingAPI(stage.GetPrimAtPath(prim)).ComputeBoundMaterial()
+        assert tuple(material.GetPrim().GetAttribute(NS + "resolution").Get()) == \
+            (unwrap["atlas"]["width"], unwrap["atlas"]["height"])
+        assert material.GetPrim().GetAttribute(NS + "basisCount").Get() == 4
+
+
+def test_inspect_validate_flags_a_stretched_material_and_passes_the_built_scene(built, capsys):
+    scene, report, _ = built
+    line = bad_input(capsys, "inspect", scene, "--validate", names="[usdbtf:TexelDensity] /World/Box")
+    assert "more than 2 %" in line
+    out = ok(capsys, "inspect", report["built_scene"], "--validate")
+    assert "0 error(s)" in out and "texels/m on the mesh" in out
+
+
+def test_rebuilds_only_what_a_mesh_edit_touches(built):
+    """Runs last: it edits the module's scene."""
+    scene, report, _ = built
+    assert build(scene)["ran"] == []                              # nothing changed: nothing runs
+    # Moving a mesh needs no new atlas (its extracted mesh is in its own frame).
+    scene.write_text(SCENE.replace("(0.5, 0, 0)", "(0.9, 0, 0)"))
+    assert build(scene)["ran"] == []
+    # Editing the plane re-quilts the plane alone.
+    scene.write_text(SCENE.replace("(0.3, 0, 0.2), (0, 0, 0.2)", "(0.3, 0, 0.25), (0, 0, 0.25)"))
+    ran = build(scene)["ran"]
+    assert ran == [f"usdbtf-step {step} /World/Looks/Moss /World/Plane" for step in ("unwrap", "quilt", "package")]
+    plane = {e["prim"]: e for e in binding_densities(_open(report["built_scene"]))}["/World/Plane"]
+    assert abs(plane["ratio"] - 1) <= 0.02
