@@ -25,6 +25,19 @@ BOX = '''
         )
         rel material:binding = </World/Looks/Pebbles>'''
 
+
+def _material(name: str, stem: str) -> str:
+    """A Material with a build recipe (synthetic capture ``captures/STEM``, k = 4)."""
+    lines = [f'def Material "{name}" (', '    prepend apiSchemas = ["BtfMaterialAPI"]',
+             f'    prepend references = @./build/{stem}.usda@</{stem}/mtl/BtfMaterial>', ')', '{',
+             f'    uniform asset btf:build:source = @./captures/{stem}@',
+             '    uniform string btf:build:options = "--k 4 --codec png"',
+             f'    uniform asset btf:build:asset = @./build/{stem}.usda@', '}']
+    return "\n".join(" " * 8 + line for line in lines)
+
+
+MATERIALS = _material("Pebbles", "pebbles") + "\n" + _material("Moss", "moss")
+
 SCENE = '''#usda 1.0
 (
     defaultPrim = "World"
@@ -56,24 +69,7 @@ def Xform "World"
     }
     def Scope "Looks"
     {
-        def Material "Pebbles" (
-            prepend apiSchemas = ["BtfMaterialAPI"]
-            prepend references = @./build/pebbles.usda@</pebbles/mtl/BtfMaterial>
-        )
-        {
-            uniform asset btf:build:source = @./captures/pebbles@
-            uniform string btf:build:options = "--k 4 --codec png"
-            uniform asset btf:build:asset = @./build/pebbles.usda@
-        }
-        def Material "Moss" (
-            prepend apiSchemas = ["BtfMaterialAPI"]
-            prepend references = @./build/moss.usda@</moss/mtl/BtfMaterial>
-        )
-        {
-            uniform asset btf:build:source = @./captures/moss@
-            uniform string btf:build:options = "--k 4 --codec png"
-            uniform asset btf:build:asset = @./build/moss.usda@
-        }
+''' + MATERIALS + '''
     }
 }
 '''

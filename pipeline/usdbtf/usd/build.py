@@ -17,7 +17,9 @@ excluded, as USD composes them), computes the material bound to every imageable 
 (all purposes), and keeps the bound materials with a recipe.  Unbound materials are never
 looked at again.  :func:`build` writes an SConstruct for those steps (compress, when the
 source is not already compressed, then package) and runs SCons with content signatures,
-so a second build with unchanged inputs runs nothing.
+so a second build with unchanged inputs runs nothing.  Every ``Mesh`` prim bound to a recipe's
+material also gets an unwrap, quilt and package step (:mod:`usdbtf.usd.binding`), and the
+built scene ``.usdbtf-build/SCENE/scene.usda`` composes the results over the user's scene.
 
 Scene text is data, never code:
 
