@@ -67,6 +67,15 @@ def Xform "World"
         double3 xformOp:scale = (2, 2, 2)
         uniform token[] xformOpOrder = ["xformOp:scale"]
     }
+    def Mesh "Floor" (prepend apiSchemas = ["MaterialBindingAPI"])
+    {
+        int[] faceVertexCounts = [4]
+        int[] faceVertexIndices = [0, 1, 2, 3]
+        point3f[] points = [(-1, 0, -1), (1, 0, -1), (1, 0, 1), (-1, 0, 1)]
+        texCoord2f[] primvars:st = [(0, 0), (1, 0), (1, 1), (0, 1)] (interpolation = "vertex")
+        rel material:binding = </World/Looks/Moss>
+        uniform token btf:build:mapping = "tile"
+    }
     def Scope "Looks"
     {
 ''' + MATERIALS + '''
@@ -102,7 +111,7 @@ def test_every_binding_has_the_materials_density_after_build(built):
     assert stretched["/World/Box"]["ratio"] == pytest.approx(0.34, abs=0.01)
     assert stretched["/World/Plane"]["ratio"] is None
     entries = binding_densities(_open(report["built_scene"]))
-    assert sorted(e["prim"] for e in entries) == ["/World/Box", "/World/BoxCopy", "/World/Plane"]
+    assert sorted(e["prim"] for e in entries) == ["/World/Box", "/World/BoxCopy", "/World/Floor", "/World/Plane"]
     for e in entries:
         # 16 texels over the synthetic swatch's 5 cm: 320 texels per metre.
         assert e["material_texels_per_metre"] == pytest.approx(320.0, rel=1e-6)
@@ -113,10 +122,11 @@ def test_every_binding_has_the_materials_density_after_build(built):
 def test_identical_meshes_of_a_material_share_one_quilt(built):
     scene, report, _ = built
     chains = {c.material: c for c in report["bindings"]}
-    assert len(report["bindings"]) == 2                            # the rotated copy shares the box's
+    assert len(report["bindings"]) == 3                            # the rotated copy shares the box's
     assert chains["/World/Looks/Pebbles"].prims == ["/World/Box", "/World/BoxCopy"]
     steps = [line.split()[1] for line in report["ran"]]
-    assert sorted(steps) == sorted(["compress", "package"] * 2 + ["unwrap", "quilt", "package"] * 2)
+    assert sorted(steps) == sorted(["compress", "package"] * 2 + ["unwrap", "quilt", "package"] * 2
+                                   + ["quilt", "package"])       # the floor's tileable quilt
     # The shared quilt is the atlas's size and the material's data (k = 4).
     stage = _open(report["built_scene"])
     unwrap = json.loads((chains["/World/Looks/Pebbles"].unwrap.parent / "unwrap.json").read_text())
@@ -136,6 +146,28 @@ def test_inspect_validate_flags_a_stretched_material_and_passes_the_built_scene(
     assert "more than 2 %" in line
     out = ok(capsys, "inspect", report["built_scene"], "--validate")
     assert "0 error(s)" in out and "texels/m on the mesh" in out
+
+
+def test_tile_mapping_repeats_a_tileable_quilt_at_physical_scale(built):
+    """``btf:build:mapping = "tile"``: the floor keeps its topology, its st is scaled so that one
+    tile of the 256-texel tileable quilt (0.8 m at 320 texels/m) spans 0.8 m of the 2 m floor."""
+    from pxr import UsdGeom
+
+    scene, report, _ = built
+    stage = _open(report["built_scene"])
+    st = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/World/Floor")).GetPrimvar("st").Get()
+    assert max(p[0] for p in st) == pytest.approx(2.0 / 0.8, rel=1e-5)
+    assert len(UsdGeom.Mesh(stage.GetPrimAtPath("/World/Floor")).GetFaceVertexCountsAttr().Get()) == 1
+    floor = {e["prim"]: e for e in binding_densities(stage)}["/World/Floor"]
+    assert floor["ratio"] == pytest.approx(1.0, abs=1e-4)
+
+
+def test_a_bad_mapping_is_an_error_naming_the_prim(built, capsys):
+    scene, _, _ = built
+    bad = scene.parent / "bad_mapping.usda"
+    bad.write_text(SCENE.replace('btf:build:mapping = "tile"', 'btf:build:mapping = "wrap"'))
+    line = bad_input(capsys, "build", bad, "--dry-run", names="/World/Floor: btf:build:mapping")
+    assert "atlas, tile" in line
 
 
 def test_rebuilds_only_what_a_mesh_edit_touches(built):

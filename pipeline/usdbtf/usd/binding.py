@@ -31,6 +31,11 @@ __all__ = ["Binding", "bindings", "binding_steps", "write_built_scene", "BUILT_S
 BUILT_SCENE = "scene.usda"
 #: The prim of the built scene under which the per-mesh Materials live.
 BINDINGS_SCOPE = "/UsdbtfBindings"
+#: ``btf:build:mapping`` values: a quilt across the mesh's own atlas, or a tileable quilt repeated
+#: at physical scale through the mesh's UVs (their scale measured from the mesh's areas).
+MAPPINGS = ("atlas", "tile")
+#: Side of the tileable quilt of the "tile" mapping, texels.
+TILE_SIZE = 256
 _PURPOSES = {"": "material:binding", "preview": "material:binding:preview", "full": "material:binding:full"}
 
 
@@ -45,6 +50,7 @@ class Binding:
     key: str
     folder: Path
     mesh_text: str
+    mapping: str = "atlas"
     prims: list[str] = field(default_factory=list)
     placements: dict = field(default_factory=dict)
     relationships: dict = field(default_factory=dict)
@@ -112,6 +118,23 @@ def _extract(prim, placement: np.ndarray) -> str:
     return layer.ExportToString()
 
 
+def _mapping(prim, material_prim) -> str:
+    """``btf:build:mapping`` of the mesh prim, else of its material, else "atlas"; BTFError
+    naming the prim for anything but :data:`MAPPINGS`."""
+    from ..errors import BTFError
+    from .material import NS
+
+    for owner in (prim, material_prim):
+        attr = owner.GetAttribute(NS + "build:mapping")
+        if attr and attr.HasAuthoredValue():
+            value = attr.Get()
+            if not isinstance(value, str) or value not in MAPPINGS:
+                raise BTFError(f"{owner.GetPath()}: {NS}build:mapping must be one of {', '.join(MAPPINGS)}, "
+                               f"got {value!r}")
+            return value
+    return "atlas"
+
+
 def bindings(stage, recipes, targets: dict, work: Path) -> list[Binding]:
     """The unwrap/quilt/package chains of every Mesh prim bound to a recipe's material.
 
@@ -127,14 +150,18 @@ def bindings(stage, recipes, targets: dict, work: Path) -> list[Binding]:
             prim = stage.GetPrimAtPath(path)
             if not prim or not prim.IsA(UsdGeom.Mesh):
                 continue
+            mapping = _mapping(prim, stage.GetPrimAtPath(recipe.material))
             placement = _placement(prim, metres_per_unit)
-            text = _extract(prim, placement)
+            # Every tile-mapped mesh of a material shares its one tileable quilt.
+            text = _extract(prim, placement) if mapping == "atlas" else ""
             chain = chains.get(text)
             if chain is None:
                 # The folder is named after the first prim of the chain (prim names are identifiers).
-                digest = hashlib.sha256(f"{recipe.material}\0{path}".encode()).hexdigest()[:10]
-                key = f"{Path(recipe.material).name}_{prim.GetName()}"
-                chain = chains[text] = Binding(recipe.material, key, work / "bindings" / f"{key}_{digest}", text)
+                name = prim.GetName() if mapping == "atlas" else "tile"
+                digest = hashlib.sha256(f"{recipe.material}\0{path if text else name}".encode()).hexdigest()[:10]
+                key = f"{Path(recipe.material).name}_{name}"
+                chain = chains[text] = Binding(recipe.material, key, work / "bindings" / f"{key}_{digest}", text,
+                                               mapping)
             chain.prims.append(path)
             chain.placements[path] = placement
             chain.relationships[path] = targets[recipe.material][path]
@@ -153,6 +180,15 @@ def binding_steps(chains: list[Binding], compressed: dict) -> list[dict]:
         label = f"{c.material} {c.prims[0]}"
         unwrap_out = c.unwrap.parent
         quilt_targets = [str(c.quilt / "btf-compressed.json"), str(c.quilt / "quilt_positions.exr")]
+        if c.mapping == "tile":
+            side = str(TILE_SIZE)
+            steps += [
+                {"label": "quilt " + label, "targets": quilt_targets, "sources": [meta, *files],
+                 "argv": ["quilt", "--force", "-q", "--tileable", "--size", side, side, "-o", str(c.quilt), "--",
+                          folder]},
+                {"label": "package " + label, "targets": [str(c.asset)], "sources": quilt_targets,
+                 "argv": ["package", "--force", "-q", "-o", str(c.asset), "--", str(c.quilt)]}]
+            continue
         steps += [
             {"label": "unwrap " + label, "targets": [str(c.unwrap), str(unwrap_out / "charts.png")],
              "sources": [str(c.mesh_layer), meta, *files],
@@ -223,9 +259,44 @@ def _override_mesh(stage, scene_stage, path: str, chain: Binding, material: str)
             attr = dst.CreatePrimvar(pv.GetPrimvarName(), pv.GetTypeName(), pv.GetInterpolation())
             attr.GetAttr().Block()
             attr.BlockIndices()
+    _bind(over, chain.relationships[path], material)
+
+
+def _bind(over, relationships: list[str], material: str) -> None:
+    from pxr import Sdf, UsdShade
+
     UsdShade.MaterialBindingAPI.Apply(over)
-    for rel in chain.relationships[path]:
+    for rel in relationships:
         over.CreateRelationship(rel).SetTargets([Sdf.Path(material)])
+
+
+def _override_tiled(stage, scene_stage, path: str, chain: Binding, material: str) -> None:
+    """Over ``path`` with its ``st`` scaled so that one tile of the tileable quilt spans the
+    quilt's physical size on the mesh (the UVs' scale measured from the mesh's world and UV
+    areas), and bind it to ``material``."""
+    from pxr import Usd, UsdGeom, Vt
+
+    from ..errors import BTFError
+    from ..mesh import load_prim
+    from .density import uv_area
+    from .material import NS
+
+    prim = scene_stage.GetPrimAtPath(path)
+    mesh = load_prim(prim)
+    area = uv_area(mesh)
+    if not area > 0:
+        raise BTFError(f"{path}: {NS}build:mapping = \"tile\" needs texture coordinates (primvars:st) that cover "
+                       "some area")
+    metres_per_uv = np.sqrt(mesh.area() / area)
+    asset_stage = Usd.Stage.Open(str(chain.asset))
+    tile = asset_stage.GetPrimAtPath(f"{asset_stage.GetDefaultPrim().GetPath()}/mtl/BtfMaterial")
+    size = np.asarray(tile.GetAttribute(NS + "physicalSize").Get(), np.float64)
+    st = UsdGeom.PrimvarsAPI(prim).GetPrimvar("st")
+    values = np.asarray(st.Get(), np.float64).reshape(-1, 2) * (metres_per_uv / size)
+    over = stage.OverridePrim(path)
+    out = UsdGeom.PrimvarsAPI(over).CreatePrimvar("st", st.GetTypeName(), st.GetInterpolation())
+    out.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(values, np.float32)))
+    _bind(over, chain.relationships[path], material)
 
 
 def built_scene_text(scene: Path, scene_stage, chains: list[Binding], work: Path) -> str:
@@ -251,7 +322,10 @@ def built_scene_text(scene: Path, scene_stage, chains: list[Binding], work: Path
         UsdShade.Material.Define(stage, material)
         references.append((material, chain.asset))
         for path in chain.prims:
-            _override_mesh(stage, scene_stage, path, chain, material)
+            if chain.mapping == "tile":
+                _override_tiled(stage, scene_stage, path, chain, material)
+            else:
+                _override_mesh(stage, scene_stage, path, chain, material)
     del stage
     layer.subLayerPaths.append(os.path.relpath(scene, work))
     for material, asset in references:

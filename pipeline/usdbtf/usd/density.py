@@ -14,24 +14,28 @@ import numpy as np
 
 from .material import NS
 
-__all__ = ["binding_densities", "density_problems", "MAX_DENSITY_MISMATCH"]
+__all__ = ["uv_area", "binding_densities", "density_problems", "MAX_DENSITY_MISMATCH"]
 
 #: Largest relative difference between the density on a mesh and the material's that passes.
 MAX_DENSITY_MISMATCH = 0.02
 
 
+def uv_area(mesh) -> float:
+    """Total area of ``mesh``'s triangles in UV space (0 without UVs); overlaps count twice."""
+    if mesh.uv is None:
+        return 0.0
+    uv = mesh.corner(mesh.uv)                                   # (F, 3, 2)
+    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
+    return float(0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum())
+
+
 def _mesh_density(mesh, width: int, height: int) -> float | None:
     """Texels per metre of a (width, height) texture over ``mesh``'s UVs; None without UVs
     or area."""
-    if mesh.uv is None:
+    area, world_area = uv_area(mesh), mesh.area()
+    if not (area > 0 and world_area > 0):
         return None
-    uv = mesh.corner(mesh.uv)                                   # (F, 3, 2)
-    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
-    uv_area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()
-    world_area = mesh.area()
-    if not (uv_area > 0 and world_area > 0):
-        return None
-    return float(np.sqrt(width * height * uv_area / world_area))
+    return float(np.sqrt(width * height * area / world_area))
 
 
 def binding_densities(stage) -> list[dict]:
