@@ -38,14 +38,9 @@ def _material(name: str, stem: str) -> str:
 
 MATERIALS = _material("Pebbles", "pebbles") + "\n" + _material("Moss", "moss")
 
-SCENE = '''#usda 1.0
-(
-    defaultPrim = "World"
-    metersPerUnit = 1
-    upAxis = "Y"
-)
+HEADER = '#usda 1.0\n(\n    defaultPrim = "World"\n    metersPerUnit = 1\n    upAxis = "Y"\n)\n\n'
 
-def Xform "World"
+SCENE = HEADER + '''def Xform "World"
 {
     def Mesh "Box" (prepend apiSchemas = ["MaterialBindingAPI"])
     {''' + BOX + '''
