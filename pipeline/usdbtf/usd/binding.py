@@ -219,7 +219,7 @@ def _copy_primvar(src_api, dst_api, name: str) -> None:
 def _override_mesh(stage, scene_stage, path: str, chain: Binding, material: str) -> None:
     """Over ``path`` in the built scene with the chain's atlas mesh (back in the prim's local
     frame) and bind it to ``material`` for the purposes it was bound for."""
-    from pxr import Sdf, Usd, UsdGeom, UsdShade, Vt
+    from pxr import Sdf, Usd, UsdGeom, Vt
 
     atlas_stage = Usd.Stage.Open(str(chain.unwrap))
     atlas = UsdGeom.Mesh(next(p for p in atlas_stage.Traverse() if p.IsA(UsdGeom.Mesh)))
