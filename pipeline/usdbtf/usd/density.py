@@ -39,12 +39,13 @@ def _mesh_density(mesh, width: int, height: int) -> float | None:
 
 
 def binding_densities(stage) -> list[dict]:
-    """[{"prim", "material", "mesh_texels_per_metre", "material_texels_per_metre", "ratio"}]
-    for every Mesh prim bound (all purposes) to a BTF material with a resolution and a
-    physical size; ``mesh_texels_per_metre`` and ``ratio`` (mesh / material) are None when the
-    mesh has no UVs."""
+    """[{"prim", "material", "mesh_texels_per_metre", "material_texels_per_metre", "ratio",
+    "problem"}] for every Mesh prim bound (all purposes) to a BTF material with a resolution
+    and a physical size; ``mesh_texels_per_metre`` and ``ratio`` (mesh / material) are None
+    when the mesh has no UVs, or cannot be read (``problem`` says why)."""
     from pxr import UsdGeom, UsdShade
 
+    from ..errors import BTFError
     from ..mesh import load_prim
 
     out = []
@@ -60,10 +61,13 @@ def binding_densities(stage) -> list[dict]:
             continue
         w, h = int(resolution[0]), int(resolution[1])
         material_density = float(np.sqrt(w * h / (float(size[0]) * float(size[1]))))
-        on_mesh = _mesh_density(load_prim(prim), w, h)
+        try:
+            on_mesh, problem = _mesh_density(load_prim(prim), w, h), None
+        except BTFError as exc:        # a broken mesh (NaN points, bad primvars): reported, not raised
+            on_mesh, problem = None, str(exc)
         out.append({"prim": str(prim.GetPath()), "material": str(material.GetPath()),
                     "mesh_texels_per_metre": on_mesh, "material_texels_per_metre": material_density,
-                    "ratio": on_mesh / material_density if on_mesh is not None else None})
+                    "ratio": on_mesh / material_density if on_mesh is not None else None, "problem": problem})
     return out
 
 
@@ -73,7 +77,9 @@ def density_problems(entries: list[dict]) -> list[str]:
     lines = []
     for e in entries:
         where = f"{e['prim']} (bound to {e['material']})"
-        if e["ratio"] is None:
+        if e.get("problem"):
+            lines.append(f"[usdbtf:TexelDensity] {where}: cannot measure: {e['problem']}")
+        elif e["ratio"] is None:
             lines.append(f"[usdbtf:TexelDensity] {where}: the mesh has no texture coordinates (or no area), so "
                          "the material has no physical scale on it")
         elif abs(e["ratio"] - 1) > MAX_DENSITY_MISMATCH:
