@@ -16,6 +16,16 @@ atlas, one quilt).  The user's scene is never edited: :func:`write_built_scene` 
 stronger, overrides each bound mesh's topology, points, normals, ``st`` and tangent frames
 with its atlas's and binds it to a Material referencing its packaged asset.
 
+``btf:build:mapping = "tile"`` on a mesh prim (or its material) takes the cheap route instead:
+one tileable quilt of :data:`TILE_SIZE` texels per material (``quilt --tileable --size``, then
+``package``), and the built scene keeps the mesh's topology and scales its ``st`` so one tile
+spans the quilt's physical size (the UVs' metres per unit measured from the mesh's world and UV
+areas).
+
+Not covered: meshes inside instanceable prims (``Traverse`` does not enter instances, and an
+instance proxy cannot be overridden), non-``Mesh`` gprims, and a binding overruled by an
+ancestor's ``strongerThanDescendants`` binding.
+
 Scene data never becomes code: paths and argument lists only (see :mod:`usdbtf.usd.build`).
 """
 from __future__ import annotations
