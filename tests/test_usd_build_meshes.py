@@ -111,6 +111,7 @@ def test_every_binding_has_the_materials_density_after_build(built):
         # 16 texels over the synthetic swatch's 5 cm: 320 texels per metre.
         assert e["material_texels_per_metre"] == pytest.approx(320.0, rel=1e-6)
         assert abs(e["ratio"] - 1) <= 0.02, e
+        assert e["stretch"] < 1.1, e                                 # shapes kept, not only areas
         assert e["material"].startswith("/UsdbtfBindings/")
 
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from .material import NS
 
-__all__ = ["uv_area", "binding_densities", "density_problems", "MAX_DENSITY_MISMATCH"]
+__all__ = ["uv_area", "stretch", "binding_densities", "density_problems", "MAX_DENSITY_MISMATCH"]
 
 #: Largest relative difference between the density on a mesh and the material's that passes.
 MAX_DENSITY_MISMATCH = 0.02
@@ -29,6 +29,32 @@ def uv_area(mesh) -> float:
     return float(0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum())
 
 
+def stretch(mesh, width: int, height: int) -> float | None:
+    """Area-weighted mean over triangles of the ratio of the largest to the smallest texel
+    density direction (singular values of the metres -> texels map in the triangle's plane):
+    1 for UVs that keep shapes, 1.5 for a 0.6 x 0.4 m quad on the UV square.  The area-based
+    density alone cannot see this.  None without UVs."""
+    if mesh.uv is None:
+        return None
+    p = mesh.corner()                                              # (F, 3, 3) metres
+    t = mesh.corner(mesh.uv) * np.array([width, height], np.float64)  # (F, 3, 2) texels
+    d1, d2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    l1 = np.linalg.norm(d1, axis=1)
+    area2 = np.linalg.norm(np.cross(d1, d2), axis=1)
+    keep = (l1 > 0) & (area2 > 0)
+    e1 = d1[keep] / l1[keep, None]
+    q = np.stack([np.stack([l1[keep], np.zeros(keep.sum())], axis=1),
+                  np.stack([(d2[keep] * e1).sum(axis=1), area2[keep] / l1[keep]], axis=1)], axis=2)  # (F, 2, 2)
+    tt = np.stack([t[keep, 1] - t[keep, 0], t[keep, 2] - t[keep, 0]], axis=2)                          # (F, 2, 2)
+    det = np.linalg.det(tt)
+    ok = np.abs(det) > 0
+    if not ok.any():
+        return None
+    sv = np.linalg.svd(tt[ok] @ np.linalg.inv(q[ok]), compute_uv=False)                             # (F, 2)
+    weights = area2[keep][ok]
+    return float((sv[:, 0] / sv[:, 1] * weights).sum() / weights.sum())
+
+
 def _mesh_density(mesh, width: int, height: int) -> float | None:
     """Texels per metre of a (width, height) texture over ``mesh``'s UVs; None without UVs
     or area."""
@@ -40,7 +66,7 @@ def _mesh_density(mesh, width: int, height: int) -> float | None:
 
 def binding_densities(stage) -> list[dict]:
     """[{"prim", "material", "mesh_texels_per_metre", "material_texels_per_metre", "ratio",
-    "problem"}] for every Mesh prim bound (all purposes) to a BTF material with a resolution
+    "stretch" (:func:`stretch`, reported, not checked), "problem"}] for every Mesh prim bound (all purposes) to a BTF material with a resolution
     and a physical size; ``mesh_texels_per_metre`` and ``ratio`` (mesh / material) are None
     when the mesh has no UVs, or cannot be read (``problem`` says why)."""
     from pxr import UsdGeom, UsdShade
@@ -62,12 +88,14 @@ def binding_densities(stage) -> list[dict]:
         w, h = int(resolution[0]), int(resolution[1])
         material_density = float(np.sqrt(w * h / (float(size[0]) * float(size[1]))))
         try:
-            on_mesh, problem = _mesh_density(load_prim(prim), w, h), None
+            mesh = load_prim(prim)
+            on_mesh, anisotropy, problem = _mesh_density(mesh, w, h), stretch(mesh, w, h), None
         except BTFError as exc:        # a broken mesh (NaN points, bad primvars): reported, not raised
-            on_mesh, problem = None, str(exc)
+            on_mesh, anisotropy, problem = None, None, str(exc)
         out.append({"prim": str(prim.GetPath()), "material": str(material.GetPath()),
                     "mesh_texels_per_metre": on_mesh, "material_texels_per_metre": material_density,
-                    "ratio": on_mesh / material_density if on_mesh is not None else None, "problem": problem})
+                    "ratio": on_mesh / material_density if on_mesh is not None else None, "stretch": anisotropy,
+                    "problem": problem})
     return out
 
 

@@ -150,6 +150,6 @@ def describe(path, info: dict | None = None) -> str:
         on_mesh = b["mesh_texels_per_metre"]
         lines.append(f"  {b['prim']} -> {b['material']}: " + (
             f"{on_mesh:.1f} texels/m on the mesh, material {b['material_texels_per_metre']:.1f} "
-            f"({(b['ratio'] - 1) * 100:+.2f} %)" if on_mesh is not None
+            f"({(b['ratio'] - 1) * 100:+.2f} %), stretch {b['stretch']:.3f}" if on_mesh is not None
             else b.get("problem") or "no texture coordinates"))
     return "\n".join(lines)
