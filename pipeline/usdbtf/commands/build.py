@@ -46,14 +46,17 @@ def run(args) -> int:
 
 def _print_report(scene, recipes, report: dict, *, dry_run: bool) -> int:
     """``--json``: {"scene", "dry_run", "recipes": [{material, source, options, asset, compressed}],
-    "bound": {material: [prims]}, "without_recipe": [materials], "ran": [commands] (builds only)}."""
+    "bound": {material: [prims]}, "without_recipe": [materials], "bindings": [{material, prims, asset}]
+    (the bound meshes' unwrap/quilt/package chains), "ran": [commands] and "built_scene" (builds only)}."""
     from . import print_json
 
     out = {"scene": str(scene), "dry_run": dry_run,
            "recipes": [{"material": r.material, "source": r.source, "options": list(r.options), "asset": r.asset,
                         "compressed": r.compressed} for r in recipes],
-           "bound": report["bound"], "without_recipe": report["without_recipe"]}
+           "bound": report["bound"], "without_recipe": report["without_recipe"],
+           "bindings": [{"material": c.material, "prims": c.prims, "asset": c.asset} for c in report["bindings"]]}
     if not dry_run:
         out["ran"] = report["ran"]
+        out["built_scene"] = report.get("built_scene")
     print_json(out)
     return 0

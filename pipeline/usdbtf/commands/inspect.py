@@ -10,14 +10,16 @@ def add_parser(sub) -> None:
     p.add_argument("asset", help=".usda/.usdc/.usdz asset (or any stage referencing one), as the asset "
                    "resolver finds it")
     p.add_argument("--validate", action="store_true",
-                   help="also run every UsdValidation validator on every lod selection and check every layer "
-                        "for NaN or Inf (exit status 65 when there is an error)")
+                   help="also run every UsdValidation validator on every lod selection, check every layer "
+                        "for NaN or Inf and every bound mesh's texel density against its material's (within 2 "
+                        "%%) (exit status 65 when there is an error)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON (keys in the README)")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from ..errors import BTFError
+    from ..usd.density import density_problems
     from ..usd.finite import non_finite_in_stage
     from ..usd.inspect import describe, summary
     from ..usd.validate import validation_by_lod
@@ -29,8 +31,9 @@ def run(args) -> int:
                                for lod, lines in report.items() for line in lines]
         by_lod = validation_by_lod(args.asset)
         # Besides USD's validators: no NaN or infinite number in any layer (none of them checks).
+        # ... and every bound mesh carries its material at the material's physical scale.
         errors = flat(by_lod) + [f"[usdbtf:NonFiniteValue] {where}: NaN or infinite value"
-                                 for where in non_finite_in_stage(args.asset)]
+                                 for where in non_finite_in_stage(args.asset)] + density_problems(info["bindings"])
         info["validation"] = {"errors": errors, "warnings": flat(validation_by_lod(args.asset, severities=("Warn",))),
                               "selections": [lod or "(as authored)" for lod in by_lod]}
     if args.json:

@@ -23,7 +23,7 @@ from ..errors import BTFError, UsageError
 from ..usdstage import USD_SUFFIXES, open_usd, usd_exists, usd_warnings_silenced
 from .model import Mesh
 
-__all__ = ["load_mesh", "MESH_SUFFIXES", "TRIMESH_SUFFIXES", "USD_SUFFIXES"]
+__all__ = ["load_mesh", "load_prim", "MESH_SUFFIXES", "TRIMESH_SUFFIXES", "USD_SUFFIXES"]
 
 TRIMESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".gltf", ".off")
 #: Every file type :func:`load_mesh` reads.
@@ -111,6 +111,16 @@ def _load_usd(path: Path, meters_per_unit) -> Mesh:
     name = (default.GetName() if default else "") or path.stem
     return Mesh.concatenate(parts, name=name, source=str(path), metres_per_unit=scale,
                             up_axis=str(UsdGeom.GetStageUpAxis(stage)))
+
+
+def load_prim(prim) -> Mesh:
+    """One Mesh prim of an open stage as a :class:`Mesh` in world space (metres), degenerate
+    triangles dropped, as :func:`load_mesh` reads each prim of a USD file."""
+    from pxr import UsdGeom
+
+    stage = prim.GetStage()
+    scale = float(UsdGeom.GetStageMetersPerUnit(stage))
+    return _usd_mesh(prim, UsdGeom.XformCache(), scale, Path(stage.GetRootLayer().identifier)).without_degenerate()
 
 
 def _usd_mesh(prim, cache, scale: float, path: Path) -> Mesh:

@@ -17,7 +17,9 @@ excluded, as USD composes them), computes the material bound to every imageable 
 (all purposes), and keeps the bound materials with a recipe.  Unbound materials are never
 looked at again.  :func:`build` writes an SConstruct for those steps (compress, when the
 source is not already compressed, then package) and runs SCons with content signatures,
-so a second build with unchanged inputs runs nothing.
+so a second build with unchanged inputs runs nothing.  Every ``Mesh`` prim bound to a recipe's
+material also gets an unwrap, quilt and package step (:mod:`usdbtf.usd.binding`), and the
+built scene ``.usdbtf-build/SCENE/scene.usda`` composes the results over the user's scene.
 
 Scene text is data, never code:
 
@@ -229,7 +231,15 @@ def plan(scene) -> tuple[list[Recipe], dict]:
     outputs = [o for r in recipes for o in r.outputs()]
     if len(set(outputs)) != len(outputs):
         raise BTFError(f"{scene}: two materials write the same btf:build:asset")
-    return recipes, {"bound": bound, "without_recipe": without}
+    from .binding import binding_targets, bindings
+
+    chains = bindings(stage, recipes, binding_targets(stage, [r.material for r in recipes]), work_folder(scene))
+    return recipes, {"bound": bound, "without_recipe": without, "bindings": chains}
+
+
+def work_folder(scene: Path) -> Path:
+    """The build folder of ``scene``: SConstruct, steps, the bound meshes' chains, the built scene."""
+    return Path(scene).parent / BUILD_DIR / Path(scene).stem
 
 
 def _source_files(folder: Path) -> list[str]:
@@ -239,10 +249,14 @@ def _source_files(folder: Path) -> list[str]:
     return sorted(str(Path(d) / f) for d, _, fs in os.walk(folder) for f in fs if not f.startswith("."))
 
 
-def steps(recipes: list[Recipe], dask: dict | None = None) -> dict:
+def steps(recipes: list[Recipe], dask: dict | None = None, chains: list | None = None) -> dict:
     """The data the SConstruct builds from: one compress (when needed) and one package step
-    per recipe, each with its targets, sources and ``usdbtf`` argument list; with ``dask``
-    (:func:`_cluster_info`) the steps run as tasks on that cluster."""
+    per recipe, each with its targets, sources and ``usdbtf`` argument list, then the
+    unwrap, quilt and package ``commands`` of every bound mesh's chain
+    (:mod:`usdbtf.usd.binding`); with ``dask`` (:func:`_cluster_info`) the steps run as tasks
+    on that cluster."""
+    from .binding import binding_steps
+
     out = []
     for r in recipes:
         step = {"material": r.material, "asset": str(r.asset),
@@ -257,7 +271,10 @@ def steps(recipes: list[Recipe], dask: dict | None = None) -> dict:
         out.append(step)
     # The numeric platform decides the bits of every step's output (usdbtf.numeric): a build
     # cached on one platform is not another's, so it enters every step's signature.
-    doc = {"python": sys.executable, "failure": _FAILURE, "steps": out, "platform": numeric.platform()}
+    compressed = {r.material: (str(r.compressed / COMPRESSED_METADATA),
+                               [] if r.compressed != r.source else _source_files(r.source)) for r in recipes}
+    doc = {"python": sys.executable, "failure": _FAILURE, "steps": out, "platform": numeric.platform(),
+           "commands": binding_steps(chains or [], compressed)}
     if dask is not None:
         doc["dask"] = dask
     return doc
@@ -323,6 +340,9 @@ for s in DATA["steps"]:
     targets += sources if "compress" in s else []
     targets += env.Command(node(s["asset"]), list(sources) + [PLATFORM],
                            usdbtf_step(s["package"], "usdbtf-step package " + json.dumps(s["material"])))
+for c in DATA.get("commands", []):     # the bound meshes' unwrap, quilt and package steps
+    targets += env.Command([node(p) for p in c["targets"]], [node(p) for p in c["sources"]] + [PLATFORM],
+                           usdbtf_step(c["argv"], "usdbtf-step " + c["label"]))
 env.Precious(targets)    # never deleted before a rebuild: a failed one keeps the last good build
 env.NoClean(targets)
 Default(targets)
@@ -369,7 +389,7 @@ def build(scene, *, force: bool = False, dask=None) -> dict:
         log.info(f"{len(report['bound'])} bound BTF material(s), none with a btf:build recipe: nothing to build")
         report.update(recipes=recipes, ran=[])
         return report
-    work = scene.parent / BUILD_DIR / scene.stem
+    work = work_folder(scene)
     made = [p for p in (work.parent, work) if not os.path.lexists(p)]
     _claim_outputs(scene, recipes, work, force)
     with contextlib.ExitStack() as stack:
@@ -379,10 +399,11 @@ def build(scene, *, force: bool = False, dask=None) -> dict:
 
             dask_info, jobs = command_info(stack.enter_context(session(dask)))
         for name, text in (("SConstruct", sconstruct()),
-                           (_STEPS, json.dumps(steps(recipes, dask_info), indent=1) + "\n")):
-            if not (work / name).is_file() or (work / name).read_text() != text:
-                with atomic_file(work / name, owner_checked=True) as tmp:
-                    tmp.write_text(text)
+                           (_STEPS, json.dumps(steps(recipes, dask_info, report["bindings"]), indent=1) + "\n")):
+            _write_if_changed(work / name, text)
+        for chain in report["bindings"]:
+            chain.folder.mkdir(parents=True, exist_ok=True)
+            _write_if_changed(chain.mesh_layer, chain.mesh_text)
         (work / _FAILURE).unlink(missing_ok=True)
         missing = [p for r in recipes for p in {r.compressed, r.asset.parent} if not os.path.lexists(p)]
         env = dict(os.environ)
@@ -403,11 +424,31 @@ def build(scene, *, force: bool = False, dask=None) -> dict:
             raise error_for_status(failure[0], f"{scene}: build failed: {failure[1]}")
         detail = proc.stderr.strip().splitlines() or proc.stdout.strip().splitlines() or ["?"]
         raise BTFError(f"{scene}: build failed: {detail[-1]}")
+    if report["bindings"]:
+        from .binding import BUILT_SCENE, built_scene_text
+
+        _write_if_changed(work / BUILT_SCENE, built_scene_text(scene, _open_scene(scene), report["bindings"], work))
+        report["built_scene"] = work / BUILT_SCENE
+        log.info(f"{len(report['bindings'])} bound mesh chain(s); the built scene: {work / BUILT_SCENE}")
     for r in recipes:
         log.info(f"{r.material}: {r.asset}")
     log.info(f"{len(recipes)} bound BTF material(s); {len(ran)} step(s) run" + ("" if ran else " (all up to date)"))
     report.update(recipes=recipes, ran=ran)
     return report
+
+
+def _write_if_changed(path: Path, text: str) -> None:
+    """Write ``text`` at ``path`` unless it already holds it (content signatures then see no change)."""
+    if not path.is_file() or path.read_text() != text:
+        with atomic_file(path, owner_checked=True) as tmp:
+            tmp.write_text(text)
+
+
+def _open_scene(scene: Path):
+    from ..usdstage import open_usd, usd_warnings_silenced
+
+    with usd_warnings_silenced():
+        return open_usd(scene, composition_errors=False)
 
 
 def _remove_made(made: list[Path]) -> None:

@@ -9,6 +9,7 @@ import numpy as np
 
 from .material import LOD_VARIANT_SET, NS, btf_materials
 from ..usdstage import resolve_usd
+from .density import binding_densities
 from .read import find_material, open_stage
 
 
@@ -102,7 +103,8 @@ def summary(path) -> dict:
     return {"asset": str(path), "resolved": resolve_usd(path),
             "meters_per_unit": stage.GetMetadata("metersPerUnit"), "up_axis": stage.GetMetadata("upAxis"),
             "composition_errors": [" ".join(str(e).split()) for e in stage.GetCompositionErrors()],
-            "materials": [material_summary(stage, prim) for prim in prims]}
+            "materials": [material_summary(stage, prim) for prim in prims],
+            "bindings": binding_densities(stage)}
 
 
 def describe(path, info: dict | None = None) -> str:
@@ -144,4 +146,10 @@ def describe(path, info: dict | None = None) -> str:
                 f"{lv['name']} (k = {lv['k']}"
                 + (f", {lv['error_percent']:.2f} %" if lv["error_percent"] is not None else "") + ")"
                 for lv in m["lod"]))
+    for b in info.get("bindings", []):
+        on_mesh = b["mesh_texels_per_metre"]
+        lines.append(f"  {b['prim']} -> {b['material']}: " + (
+            f"{on_mesh:.1f} texels/m on the mesh, material {b['material_texels_per_metre']:.1f} "
+            f"({(b['ratio'] - 1) * 100:+.2f} %), stretch {b['stretch']:.3f}" if on_mesh is not None
+            else b.get("problem") or "no texture coordinates"))
     return "\n".join(lines)

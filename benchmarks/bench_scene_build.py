@@ -1,0 +1,148 @@
+#!/usr/bin/env python
+"""A scene's meshes at their material's measured scale (issue 31): ``usdbtf build`` on a scene of
+three meshes without UVs (sphere r = 0.3 m, cylinder, box) bound to three synthetic materials.
+
+Measures, in one run:
+
+density      per binding, the texel density on the mesh in the built scene against the
+             material's (``usd.density.binding_densities``), and the same on the user's scene
+             (the baseline: what binding the swatch directly gives).
+seams        per binding, the quilting benchmark's seam metric inside charts (mean squared
+             difference across quilting seams, over every (view, light) image, pairs of one
+             chart only) against the material's natural neighbour difference (the same metric
+             over source neighbours).  Chart-boundary seams across charts are not measured here.
+rebuilds     wall time of the first build, of a second build with nothing changed, and of a
+             build after one mesh (the cylinder) is edited, with the steps each ran.
+
+Usage (repository root)::
+
+    .venv/bin/python benchmarks/bench_scene_build.py              # 16-texel tiny materials, ~1 min
+
+Writes benchmarks/out/scene_build_<timestamp>.json and prints a markdown block for RESULTS.md.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "pipeline"))
+import usdbtf  # noqa: E402,F401  (pins the numeric platform before numpy's BLAS loads)
+from common import OUT, format_machine, machine_info, timestamp, write_json  # noqa: E402
+
+MATERIALS = (("Pebbles", "pebbles"), ("Moss", "fuzzy_moss"), ("Fabric", "ridged_fabric"))
+
+
+def _meshes():
+    import trimesh
+
+    return {"Sphere": trimesh.creation.icosphere(subdivisions=3, radius=0.3),
+            "Cylinder": trimesh.creation.cylinder(radius=0.1, height=0.3, sections=24),
+            "Box": trimesh.creation.box(extents=(0.2, 0.1, 0.15))}
+
+
+def write_scene(root: Path, size: int) -> Path:
+    """The scene (meshes without UVs, each bound to one material with a build recipe)."""
+    from pxr import Sdf, Usd, UsdGeom, UsdShade
+
+    from usdbtf.cli import main
+
+    stage = Usd.Stage.CreateNew(str(root / "scene.usda"))
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    stage.SetDefaultPrim(UsdGeom.Xform.Define(stage, "/World").GetPrim())
+    for (name, preset), (mesh_name, mesh) in zip(MATERIALS, _meshes().items()):
+        assert main(["synth", preset, "-o", str(root / "captures" / name), "--sampling", "tiny", "--size",
+                     str(size), "-q"]) == 0
+        material = UsdShade.Material.Define(stage, f"/World/Looks/{name}")
+        prim = material.GetPrim()
+        prim.AddAppliedSchema("BtfMaterialAPI")
+        prim.GetReferences().AddReference(f"./build/{name}.usda", Sdf.Path(f"/{name}/mtl/BtfMaterial"))
+        prim.CreateAttribute("btf:build:source", Sdf.ValueTypeNames.Asset).Set(f"./captures/{name}")
+        prim.CreateAttribute("btf:build:options", Sdf.ValueTypeNames.String).Set("--k 6 --codec png")
+        prim.CreateAttribute("btf:build:asset", Sdf.ValueTypeNames.Asset).Set(f"./build/{name}.usda")
+        geom = UsdGeom.Mesh.Define(stage, f"/World/{mesh_name}")
+        geom.CreatePointsAttr([tuple(map(float, p)) for p in mesh.vertices])
+        geom.CreateFaceVertexCountsAttr([3] * len(mesh.faces))
+        geom.CreateFaceVertexIndicesAttr([int(i) for i in mesh.faces.ravel()])
+        geom.CreateSubdivisionSchemeAttr("none")
+        UsdShade.MaterialBindingAPI.Apply(geom.GetPrim()).Bind(material)
+    stage.Save()
+    return root / "scene.usda"
+
+
+def seams(chain, compressed: Path) -> dict:
+    """Seam error inside charts of a chain's quilt vs the material's natural neighbour difference."""
+    from usdbtf.compress import read_compressed, reconstruct
+    from usdbtf.quilt.folder import read_position_map
+    from usdbtf.quilt.seams import seam_pairs
+    from usdbtf.unwrap import read_unwrap
+
+    images = reconstruct(read_compressed(compressed))                   # (S, Hs, Ws, 3)
+    S, hs, ws, _ = images.shape
+    x, y = read_position_map(chain.quilt)
+    positions = y * ws + x
+    a, b = seam_pairs(positions, ws, labels=read_unwrap(chain.unwrap).chart_map)
+    flat = images.reshape(S, hs * ws, 3)
+    d = flat[:, positions.ravel()[a]] - flat[:, positions.ravel()[b]]
+    seam = float(np.einsum("npc,npc->", d, d, dtype=np.float64) / max(1, 3 * S * len(a)))
+    natural = float(np.mean(np.diff(images, axis=2) ** 2))
+    return {"seam_pairs": int(len(a)), "seam_error": seam, "natural_neighbour": natural, "ratio": seam / natural}
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--size", type=int, default=16, help="synthetic sample side in texels (default 16)")
+    args = p.parse_args()
+    from pxr import Usd, UsdGeom
+
+    from usdbtf.usd.build import build
+    from usdbtf.usd.density import binding_densities
+
+    from usdbtf.usdstage import usd_warnings_silenced
+
+    with tempfile.TemporaryDirectory(prefix="bench_scene_build_") as tmp:
+        with usd_warnings_silenced():           # the materials' assets do not exist before the build
+            scene = write_scene(Path(tmp), args.size)
+        runs = {}
+        for name in ("first", "nothing changed", "cylinder edited"):
+            if name == "cylinder edited":
+                stage = Usd.Stage.Open(str(scene))
+                points = UsdGeom.Mesh.Get(stage, "/World/Cylinder").GetPointsAttr()
+                points.Set([(px * 1.1, py, pz) for px, py, pz in points.Get()])
+                stage.Save()
+            t = time.perf_counter()
+            report = build(scene)
+            runs[name] = {"wall_s": time.perf_counter() - t, "ran": report["ran"]}
+        before = binding_densities(Usd.Stage.Open(str(scene)))
+        after = binding_densities(Usd.Stage.Open(str(report["built_scene"])))
+        compressed = {r.material: r.compressed for r in report["recipes"]}
+        seam = {c.prims[0]: seams(c, compressed[c.material]) for c in report["bindings"]}
+    machine = machine_info()
+    doc = {"machine": machine, "size": args.size, "runs": runs, "density_user_scene": before,
+           "density_built_scene": after, "seams": seam}
+    path = write_json(OUT / f"scene_build_{timestamp()}.json", doc)
+    print(format_machine(machine))
+    print(f"\ninputs: synth pebbles / fuzzy_moss / ridged_fabric, sampling tiny, {args.size}^2, k 6; sphere r 0.3 m "
+          "(icosphere 3), cylinder r 0.1 h 0.3, box 0.2 x 0.1 x 0.15 m, no UVs\n")
+    print("| binding | user scene texels/m | built scene texels/m | material texels/m | built / material | "
+          "seam error in charts | natural neighbour | seam / natural |")
+    print("|---|---|---|---|---|---|---|---|")
+    user = {e["prim"]: e for e in before}
+    for e in after:
+        u, s = user[e["prim"]]["mesh_texels_per_metre"], seam[e["prim"]]
+        print(f"| {e['prim']} | {'no UVs' if u is None else f'{u:.1f}'} | {e['mesh_texels_per_metre']:.2f} | "
+              f"{e['material_texels_per_metre']:.2f} | {e['ratio']:.4f} | {s['seam_error']:.5g} | "
+              f"{s['natural_neighbour']:.5g} | {s['ratio']:.2f} |")
+    print("\n| build | wall s | steps run |\n|---|---|---|")
+    for name, r in runs.items():
+        print(f"| {name} | {r['wall_s']:.1f} | {len(r['ran'])}: {', '.join(x.split(' ', 1)[1] for x in r['ran'])} |")
+    print(f"\n{path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,181 @@
+"""``usdbtf build SCENE`` on bound meshes (issue 31): every (material, mesh) binding gets an
+atlas at the material's measured density, a quilt across its charts and a packaged material,
+composed by the built scene without editing the user's file; ``inspect`` checks the density."""
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+import usdbtf  # noqa: F401
+from cli_helpers import bad_input, ok
+from usdbtf.cli import main
+from usdbtf.usd.build import build
+from usdbtf.usd.density import binding_densities
+
+BOX = '''
+        int[] faceVertexCounts = [4, 4, 4, 4, 4, 4]
+        int[] faceVertexIndices = [0, 1, 3, 2, 4, 6, 7, 5, 0, 4, 5, 1, 2, 3, 7, 6, 0, 2, 6, 4, 1, 5, 7, 3]
+        point3f[] points = [(0, 0, 0), (0, 0, 0.15), (0, 0.1, 0), (0, 0.1, 0.15), (0.2, 0, 0), (0.2, 0, 0.15),
+                            (0.2, 0.1, 0), (0.2, 0.1, 0.15)]
+        texCoord2f[] primvars:st = [(0, 0), (0, 1), (1, 0), (1, 1), (1, 0), (1, 1), (0, 1), (0, 0)] (
+            interpolation = "vertex"
+        )
+        rel material:binding = </World/Looks/Pebbles>'''
+
+
+def _material(name: str, stem: str) -> str:
+    """A Material with a build recipe (synthetic capture ``captures/STEM``, k = 4)."""
+    lines = [f'def Material "{name}" (', '    prepend apiSchemas = ["BtfMaterialAPI"]',
+             f'    prepend references = @./build/{stem}.usda@</{stem}/mtl/BtfMaterial>', ')', '{',
+             f'    uniform asset btf:build:source = @./captures/{stem}@',
+             '    uniform string btf:build:options = "--k 4 --codec png"',
+             f'    uniform asset btf:build:asset = @./build/{stem}.usda@', '}']
+    return "\n".join(" " * 8 + line for line in lines)
+
+
+MATERIALS = _material("Pebbles", "pebbles") + "\n" + _material("Moss", "moss")
+
+HEADER = '#usda 1.0\n(\n    defaultPrim = "World"\n    metersPerUnit = 1\n    upAxis = "Y"\n)\n\n'
+
+SCENE = HEADER + '''def Xform "World"
+{
+    def Mesh "Box" (prepend apiSchemas = ["MaterialBindingAPI"])
+    {''' + BOX + '''
+        double3 xformOp:translate = (0.5, 0, 0)
+        uniform token[] xformOpOrder = ["xformOp:translate"]
+    }
+    def Mesh "BoxCopy" (prepend apiSchemas = ["MaterialBindingAPI"])
+    {''' + BOX + '''
+        double3 xformOp:translate = (-0.5, 0, 0)
+        float xformOp:rotateY = 90
+        uniform token[] xformOpOrder = ["xformOp:translate", "xformOp:rotateY"]
+    }
+    def Mesh "Plane" (prepend apiSchemas = ["MaterialBindingAPI"])
+    {
+        int[] faceVertexCounts = [4]
+        int[] faceVertexIndices = [0, 1, 2, 3]
+        point3f[] points = [(0, 0, 0), (0.3, 0, 0), (0.3, 0, 0.2), (0, 0, 0.2)]
+        rel material:binding = </World/Looks/Moss>
+        double3 xformOp:scale = (2, 2, 2)
+        uniform token[] xformOpOrder = ["xformOp:scale"]
+    }
+    def Mesh "Floor" (prepend apiSchemas = ["MaterialBindingAPI"])
+    {
+        int[] faceVertexCounts = [4]
+        int[] faceVertexIndices = [0, 1, 2, 3]
+        point3f[] points = [(-1, 0, -1), (1, 0, -1), (1, 0, 1), (-1, 0, 1)]
+        texCoord2f[] primvars:st = [(0, 0), (1, 0), (1, 1), (0, 1)] (interpolation = "vertex")
+        rel material:binding = </World/Looks/Moss>
+        uniform token btf:build:mapping = "tile"
+    }
+    def Scope "Looks"
+    {
+''' + MATERIALS + '''
+    }
+}
+'''
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    """The scene built once: (scene path, the first build's report, the scene's bytes before)."""
+    root = tmp_path_factory.mktemp("meshes")
+    for preset, name in (("pebbles", "pebbles"), ("fuzzy_moss", "moss")):
+        assert main(["synth", preset, "-o", str(root / "captures" / name), "--sampling", "tiny", "--size", "16",
+                     "-q"]) == 0
+    scene = root / "scene.usda"
+    scene.write_text(SCENE)
+    return scene, build(scene), scene.read_bytes()
+
+
+def _open(path):
+    from pxr import Usd
+
+    return Usd.Stage.Open(str(path))
+
+
+def test_every_binding_has_the_materials_density_after_build(built):
+    scene, report, before = built
+    assert scene.read_bytes() == before                           # the user's file is never edited
+    # Before: a 16-texel swatch over the box's [0, 1] UVs is about a third of its density; the
+    # plane has no UVs at all.
+    stretched = {e["prim"]: e for e in binding_densities(_open(scene))}
+    assert stretched["/World/Box"]["ratio"] == pytest.approx(0.34, abs=0.01)
+    assert stretched["/World/Plane"]["ratio"] is None
+    entries = binding_densities(_open(report["built_scene"]))
+    assert sorted(e["prim"] for e in entries) == ["/World/Box", "/World/BoxCopy", "/World/Floor", "/World/Plane"]
+    for e in entries:
+        # 16 texels over the synthetic swatch's 5 cm: 320 texels per metre.
+        assert e["material_texels_per_metre"] == pytest.approx(320.0, rel=1e-6)
+        assert abs(e["ratio"] - 1) <= 0.02, e
+        assert e["stretch"] < 1.1, e                                 # shapes kept, not only areas
+        assert e["material"].startswith("/UsdbtfBindings/")
+
+
+def test_identical_meshes_of_a_material_share_one_quilt(built):
+    scene, report, _ = built
+    chains = {c.material: c for c in report["bindings"]}
+    assert len(report["bindings"]) == 3                            # the rotated copy shares the box's
+    assert chains["/World/Looks/Pebbles"].prims == ["/World/Box", "/World/BoxCopy"]
+    steps = [line.split()[1] for line in report["ran"]]
+    assert sorted(steps) == sorted(["compress", "package"] * 2 + ["unwrap", "quilt", "package"] * 2
+                                   + ["quilt", "package"])       # the floor's tileable quilt
+    # The shared quilt is the atlas's size and the material's data (k = 4).
+    stage = _open(report["built_scene"])
+    unwrap = json.loads((chains["/World/Looks/Pebbles"].unwrap.parent / "unwrap.json").read_text())
+    from usdbtf.usd.material import NS
+    from pxr import UsdShade
+
+    for prim in ("/World/Box", "/World/BoxCopy"):
+        material, _ = UsdShade.MaterialBindingAPI(stage.GetPrimAtPath(prim)).ComputeBoundMaterial()
+        assert tuple(material.GetPrim().GetAttribute(NS + "resolution").Get()) == \
+            (unwrap["atlas"]["width"], unwrap["atlas"]["height"])
+        assert material.GetPrim().GetAttribute(NS + "basisCount").Get() == 4
+
+
+def test_inspect_validate_flags_a_stretched_material_and_passes_the_built_scene(built, capsys):
+    scene, report, _ = built
+    line = bad_input(capsys, "inspect", scene, "--validate", names="[usdbtf:TexelDensity] /World/Box")
+    assert "more than 2 %" in line
+    out = ok(capsys, "inspect", report["built_scene"], "--validate")
+    assert "0 error(s)" in out and "texels/m on the mesh" in out
+
+
+def test_tile_mapping_repeats_a_tileable_quilt_at_physical_scale(built):
+    """``btf:build:mapping = "tile"``: the floor keeps its topology, its st is scaled so that one
+    tile of the 256-texel tileable quilt (0.8 m at 320 texels/m) spans 0.8 m of the 2 m floor."""
+    from pxr import UsdGeom
+
+    scene, report, _ = built
+    stage = _open(report["built_scene"])
+    st = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/World/Floor")).GetPrimvar("st").Get()
+    assert max(p[0] for p in st) == pytest.approx(2.0 / 0.8, rel=1e-5)
+    assert len(UsdGeom.Mesh(stage.GetPrimAtPath("/World/Floor")).GetFaceVertexCountsAttr().Get()) == 1
+    floor = {e["prim"]: e for e in binding_densities(stage)}["/World/Floor"]
+    assert floor["ratio"] == pytest.approx(1.0, abs=1e-4)
+
+
+def test_a_bad_mapping_is_an_error_naming_the_prim(built, capsys):
+    scene, _, _ = built
+    bad = scene.parent / "bad_mapping.usda"
+    bad.write_text(SCENE.replace('btf:build:mapping = "tile"', 'btf:build:mapping = "wrap"'))
+    line = bad_input(capsys, "build", bad, "--dry-run", names="/World/Floor: btf:build:mapping")
+    assert "atlas, tile" in line
+
+
+def test_rebuilds_only_what_a_mesh_edit_touches(built):
+    """Runs last: it edits the module's scene."""
+    scene, report, _ = built
+    assert build(scene)["ran"] == []                              # nothing changed: nothing runs
+    # Moving a mesh needs no new atlas (its extracted mesh is in its own frame).
+    scene.write_text(SCENE.replace("(0.5, 0, 0)", "(0.9, 0, 0)"))
+    assert build(scene)["ran"] == []
+    # Editing the plane re-quilts the plane alone.
+    scene.write_text(SCENE.replace("(0.3, 0, 0.2), (0, 0, 0.2)", "(0.3, 0, 0.25), (0, 0, 0.25)"))
+    ran = build(scene)["ran"]
+    assert ran == [f"usdbtf-step {step} /World/Looks/Moss /World/Plane" for step in ("unwrap", "quilt", "package")]
+    plane = {e["prim"]: e for e in binding_densities(_open(report["built_scene"]))}["/World/Plane"]
+    assert abs(plane["ratio"] - 1) <= 0.02
