@@ -42,7 +42,7 @@ from usdbtf import numeric
 INPUTS = {"small": ("small", 64, 48), "paper": ("paper", 128, 150)}
 #: OpenBLAS kernels emulated (Zen runs Haswell's code: left out); those the CPU lacks are skipped.
 KERNELS = [k for k in numeric.OPENBLAS_KERNEL_FLAGS if k != "Zen"]
-PLATFORM_VARS = ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES", "USDBTF_NUMERIC", "OPENBLAS_NUM_THREADS")
+PLATFORM_VARS = (*numeric.PLATFORM_VARIABLES, numeric.OPT_OUT, "OPENBLAS_NUM_THREADS")
 
 
 def say(msg: str = "") -> None:

@@ -22,7 +22,7 @@ from usdbtf.cli import main
 from usdbtf.errors import BTFError
 
 #: The variables that choose the platform; a run starts from an environment without them.
-PLATFORM_VARS = ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES", "USDBTF_NUMERIC", "OPENBLAS_NUM_THREADS",
+PLATFORM_VARS = (*numeric.PLATFORM_VARIABLES, numeric.OPT_OUT, "OPENBLAS_NUM_THREADS",
                  "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 

@@ -211,12 +211,10 @@ def version_report() -> dict:
 
     env = dict(environment())
     platform = {k: env.pop(k) for k in numeric.platform()}
-    pinned = {name: os.environ.get(name, "") for name in ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES")}
+    pinned = {name: os.environ.get(name, "") for name in numeric.PLATFORM_VARIABLES}
     return {"usdbtf": env.pop("usdbtf"), "code": env.pop("usdbtf code"), "python": env.pop("python"),
             "libraries": env,
-            "numeric": {**platform, "reference": platform["blas_kernel"] == numeric.REFERENCE["blas_kernel"]
-                        and platform["numpy_simd"] == numeric.REFERENCE["numpy_simd"],
-                        "environment": pinned}}
+            "numeric": {**platform, "reference": numeric.is_reference(platform), "environment": pinned}}
 
 
 def _version_json_asked(argv) -> bool:

@@ -36,7 +36,7 @@ import sys
 import threading
 
 __all__ = ["REFERENCE", "pinned_environment", "pin", "platform", "platform_label", "platform_differences",
-           "cpu_flags", "runs_reference", "runnable_kernels", "OPENBLAS_KERNEL_FLAGS", "one_blas_thread", "single_blas_thread",
+           "cpu_flags", "runs_reference", "is_reference", "PLATFORM_VARIABLES", "runnable_kernels", "OPENBLAS_KERNEL_FLAGS", "one_blas_thread", "single_blas_thread",
            "command_blas_thread"]
 
 #: The reference platform's settings (x86-64-v3): the BLAS kernel and numpy's SIMD ceiling.
@@ -53,6 +53,8 @@ OPENBLAS_KERNEL_FLAGS = {"Haswell": frozenset({"avx2", "fma"}), "Zen": frozenset
                          "SkylakeX": frozenset({"avx512f", "avx512bw", "avx512vl", "avx512dq", "avx512cd"}),
                          "SandyBridge": frozenset({"avx"}), "Nehalem": frozenset({"sse4_2", "ssse3"}),
                          "Prescott": frozenset({"pni"})}
+#: The variables that choose the platform when the libraries load.
+PLATFORM_VARIABLES = ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES")
 #: The opt-out: ``USDBTF_NUMERIC=native`` leaves the libraries' choices alone.
 OPT_OUT = "USDBTF_NUMERIC"
 
@@ -160,6 +162,12 @@ def _numpy_simd(np) -> str:
             return "unknown"
     enabled = [name for name in targets if have.get(name)]
     return enabled[-1] if enabled else "baseline"
+
+
+def is_reference(p: dict | None = None) -> bool:
+    """Whether platform ``p`` (default this process's) is the reference platform."""
+    p = p or platform()
+    return all(p.get(key) == value for key, value in REFERENCE.items())
 
 
 def platform_label(p: dict | None = None) -> str:
