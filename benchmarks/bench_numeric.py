@@ -26,7 +26,6 @@ Prints markdown for RESULTS.md and writes benchmarks/out/numeric_<stamp>.json.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import os
 import shutil
@@ -38,6 +37,7 @@ from pathlib import Path
 from common import OUT, cli_command, format_machine, machine_info, median, run_measured, timestamp, write_json
 
 from usdbtf import numeric
+from usdbtf.compress.format import digest_without_platform
 
 INPUTS = {"small": ("small", 64, 48), "paper": ("paper", 128, 150)}
 #: OpenBLAS kernels emulated (Zen runs Haswell's code: left out); those the CPU lacks are skipped.
@@ -68,26 +68,12 @@ def run_env(config: str, threads: int) -> dict:
     return env
 
 
-def digest(folder: Path) -> tuple[str, dict]:
-    """(SHA-256 of the folder without provenance.numeric, that record)."""
-    h = hashlib.sha256()
-    platform = {}
-    for path in sorted(p for p in folder.rglob("*") if p.is_file()):
-        data = path.read_bytes()
-        if path.name == "btf-compressed.json":
-            doc = json.loads(data)
-            platform = doc["provenance"].pop("numeric", {})
-            data = json.dumps(doc, sort_keys=True).encode()
-        h.update(path.relative_to(folder).as_posix().encode() + b"\0" + data + b"\0")
-    return h.hexdigest(), platform
-
-
 def compress(src: Path, out: Path, k: int, config: str, threads: int) -> dict:
     res = run_measured([*cli_command(), "compress", "-q", str(src), "-o", str(out), "--k", str(k)],
                        env=run_env(config, threads), pss_interval=0)
     if res.returncode:
         raise SystemExit(f"compress failed ({config}, {threads} threads): {res.stderr.strip()[-400:]}")
-    d, platform = digest(out)
+    d, platform = digest_without_platform(out)
     return {"config": config, "threads": threads, "wall_s": res.wall_s, "cpu_s": res.user_s + res.sys_s,
             "peak_rss_bytes": res.max_rss_bytes, "digest": d, "platform": platform}
 

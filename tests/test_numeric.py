@@ -7,7 +7,6 @@ Other CPUs are emulated the way OpenBLAS's dynamic-architecture builds allow: it
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import logging
 import os
@@ -19,6 +18,7 @@ import pytest
 
 from usdbtf import cluster, numeric
 from usdbtf.cli import main
+from usdbtf.compress.format import digest_without_platform
 from usdbtf.errors import BTFError
 
 #: The variables that choose the platform; a run starts from an environment without them.
@@ -75,26 +75,11 @@ def small_btf(tmp_path_factory) -> Path:
     return out
 
 
-def compressed_digest(folder: Path) -> tuple[str, dict]:
-    """(SHA-256 over every file of a compressed folder, with the metadata's record of the
-    platform left out; that record)."""
-    h = hashlib.sha256()
-    platform = None
-    for path in sorted(p for p in folder.rglob("*") if p.is_file()):
-        data = path.read_bytes()
-        if path.name == "btf-compressed.json":
-            doc = json.loads(data)
-            platform = doc["provenance"].pop("numeric")
-            data = json.dumps(doc, sort_keys=True).encode()
-        h.update(path.relative_to(folder).as_posix().encode() + b"\0" + data + b"\0")
-    return h.hexdigest(), platform
-
-
 def compress_in_child(src: Path, out: Path, **env) -> tuple[str, dict]:
     proc = subprocess.run([sys.executable, "-m", "usdbtf.cli", "compress", "-q", str(src), "-o", str(out),
                            "--k", "48"], capture_output=True, text=True, env=bare_env(**env), timeout=300)
     assert proc.returncode == 0, proc.stderr
-    return compressed_digest(out)
+    return digest_without_platform(out)
 
 
 def test_compress_bytes_depend_on_the_platform_only(small_btf, tmp_path):

@@ -22,7 +22,7 @@ import threading
 from pathlib import Path
 
 from . import __version__
-from .numeric import command_blas_thread
+from .numeric import one_blas_thread
 from .commands import command_modules
 from .argtypes import OUTSIDE_PATHS_HELP
 from .errors import EXIT_CANT_CREATE, EXIT_DATA, EXIT_INTERNAL, EXIT_IO, EXIT_OK, EXIT_USAGE, OS_ERROR_WORDS, \
@@ -244,7 +244,7 @@ def main(argv=None) -> int:
     logging.getLogger("usdbtf.cli").debug("usdbtf %s: %s", __version__, " ".join(map(str, argv or sys.argv[1:])))
     try:
         # Every command's products on one BLAS thread: no byte depends on thread counts.
-        with _signals_raise(), _outputs_claimed(args), command_blas_thread():
+        with _signals_raise(), _outputs_claimed(args), one_blas_thread():
             return args.func(args)
     except Terminated:
         print(f"usdbtf {args.command}: terminated", file=sys.stderr)

@@ -138,7 +138,7 @@ def environment() -> dict:
 
 def _differences(theirs: dict, mine: dict) -> str:
     """What differs, each side named: the numeric platform first, in its own words."""
-    names = set(_PLATFORM_KEYS)
+    names = set(numeric.PLATFORM_NAMES)
     plat = numeric.platform_differences({k: theirs.get(k, "missing") for k in names},
                                         {k: mine[k] for k in mine if k in names})
     rest = ", ".join(f"{k} {theirs.get(k, 'missing')} (here {mine[k]})"
@@ -148,13 +148,11 @@ def _differences(theirs: dict, mine: dict) -> str:
 
 def _advice(theirs: dict, mine: dict) -> str:
     """How to make a worker match: the platform's variables when only they differ."""
-    if all(theirs.get(k) == mine[k] for k in mine if k not in _PLATFORM_KEYS):
+    if all(theirs.get(k) == mine[k] for k in mine if k not in numeric.PLATFORM_NAMES):
         return ("its arithmetic would write other bytes: start it with the environment `usdbtf env` prints "
                 "(the same OPENBLAS_CORETYPE and NPY_DISABLE_CPU_FEATURES as this process)")
     return "install the same usdbtf (and libraries) on every worker"
 
-
-_PLATFORM_KEYS = ("blas", "blas_kernel", "numpy_simd")
 
 
 def require_environment(expected: dict, where: str) -> None:

@@ -36,8 +36,7 @@ import sys
 import threading
 
 __all__ = ["REFERENCE", "pinned_environment", "pin", "platform", "platform_label", "platform_differences",
-           "cpu_flags", "runs_reference", "is_reference", "PLATFORM_VARIABLES", "runnable_kernels", "OPENBLAS_KERNEL_FLAGS", "one_blas_thread", "single_blas_thread",
-           "command_blas_thread"]
+           "cpu_flags", "runs_reference", "is_reference", "PLATFORM_VARIABLES", "PLATFORM_NAMES", "runnable_kernels", "OPENBLAS_KERNEL_FLAGS", "one_blas_thread", "single_blas_thread"]
 
 #: The reference platform's settings (x86-64-v3): the BLAS kernel and numpy's SIMD ceiling.
 REFERENCE = {"blas_kernel": "Haswell", "numpy_simd": "X86_V3"}
@@ -53,6 +52,8 @@ OPENBLAS_KERNEL_FLAGS = {"Haswell": frozenset({"avx2", "fma"}), "Zen": frozenset
                          "SkylakeX": frozenset({"avx512f", "avx512bw", "avx512vl", "avx512dq", "avx512cd"}),
                          "SandyBridge": frozenset({"avx"}), "Nehalem": frozenset({"sse4_2", "ssse3"}),
                          "Prescott": frozenset({"pni"})}
+#: The keys of :func:`platform`, with the words messages use for them.
+PLATFORM_NAMES = {"blas": "BLAS", "blas_kernel": "BLAS kernel", "numpy_simd": "numpy SIMD"}
 #: The variables that choose the platform when the libraries load.
 PLATFORM_VARIABLES = ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES")
 #: The opt-out: ``USDBTF_NUMERIC=native`` leaves the libraries' choices alone.
@@ -179,8 +180,7 @@ def platform_label(p: dict | None = None) -> str:
 def platform_differences(theirs: dict, mine: dict) -> str:
     """What differs between two :func:`platform` dicts, naming both sides (empty when equal):
     ``BLAS kernel SkylakeX (here Haswell)``."""
-    names = {"blas": "BLAS", "blas_kernel": "BLAS kernel", "numpy_simd": "numpy SIMD"}
-    return ", ".join(f"{names.get(k, k)} {theirs.get(k, 'missing')} (here {mine[k]})"
+    return ", ".join(f"{PLATFORM_NAMES.get(k, k)} {theirs.get(k, 'missing')} (here {mine[k]})"
                      for k in mine if theirs.get(k) != mine[k])
 
 
@@ -196,15 +196,6 @@ def single_blas_thread(fn):
 
 
 @contextlib.contextmanager
-def command_blas_thread():
-    """:func:`one_blas_thread` for a whole command, loading numpy (hence its BLAS) first."""
-    import numpy  # noqa: F401 - loads the BLAS, so that threadpoolctl sees it
-
-    with one_blas_thread():
-        yield
-
-
-@contextlib.contextmanager
 def one_blas_thread():
     """BLAS on one thread inside the block (threadpoolctl; a no-op where it is missing).
 
@@ -215,8 +206,7 @@ def one_blas_thread():
     rectify, decompress and ``reconstruct``, unwrap, quilt, render, package and the fallback
     fit).  The BLAS thread count is a process-wide setting and threads enter and leave such
     blocks at once: the first to enter sets one thread, the last to leave puts back what was
-    there.  Nested and concurrent blocks cost a lock and a counter.  BLAS must be loaded
-    (numpy imported) before the first block: threadpoolctl finds the libraries loaded then."""
+    there.  Nested and concurrent blocks cost a lock and a counter (an outer block: 10 us)."""
     global _blas_depth, _blas_limiter
     controller = _controller()
     if controller is None:     # pragma: no cover - a declared dependency
@@ -244,6 +234,8 @@ _blas_limiter = None
 @functools.lru_cache(maxsize=1)
 def _controller():
     """threadpoolctl's view of the loaded BLAS (scanning the libraries once per process)."""
+    import numpy  # noqa: F401 - loads its BLAS first: threadpoolctl sees only loaded libraries
+
     try:
         from threadpoolctl import ThreadpoolController
     except ImportError:        # pragma: no cover

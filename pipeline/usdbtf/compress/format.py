@@ -50,7 +50,7 @@ from ..numeric import single_blas_thread
 __all__ = ["FORMAT", "METADATA", "CompressedBTF", "EncodedTextures", "write_textures", "write_metadata",
            "metadata_document", "metadata_text", "read_compressed", "reconstruct", "reconstruct_rows",
            "working_coefficients", "FORMAT_DOMAIN",
-           "working_coefficient_texels", "folder_bytes", "basis_layout", "encode_basis", "decode_basis",
+           "working_coefficient_texels", "folder_bytes", "digest_without_platform", "basis_layout", "encode_basis", "decode_basis",
            "encoded_textures", "basis_to_image", "image_to_basis", "cross_layout", "truncate", "write_basis"]
 
 FORMAT = "btf-compressed/1"
@@ -428,3 +428,24 @@ def read_compressed(folder) -> CompressedBTF:
 def folder_bytes(folder) -> int:
     """Bytes of every file under ``folder``."""
     return sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(folder) for f in fs)
+
+
+def digest_without_platform(folder) -> tuple[str, dict]:
+    """(SHA-256 over every file of a compressed folder, the metadata's ``provenance.numeric``
+    left out; that record): equal for two folders exactly when everything the numeric
+    platform decides is equal (``tests/test_numeric.py``, ``benchmarks/bench_numeric.py``).
+    Raises KeyError when the metadata records no platform."""
+    import hashlib
+    import json
+
+    folder = Path(folder)
+    h = hashlib.sha256()
+    platform = None
+    for path in sorted(p for p in folder.rglob("*") if p.is_file()):
+        data = path.read_bytes()
+        if path.name == METADATA:
+            doc = json.loads(data)
+            platform = doc["provenance"].pop("numeric")
+            data = json.dumps(doc, sort_keys=True).encode()
+        h.update(path.relative_to(folder).as_posix().encode() + b"\0" + data + b"\0")
+    return h.hexdigest(), platform
