@@ -10,8 +10,11 @@ environment-specific wrapper for each consumer:
   definition, found by Sdr's filesystem discovery (the file's stem is the node identifier;
   see :mod:`usdbtf.usd.plugin`);
 * :func:`materialx_impl` / :func:`materialx_defs` -> ``plugin/usdBtf/resources/materialx/``:
-  the ``usdbtf_bsdf`` nodedef, its genglsl implementation, and the ``usdbtf_surface``
-  node graph that feeds it from image nodes;
+  the ``usdbtf_bsdf`` nodedef, its genglsl implementation (and its genosl one, from
+  :mod:`usdbtf.gpu.osl`), and the ``usdbtf_surface`` node graph that feeds it from image nodes;
+* :mod:`usdbtf.gpu.osl` -> ``plugin/usdBtf/resources/osl/usdbtf_surface.osl`` and the Blender
+  add-on's copy (``plugin/blender/usdbtf/``): the core translated to OSL
+  (:mod:`usdbtf.gpu.glsl_to_osl`);
 * :func:`harness_fragment` / :data:`HARNESS_VERTEX`: the headless OpenGL check (gpu.headless).
 
 The plugin files are generated and committed; ``python -m usdbtf.gpu.shaders`` rewrites
@@ -211,8 +214,9 @@ _MTLX_FUNCTION = """\
 // closureData.L / .V (world space, towards the light / the eye); the response is the
 // measured BTF value, which already holds the light's foreshortening.  No environment
 // term: the measurement has no such thing.
+// lightdirection is for OSL (genosl), which cannot be called per light; GLSL is.
 void mx_{bsdf}(ClosureData closureData, sampler2D btfTables, BTF_PAGE_PARAMS, vec2 texcoord, int basisCount,
-               float weight, vec3 normal, vec3 tangent, vec3 bitangent, inout BSDF bsdf)
+               float weight, vec3 normal, vec3 tangent, vec3 bitangent, vec3 lightdirection, inout BSDF bsdf)
 {{
     bsdf.throughput = vec3(0.0);
     bsdf.response = vec3(0.0);
@@ -259,10 +263,15 @@ def materialx_defs() -> str:
            '    <input name="normal" type="vector3" defaultgeomprop="Nworld" />',
            '    <input name="tangent" type="vector3" defaultgeomprop="Tworld" />',
            '    <input name="bitangent" type="vector3" defaultgeomprop="Bworld" />',
+           '    <input name="lightdirection" type="vector3" value="0.0, 0.0, 0.0" doc="genosl only (an OSL closure '
+           'cannot be evaluated per light): world-space direction towards the one light the BTF is evaluated for, '
+           'returned as emission; 0: the view direction. genglsl ignores it (it is called per light)." />',
            '    <output name="out" type="BSDF" />',
            "  </nodedef>",
            f'  <implementation name="IM_{MTLX_BSDF}_genglsl" nodedef="ND_{MTLX_BSDF}" '
            f'file="genglsl/mx_{MTLX_BSDF}.glsl" function="mx_{MTLX_BSDF}" target="genglsl" />',
+           f'  <implementation name="IM_{MTLX_BSDF}_genosl" nodedef="ND_{MTLX_BSDF}" '
+           f'file="genosl/mx_{MTLX_BSDF}.osl" function="mx_{MTLX_BSDF}" target="genosl" />',
            f'  <nodedef name="ND_{MTLX_SURFACE}" node="{MTLX_SURFACE}" nodegroup="pbr" doc="{doc}">',
            *files,
            '    <input name="basisCount" type="integer" value="0" uniform="true" />',
@@ -358,22 +367,31 @@ def harness_fragment() -> str:
 
 # ------------------------------------------------------------------ plugin files
 def plugin_files() -> dict[str, str]:
-    """Relative path under ``plugin/usdBtf/resources`` -> generated text."""
-    return {f"shaders/{SHADER_ID}.glslfx": storm_glslfx(),
-            f"sdr/{SHADER_ID}.usda": sdr_definition_usda(),
-            "materialx/usdbtf_defs.mtlx": materialx_defs(),
-            f"materialx/genglsl/mx_{MTLX_BSDF}.glsl": materialx_impl()}
+    """Relative path under the plugin folder (``plugin/``) -> generated text: the Storm,
+    MaterialX (genglsl, genosl) and OSL shaders, and the Blender add-on's copy of the OSL."""
+    from . import osl
+
+    resources = "usdBtf/resources"
+    surface = osl.surface_shader()
+    return {f"{resources}/shaders/{SHADER_ID}.glslfx": storm_glslfx(),
+            f"{resources}/sdr/{SHADER_ID}.usda": sdr_definition_usda(),
+            f"{resources}/materialx/usdbtf_defs.mtlx": materialx_defs(),
+            f"{resources}/materialx/genglsl/mx_{MTLX_BSDF}.glsl": materialx_impl(),
+            f"{resources}/materialx/genosl/mx_{MTLX_BSDF}.osl": osl.materialx_osl(),
+            f"{resources}/osl/{osl.SURFACE_NAME}.osl": surface,
+            f"blender/usdbtf/{osl.SURFACE_NAME}.osl": surface}
 
 
-def _resources(plugin: Path | None) -> Path:
+def _root(plugin: Path | None) -> Path:
     from ..plugin_folder import plugin_dir
 
-    return (plugin or plugin_dir()) / "usdBtf" / "resources"
+    return plugin or plugin_dir()
 
 
 def stale_plugin_files(plugin: Path | None = None) -> list[str]:
-    """Generated plugin files that are missing or differ from a fresh generation."""
-    root = _resources(plugin)
+    """Generated plugin files (paths under ``plugin/``) that are missing or differ from a
+    fresh generation."""
+    root = _root(plugin)
     return [rel for rel, text in plugin_files().items()
             if not (root / rel).is_file() or (root / rel).read_text() != text]
 
@@ -382,7 +400,7 @@ def write_plugin_files(plugin: Path | None = None) -> list[Path]:
     """(Re)write the generated plugin files; returns the paths written."""
     from ..atomic import atomic_file
 
-    root = _resources(plugin)
+    root = _root(plugin)
     written = []
     for rel, text in plugin_files().items():
         path = root / rel
@@ -397,7 +415,7 @@ def main(argv=None) -> int:
     if argv == ["--check"]:
         stale = stale_plugin_files()
         for rel in stale:
-            print(f"stale: plugin/usdBtf/resources/{rel} (run python -m usdbtf.gpu.shaders)", file=sys.stderr)
+            print(f"stale: plugin/{rel} (run python -m usdbtf.gpu.shaders)", file=sys.stderr)
         return 1 if stale else 0
     for path in write_plugin_files():
         print(path)

@@ -45,6 +45,11 @@
 // pages, the texture coordinate, the frame, the lights.  Parameter names carry a btf prefix:
 // Storm's MaterialX code defines a macro named after every texture input ("tables",
 // "page00"), which would rewrite a parameter of that name.
+//
+// OSL (Cycles, MaterialX genosl) gets these functions translated mechanically from this text
+// (usdbtf.gpu.glsl_to_osl, the types in osl_glsl_types.h), so the code keeps to the subset that
+// translation takes: no ?: choosing between vectors, no writes to in-parameters (OSL passes
+// arguments by reference), no arrays, no block comments, no write to a swizzle.
 
 #define BTF_HALF_PI 1.5707963267948966
 // Query points this close outside a triangle (disc units) still count as inside:
@@ -65,7 +70,10 @@ vec2 btfProject(vec3 d)
 {
     float rho = length(d.xy);
     float theta = atan(rho, d.z);
-    return rho > 0.0 ? d.xy * (theta / BTF_HALF_PI / rho) : vec2(0.0);
+    if (rho > 0.0) {
+        return d.xy * (theta / BTF_HALF_PI / rho);
+    }
+    return vec2(0.0);
 }
 
 // Orthonormal frame as the CPU renderer builds it: the normal, the tangent made
@@ -178,11 +186,11 @@ vec3 btfInverseCurve(sampler2D btfTables, vec3 d)
     if (curve == 0) {
         return d;
     }
-    d = max(d, vec3(0.0));
+    vec3 c = max(d, vec3(0.0));
     if (curve == 1) {
-        return pow(d, vec3(h2.w));
+        return pow(c, vec3(h2.w));
     }
-    return mix(d / 12.92, pow((d + 0.055) / 1.055, vec3(2.4)), vec3(greaterThan(d, vec3(0.04045))));
+    return mix(c / 12.92, pow((c + 0.055) / 1.055, vec3(2.4)), vec3(greaterThan(c, vec3(0.04045))));
 }
 
 // Texel (x, y) of page `page`, x from the left, y an image row from the top: renderers
@@ -229,7 +237,7 @@ vec4 btfPack(sampler2D btfTables, BTF_PAGE_PARAMS, int p, vec2 st)
 // inverse curve, then times the light's scale and its fade beyond the measured region --
 // radiance factors, so after the curve.  No arrays: any k.
 vec3 btfShadeLight(sampler2D btfTables, BTF_PAGE_PARAMS, ivec3 viewIndex, vec3 viewWeight, vec3 l, float scale,
-                   vec2 st, int k)
+                   vec2 st, int basisCount)
 {
     if (scale <= 0.0) {
         return vec3(0.0);
@@ -246,7 +254,7 @@ vec3 btfShadeLight(sampler2D btfTables, BTF_PAGE_PARAMS, ivec3 viewIndex, vec3 v
     int basis = int(h1.y);
     int dequant = int(h2.x);
     int matrix = int(h2.y);
-    k = min(k, int(h1.x));
+    int k = min(basisCount, int(h1.x));
     vec3 stored = vec3(0.0);
     for (int g = 0; 4 * g < k && g < groups; ++g) {
         vec4 row = vec4(0.0);
@@ -276,8 +284,9 @@ vec3 btfShadeLight(sampler2D btfTables, BTF_PAGE_PARAMS, ivec3 viewIndex, vec3 v
 // closureData.L / .V (world space, towards the light / the eye); the response is the
 // measured BTF value, which already holds the light's foreshortening.  No environment
 // term: the measurement has no such thing.
+// lightdirection is for OSL (genosl), which cannot be called per light; GLSL is.
 void mx_usdbtf_bsdf(ClosureData closureData, sampler2D btfTables, BTF_PAGE_PARAMS, vec2 texcoord, int basisCount,
-               float weight, vec3 normal, vec3 tangent, vec3 bitangent, inout BSDF bsdf)
+               float weight, vec3 normal, vec3 tangent, vec3 bitangent, vec3 lightdirection, inout BSDF bsdf)
 {
     bsdf.throughput = vec3(0.0);
     bsdf.response = vec3(0.0);

@@ -1,0 +1,291 @@
+"""The usdbtf Cycles network: read a usdbtf asset's levels of detail, build the OSL material.
+
+No user interface here (``__init__.py`` has it), so scripts and tests call these directly:
+:func:`import_asset` lets Blender's USD importer bring the geometry and the
+``UsdPreviewSurface`` fallback, then :func:`build_material` replaces each BTF material's
+nodes with the usdbtf OSL shader (a script node, Cycles with Open Shading Language) on the
+asset's GPU textures: ``gpu/tables.exr`` and the coefficient pages of the chosen ``lod``.
+Textures are read by OSL's ``texture()`` with the closest filter (the shader filters the
+coefficients itself), so they are plain file paths, not Blender images.
+
+What the OSL shader can do in Cycles: an OSL surface returns closures that Cycles lights
+itself; it is never told a light's direction.  So the material evaluates the BTF for one
+sun, whose direction and strength :func:`sync_sun` copies into the shader (the add-on does
+it whenever the scene changes), and returns that as emission.  That sun casts no shadow on
+the material and other lights, the world and bounces do not light it.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+
+import bpy
+import mathutils
+
+#: The Storm shader's Sdr identifier in usdbtf assets: its inputs name the textures.
+STORM_ID = "UsdBtfSurface"
+MAX_PAGES = 15
+SHADER_FILE = Path(__file__).resolve().parent / "usdbtf_surface.osl"
+SCRIPT_TEXT = "usdbtf_surface.osl"
+SCRIPT_NODE = "usdbtf OSL"
+UV_MAP = "st"
+FRAME_ATTRIBUTES = ("tangents", "bitangents")
+
+
+def page_name(page: int) -> str:
+    return f"page{page:02d}"
+
+
+def _pxr():
+    """Blender's own USD Python bindings."""
+    _bundled_site_packages()
+    from pxr import Usd, UsdShade
+
+    return Usd, UsdShade
+
+
+def _bundled_site_packages() -> None:
+    """Put Blender's bundled site-packages (pxr, OpenImageIO, oslquery) on the path where it
+    is not already: Blender does it at start, Blender as a Python module (the bpy wheel) not."""
+    bundled = Path(bpy.utils.resource_path("LOCAL")) / "python" / "lib"
+    for site in sorted(bundled.glob("python3*/site-packages")):
+        if str(site) not in sys.path:
+            sys.path.append(str(site))
+
+
+def raw_texture(path: str) -> str:
+    """A file OSL's texture() reads with the values ``path`` stores.
+
+    OpenImageIO, which serves OSL's texture() in Cycles, premultiplies a PNG's colour by its
+    alpha when it reads it (the PNG convention), and the coefficient pages hold a fourth
+    coefficient in alpha, not a coverage.  So an 8-bit PNG page is re-encoded once, read with
+    ``oiio:UnassociatedAlpha``, as a float32 EXR (exact: code / 255) in a cache folder named
+    by the PNG's content; EXR pages (float codes) are used as they are."""
+    if not path or not path.lower().endswith(".png"):
+        return path
+    import hashlib
+    import tempfile
+
+    _bundled_site_packages()
+    import OpenImageIO as oiio
+
+    data = Path(path).read_bytes()
+    folder = Path(tempfile.gettempdir()) / "usdbtf-cycles"
+    folder.mkdir(parents=True, exist_ok=True)
+    out = folder / f"{hashlib.sha256(data).hexdigest()[:32]}.exr"
+    if out.is_file():
+        return str(out)
+    config = oiio.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)
+    source = oiio.ImageInput.open(path, config)
+    if source is None:
+        raise ValueError(f"{path}: cannot read ({oiio.geterror()})")
+    pixels = source.read_image(oiio.FLOAT)
+    spec = oiio.ImageSpec(source.spec().width, source.spec().height, source.spec().nchannels, oiio.FLOAT)
+    source.close()
+    spec.attribute("compression", "zip")
+    partial = out.with_name(out.stem + f".{os.getpid()}.partial.exr")
+    writer = oiio.ImageOutput.create(str(partial))
+    if writer is None or not writer.open(str(partial), spec) or not writer.write_image(pixels) or not writer.close():
+        raise ValueError(f"{out}: cannot write ({oiio.geterror()})")
+    os.replace(partial, out)
+    return str(out)
+
+
+def _connected_file(shader, name: str) -> str:
+    """Resolved path of the UsdUVTexture connected to ``shader``'s input ``name``, or ''."""
+    _, UsdShade = _pxr()
+
+    source = shader.GetInput(name)
+    if not source or not source.HasConnectedSource():
+        return ""
+    node = UsdShade.Shader(source.GetConnectedSources()[0][0].source.GetPrim())
+    value = node.GetInput("file").Get() if node.GetInput("file") else None
+    return str(value.resolvedPath) if value is not None and value.resolvedPath else ""
+
+
+def _storm_shader(stage):
+    _, UsdShade = _pxr()
+
+    for prim in stage.Traverse():
+        shader = UsdShade.Shader(prim)
+        if shader and shader.GetShaderId() == STORM_ID:
+            return shader
+    return None
+
+
+def read_lods(asset: str) -> tuple[str, str, dict]:
+    """(material prim name, default lod, {lod: {"basisCount", "tables", "pages"}}) of a
+    usdbtf asset (a .usda/.usdc on disk: the textures must be files OSL can open).
+
+    The textures and basis count come from the asset's Storm network under each selection
+    of its ``lod`` variant set (a level loads only its own pages)."""
+    Usd, _ = _pxr()
+
+    stage = Usd.Stage.Open(str(asset))
+    if stage is None:
+        raise ValueError(f"{asset}: cannot open as USD")
+    root = stage.GetDefaultPrim() or next(iter(stage.GetPseudoRoot().GetChildren()), None)
+    sets = root.GetVariantSets() if root else None
+    lod_set = sets.GetVariantSet("lod") if sets is not None and sets.HasVariantSet("lod") else None
+    names = lod_set.GetVariantNames() if lod_set else [""]
+    default = lod_set.GetVariantSelection() if lod_set else ""
+    lods, material = {}, ""
+    for name in names:
+        if lod_set:
+            with Usd.EditContext(stage, stage.GetSessionLayer()):
+                lod_set.SetVariantSelection(name)
+        shader = _storm_shader(stage)
+        if shader is None:
+            raise ValueError(f"{asset}: no {STORM_ID} shader (not a usdbtf asset, or packaged without --gpu)")
+        material = shader.GetPrim().GetParent().GetName()
+        tables = _connected_file(shader, "tables")
+        if not tables:
+            raise ValueError(f"{asset}: the {STORM_ID} shader has no tables texture on disk (open the .usda, "
+                             "not a .usdz)")
+        count = shader.GetInput("basisCount").Get() if shader.GetInput("basisCount") else 0
+        lods[name] = {"basisCount": int(count or 0), "tables": tables,
+                      "pages": [_connected_file(shader, page_name(p)) for p in range(MAX_PAGES)]}
+    return material, default, lods
+
+
+def _script_text():
+    """The OSL source as a text data-block (saved inside the .blend, so a file renders on
+    machines without the add-on's folder)."""
+    text = bpy.data.texts.get(SCRIPT_TEXT)
+    if text is None:
+        text = bpy.data.texts.new(SCRIPT_TEXT)
+    source = SHADER_FILE.read_text()
+    if text.as_string() != source:
+        text.clear()
+        text.write(source)
+    return text
+
+
+def _compile(node) -> None:
+    """Compile the script node's OSL and make its sockets (what the node's Update button does)."""
+    import addon_utils
+
+    _bundled_site_packages()                       # oslquery
+    addon_utils.enable("cycles", default_set=False)
+    from cycles import osl   # Blender's own Cycles add-on
+
+    problems = []
+    if not osl.update_script_node(node, lambda kind, message: problems.append((kind, message))):
+        raise RuntimeError(f"usdbtf: the OSL shader did not compile: {problems}")
+
+
+def _uses_frame_attributes(material) -> bool:
+    """Whether every mesh using ``material`` has the packaged tangents and bitangents."""
+    meshes = [o.data for o in bpy.data.objects if o.type == "MESH" and
+              any(slot.material == material for slot in o.material_slots)]
+    return bool(meshes) and all(all(a in m.attributes for a in FRAME_ATTRIBUTES) for m in meshes)
+
+
+def build_material(material, asset: str, lods: dict, lod: str) -> None:
+    """Replace ``material``'s nodes with the usdbtf OSL network for ``asset`` at ``lod``."""
+    material.use_nodes = True
+    tree = material.node_tree
+    tree.nodes.clear()
+    output = tree.nodes.new("ShaderNodeOutputMaterial")
+    output.location = (600, 0)
+    script = tree.nodes.new("ShaderNodeScript")
+    script.name = script.label = SCRIPT_NODE
+    script.mode = "INTERNAL"
+    script.script = _script_text()
+    script.location = (300, 0)
+    _compile(script)
+    tree.links.new(script.outputs["Radiance"], output.inputs["Surface"])
+    script.inputs["incidentTowardsViewer"].default_value = 1     # Cycles' I is sd->wi
+    uv = tree.nodes.new("ShaderNodeUVMap")
+    uv.uv_map = UV_MAP
+    uv.location = (0, 200)
+    tree.links.new(uv.outputs["UV"], script.inputs["st"])
+    if _uses_frame_attributes(material):
+        # The packaged frame (object space): the same tangents usdbtf render uses.
+        for row, (name, socket) in enumerate(zip(FRAME_ATTRIBUTES, ("frameTangent", "frameBitangent"))):
+            attribute = tree.nodes.new("ShaderNodeAttribute")
+            attribute.attribute_type = "GEOMETRY"
+            attribute.attribute_name = name
+            attribute.location = (-300, -150 * row)
+            to_world = tree.nodes.new("ShaderNodeVectorTransform")
+            to_world.vector_type = "VECTOR"
+            to_world.convert_from = "OBJECT"
+            to_world.convert_to = "WORLD"
+            to_world.location = (0, -150 * row)
+            tree.links.new(attribute.outputs["Vector"], to_world.inputs["Vector"])
+            tree.links.new(to_world.outputs["Vector"], script.inputs[socket])
+    else:
+        # No packaged frame: MikkTSpace tangents of the UV map.
+        tangent = tree.nodes.new("ShaderNodeTangent")
+        tangent.direction_type = "UV_MAP"
+        tangent.uv_map = UV_MAP
+        tangent.location = (0, -150)
+        tree.links.new(tangent.outputs["Tangent"], script.inputs["frameTangent"])
+    material["usdbtf_asset"] = str(asset)
+    material["usdbtf_lods"] = json.dumps(lods)
+    apply_lod(material, lod)
+
+
+def script_node(material):
+    return material.node_tree.nodes.get(SCRIPT_NODE) if material and material.node_tree else None
+
+
+def lods_of(material) -> dict:
+    return json.loads(material.get("usdbtf_lods", "{}"))
+
+
+def apply_lod(material, lod: str) -> None:
+    """Point the shader at the textures and basis count of level ``lod``."""
+    lods = lods_of(material)
+    if lod not in lods:
+        raise ValueError(f"usdbtf: {material.name} has no lod {lod!r} (has {', '.join(lods)})")
+    node = script_node(material)
+    level = lods[lod]
+    node.inputs["tables"].default_value = level["tables"]
+    for p, path in enumerate(level["pages"]):
+        node.inputs[page_name(p)].default_value = raw_texture(path)
+    node.inputs["basisCount"].default_value = level["basisCount"]
+    material["usdbtf_lod_name"] = lod
+
+
+def sun_direction(sun) -> tuple[float, float, float]:
+    """World-space direction towards a sun lamp (its local +Z)."""
+    axis = sun.matrix_world.to_3x3() @ mathutils.Vector((0.0, 0.0, 1.0))
+    axis.normalize()
+    return tuple(axis)
+
+
+def sync_sun(material, sun) -> None:
+    """Copy ``sun``'s direction and strength (W/m^2; 1 = the capture light) into the shader."""
+    node = script_node(material)
+    if node is None or sun is None or sun.type != "LIGHT" or sun.data.type != "SUN":
+        return
+    direction = sun_direction(sun)
+    if tuple(node.inputs["lightDirection"].default_value) != direction:
+        node.inputs["lightDirection"].default_value = direction
+    if node.inputs["lightIrradiance"].default_value != sun.data.energy:
+        node.inputs["lightIrradiance"].default_value = sun.data.energy
+
+
+def import_asset(asset: str, lod: str | None = None) -> tuple[list, list]:
+    """Import ``asset`` with Blender's USD importer and give its BTF materials the OSL
+    network at ``lod`` (default: the asset's own selection).  Use Cycles with Open Shading
+    Language (``scene.cycles.shading_system = True``) to see it.  Returns (new objects,
+    BTF materials)."""
+    asset = os.path.abspath(asset)
+    name, default, lods = read_lods(asset)
+    lod = default if lod is None else lod
+    if lod not in lods:
+        raise ValueError(f"{asset}: no lod {lod!r} (has {', '.join(lods)})")
+    objects, materials = set(bpy.data.objects), set(bpy.data.materials)
+    result = bpy.ops.wm.usd_import(filepath=asset, import_usd_preview=True)
+    if "FINISHED" not in result:
+        raise RuntimeError(f"{asset}: Blender's USD import failed")
+    new_objects = [o for o in bpy.data.objects if o not in objects]
+    btf = [m for m in bpy.data.materials if m not in materials and (m.name == name or m.name.startswith(name + "."))]
+    for material in btf:
+        build_material(material, asset, lods, lod)
+    return new_objects, btf
