@@ -1,0 +1,144 @@
+"""Issue 30: the BTF in Blender's Cycles through OSL, from the same source as the GLSL.
+
+The ``bpy`` 5.0.1 wheel (Blender as a Python module: Cycles with Open Shading Language on the
+CPU) lives in ``.venv-storm-5.0`` (``scripts/bootstrap.sh``, shared with the Storm checks).
+Each test renders in a subprocess of that Python through the add-on in ``plugin/blender/usdbtf``
+(``usdbtf.usd.cycles``): Blender's USD importer brings the asset, the add-on replaces its
+material with the OSL network, Cycles renders one sample per pixel at the pixel centre (the
+BTF is emission under the one sun: nothing is noisy).
+
+* the swatch seen orthographically from the pole, one pixel per texel, one sun from a
+  measured direction: after one gain common to the light directions it is the decompressed
+  sample (mean |difference| <= 2 8-bit sRGB steps, gains within 3 %), at the full lod and at
+  a smaller one chosen through the add-on;
+* a curved unwrapped mesh against ``usdbtf render`` of the same camera and light: PSNR >= 35 dB
+  (sRGB) where both have geometry.
+
+Skips, with the reason, where the bpy environment is absent.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import usdbtf  # noqa: F401  (registers the schema plugin first)
+from usdbtf.cli import main
+from usdbtf.usd import cycles
+
+PYTHON = cycles.cycles_python()
+MAX_STEPS = 2.0          # mean |difference|, 8-bit sRGB steps
+GAIN_SPREAD = 0.03       # per-light gains agree within 3 %
+#: Measured light directions of the UBO2003 sampling (theta, phi degrees).
+LIGHTS = [(30.0, 0.0), (60.0, 120.0), (75.0, 240.0)]
+
+
+def bpy_python() -> Path:
+    if PYTHON is None:
+        pytest.skip("no .venv-storm-5.0: scripts/bootstrap.sh could not install bpy==5.0.1 (it needs CPython 3.11 "
+                    "and the network)")
+    return PYTHON
+
+
+def towards(theta_phi) -> tuple:
+    theta, phi = np.radians(theta_phi)
+    return (float(np.sin(theta) * np.cos(phi)), float(np.sin(theta) * np.sin(phi)), float(np.cos(theta)))
+
+
+@pytest.fixture(scope="module")
+def asset(tmp_path_factory) -> Path:
+    """A held-out material (satin_weave, UBO2003 sampling, 16 x 16 texels) at k = 32 with
+    lods k4, k8 and k16."""
+    bpy_python()
+    work = tmp_path_factory.mktemp("cycles")
+    assert main(["synth", "satin_weave", "-o", str(work / "src"), "--sampling", "ubo81", "--size", "16", "--seed",
+                 "5", "-q"]) == 0
+    assert main(["compress", str(work / "src"), "-o", str(work / "c"), "--k", "32", "--codec", "png", "-q"]) == 0
+    out = work / "a" / "satin.usda"
+    assert main(["package", str(work / "c"), "-o", str(out), "-q"]) == 0
+    return out
+
+
+def measured(cbtf, want) -> tuple[int, tuple]:
+    """(light index, (theta, phi)) of the measured light nearest ``want``."""
+    from usdbtf.compress.format import cross_layout
+
+    _, n_lights = cross_layout(cbtf.sampling)
+    lights = cbtf.sampling.light[:n_lights]
+    j = int(np.argmin(np.abs(lights - np.asarray(want)).sum(axis=1)))
+    return j, tuple(float(a) for a in lights[j])
+
+
+@pytest.mark.parametrize("lod", [None, "k8"])
+def test_cycles_reproduces_the_decompressed_sample(asset, lod, tmp_path):
+    from usdbtf.decompress import DecompressOptions, decompress
+    from usdbtf.usd.read import load_btf
+
+    cbtf = load_btf(asset, lod=lod)
+    assert cbtf.k == (8 if lod else 32)
+    assert np.allclose(cbtf.sampling.view[0], 0.0)                    # view 0 is the pole
+    frames, references = [], []
+    for i, want in enumerate(LIGHTS):
+        index, light = measured(cbtf, want)
+        frames.append(cycles.CyclesFrame(asset, tmp_path / f"{i}.exr", towards(light), size=(16, 16), lod=lod))
+        references.append(decompress(cbtf, DecompressOptions(samples=str(index))).btf.read_samples([0])[0])
+    result = cycles.render_frames(bpy_python(), frames)
+    pairs = [(image[..., :3].astype(np.float64), ref) for image, ref in zip(result.images, references)]
+    gain, gains, steps = cycles.common_gain(pairs)
+    print(f"Cycles lod {lod or 'full'}: gains {np.round(gains, 5).tolist()}, mean |d| {np.round(steps, 4).tolist()} "
+          f"8-bit steps, {np.round(result.seconds, 2).tolist()} s")
+    assert all(image[..., 3].min() > 0.999 for image in result.images)     # the swatch fills the frame
+    assert max(gains) / min(gains) - 1.0 <= GAIN_SPREAD, gains
+    assert max(steps) <= MAX_STEPS, steps
+    assert abs(gain - 1.0) <= 0.03          # a 1 W/m^2 sun is the capture light: no hidden factor
+    # The control: the frame of another light direction is not this sample.
+    _, _, wrong = cycles.common_gain([(pairs[1][0], pairs[0][1])])
+    assert wrong[0] > MAX_STEPS
+
+
+@pytest.fixture(scope="module")
+def sphere_asset(asset, tmp_path_factory) -> Path:
+    """The material on a curved mesh: a 5 cm icosphere unwrapped by `usdbtf unwrap`."""
+    import trimesh
+
+    work = tmp_path_factory.mktemp("sphere")
+    obj = work / "sphere.obj"
+    trimesh.creation.icosphere(3, radius=0.05).export(obj)
+    compressed = asset.parent.parent / "c"
+    assert main(["unwrap", str(obj), "-o", str(work / "uv"), "--btf", str(compressed), "-q"]) == 0
+    out = work / "a" / "satin.usda"
+    assert main(["package", str(compressed), "-o", str(out), "--mesh", str(work / "uv" / "mesh.usda"), "-q"]) == 0
+    return out
+
+
+def test_cycles_matches_usdbtf_render_on_a_curved_mesh(sphere_asset, tmp_path):
+    """One camera and one sun: Cycles through the add-on against `usdbtf render` of a stage with
+    the same camera and DistantLight, PSNR >= 35 dB (sRGB) where both have geometry."""
+    from usdbtf.camera import Camera
+    from usdbtf.commands.preview import srgb_encoded
+    from usdbtf.gpu.headless import psnr
+    from usdbtf.render.scene import Light
+    from usdbtf.usd.scene import write_scene
+    from usdbtf.usd.storm import read_rgba
+
+    size = 64
+    camera = Camera(np.array([0.05, 0.06, 0.15]), np.zeros(3), np.array([0.0, 1.0, 0.0]), 35.0, size, size)
+    sun = np.array([0.3, 0.5, 1.0]) / np.linalg.norm([0.3, 0.5, 1.0])
+    scene = tmp_path / "scene.usda"
+    prim = write_scene(sphere_asset, scene, camera, [Light("directional", sun, 1.0)])
+    cpu_out = tmp_path / "cpu.exr"
+    assert main(["render", str(scene), "--camera", prim, "--size", str(size), str(size), "--no-shadows", "--filter",
+                 "bilinear", "-o", str(cpu_out), "--no-png", "-q"]) == 0
+    cpu = np.asarray(read_rgba(cpu_out), np.float64)
+    result = cycles.render_frames(bpy_python(), [cycles.CyclesFrame(sphere_asset, tmp_path / "cycles.exr", tuple(sun),
+                                                                    camera=camera, size=(size, size))])
+    image = result.images[0].astype(np.float64)
+    both = (image[..., 3] > 0.999) & (cpu[..., 3] > 0.999)
+    assert both.sum() > 0.3 * both.size
+    value = psnr(srgb_encoded(image[..., :3]), srgb_encoded(cpu[..., :3]), both)
+    print(f"Cycles vs usdbtf render on a curved mesh: {value:.2f} dB (sRGB) over {both.sum()} pixels, "
+          f"{result.seconds[0]:.2f} s")
+    assert value >= 35.0
+    dark = psnr(srgb_encoded(image[..., :3]), srgb_encoded(cpu[..., :3] * 0.5), both)      # the control
+    assert dark < 35.0
