@@ -142,3 +142,36 @@ def test_cycles_matches_usdbtf_render_on_a_curved_mesh(sphere_asset, tmp_path):
     assert value >= 35.0
     dark = psnr(srgb_encoded(image[..., :3]), srgb_encoded(cpu[..., :3] * 0.5), both)      # the control
     assert dark < 35.0
+
+
+_INSTALL = """
+import sys, bpy
+zip_path, asset = sys.argv[1:3]
+assert bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_default",
+                                                enable_on_install=True) == {"FINISHED"}
+assert bpy.ops.import_scene.usdbtf(filepath=asset, lod="k4") == {"FINISHED"}
+material = bpy.data.materials["BtfMaterial"]
+node = material.node_tree.nodes["usdbtf OSL"]
+print("RESULT", material.usdbtf_lod, node.inputs["basisCount"].default_value, bpy.context.scene.cycles.shading_system,
+      node.inputs["tables"].default_value.endswith("tables.exr"), node.inputs["page01"].default_value == "")
+"""
+
+
+def test_addon_zip_installs_as_an_extension_and_imports_an_asset(asset, tmp_path):
+    """scripts/blender_addon_zip.py's zip installs through Blender's extension mechanism into a
+    fresh user folder; its File > Import operator brings the asset with the OSL network at the
+    lod asked for."""
+    import os
+    import subprocess
+    import sys
+
+    zip_path = tmp_path / "usdbtf-blender.zip"
+    script = Path(__file__).resolve().parent.parent / "scripts" / "blender_addon_zip.py"
+    assert subprocess.run([sys.executable, str(script), "-o", str(zip_path)], capture_output=True).returncode == 0
+    (tmp_path / "user").mkdir()
+    env = {"PATH": os.environ.get("PATH", "/usr/bin:/bin"), "BLENDER_USER_RESOURCES": str(tmp_path / "user")}
+    proc = subprocess.run([str(bpy_python()), "-c", _INSTALL, str(zip_path), str(asset)], capture_output=True,
+                          text=True, env=env, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "RESULT k4 4 True True True" in proc.stdout, proc.stdout[-2000:]
+    assert (tmp_path / "user" / "extensions" / "user_default" / "usdbtf" / "blender_manifest.toml").is_file()

@@ -227,6 +227,8 @@ def build_material(material, asset: str, lods: dict, lod: str) -> None:
     material["usdbtf_asset"] = str(asset)
     material["usdbtf_lods"] = json.dumps(lods)
     apply_lod(material, lod)
+    if hasattr(material, "usdbtf_lod"):       # the add-on's lod menu (registered): show the level
+        material.usdbtf_lod = lod
 
 
 def script_node(material):
@@ -248,7 +250,6 @@ def apply_lod(material, lod: str) -> None:
     for p, path in enumerate(level["pages"]):
         node.inputs[page_name(p)].default_value = raw_texture(path)
     node.inputs["basisCount"].default_value = level["basisCount"]
-    material["usdbtf_lod_name"] = lod
 
 
 def sun_direction(sun) -> tuple[float, float, float]:
