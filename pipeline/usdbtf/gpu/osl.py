@@ -1,7 +1,7 @@
 """The usdbtf shading in OSL, translated from the GLSL core (no second hand-written copy).
 
 :func:`osl_core` is ``glsl/btf_core.glsl`` (with the page macros
-:func:`usdbtf.gpu.shaders.core_source` puts in front of it) put through
+:func:`usdbtf.gpu.core.core_source` puts in front of it) put through
 :func:`usdbtf.gpu.glsl_to_osl.translate`, after ``glsl/osl_glsl_types.h`` (GLSL's types in
 OSL).  Two consumers wrap it:
 
@@ -21,7 +21,7 @@ renderer's incident ray, so reflections and refractions of the surface see the r
 from __future__ import annotations
 
 from .glsl_to_osl import translate
-from .shaders import GLSL_DIR, MTLX_BSDF, core_source, page_name
+from .core import GLSL_DIR, MTLX_BSDF, core_source, page_name
 from .tables import MAX_PAGES
 
 __all__ = ["osl_core", "surface_shader", "materialx_osl", "SURFACE_NAME", "SURFACE_PARAMETERS"]

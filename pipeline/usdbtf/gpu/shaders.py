@@ -27,22 +27,16 @@ import sys
 from pathlib import Path
 
 from ..plugin_folder import SHADER_ID
+from . import osl
+from .core import GLSL_DIR, MTLX_BSDF, MTLX_SURFACE, core_source, page_name, page_sampler
 from .tables import MAX_PAGES
 
-__all__ = ["SHADER_ID", "INPUTS", "PRIMVARS", "core_source", "page_name", "page_sampler", "storm_glslfx", "sdr_definition_usda",
+__all__ = ["SHADER_ID", "INPUTS", "PRIMVARS", "GLSL_DIR", "MTLX_BSDF", "core_source", "page_name", "page_sampler", "storm_glslfx", "sdr_definition_usda",
            "materialx_impl", "materialx_defs", "harness_fragment", "HARNESS_VERTEX", "plugin_files",
            "write_plugin_files", "stale_plugin_files"]
 
-MTLX_BSDF = "usdbtf_bsdf"
-MTLX_SURFACE = "usdbtf_surface"
-GLSL_DIR = Path(__file__).resolve().parent / "glsl"
 #: Primvars the Storm shader reads (texture coordinates, the packaged tangent frame).
 PRIMVARS = ("st", "tangents", "bitangents")
-
-
-def page_name(page: int) -> str:
-    """Shader input of coefficient page ``page`` (an atlas of packs, usdbtf.gpu.tables)."""
-    return f"page{page:02d}"
 
 
 # (name, Sdf type, glslfx default, doc) of the Storm shader's inputs, in order.
@@ -53,25 +47,6 @@ INPUTS = ([("basisCount", "int", 0, "Basis vectors to use; 0 = all the tables ho
           + [(page_name(p), "float", 0.0, f"Coefficient page {p}: tiles of coefficient packs (the tables' "
                                           "directory says which), read with texelFetch (all 4 channels).")
              for p in range(MAX_PAGES)])
-
-
-def page_sampler(page: int) -> str:
-    """The GLSL name of page ``page``'s sampler in the core's functions (and the harness)."""
-    return f"btfPage{page:02d}"
-
-
-def core_source() -> str:
-    """The shared GLSL (functions only, no #version) after the page macros it uses: the
-    samplers ``btfPage00`` .. as parameters and arguments, and the fetch of texel (x, y)
-    (image row y from the top) of page ``page``."""
-    names = [page_sampler(p) for p in range(MAX_PAGES)]
-    fetch = " ".join(f"if (page == {p}) {{ return texelFetch({n}, ivec2(x, textureSize({n}, 0).y - 1 - y), 0); }}"
-                     for p, n in enumerate(names))
-    return (f"#define BTF_MAX_PAGES {MAX_PAGES}\n"
-            f"#define BTF_PAGE_PARAMS {', '.join(f'sampler2D {n}' for n in names)}\n"
-            f"#define BTF_PAGE_ARGS {', '.join(names)}\n"
-            f"#define BTF_PAGE_FETCH {fetch}\n"
-            + (GLSL_DIR / "btf_core.glsl").read_text())
 
 
 def _lines(template: str, count: int = MAX_PAGES) -> str:
@@ -369,8 +344,6 @@ def harness_fragment() -> str:
 def plugin_files() -> dict[str, str]:
     """Relative path under the plugin folder (``plugin/``) -> generated text: the Storm,
     MaterialX (genglsl, genosl) and OSL shaders, and the Blender add-on's copy of the OSL."""
-    from . import osl
-
     resources = "usdBtf/resources"
     surface = osl.surface_shader()
     return {f"{resources}/shaders/{SHADER_ID}.glslfx": storm_glslfx(),
