@@ -152,6 +152,15 @@ assert bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_de
 assert bpy.ops.import_scene.usdbtf(filepath=asset, lod="k4") == {"FINISHED"}
 material = bpy.data.materials["BtfMaterial"]
 node = material.node_tree.nodes["usdbtf OSL"]
+# The material follows its sun: direction (its +Z) and strength, on a scene update.
+sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", "SUN"))
+bpy.context.scene.collection.objects.link(sun)
+material.usdbtf_sun = sun
+sun.rotation_euler = (0.5, 0.0, 0.0)
+sun.data.energy = 2.5
+bpy.context.view_layer.update()
+direction = tuple(round(x, 4) for x in node.inputs["lightDirection"].default_value)
+print("SUN", direction, node.inputs["lightIrradiance"].default_value)
 print("RESULT", material.usdbtf_lod, node.inputs["basisCount"].default_value, bpy.context.scene.cycles.shading_system,
       node.inputs["tables"].default_value.endswith("tables.exr"), node.inputs["page01"].default_value == "")
 """
@@ -160,7 +169,7 @@ print("RESULT", material.usdbtf_lod, node.inputs["basisCount"].default_value, bp
 def test_addon_zip_installs_as_an_extension_and_imports_an_asset(asset, tmp_path):
     """scripts/blender_addon_zip.py's zip installs through Blender's extension mechanism into a
     fresh user folder; its File > Import operator brings the asset with the OSL network at the
-    lod asked for."""
+    lod asked for, and the material follows the sun it is given."""
     import os
     import subprocess
     import sys
@@ -174,4 +183,6 @@ def test_addon_zip_installs_as_an_extension_and_imports_an_asset(asset, tmp_path
                           text=True, env=env, timeout=120)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "RESULT k4 4 True True True" in proc.stdout, proc.stdout[-2000:]
+    # +Z turned 0.5 rad about x: (0, -sin 0.5, cos 0.5)
+    assert "SUN (0.0, -0.4794, 0.8776) 2.5" in proc.stdout, proc.stdout[-2000:]
     assert (tmp_path / "user" / "extensions" / "user_default" / "usdbtf" / "blender_manifest.toml").is_file()
