@@ -112,3 +112,14 @@ def test_cycles_osl_compiler_takes_the_surface_shader_and_the_genosl_output(tmp_
     # The OSL compiler's diagnostics: "WARNING: FILE.osl:LINE: warning: ..." (Blender's own start-up
     # messages are not about the shaders).
     assert not re.findall(r"\.osl:\d+: (?:warning|error)", output), output[-3000:]
+
+
+def test_blender_addon_constants_follow_the_pipeline():
+    """The add-on runs inside Blender without usdbtf, so it restates two facts: how many page
+    inputs the shader has and the Storm shader's identifier it reads the textures from."""
+    from usdbtf.gpu.tables import MAX_PAGES
+    from usdbtf.plugin_folder import SHADER_ID, plugin_dir
+
+    text = (plugin_dir() / "blender" / "usdbtf" / "network.py").read_text()
+    assert re.search(r"^MAX_PAGES = (\d+)$", text, re.M).group(1) == str(MAX_PAGES)
+    assert re.search(r'^STORM_ID = "(\w+)"$', text, re.M).group(1) == SHADER_ID
