@@ -169,7 +169,8 @@ def _compile(node) -> None:
     import addon_utils
 
     _bundled_site_packages()                       # oslquery
-    addon_utils.enable("cycles", default_set=False)
+    if not addon_utils.check("cycles")[1]:        # Blender as a Python module starts without it
+        addon_utils.enable("cycles", default_set=False)
     from cycles import osl   # Blender's own Cycles add-on
 
     problems = []
