@@ -31,7 +31,8 @@ from usdbtf.usd import cycles
     ("row *= vec4(greaterThan(ivec4(k), ivec4(1)));",
      "row = row * (btfMakeVec4(greaterThan(btfMakeIVec4(k), btfMakeIVec4(1))));"),
     ("float t = atan(rho, d.z); float s = atan(x);", "float t = atan2(rho, d.z); float s = atan(x);"),
-    ("void f(sampler2D s, vec3 v, out ivec3 index, mat3 m)", "void f(string s, vector v_, output btfIVec3 index, btfMat3 m)"),
+    ("void f(sampler2D s, vec3 v, out ivec3 index, mat3 m)",
+     "void f(string s, vector v_, output btfIVec3 index, btfMat3 m)"),
     ("vec4 x = texelFetch(s, ivec2(0, textureSize(s, 0).y - 1), 0); // keep vec4 and v[i]",
      "btfVec4 x = btfTexelFetch(s, btfMakeIVec2(0, btfAt(btfTextureSize(s, 0), 1) - 1), 0); // keep vec4 and v[i]"),
 ])

@@ -6,8 +6,6 @@ network on the asset's textures (``network.py``).  Material properties > usdbtf:
 detail (``lod``) and the sun that lights the BTF.  Render with Cycles, Open Shading Language
 on (Render properties > Open Shading Language; CPU).
 """
-from __future__ import annotations
-
 import bpy
 from bpy.app.handlers import persistent
 from bpy.props import EnumProperty, PointerProperty, StringProperty
