@@ -83,7 +83,8 @@ fi
 # full build with imaging (bpy 4.5.15: USD 25.02, which needs numpy < 2; bpy 5.0.1: USD
 # 25.08). Each goes into its own environment, away from usd-core's pxr; both are CPython 3.11
 # wheels of about 370 MB. Tried once per environment (delete .venv-storm-*/.usdbtf-tried to
-# retry); a failure never fails the bootstrap: those tests then skip and say why.
+# retry); a failure never fails the bootstrap: those tests then skip and say why. The bpy 5.0.1
+# environment also runs Cycles with OSL for tests/test_cycles.py and tests/test_osl.py (issue 30).
 storm_env() {  # storm_env FOLDER REQUIREMENTS...
     local folder="$1" py311=""
     shift
