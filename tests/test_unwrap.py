@@ -103,6 +103,26 @@ def test_keep_uvs_keeps_good_ones_and_refuses_bad_ones(work, capsys):
     assert json.loads((work / "folded_uv" / "unwrap.json").read_text())["atlas"]["method"] == "xatlas"
 
 
+def test_keep_uvs_refuses_stretched_uvs(work, capsys):
+    """A 0.6 x 0.4 m quad on the whole UV square is usable topologically (no overlap, nothing
+    mirrored) but its texels are 1.5x longer one way than the other: unwrap falls back to xatlas,
+    whose chart keeps texels square, and says why."""
+    from usdbtf.mesh import load_mesh, uv_stretch
+    from usdbtf.unwrap.atlas import MAX_KEPT_STRETCH
+
+    points, faces, uv = plane_with_uv(1.0, n=2)
+    stretched = write_obj(work / "stretched.obj", points * [0.6, 0.4, 1.0], faces, uv)
+    assert uv_stretch(load_mesh(stretched)) == pytest.approx(1.5, rel=1e-6) and 1.5 > MAX_KEPT_STRETCH
+    code, _, err = run(capsys, "unwrap", stretched, "-o", work / "stretched_uv", "--texels-per-metre", 100,
+                       "--keep-uvs")
+    assert code == 0 and "not keeping the mesh's texture coordinates: texture coordinates stretched 1.5x" in err
+    record = json.loads((work / "stretched_uv" / "unwrap.json").read_text())
+    assert record["atlas"]["method"] == "xatlas" and record["kept_uvs_rejected"].startswith("texture coordinates "
+                                                                                           "stretched")
+    atlas = read_unwrap(work / "stretched_uv" / "mesh.usda")
+    assert uv_stretch(atlas.mesh, atlas.atlas.width, atlas.atlas.height) < 1.05     # whole-texel atlas sides
+
+
 def test_usd_input_units_and_up_axis(work, capsys):
     path = work / "quad_cm.usda"
     stage = Usd.Stage.CreateNew(str(path))
