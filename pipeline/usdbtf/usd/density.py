@@ -15,7 +15,7 @@ import numpy as np
 from ..mesh.frames import uv_stretch as stretch
 from .material import NS
 
-__all__ = ["uv_area", "stretch", "binding_densities", "density_problems", "MAX_DENSITY_MISMATCH"]
+__all__ = ["uv_area", "stretch", "mesh_prims", "binding_densities", "density_problems", "MAX_DENSITY_MISMATCH"]
 
 #: Largest relative difference between the density on a mesh and the material's that passes.
 MAX_DENSITY_MISMATCH = 0.02
@@ -28,6 +28,14 @@ def uv_area(mesh) -> float:
     uv = mesh.corner(mesh.uv)                                   # (F, 3, 2)
     e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
     return float(0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum())
+
+
+def mesh_prims(stage):
+    """Every Mesh prim of the composed ``stage`` (default predicate), instance proxies included:
+    the meshes of instanceable prims are bound, rendered and measured like any other."""
+    from pxr import Usd, UsdGeom
+
+    return [p for p in stage.Traverse(Usd.TraverseInstanceProxies()) if p.IsA(UsdGeom.Mesh)]
 
 
 def _mesh_density(mesh, width: int, height: int) -> float | None:
@@ -44,15 +52,13 @@ def binding_densities(stage) -> list[dict]:
     "stretch" (:func:`stretch`, reported, not checked), "problem"}] for every Mesh prim bound (all purposes) to a BTF material with a resolution
     and a physical size; ``mesh_texels_per_metre`` and ``ratio`` (mesh / material) are None
     when the mesh has no UVs, or cannot be read (``problem`` says why)."""
-    from pxr import UsdGeom, UsdShade
+    from pxr import UsdShade
 
     from ..errors import BTFError
     from ..mesh import load_prim
 
     out = []
-    for prim in stage.Traverse():
-        if not prim.IsA(UsdGeom.Mesh):
-            continue
+    for prim in mesh_prims(stage):
         material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
         if not material:
             continue
