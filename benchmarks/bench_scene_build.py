@@ -51,7 +51,7 @@ def _meshes():
 
 
 #: The scene's camera (/World/Cam) and its one distant light (/World/Sun, irradiance 1.5 capture lights).
-CAMERA = "eye=0.05,0.75,1.45 target=0.05,0.12,0 fov=38"
+CAMERA = "eye=-0.05,0.6,1.3 target=-0.05,0.15,0.05 fov=40"
 SUN = (0.4, 1.0, 0.6)
 
 
@@ -134,8 +134,9 @@ def seams(chain, compressed: Path) -> dict:
     neighbours = face_neighbours(weld(layer.points)[layer.triangles])
     boundary = chart_border_error(positions, layer, neighbours, features, ws, S)
     natural = natural_neighbour_error(features, ws, cbtf.height, S)
-    return {"charts": int(unwrapped.atlas.charts), "method": unwrapped.atlas.method, "in_charts": in_charts, "boundary": boundary,
-            "natural_neighbour": natural, "in_charts_ratio": in_charts / natural, "boundary_ratio": boundary / natural}
+    return {"charts": int(unwrapped.atlas.charts), "method": unwrapped.atlas.method, "in_charts": in_charts,
+            "boundary": boundary, "natural_neighbour": natural, "in_charts_ratio": in_charts / natural,
+            "boundary_ratio": boundary / natural}
 
 
 def main() -> int:

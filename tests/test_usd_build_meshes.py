@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 import usdbtf  # noqa: F401
-from cli_helpers import bad_input, ok
+from cli_helpers import bad_input, ok, run
 from usdbtf.cli import main
 from usdbtf.usd.build import build
 from usdbtf.usd.density import binding_densities
@@ -164,6 +164,40 @@ def test_a_bad_mapping_is_an_error_naming_the_prim(built, capsys):
     bad.write_text(SCENE.replace('btf:build:mapping = "tile"', 'btf:build:mapping = "wrap"'))
     line = bad_input(capsys, "build", bad, "--dry-run", names="/World/Floor: btf:build:mapping")
     assert "atlas, tile" in line
+
+
+def test_render_draws_every_bound_mesh_with_its_own_material(built, capsys):
+    """``usdbtf render`` of the built scene (three BTF materials) draws each bound mesh with its
+    own: where one mesh alone covers a pixel the frame is that mesh rendered alone with its
+    material, where the box stands on the plane the box hides it."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from usdbtf.camera import parse_camera
+    from usdbtf.render import RenderOptions, parse_light, render, render_scene
+    from usdbtf.usd.scene import bound_btf_meshes
+
+    scene, report, _ = built
+    out = scene.parent / "built_frame.exr"
+    code, _, log = run(capsys, "render", report["built_scene"], "--camera", "eye=0.3,1.2,1.2 target=0.3,0,0.1 fov=40",
+                       "--light", "dir:0.3,1,0.5", "--size", "64", "48", "-o", out, "--no-png")
+    assert code == 0 and "4 meshes with 3 BTF materials" in log and out.is_file(), log
+    parts = {mesh.name: (cbtf, mesh) for cbtf, mesh in bound_btf_meshes(_open(report["built_scene"]))}
+    box = parts["Box"]
+    assert box[0] is parts["BoxCopy"][0] and box[0] is not parts["Plane"][0]   # one CompressedBTF per material
+    # The plane (facing down) lifted above the box; seen from below, the box hides part of it.
+    plane = (parts["Plane"][0], replace(parts["Plane"][1], points=parts["Plane"][1].points + [0.3, 0.3, -0.1]))
+    camera, lights = parse_camera("eye=0.6,-1,0.8 target=0.6,0.15,0.1 fov=40", 64, 48), [parse_light("dir:0,-1,0.3")]
+    opts = RenderOptions(shadows=False)
+    both = render_scene([box, plane], camera, lights, opts).image
+    alone = [render(cbtf, mesh, camera, lights, opts).image for cbtf, mesh in (box, plane)]
+    on_box, on_plane = (a[..., 3] > 0 for a in alone)
+    overlap = on_box & on_plane
+    assert overlap.sum() > 20 and (on_plane & ~on_box).sum() > 20
+    np.testing.assert_allclose(both[on_box], alone[0][on_box], atol=1e-6)          # the box in front
+    np.testing.assert_allclose(both[on_plane & ~on_box], alone[1][on_plane & ~on_box], atol=1e-6)
+    assert not both[~(on_box | on_plane)].any()
 
 
 def test_rebuilds_only_what_a_mesh_edit_touches(built):

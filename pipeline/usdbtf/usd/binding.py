@@ -295,9 +295,9 @@ def _bind(over, relationships: list[str], material: str) -> None:
 
 
 def _override_tiled(stage, scene_stage, path: str, chain: Binding, material: str, at: str) -> None:
-    """Over ``at`` (``path`` or its place in an instance class) with ``path``'s ``st`` scaled so that one tile of the tileable quilt spans the
-    quilt's physical size on the mesh (the UVs' scale measured from the mesh's world and UV
-    areas), and bind it to ``material``."""
+    """Over ``at`` (``path`` or its place in an instance class) with ``path``'s ``st`` scaled so
+    that one tile of the tileable quilt spans the quilt's physical size on the mesh (the UVs'
+    scale measured from the mesh's world and UV areas), and bind it to ``material``."""
     from pxr import Usd, UsdGeom, Vt
 
     from ..errors import BTFError
