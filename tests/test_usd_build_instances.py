@@ -7,9 +7,8 @@ from __future__ import annotations
 import pytest
 
 import usdbtf  # noqa: F401
-from usdbtf.cli import main
+from scene_build_data import build_scene, open_stage
 from usdbtf.usd.binding import BINDINGS_SCOPE, INSTANCE_CLASS
-from usdbtf.usd.build import build
 from usdbtf.usd.density import binding_densities
 
 # A 0.1 x 0.05 x 0.075 m box without texture coordinates (six quads).
@@ -92,21 +91,8 @@ PEBBLE = "/World/Scatter/Prototypes/Pebble"
 
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
-    """(scene, the build's report, the scene's bytes before)."""
-    root = tmp_path_factory.mktemp("instances")
-    for preset, name in (("pebbles", "pebbles"), ("fuzzy_moss", "moss")):
-        assert main(["synth", preset, "-o", str(root / "captures" / name), "--sampling", "tiny", "--size", "16",
-                     "-q"]) == 0
-    scene = root / "scene.usda"
-    scene.write_text(SCENE)
-    before = scene.read_bytes()
-    return scene, build(scene), before
-
-
-def _open(path):
-    from pxr import Usd
-
-    return Usd.Stage.Open(str(path))
+    """The scene built once: (scene path, the first build's report, the scene's bytes before)."""
+    return build_scene(tmp_path_factory.mktemp("instances"), SCENE)
 
 
 def test_instances_of_one_prototype_are_quilted_once(built):
@@ -123,10 +109,10 @@ def test_built_instances_share_a_prototype_and_have_the_materials_density(built)
     from pxr import UsdGeom, UsdShade
 
     scene, report, _ = built
-    user = {e["prim"]: e for e in binding_densities(_open(scene))}
+    user = {e["prim"]: e for e in binding_densities(open_stage(scene))}
     assert sorted(user) == sorted(ROCKS + [PEBBLE])                  # instance proxies are measured
     assert all(e["ratio"] is None for e in user.values())           # no UVs in the user's scene
-    stage = _open(report["built_scene"])
+    stage = open_stage(report["built_scene"])
     a, b = stage.GetPrimAtPath("/World/RockA"), stage.GetPrimAtPath("/World/RockB")
     assert a.IsInstance() and b.IsInstance() and a.GetPrototype() == b.GetPrototype()
     assert [str(p) for p in a.GetInherits().GetAllDirectInherits()][0].startswith("/" + INSTANCE_CLASS)

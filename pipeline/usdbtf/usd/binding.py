@@ -46,8 +46,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Binding", "bindings", "binding_steps", "write_built_scene", "BUILT_SCENE", "BINDINGS_SCOPE",
-           "INSTANCE_CLASS"]
+__all__ = ["Binding", "bindings", "binding_steps", "binding_targets", "built_scene_text", "BUILT_SCENE",
+           "BINDINGS_SCOPE", "INSTANCE_CLASS"]
 
 BUILT_SCENE = "scene.usda"
 #: The prim of the built scene under which the per-mesh Materials live.
