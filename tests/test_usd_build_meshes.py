@@ -4,14 +4,12 @@ composed by the built scene without editing the user's file; ``inspect`` checks 
 from __future__ import annotations
 
 import json
-import shutil
-from pathlib import Path
 
 import pytest
 
 import usdbtf  # noqa: F401
-from cli_helpers import bad_input, ok
-from usdbtf.cli import main
+from cli_helpers import bad_input, ok, run
+from scene_build_data import build_scene, open_stage
 from usdbtf.usd.build import build
 from usdbtf.usd.density import binding_densities
 
@@ -82,19 +80,7 @@ SCENE = HEADER + '''def Xform "World"
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
     """The scene built once: (scene path, the first build's report, the scene's bytes before)."""
-    root = tmp_path_factory.mktemp("meshes")
-    for preset, name in (("pebbles", "pebbles"), ("fuzzy_moss", "moss")):
-        assert main(["synth", preset, "-o", str(root / "captures" / name), "--sampling", "tiny", "--size", "16",
-                     "-q"]) == 0
-    scene = root / "scene.usda"
-    scene.write_text(SCENE)
-    return scene, build(scene), scene.read_bytes()
-
-
-def _open(path):
-    from pxr import Usd
-
-    return Usd.Stage.Open(str(path))
+    return build_scene(tmp_path_factory.mktemp("meshes"), SCENE)
 
 
 def test_every_binding_has_the_materials_density_after_build(built):
@@ -102,10 +88,10 @@ def test_every_binding_has_the_materials_density_after_build(built):
     assert scene.read_bytes() == before                           # the user's file is never edited
     # Before: a 16-texel swatch over the box's [0, 1] UVs is about a third of its density; the
     # plane has no UVs at all.
-    stretched = {e["prim"]: e for e in binding_densities(_open(scene))}
+    stretched = {e["prim"]: e for e in binding_densities(open_stage(scene))}
     assert stretched["/World/Box"]["ratio"] == pytest.approx(0.34, abs=0.01)
     assert stretched["/World/Plane"]["ratio"] is None
-    entries = binding_densities(_open(report["built_scene"]))
+    entries = binding_densities(open_stage(report["built_scene"]))
     assert sorted(e["prim"] for e in entries) == ["/World/Box", "/World/BoxCopy", "/World/Floor", "/World/Plane"]
     for e in entries:
         # 16 texels over the synthetic swatch's 5 cm: 320 texels per metre.
@@ -124,7 +110,7 @@ def test_identical_meshes_of_a_material_share_one_quilt(built):
     assert sorted(steps) == sorted(["compress", "package"] * 2 + ["unwrap", "quilt", "package"] * 2
                                    + ["quilt", "package"])       # the floor's tileable quilt
     # The shared quilt is the atlas's size and the material's data (k = 4).
-    stage = _open(report["built_scene"])
+    stage = open_stage(report["built_scene"])
     unwrap = json.loads((chains["/World/Looks/Pebbles"].unwrap.parent / "unwrap.json").read_text())
     from usdbtf.usd.material import NS
     from pxr import UsdShade
@@ -150,7 +136,7 @@ def test_tile_mapping_repeats_a_tileable_quilt_at_physical_scale(built):
     from pxr import UsdGeom
 
     scene, report, _ = built
-    stage = _open(report["built_scene"])
+    stage = open_stage(report["built_scene"])
     st = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/World/Floor")).GetPrimvar("st").Get()
     assert max(p[0] for p in st) == pytest.approx(2.0 / 0.8, rel=1e-5)
     assert len(UsdGeom.Mesh(stage.GetPrimAtPath("/World/Floor")).GetFaceVertexCountsAttr().Get()) == 1
@@ -166,6 +152,40 @@ def test_a_bad_mapping_is_an_error_naming_the_prim(built, capsys):
     assert "atlas, tile" in line
 
 
+def test_render_draws_every_bound_mesh_with_its_own_material(built, capsys):
+    """``usdbtf render`` of the built scene (three BTF materials) draws each bound mesh with its
+    own: where one mesh alone covers a pixel the frame is that mesh rendered alone with its
+    material, where the box stands on the plane the box hides it."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from usdbtf.camera import parse_camera
+    from usdbtf.render import RenderOptions, parse_light, render, render_scene
+    from usdbtf.usd.scene import bound_btf_meshes
+
+    scene, report, _ = built
+    out = scene.parent / "built_frame.exr"
+    code, _, log = run(capsys, "render", report["built_scene"], "--camera", "eye=0.3,1.2,1.2 target=0.3,0,0.1 fov=40",
+                       "--light", "dir:0.3,1,0.5", "--size", "64", "48", "-o", out, "--no-png")
+    assert code == 0 and "4 meshes with 3 BTF materials" in log and out.is_file(), log
+    parts = {mesh.name: (cbtf, mesh) for cbtf, mesh in bound_btf_meshes(open_stage(report["built_scene"]))}
+    box = parts["Box"]
+    assert box[0] is parts["BoxCopy"][0] and box[0] is not parts["Plane"][0]   # one CompressedBTF per material
+    # The plane (facing down) lifted above the box; seen from below, the box hides part of it.
+    plane = (parts["Plane"][0], replace(parts["Plane"][1], points=parts["Plane"][1].points + [0.3, 0.3, -0.1]))
+    camera, lights = parse_camera("eye=0.6,-1,0.8 target=0.6,0.15,0.1 fov=40", 64, 48), [parse_light("dir:0,-1,0.3")]
+    opts = RenderOptions(shadows=False)
+    both = render_scene([box, plane], camera, lights, opts).image
+    alone = [render(cbtf, mesh, camera, lights, opts).image for cbtf, mesh in (box, plane)]
+    on_box, on_plane = (a[..., 3] > 0 for a in alone)
+    overlap = on_box & on_plane
+    assert overlap.sum() > 20 and (on_plane & ~on_box).sum() > 20
+    np.testing.assert_allclose(both[on_box], alone[0][on_box], atol=1e-6)          # the box in front
+    np.testing.assert_allclose(both[on_plane & ~on_box], alone[1][on_plane & ~on_box], atol=1e-6)
+    assert not both[~(on_box | on_plane)].any()
+
+
 def test_rebuilds_only_what_a_mesh_edit_touches(built):
     """Runs last: it edits the module's scene."""
     scene, report, _ = built
@@ -177,5 +197,5 @@ def test_rebuilds_only_what_a_mesh_edit_touches(built):
     scene.write_text(SCENE.replace("(0.3, 0, 0.2), (0, 0, 0.2)", "(0.3, 0, 0.25), (0, 0, 0.25)"))
     ran = build(scene)["ran"]
     assert ran == [f"usdbtf-step {step} /World/Looks/Moss /World/Plane" for step in ("unwrap", "quilt", "package")]
-    plane = {e["prim"]: e for e in binding_densities(_open(report["built_scene"]))}["/World/Plane"]
+    plane = {e["prim"]: e for e in binding_densities(open_stage(report["built_scene"]))}["/World/Plane"]
     assert abs(plane["ratio"] - 1) <= 0.02

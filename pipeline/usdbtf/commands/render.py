@@ -33,7 +33,8 @@ def add_scene_arguments(p, *, mesh_help: str) -> None:
 
 def add_parser(sub) -> None:
     p = sub.add_parser("render", help="CPU reference render of a BTF on a mesh, or the flat measured swatch")
-    p.add_argument("asset", type=Path, help="compressed BTF folder (or packaged USD asset)")
+    p.add_argument("asset", type=Path, help="compressed BTF folder, packaged USD asset, or a USD scene (with "
+                   "several BTF materials: each bound mesh with its own)")
     add_scene_arguments(p, mesh_help="`usdbtf unwrap` layer or a mesh with texture coordinates")
     p.add_argument("--k", type=int_in(1), help="use only the first k basis vectors")
     p.add_argument("--no-shadows", action="store_true", help="no cast shadows")
@@ -96,6 +97,21 @@ def scene_mesh(asset: Path, mesh: Path | None):
     return load_mesh(mesh if mesh is not None else asset, need_uv=True)
 
 
+def scene_parts(asset: Path, mesh: Path | None):
+    """[(cbtf, mesh)] of a USD scene that binds more than one BTF material to its meshes (each
+    mesh is rendered with its own material: :func:`usdbtf.render.render_scene`); None otherwise
+    (``--mesh`` given, a compressed folder, or one material: the asset is rendered as before)."""
+    from ..usdstage import USD_SUFFIXES
+
+    if mesh is not None or asset.suffix.lower() not in USD_SUFFIXES:
+        return None
+    from ..usd.read import open_stage
+    from ..usd.scene import bound_btf_meshes
+
+    parts = bound_btf_meshes(open_stage(asset))
+    return parts if len({id(cbtf) for cbtf, _ in parts}) > 1 else None
+
+
 def check_frame_args(args) -> None:
     """Checks shared with ``usdbtf preview``: the output name and the frame's memory."""
     from ..errors import UsageError
@@ -150,7 +166,7 @@ def run(args) -> int:
 
     from ..camera import auto_camera
     from ..errors import UsageError
-    from ..render import RenderOptions, render, render_swatch, write_render
+    from ..render import RenderOptions, render, render_scene, render_swatch, write_render
 
     t0 = time.perf_counter()
     W, H = args.size
@@ -171,15 +187,26 @@ def run(args) -> int:
         if args.view is not None:
             raise UsageError("--view is for --swatch; place the camera with --camera")
         camera, lights = scene_view(args)
-        cbtf = open_asset(args.asset)
-        mesh = scene_mesh(args.asset, args.mesh)
-        if mesh is None:
-            raise UsageError("give --mesh (an unwrap layer or a mesh with texture coordinates), or --swatch")
-        for note in mesh.notes:
-            log.info(f"{mesh.source}: {note}")
-        camera = camera or auto_camera(mesh.corner(), W, H)
-        result = render(cbtf, mesh, camera, lights, opts)
-        what = f"{camera.width}x{camera.height} frame, {len(mesh.triangles)} triangles, {len(lights)} light(s)"
+        parts = scene_parts(args.asset, args.mesh)
+        if parts is not None:           # a scene: every bound mesh with its own material
+            import numpy as np
+
+            camera = camera or auto_camera(np.concatenate([m.corner() for _, m in parts]), W, H)
+            result = render_scene(parts, camera, lights, opts)
+            triangles = sum(len(m.triangles) for _, m in parts)
+            materials = len({id(cbtf) for cbtf, _ in parts})
+            what = (f"{camera.width}x{camera.height} frame, {len(parts)} meshes with {materials} BTF materials, "
+                    f"{triangles} triangles, {len(lights)} light(s)")
+        else:
+            cbtf = open_asset(args.asset)
+            mesh = scene_mesh(args.asset, args.mesh)
+            if mesh is None:
+                raise UsageError("give --mesh (an unwrap layer or a mesh with texture coordinates), or --swatch")
+            for note in mesh.notes:
+                log.info(f"{mesh.source}: {note}")
+            camera = camera or auto_camera(mesh.corner(), W, H)
+            result = render(cbtf, mesh, camera, lights, opts)
+            what = f"{camera.width}x{camera.height} frame, {len(mesh.triangles)} triangles, {len(lights)} light(s)"
     png = None if args.no_png else (args.png or args.output.with_suffix(".png"))
     info = write_render(result, args.output, png_path=png, display=args.display, view=args.display_view)
     log.info(f"rendered {what} in {time.perf_counter() - t0:.2f} s -> {info['exr']}"

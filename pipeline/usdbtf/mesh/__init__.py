@@ -4,9 +4,10 @@
     >>> mesh = load_mesh("knot.obj")                      # or .ply/.stl/.glb/.gltf/.off/.usd*
     >>> mesh.points.shape, mesh.triangles.shape, mesh.area()
 """
-from .frames import mirrored_faces, tangent_frames, uv_gradients
+from .frames import mirrored_faces, tangent_frames, uv_gradients, uv_stretch
 from .load import MESH_SUFFIXES, TRIMESH_SUFFIXES, USD_SUFFIXES, load_mesh, load_prim
 from .model import ATTRIBUTES, CornerFrames, Mesh, degenerate_triangles, smooth_normals, weld
 
 __all__ = ["Mesh", "CornerFrames", "ATTRIBUTES", "load_mesh", "load_prim", "MESH_SUFFIXES", "TRIMESH_SUFFIXES", "USD_SUFFIXES",
-           "weld", "smooth_normals", "degenerate_triangles", "tangent_frames", "uv_gradients", "mirrored_faces"]
+           "weld", "smooth_normals", "degenerate_triangles", "tangent_frames", "uv_gradients", "mirrored_faces",
+           "uv_stretch"]

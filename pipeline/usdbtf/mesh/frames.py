@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["tangent_frames", "uv_gradients", "mirrored_faces"]
+__all__ = ["tangent_frames", "uv_gradients", "mirrored_faces", "uv_stretch"]
 
 
 def uv_gradients(points: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -61,3 +61,33 @@ def tangent_frames(points: np.ndarray, faces: np.ndarray, uv: np.ndarray, normal
     b = np.cross(n, t)
     b *= np.where(np.einsum("nd,nd->n", b, b_acc) < 0, -1.0, 1.0)[:, None]
     return t, b
+
+
+def uv_stretch(mesh, width: int = 1, height: int = 1) -> float | None:
+    """Area-weighted mean over triangles of the ratio of the largest to the smallest texel
+    density direction (singular values of the metres -> texels map in the triangle's plane):
+    1 for UVs that keep shapes, 1.5 for a 0.6 x 0.4 m quad on the UV square.  The area-based
+    density alone cannot see this.  None without UVs.
+
+    mesh : a :class:`~usdbtf.mesh.Mesh` (points in metres, ``uv`` per vertex or per corner).
+    width, height : the texture's texels (the UV square's aspect; any scale gives the same
+    ratio, so the defaults measure the UVs themselves)."""
+    if mesh.uv is None:
+        return None
+    p = mesh.corner()                                              # (F, 3, 3) metres
+    t = mesh.corner(mesh.uv) * np.array([width, height], np.float64)  # (F, 3, 2) texels
+    d1, d2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    l1 = np.linalg.norm(d1, axis=1)
+    area2 = np.linalg.norm(np.cross(d1, d2), axis=1)
+    keep = (l1 > 0) & (area2 > 0)
+    e1 = d1[keep] / l1[keep, None]
+    q = np.stack([np.stack([l1[keep], np.zeros(keep.sum())], axis=1),
+                  np.stack([(d2[keep] * e1).sum(axis=1), area2[keep] / l1[keep]], axis=1)], axis=2)  # (F, 2, 2)
+    tt = np.stack([t[keep, 1] - t[keep, 0], t[keep, 2] - t[keep, 0]], axis=2)                          # (F, 2, 2)
+    det = np.linalg.det(tt)
+    ok = np.abs(det) > 0
+    if not ok.any():
+        return None
+    sv = np.linalg.svd(tt[ok] @ np.linalg.inv(q[ok]), compute_uv=False)                             # (F, 2)
+    weights = area2[keep][ok]
+    return float((sv[:, 0] / sv[:, 1] * weights).sum() / weights.sum())

@@ -41,7 +41,7 @@ from .shadows import ShadowMap
 from .texture import CoefficientTexture
 from ..numeric import single_blas_thread
 
-__all__ = ["RenderOptions", "RenderResult", "Renderer", "render", "render_swatch"]
+__all__ = ["RenderOptions", "RenderResult", "Renderer", "render", "render_scene", "render_swatch"]
 
 
 @dataclass
@@ -118,8 +118,12 @@ class Renderer:
         return rows, (np.asarray(scale, np.float64) * fade).astype(np.float32)
 
     # -- mesh --------------------------------------------------------------------------
-    def render(self, mesh: Mesh, camera: Camera, lights: list[Light]) -> np.ndarray:
-        """(H, W, 4) float32 RGBA, working space."""
+    def render(self, mesh: Mesh, camera: Camera, lights: list[Light], *, shade: np.ndarray | None = None
+               ) -> np.ndarray:
+        """(H, W, 4) float32 RGBA, working space.
+
+        shade : (F,) bool, the triangles this material shades (default all); the others still
+            hide and shadow what lies behind them, and their pixels stay empty (0)."""
         if not lights:
             raise BTFError("give at least one --light")
         surface = mesh.corner_frames()
@@ -134,6 +138,11 @@ class Renderer:
         if not len(pix):
             return image
         tri = tris[raster.tri.ravel()[pix]]
+        if shade is not None:
+            mine = shade[tri]
+            pix, tri = pix[mine], tri[mine]
+            if not len(pix):
+                return image
         py, px = np.divmod(pix, camera.width)
         res = self.opts.shadow_resolution or max(camera.width, camera.height)
         shadow_maps = [ShadowMap(surface.points, light, res) if self.opts.shadows else None
@@ -244,6 +253,33 @@ def render(cbtf: CompressedBTF, mesh: Mesh, camera: Camera, lights: list[Light],
            options: RenderOptions | None = None) -> RenderResult:
     """One frame of ``mesh`` with ``cbtf`` under ``lights`` (see the module docstring)."""
     return RenderResult(Renderer(cbtf, options).render(mesh, camera, lights), cbtf.working_space, cbtf.ocio_config)
+
+
+@single_blas_thread
+def render_scene(parts: list, camera: Camera, lights: list[Light], options: RenderOptions | None = None
+                 ) -> RenderResult:
+    """One frame of several meshes, each with its own compressed BTF: ``parts`` [(cbtf, mesh)]
+    (a material bound to several meshes: the same cbtf object in several parts).  Every mesh
+    hides and shadows the others: the meshes are rasterised as one, and each material shades
+    the pixels where its own triangles are in front."""
+    if not parts:
+        raise BTFError("no mesh to render")
+    spaces = {(cbtf.working_space, cbtf.ocio_config) for cbtf, _ in parts}
+    if len(spaces) > 1:
+        raise BTFError(f"the materials are in different working colour spaces ({sorted(spaces)}); "
+                       "one frame needs one")
+    meshes = [mesh.with_frames() for _, mesh in parts]
+    whole = Mesh.concatenate(meshes, name="scene", source=meshes[0].source)
+    material_of = {}
+    for cbtf, _ in parts:
+        material_of.setdefault(id(cbtf), (len(material_of), cbtf))
+    owner = np.repeat([material_of[id(cbtf)][0] for cbtf, _ in parts], [len(m.triangles) for m in meshes])
+    image = None
+    for index, cbtf in material_of.values():
+        layer = Renderer(cbtf, options).render(whole, camera, lights, shade=owner == index)
+        image = layer if image is None else image + layer        # disjoint pixels: a sum composes them
+    working_space, ocio_config = spaces.pop()
+    return RenderResult(image, working_space, ocio_config)
 
 
 @single_blas_thread

@@ -28,18 +28,24 @@ import numpy as np
 
 from ..compress.format import CompressedBTF
 from ..errors import BTFError, UsageError
-from ..mesh import Mesh, mirrored_faces, uv_gradients
+from ..mesh import Mesh, mirrored_faces, uv_gradients, uv_stretch
 from ..raster import rasterize, st_to_texels
 
 log = logging.getLogger(__name__)
 
 __all__ = ["Atlas", "texel_density", "make_atlas", "keep_uvs", "chart_map", "uv_problems", "MAX_ATLAS_SIDE",
-           "MIN_TEXEL_SCALE", "check_atlas_size"]
+           "MIN_TEXEL_SCALE", "check_atlas_size", "MAX_KEPT_STRETCH"]
 
 #: Largest atlas side (texels) ``usdbtf unwrap`` makes or ``quilt --atlas`` reads.
 MAX_ATLAS_SIDE = 8192
 #: Smallest allowed ratio of the atlas's texel density to the requested one.
 MIN_TEXEL_SCALE = 1.0 / 8.0
+#: Most stretch (:func:`~usdbtf.mesh.uv_stretch`: the area-weighted ratio of a triangle's largest
+#: to smallest texel density direction) a mesh's own UVs may have and still be kept: 10 %
+#: anisotropy, past which the material visibly looks squashed one way (a 0.6 x 0.4 m quad on the
+#: UV square is at 1.5).  xatlas's charts on the meshes of `benchmarks/bench_scene_build.py`
+#: measure 1.00-1.04.
+MAX_KEPT_STRETCH = 1.1
 
 
 @dataclass
@@ -182,7 +188,8 @@ def make_atlas(mesh: Mesh, density: float, *, max_resolution: int = 4096, paddin
 
 def uv_problems(mesh: Mesh, width: int = 512) -> str | None:
     """Why the mesh's own texture coordinates are unusable for a BTF atlas, or None if they are fine:
-    missing, outside [0, 1], degenerate or mirrored triangles, or charts overlapping."""
+    missing, outside [0, 1], degenerate or mirrored triangles, stretched (more than
+    :data:`MAX_KEPT_STRETCH`), or charts overlapping."""
     if mesh.uv is None:
         return "the mesh has no texture coordinates"
     uv = mesh.uv
@@ -193,6 +200,11 @@ def uv_problems(mesh: Mesh, width: int = 512) -> str | None:
         return f"{int((np.abs(area) < 1e-14).sum())} triangles have zero texture area"
     if mirrored_faces(mesh.points, mesh.triangles, uv, mesh.normals).any():
         return "some triangles have mirrored texture coordinates"
+    # Areas alone cannot see a quad squashed onto the UV square: texels must stay square.
+    stretch = uv_stretch(mesh)
+    if stretch is not None and stretch > MAX_KEPT_STRETCH:
+        return (f"texture coordinates stretched {stretch:.3g}x (one direction has that many more texels per "
+                f"metre than the other; at most {MAX_KEPT_STRETCH:g} is kept)")
     xy = st_to_texels(uv[mesh.triangles], width, width)
     # Shrink every triangle a hair towards its centroid so neighbours sharing an edge do not
     # both claim texel centres lying exactly on it; then count texels claimed twice by

@@ -22,9 +22,19 @@ one tileable quilt of :data:`TILE_SIZE` texels per material (``quilt --tileable 
 spans the quilt's physical size (the UVs' metres per unit measured from the mesh's world and UV
 areas).
 
-Not covered: meshes inside instanceable prims (``Traverse`` does not enter instances, and an
-instance proxy cannot be overridden), non-``Mesh`` gprims, and a binding overruled by an
-ancestor's ``strongerThanDescendants`` binding.
+Instances are quilted once.  Meshes under instanceable prims are found as instance proxies,
+and the proxies of one prototype at one scale extract to the same mesh, so they share one chain.
+An instance proxy cannot be overridden, so the built scene authors their overrides in a
+``class`` prim of its own (:data:`INSTANCE_CLASS` plus a digest of what it holds) and adds an
+``inherits`` arc to that class on every instance (the instanceable prim itself, which may be
+edited): instances given the same class still share one prototype.  A ``PointInstancer``'s
+prototypes are ordinary prims of the scene (or instances), so each is quilted once however
+many points draw it; the density is the prototype's own (the instancer's per-point scales are
+not looked at).
+
+Not covered: meshes of an instance nested inside another instance's prototype (the outer
+instance's class cannot reach into the inner one), non-``Mesh`` gprims, and a binding
+overruled by an ancestor's ``strongerThanDescendants`` binding.
 
 Scene data never becomes code: paths and argument lists only (see :mod:`usdbtf.usd.build`).
 """
@@ -36,11 +46,14 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Binding", "bindings", "binding_steps", "write_built_scene", "BUILT_SCENE", "BINDINGS_SCOPE"]
+__all__ = ["Binding", "bindings", "binding_steps", "binding_targets", "built_scene_text", "BUILT_SCENE",
+           "BINDINGS_SCOPE", "INSTANCE_CLASS"]
 
 BUILT_SCENE = "scene.usda"
 #: The prim of the built scene under which the per-mesh Materials live.
 BINDINGS_SCOPE = "/UsdbtfBindings"
+#: Name prefix of the built scene's root ``class`` prims that carry instanced meshes' overrides.
+INSTANCE_CLASS = "UsdbtfInstance_"
 #: ``btf:build:mapping`` values: a quilt across the mesh's own atlas, or a tileable quilt repeated
 #: at physical scale through the mesh's UVs (their scale measured from the mesh's areas).
 MAPPINGS = ("atlas", "tile")
@@ -226,14 +239,15 @@ def _copy_primvar(src_api, dst_api, name: str) -> None:
         out.BlockIndices()      # the scene's mesh may have indexed values of its own
 
 
-def _override_mesh(stage, scene_stage, path: str, chain: Binding, material: str) -> None:
-    """Over ``path`` in the built scene with the chain's atlas mesh (back in the prim's local
-    frame) and bind it to ``material`` for the purposes it was bound for."""
+def _override_mesh(stage, scene_stage, path: str, chain: Binding, material: str, at: str) -> None:
+    """Over ``at`` (``path`` itself, or its place in an instance class) in the built scene with
+    the chain's atlas mesh (back in the prim's local frame) and bind it to ``material`` for the
+    purposes it was bound for."""
     from pxr import Sdf, Usd, UsdGeom, Vt
 
     atlas_stage = Usd.Stage.Open(str(chain.unwrap))
     atlas = UsdGeom.Mesh(next(p for p in atlas_stage.Traverse() if p.IsA(UsdGeom.Mesh)))
-    over = stage.OverridePrim(path)
+    over = stage.OverridePrim(at)
     mesh = UsdGeom.Mesh(over)
     inverse = np.linalg.inv(chain.placements[path])
     pts = np.asarray(atlas.GetPointsAttr().Get(), np.float64).reshape(-1, 3)
@@ -280,10 +294,10 @@ def _bind(over, relationships: list[str], material: str) -> None:
         over.CreateRelationship(rel).SetTargets([Sdf.Path(material)])
 
 
-def _override_tiled(stage, scene_stage, path: str, chain: Binding, material: str) -> None:
-    """Over ``path`` with its ``st`` scaled so that one tile of the tileable quilt spans the
-    quilt's physical size on the mesh (the UVs' scale measured from the mesh's world and UV
-    areas), and bind it to ``material``."""
+def _override_tiled(stage, scene_stage, path: str, chain: Binding, material: str, at: str) -> None:
+    """Over ``at`` (``path`` or its place in an instance class) with ``path``'s ``st`` scaled so
+    that one tile of the tileable quilt spans the quilt's physical size on the mesh (the UVs'
+    scale measured from the mesh's world and UV areas), and bind it to ``material``."""
     from pxr import Usd, UsdGeom, Vt
 
     from ..errors import BTFError
@@ -303,7 +317,7 @@ def _override_tiled(stage, scene_stage, path: str, chain: Binding, material: str
     size = np.asarray(tile.GetAttribute(NS + "physicalSize").Get(), np.float64)
     st = UsdGeom.PrimvarsAPI(prim).GetPrimvar("st")
     values = np.asarray(st.Get(), np.float64).reshape(-1, 2) * (metres_per_uv / size)
-    over = stage.OverridePrim(path)
+    over = stage.OverridePrim(at)
     out = UsdGeom.PrimvarsAPI(over).CreatePrimvar("st", st.GetTypeName(), st.GetInterpolation())
     out.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(values, np.float32)))
     _bind(over, chain.relationships[path], material)
@@ -327,15 +341,18 @@ def built_scene_text(scene: Path, scene_stage, chains: list[Binding], work: Path
     stage = Usd.Stage.Open(layer)
     UsdGeom.Scope.Define(stage, BINDINGS_SCOPE)
     references = []
+    at, inherits = _instance_classes(scene_stage, chains)
+    for cls in sorted(set(inherits.values())):
+        stage.CreateClassPrim(cls)
     for chain in chains:
         material = f"{BINDINGS_SCOPE}/{chain.folder.name}"
         UsdShade.Material.Define(stage, material)
         references.append((material, chain.asset))
         for path in chain.prims:
-            if chain.mapping == "tile":
-                _override_tiled(stage, scene_stage, path, chain, material)
-            else:
-                _override_mesh(stage, scene_stage, path, chain, material)
+            override = _override_tiled if chain.mapping == "tile" else _override_mesh
+            override(stage, scene_stage, path, chain, material, at.get(path, path))
+    for root in sorted(inherits):
+        stage.OverridePrim(root).GetInherits().AddInherit(inherits[root])
     del stage
     layer.subLayerPaths.append(os.path.relpath(scene, work))
     for material, asset in references:
@@ -344,16 +361,41 @@ def built_scene_text(scene: Path, scene_stage, chains: list[Binding], work: Path
     return layer.ExportToString()
 
 
+def _instance_classes(scene_stage, chains: list[Binding]) -> tuple[dict, dict]:
+    """Where the overrides of instanced meshes go: ({instance proxy path: its path in a class},
+    {instance prim path: that class's path}).  One class per distinct set of (mesh path inside
+    the instance, chain), so instances that need the same overrides keep sharing a prototype."""
+    groups: dict[str, list] = {}
+    for chain in chains:
+        for path in chain.prims:
+            prim = scene_stage.GetPrimAtPath(path)
+            if not prim.IsInstanceProxy():
+                continue
+            root = prim
+            while root.IsInstanceProxy():         # up to the outermost instance (it may be edited)
+                root = root.GetParent()
+            inside = str(prim.GetPath().MakeRelativePath(root.GetPath()))
+            groups.setdefault(str(root.GetPath()), []).append((inside, chain.folder.name, path))
+    at, inherits = {}, {}
+    for root, members in groups.items():
+        signature = "\0".join(f"{inside}\0{name}" for inside, name, _ in sorted(members))
+        cls = f"/{INSTANCE_CLASS}{hashlib.sha256(signature.encode()).hexdigest()[:10]}"
+        inherits[root] = cls
+        for inside, _, path in members:
+            at[path] = f"{cls}/{inside}"
+    return at, inherits
+
+
 def binding_targets(stage, materials) -> dict:
     """{material path: {Mesh prim path: [binding relationship names]}} for ``materials``: the
     purposes (all, preview, full) under which each Mesh prim resolves to one of them."""
-    from pxr import UsdGeom, UsdShade
+    from pxr import UsdShade
+
+    from .density import mesh_prims
 
     wanted = set(materials)
     out: dict[str, dict[str, list[str]]] = {}
-    for prim in stage.Traverse():
-        if not prim.IsA(UsdGeom.Mesh):
-            continue
+    for prim in mesh_prims(stage):
         api = UsdShade.MaterialBindingAPI(prim)
         for purpose, rel in _PURPOSES.items():
             material, _ = api.ComputeBoundMaterial(purpose or UsdShade.Tokens.allPurpose)

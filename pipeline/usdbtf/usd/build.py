@@ -156,11 +156,11 @@ def _anchored(prim, name: str) -> Path | None:
 
 def _bound_materials(stage) -> dict[str, list[str]]:
     """{material path: [prims bound to it]} over active, composed, imageable prims."""
-    from pxr import UsdGeom, UsdShade
+    from pxr import Usd, UsdGeom, UsdShade
 
     purposes = (UsdShade.Tokens.allPurpose, UsdShade.Tokens.preview, UsdShade.Tokens.full)
     bound: dict[str, list[str]] = {}
-    for prim in stage.Traverse():
+    for prim in stage.Traverse(Usd.TraverseInstanceProxies()):       # instanced meshes bind too
         if not prim.IsA(UsdGeom.Imageable):
             continue
         api = UsdShade.MaterialBindingAPI(prim)

@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..mesh.frames import uv_stretch as stretch
 from .material import NS
 
-__all__ = ["uv_area", "stretch", "binding_densities", "density_problems", "MAX_DENSITY_MISMATCH"]
+__all__ = ["uv_area", "stretch", "mesh_prims", "binding_densities", "density_problems", "MAX_DENSITY_MISMATCH"]
 
 #: Largest relative difference between the density on a mesh and the material's that passes.
 MAX_DENSITY_MISMATCH = 0.02
@@ -29,30 +30,12 @@ def uv_area(mesh) -> float:
     return float(0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum())
 
 
-def stretch(mesh, width: int, height: int) -> float | None:
-    """Area-weighted mean over triangles of the ratio of the largest to the smallest texel
-    density direction (singular values of the metres -> texels map in the triangle's plane):
-    1 for UVs that keep shapes, 1.5 for a 0.6 x 0.4 m quad on the UV square.  The area-based
-    density alone cannot see this.  None without UVs."""
-    if mesh.uv is None:
-        return None
-    p = mesh.corner()                                              # (F, 3, 3) metres
-    t = mesh.corner(mesh.uv) * np.array([width, height], np.float64)  # (F, 3, 2) texels
-    d1, d2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
-    l1 = np.linalg.norm(d1, axis=1)
-    area2 = np.linalg.norm(np.cross(d1, d2), axis=1)
-    keep = (l1 > 0) & (area2 > 0)
-    e1 = d1[keep] / l1[keep, None]
-    q = np.stack([np.stack([l1[keep], np.zeros(keep.sum())], axis=1),
-                  np.stack([(d2[keep] * e1).sum(axis=1), area2[keep] / l1[keep]], axis=1)], axis=2)  # (F, 2, 2)
-    tt = np.stack([t[keep, 1] - t[keep, 0], t[keep, 2] - t[keep, 0]], axis=2)                          # (F, 2, 2)
-    det = np.linalg.det(tt)
-    ok = np.abs(det) > 0
-    if not ok.any():
-        return None
-    sv = np.linalg.svd(tt[ok] @ np.linalg.inv(q[ok]), compute_uv=False)                             # (F, 2)
-    weights = area2[keep][ok]
-    return float((sv[:, 0] / sv[:, 1] * weights).sum() / weights.sum())
+def mesh_prims(stage):
+    """Every Mesh prim of the composed ``stage`` (default predicate), instance proxies included:
+    the meshes of instanceable prims are bound, rendered and measured like any other."""
+    from pxr import Usd, UsdGeom
+
+    return [p for p in stage.Traverse(Usd.TraverseInstanceProxies()) if p.IsA(UsdGeom.Mesh)]
 
 
 def _mesh_density(mesh, width: int, height: int) -> float | None:
@@ -69,15 +52,13 @@ def binding_densities(stage) -> list[dict]:
     "stretch" (:func:`stretch`, reported, not checked), "problem"}] for every Mesh prim bound (all purposes) to a BTF material with a resolution
     and a physical size; ``mesh_texels_per_metre`` and ``ratio`` (mesh / material) are None
     when the mesh has no UVs, or cannot be read (``problem`` says why)."""
-    from pxr import UsdGeom, UsdShade
+    from pxr import UsdShade
 
     from ..errors import BTFError
     from ..mesh import load_prim
 
     out = []
-    for prim in stage.Traverse():
-        if not prim.IsA(UsdGeom.Mesh):
-            continue
+    for prim in mesh_prims(stage):
         material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
         if not material:
             continue

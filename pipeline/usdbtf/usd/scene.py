@@ -35,8 +35,8 @@ from ..render.scene import Light
 
 log = logging.getLogger(__name__)
 
-__all__ = ["read_scene", "write_scene", "new_scene", "add_distant", "orient_towards", "distant_intensity",
-           "POINT_RADIUS_M", "DISTANT_ANGLE"]
+__all__ = ["read_scene", "bound_btf_meshes", "write_scene", "new_scene", "add_camera", "add_distant",
+           "orient_towards", "distant_intensity", "POINT_RADIUS_M", "DISTANT_ANGLE"]
 
 #: Radius (metres) of the SphereLight that stands for a CPU point light in a written stage.
 POINT_RADIUS_M = 1e-3
@@ -78,6 +78,25 @@ def orient_towards(xformable, towards) -> None:
     from pxr import Gf
 
     xformable.AddOrientOp().Set(Gf.Quatf(Gf.Rotation(Gf.Vec3d(0, 0, 1), Gf.Vec3d(*map(float, towards))).GetQuat()))
+
+
+def add_camera(stage, path: str, camera: Camera):
+    """``camera`` as a UsdGeom.Camera at ``path`` (metres; 50 mm focal length, apertures giving
+    its field of view and aspect), as :func:`read_scene` reads it back."""
+    from pxr import Gf, UsdGeom
+
+    cam = UsdGeom.Camera.Define(stage, path)
+    right, up, forward = camera.basis()
+    focal = 50.0
+    vertical = 2.0 * focal * math.tan(math.radians(camera.fov) / 2.0)
+    cam.CreateFocalLengthAttr(focal)
+    cam.CreateVerticalApertureAttr(vertical)
+    cam.CreateHorizontalApertureAttr(vertical * camera.width / camera.height)
+    near = 1e-3
+    cam.CreateClippingRangeAttr(Gf.Vec2f(near, 1e4))
+    rows = [[*right, 0.0], [*up, 0.0], [*(-forward), 0.0], [*camera.eye, 1.0]]
+    cam.AddTransformOp().Set(Gf.Matrix4d(rows))
+    return cam
 
 
 def add_distant(stage, path: str, towards, irradiance: float = 1.0):
@@ -159,25 +178,37 @@ def read_scene(path, camera_path: str, width: int) -> tuple[Camera, list[Light]]
     return camera, lights
 
 
+def bound_btf_meshes(stage, *, k: int | None = None) -> list[tuple]:
+    """[(CompressedBTF, Mesh)] for every Mesh prim of ``stage`` bound to a BTF material
+    (instance proxies included), each mesh in world space (metres): what
+    :func:`usdbtf.render.render_scene` draws.  Meshes of one material share one CompressedBTF."""
+    from pxr import UsdShade
+
+    from ..mesh import load_prim
+    from .density import mesh_prims
+    from .material import API_SCHEMA, read_btf
+
+    materials, parts = {}, []
+    for prim in mesh_prims(stage):
+        material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
+        if not material or not material.GetPrim().HasAPI(API_SCHEMA):
+            continue
+        key = str(material.GetPath())
+        if key not in materials:
+            materials[key] = read_btf(material.GetPrim(), k=k)
+        parts.append((materials[key], load_prim(prim)))
+    return parts
+
+
 def write_scene(asset: Path, out: Path, camera: Camera, lights: list[Light], *, lod: str | None = None) -> str:
     """Write ``out`` (.usda): ``asset`` referenced (its ``lod`` selection), ``camera`` as a
     UsdGeom.Camera and ``lights`` as UsdLux lights of the same irradiance (directional: a
     DistantLight; point: a SphereLight of radius :data:`POINT_RADIUS_M`), metres.  Returns the
     camera's prim path."""
-    from pxr import Gf, UsdGeom, UsdLux
+    from pxr import Gf, UsdLux
 
     stage, _ = new_scene(asset, out, lod)
-    cam = UsdGeom.Camera.Define(stage, "/World/Camera")
-    right, up, forward = camera.basis()
-    focal = 50.0
-    vertical = 2.0 * focal * math.tan(math.radians(camera.fov) / 2.0)
-    cam.CreateFocalLengthAttr(focal)
-    cam.CreateVerticalApertureAttr(vertical)
-    cam.CreateHorizontalApertureAttr(vertical * camera.width / camera.height)
-    near = 1e-3
-    cam.CreateClippingRangeAttr(Gf.Vec2f(near, 1e4))
-    rows = [[*right, 0.0], [*up, 0.0], [*(-forward), 0.0], [*camera.eye, 1.0]]
-    cam.AddTransformOp().Set(Gf.Matrix4d(rows))
+    add_camera(stage, "/World/Camera", camera)
     for i, light in enumerate(lights):
         if light.kind == "directional":
             add_distant(stage, f"/World/Light{i}", light.vector, light.intensity)
