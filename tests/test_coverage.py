@@ -1,8 +1,11 @@
 """Partial assets (issue 26): ``compress --coverage`` keeps only the listed views x lights,
-``--max-texels`` box-filters the texture side, the folder records what it covers.
+``--max-texels`` box-filters the texture side, the folder and the packaged asset record what
+they cover (``info``, ``inspect``), and the renderers (CPU; the shared GLSL on Mesa through
+EGL, what Storm runs) are exact at covered samples and fall back to the nearest covered
+directions outside them.
 
 Real inputs: a synthesised pebbles BTF (13 x 13 directions, 16^2 texels) in memory and as a
-manifest folder of PNG files; real folders read back through ``read_compressed``.
+manifest folder of PNG files; real folders and USD assets read back.
 """
 from __future__ import annotations
 
@@ -17,7 +20,9 @@ from usdbtf.compress import CompressOptions, compress, read_compressed
 from usdbtf.compress.coverage import box_mean, shaped_input
 from usdbtf.compress.format import cross_layout, reconstruct
 from usdbtf.sampling import Coverage, coverage_json, read_coverage
+from usdbtf.render import RenderOptions, Renderer
 from usdbtf.synth import SynthOptions, synth, write_synth
+from usdbtf.usd.read import load_btf
 
 #: Three of the 13 views (the pole and two on the 30 degree ring), three of the 13 lights.
 VIEWS = [[0.0, 0.0], [30.0, 0.0], [30.0, 60.0]]
@@ -36,6 +41,28 @@ def pebbles_folder(tmp_path_factory):
     return folder
 
 
+@pytest.fixture(scope="module")
+def full_cbtf(pebbles_btf):
+    """Every sample, k = every sample, half floats: the reference a partial one must match."""
+    return compress(pebbles_btf, CompressOptions(codec="exr", k=169))
+
+
+@pytest.fixture(scope="module")
+def partial_asset(tmp_path_factory, pebbles_btf):
+    """The 3 x 3 partial compress of :data:`VIEWS` x :data:`LIGHTS`, packaged."""
+    from usdbtf.cli import main
+
+    work = tmp_path_factory.mktemp("partial")
+    compress_into(pebbles_btf, work / "c", CompressOptions(codec="exr", k=9, coverage=Coverage(VIEWS, LIGHTS)))
+    asset = work / "asset" / "pebbles.usda"
+    assert main(["package", str(work / "c"), "-o", str(asset), "--no-thumbnail", "--physical-size", "0.05", "0.05", "-q"]) == 0
+    return asset
+
+
+def _cpu(cbtf):
+    return Renderer(cbtf, RenderOptions(shadows=False, filter="bilinear", threads=2))
+
+
 def covered_indices(sampling, views, lights) -> np.ndarray:
     """Indices of the samples whose view and light are both listed (brute force)."""
     def listed(dirs, wanted):
@@ -43,7 +70,7 @@ def covered_indices(sampling, views, lights) -> np.ndarray:
     return np.flatnonzero(listed(sampling.view, views) & listed(sampling.light, lights))
 
 
-def test_coverage_keeps_exactly_the_listed_samples_and_reconstructs_them(pebbles_btf):
+def test_coverage_keeps_exactly_the_listed_samples_and_reconstructs_them(pebbles_btf, full_cbtf):
     # exr (half floats) and k = the kept samples: the basis spans them, so what is left is
     # the codec's rounding, and a full compress (k = every sample) must agree to that.
     cov = Coverage(VIEWS, LIGHTS)
@@ -52,7 +79,7 @@ def test_coverage_keeps_exactly_the_listed_samples_and_reconstructs_them(pebbles
     assert len(idx) == 9 and part.n_samples == 9 and cross_layout(part.sampling) == (3, 3)
     np.testing.assert_array_equal(part.sampling.view, pebbles_btf.sampling.view[idx])
     np.testing.assert_array_equal(part.sampling.light, pebbles_btf.sampling.light[idx])
-    full = compress(pebbles_btf, CompressOptions(codec="exr", k=169))
+    full = full_cbtf
     truth = pebbles_btf.read_samples(idx)
     ours, theirs = reconstruct(part), reconstruct(full, idx)
     scale = float(truth.mean())
@@ -104,3 +131,65 @@ def test_cli_coverage_errors_are_one_line(tmp_path, pebbles_folder, capsys):
     wrong.write_text(json.dumps({"format": "usdbtf-coverage/1", "views": [[0, "a"]], "lights": [[30, 30]]}))
     bad_input(capsys, "compress", pebbles_folder, "-o", tmp_path / "x", "--coverage", wrong, names="wrong.json")
     assert not (tmp_path / "x").exists()
+
+
+def test_coverage_round_trips_into_the_asset_info_and_inspect(partial_asset, tmp_path, capsys):
+    cbtf = load_btf(partial_asset)
+    rec = cbtf.info["coverage"]
+    assert rec["views"] == VIEWS and rec["lights"] == LIGHTS
+    assert (rec["input_views"], rec["input_lights"], rec["input_samples"], rec["resolution_factor"]) == (13, 13, 169, 1)
+    assert rec["input_size"] == [16, 16]
+    text = ok(capsys, "inspect", partial_asset)
+    assert "coverage     3 of 13 views x 3 of 13 lights (9 of 169 samples)" in text
+    entry = json.loads(ok(capsys, "inspect", partial_asset, "--json"))["materials"][0]["coverage"]
+    assert entry == {"views": 3, "input_views": 13, "lights": 3, "input_lights": 13, "samples": 9,
+                     "input_samples": 169, "resolution": [16, 16], "input_resolution": [16, 16],
+                     "resolution_factor": 1}
+    # decompress reads the partial asset back: the kept samples only.
+    ok(capsys, "decompress", partial_asset, "-o", tmp_path / "back", "-q")
+    back = json.loads((tmp_path / "back" / "btf.json").read_text())
+    assert len(back["samples"]) == 9
+    summary = json.loads(ok(capsys, "info", partial_asset.parent.parent / "c", "--json"))
+    assert summary["coverage"]["views"] == 3 and summary["coverage"]["input_samples"] == 169
+
+
+def test_cpu_renderer_is_exact_inside_the_coverage_and_nearest_outside(partial_asset, full_cbtf):
+    part, full = _cpu(load_btf(partial_asset)), _cpu(full_cbtf)
+    scale = float(full.swatch((0, 0), (30, 30)).mean())
+    for view in VIEWS:
+        for light in LIGHTS:
+            np.testing.assert_allclose(part.swatch(view, light), full.swatch(view, light), atol=0.02 * scale)
+    # A view beyond the covered ones: its nearest covered point is the covered view (30, 0)
+    # (on the disc of the azimuthal projection, module usdbtf.render.hemisphere).
+    light = LIGHTS[0]
+    np.testing.assert_allclose(part.swatch((60, 0), light), part.swatch((30, 0), light), rtol=1e-6)
+    assert np.abs(full.swatch((60, 0), light) - part.swatch((60, 0), light)).mean() > 0.02 * scale   # a fallback
+    # A light beyond the covered ones: the nearest covered light (60, 30), faded by the
+    # foreshortening cos 75 / cos 60, as beyond a full asset's outermost ring.
+    fade = np.cos(np.radians(75)) / np.cos(np.radians(60))
+    np.testing.assert_allclose(part.swatch(VIEWS[1], (75, 30)), fade * part.swatch(VIEWS[1], (60, 30)), rtol=1e-5)
+
+
+def test_glsl_path_matches_the_cpu_renderer_on_a_partial_asset(partial_asset):
+    pytest.importorskip("moderngl", reason="moderngl not installed (pip install -e '.[test]')")
+    from usdbtf.errors import BTFError
+    from usdbtf.gpu.headless import HeadlessRenderer, create_context, psnr
+    from usdbtf.usd import storm
+
+    try:
+        ctx = create_context()
+    except BTFError as exc:
+        pytest.skip(f"no headless OpenGL here: {exc}")
+    try:
+        layout, wrap, _ = storm.layout_from_asset(partial_asset)
+        gl = HeadlessRenderer(layout, wrap=wrap, ctx=ctx)
+        cpu = _cpu(load_btf(partial_asset))
+        cases = [(VIEWS[1], LIGHTS[2]), (VIEWS[0], LIGHTS[1]), ((60, 0), LIGHTS[0]), ((20, 30), (0, 0)),
+                 (VIEWS[2], (75, 30)), ((80, 200), (70, 250))]
+        values = [psnr(gl.swatch(v, l), cpu.swatch(v, l)) for v, l in cases]
+        print("partial-asset swatch PSNR (dB):", ", ".join(f"{v:.1f}" for v in values))
+        assert min(values) >= 40.0
+        # Outside the coverage the GPU falls back to the same covered view as the CPU.
+        assert psnr(gl.swatch((60, 0), LIGHTS[0]), gl.swatch((30, 0), LIGHTS[0])) >= 60.0
+    finally:
+        ctx.release()

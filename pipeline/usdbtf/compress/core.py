@@ -64,7 +64,10 @@ def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
     opts = options or CompressOptions()
     opts.validate()
     clock = _Clock()
-    # A scene-shaped build: only the samples and the resolution it needs (.coverage).
+    # A scene-shaped build: only the samples and the resolution it needs (.coverage).  The
+    # filtered images are floats; the source's record keeps the measured bit depth (what
+    # decompress writes).
+    measured_depth = btf.bit_depth
     btf, covered = shaped_input(btf, opts.coverage, opts.max_texels)
     if covered is not None:
         log.info(f"coverage: {len(covered['views'])} of {covered['input_views']} views x {len(covered['lights'])} "
@@ -108,6 +111,7 @@ def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
         result = _described(cbtf, opts, dict(choice, planes=list(planes)), fit.singular_values, held,
                             *_side_by_side(lambda: held_out_error(cbtf, held), lambda: error_curve(cbtf, source)),
                             getattr(source, "provenance", None), covered)
+        result.source = dict(result.source, bit_depth=measured_depth)
         clock.lap("evaluate")
     log.info(f"k = {result.k}, {result.info['bytes']['payload']} bytes, estimated error "
         f"{result.info['estimated_error']['linear']['percent']:.3f} % ({clock})")

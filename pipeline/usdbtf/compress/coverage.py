@@ -33,7 +33,7 @@ from ..model import BTF, FileBTF
 from ..sampling import Coverage, match_directions
 
 __all__ = ["shaped_input", "coverage_record", "read_coverage_record", "unique_directions", "SubsetBTF",
-           "BoxFilteredBTF", "resolution_factor"]
+           "BoxFilteredBTF", "resolution_factor", "coverage_summary", "coverage_text", "box_mean", "subset_btf"]
 
 
 def unique_directions(directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -208,3 +208,38 @@ def box_mean(images: np.ndarray, f: int) -> np.ndarray:
     counts[:h, :w] = 1.0
     per_box = counts.reshape(hb, f, wb, f).sum(axis=(1, 3))
     return (sums / per_box[None, :, :, None]).astype(np.float32)
+
+
+def coverage_summary(record: dict | None, n_samples: int, width: int, height: int) -> dict | None:
+    """The ``coverage`` entry of ``info --json`` and ``inspect --json``: None for a BTF that
+    covers its whole input, else {``views``, ``input_views``, ``lights``, ``input_lights``,
+    ``samples``, ``input_samples``, ``resolution`` [W, H], ``input_resolution`` [W, H] or None,
+    ``resolution_factor``}.
+
+    Parameters
+    ----------
+    record : the coverage record (:func:`read_coverage_record`, or an asset's).
+    n_samples, width, height : what the partial BTF itself holds.
+    """
+    if record is None:
+        return None
+    size = record.get("input_size")
+    return {"views": len(record["views"]), "input_views": int(record["input_views"]),
+            "lights": len(record["lights"]), "input_lights": int(record["input_lights"]),
+            "samples": int(n_samples), "input_samples": int(record["input_samples"]),
+            "resolution": [int(width), int(height)], "input_resolution": [int(x) for x in size] if size else None,
+            "resolution_factor": int(record["resolution_factor"])}
+
+
+def coverage_text(summary: dict | None) -> str:
+    """One line for ``info`` and ``inspect``: what a partial BTF covers (:func:`coverage_summary`)."""
+    if summary is None:
+        return "the whole input"
+    s = summary
+    text = (f"{s['views']} of {s['input_views']} views x {s['lights']} of {s['input_lights']} lights "
+            f"({s['samples']} of {s['input_samples']} samples)")
+    w, h = s["resolution"]
+    if s["input_resolution"]:
+        iw, ih = s["input_resolution"]
+        text += f"; {w}x{h} texels of the input's {iw}x{ih} (factor {s['resolution_factor']})"
+    return text
