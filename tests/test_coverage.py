@@ -153,6 +153,27 @@ def test_coverage_round_trips_into_the_asset_info_and_inspect(partial_asset, tmp
     assert summary["coverage"]["views"] == 3 and summary["coverage"]["input_samples"] == 169
 
 
+@pytest.mark.parametrize("name", ["small", "ubo81"])
+def test_kept_triangles_of_the_full_set_stay_triangles_of_the_partial_one(name):
+    """The README's claim: inside a full-set triangle whose corners are all kept, a partial
+    asset interpolates as the full one (Delaunay triangles survive removing other points)."""
+    from usdbtf.compress.coverage import unique_directions
+    from usdbtf.render.hemisphere import Triangulation
+    from usdbtf.sampling import preset
+
+    dirs = unique_directions(preset(name).view)[0]
+    full = {tuple(sorted(t)) for t in Triangulation.from_directions(dirs).triangles}
+    rng = np.random.default_rng(0)
+    checked = 0
+    for _ in range(10):
+        keep = np.sort(rng.choice(len(dirs), size=len(dirs) // 2, replace=False))
+        partial = {tuple(sorted(keep[list(t)])) for t in Triangulation.from_directions(dirs[keep]).triangles}
+        wanted = [t for t in full if set(t) <= set(keep.tolist())]
+        assert all(t in partial for t in wanted)
+        checked += len(wanted)
+    assert checked > 10
+
+
 def test_cpu_renderer_is_exact_inside_the_coverage_and_nearest_outside(partial_asset, full_cbtf):
     part, full = _cpu(load_btf(partial_asset)), _cpu(full_cbtf)
     scale = float(full.swatch((0, 0), (30, 30)).mean())
