@@ -199,7 +199,8 @@ class BoxFilteredBTF(BTF):
         linear = parent.decode(parent.read_encoded(indices, rows=src), what=f"rows {src[0]}..{src[1]}")
         mean = box_mean(linear, f)
         to_file = color.processor(self.working_space, self.color_space, self.ocio_config)
-        return np.ascontiguousarray(to_file.apply(mean), dtype=np.float32)
+        # A mean of in-gamut colours is in gamut: a value below zero is the round trip's rounding.
+        return np.maximum(np.ascontiguousarray(to_file.apply(mean), dtype=np.float32), 0.0)
 
 
 def box_mean(images: np.ndarray, f: int) -> np.ndarray:
