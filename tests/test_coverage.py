@@ -174,6 +174,19 @@ def test_kept_triangles_of_the_full_set_stay_triangles_of_the_partial_one(name):
     assert checked > 10
 
 
+def test_stencil_names_the_directions_a_query_interpolates_from():
+    from usdbtf.render.hemisphere import Triangulation, directions_to_vectors
+    from usdbtf.sampling import rings
+
+    dirs = rings((0, 30, 60), (1, 6, 6))                      # the pole, then two rings of 6
+    tri = Triangulation.from_directions(dirs)
+    assert np.flatnonzero(tri.stencil(directions_to_vectors([[30, 60]]))).tolist() == [2]
+    # (15, 30) lies in the fan triangle of the pole, (30, 0) and (30, 60).
+    assert np.flatnonzero(tri.stencil(directions_to_vectors([[15, 30]]))).tolist() == [0, 1, 2]
+    # Beyond the outer ring at an azimuth of a measured direction: that direction alone.
+    assert np.flatnonzero(tri.stencil(directions_to_vectors([[80, 120]]))).tolist() == [9]
+
+
 def test_cpu_renderer_is_exact_inside_the_coverage_and_nearest_outside(partial_asset, full_cbtf):
     part, full = _cpu(load_btf(partial_asset)), _cpu(full_cbtf)
     scale = float(full.swatch((0, 0), (30, 30)).mean())

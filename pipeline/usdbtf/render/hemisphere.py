@@ -133,6 +133,15 @@ class Triangulation:
             idx[out], w[out], used[out] = self._nearest_on_boundary(q[out])
         return idx, w, used
 
+    def stencil(self, vectors: np.ndarray, eps: float = 1e-6) -> np.ndarray:
+        """(N,) bool: the measured directions that some of the query directions ``vectors``
+        (n, 3) interpolate from with a weight above ``eps`` -- what a partial asset must keep
+        to render those queries as the full set does (:mod:`usdbtf.compress.coverage`)."""
+        idx, w, _ = self.weights(vectors)
+        used = np.zeros(len(self.directions), bool)
+        used[idx[w > eps]] = True
+        return used
+
     def _set(self, sel, tri, bary, idx, w, inside) -> None:
         idx[sel] = self.triangles[tri]
         bary = np.clip(bary, 0.0, None)
