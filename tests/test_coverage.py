@@ -122,6 +122,17 @@ def test_cli_coverage_folder_records_it_and_is_deterministic(tmp_path, pebbles_f
     assert doc["coverage"]["resolution_factor"] == 2
 
 
+def test_box_filtered_bytes_do_not_depend_on_workers_or_memory(tmp_path, pebbles_folder, capsys):
+    # 169 samples: decoded by forked workers (2), in this process (1), or streamed in chunks.
+    runs = {"w2": ["--workers", "2"], "w1": ["--workers", "1"], "stream": ["--memory-budget", "0.00001"]}
+    for name, extra in runs.items():
+        ok(capsys, "compress", pebbles_folder, "-o", tmp_path / name, "--k", "6", "--max-texels", "6", "-q", *extra)
+    files = sorted(p.relative_to(tmp_path / "w2") for p in (tmp_path / "w2").rglob("*") if p.is_file())
+    for name in ("w1", "stream"):
+        for rel in files:
+            assert (tmp_path / name / rel).read_bytes() == (tmp_path / "w2" / rel).read_bytes(), (name, rel)
+
+
 def test_cli_coverage_errors_are_one_line(tmp_path, pebbles_folder, capsys):
     bad = tmp_path / "outside.json"
     bad.write_text(json.dumps({"format": "usdbtf-coverage/1", "views": [[0, 0], [45, 0]], "lights": [[30, 30]]}))
