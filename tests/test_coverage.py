@@ -283,3 +283,28 @@ def test_validate_warns_when_the_scene_asks_for_directions_outside_the_coverage(
     # Through the command: a warning, not an error (exit status 0).
     report = json.loads(ok(capsys, "inspect", outside, "--validate", "--json"))["validation"]
     assert report["errors"] == [] and sum("[usdbtf:Coverage]" in w for w in report["warnings"]) == 2
+
+
+def test_validate_samples_the_frames_of_a_moving_camera(partial_asset, tmp_path):
+    from pxr import Usd, UsdGeom
+
+    from usdbtf.usd.reach import coverage_warnings, sample_times
+    from usdbtf.usd.read import open_stage
+
+    moving, outside = tmp_path / "moving.usda", tmp_path / "outside.usda"
+    camera = _scene(partial_asset, moving, (15, 30), (30, 30))
+    _scene(partial_asset, outside, (45, 180), (30, 30))
+    other = Usd.Stage.Open(str(outside))
+    far = UsdGeom.Xformable(other.GetPrimAtPath(camera)).GetOrderedXformOps()[0].Get()
+    stage = Usd.Stage.Open(str(moving))
+    op = UsdGeom.Xformable(stage.GetPrimAtPath(camera)).GetOrderedXformOps()[0]
+    op.Set(op.Get(), 1.0)              # frame 1 as before, frame 24 from the uncovered side
+    op.Set(far, 24.0)
+    stage.SetStartTimeCode(1.0)
+    stage.SetEndTimeCode(24.0)
+    stage.Save()
+    reopened = open_stage(moving)
+    assert [t.GetValue() for t in sample_times(reopened)][::7] == [1.0, 24.0]
+    lines = coverage_warnings(reopened)
+    assert len(lines) == 1 and "camera /World/Camera asks for view directions" in lines[0], lines
+    assert "at frame " in lines[0] and "default time" not in lines[0]
