@@ -274,8 +274,10 @@ def coverage_text(summary: dict | None) -> str:
     s = summary
     text = (f"{s['views']} of {s['input_views']} views x {s['lights']} of {s['input_lights']} lights "
             f"({s['samples']} of {s['input_samples']} samples)")
-    w, h = s["resolution"]
+    # The texel density, not the size: a quilt of a partial folder is larger than its input.
+    f = s["resolution_factor"]
+    text += "; the input's texel density" if f == 1 else f"; 1/{f} of the input's texel density"
     if s["input_resolution"]:
         iw, ih = s["input_resolution"]
-        text += f"; {w}x{h} texels of the input's {iw}x{ih} (factor {s['resolution_factor']})"
+        text += f" (input {iw}x{ih} texels)"
     return text
