@@ -313,12 +313,9 @@ def test_validate_samples_the_frames_of_a_moving_camera(partial_asset, tmp_path)
 def test_storm_renders_a_partial_asset_as_the_cpu_renderer_does(partial_asset, tmp_path):
     """Real Storm (the bpy wheel's USD, when scripts/bootstrap.sh installed it) on a stage
     whose camera and light lie outside the coverage: the same fallback as `usdbtf render`."""
-    from usdbtf.cli import main
-    from usdbtf.commands.preview import srgb_encoded
+    from storm_helpers import against_cpu_render
     from usdbtf.errors import BTFError
-    from usdbtf.gpu.headless import psnr
     from usdbtf.usd import hydra
-    from usdbtf.usd.storm import read_rgba
 
     pythons = hydra.storm_pythons()
     if not pythons:
@@ -330,13 +327,7 @@ def test_storm_renders_a_partial_asset_as_the_cpu_renderer_does(partial_asset, t
     except BTFError as exc:
         pytest.skip(f"Storm cannot run here: {exc}")
     assert storm.problems == [], "\n".join(storm.problems)
-    cpu_out = tmp_path / "cpu.exr"
-    assert main(["render", str(scene), "--camera", camera, "--size", "64", "64", "--no-shadows", "--filter",
-                 "bilinear", "-o", str(cpu_out), "--no-png", "-q"]) == 0
-    cpu = np.asarray(read_rgba(cpu_out), np.float64)
-    image = storm.images[0].astype(np.float64)
-    both = (image[..., 3] > 0.999) & (cpu[..., 3] > 0.999)
+    value, both, _ = against_cpu_render(storm.images[0], scene, camera, 64, tmp_path)
     assert both.sum() > 0.2 * both.size
-    value = psnr(srgb_encoded(image[..., :3]), srgb_encoded(cpu[..., :3]), both)
     print(f"partial asset outside its coverage: Storm vs usdbtf render {value:.2f} dB (sRGB)")
     assert value >= 35.0
