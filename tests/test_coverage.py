@@ -331,3 +331,35 @@ def test_storm_renders_a_partial_asset_as_the_cpu_renderer_does(partial_asset, t
     assert both.sum() > 0.2 * both.size
     print(f"partial asset outside its coverage: Storm vs usdbtf render {value:.2f} dB (sRGB)")
     assert value >= 35.0
+
+
+@pytest.mark.parametrize("views, lights", [
+    ([[0, 0]], [[30, 30], [30, 90]]),                       # one view; two lights: a segment, no triangle
+    ([[0, 0], [30, 0], [60, 0]], [[60, 30]]),               # three views on a line; one light
+])
+def test_degenerate_coverages_render_on_cpu_and_glsl_alike(pebbles_btf, views, lights):
+    pytest.importorskip("moderngl", reason="moderngl not installed (pip install -e '.[test]')")
+    from usdbtf.errors import BTFError
+    from usdbtf.gpu.headless import HeadlessRenderer, create_context, psnr
+    from usdbtf.gpu.tables import gpu_layout
+
+    part = compress(pebbles_btf, CompressOptions(codec="exr", k=2, domain="linear",
+                                                 coverage=Coverage(views, lights)))
+    cpu = _cpu(part)
+    if len(lights) == 2:
+        # Between the two lights: the middle of the chord joining them on the disc, half of
+        # each, faded by cos 30 / cos(theta of that point) as beyond any measured boundary.
+        used = 30.0 * np.cos(np.radians(30))      # the middle of a chord spanning 60 deg at theta 30
+        fade = np.cos(np.radians(30)) / np.cos(np.radians(used))
+        np.testing.assert_allclose(cpu.swatch((10, 0), (30, 60)), fade * 0.5 * (
+            cpu.swatch((10, 0), (30, 30)) + cpu.swatch((10, 0), (30, 90))), rtol=1e-4)
+    try:
+        ctx = create_context()
+    except BTFError as exc:
+        pytest.skip(f"no headless OpenGL here: {exc}")
+    try:
+        gl = HeadlessRenderer(gpu_layout(part), wrap="clamp", ctx=ctx)
+        cases = [((0, 0), (30, 30)), ((45, 100), (10, 200)), ((70, 300), (80, 60)), ((20, 0), (45, 60))]
+        assert min(psnr(gl.swatch(v, l), cpu.swatch(v, l)) for v, l in cases) >= 40.0
+    finally:
+        ctx.release()

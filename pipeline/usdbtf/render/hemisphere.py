@@ -216,7 +216,8 @@ def _delaunay(pts: np.ndarray) -> np.ndarray:
     scaled = pts * _SCALE
     for x, y in scaled:
         sub.insert((float(x), float(y)))
-    flat = sub.getTriangleList().reshape(-1, 3, 2).astype(np.float64)
+    # No triangle (two directions): OpenCV returns an empty tuple, not an empty array.
+    flat = np.asarray(sub.getTriangleList(), np.float64).reshape(-1, 3, 2)
     # Map corners back to input indices (Subdiv2D keeps float32 copies of the points).
     d = np.linalg.norm(flat[:, :, None, :] - scaled[None, None].astype(np.float32), axis=3)
     tris = np.argmin(d, axis=2)
