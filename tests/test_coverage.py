@@ -363,3 +363,25 @@ def test_degenerate_coverages_render_on_cpu_and_glsl_alike(pebbles_btf, views, l
         assert min(psnr(gl.swatch(v, l), cpu.swatch(v, l)) for v, l in cases) >= 40.0
     finally:
         ctx.release()
+
+
+def test_coverage_for_directions_never_warns_for_them():
+    """The plan's side (coverage_for) and the check's side (coverage_warnings' test) agree: the
+    coverage made for some directions renders every one of them as the full input does."""
+    from usdbtf.render.hemisphere import directions_to_vectors
+    from usdbtf.sampling import preset
+    from usdbtf.compress.coverage import unique_directions
+    from usdbtf.usd.reach import CoverageCheck, coverage_for
+
+    sampling = preset("ubo81")
+    views, lights = unique_directions(sampling.view)[0], unique_directions(sampling.light)[0]
+    rng = np.random.default_rng(1)
+    asked_v = directions_to_vectors(np.c_[rng.uniform(0, 50, 40), rng.uniform(0, 120, 40)])
+    asked_l = directions_to_vectors([[35.0, 200.0]])                  # one fixed key light
+    cov = coverage_for(views, lights, asked_v, asked_l)
+    assert 3 <= len(cov.views) < len(views) and 1 <= len(cov.lights) <= 3
+    assert not CoverageCheck(views, cov.views.tolist()).missing(asked_v).any()
+    assert not CoverageCheck(lights, cov.lights.tolist()).missing(asked_l).any()
+    elsewhere = directions_to_vectors([[60.0, 300.0]])
+    assert CoverageCheck(views, cov.views.tolist()).missing(elsewhere).all()
+    assert coverage_for(views, lights, asked_v, np.zeros((0, 3))) is None
