@@ -41,7 +41,7 @@ from .shadows import ShadowMap
 from .texture import CoefficientTexture
 from ..numeric import single_blas_thread
 
-__all__ = ["RenderOptions", "RenderResult", "Renderer", "render", "render_scene", "render_swatch"]
+__all__ = ["RenderOptions", "RenderResult", "Renderer", "render", "render_scene", "render_swatch", "point_frames"]
 
 
 @dataclass
@@ -171,7 +171,7 @@ class Renderer:
     def _shade_pixels(self, surface, camera, lights, shadow_maps, tri, tri_xy, tri_depth, x, y) -> np.ndarray:
         b = _perspective_weights(tri_xy, tri_depth, x, y)
         p = np.einsum("nk,nkd->nd", b, surface.points[tri])
-        normal, tangent, bitangent = _frame(b, surface, tri)
+        normal, tangent, bitangent = point_frames(b, surface, tri)
         st = np.einsum("nk,nkd->nd", b, surface.uv[tri])
         lod = self._lod(tri_xy, tri_depth, surface.uv[tri], st, x, y) if self.opts.filter == "mip" else None
         to_eye = camera.eye - p
@@ -215,7 +215,7 @@ def _perspective_weights(tri_xy, tri_depth, x, y) -> np.ndarray:
     return b / b.sum(axis=1, keepdims=True)
 
 
-def _frame(b, surface: CornerFrames, tri):
+def point_frames(b, surface: CornerFrames, tri):
     """Orthonormal (normal, tangent, bitangent) per point: the interpolated normal, the tangent
     made perpendicular to it, bitangent = normal x tangent (flipped for mirrored texture)."""
     n = np.einsum("nk,nkd->nd", b, surface.normals[tri])
