@@ -462,7 +462,7 @@ def rectify(raw, options: RectifyOptions, *, board: Board | None = None, scratch
               "max_corner_residual_px": float(np.max(residuals)) if residuals else None,
               # Samples whose frame clipped under the window, with the share of texels the sensor
               # did not record (their output values stand on clipped pixels: not measurements).
-              "saturated": [{"index": i, "share": round(share, 4)} for i, share in sorted(saturated.items())],
+              "saturated": [{"index": i, "share": round(share, 6)} for i, share in sorted(saturated.items())],
               "board": board.to_json()}
     metadata = {"physical_size_m": list(board.window_size_m), "rectify": report}
     return RectifyResult(plan.sampling, texels, available, fills, report, metadata, options)
