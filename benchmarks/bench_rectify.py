@@ -24,6 +24,9 @@ capture uses), and measures
   no rectifier can be asked for it; the rectifier flags these texels itself and reports their
   share per sample (``rectify.saturated``), and the benchmark checks that its flags cover every
   texel whose footprint holds a clipped pixel;
+* **PSNR over the texels holding no clipped pixel**: the same with no reach around the clipped
+  pixels, to show what the one-pixel reach (the pixels that undoing the sensor's box blur reads)
+  adds;
 * **PSNR over all texels** (the measure before issue 28's part 5, kept for comparison): the
   same against the clipped truth over every texel, clipped pixels included;
 * **texels not recorded**: per frame the share of texels the benchmark leaves out, and the
@@ -173,6 +176,7 @@ def main(argv=None) -> int:
                 image709 = to709.apply(res.image)
                 rec.update(corner_px=corner_error(res.homography, h_true, pts), residual_px=res.residual_px,
                            psnr_db=recorded(image709), psnr_all_db=psnr(image709, truth),
+                           psnr_reach0_db=psnr(image709[~holding], truth[~holding]) if not holding.all() else float("nan"),
                            lost_pct=100.0 * float(lost.mean()), flagged_pct=100.0 * res.saturated_share,
                            lost_flagged_pct=100.0 * float(res.saturated[lost].mean()) if lost.any() else 100.0,
                            holding_flagged_pct=100.0 * float(res.saturated[holding].mean()) if holding.any() else 100.0)
@@ -215,6 +219,7 @@ def main(argv=None) -> int:
                "lost_median": stat("lost_pct", median), "lost_max": stat("lost_pct", max),
                "lost_flagged_min": stat("lost_flagged_pct", min), "flagged_max": stat("flagged_pct", max),
                "holding_flagged_min": stat("holding_flagged_pct", min),
+               "reach0_psnr_min": stat("psnr_reach0_db", min), "reach0_psnr_median": stat("psnr_reach0_db", median),
                "seconds_median": stat("seconds", median)}
         by_ring = {}
         for f in ok:
@@ -239,16 +244,17 @@ def main(argv=None) -> int:
     print("\n## results (markdown)\n")
     print("| material | frames rectified | corner error mean / median / max (px) | fit residual (px) | "
           "PSNR over recorded texels min / median / max (dB) | texels not recorded: median / max (%); "
-          "of those, flagged by the rectifier; of those holding a clipped pixel, flagged (worst frame) | PSNR over all texels (old measure) min / median / max (dB) | "
+          "of those, flagged by the rectifier; of those holding a clipped pixel, flagged (worst frame) | "
+          "PSNR over the texels holding no clipped pixel (no reach) min / median (dB) | PSNR over all texels (old measure) min / median / max (dB) | "
           "before issue 28 (bicubic, no pre-filter): recorded min / median / max, all min (dB) | "
           "baseline ArUco corners: corner error (px) / residual (px) / PSNR median (dB) | "
           "baseline bilinear: PSNR min / median (dB) | time per frame (median) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['material']} | {r['rectified']}/{r['frames']} | {r['corner_mean']:.3f} / {r['corner_median']:.3f} / "
               f"{r['corner_max']:.3f} | {r['residual_mean']:.3f} | {r['psnr_min']:.2f} / {r['psnr_median']:.2f} / "
               f"{r['psnr_max']:.2f} | {r['lost_median']:.1f} / {r['lost_max']:.1f}; {r['lost_flagged_min']:.1f}%; "
-              f"{r['holding_flagged_min']:.1f}% | "
+              f"{r['holding_flagged_min']:.1f}% | {r['reach0_psnr_min']:.2f} / {r['reach0_psnr_median']:.2f} | "
               f"{r['all_psnr_min']:.2f} / {r['all_psnr_median']:.2f} / {r['all_psnr_max']:.2f} | "
               f"{r['bicubic_psnr_min']:.2f} / {r['bicubic_psnr_median']:.2f} / {r['bicubic_psnr_max']:.2f}, "
               f"{r['all_bicubic_psnr_min']:.2f} | "
