@@ -88,17 +88,22 @@ def main(argv=None) -> int:
                   f"{row['all']:.2f} | {100 * row['share']:.0f} % | {row['recorded']:.2f} | {row['unclipped']:.2f} |",
                   flush=True)
         scratch.cleanup()
-        clipping = [r for r in rows if r["lost"] > 0]
-        print(f"\n{name}: PSNR all texels min {min(r['all'] for r in rows):.2f} dB, recorded min "
-              f"{np.nanmin([r['recorded'] for r in rows]):.2f} dB, sensor that does not clip min "
-              f"{min(r['unclipped'] for r in rows):.2f} dB; peak radiance max {max(r['peak'] for r in rows):.1f}x "
-              f"the clip level; {len(clipping)} of {len(rows)} frames clip under the window")
-        if clipping:
-            worst = sorted(clipping, key=lambda r: r["all"])[:10]
-            print(f"the 10 worst frames over all texels: error share on texels not recorded min / median / max "
-                  f"{100 * min(r['share'] for r in worst):.0f} / {100 * median([r['share'] for r in worst]):.0f} / "
-                  f"{100 * max(r['share'] for r in worst):.0f} %")
+        print_summary(name, rows)
     return 0
+
+
+def print_summary(name: str, rows: list) -> None:
+    """One material's minima, peak radiance and where its worst frames' error sits."""
+    clipping = [r for r in rows if r["lost"] > 0]
+    print(f"\n{name}: PSNR all texels min {min(r['all'] for r in rows):.2f} dB, recorded min "
+          f"{np.nanmin([r['recorded'] for r in rows]):.2f} dB, sensor that does not clip min "
+          f"{min(r['unclipped'] for r in rows):.2f} dB; peak radiance max {max(r['peak'] for r in rows):.1f}x "
+          f"the clip level; {len(clipping)} of {len(rows)} frames clip under the window")
+    if clipping:
+        worst = sorted(clipping, key=lambda r: r["all"])[:10]
+        print(f"the 10 worst frames over all texels: error share on texels not recorded min / median / max "
+              f"{100 * min(r['share'] for r in worst):.0f} / {100 * median([r['share'] for r in worst]):.0f} / "
+              f"{100 * max(r['share'] for r in worst):.0f} %")
 
 
 if __name__ == "__main__":
