@@ -71,7 +71,8 @@ from usdbtf import color, synth
 from usdbtf.camera import Camera
 from usdbtf.fiducials import apply_homography, detect_markers, fit_homography, make_board
 from usdbtf.imageio import read_image
-from usdbtf.rectify import CLIP_REACH_PX, clipped_pixels, clipped_texels, luminance, rectify_frame, warp_window, window_homography
+from usdbtf.rectify import (CLIP_REACH_PX, clipped_pixels, clipped_texels, luminance, rectify_frame, warp_window,
+                            window_homography)
 from usdbtf.rig.capture import decode_frame, flat_gain
 from usdbtf.rig.plan import make_plan
 from usdbtf.rig.scene import frame_homography
@@ -176,7 +177,8 @@ def main(argv=None) -> int:
                 image709 = to709.apply(res.image)
                 rec.update(corner_px=corner_error(res.homography, h_true, pts), residual_px=res.residual_px,
                            psnr_db=recorded(image709), psnr_all_db=psnr(image709, truth),
-                           psnr_reach0_db=psnr(image709[~holding], truth[~holding]) if not holding.all() else float("nan"),
+                           psnr_reach0_db=(psnr(image709[~holding], truth[~holding]) if not holding.all()
+                                           else float("nan")),
                            lost_pct=100.0 * float(lost.mean()), flagged_pct=100.0 * res.saturated_share,
                            lost_flagged_pct=100.0 * float(res.saturated[lost].mean()) if lost.any() else 100.0,
                            holding_flagged_pct=100.0 * float(res.saturated[holding].mean()) if holding.any() else 100.0)
@@ -236,7 +238,8 @@ def main(argv=None) -> int:
                       f"{f['residual_px']:.3f} px, PSNR {f['psnr_db']:.2f} dB on the {100 - f['lost_pct']:.1f}% "
                       f"recorded texels (bicubic {f['psnr_bicubic_db']:.2f}; all texels {f['psnr_all_db']:.2f} / "
                       f"bicubic {f['psnr_all_bicubic_db']:.2f}; rectifier flagged {f['flagged_pct']:.1f}%, "
-                      f"{f['lost_flagged_pct']:.1f}% of the unrecorded, {f['holding_flagged_pct']:.1f}% of those holding a "
+                      f"{f['lost_flagged_pct']:.1f}% of the unrecorded, {f['holding_flagged_pct']:.1f}% of those "
+                      f"holding a "
                       f"clipped pixel), bilinear {f['psnr_bilinear_db']:.2f}, "
                       f"ArUco corners {f.get('psnr_aruco_db', float('nan')):.2f}), {f['seconds'] * 1000:.0f} ms")
         print(f"  PSNR minimum per view theta: {row['psnr_min_by_view_theta']}")
@@ -245,7 +248,8 @@ def main(argv=None) -> int:
     print("| material | frames rectified | corner error mean / median / max (px) | fit residual (px) | "
           "PSNR over recorded texels min / median / max (dB) | texels not recorded: median / max (%); "
           "of those, flagged by the rectifier; of those holding a clipped pixel, flagged (worst frame) | "
-          "PSNR over the texels holding no clipped pixel (no reach) min / median (dB) | PSNR over all texels (old measure) min / median / max (dB) | "
+          "PSNR over the texels holding no clipped pixel (no reach) min / median (dB) | "
+          "PSNR over all texels (old measure) min / median / max (dB) | "
           "before issue 28 (bicubic, no pre-filter): recorded min / median / max, all min (dB) | "
           "baseline ArUco corners: corner error (px) / residual (px) / PSNR median (dB) | "
           "baseline bilinear: PSNR min / median (dB) | time per frame (median) |")
@@ -275,17 +279,21 @@ def main(argv=None) -> int:
 
     lo, mid, hi, count = over_all("psnr_db")
     print(f"\nall {count} frames, recorded texels: PSNR min / median / max {lo:.2f} / {mid:.2f} / {hi:.2f} dB; "
-          "before issue 28 (bicubic, no pre-filter) {:.2f} / {:.2f} / {:.2f} dB".format(*over_all("psnr_bicubic_db")[:3]))
+          "before issue 28 (bicubic, no pre-filter) {:.2f} / {:.2f} / {:.2f} dB".format(
+              *over_all("psnr_bicubic_db")[:3]))
     print("all texels (old measure): {:.2f} / {:.2f} / {:.2f} dB; before issue 28 {:.2f} / {:.2f} / {:.2f} dB".format(
         *over_all("psnr_all_db")[:3], *over_all("psnr_all_bicubic_db")[:3]))
-    print("texels not recorded per frame: min / median / max {:.1f} / {:.1f} / {:.1f} %".format(*over_all("lost_pct")[:3]))
+    print("texels not recorded per frame: min / median / max {:.1f} / {:.1f} / {:.1f} %".format(
+        *over_all("lost_pct")[:3]))
     worst_corner = max(r["corner_mean"] for r in rows)
     worst_psnr, worst_flags = lo, over_all("holding_flagged_pct")[0]
     all_ok = all(r["rectified"] == r["frames"] for r in rows)
     goals = {"mean corner reprojection error <= 0.5 px": (f"{worst_corner:.3f} px", worst_corner <= 0.5),
-             f"PSNR over recorded texels >= 30 dB at {args.size}^2 (issue 4)": (f"{worst_psnr:.2f} dB", worst_psnr >= 30),
+             f"PSNR over recorded texels >= 30 dB at {args.size}^2 (issue 4)":
+                 (f"{worst_psnr:.2f} dB", worst_psnr >= 30),
              "... >= 31 dB on every frame (issue 28)": (f"{worst_psnr:.2f} dB", worst_psnr >= 31),
-             "the rectifier flags every texel that holds a clipped pixel": (f"{worst_flags:.1f}%", worst_flags >= 100.0),
+             "the rectifier flags every texel that holds a clipped pixel":
+                 (f"{worst_flags:.1f}%", worst_flags >= 100.0),
              "every frame rectified": ("yes" if all_ok else "NO", all_ok)}
     print("\ntargets: " + "; ".join(f"{k}: {v} {'PASS' if ok else 'FAIL'}" for k, (v, ok) in goals.items()))
     verdict = all(ok for _, ok in goals.values())

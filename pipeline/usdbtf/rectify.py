@@ -10,8 +10,8 @@ Per frame (pure core, :func:`rectify_frame`):
    is the mean of the frame over the texel's footprint (a pixel pre-filter, supersampled
    Lanczos lookups, then a box filter), so a frame finer than the output is not aliased;
 4. flag the texels the sensor did not record: those within a pixel of a clipped sensor
-   pixel (an integer frame at its top code), whose radiance is known only to be at least
-   the clip level (:func:`clipped_texels`).  The stage reports each sample's flagged share.
+   pixel (an integer frame at its top code), whose values the frame does not hold
+   (:func:`clipped_texels`).  The stage reports each sample's flagged share.
 
 A frame is *rejected* (reported, and treated as missing rather than guessed) when it
 shows fewer than ``min_markers`` board markers, when the RANSAC fit leaves a mean inlier
@@ -51,7 +51,8 @@ from .numeric import single_blas_thread
 log = logging.getLogger(__name__)
 
 __all__ = ["FrameResult", "rectify_frame", "warp_window", "window_homography", "luminance", "clipped_pixels",
-           "clipped_texels", "CLIP_REACH_PX", "RectifyOptions", "RectifyResult", "RectifiedBTF", "rectify", "write_rectify", "read_raw_plan", "RawPlan"]
+           "clipped_texels", "CLIP_REACH_PX", "RectifyOptions", "RectifyResult", "RectifiedBTF", "rectify",
+           "write_rectify", "read_raw_plan", "RawPlan"]
 
 
 @dataclass
@@ -451,8 +452,9 @@ def rectify(raw, options: RectifyOptions, *, board: Board | None = None, scratch
     if saturated:
         worst = max(saturated, key=saturated.get)
         log.warning(f"rectify: {len(saturated)} of {len(order)} frames clipped under the sample window (worst: "
-                    f"{frames.names[plan.frame_of[worst]]}, {100 * saturated[worst]:.1f}% of the texels): texels next to clipped pixels are not "
-                    "measured (listed under rectify.saturated); shoot such lights with a shorter exposure")
+                    f"{frames.names[plan.frame_of[worst]]}, {100 * saturated[worst]:.1f}% of the texels): texels "
+                    "next to clipped pixels are not measured (listed under rectify.saturated); shoot such lights "
+                    "with a shorter exposure")
     fills = {f.target: f for f in plan_fill(plan.sampling, available)}
     report = {"size": size, "frames": len(order), "rectified": int(available.sum()),
               "rejected": [{"index": i, "reason": r} for i, r in sorted(rejected.items())],
