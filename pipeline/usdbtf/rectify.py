@@ -7,8 +7,11 @@ Per frame (pure core, :func:`rectify_frame`):
 2. find the board's ArUco markers, refine their corners to sub-pixel accuracy and fit a
    board -> frame homography with RANSAC (:mod:`usdbtf.fiducials`);
 3. warp the board's sample window to an N x N fronto-parallel image: each output texel
-   is the mean of the frame over the texel's footprint (supersampled bicubic lookups,
-   then a box filter), so a frame finer than the output is not aliased.
+   is the mean of the frame over the texel's footprint (a pixel pre-filter, supersampled
+   Lanczos lookups, then a box filter), so a frame finer than the output is not aliased;
+4. flag the texels the sensor did not record: those within a pixel of a clipped sensor
+   pixel (an integer frame at its top code), whose values the frame does not hold
+   (:func:`clipped_texels`).  The stage reports each sample's flagged share.
 
 A frame is *rejected* (reported, and treated as missing rather than guessed) when it
 shows fewer than ``min_markers`` board markers, when the RANSAC fit leaves a mean inlier
@@ -47,8 +50,9 @@ from .numeric import single_blas_thread
 
 log = logging.getLogger(__name__)
 
-__all__ = ["FrameResult", "rectify_frame", "warp_window", "window_homography", "luminance", "RectifyOptions",
-           "RectifyResult", "RectifiedBTF", "rectify", "write_rectify", "read_raw_plan", "RawPlan"]
+__all__ = ["FrameResult", "rectify_frame", "warp_window", "window_homography", "luminance", "clipped_pixels",
+           "clipped_texels", "CLIP_REACH_PX", "RectifyOptions", "RectifyResult", "RectifiedBTF", "rectify",
+           "write_rectify", "read_raw_plan", "RawPlan"]
 
 
 @dataclass
@@ -60,6 +64,8 @@ class FrameResult:
     markers : number of board markers found.
     residual_px : mean distance of inlier corners from the fitted homography, frame pixels.
     reason : why the frame was rejected ("" when it was not).
+    saturated : (N, N) bool, texels the sensor clipped (:func:`clipped_texels`), or None when
+        the frame's clipped pixels were not given (a float frame has no clip level).
     """
 
     image: np.ndarray | None
@@ -67,6 +73,12 @@ class FrameResult:
     markers: int
     residual_px: float
     reason: str = ""
+    saturated: np.ndarray | None = None
+
+    @property
+    def saturated_share(self) -> float:
+        """Fraction of the N x N texels flagged in :attr:`saturated` (0 when unknown)."""
+        return 0.0 if self.saturated is None else float(self.saturated.mean())
 
 
 def luminance(linear: np.ndarray) -> np.ndarray:
@@ -144,9 +156,58 @@ def _window_crop(linear: np.ndarray, h_tex: np.ndarray, size: int, sub: np.ndarr
     return linear[y0:y1, x0:x1], shift @ sub
 
 
+#: How far (frame pixels) a clipped sensor pixel taints the texels around it: the pixels that
+#: integrate a texel, and one more on each side, which undoing their box blur reads (the
+#: pre-filter of :func:`warp_window` reaches one pixel).
+CLIP_REACH_PX = 1
+
+
+def clipped_pixels(encoded: np.ndarray) -> np.ndarray | None:
+    """(H, W) bool: pixels of an integer frame (H, W, 3) at the top code in any channel, where
+    the sensor (or its encoding) clipped; None for a float frame, which has no clip level."""
+    encoded = np.asarray(encoded)
+    if encoded.dtype.kind != "u":
+        return None
+    return (encoded == np.iinfo(encoded.dtype).max).any(axis=2)
+
+
+def clipped_texels(clipped: np.ndarray, h_tex: np.ndarray, size: int, reach_px: int = CLIP_REACH_PX,
+                   samples: int = 8) -> np.ndarray:
+    """(N, N) bool: the texels with a clipped sensor pixel within ``reach_px`` of their footprint.
+
+    clipped : (H, W) bool frame pixels at the clip level (:func:`clipped_pixels`).
+    h_tex : texel -> frame homography (:func:`window_homography`).
+    A clipped pixel holds the clip level, not the radiance it integrated (a metal flake's
+    sparkle is up to 200 times the clip level), so the texels sharing it, or read with it when
+    the pixels' blur is undone, are unknown: no resampling gives them back.  Each texel's
+    footprint is probed on a ``samples`` x ``samples`` grid (at 70 degree views a texel spans
+    about one pixel: the grid steps well under a pixel).
+    """
+    import cv2
+    clipped = np.asarray(clipped, bool)
+    if not clipped.any():
+        return np.zeros((size, size), bool)
+    mask = clipped.astype(np.uint8)
+    if reach_px > 0:
+        mask = cv2.dilate(mask, np.ones((2 * reach_px + 1,) * 2, np.uint8))
+    k = int(samples)
+    # Probe j of the k x k grid sits at texel coordinate (j + 0.5) / k and reads the frame pixel
+    # that holds its image (to_cv's half-pixel shifts and cv2's rounding: floor of the position).
+    probe = h_tex @ np.diag([1.0 / k, 1.0 / k, 1.0])
+    hit = cv2.warpPerspective(mask, to_cv(probe), (size * k, size * k),
+                              flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT,
+                              borderValue=0)
+    return hit.reshape(size, k, size, k).any(axis=(1, 3))
+
+
 def rectify_frame(linear: np.ndarray, board: Board, size: int, *, min_markers: int = 4,
-                  max_residual_px: float = 1.0) -> FrameResult:
-    """Rectify one scene-linear frame (H, W, 3) float32 (already flat-fielded)."""
+                  max_residual_px: float = 1.0, clipped: np.ndarray | None = None) -> FrameResult:
+    """Rectify one scene-linear frame (H, W, 3) float32 (already flat-fielded).
+
+    clipped : optional (H, W) bool, the frame's pixels at the sensor's clip level
+        (:func:`clipped_pixels` of the frame as recorded); with it the result flags the
+        texels they taint (:attr:`FrameResult.saturated`).
+    """
     det = detect_markers(luminance(linear), board)
     if len(det) < min_markers:
         return FrameResult(None, None, len(det), float("nan"),
@@ -163,7 +224,8 @@ def rectify_frame(linear: np.ndarray, board: Board, size: int, *, min_markers: i
     height, width = linear.shape[:2]
     if (corners < 0).any() or (corners[:, 0] > width).any() or (corners[:, 1] > height).any():
         return FrameResult(None, h, len(det), mean_resid, "sample window not entirely inside the frame")
-    return FrameResult(warp_window(linear, h_tex, size), h, len(det), mean_resid)
+    saturated = None if clipped is None else clipped_texels(clipped, h_tex, size)
+    return FrameResult(warp_window(linear, h_tex, size), h, len(det), mean_resid, saturated=saturated)
 
 
 # ------------------------------------------------------------------ RAW capture folders
@@ -267,10 +329,12 @@ def _init_worker(frames, board, gain, opts):
 
 def _rectify_one(k: int) -> FrameResult:
     frames, board, gain, opts = _STATE["frames"], _STATE["board"], _STATE["gain"], _STATE["opts"]
-    linear = frames.read_samples([k])[0]
+    encoded = frames.read_encoded(np.array([k]))
+    linear = frames.decode(encoded, what=f"sample {frames.names[k]}")[0]
     if gain is not None:
         linear = linear / gain[..., None]
-    return rectify_frame(linear, board, opts.size, min_markers=opts.min_markers, max_residual_px=opts.max_residual_px)
+    return rectify_frame(linear, board, opts.size, min_markers=opts.min_markers, max_residual_px=opts.max_residual_px,
+                         clipped=clipped_pixels(encoded[0]))
 
 
 @dataclass
@@ -352,7 +416,7 @@ def rectify(raw, options: RectifyOptions, *, board: Board | None = None, scratch
     else:
         require_memory(n * size * size * 12, what)
         texels = np.empty((n, size, size, 3), np.float32)
-    rejected, residuals = {}, []
+    rejected, residuals, saturated = {}, [], {}
     order = sorted(plan.frame_of)
     available = np.zeros(n, bool)
     tasks = [plan.frame_of[i] for i in order]
@@ -373,6 +437,8 @@ def rectify(raw, options: RectifyOptions, *, board: Board | None = None, scratch
                 texels[i] = res.image
                 available[i] = True
                 residuals.append(res.residual_px)
+                if res.saturated_share > 0:
+                    saturated[i] = res.saturated_share
     finally:
         if pool is not None:
             pool.shutdown(cancel_futures=True)
@@ -383,6 +449,12 @@ def rectify(raw, options: RectifyOptions, *, board: Board | None = None, scratch
                        "rectify without --no-fill to interpolate them")
     if not available.any():
         raise BTFError(f"{raw}: no frame could be rectified (first problem: {next(iter(rejected.values()), 'none')})")
+    if saturated:
+        worst = max(saturated, key=saturated.get)
+        log.warning(f"rectify: {len(saturated)} of {len(order)} frames clipped under the sample window (worst: "
+                    f"{frames.names[plan.frame_of[worst]]}, {100 * saturated[worst]:.1f}% of the texels): texels "
+                    "next to clipped pixels are not measured (listed under rectify.saturated); shoot such lights "
+                    "with a shorter exposure")
     fills = {f.target: f for f in plan_fill(plan.sampling, available)}
     report = {"size": size, "frames": len(order), "rectified": int(available.sum()),
               "rejected": [{"index": i, "reason": r} for i, r in sorted(rejected.items())],
@@ -390,6 +462,9 @@ def rectify(raw, options: RectifyOptions, *, board: Board | None = None, scratch
               "interpolated": int((~available).sum()),
               "mean_corner_residual_px": float(np.mean(residuals)) if residuals else None,
               "max_corner_residual_px": float(np.max(residuals)) if residuals else None,
+              # Samples whose frame clipped under the window, with the share of texels the sensor
+              # did not record (their output values stand on clipped pixels: not measurements).
+              "saturated": [{"index": i, "share": round(share, 6)} for i, share in sorted(saturated.items())],
               "board": board.to_json()}
     metadata = {"physical_size_m": list(board.window_size_m), "rectify": report}
     return RectifyResult(plan.sampling, texels, available, fills, report, metadata, options)

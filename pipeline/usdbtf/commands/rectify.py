@@ -65,6 +65,7 @@ def run(args) -> int:
         del result                      # the scratch file's last mapping
     res = report["mean_corner_residual_px"]
     log.info(f"rectify: {report['rectified']} of {report['frames']} frames rectified to {args.size}x{args.size}, "
-             f"{len(report['rejected'])} rejected, {report['interpolated']} samples interpolated; mean corner "
+             f"{len(report['rejected'])} rejected, {report['interpolated']} samples interpolated, "
+             f"{len(report['saturated'])} clipped under the window; mean corner "
              f"residual {res:.3f} px -> {args.output}")
     return 0

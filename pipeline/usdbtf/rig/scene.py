@@ -150,8 +150,11 @@ def paper_albedo(board: Board) -> np.ndarray:
     return INK_BLACK + (PAPER_WHITE - INK_BLACK) * grey
 
 
-def add_sensor_noise(signal: np.ndarray, camera: Camera, rng: np.random.Generator) -> np.ndarray:
-    """Noisy, clipped sensor values for a vignetted radiance frame (H, W, 3) float32."""
+def add_sensor_noise(signal: np.ndarray, camera: Camera, rng: np.random.Generator, clip: bool = True) -> np.ndarray:
+    """Noisy, clipped sensor values for a vignetted radiance frame (H, W, 3) float32.
+
+    clip=False keeps the values above the clip level (a sensor that does not saturate: what
+    benchmarks/rectify_clipping.py compares the clipping sensor with)."""
     var = camera.read_noise ** 2 + camera.shot_noise * np.maximum(signal, 0.0)
     noisy = signal + np.sqrt(var).astype(np.float32) * rng.standard_normal(signal.shape, dtype=np.float32)
-    return np.clip(noisy, 0.0, 1.0)
+    return np.clip(noisy, 0.0, 1.0 if clip else None)
