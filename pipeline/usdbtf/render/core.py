@@ -41,7 +41,8 @@ from .shadows import ShadowMap
 from .texture import CoefficientTexture
 from ..numeric import single_blas_thread
 
-__all__ = ["RenderOptions", "RenderResult", "Renderer", "render", "render_swatch"]
+__all__ = ["RenderOptions", "RenderResult", "Renderer", "render", "render_parts", "render_swatch", "front_facing",
+           "interpolated_frame", "perspective_weights"]
 
 
 @dataclass
@@ -120,34 +121,7 @@ class Renderer:
     # -- mesh --------------------------------------------------------------------------
     def render(self, mesh: Mesh, camera: Camera, lights: list[Light]) -> np.ndarray:
         """(H, W, 4) float32 RGBA, working space."""
-        if not lights:
-            raise BTFError("give at least one --light")
-        surface = mesh.corner_frames()
-        front = _front_facing(surface, camera.eye)
-        xy, depth = camera.project(surface.points)
-        near = 1e-6 * max(float(np.ptp(surface.points.reshape(-1, 3), axis=0).max()), 1e-9)
-        keep = front & (depth > near).all(axis=1)
-        tris = np.flatnonzero(keep)
-        raster = rasterize(xy[tris], -1.0 / depth[tris], camera.width, camera.height)
-        pix = np.flatnonzero(raster.tri.ravel() >= 0)
-        image = np.zeros((camera.height, camera.width, 4), np.float32)
-        if not len(pix):
-            return image
-        tri = tris[raster.tri.ravel()[pix]]
-        py, px = np.divmod(pix, camera.width)
-        res = self.opts.shadow_resolution or max(camera.width, camera.height)
-        shadow_maps = [ShadowMap(surface.points, light, res) if self.opts.shadows else None
-                       for light in lights]
-
-        def task(sl):
-            return self._shade_pixels(surface, camera, lights, shadow_maps, tri[sl], xy[tri[sl]], depth[tri[sl]],
-                                      px[sl] + 0.5, py[sl] + 0.5)
-
-        rgb = self._shade_chunks(len(pix), task)
-        flat = image.reshape(-1, 4)
-        flat[pix, :3] = rgb
-        flat[pix, 3] = 1.0
-        return image
+        return render_parts([(self, mesh)], camera, lights)
 
     def _shade_chunks(self, n: int, fn) -> np.ndarray:
         step = self.opts.chunk
@@ -160,9 +134,9 @@ class Renderer:
         return np.concatenate(parts) if parts else np.zeros((0, 3), np.float32)
 
     def _shade_pixels(self, surface, camera, lights, shadow_maps, tri, tri_xy, tri_depth, x, y) -> np.ndarray:
-        b = _perspective_weights(tri_xy, tri_depth, x, y)
+        b = perspective_weights(tri_xy, tri_depth, x, y)
         p = np.einsum("nk,nkd->nd", b, surface.points[tri])
-        normal, tangent, bitangent = _frame(b, surface, tri)
+        normal, tangent, bitangent = interpolated_frame(b, surface, tri)
         st = np.einsum("nk,nkd->nd", b, surface.uv[tri])
         lod = self._lod(tri_xy, tri_depth, surface.uv[tri], st, x, y) if self.opts.filter == "mip" else None
         to_eye = camera.eye - p
@@ -194,19 +168,64 @@ class Renderer:
         """log2 of the texel footprint of one pixel: st at the next pixel right and below,
         from the same triangle's (extended) interpolation."""
         size = np.array([self.texture.width, self.texture.height], np.float64)
-        dx = (np.einsum("nk,nkd->nd", _perspective_weights(tri_xy, tri_depth, x + 1, y), tri_st) - st) * size
-        dy = (np.einsum("nk,nkd->nd", _perspective_weights(tri_xy, tri_depth, x, y + 1), tri_st) - st) * size
+        dx = (np.einsum("nk,nkd->nd", perspective_weights(tri_xy, tri_depth, x + 1, y), tri_st) - st) * size
+        dy = (np.einsum("nk,nkd->nd", perspective_weights(tri_xy, tri_depth, x, y + 1), tri_st) - st) * size
         foot = np.maximum(np.hypot(dx[:, 0], dx[:, 1]), np.hypot(dy[:, 0], dy[:, 1]))
         return np.log2(np.maximum(foot, 1e-12))
 
 
-def _perspective_weights(tri_xy, tri_depth, x, y) -> np.ndarray:
+def render_parts(parts: list, camera: Camera, lights: list[Light]) -> np.ndarray:
+    """(H, W, 4) float32 RGBA, working space, of several meshes each with its own material.
+
+    parts : [(:class:`Renderer`, :class:`~usdbtf.mesh.Mesh`)], meshes in world space (metres).
+    One z-buffer over every part's triangles, so parts occlude each other; each pixel is
+    shaded by its part's renderer (the first part's options decide shadows and their
+    resolution), and every part casts shadows on every part."""
+    if not lights:
+        raise BTFError("give at least one --light")
+    opts = parts[0][0].opts
+    surfaces = [mesh.corner_frames() for _, mesh in parts]
+    points = np.concatenate([s.points for s in surfaces])
+    owner = np.repeat(np.arange(len(parts)), [len(s.points) for s in surfaces])
+    front = np.concatenate([front_facing(s, camera.eye) for s in surfaces])
+    xy, depth = camera.project(points)
+    near = 1e-6 * max(float(np.ptp(points.reshape(-1, 3), axis=0).max()), 1e-9)
+    keep = front & (depth > near).all(axis=1)
+    tris = np.flatnonzero(keep)
+    raster = rasterize(xy[tris], -1.0 / depth[tris], camera.width, camera.height)
+    pix = np.flatnonzero(raster.tri.ravel() >= 0)
+    image = np.zeros((camera.height, camera.width, 4), np.float32)
+    if not len(pix):
+        return image
+    tri = tris[raster.tri.ravel()[pix]]
+    res = opts.shadow_resolution or max(camera.width, camera.height)
+    shadow_maps = [ShadowMap(points, light, res) if opts.shadows else None for light in lights]
+    flat = image.reshape(-1, 4)
+    first = np.cumsum([0] + [len(s.points) for s in surfaces])
+    for n, ((renderer, _), surface) in enumerate(zip(parts, surfaces)):
+        mine = owner[tri] == n
+        if not mine.any():
+            continue
+        own_pix, own_tri = pix[mine], tri[mine]
+        local = own_tri - first[n]
+        py, px = np.divmod(own_pix, camera.width)
+
+        def task(sl, renderer=renderer, surface=surface, local=local, own_tri=own_tri, px=px, py=py):
+            return renderer._shade_pixels(surface, camera, lights, shadow_maps, local[sl], xy[own_tri[sl]],
+                                          depth[own_tri[sl]], px[sl] + 0.5, py[sl] + 0.5)
+
+        flat[own_pix, :3] = renderer._shade_chunks(len(own_pix), task)
+        flat[own_pix, 3] = 1.0
+    return image
+
+
+def perspective_weights(tri_xy, tri_depth, x, y) -> np.ndarray:
     """(n, 3) perspective-correct barycentrics at pixel points (x, y)."""
     b = barycentrics(tri_xy, x, y) / tri_depth
     return b / b.sum(axis=1, keepdims=True)
 
 
-def _frame(b, surface: CornerFrames, tri):
+def interpolated_frame(b, surface: CornerFrames, tri):
     """Orthonormal (normal, tangent, bitangent) per point: the interpolated normal, the tangent
     made perpendicular to it, bitangent = normal x tangent (flipped for mirrored texture)."""
     n = np.einsum("nk,nkd->nd", b, surface.normals[tri])
@@ -220,7 +239,7 @@ def _frame(b, surface: CornerFrames, tri):
     return n, t, bt
 
 
-def _front_facing(surface: CornerFrames, eye: np.ndarray) -> np.ndarray:
+def front_facing(surface: CornerFrames, eye: np.ndarray) -> np.ndarray:
     """(T,) triangles facing the eye; a triangle's side is the one its vertex normals point to
     (so the result does not depend on the winding order)."""
     c = surface.points
