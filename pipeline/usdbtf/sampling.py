@@ -24,7 +24,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["Sampling", "rings", "cross", "preset", "PRESETS", "to_vectors"]
+__all__ = ["Sampling", "rings", "cross", "preset", "PRESETS", "to_vectors", "Coverage", "COVERAGE_FORMAT",
+           "read_coverage", "coverage_json", "match_directions", "DIRECTION_TOLERANCE"]
+
+#: The coverage file's format tag (:func:`read_coverage`).
+COVERAGE_FORMAT = "usdbtf-coverage/1"
+#: Two directions are the same when they are less than this many degrees apart (angle between
+#: the unit vectors): coverage files written with rounded angles still name measured ones.
+DIRECTION_TOLERANCE = 0.01
 
 
 @dataclass(frozen=True)
@@ -109,3 +116,86 @@ def to_vectors(directions_deg: np.ndarray) -> np.ndarray:
     d = np.radians(np.asarray(directions_deg, dtype=np.float64).reshape(-1, 2))
     st = np.sin(d[:, 0])
     return np.stack([st * np.cos(d[:, 1]), st * np.sin(d[:, 1]), np.cos(d[:, 0])], axis=1)
+
+
+@dataclass(frozen=True)
+class Coverage:
+    """The (view, light) directions a build keeps of a BTF: every listed light at every
+    listed view (``compress --coverage``).
+
+    Attributes
+    ----------
+    views : (V, 2) float64 degrees (theta, phi), directions of the input's own view set.
+    lights : (L, 2) float64 degrees (theta, phi), directions of the input's own light set.
+    path : the file it was read from, for messages ("" when made in memory).
+    """
+
+    views: np.ndarray
+    lights: np.ndarray
+    path: str = ""
+
+    def __post_init__(self):
+        import numpy as np
+
+        for name in ("views", "lights"):
+            value = np.asarray(getattr(self, name), dtype=np.float64)
+            if value.size == 0 or value.ndim != 2 or value.shape[1] != 2:
+                raise ValueError(f"coverage {name}: expected a non-empty list of [theta, phi] pairs")
+            if not np.isfinite(value).all():
+                raise ValueError(f"coverage {name}: directions must be finite numbers")
+            object.__setattr__(self, name, value)
+
+
+def coverage_json(coverage: Coverage) -> str:
+    """The text of a coverage file (``usdbtf-coverage/1``): one direction per line, so a
+    build's file (a SCons source) changes exactly when the directions do."""
+    from . import jsontext
+
+    return jsontext.dumps({"format": COVERAGE_FORMAT, "views": coverage.views.tolist(),
+                           "lights": coverage.lights.tolist()}) + "\n"
+
+
+def read_coverage(path) -> Coverage:
+    """Read a coverage file written by :func:`coverage_json` (or by hand).
+
+    Raises BTFError naming the file and the key at fault (exit status 65)."""
+    from . import jsontext
+    from .errors import BTFError
+
+    doc = jsontext.load(path, "coverage file")
+    if not isinstance(doc, dict) or doc.get("format") != COVERAGE_FORMAT:
+        raise BTFError(f"{path}: not a coverage file (format must be {COVERAGE_FORMAT!r})")
+    try:
+        return Coverage(_pairs(doc.get("views"), "views"), _pairs(doc.get("lights"), "lights"), str(path))
+    except ValueError as exc:
+        raise BTFError(f"{path}: {exc}") from None
+
+
+def _pairs(value, name: str) -> list:
+    """A JSON list of [theta, phi] number pairs, checked (ValueError names ``name``)."""
+    ok = isinstance(value, list) and value and all(
+        isinstance(p, list) and len(p) == 2 and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                    for x in p) for p in value)
+    if not ok:
+        raise ValueError(f"coverage {name}: expected a non-empty list of [theta, phi] pairs (degrees)")
+    return value
+
+
+def match_directions(wanted, available, tolerance: float = DIRECTION_TOLERANCE):
+    """Index into ``available`` of each direction of ``wanted``, within ``tolerance`` degrees.
+
+    Parameters
+    ----------
+    wanted, available : (n, 2) and (m, 2) degrees (theta, phi).
+    tolerance : largest angle (degrees) between a wanted direction and its match.
+
+    Returns
+    -------
+    (n,) int64 indices; -1 where no available direction is that close.
+    """
+    import numpy as np
+
+    a, b = to_vectors(wanted), to_vectors(available)
+    angle = np.degrees(np.arccos(np.clip(a @ b.T, -1.0, 1.0)))       # (n, m)
+    best = np.argmin(angle, axis=1)
+    return np.where(angle[np.arange(len(a)), best] <= tolerance, best, -1).astype(np.int64)

@@ -13,6 +13,7 @@ __all__ = ["compressed_summary", "btf_summary", "direction_count", "image_size"]
 def compressed_summary(folder) -> dict:
     """What a ``btf-compressed/1`` folder holds: k, sizes, error, colour, provenance."""
     from .compress import read_compressed
+    from .compress.coverage import coverage_summary, read_coverage_record
     from .compress.format import FORMAT, FORMAT_DOMAIN, METADATA, folder_bytes
 
     folder = Path(folder)
@@ -33,7 +34,9 @@ def compressed_summary(folder) -> dict:
             "working_space": c.working_space, "ocio_config": c.ocio_config,
             "source": {"color_space": c.source.get("color_space"), "bit_depth": c.source.get("bit_depth"),
                        "path": prov.get("source", c.source.get("path"))},
-            "usdbtf_version": prov.get("version")}
+            "usdbtf_version": prov.get("version"),
+            "coverage": coverage_summary(read_coverage_record(info, str(folder / METADATA)), c.n_samples, c.width,
+                                         c.height)}
 
 
 def direction_count(directions) -> int:

@@ -24,12 +24,18 @@ def run(args) -> int:
     from ..io import open_btf
 
     btf = open_btf(args.input)
+    coverage = None
+    if args.coverage is not None:
+        from ..sampling import read_coverage
+
+        coverage = read_coverage(args.coverage)
     opts = CompressOptions(solver=args.solver, k=args.k, target_error=args.target_error, max_bytes=args.max_bytes,
                           codec=args.codec, seed=args.seed, fit_texels=args.fit_texels,
                           power_iterations=args.power_iterations, region=args.region, workers=args.workers,
                           memory_budget=args.memory_budget * 1e9, expand_factors=args.expand_factors,
                           factor_rows=args.factor_rows, dask=args.dask, progress=not args.quiet,
-                          domain=args.domain, error_domain=args.error_domain)
+                          domain=args.domain, error_domain=args.error_domain, coverage=coverage,
+                          max_texels=args.max_texels)
     extra = {key: v for key, v in btf.metadata.items() if not key.startswith("_")}
     opts.extra = {"source_metadata": extra} if extra else {}
     result = compress(btf, opts)

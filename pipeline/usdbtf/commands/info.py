@@ -54,6 +54,10 @@ def compressed_text(s: dict) -> str:
                      f"PSNR {est['psnr_db']:.2f} dB  [held-out texels, scene-linear]")
     lines.append(f"  colour      working {s['working_space']}; source {s['source']['color_space']} "
                  f"{s['source']['bit_depth']}")
+    if s.get("coverage"):
+        from ..compress.coverage import coverage_text
+
+        lines.append(f"  coverage    {coverage_text(s['coverage'])}")
     return "\n".join(lines)
 
 

@@ -63,6 +63,14 @@ def add_arguments(p) -> None:
     p.add_argument("--factor-rows", type=int_in(1, 1 << 31), metavar="M",
                    help="transcoding a nonlinear colour model (UBO2014's log Y, U/Y, V/Y): samples the "
                         "coefficients are solved on (default 16 k; the number of samples or more = exact)")
+    p.add_argument("--coverage", type=Path, metavar="FILE.json",
+                   help="keep only the samples whose view and light are both listed in this usdbtf-coverage/1 "
+                        "file ({\"format\": \"usdbtf-coverage/1\", \"views\": [[theta, phi], ...], \"lights\": "
+                        "[...]}, degrees, directions of the input's own sets): a partial asset that records what it "
+                        "covers (what `usdbtf build` writes for a scene)")
+    p.add_argument("--max-texels", type=int_in(1, 65536), metavar="N",
+                   help="box-filter the images (in scene-linear) by the smallest integer factor that brings the "
+                        "larger side to N texels or fewer; the physical size is unchanged")
     add_outside_paths_flag(p)
 
 

@@ -27,6 +27,7 @@ from .. import __version__, numeric
 from ..atomic import atomic_dir
 from ..model import BTF
 from ..outputs import COMPRESSED as COMPRESSED_KIND
+from .coverage import shaped_input
 from .curve import write_curve
 from .decorrelate import color_decorrelation, rotate_color
 from .evaluate import error_curve, held_out_error, held_out_set
@@ -63,6 +64,15 @@ def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
     opts = options or CompressOptions()
     opts.validate()
     clock = _Clock()
+    # A scene-shaped build: only the samples and the resolution it needs (.coverage).  The
+    # filtered images are floats; the source's record keeps the measured bit depth (what
+    # decompress writes).
+    measured_depth = btf.bit_depth
+    btf, covered = shaped_input(btf, opts.coverage, opts.max_texels)
+    if covered is not None:
+        log.info(f"coverage: {len(covered['views'])} of {covered['input_views']} views x {len(covered['lights'])} "
+                 f"of {covered['input_lights']} lights ({btf.n_samples} of {covered['input_samples']} samples), "
+                 f"{btf.width}x{btf.height} texels (factor {covered['resolution_factor']})")
     texels = sample_texels(btf, opts)
     # The source holds the data (and a spill file or a cluster, which closing releases).
     # BLAS on one thread: the steps parallelise themselves, so no byte depends on thread
@@ -100,7 +110,8 @@ def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
         clock.lap("encode")
         result = _described(cbtf, opts, dict(choice, planes=list(planes)), fit.singular_values, held,
                             *_side_by_side(lambda: held_out_error(cbtf, held), lambda: error_curve(cbtf, source)),
-                            getattr(source, "provenance", None))
+                            getattr(source, "provenance", None), covered)
+        result.source = dict(result.source, bit_depth=measured_depth)
         clock.lap("evaluate")
     log.info(f"k = {result.k}, {result.info['bytes']['payload']} bytes, estimated error "
         f"{result.info['estimated_error']['linear']['percent']:.3f} % ({clock})")
@@ -138,9 +149,10 @@ def write_compress(result: CompressedBTF, path, *, force: bool = False) -> dict:
 
 
 def _described(cbtf: CompressedBTF, opts: CompressOptions, choice: dict, singular_values, held, sums,
-               curve: dict, transcoded: dict | None = None) -> CompressedBTF:
+               curve: dict, transcoded: dict | None = None, covered: dict | None = None) -> CompressedBTF:
     """``cbtf`` with what the metadata records about how it was made (``transcoded``: how a
-    factorised input was compressed from its factors), and its error curve."""
+    factorised input was compressed from its factors; ``covered``: what a partial compress
+    kept, :func:`.coverage.coverage_record`), and its error curve."""
     info = dict(cbtf.info)
     info.update({
         "solver": opts.solver,
@@ -158,6 +170,8 @@ def _described(cbtf: CompressedBTF, opts: CompressOptions, choice: dict, singula
     })
     if transcoded is not None:
         info["provenance"]["transcoded"] = transcoded
+    if covered is not None:
+        info["coverage"] = covered
     info.update(opts.extra)
     return replace(cbtf, info=info, curve=curve)
 

@@ -59,6 +59,8 @@ class CompressOptions:
                                           # solved on (default: factored.default_rows; >= S: all, exact)
     domain: str = "auto"                  # working-domain curve: auto, linear, srgb, gamma:G (see domain.py)
     error_domain: str = "encoded"         # target_error is on the input file's values ("encoded") or "linear"
+    coverage: object = None               # a usdbtf.sampling.Coverage: keep only these views x lights (coverage.py)
+    max_texels: int | None = None         # box-filter so the larger side is at most this (coverage.py)
     extra: dict = field(default_factory=dict)
 
     def validate(self):
@@ -85,6 +87,8 @@ class CompressOptions:
             raise BTFError(f"unknown codec {self.codec_name!r}; choose from {', '.join(CODEC_NAMES)}")
         from .domain import parse_domain      # numpy: not at import (--help stays light)
         parse_domain(self.domain)
+        if self.max_texels is not None and self.max_texels < 1:
+            raise BTFError(f"--max-texels must be at least 1, got {self.max_texels}")
         if self.error_domain not in ERROR_DOMAINS:
             raise BTFError(f"--error-domain must be one of {', '.join(ERROR_DOMAINS)}, got {self.error_domain!r}")
 
@@ -123,16 +127,18 @@ class CompressOptions:
     def recorded(self) -> dict:
         """The options as the output's provenance records them: those that steer the result,
         not how or where it was computed (memory budget, chunk size, workers, spill file,
-        cluster), which give the same bytes; the factor-input options only when set, so
-        other inputs' records stay as they were."""
+        cluster), which give the same bytes; the factor-input and shaping options only when
+        set, so other inputs' records stay as they were (the coverage itself is recorded
+        under the metadata's ``coverage`` key, :mod:`.coverage`)."""
         out = {k: v for k, v in self.__dict__.items() if k not in _NOT_RECORDED}
-        for key, default in _FACTOR_OPTIONS.items():
+        for key, default in _RECORDED_WHEN_SET.items():
             if out[key] == default:
                 del out[key]
         return out
 
 
 #: Options that do not change a bit of the output (see :mod:`.projection`).
-_NOT_RECORDED = ("extra", "workers", "memory_budget", "chunk_bytes", "spill", "dask", "progress")
-#: Options that only steer factorised inputs, with their defaults.
-_FACTOR_OPTIONS = {"expand_factors": False, "factor_rows": None}
+_NOT_RECORDED = ("extra", "workers", "memory_budget", "chunk_bytes", "spill", "dask", "progress", "coverage")
+#: Options recorded only when set, with their defaults: those that steer factorised inputs,
+#: and the texture side a scene-shaped build asks for.
+_RECORDED_WHEN_SET = {"expand_factors": False, "factor_rows": None, "max_texels": None}

@@ -248,6 +248,11 @@ def check_metadata(doc, folder, path) -> Metadata:
     if source.get("bit_depth") is not None and source["bit_depth"] not in BIT_DEPTHS:
         d.fail("source.bit_depth", f"{_short(source['bit_depth'])} is not one of {', '.join(BIT_DEPTHS)}")
 
+    if "coverage" in doc:      # a partial compress's record (.coverage), checked where it is read
+        from .coverage import read_coverage_record
+
+        read_coverage_record(doc, str(path))
+
     # Stored textures: up to 2 bytes a channel, plus the float32 de-quantised copies readers make.
     require_memory(k * width * height * 3 * (2 + 4) + n * k * 8, f"{path} (k = {k}, {width}x{height} texels)")
     info = {key: v for key, v in doc.items() if key not in _KNOWN}

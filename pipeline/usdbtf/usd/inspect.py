@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .material import LOD_VARIANT_SET, NS, btf_materials
+from ..compress.coverage import coverage_summary, coverage_text
+from .material import LOD_VARIANT_SET, NS, btf_materials, read_coverage
 from ..usdstage import resolve_usd
 from .density import binding_densities
 from .read import find_material, open_stage
@@ -78,8 +79,9 @@ def material_summary(stage, prim) -> dict:
     basis_bytes = asset_bytes(get("basis"))
     coeff_bytes = sum(asset_bytes(a) for a in coeffs[:k])
     size = get("physicalSize")
+    resolution = [int(x) for x in (get("resolution") or (0, 0))]
     entry.update(
-        built=True, k=k, coefficients=len(coeffs), resolution=[int(x) for x in (get("resolution") or (0, 0))],
+        built=True, k=k, coefficients=len(coeffs), resolution=resolution,
         physical_size_m=[float(x) for x in size] if size and size[0] > 0 else None,
         bytes={"total": basis_bytes + coeff_bytes, "basis": basis_bytes, "coefficients": coeff_bytes},
         samples=len(view), views=len({tuple(v) for v in view}), lights=len({tuple(v) for v in light}),
@@ -89,7 +91,8 @@ def material_summary(stage, prim) -> dict:
         source={"color_space": get("source:colorSpace"), "bit_depth": get("source:bitDepth")},
         provenance={"solver": get("provenance:solver"), "codec": get("provenance:codec"),
                     "version": get("provenance:version"), "source": get("provenance:source")},
-        lod=[{"name": name, "k": n, "error_percent": _error_at(prim, n)} for name, n in _lod_levels(stage, prim)])
+        lod=[{"name": name, "k": n, "error_percent": _error_at(prim, n)} for name, n in _lod_levels(stage, prim)],
+        coverage=coverage_summary(read_coverage(prim), len(view), *resolution))
     return entry
 
 
@@ -133,6 +136,8 @@ def describe(path, info: dict | None = None) -> str:
             (v0, v1), (l0, l1) = m["view_theta_deg"], m["light_theta_deg"]
             lines.append(f"    directions   {m['samples']} samples: {m['views']} views (theta {v0:g}..{v1:g} deg), "
                          f"{m['lights']} lights (theta {l0:g}..{l1:g} deg), {m['interpolated']} interpolated")
+        if m.get("coverage"):
+            lines.append(f"    coverage     {coverage_text(m['coverage'])}")
         err = m["error_percent"]
         lines.append("    error        " + (f"{err:.3f} % at k = {m['k']} (scene-linear, paper's metric)"
                                              if err is not None else "not recorded"))

@@ -98,6 +98,7 @@ def author_btf(material, cbtf: CompressedBTF, basis: str, coefficients: list[str
         _set(material, "source:bitDepth", str(cbtf.source["bit_depth"]))
     if physical_size:
         _set(material, "physicalSize", Gf.Vec2f(*map(float, physical_size)))
+    _author_coverage(material, cbtf)
     if error_curve:
         _set(material, "errorCurve:k", Vt.IntArray([int(kk) for kk, _ in error_curve]))
         _set(material, "errorCurve:percent", Vt.FloatArray([float(p) for _, p in error_curve]))
@@ -114,6 +115,45 @@ def author_btf(material, cbtf: CompressedBTF, basis: str, coefficients: list[str
     if usd_space:
         Usd.ColorSpaceAPI.Apply(material).CreateColorSpaceNameAttr(usd_space)
     mark_data_attributes(material)
+
+
+def _author_coverage(material, cbtf: CompressedBTF) -> None:
+    """``btf:coverage:*`` from a partial compress's record (nothing for a whole one)."""
+    from pxr import Gf, Vt
+
+    from ..compress.coverage import read_coverage_record
+
+    record = read_coverage_record(cbtf.info, str(material.GetPath()))
+    if record is None:
+        return
+    for key in ("views", "lights"):
+        _set(material, "coverage:" + key, Vt.Vec2dArray([Gf.Vec2d(*map(float, d)) for d in record[key]]))
+    for key, name in _COVERAGE_COUNTS.items():
+        _set(material, "coverage:" + name, int(record[key]))
+    if record.get("input_size"):
+        _set(material, "coverage:inputResolution", Gf.Vec2i(*map(int, record["input_size"])))
+
+
+#: Coverage record keys (:func:`usdbtf.compress.coverage.coverage_record`) -> btf:coverage: attribute names.
+_COVERAGE_COUNTS = {"input_views": "inputViews", "input_lights": "inputLights", "input_samples": "inputSamples",
+                    "resolution_factor": "resolutionFactor"}
+
+
+def read_coverage(material) -> dict | None:
+    """The coverage record (the keys of :func:`usdbtf.compress.coverage.coverage_record`) a
+    partial asset's ``btf:coverage:*`` attributes hold; None for an asset that covers its
+    whole input (``btf:coverage:views`` unauthored)."""
+    views = _get(material, "coverage:views", required=False)
+    if views is None:
+        return None
+    record = {"views": np.asarray(views, np.float64).reshape(-1, 2).tolist(),
+              "lights": np.asarray(_get(material, "coverage:lights", required=False) or [], np.float64)
+              .reshape(-1, 2).tolist()}
+    for key, name in _COVERAGE_COUNTS.items():
+        record[key] = int(_get(material, "coverage:" + name, required=False) or 0)
+    size = _get(material, "coverage:inputResolution", required=False)
+    record["input_size"] = [int(x) for x in size] if size is not None else None
+    return record
 
 
 _TEXT_TYPES = ("string", "token")
@@ -226,6 +266,9 @@ def read_btf(material, *, k: int | None = None) -> CompressedBTF:
     sv = _get(material, "singularValues", required=False)
     if sv:
         info["singular_values"] = [float(x) for x in sv][:k]
+    coverage = read_coverage(material)
+    if coverage is not None:
+        info["coverage"] = coverage
     matrix = np.asarray(_get(material, "colorMatrix"), np.float64).reshape(3, 3)
     source = {"color_space": _get(material, "source:colorSpace", required=False),
               "bit_depth": _get(material, "source:bitDepth", required=False)}
