@@ -42,7 +42,7 @@ from .texture import CoefficientTexture
 from ..numeric import single_blas_thread
 
 __all__ = ["RenderOptions", "RenderResult", "Renderer", "render", "render_parts", "render_swatch", "front_facing",
-           "interpolated_frame", "perspective_weights"]
+           "point_frames", "perspective_weights"]
 
 
 @dataclass
@@ -136,7 +136,7 @@ class Renderer:
     def _shade_pixels(self, surface, camera, lights, shadow_maps, tri, tri_xy, tri_depth, x, y) -> np.ndarray:
         b = perspective_weights(tri_xy, tri_depth, x, y)
         p = np.einsum("nk,nkd->nd", b, surface.points[tri])
-        normal, tangent, bitangent = interpolated_frame(b, surface, tri)
+        normal, tangent, bitangent = point_frames(b, surface, tri)
         st = np.einsum("nk,nkd->nd", b, surface.uv[tri])
         lod = self._lod(tri_xy, tri_depth, surface.uv[tri], st, x, y) if self.opts.filter == "mip" else None
         to_eye = camera.eye - p
@@ -225,7 +225,7 @@ def perspective_weights(tri_xy, tri_depth, x, y) -> np.ndarray:
     return b / b.sum(axis=1, keepdims=True)
 
 
-def interpolated_frame(b, surface: CornerFrames, tri):
+def point_frames(b, surface: CornerFrames, tri):
     """Orthonormal (normal, tangent, bitangent) per point: the interpolated normal, the tangent
     made perpendicular to it, bitangent = normal x tangent (flipped for mirrored texture)."""
     n = np.einsum("nk,nkd->nd", b, surface.normals[tri])

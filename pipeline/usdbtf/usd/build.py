@@ -386,7 +386,7 @@ def usdbtf_step(argv, label):
                 json.dump({"status": status, "message": lines[-1]}, out)
             sys.stderr.write(stderr)
         with open(os.path.join(HERE, DATA["times"]), "a") as out:   # the build's report reads it
-            out.write(json.dumps({"label": label, "seconds": time.time() - start}) + "\n")
+            out.write(json.dumps({"label": label, "seconds": time.time() - start}) + "\\n")
         return status
 
     return Action(run_step, strfunction=lambda target, source, env: label)

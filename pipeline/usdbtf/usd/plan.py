@@ -305,10 +305,10 @@ class _Accumulator:
 
     def add(self, surface, tri, b, shot: _Shot, lights, texels_per_metre: float | None, time) -> None:
         from ..camera import unit
-        from ..render.core import interpolated_frame
+        from ..render.core import point_frames
 
         p = np.einsum("nk,nkd->nd", b, surface.points[tri])
-        normal, tangent, bitangent = interpolated_frame(b, surface, tri)
+        normal, tangent, bitangent = point_frames(b, surface, tri)
         frame = np.stack([tangent, bitangent, normal], axis=1)                   # (n, 3, 3) rows
         to_eye = unit(shot.camera.eye - p)
         self.view_set.update(_snap(self.views, np.einsum("nij,nj->ni", frame, to_eye)).tolist())
