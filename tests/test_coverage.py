@@ -153,6 +153,27 @@ def test_coverage_round_trips_into_the_asset_info_and_inspect(partial_asset, tmp
     assert summary["coverage"]["views"] == 3 and summary["coverage"]["input_samples"] == 169
 
 
+@pytest.mark.parametrize("name", ["small", "ubo81"])
+def test_kept_triangles_of_the_full_set_stay_triangles_of_the_partial_one(name):
+    """The README's claim: inside a full-set triangle whose corners are all kept, a partial
+    asset interpolates as the full one (Delaunay triangles survive removing other points)."""
+    from usdbtf.compress.coverage import unique_directions
+    from usdbtf.render.hemisphere import Triangulation
+    from usdbtf.sampling import preset
+
+    dirs = unique_directions(preset(name).view)[0]
+    full = {tuple(sorted(t)) for t in Triangulation.from_directions(dirs).triangles}
+    rng = np.random.default_rng(0)
+    checked = 0
+    for _ in range(10):
+        keep = np.sort(rng.choice(len(dirs), size=len(dirs) // 2, replace=False))
+        partial = {tuple(sorted(keep[list(t)])) for t in Triangulation.from_directions(dirs[keep]).triangles}
+        wanted = [t for t in full if set(t) <= set(keep.tolist())]
+        assert all(t in partial for t in wanted)
+        checked += len(wanted)
+    assert checked > 10
+
+
 def test_cpu_renderer_is_exact_inside_the_coverage_and_nearest_outside(partial_asset, full_cbtf):
     part, full = _cpu(load_btf(partial_asset)), _cpu(full_cbtf)
     scale = float(full.swatch((0, 0), (30, 30)).mean())
@@ -193,3 +214,48 @@ def test_glsl_path_matches_the_cpu_renderer_on_a_partial_asset(partial_asset):
         assert psnr(gl.swatch((60, 0), LIGHTS[0]), gl.swatch((30, 0), LIGHTS[0])) >= 60.0
     finally:
         ctx.release()
+
+
+def _scene(asset, out, view, light):
+    """A stage referencing ``asset`` with a far camera seeing its swatch from the local
+    direction ``view`` and a distant light from ``light`` ((theta, phi) degrees, the swatch's
+    tangent frame)."""
+    from usdbtf.camera import Camera
+    from usdbtf.mesh import load_prim
+    from usdbtf.render import Light
+    from usdbtf.usd.read import open_stage
+    from usdbtf.usd.scene import write_scene
+    from pxr import UsdGeom
+
+    stage = open_stage(asset)
+    mesh = next(load_prim(p) for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)).corner_frames()
+    t, b, n = mesh.tangents[0, 0], mesh.bitangents[0, 0], mesh.normals[0, 0]
+    centre = mesh.points.reshape(-1, 3).mean(axis=0)
+
+    def world(direction):
+        theta, phi = np.radians(direction)
+        return np.sin(theta) * (np.cos(phi) * t + np.sin(phi) * b) + np.cos(theta) * n
+
+    camera = Camera(centre + 10.0 * world(view), centre, n, 1.0, 32, 32)
+    return write_scene(asset, out, camera, [Light("directional", world(light))])
+
+
+def test_validate_warns_when_the_scene_asks_for_directions_outside_the_coverage(partial_asset, tmp_path, capsys):
+    from usdbtf.usd.reach import coverage_warnings
+    from usdbtf.usd.read import open_stage
+
+    # Inside: the view (15, 30) lies in the full set's triangle pole, (30, 0), (30, 60), all
+    # kept; the light is the kept (30, 30) itself.
+    inside = tmp_path / "inside.usda"
+    _scene(partial_asset, inside, (15, 30), (30, 30))
+    assert coverage_warnings(open_stage(inside)) == []
+    # Outside: view (45, 180) and light (45, 200) need directions that were not kept.
+    outside = tmp_path / "outside.usda"
+    _scene(partial_asset, outside, (45, 180), (45, 200))
+    lines = coverage_warnings(open_stage(outside))
+    assert len(lines) == 2, lines
+    assert "camera /World/Camera asks for view directions outside" in lines[0] and "e.g. theta 45.0, phi 1" in lines[0]
+    assert "light /World/Light0 asks for light directions outside" in lines[1]
+    # Through the command: a warning, not an error (exit status 0).
+    report = json.loads(ok(capsys, "inspect", outside, "--validate", "--json"))["validation"]
+    assert report["errors"] == [] and sum("[usdbtf:Coverage]" in w for w in report["warnings"]) == 2

@@ -12,7 +12,8 @@ def add_parser(sub) -> None:
     p.add_argument("--validate", action="store_true",
                    help="also run every UsdValidation validator on every lod selection, check every layer "
                         "for NaN or Inf and every bound mesh's texel density against its material's (within 2 "
-                        "%%) (exit status 65 when there is an error)")
+                        "%%) (exit status 65 when there is an error); warn where a camera or light of the stage "
+                        "asks a partial asset for a view or light direction it does not keep")
     p.add_argument("--json", action="store_true", help="print the summary as JSON (keys in the README)")
     p.set_defaults(func=run)
 
@@ -22,6 +23,8 @@ def run(args) -> int:
     from ..usd.density import density_problems
     from ..usd.finite import non_finite_in_stage
     from ..usd.inspect import describe, summary
+    from ..usd.reach import coverage_warnings
+    from ..usd.read import open_stage
     from ..usd.validate import validation_by_lod
 
     info = summary(args.asset)
@@ -34,7 +37,9 @@ def run(args) -> int:
         # ... and every bound mesh carries its material at the material's physical scale.
         errors = flat(by_lod) + [f"[usdbtf:NonFiniteValue] {where}: NaN or infinite value"
                                  for where in non_finite_in_stage(args.asset)] + density_problems(info["bindings"])
-        info["validation"] = {"errors": errors, "warnings": flat(validation_by_lod(args.asset, severities=("Warn",))),
+        # ... and warnings where the stage's cameras and lights ask a partial asset for more.
+        warnings = flat(validation_by_lod(args.asset, severities=("Warn",))) + coverage_warnings(open_stage(args.asset))
+        info["validation"] = {"errors": errors, "warnings": warnings,
                               "selections": [lod or "(as authored)" for lod in by_lod]}
     if args.json:
         from . import print_json

@@ -103,12 +103,16 @@ def coverage_record(btf: BTF, views: np.ndarray, lights: np.ndarray, factor: int
     """What a partial compress covers (metadata key ``coverage``).
 
     Keys: ``input_views``, ``input_lights``, ``input_samples`` (the full input's distinct view
-    and light directions and its samples), ``input_size`` [W, H] (texels), ``views`` and
-    ``lights`` (the kept directions, degrees [theta, phi], in the input's order),
-    ``resolution_factor`` (f: the stored textures are ceil(W / f) x ceil(H / f))."""
-    return {"input_views": int(len(unique_directions(btf.sampling.view)[0])),
-            "input_lights": int(len(unique_directions(btf.sampling.light)[0])),
+    and light directions and its samples), ``input_view_directions``,
+    ``input_light_directions`` (those directions, degrees [theta, phi]: what a full asset
+    would interpolate over, so a reader can tell a direction the partial one renders exactly
+    from one it does not, :mod:`usdbtf.usd.reach`), ``input_size`` [W, H] (texels), ``views``
+    and ``lights`` (the kept directions, in the input's order), ``resolution_factor`` (f: the
+    stored textures are ceil(W / f) x ceil(H / f))."""
+    all_views, all_lights = unique_directions(btf.sampling.view)[0], unique_directions(btf.sampling.light)[0]
+    return {"input_views": int(len(all_views)), "input_lights": int(len(all_lights)),
             "input_samples": int(btf.n_samples), "input_size": [int(btf.width), int(btf.height)],
+            "input_view_directions": all_views.tolist(), "input_light_directions": all_lights.tolist(),
             "views": np.asarray(views, np.float64).tolist(), "lights": np.asarray(lights, np.float64).tolist(),
             "resolution_factor": int(factor)}
 
@@ -122,13 +126,16 @@ def read_coverage_record(info: dict, where: str) -> dict | None:
     counts = ("input_views", "input_lights", "input_samples", "resolution_factor")
     ok = isinstance(record, dict) and all(isinstance(record.get(key), int) and not isinstance(record.get(key), bool)
                                           and record[key] >= 1 for key in counts)
-    for key in ("views", "lights"):
+    for key in ("views", "lights", "input_view_directions", "input_light_directions"):
         value = record.get(key) if isinstance(record, dict) else None
+        if value is None and key.startswith("input_"):           # optional: the check then has less to go on
+            continue
         ok = ok and isinstance(value, list) and 0 < len(value) and all(
             isinstance(p, list) and len(p) == 2 and all(isinstance(x, (int, float)) for x in p) for p in value)
     if not ok:
         raise BTFError(f"{where}: coverage: expected input_views, input_lights, input_samples, resolution_factor "
-                       "(positive integers) and views, lights (lists of [theta, phi])")
+                       "(positive integers) and views, lights, input_view_directions, input_light_directions "
+                       "(lists of [theta, phi])")
     return record
 
 
@@ -192,7 +199,8 @@ class BoxFilteredBTF(BTF):
         linear = parent.decode(parent.read_encoded(indices, rows=src), what=f"rows {src[0]}..{src[1]}")
         mean = box_mean(linear, f)
         to_file = color.processor(self.working_space, self.color_space, self.ocio_config)
-        return np.ascontiguousarray(to_file.apply(mean), dtype=np.float32)
+        # A mean of in-gamut colours is in gamut: a value below zero is the round trip's rounding.
+        return np.maximum(np.ascontiguousarray(to_file.apply(mean), dtype=np.float32), 0.0)
 
 
 def box_mean(images: np.ndarray, f: int) -> np.ndarray:

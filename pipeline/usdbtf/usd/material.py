@@ -126,8 +126,9 @@ def _author_coverage(material, cbtf: CompressedBTF) -> None:
     record = read_coverage_record(cbtf.info, str(material.GetPath()))
     if record is None:
         return
-    for key in ("views", "lights"):
-        _set(material, "coverage:" + key, Vt.Vec2dArray([Gf.Vec2d(*map(float, d)) for d in record[key]]))
+    for key, name in _COVERAGE_DIRECTIONS.items():
+        if record.get(key):
+            _set(material, "coverage:" + name, Vt.Vec2dArray([Gf.Vec2d(*map(float, d)) for d in record[key]]))
     for key, name in _COVERAGE_COUNTS.items():
         _set(material, "coverage:" + name, int(record[key]))
     if record.get("input_size"):
@@ -135,6 +136,8 @@ def _author_coverage(material, cbtf: CompressedBTF) -> None:
 
 
 #: Coverage record keys (:func:`usdbtf.compress.coverage.coverage_record`) -> btf:coverage: attribute names.
+_COVERAGE_DIRECTIONS = {"views": "views", "lights": "lights", "input_view_directions": "inputViewDirections",
+                        "input_light_directions": "inputLightDirections"}
 _COVERAGE_COUNTS = {"input_views": "inputViews", "input_lights": "inputLights", "input_samples": "inputSamples",
                     "resolution_factor": "resolutionFactor"}
 
@@ -146,9 +149,11 @@ def read_coverage(material) -> dict | None:
     views = _get(material, "coverage:views", required=False)
     if views is None:
         return None
-    record = {"views": np.asarray(views, np.float64).reshape(-1, 2).tolist(),
-              "lights": np.asarray(_get(material, "coverage:lights", required=False) or [], np.float64)
-              .reshape(-1, 2).tolist()}
+    record = {}
+    for key, name in _COVERAGE_DIRECTIONS.items():
+        value = _get(material, "coverage:" + name, required=False)
+        record[key] = np.asarray(value, np.float64).reshape(-1, 2).tolist() if value is not None else None
+    record["lights"] = record["lights"] or []
     for key, name in _COVERAGE_COUNTS.items():
         record[key] = int(_get(material, "coverage:" + name, required=False) or 0)
     size = _get(material, "coverage:inputResolution", required=False)
