@@ -246,7 +246,9 @@ def plan(scene, *, source_facts=None, target_error: float | None = None) -> tupl
         raise BTFError(f"{scene}: two materials write the same btf:build:asset")
     report = {"bound": bound, "without_recipe": without, "shaped": source_facts is not None}
     if source_facts is not None:
-        recipes, report["needs"], report["skipped"] = _shaped(stage, scene, recipes, bound, source_facts, target_error)
+        with usd_warnings_silenced():   # the materials' assets are not built yet (see above)
+            recipes, report["needs"], report["skipped"] = _shaped(stage, scene, recipes, bound, source_facts,
+                                                                  target_error)
     from .binding import binding_targets, bindings
 
     chains = bindings(stage, recipes, binding_targets(stage, [r.material for r in recipes]), work_folder(scene))

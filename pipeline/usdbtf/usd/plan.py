@@ -18,7 +18,8 @@ material, and says for each material (a :class:`Need`):
   coefficients can be box-filtered by ``factor = 2^floor(log2(1 / density))`` (so a level of
   the reduced mip chain is a level of the full one) without a visible change: the renderers'
   trilinear filter reads level ``log2(factor)`` or coarser there anyway.  Hence
-  ``max_texels`` (what ``compress --max-texels`` takes) and the mip levels still needed.
+  ``max_texels`` (what ``compress --max-texels`` takes; never below :data:`MIN_TEXELS`) and
+  the mip levels still needed.
 * **directions**: the local (view, light) directions reached, in each surface point's
   tangent frame (x = tangent, y = bitangent, z = normal: the frame the renderers shade in;
   theta from the normal, phi in the tangent plane), snapped to the material's measured view
@@ -64,6 +65,9 @@ __all__ = ["MaterialFacts", "Need", "analyse", "texel_target", "DEFAULT_WIDTH", 
 
 #: Render width (pixels) when the stage has no UsdRender.Settings.
 DEFAULT_WIDTH = 1920
+#: The smallest side (texels) a shaped build filters a material to: a bound mesh's quilt
+#: copies patches of its source (``usdbtf quilt``'s blocks are 8 texels and more).
+MIN_TEXELS = 16
 #: The ``format`` of the coverage documents ``compress --coverage`` reads.
 COVERAGE_FORMAT = "usdbtf-coverage/1"
 
@@ -147,22 +151,27 @@ class Need:
 
     @property
     def max_texels(self) -> int | None:
+        """The larger side after the box filter (None: the measured resolution); never below
+        :data:`MIN_TEXELS` (nor a filter that would leave the size as it is)."""
         side = max(self.facts.width, self.facts.height)
-        return None if self.factor == 1 else max(1, -(-side // self.factor))
+        texels = max(MIN_TEXELS, -(-side // self.factor))
+        return None if texels >= side else texels
 
     @property
     def mip_levels(self) -> dict:
         """{"finest": the finest level of the full mip chain any pixel reads, "count": levels
         from it to one texel}."""
-        finest = int(math.log2(self.factor))
-        full = int(math.floor(math.log2(max(self.facts.width, self.facts.height)))) + 1
+        side = max(self.facts.width, self.facts.height)
+        finest = int(math.floor(math.log2(side / (self.max_texels or side))))
+        full = int(math.floor(math.log2(side))) + 1
         return {"finest": finest, "count": max(1, full - finest)}
 
     @property
     def target_error(self) -> float | None:
         if self.screen_target is None or self.full is not None or not self.needed:
             return self.screen_target
-        return texel_target(self.screen_target, self.pixels_per_texel, self.factor)
+        side = max(self.facts.width, self.facts.height)
+        return texel_target(self.screen_target, self.pixels_per_texel, side / (self.max_texels or side))
 
     def coverage(self) -> dict | None:
         """The ``compress --coverage`` document, or None when every direction is needed."""
@@ -196,7 +205,7 @@ class Need:
                 "coverage": self.coverage()}
 
 
-def texel_target(screen_target: float, pixels_per_texel: float | None, factor: int) -> float:
+def texel_target(screen_target: float, pixels_per_texel: float | None, factor: float) -> float:
     """The per-texel percent error target that meets ``screen_target`` on screen.
 
     Model: a pixel averages the (1 / d)^2 texels under it (d = pixels per texel after the
