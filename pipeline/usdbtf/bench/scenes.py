@@ -56,12 +56,20 @@ def write_scene(path: Path, materials: dict, quads: list, shots: list, *, light_
     quads : :class:`Quad` list; shots : :class:`Shot` list (cameras /World/<name>).
     frames : (first, last) whole frames: the stage's time range (None: no range, one frame).
     """
+    from ..usdstage import usd_warnings_silenced
+
+    # The materials reference assets a build has not written yet.
+    with usd_warnings_silenced():
+        return _author(Path(path), materials, quads, shots, light_towards, resolution, frames, build_dir, options)
+
+
+def _author(path: Path, materials, quads, shots, light_towards, resolution, frames, build_dir, options) -> Path:
+    """:func:`write_scene`'s authoring."""
     from pxr import Gf, Sdf, Usd, UsdGeom, UsdRender, UsdShade, Vt
 
     from ..camera import Camera
     from ..usd.scene import add_camera, add_distant
 
-    path = Path(path)
     stage = Usd.Stage.CreateNew(str(path))
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)

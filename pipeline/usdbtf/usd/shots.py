@@ -6,16 +6,21 @@ renderer (:func:`usdbtf.render.render_parts`: one z-buffer, every mesh its own m
 shadows from every mesh); Storm renders the same stage itself.  What counts as rendered is
 what :mod:`usdbtf.usd.plan` analyses: ``Mesh`` prims of purpose default or render, visible at
 the frame.  Each one's material is its bound material (all purposes) when that is a
-BtfMaterialAPI material, else the stage's only BTF material (a mesh written beside an asset
-by ``usdbtf preview``), else it is an error naming the prim.
+BtfMaterialAPI material; a mesh bound to another material (or to one whose asset a
+scene-shaped build left out, so it composes no BTF) is not rendered, with a warning; a mesh
+bound to nothing takes the stage's only BTF material (a mesh written beside an asset by
+``usdbtf preview``), else it is an error naming the prim.
 """
 from __future__ import annotations
 
+import logging
 import re
 from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import BTFError, UsageError
+
+log = logging.getLogger(__name__)
 
 __all__ = ["Shot", "scene_shots", "parse_frames", "frame_path", "check_pattern"]
 
@@ -75,18 +80,21 @@ def _rendered_meshes(stage, time):
         yield prim
 
 
-def _bound_btf(prim):
-    """The path of the BtfMaterialAPI material bound to ``prim`` (any purpose), or None."""
+def _bound_material(prim) -> tuple[str | None, bool]:
+    """(the path of the material bound to ``prim`` (any purpose; a BtfMaterialAPI one first),
+    whether it is a BTF material); (None, False) when none is bound."""
     from pxr import UsdShade
 
     from .plugin import API_SCHEMA
 
     api = UsdShade.MaterialBindingAPI(prim)
+    other = None
     for purpose in (UsdShade.Tokens.allPurpose, UsdShade.Tokens.full, UsdShade.Tokens.preview):
         material, _ = api.ComputeBoundMaterial(purpose)
         if material and material.GetPrim().HasAPI(API_SCHEMA):
-            return str(material.GetPath())
-    return None
+            return str(material.GetPath()), True
+        other = other or (str(material.GetPath()) if material else None)
+    return other, False
 
 
 def scene_shots(path, camera_path: str, width: int | None, frames: list | None, *, k: int | None = None):
@@ -110,14 +118,25 @@ def scene_shots(path, camera_path: str, width: int | None, frames: list | None, 
     only = btf_materials(stage)
     fallback = str(only[0].GetPath()) if len(only) == 1 else None
     materials: dict = {}
+    skipped: set = set()
     shots = []
     for time in (frames if frames is not None else [None]):
         parts = []
         for mesh_prim in _rendered_meshes(stage, time):
-            material = _bound_btf(mesh_prim) or fallback
-            if material is None:
-                raise BTFError(f"{path}: {mesh_prim.GetPath()} has no BTF material bound (and the stage has "
-                               f"{len(only)} BTF materials, so none stands in)")
+            material, is_btf = _bound_material(mesh_prim)
+            if not is_btf:
+                if material is None and fallback is not None:
+                    material = fallback
+                elif material is None:
+                    raise BTFError(f"{path}: {mesh_prim.GetPath()} has no material bound (and the stage has "
+                                   f"{len(only)} BTF materials, so none stands in)")
+                else:
+                    # Not a BTF material (or one a scene-shaped build left out: its asset is not built).
+                    if material not in skipped:
+                        log.warning(f"{path}: {mesh_prim.GetPath()} is bound to {material}, which is not a BTF "
+                                    "material (here): not rendered")
+                    skipped.add(material)
+                    continue
             if material not in materials:
                 materials[material] = load_btf(stage, material=material, k=k)
             parts.append((material, load_prim(mesh_prim, time)))
