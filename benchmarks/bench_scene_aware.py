@@ -26,7 +26,7 @@ alone is 26 dB: see the README).
 
 Usage (repository root)::
 
-    .venv/bin/python benchmarks/bench_scene_aware.py                 # ~3 min on 2 loaded cores
+    .venv/bin/python benchmarks/bench_scene_aware.py                 # ~6 min on 2 loaded cores
     .venv/bin/python benchmarks/bench_scene_aware.py --figure docs/scene_aware.png
 
 Writes benchmarks/out/scene_aware_<timestamp>.json and prints a markdown block for RESULTS.md.
@@ -121,9 +121,11 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--frames", type=int, default=24)
     ap.add_argument("--sampling", default="small")
-    ap.add_argument("--size", type=int, default=64, help="texels per side of each material (default 64)")
+    ap.add_argument("--size", type=int, default=128, help="texels per side of each material (default 128)")
     ap.add_argument("--k", type=int, help="the recipes' k (default: the sampling's sample count)")
     ap.add_argument("--resolution", type=int, nargs=2, default=(192, 128), metavar=("W", "H"))
+    ap.add_argument("--repeats", type=int, default=3, help="builds of each kind, from scratch, alternating "
+                    "(the median is reported; default 3)")
     ap.add_argument("--work", type=Path, help="work folder (default: a temporary one, removed)")
     ap.add_argument("--figure", type=Path, help="write the frames picture (PNG) here")
     args = ap.parse_args()
@@ -141,22 +143,29 @@ def main() -> int:
         doc = {"machine": machine_info(), "inputs": {"frames": args.frames, "sampling": args.sampling,
                                                      "size": args.size, "k": k, "resolution": list(args.resolution),
                                                      "materials": MATERIALS}}
-        runs = {}
-        for variant in ("full", "shaped"):
+        runs = {"full": {"build_s": []}, "shaped": {"build_s": []}}
+        for repeat in range(args.repeats):          # each build from scratch, the two alternating
+            for variant in ("full", "shaped"):
+                folder = work / variant
+                shutil.rmtree(folder, ignore_errors=True)
+                folder.mkdir()
+                path = scene(folder, captures, args.frames, second_camera=False, k=k, resolution=args.resolution)
+                flags = ["--full"] if variant == "full" else []
+                build = usdbtf("build", str(path), "--json", *flags, cwd=folder)
+                report = json.loads(build.stdout)
+                r = runs[variant]
+                r["build_s"].append(build.wall_s)
+                r.update(bytes=built_bytes(folder), steps=len(report["ran"]),
+                         step_seconds={m: c["seconds"] for m, c in report["costs"].items()},
+                         needs={m: {key: n[key] for key in ("needed", "why_not", "views", "lights",
+                                                           "pixels_per_texel", "max_texels", "sample_fraction")}
+                                for m, n in report["needs"].items()})
+        for variant, r in runs.items():
             folder = work / variant
-            shutil.rmtree(folder, ignore_errors=True)
-            folder.mkdir()
-            path = scene(folder, captures, args.frames, second_camera=False, k=k, resolution=args.resolution)
-            flags = ["--full"] if variant == "full" else []
-            build = usdbtf("build", str(path), "--json", *flags, cwd=folder)
-            report = json.loads(build.stdout)
-            render = usdbtf("render", str(path), "--camera", "/World/Cam", "--frames", f"1:{args.frames}", "-o",
-                            str(folder / "frames" / "f.####.exr"), "--no-png", cwd=folder)
-            runs[variant] = {"build_s": build.wall_s, "build_cpu_s": build.user_s + build.sys_s,
-                             "bytes": built_bytes(folder), "steps": len(report["ran"]), "render_s": render.wall_s,
-                             "needs": {m: {key: n[key] for key in ("needed", "why_not", "views", "lights",
-                                                                   "pixels_per_texel", "max_texels", "sample_fraction")}
-                                       for m, n in report["needs"].items()}}
+            render = usdbtf("render", str(folder / "scene.usda"), "--camera", "/World/Cam", "--frames",
+                            f"1:{args.frames}", "-o", str(folder / "frames" / "f.####.exr"), "--no-png", cwd=folder)
+            r["render_s"] = render.wall_s
+            r["build_median_s"] = float(np.median(r["build_s"]))
         scores = [psnr(rgba(work / "full" / "frames" / f"f.{f:04d}.exr"),
                        rgba(work / "shaped" / "frames" / f"f.{f:04d}.exr")) for f in range(1, args.frames + 1)]
         doc["psnr_db"] = [s for s, _ in scores]
@@ -190,10 +199,13 @@ def report_text(doc: dict, args, k: int, out: Path) -> str:
     lines = [format_machine(doc["machine"]), "",
              f"Scene: {args.frames} frames at {args.resolution[0]}x{args.resolution[1]}, materials "
              f"{args.sampling} sampling, {args.size}x{args.size} texels, recipe --k {k} --codec png --domain srgb",
-             "", "| build | wall s | bytes | steps run | render all frames s |", "|---|---|---|---|---|"]
+             "", f"| build | wall s (median of {len(full['build_s'])}; each) | bytes | steps run | render all frames s |",
+             "|---|---|---|---|---|"]
     for name, r in (("full (`--full`)", full), ("scene-shaped", shaped)):
-        lines.append(f"| {name} | {r['build_s']:.1f} | {r['bytes'] / 1e6:.2f} MB | {r['steps']} | {r['render_s']:.1f} |")
-    lines += ["", f"shaped / full: time {shaped['build_s'] / full['build_s']:.2f}, bytes "
+        each = ", ".join(f"{t:.1f}" for t in r["build_s"])
+        lines.append(f"| {name} | {r['build_median_s']:.1f} ({each}) | {r['bytes'] / 1e6:.2f} MB | {r['steps']} | "
+                     f"{r['render_s']:.1f} |")
+    lines += ["", f"shaped / full: time {shaped['build_median_s'] / full['build_median_s']:.2f}, bytes "
               f"{shaped['bytes'] / full['bytes']:.3f}",
               f"frames: PSNR (sRGB, geometry pixels) min {p.min():.1f} dB, median {np.median(p):.1f} dB over "
               f"{len(p)} frames", "", "| material | needed | views kept | lights kept | pixels/texel | max texels |",

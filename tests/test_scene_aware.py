@@ -124,3 +124,13 @@ def _check_frames(scene: Path, folder: Path, capsys) -> None:
     assert images[0].shape == (64, 96, 4)
     assert 0.1 < images[0][..., 3].mean() < 1.0 and images[0][..., :3].max() > 0.05     # the floor, lit
     assert not np.array_equal(images[0], images[1])                                     # the camera moved
+
+
+def test_screen_error_target_becomes_a_per_texel_target(captures, tmp_path):
+    recipes, report = plan(_scene(tmp_path, captures), source_facts=source_facts, target_error=2.0)
+    near, far = report["needs"]["/World/Looks/Near"], report["needs"]["/World/Looks/Far"]
+    assert near.target_error == 2.0                        # a texel covers pixels: the screen's target
+    # Far: a pixel averages many texels, so each texel may be off by more (capped at 100 %).
+    assert far.target_error == pytest.approx(min(100.0, 2.0 / (far.pixels_per_texel * 2)))
+    shape = {r.material: r.shape for r in recipes}
+    assert shape["/World/Looks/Near"][-2:] == ("--target-error", "2.0")
