@@ -3,7 +3,7 @@
 ``usdbtf build`` of one scene, in one run.
 
 The scene (:mod:`usdbtf.bench.scenes`): a camera dollying sideways over ``--frames`` frames
-past a 5 cm floor quad (material Near, close up: several pixels per texel), a 3 cm tile 1.6 m
+past a 5 cm floor quad (material Near, close up: about a pixel per texel), a 3 cm tile 1.6 m
 away (material Far: a few pixels on screen), a quad behind the camera (material Hidden: never
 in any frustum), and one distant light.  Three synthetic materials (``--sampling``,
 ``--size`` texels, recipe ``--k``, ``--codec png --domain srgb``).

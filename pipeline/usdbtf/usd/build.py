@@ -278,7 +278,7 @@ def _shaped(stage, scene: Path, recipes: list[Recipe], bound: dict, source_facts
         if need.max_texels is not None:
             shape += ["--max-texels", str(need.max_texels)]
         requirements = need.requirements()
-        target = need.target_error if not facts[r.material].compressed else None
+        target = need.target_error if need.full is None else None
         if target is not None and "--target-error" in options:
             at = options.index("--target-error")
             if float(options[at + 1]) <= target:

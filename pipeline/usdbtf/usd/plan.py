@@ -78,7 +78,9 @@ class MaterialFacts:
 
     views, lights : (V, 2), (L, 2) degrees (theta, phi): its measured direction sets.
     width, height : texels.  texels_per_metre : its measured density (None: unknown).
-    compressed : the source is already compressed (nothing is compressed, so nothing shaped).
+    whole : why the material is built whole whatever the scene shows (None: it can be shaped):
+    the source is already compressed (nothing is compressed), or its sampling is not every
+    light at every view (a coverage keeps a views x lights product).
     """
 
     views: np.ndarray
@@ -86,19 +88,20 @@ class MaterialFacts:
     width: int
     height: int
     texels_per_metre: float | None = None
-    compressed: bool = False
+    whole: str | None = None
 
     @classmethod
     def of(cls, source, compressed: bool = False) -> "MaterialFacts":
-        """The facts of an opened source: a :class:`usdbtf.model.BTF` or a
-        :class:`usdbtf.compress.format.CompressedBTF` (its sampling every light at every view)."""
+        """The facts of an opened source: a :class:`usdbtf.model.BTF` or (``compressed``) a
+        :class:`usdbtf.compress.format.CompressedBTF`."""
         from ..compress.format import cross_layout
 
         sampling = source.sampling
         layout = cross_layout(sampling)
+        whole = "the source is already compressed: packaged as it is" if compressed else None
         if layout is None:
-            raise BTFError(f"{getattr(source, 'path', '')}: the scene-shaped build needs every light at every view "
-                           f"(a V x L sampling); build it with --full")
+            whole = "its sampling is not every light at every view: built whole"
+            layout = (len(sampling), 1)
         n_views, n_lights = layout
         meta = getattr(source, "metadata", None) or (getattr(source, "info", None) or {}).get("source_metadata") or {}
         size = meta.get("physical_size_m")
@@ -106,7 +109,7 @@ class MaterialFacts:
         if size and len(size) == 2 and min(float(x) for x in size) > 0:
             density = math.sqrt(source.width * source.height / (float(size[0]) * float(size[1])))
         return cls(sampling.view[::n_lights].copy(), sampling.light[:n_lights].copy(), int(source.width),
-                   int(source.height), density, compressed)
+                   int(source.height), density, whole)
 
 
 @dataclass
@@ -306,8 +309,10 @@ class _Accumulator:
         from ..render.hemisphere import Triangulation
 
         self.need = need
-        self.views = Triangulation.from_directions(need.facts.views, "view directions")
-        self.lights = Triangulation.from_directions(need.facts.lights, "light directions")
+        # A material built whole needs no directions (its sampling may not even be V x L).
+        whole = need.full is not None
+        self.views = None if whole else Triangulation.from_directions(need.facts.views, "view directions")
+        self.lights = None if whole else Triangulation.from_directions(need.facts.lights, "light directions")
         self.view_set: set = set()
         self.light_set: set = set()
         self.frames: set = set()
@@ -320,12 +325,13 @@ class _Accumulator:
         normal, tangent, bitangent = point_frames(b, surface, tri)
         frame = np.stack([tangent, bitangent, normal], axis=1)                   # (n, 3, 3) rows
         to_eye = unit(shot.camera.eye - p)
-        self.view_set.update(_snap(self.views, np.einsum("nij,nj->ni", frame, to_eye)).tolist())
-        for light in lights:
+        for light in (lights if self.views is not None else []):
             to_light, scale = light.at(p)
             local = np.einsum("nij,nj->ni", frame, to_light)
             lit = (scale > 0) & (local[:, 2] > 0)
             self.light_set.update(_snap(self.lights, local[lit]).tolist())
+        if self.views is not None:
+            self.view_set.update(_snap(self.views, np.einsum("nij,nj->ni", frame, to_eye)).tolist())
         depth = (p - shot.camera.eye) @ shot.camera.basis()[2]
         if texels_per_metre:
             ppt = float(shot.camera.focal_px / max(float(depth.min()), 1e-9) / texels_per_metre)
@@ -381,8 +387,7 @@ def analyse(stage, materials: dict, facts: dict, *, target_error: float | None =
         attr = stage.GetPrimAtPath(material).GetAttribute(NS + "build:targetError")
         scene_target = float(attr.Get()) if attr and attr.HasAuthoredValue() else None
         need.screen_target = target_error if target_error is not None else scene_target
-        if facts[material].compressed:
-            need.full = "the source is already compressed: packaged as it is"
+        need.full = facts[material].whole
         acc[material] = _Accumulator(need)
     if not acc:
         return {}
