@@ -84,7 +84,9 @@ def _log_table(report: dict, costs: dict | None) -> None:
     rows = [("material", "needed", "views", "lights", "max texels", "target %", "MB", "s", "full MB", "full s")]
     for material in sorted(set(needs) | set(costs or {})):
         need, cost = needs.get(material), (costs or {}).get(material, {})
-        if need is not None:
+        if need is not None and need.needed and need.full is not None:
+            cells = (f"yes, whole: {need.full}", "all", "all", "full", "-")
+        elif need is not None:
             cells = ("yes" if need.needed else f"no: {need.why_not}", f"{len(need.views)}/{len(need.facts.views)}",
                      f"{len(need.lights)}/{len(need.facts.lights)}", str(need.max_texels or "full"),
                      "-" if need.target_error is None else f"{need.target_error:.3g}")

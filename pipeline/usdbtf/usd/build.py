@@ -263,7 +263,7 @@ def _shaped(stage, scene: Path, recipes: list[Recipe], bound: dict, source_facts
 
     from .plan import analyse
 
-    facts = {r.material: source_facts(r.source) for r in recipes}
+    facts = {r.material: _facts(source_facts, r) for r in recipes}
     needs = analyse(stage, {r.material: bound[r.material] for r in recipes}, facts, target_error=target_error)
     kept, skipped = [], []
     for r in recipes:
@@ -289,8 +289,23 @@ def _shaped(stage, scene: Path, recipes: list[Recipe], bound: dict, source_facts
             shape += ["--target-error", repr(float(target))]
         requirements["target_error"] = target
         kept.append(replace(r, options=tuple(options), shape=tuple(shape),
-                            requirements=json.dumps(requirements, sort_keys=True)))
+                            # Nothing shaped is the full build: the same signature, nothing to rebuild.
+                            requirements=json.dumps(requirements, sort_keys=True) if shape else ""))
     return kept, needs, skipped
+
+
+def _facts(source_facts, recipe: Recipe):
+    """The plan's facts of ``recipe``'s source; one it cannot read is built whole (its compress
+    step then says what is wrong with it, as a build always did)."""
+    import numpy as np
+
+    from .plan import MaterialFacts
+
+    try:
+        return source_facts(recipe.source)
+    except BTFError as exc:
+        return MaterialFacts(np.zeros((0, 2)), np.zeros((0, 2)), 1, 1, None,
+                             whole=f"its source could not be read for the plan ({exc}): built whole")
 
 
 def coverage_path(scene: Path, recipe: Recipe) -> Path:
