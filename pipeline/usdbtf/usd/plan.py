@@ -43,7 +43,9 @@ plane test in camera space), so a triangle smaller than a pixel, or one cut by t
 plane, still counts.  Between two neighbouring pixel centres a local direction moves by about
 one pixel's angle (0.05 degrees at 1920 pixels and 90 degrees of field of view), far less
 than the spacing of any measured set (15 degrees), so the triangles between two samples
-are those of the samples.  Sub-frame times (motion blur) are not looked at.
+are those of the samples.  Sub-frame times (motion blur) are not looked at; a frame identical
+to an earlier one (cameras, lights, every bound prim's visibility and placement, animated
+points) is not sampled again.
 
 The render resolution is the stage's ``UsdRender.Settings`` resolution (its width; the
 height follows each camera's apertures, as ``usdbtf render`` and usdrecord frame it),
@@ -392,12 +394,22 @@ def analyse(stage, materials: dict, facts: dict, *, target_error: float | None =
     if not acc:
         return {}
     meshes: dict = {}
+    seen_frames: dict = {}
     for time in track(times, "scene analysis (frames)", len(times), logger=log):
         shots, problems = _cameras(stage, time, width, meters)
         full_reason = ("; ".join(problems) + ": the scene's views are not analysed") if problems else \
             (None if shots else "the scene has no camera: every direction and texel is kept")
         lights = scene_lights(stage, time, "scene")
         code = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
+        # A frame that looks exactly like an earlier one (cameras, lights, every bound prim's
+        # visibility and placement) reaches the same directions and densities: not sampled again.
+        key = _frame_key(stage, shots, problems, lights, materials, code, time)
+        if key in seen_frames:
+            for a in acc.values():
+                if seen_frames[key] in a.frames:
+                    a.frames.add(time)
+            continue
+        seen_frames[key] = time
         for material, a in acc.items():
             for path in materials[material]:
                 prim = stage.GetPrimAtPath(path)
@@ -435,15 +447,43 @@ def analyse(stage, materials: dict, facts: dict, *, target_error: float | None =
     return {material: a.finish() for material, a in acc.items()}
 
 
+def _frame_key(stage, shots, problems, lights, materials: dict, code, time) -> bytes:
+    """What decides a frame's samples, as bytes: every camera (placement, lens, frame, clipping),
+    every light, and every bound prim's visibility, world transform and (when its points are
+    animated) the time."""
+    from pxr import UsdGeom
+
+    parts = [repr(problems).encode()]
+    for shot in shots:
+        c = shot.camera
+        parts.append(np.array([*c.eye, *c.target, *c.up, c.fov, c.width, c.height, shot.near, shot.far]).tobytes())
+    for light in lights:
+        parts.append(light.kind.encode() + np.array([*light.vector, light.intensity]).tobytes())
+    cache = UsdGeom.XformCache(code)
+    for path in sorted({p for prims in materials.values() for p in prims}):
+        prim = stage.GetPrimAtPath(path)
+        if not prim.IsA(UsdGeom.Gprim):
+            continue
+        parts.append(path.encode() + str(UsdGeom.Imageable(prim).ComputeVisibility(code)).encode()
+                     + np.asarray(cache.GetLocalToWorldTransform(prim), np.float64).tobytes())
+        if _animated(prim):
+            parts.append(repr(time).encode())
+    return b"\0".join(parts)
+
+
+def _animated(prim) -> bool:
+    """Whether any attribute of ``prim`` (points, normals, primvars...) may change over time."""
+    return any(attr.ValueMightBeTimeVarying() for attr in prim.GetAttributes())
+
+
 def _mesh_at(cache: dict, prim, time, load_prim):
     """(corner frames, mesh) of ``prim`` at ``time``, or None without texture coordinates;
-    loaded once while neither its points nor its world transform change."""
+    loaded once while neither its attributes nor its world transform change."""
     from pxr import Usd, UsdGeom
 
     code = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
     xf = np.asarray(UsdGeom.XformCache(code).GetLocalToWorldTransform(prim), np.float64)
-    varying = UsdGeom.Mesh(prim).GetPointsAttr().ValueMightBeTimeVarying()
-    key = (str(prim.GetPath()), xf.tobytes(), time if varying else None)
+    key = (str(prim.GetPath()), xf.tobytes(), time if _animated(prim) else None)
     if key not in cache:
         mesh = load_prim(prim, time)
         cache[key] = None if mesh.uv is None else (mesh.corner_frames(), mesh)
