@@ -32,13 +32,15 @@ def captures(tmp_path_factory) -> Path:
 
 def _scene(folder: Path, captures: Path, *, second_camera: bool = False) -> Path:
     """Near: a 5 cm quad filling the frame; Far: a 2 cm quad 2 m away (a few pixels);
-    Hidden: an invisible quad; one camera moving sideways over three frames, one light."""
+    Hidden: an invisible quad and a proxy one in front of the floor; one camera moving
+    sideways over three frames, one light."""
     if not (folder / "captures").exists():
         shutil.copytree(captures, folder / "captures")
     mats = {"Near": folder / "captures/pebbles", "Far": folder / "captures/ridged_fabric",
             "Hidden": folder / "captures/fuzzy_moss"}
     quads = [Quad("Floor", "Near", 0.05, (0, 0, 0)), Quad("Tile", "Far", 0.02, (0.05, 0.0, -2.0)),
-             Quad("Ghost", "Hidden", 0.05, (0, 0.1, 0), visible=False)]
+             Quad("Ghost", "Hidden", 0.05, (0, 0.1, 0), visible=False),
+             Quad("Stand_in", "Hidden", 0.05, (0, 0, 0.01), purpose="proxy")]      # in view, but a proxy
     shots = [Shot("Cam", [(-0.01 + 0.01 * i, 0.0, 0.12) for i in range(3)], [(0, 0, 0)], fov=40)]
     if second_camera:      # a grazing view of the floor: views the first camera never asks for
         shots.append(Shot("Side", [(0.15, 0.0, 0.04)], [(0, 0, 0)], fov=40))
@@ -52,7 +54,10 @@ def test_plan_skips_the_invisible_material_and_says_why(captures, tmp_path):
     recipes, report = plan(_scene(tmp_path, captures), source_facts=source_facts)
     needs = report["needs"]
     assert report["skipped"] == ["/World/Looks/Hidden"]
-    assert needs["/World/Looks/Hidden"].why_not == "invisible at every frame"
+    assert needs["/World/Looks/Hidden"].prims == {
+        "/World/Ghost": "invisible at every frame",
+        "/World/Stand_in": "proxy-only (purpose proxy: not in a final render)"}
+    assert not needs["/World/Looks/Hidden"].needed
     assert [r.material for r in recipes] == ["/World/Looks/Far", "/World/Looks/Near"]
     near, far = needs["/World/Looks/Near"], needs["/World/Looks/Far"]
     assert near.frames == 3 and near.max_texels is None              # close up: every texel

@@ -352,6 +352,17 @@ class _Accumulator:
         return self.need
 
 
+def _scene_target(prim, name: str) -> float | None:
+    """The material's screen-space percent error target (``btf:build:targetError``), checked."""
+    attr = prim.GetAttribute(name)
+    if not attr or not attr.HasAuthoredValue():
+        return None
+    value = attr.Get()
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < float(value) <= 100:
+        raise BTFError(f"{prim.GetPath()}: {name} must be a percentage in (0, 100], got {value!r}")
+    return float(value)
+
+
 def _purpose_problem(prim) -> str | None:
     from pxr import UsdGeom
 
@@ -386,8 +397,7 @@ def analyse(stage, materials: dict, facts: dict, *, target_error: float | None =
         if material not in facts:
             continue
         need = Need(material, facts[material])
-        attr = stage.GetPrimAtPath(material).GetAttribute(NS + "build:targetError")
-        scene_target = float(attr.Get()) if attr and attr.HasAuthoredValue() else None
+        scene_target = _scene_target(stage.GetPrimAtPath(material), NS + "build:targetError")
         need.screen_target = target_error if target_error is not None else scene_target
         need.full = facts[material].whole
         acc[material] = _Accumulator(need)
