@@ -122,6 +122,17 @@ def test_cli_coverage_folder_records_it_and_is_deterministic(tmp_path, pebbles_f
     assert doc["coverage"]["resolution_factor"] == 2
 
 
+def test_box_filtered_bytes_do_not_depend_on_workers_or_memory(tmp_path, pebbles_folder, capsys):
+    # 169 samples: decoded by forked workers (2), in this process (1), or streamed in chunks.
+    runs = {"w2": ["--workers", "2"], "w1": ["--workers", "1"], "stream": ["--memory-budget", "0.00001"]}
+    for name, extra in runs.items():
+        ok(capsys, "compress", pebbles_folder, "-o", tmp_path / name, "--k", "6", "--max-texels", "6", "-q", *extra)
+    files = sorted(p.relative_to(tmp_path / "w2") for p in (tmp_path / "w2").rglob("*") if p.is_file())
+    for name in ("w1", "stream"):
+        for rel in files:
+            assert (tmp_path / name / rel).read_bytes() == (tmp_path / "w2" / rel).read_bytes(), (name, rel)
+
+
 def test_cli_coverage_errors_are_one_line(tmp_path, pebbles_folder, capsys):
     bad = tmp_path / "outside.json"
     bad.write_text(json.dumps({"format": "usdbtf-coverage/1", "views": [[0, 0], [45, 0]], "lights": [[30, 30]]}))
@@ -174,6 +185,19 @@ def test_kept_triangles_of_the_full_set_stay_triangles_of_the_partial_one(name):
     assert checked > 10
 
 
+def test_stencil_names_the_directions_a_query_interpolates_from():
+    from usdbtf.render.hemisphere import Triangulation, directions_to_vectors
+    from usdbtf.sampling import rings
+
+    dirs = rings((0, 30, 60), (1, 6, 6))                      # the pole, then two rings of 6
+    tri = Triangulation.from_directions(dirs)
+    assert np.flatnonzero(tri.stencil(directions_to_vectors([[30, 60]]))).tolist() == [2]
+    # (15, 30) lies in the fan triangle of the pole, (30, 0) and (30, 60).
+    assert np.flatnonzero(tri.stencil(directions_to_vectors([[15, 30]]))).tolist() == [0, 1, 2]
+    # Beyond the outer ring at an azimuth of a measured direction: that direction alone.
+    assert np.flatnonzero(tri.stencil(directions_to_vectors([[80, 120]]))).tolist() == [9]
+
+
 def test_cpu_renderer_is_exact_inside_the_coverage_and_nearest_outside(partial_asset, full_cbtf):
     part, full = _cpu(load_btf(partial_asset)), _cpu(full_cbtf)
     scale = float(full.swatch((0, 0), (30, 30)).mean())
@@ -216,10 +240,10 @@ def test_glsl_path_matches_the_cpu_renderer_on_a_partial_asset(partial_asset):
         ctx.release()
 
 
-def _scene(asset, out, view, light):
-    """A stage referencing ``asset`` with a far camera seeing its swatch from the local
-    direction ``view`` and a distant light from ``light`` ((theta, phi) degrees, the swatch's
-    tangent frame)."""
+def _scene(asset, out, view, light, distance=10.0, fov=1.0, size=32):
+    """A stage referencing ``asset`` with a camera ``distance`` metres away seeing its swatch
+    from the local direction ``view`` and a distant light from ``light`` ((theta, phi)
+    degrees, the swatch's tangent frame).  Returns the camera's prim path."""
     from usdbtf.camera import Camera
     from usdbtf.mesh import load_prim
     from usdbtf.render import Light
@@ -236,7 +260,7 @@ def _scene(asset, out, view, light):
         theta, phi = np.radians(direction)
         return np.sin(theta) * (np.cos(phi) * t + np.sin(phi) * b) + np.cos(theta) * n
 
-    camera = Camera(centre + 10.0 * world(view), centre, n, 1.0, 32, 32)
+    camera = Camera(centre + distance * world(view), centre, n, fov, size, size)
     return write_scene(asset, out, camera, [Light("directional", world(light))])
 
 
@@ -259,3 +283,105 @@ def test_validate_warns_when_the_scene_asks_for_directions_outside_the_coverage(
     # Through the command: a warning, not an error (exit status 0).
     report = json.loads(ok(capsys, "inspect", outside, "--validate", "--json"))["validation"]
     assert report["errors"] == [] and sum("[usdbtf:Coverage]" in w for w in report["warnings"]) == 2
+
+
+def test_validate_samples_the_frames_of_a_moving_camera(partial_asset, tmp_path):
+    from pxr import Usd, UsdGeom
+
+    from usdbtf.usd.reach import coverage_warnings, sample_times
+    from usdbtf.usd.read import open_stage
+
+    moving, outside = tmp_path / "moving.usda", tmp_path / "outside.usda"
+    camera = _scene(partial_asset, moving, (15, 30), (30, 30))
+    _scene(partial_asset, outside, (45, 180), (30, 30))
+    other = Usd.Stage.Open(str(outside))
+    far = UsdGeom.Xformable(other.GetPrimAtPath(camera)).GetOrderedXformOps()[0].Get()
+    stage = Usd.Stage.Open(str(moving))
+    op = UsdGeom.Xformable(stage.GetPrimAtPath(camera)).GetOrderedXformOps()[0]
+    op.Set(op.Get(), 1.0)              # frame 1 as before, frame 24 from the uncovered side
+    op.Set(far, 24.0)
+    stage.SetStartTimeCode(1.0)
+    stage.SetEndTimeCode(24.0)
+    stage.Save()
+    reopened = open_stage(moving)
+    assert [t.GetValue() for t in sample_times(reopened)][::7] == [1.0, 24.0]
+    lines = coverage_warnings(reopened)
+    assert len(lines) == 1 and "camera /World/Camera asks for view directions" in lines[0], lines
+    assert "at frame " in lines[0] and "default time" not in lines[0]
+
+
+def test_storm_renders_a_partial_asset_as_the_cpu_renderer_does(partial_asset, tmp_path):
+    """Real Storm (the bpy wheel's USD, when scripts/bootstrap.sh installed it) on a stage
+    whose camera and light lie outside the coverage: the same fallback as `usdbtf render`."""
+    from storm_helpers import against_cpu_render
+    from usdbtf.errors import BTFError
+    from usdbtf.usd import hydra
+
+    pythons = hydra.storm_pythons()
+    if not pythons:
+        pytest.skip("no Storm environment (scripts/bootstrap.sh installs the bpy wheels)")
+    scene = tmp_path / "scene.usda"
+    camera = _scene(partial_asset, scene, (45, 170), (50, 200), distance=0.5, fov=8.0, size=64)
+    try:
+        storm = hydra.render_frames(pythons[sorted(pythons)[0]], [(scene, tmp_path / "storm.exr")], camera, (64, 64))
+    except BTFError as exc:
+        pytest.skip(f"Storm cannot run here: {exc}")
+    assert storm.problems == [], "\n".join(storm.problems)
+    value, both, _ = against_cpu_render(storm.images[0], scene, camera, 64, tmp_path)
+    assert both.sum() > 0.2 * both.size
+    print(f"partial asset outside its coverage: Storm vs usdbtf render {value:.2f} dB (sRGB)")
+    assert value >= 35.0
+
+
+@pytest.mark.parametrize("views, lights", [
+    ([[0, 0]], [[30, 30], [30, 90]]),                       # one view; two lights: a segment, no triangle
+    ([[0, 0], [30, 0], [60, 0]], [[60, 30]]),               # three views on a line; one light
+])
+def test_degenerate_coverages_render_on_cpu_and_glsl_alike(pebbles_btf, views, lights):
+    pytest.importorskip("moderngl", reason="moderngl not installed (pip install -e '.[test]')")
+    from usdbtf.errors import BTFError
+    from usdbtf.gpu.headless import HeadlessRenderer, create_context, psnr
+    from usdbtf.gpu.tables import gpu_layout
+
+    part = compress(pebbles_btf, CompressOptions(codec="exr", k=2, domain="linear",
+                                                 coverage=Coverage(views, lights)))
+    cpu = _cpu(part)
+    if len(lights) == 2:
+        # Between the two lights: the middle of the chord joining them on the disc, half of
+        # each, faded by cos 30 / cos(theta of that point) as beyond any measured boundary.
+        used = 30.0 * np.cos(np.radians(30))      # the middle of a chord spanning 60 deg at theta 30
+        fade = np.cos(np.radians(30)) / np.cos(np.radians(used))
+        np.testing.assert_allclose(cpu.swatch((10, 0), (30, 60)), fade * 0.5 * (
+            cpu.swatch((10, 0), (30, 30)) + cpu.swatch((10, 0), (30, 90))), rtol=1e-4)
+    try:
+        ctx = create_context()
+    except BTFError as exc:
+        pytest.skip(f"no headless OpenGL here: {exc}")
+    try:
+        gl = HeadlessRenderer(gpu_layout(part), wrap="clamp", ctx=ctx)
+        cases = [((0, 0), (30, 30)), ((45, 100), (10, 200)), ((70, 300), (80, 60)), ((20, 0), (45, 60))]
+        assert min(psnr(gl.swatch(v, l), cpu.swatch(v, l)) for v, l in cases) >= 40.0
+    finally:
+        ctx.release()
+
+
+def test_coverage_for_directions_never_warns_for_them():
+    """The plan's side (coverage_for) and the check's side (coverage_warnings' test) agree: the
+    coverage made for some directions renders every one of them as the full input does."""
+    from usdbtf.render.hemisphere import directions_to_vectors
+    from usdbtf.sampling import preset
+    from usdbtf.compress.coverage import unique_directions
+    from usdbtf.usd.reach import CoverageCheck, coverage_for
+
+    sampling = preset("ubo81")
+    views, lights = unique_directions(sampling.view)[0], unique_directions(sampling.light)[0]
+    rng = np.random.default_rng(1)
+    asked_v = directions_to_vectors(np.c_[rng.uniform(0, 50, 40), rng.uniform(0, 120, 40)])
+    asked_l = directions_to_vectors([[35.0, 200.0]])                  # one fixed key light
+    cov = coverage_for(views, lights, asked_v, asked_l)
+    assert 3 <= len(cov.views) < len(views) and 1 <= len(cov.lights) <= 3
+    assert not CoverageCheck(views, cov.views.tolist()).missing(asked_v).any()
+    assert not CoverageCheck(lights, cov.lights.tolist()).missing(asked_l).any()
+    elsewhere = directions_to_vectors([[60.0, 300.0]])
+    assert CoverageCheck(views, cov.views.tolist()).missing(elsewhere).all()
+    assert coverage_for(views, lights, asked_v, np.zeros((0, 3))) is None

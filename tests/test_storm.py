@@ -29,6 +29,7 @@ import usdbtf  # noqa: F401  (registers the schema plugin first)
 from usdbtf.cli import main
 from usdbtf.errors import BTFError
 from usdbtf.usd import hydra
+from storm_helpers import against_cpu_render
 
 PYTHONS = hydra.storm_pythons()
 MAX_STEPS = 2.0          # mean |difference|, 8-bit sRGB steps
@@ -191,7 +192,6 @@ def test_storm_matches_usdbtf_render_of_the_same_stage_on_a_curved_mesh(version,
     from usdbtf.gpu.headless import psnr
     from usdbtf.render.scene import Light
     from usdbtf.usd.scene import write_scene
-    from usdbtf.usd.storm import read_rgba
 
     scene = tmp_path / "scene.usda"
     camera = Camera(np.array([0.05, 0.06, 0.15]), np.zeros(3), np.array([0.0, 1.0, 0.0]), 35.0, 96, 96)
@@ -200,14 +200,9 @@ def test_storm_matches_usdbtf_render_of_the_same_stage_on_a_curved_mesh(version,
     prim = write_scene(sphere_asset, scene, camera, lights)
     storm = render(version, [(scene, tmp_path / "storm.exr")], prim, (96, 96))
     assert storm.problems == [], "\n".join(storm.problems)
-    cpu_out = tmp_path / "cpu.exr"
-    assert main(["render", str(scene), "--camera", prim, "--size", "96", "96", "--no-shadows", "--filter",
-                 "bilinear", "-o", str(cpu_out), "--no-png", "-q"]) == 0
-    cpu = np.asarray(read_rgba(cpu_out), np.float64)
+    value, both, cpu = against_cpu_render(storm.images[0], scene, prim, 96, tmp_path)
     image = storm.images[0].astype(np.float64)
-    both = (image[..., 3] > 0.999) & (cpu[..., 3] > 0.999)
     assert both.sum() > 0.3 * both.size
-    value = psnr(srgb_encoded(image[..., :3]), srgb_encoded(cpu[..., :3]), both)
     print(f"USD {version} curved mesh: Storm vs usdbtf render {value:.2f} dB (sRGB) over {both.sum()} pixels")
     assert value >= 35.0
     # The control: the CPU frame at half the exposure fails the threshold.

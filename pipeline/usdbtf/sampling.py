@@ -118,7 +118,7 @@ def to_vectors(directions_deg: np.ndarray) -> np.ndarray:
     return np.stack([st * np.cos(d[:, 1]), st * np.sin(d[:, 1]), np.cos(d[:, 0])], axis=1)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)      # arrays: identity, not an ambiguous elementwise ==
 class Coverage:
     """The (view, light) directions a build keeps of a BTF: every listed light at every
     listed view (``compress --coverage``).

@@ -192,26 +192,54 @@ class BoxFilteredBTF(BTF):
         return cls(sampling=parent.sampling, width=-(-parent.width // factor), height=-(-parent.height // factor),
                    names=list(parent.names), interpolated=parent.interpolated, parent=parent, factor=factor, **kw)
 
+    @property
+    def files(self) -> BTF | None:
+        """The image files underneath (the parent when it is a :class:`FileBTF`): decode
+        workers then read this view by index (:func:`.load.decodes_in_workers`)."""
+        return self.parent if isinstance(self.parent, FileBTF) else None
+
+    def read_one(self, i: int, rows=None) -> np.ndarray:
+        """Stored (filtered, re-encoded) values of sample i, (h, W, 3) float32."""
+        return self.read_encoded([i], rows)[0]
+
     def read_encoded(self, indices, rows=None):
         f, parent = self.factor, self.parent
         y0, y1 = rows if rows is not None else (0, self.height)
         src = (y0 * f, min(y1 * f, parent.height))
-        linear = parent.decode(parent.read_encoded(indices, rows=src), what=f"rows {src[0]}..{src[1]}")
-        mean = box_mean(linear, f)
+        mean = box_mean(_linear(parent, parent.read_encoded(indices, rows=src), f"rows {src[0]}..{src[1]}"), f)
         to_file = color.processor(self.working_space, self.color_space, self.ocio_config)
         # A mean of in-gamut colours is in gamut: a value below zero is the round trip's rounding.
         return np.maximum(np.ascontiguousarray(to_file.apply(mean), dtype=np.float32), 0.0)
 
 
+def _linear(btf: BTF, stored: np.ndarray, what: str) -> np.ndarray:
+    """Working-space values of ``stored`` (n, h, w, 3), each element a function of its own
+    texel only, so no value depends on how many samples or rows were read together: integer
+    codes through the decode's per-channel table, then its primaries matrix as three products
+    and two sums per channel (OpenCV's matrix transform, which the plain decode uses, rounds
+    by array shape); other encodings through OCIO, which is per texel."""
+    dec = btf.integer_decoder
+    if dec is None or not dec.exact:
+        return btf.decode(stored, what=what)
+    x = dec.decode_curves(stored).astype(np.float64)
+    if dec.matrix is None:
+        return x
+    m = np.asarray(dec.matrix, np.float64)
+    return x[..., 0:1] * m[:, 0] + x[..., 1:2] * m[:, 1] + x[..., 2:3] * m[:, 2]
+
+
 def box_mean(images: np.ndarray, f: int) -> np.ndarray:
     """(n, h, w, 3) -> (n, ceil(h / f), ceil(w / f), 3) float32: the mean of each f x f box
     (the last boxes of a side that is not a multiple of f average the texels that remain).
-    Sums in float64, so the result does not depend on how the rows were chunked."""
+    Sums in float64 in a fixed order per box, so no box depends on the others."""
     n, h, w, c = images.shape
     hb, wb = -(-h // f), -(-w // f)
     padded = np.zeros((n, hb * f, wb * f, c), np.float64)
     padded[:, :h, :w] = images
-    sums = padded.reshape(n, hb, f, wb, f, c).sum(axis=(2, 4))
+    sums = np.zeros((n, hb, wb, c), np.float64)
+    for dy in range(f):            # one elementwise add per box offset: the same order for every box
+        for dx in range(f):
+            sums += padded[:, dy::f, dx::f]
     counts = np.zeros((hb * f, wb * f))
     counts[:h, :w] = 1.0
     per_box = counts.reshape(hb, f, wb, f).sum(axis=(1, 3))
@@ -246,8 +274,10 @@ def coverage_text(summary: dict | None) -> str:
     s = summary
     text = (f"{s['views']} of {s['input_views']} views x {s['lights']} of {s['input_lights']} lights "
             f"({s['samples']} of {s['input_samples']} samples)")
-    w, h = s["resolution"]
+    # The texel density, not the size: a quilt of a partial folder is larger than its input.
+    f = s["resolution_factor"]
+    text += "; the input's texel density" if f == 1 else f"; 1/{f} of the input's texel density"
     if s["input_resolution"]:
         iw, ih = s["input_resolution"]
-        text += f"; {w}x{h} texels of the input's {iw}x{ih} (factor {s['resolution_factor']})"
+        text += f" (input {iw}x{ih} texels)"
     return text

@@ -24,7 +24,8 @@ import numpy as np
 from ..errors import BTFError
 from ..model import BTF, FileBTF
 
-__all__ = ["BlockedData", "load_encoded", "default_workers", "texel_blocks", "stored_dtype", "DEFAULT_BLOCK"]
+__all__ = ["BlockedData", "load_encoded", "default_workers", "texel_blocks", "stored_dtype", "DEFAULT_BLOCK",
+           "decodes_in_workers"]
 
 DEFAULT_BLOCK = 1024
 _STATE: dict = {}  # per-worker-process handles (set by the pool initializer in the forked child)
@@ -107,6 +108,14 @@ def _forkable(btf: BTF) -> bool:
     return not any(str(p).lower().endswith(_NO_FORK_EXTENSIONS) for p in btf.paths)
 
 
+def decodes_in_workers(btf: BTF) -> bool:
+    """True when forked workers can read ``btf``'s samples by index (``read_one``): image
+    files, or a view of them that says so by naming them (``files``: the box-filtered input of
+    a partial compress, :class:`.coverage.BoxFilteredBTF`), in formats safe to read after fork."""
+    files = getattr(btf, "files", btf)
+    return isinstance(files, FileBTF) and _forkable(files)
+
+
 def _read_range(start: int, stop: int):
     btf, out = _STATE["btf"], _STATE["out"]
     try:
@@ -129,7 +138,7 @@ def load_encoded(btf: BTF, *, workers: int | None = None, block: int = DEFAULT_B
     block = max(1, min(block, P))
     shape = (-(-P // block), S, 3 * block)
     workers = workers or default_workers()
-    parallel = isinstance(btf, FileBTF) and workers > 1 and S >= 64 and _forkable(btf)
+    parallel = decodes_in_workers(btf) and workers > 1 and S >= 64
     if not parallel:
         data = BlockedData(np.zeros(shape, dtype), P, block)
         for start in range(0, S, 256):

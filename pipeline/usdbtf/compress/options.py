@@ -89,6 +89,8 @@ class CompressOptions:
         parse_domain(self.domain)
         if self.max_texels is not None and self.max_texels < 1:
             raise BTFError(f"--max-texels must be at least 1, got {self.max_texels}")
+        if self.max_texels is not None and self.dask is not None:
+            raise UsageError("--max-texels with --dask: the box filter runs in this process; filter without --dask")
         if self.error_domain not in ERROR_DOMAINS:
             raise BTFError(f"--error-domain must be one of {', '.join(ERROR_DOMAINS)}, got {self.error_domain!r}")
 

@@ -43,7 +43,7 @@ from ..errors import BTFError
 from ..model import BTF, FileBTF
 from .convert import Conversion, Scratch
 from .domain import LINEAR
-from .load import _STATE, BlockedData, _forkable, _init, default_workers, load_encoded, stored_dtype
+from .load import _STATE, BlockedData, _init, decodes_in_workers, default_workers, load_encoded, stored_dtype
 from .parallel import cpu_count, in_threads, one_blas_thread, rows_apply, thread_map
 from .projection import ProjectionTotal, ShardSums, TileProjector, WorkPlan
 from .spill import Spill
@@ -372,7 +372,7 @@ class StreamingSource(_KeptSource):
         return [(a, min(a + self.chunk, S)) for a in range(0, S, self.chunk)]
 
     def _parallel(self, bounds) -> bool:
-        return isinstance(self.btf, FileBTF) and self.workers > 1 and _forkable(self.btf) and len(bounds) > 1
+        return decodes_in_workers(self.btf) and self.workers > 1 and len(bounds) > 1
 
     def _first_pass(self, keep_texels, rows):
         """Yield (first sample, (kept columns, kept rows)) per chunk, in sample order."""

@@ -133,6 +133,15 @@ class Triangulation:
             idx[out], w[out], used[out] = self._nearest_on_boundary(q[out])
         return idx, w, used
 
+    def stencil(self, vectors: np.ndarray, eps: float = 1e-6) -> np.ndarray:
+        """(N,) bool: the measured directions that some of the query directions ``vectors``
+        (n, 3) interpolate from with a weight above ``eps`` -- what a partial asset must keep
+        to render those queries as the full set does (:mod:`usdbtf.compress.coverage`)."""
+        idx, w, _ = self.weights(vectors)
+        used = np.zeros(len(self.directions), bool)
+        used[idx[w > eps]] = True
+        return used
+
     def _set(self, sel, tri, bary, idx, w, inside) -> None:
         idx[sel] = self.triangles[tri]
         bary = np.clip(bary, 0.0, None)
@@ -207,7 +216,8 @@ def _delaunay(pts: np.ndarray) -> np.ndarray:
     scaled = pts * _SCALE
     for x, y in scaled:
         sub.insert((float(x), float(y)))
-    flat = sub.getTriangleList().reshape(-1, 3, 2).astype(np.float64)
+    # No triangle (two directions): OpenCV returns an empty tuple, not an empty array.
+    flat = np.asarray(sub.getTriangleList(), np.float64).reshape(-1, 3, 2)
     # Map corners back to input indices (Subdiv2D keeps float32 copies of the points).
     d = np.linalg.norm(flat[:, :, None, :] - scaled[None, None].astype(np.float32), axis=3)
     tris = np.argmin(d, axis=2)

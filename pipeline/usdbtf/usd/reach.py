@@ -22,7 +22,7 @@ import numpy as np
 
 from .material import read_coverage
 
-__all__ = ["coverage_warnings", "sample_times", "POINTS", "FRAMES", "WEIGHT_EPS"]
+__all__ = ["coverage_warnings", "coverage_for", "CoverageCheck", "sample_times", "POINTS", "FRAMES", "WEIGHT_EPS"]
 
 #: Triangles sampled per bound mesh.
 POINTS = 256
@@ -101,7 +101,7 @@ def _label(t) -> str:
     return "default time" if t.IsDefault() else f"frame {t.GetValue():g}"
 
 
-class _Needs:
+class CoverageCheck:
     """Which measured directions of a set a local direction interpolates from (the full
     set's triangulation), and whether the kept ones suffice."""
 
@@ -119,6 +119,32 @@ class _Needs:
         """(n,) True where a local direction (n, 3) needs a direction that is not kept."""
         idx, w, _ = self.tri.weights(local)
         return ((w > WEIGHT_EPS) & ~self.kept[idx]).any(axis=1)
+
+
+def coverage_for(input_views, input_lights, view_vectors, light_vectors):
+    """The smallest coverage that renders the given local directions as the full input does:
+    the input's directions that some of them interpolate from (their stencils on the full
+    sets' triangulations, :meth:`usdbtf.render.hemisphere.Triangulation.stencil`).
+
+    Parameters
+    ----------
+    input_views, input_lights : (V, 2), (L, 2) degrees, the input's distinct directions.
+    view_vectors, light_vectors : (n, 3), (m, 3) local directions (tangent frame) asked for.
+
+    Returns
+    -------
+    usdbtf.sampling.Coverage, or None when no view or no light is asked for.  What
+    :func:`coverage_warnings` checks against, so directions it was made from never warn.
+    """
+    from ..render.hemisphere import Triangulation
+    from ..sampling import Coverage
+
+    views, lights = (np.asarray(d, np.float64).reshape(-1, 2) for d in (input_views, input_lights))
+    if not len(view_vectors) or not len(light_vectors):
+        return None
+    keep_views = Triangulation.from_directions(views).stencil(np.asarray(view_vectors, np.float64), WEIGHT_EPS)
+    keep_lights = Triangulation.from_directions(lights).stencil(np.asarray(light_vectors, np.float64), WEIGHT_EPS)
+    return Coverage(views[keep_views], lights[keep_lights])
 
 
 def coverage_warnings(stage) -> list[str]:
@@ -144,8 +170,8 @@ def coverage_warnings(stage) -> list[str]:
             cameras, lights = _cameras(stage, times, meters), _lights(stage, times, meters)
         points, frames = samples
         where = f"{prim.GetPath()} (bound to {material.GetPath()})"
-        views = _Needs(record["input_view_directions"], record["views"])
-        needed = _Needs(record["input_light_directions"], record["lights"])
+        views = CoverageCheck(record["input_view_directions"], record["views"])
+        needed = CoverageCheck(record["input_light_directions"], record["lights"])
         seen = np.zeros(len(points), bool)
         for path, label, eye, frustum in cameras:
             to_eye = eye - points
@@ -162,7 +188,7 @@ def coverage_warnings(stage) -> list[str]:
     return _first_per_source(lines)
 
 
-def _report(where: str, source: str, label: str, what: str, local: np.ndarray, needs: _Needs) -> list:
+def _report(where: str, source: str, label: str, what: str, local: np.ndarray, needs: CoverageCheck) -> list:
     """[(where, source, line)] when some of the local directions need a direction not kept."""
     if not len(local):
         return []
