@@ -139,3 +139,17 @@ def test_screen_error_target_becomes_a_per_texel_target(captures, tmp_path):
     assert far.target_error == pytest.approx(min(100.0, 2.0 / (far.pixels_per_texel * 2)))
     shape = {r.material: r.shape for r in recipes}
     assert shape["/World/Looks/Near"][-2:] == ("--target-error", "2.0")
+
+
+def test_dry_run_json_and_table(captures, tmp_path, capsys):
+    from cli_helpers import run
+
+    scene = _scene(tmp_path, captures)
+    code, out, err = run(capsys, "build", str(scene), "--dry-run", "--json")
+    assert code == 0, err
+    doc = json.loads(out)
+    assert doc["shaped"] and doc["skipped"] == ["/World/Looks/Hidden"]
+    near = doc["needs"]["/World/Looks/Near"]
+    assert near["needed"] and near["lights"] == {"kept": 3, "measured": 13} and near["coverage"]["lights"]
+    assert "no: invisible at every frame; proxy-only" in err            # the table on stderr
+    assert not (tmp_path / "build").exists()                              # a dry run builds nothing
