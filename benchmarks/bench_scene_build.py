@@ -78,7 +78,7 @@ def write_scene(root: Path, size: int, width: int = 480, height: int = 270) -> P
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
     stage.SetDefaultPrim(UsdGeom.Xform.Define(stage, "/World").GetPrim())
-    add_camera(stage, "/World/Cam", parse_camera(CAMERA, width, height))
+    add_camera(stage, "/World/Cam", {None: parse_camera(CAMERA, width, height)})
     add_distant(stage, "/World/Sun", SUN, 1.5)
     for (name, preset), (mesh_name, (mesh, where)) in zip(MATERIALS, _meshes().items()):
         assert main(["synth", preset, "-o", str(root / "captures" / name), "--sampling", "tiny", "--size",

@@ -10,6 +10,8 @@ log = logging.getLogger(__name__)
 ORDER = 80
 #: Arguments that name outputs (every other path argument is an input).
 OUTPUT_ARGS = ("output", "png")
+#: ``--size``'s default (a scene's camera otherwise takes the scene's UsdRender.Settings width).
+DEFAULT_SIZE = (512, 512)
 #: Bytes per frame pixel the renderer holds (RGBA float, depth, triangle ids, barycentrics,
 #: interpolated frames and directions, shadow-map lookups).
 BYTES_PER_PIXEL = 160
@@ -27,8 +29,9 @@ def add_scene_arguments(p, *, mesh_help: str) -> None:
     p.add_argument("--camera", metavar="SPEC", help='"eye=X,Y,Z target=X,Y,Z [up=X,Y,Z] [fov=DEG]" '
                    "(default: frame the mesh), or the prim path of a UsdGeom.Camera of a USD scene (/World/Cam): "
                    "then the scene's UsdLux lights light it too, and the frame's height follows the apertures")
-    p.add_argument("--size", type=int_in(1, MAX_FRAME_SIDE), nargs=2, default=(512, 512), metavar=("W", "H"),
-                   help=f"frame size, 1..{MAX_FRAME_SIDE} each (default 512 512)")
+    p.add_argument("--size", type=int_in(1, MAX_FRAME_SIDE), nargs=2, default=DEFAULT_SIZE, metavar=("W", "H"),
+                   help=f"frame size, 1..{MAX_FRAME_SIDE} each (default 512 512; a scene's camera: the width of "
+                   "its UsdRender.Settings resolution, the height from the camera's apertures)")
 
 
 def add_parser(sub) -> None:
@@ -45,12 +48,27 @@ def add_parser(sub) -> None:
     p.add_argument("--display", help="OCIO display for the PNG (default: the config's default)")
     p.add_argument("--display-view", help="OCIO view for the PNG (default: Un-tone-mapped)")
     p.add_argument("--threads", type=WORKERS, default=2, help="shading threads (default 2)")
+    p.add_argument("--frames", metavar="A:B", help="a USD scene with --camera /PRIM: render its whole frames A..B "
+                   "(inclusive), each mesh with its bound BTF material, as the sequence the output names with a "
+                   "run of # (out.####.exr -> out.0001.exr ...; PNGs beside them)")
     p.set_defaults(func=run)
 
 
 def render_outputs(args):
-    """The EXR and (unless --no-png) the PNG a render or preview writes."""
+    """The EXR and (unless --no-png) the PNG a render or preview writes (one pair per frame of
+    ``--frames``)."""
     from ..outputs import RENDER
+
+    frames = getattr(args, "frames", None)
+    if frames:
+        from ..usd.shots import frame_path, parse_frames
+
+        exrs = [frame_path(args.output, f) for f in parse_frames(frames)]
+        if args.png is not None:
+            from ..errors import UsageError
+
+            raise UsageError("--png names one file; with --frames the PNGs are the EXRs' names with .png")
+        return [(p, RENDER) for exr in exrs for p in [exr] + ([] if args.no_png else [exr.with_suffix(".png")])]
     png = None if args.no_png else (getattr(args, "png", None) or args.output.with_suffix(".png"))
     return [(args.output, RENDER)] + ([(png, RENDER)] if png is not None else [])
 
@@ -161,6 +179,54 @@ def parsed(parse, text):
         raise UsageError(str(exc)) from None
 
 
+def _render_scene(args, opts, t0: float) -> int:
+    """A USD scene's own shots: each rendered mesh with its bound BTF material, the scene's
+    camera ``--camera`` and UsdLux lights (plus ``--light``), for each frame of ``--frames``."""
+    import time
+    from dataclasses import replace
+
+    import numpy as np
+
+    from ..color import WORKING_SPACE
+    from ..errors import BTFError, UsageError
+    from ..render import Renderer, RenderResult, parse_light, render_parts, write_render
+    from ..usd.shots import check_pattern, frame_path, parse_frames, scene_shots
+    from ..resources import require_memory
+    from ..usdstage import USD_SUFFIXES
+
+    if args.asset.suffix.lower() not in USD_SUFFIXES:
+        raise UsageError(f"--camera {args.camera}: a camera prim needs a USD scene as the input")
+    frames = parse_frames(args.frames) if args.frames else None
+    check_pattern(args.output, frames)
+    extra = [parsed(parse_light, spec) for spec in args.light]
+    width = None if args.size is DEFAULT_SIZE else args.size[0]
+    materials, shots = scene_shots(args.asset, args.camera, width, frames)
+    spaces = {(c.working_space, c.ocio_config) for c in materials.values()}
+    if len(spaces) > 1:
+        raise BTFError(f"{args.asset}: its BTF materials are in different working spaces ({sorted(spaces)}); "
+                       "render them apart")
+    space, config = spaces.pop() if spaces else (None, None)
+    renderers = {m: Renderer(c, replace(opts)) for m, c in materials.items()}
+    for shot in shots:
+        lights = shot.lights + extra
+        if not lights:
+            raise UsageError(f"{args.asset}: no UsdLux light at frame {shot.time}; add --light")
+        camera = shot.camera
+        require_memory(float(camera.width) * camera.height * BYTES_PER_PIXEL, f"a {camera.width}x{camera.height} "
+                       "frame", error=UsageError)
+        image = (render_parts([(renderers[m], mesh) for m, mesh in shot.parts], camera, lights) if shot.parts
+                 else np.zeros((camera.height, camera.width, 4), np.float32))
+        exr = frame_path(args.output, None if shot.time is None else int(shot.time))
+        png = None if args.no_png else (args.png if args.png and frames is None else exr.with_suffix(".png"))
+        write_render(RenderResult(image, space or WORKING_SPACE, config), exr, png_path=png, display=args.display,
+                     view=args.display_view)
+        log.info(f"frame {shot.time if shot.time is not None else '(default time)'}: {camera.width}x{camera.height}, "
+                 f"{len(shot.parts)} mesh(es), {len(lights)} light(s) -> {exr}")
+    log.info(f"rendered {len(shots)} frame(s) of {args.camera} ({len(materials)} BTF material(s)) in "
+             f"{time.perf_counter() - t0:.2f} s")
+    return 0
+
+
 def run(args) -> int:
     import time
 
@@ -186,6 +252,12 @@ def run(args) -> int:
     else:
         if args.view is not None:
             raise UsageError("--view is for --swatch; place the camera with --camera")
+        scene_camera = bool(args.camera and args.camera.startswith("/"))
+        if args.frames is not None and not (scene_camera and args.mesh is None):
+            raise UsageError("--frames renders a USD scene's own camera: give the scene and --camera /PRIM "
+                             "(and no --mesh)")
+        if scene_camera and args.mesh is None:
+            return _render_scene(args, opts, t0)
         camera, lights = scene_view(args)
         parts = scene_parts(args.asset, args.mesh)
         if parts is not None:           # a scene: every bound mesh with its own material

@@ -113,25 +113,30 @@ def _load_usd(path: Path, meters_per_unit) -> Mesh:
                             up_axis=str(UsdGeom.GetStageUpAxis(stage)))
 
 
-def load_prim(prim) -> Mesh:
-    """One Mesh prim of an open stage as a :class:`Mesh` in world space (metres), degenerate
-    triangles dropped, as :func:`load_mesh` reads each prim of a USD file."""
-    from pxr import UsdGeom
+def load_prim(prim, time=None) -> Mesh:
+    """One Mesh prim of an open stage as a :class:`Mesh` in world space (metres) at ``time``
+    (a time code; default the default time), degenerate triangles dropped, as
+    :func:`load_mesh` reads each prim of a USD file."""
+    from pxr import Usd, UsdGeom
 
     stage = prim.GetStage()
     scale = float(UsdGeom.GetStageMetersPerUnit(stage))
-    return _usd_mesh(prim, UsdGeom.XformCache(), scale, Path(stage.GetRootLayer().identifier)).without_degenerate()
+    code = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
+    return _usd_mesh(prim, UsdGeom.XformCache(code), scale, Path(stage.GetRootLayer().identifier),
+                     code).without_degenerate()
 
 
-def _usd_mesh(prim, cache, scale: float, path: Path) -> Mesh:
-    """One Mesh prim in world space (metres), polygons fan-triangulated."""
-    from pxr import UsdGeom
+def _usd_mesh(prim, cache, scale: float, path: Path, code=None) -> Mesh:
+    """One Mesh prim in world space (metres) at time ``code`` (default: the default time),
+    polygons fan-triangulated."""
+    from pxr import Usd, UsdGeom
 
+    code = Usd.TimeCode.Default() if code is None else code
     where = f"{path}: {prim.GetPath()}"
     mesh = UsdGeom.Mesh(prim)
-    pts = np.asarray(mesh.GetPointsAttr().Get() or [], np.float64).reshape(-1, 3)
-    counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get() or [], np.int64)
-    indices = np.asarray(mesh.GetFaceVertexIndicesAttr().Get() or [], np.int64)
+    pts = np.asarray(mesh.GetPointsAttr().Get(code) or [], np.float64).reshape(-1, 3)
+    counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(code) or [], np.int64)
+    indices = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(code) or [], np.int64)
     if len(pts) == 0 or len(counts) == 0 or counts.sum() != len(indices) or (counts < 3).any():
         raise BTFError(f"{where} has no valid faces (empty, or face sizes and indices disagree)")
     xf = np.asarray(cache.GetLocalToWorldTransform(prim), np.float64)
@@ -164,7 +169,7 @@ def _usd_mesh(prim, cache, scale: float, path: Path) -> Mesh:
         pv = api.GetPrimvar(name)
         if not (pv and pv.HasValue()):
             return None
-        values = np.asarray(pv.ComputeFlattened(), np.float64).reshape(-1, width)
+        values = np.asarray(pv.ComputeFlattened(code), np.float64).reshape(-1, width)
         return per_element(values, pv.GetInterpolation(), f"primvars:{name}")
 
     linear = xf[:3, :3]
@@ -178,7 +183,7 @@ def _usd_mesh(prim, cache, scale: float, path: Path) -> Mesh:
 
     normals, notes = None, ()
     if mesh.GetNormalsAttr().HasValue():
-        values = np.asarray(mesh.GetNormalsAttr().Get(), np.float64).reshape(-1, 3)
+        values = np.asarray(mesh.GetNormalsAttr().Get(code), np.float64).reshape(-1, 3)
         normals, notes = _checked_normals(per_element(values, mesh.GetNormalsInterpolation(), "normals"))
     elif api.HasPrimvar("normals"):
         normals, notes = _checked_normals(primvar("normals", 3))

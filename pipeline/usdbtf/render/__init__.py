@@ -2,9 +2,9 @@
 triangulated view and light hemispheres): ``render(cbtf, mesh, camera, lights, RenderOptions)
 -> RenderResult`` and ``write_render(result, path)``.  Meshes are :class:`usdbtf.mesh.Mesh`,
 cameras :class:`usdbtf.camera.Camera`."""
-from .core import RenderOptions, Renderer, RenderResult, render, render_scene, render_swatch
+from .core import RenderOptions, Renderer, RenderResult, render, render_parts, render_scene, render_swatch
 from .output import to_display, write_render
 from .scene import Light, parse_light
 
-__all__ = ["RenderOptions", "RenderResult", "Renderer", "render", "render_scene", "render_swatch", "to_display", "write_render",
+__all__ = ["RenderOptions", "RenderResult", "Renderer", "render", "render_parts", "render_scene", "render_swatch", "to_display", "write_render",
            "Light", "parse_light"]

@@ -41,7 +41,8 @@ from .shadows import ShadowMap
 from .texture import CoefficientTexture
 from ..numeric import single_blas_thread
 
-__all__ = ["RenderOptions", "RenderResult", "Renderer", "render", "render_scene", "render_swatch", "point_frames"]
+__all__ = ["RenderOptions", "RenderResult", "Renderer", "render", "render_parts", "render_scene", "render_swatch",
+           "front_facing", "point_frames", "perspective_weights"]
 
 
 @dataclass
@@ -118,45 +119,9 @@ class Renderer:
         return rows, (np.asarray(scale, np.float64) * fade).astype(np.float32)
 
     # -- mesh --------------------------------------------------------------------------
-    def render(self, mesh: Mesh, camera: Camera, lights: list[Light], *, shade: np.ndarray | None = None
-               ) -> np.ndarray:
-        """(H, W, 4) float32 RGBA, working space.
-
-        shade : (F,) bool, the triangles this material shades (default all); the others still
-            hide and shadow what lies behind them, and their pixels stay empty (0)."""
-        if not lights:
-            raise BTFError("give at least one --light")
-        surface = mesh.corner_frames()
-        front = _front_facing(surface, camera.eye)
-        xy, depth = camera.project(surface.points)
-        near = 1e-6 * max(float(np.ptp(surface.points.reshape(-1, 3), axis=0).max()), 1e-9)
-        keep = front & (depth > near).all(axis=1)
-        tris = np.flatnonzero(keep)
-        raster = rasterize(xy[tris], -1.0 / depth[tris], camera.width, camera.height)
-        pix = np.flatnonzero(raster.tri.ravel() >= 0)
-        image = np.zeros((camera.height, camera.width, 4), np.float32)
-        if not len(pix):
-            return image
-        tri = tris[raster.tri.ravel()[pix]]
-        if shade is not None:
-            mine = shade[tri]
-            pix, tri = pix[mine], tri[mine]
-            if not len(pix):
-                return image
-        py, px = np.divmod(pix, camera.width)
-        res = self.opts.shadow_resolution or max(camera.width, camera.height)
-        shadow_maps = [ShadowMap(surface.points, light, res) if self.opts.shadows else None
-                       for light in lights]
-
-        def task(sl):
-            return self._shade_pixels(surface, camera, lights, shadow_maps, tri[sl], xy[tri[sl]], depth[tri[sl]],
-                                      px[sl] + 0.5, py[sl] + 0.5)
-
-        rgb = self._shade_chunks(len(pix), task)
-        flat = image.reshape(-1, 4)
-        flat[pix, :3] = rgb
-        flat[pix, 3] = 1.0
-        return image
+    def render(self, mesh: Mesh, camera: Camera, lights: list[Light]) -> np.ndarray:
+        """(H, W, 4) float32 RGBA, working space."""
+        return render_parts([(self, mesh)], camera, lights)
 
     def _shade_chunks(self, n: int, fn) -> np.ndarray:
         step = self.opts.chunk
@@ -169,7 +134,7 @@ class Renderer:
         return np.concatenate(parts) if parts else np.zeros((0, 3), np.float32)
 
     def _shade_pixels(self, surface, camera, lights, shadow_maps, tri, tri_xy, tri_depth, x, y) -> np.ndarray:
-        b = _perspective_weights(tri_xy, tri_depth, x, y)
+        b = perspective_weights(tri_xy, tri_depth, x, y)
         p = np.einsum("nk,nkd->nd", b, surface.points[tri])
         normal, tangent, bitangent = point_frames(b, surface, tri)
         st = np.einsum("nk,nkd->nd", b, surface.uv[tri])
@@ -203,13 +168,58 @@ class Renderer:
         """log2 of the texel footprint of one pixel: st at the next pixel right and below,
         from the same triangle's (extended) interpolation."""
         size = np.array([self.texture.width, self.texture.height], np.float64)
-        dx = (np.einsum("nk,nkd->nd", _perspective_weights(tri_xy, tri_depth, x + 1, y), tri_st) - st) * size
-        dy = (np.einsum("nk,nkd->nd", _perspective_weights(tri_xy, tri_depth, x, y + 1), tri_st) - st) * size
+        dx = (np.einsum("nk,nkd->nd", perspective_weights(tri_xy, tri_depth, x + 1, y), tri_st) - st) * size
+        dy = (np.einsum("nk,nkd->nd", perspective_weights(tri_xy, tri_depth, x, y + 1), tri_st) - st) * size
         foot = np.maximum(np.hypot(dx[:, 0], dx[:, 1]), np.hypot(dy[:, 0], dy[:, 1]))
         return np.log2(np.maximum(foot, 1e-12))
 
 
-def _perspective_weights(tri_xy, tri_depth, x, y) -> np.ndarray:
+def render_parts(parts: list, camera: Camera, lights: list[Light]) -> np.ndarray:
+    """(H, W, 4) float32 RGBA, working space, of several meshes each with its own material.
+
+    parts : [(:class:`Renderer`, :class:`~usdbtf.mesh.Mesh`)], meshes in world space (metres).
+    One z-buffer over every part's triangles, so parts occlude each other; each pixel is
+    shaded by its part's renderer (the first part's options decide shadows and their
+    resolution), and every part casts shadows on every part."""
+    if not lights:
+        raise BTFError("give at least one --light")
+    opts = parts[0][0].opts
+    surfaces = [mesh.corner_frames() for _, mesh in parts]
+    points = np.concatenate([s.points for s in surfaces])
+    owner = np.repeat(np.arange(len(parts)), [len(s.points) for s in surfaces])
+    front = np.concatenate([front_facing(s, camera.eye) for s in surfaces])
+    xy, depth = camera.project(points)
+    near = 1e-6 * max(float(np.ptp(points.reshape(-1, 3), axis=0).max()), 1e-9)
+    keep = front & (depth > near).all(axis=1)
+    tris = np.flatnonzero(keep)
+    raster = rasterize(xy[tris], -1.0 / depth[tris], camera.width, camera.height)
+    pix = np.flatnonzero(raster.tri.ravel() >= 0)
+    image = np.zeros((camera.height, camera.width, 4), np.float32)
+    if not len(pix):
+        return image
+    tri = tris[raster.tri.ravel()[pix]]
+    res = opts.shadow_resolution or max(camera.width, camera.height)
+    shadow_maps = [ShadowMap(points, light, res) if opts.shadows else None for light in lights]
+    flat = image.reshape(-1, 4)
+    first = np.cumsum([0] + [len(s.points) for s in surfaces])
+    for n, ((renderer, _), surface) in enumerate(zip(parts, surfaces)):
+        mine = owner[tri] == n
+        if not mine.any():
+            continue
+        own_pix, own_tri = pix[mine], tri[mine]
+        local = own_tri - first[n]
+        py, px = np.divmod(own_pix, camera.width)
+
+        def task(sl, renderer=renderer, surface=surface, local=local, own_tri=own_tri, px=px, py=py):
+            return renderer._shade_pixels(surface, camera, lights, shadow_maps, local[sl], xy[own_tri[sl]],
+                                          depth[own_tri[sl]], px[sl] + 0.5, py[sl] + 0.5)
+
+        flat[own_pix, :3] = renderer._shade_chunks(len(own_pix), task)
+        flat[own_pix, 3] = 1.0
+    return image
+
+
+def perspective_weights(tri_xy, tri_depth, x, y) -> np.ndarray:
     """(n, 3) perspective-correct barycentrics at pixel points (x, y)."""
     b = barycentrics(tri_xy, x, y) / tri_depth
     return b / b.sum(axis=1, keepdims=True)
@@ -229,7 +239,7 @@ def point_frames(b, surface: CornerFrames, tri):
     return n, t, bt
 
 
-def _front_facing(surface: CornerFrames, eye: np.ndarray) -> np.ndarray:
+def front_facing(surface: CornerFrames, eye: np.ndarray) -> np.ndarray:
     """(T,) triangles facing the eye; a triangle's side is the one its vertex normals point to
     (so the result does not depend on the winding order)."""
     c = surface.points
@@ -260,24 +270,18 @@ def render_scene(parts: list, camera: Camera, lights: list[Light], options: Rend
                  ) -> RenderResult:
     """One frame of several meshes, each with its own compressed BTF: ``parts`` [(cbtf, mesh)]
     (a material bound to several meshes: the same cbtf object in several parts).  Every mesh
-    hides and shadows the others: the meshes are rasterised as one, and each material shades
-    the pixels where its own triangles are in front."""
+    hides and shadows the others (:func:`render_parts`: one z-buffer, each material shades the
+    pixels where its own triangles are in front)."""
     if not parts:
         raise BTFError("no mesh to render")
     spaces = {(cbtf.working_space, cbtf.ocio_config) for cbtf, _ in parts}
     if len(spaces) > 1:
         raise BTFError(f"the materials are in different working colour spaces ({sorted(spaces)}); "
                        "one frame needs one")
-    meshes = [mesh.with_frames() for _, mesh in parts]
-    whole = Mesh.concatenate(meshes, name="scene", source=meshes[0].source)
-    material_of = {}
+    renderers = {}
     for cbtf, _ in parts:
-        material_of.setdefault(id(cbtf), (len(material_of), cbtf))
-    owner = np.repeat([material_of[id(cbtf)][0] for cbtf, _ in parts], [len(m.triangles) for m in meshes])
-    image = None
-    for index, cbtf in material_of.values():
-        layer = Renderer(cbtf, options).render(whole, camera, lights, shade=owner == index)
-        image = layer if image is None else image + layer        # disjoint pixels: a sum composes them
+        renderers.setdefault(id(cbtf), Renderer(cbtf, options))
+    image = render_parts([(renderers[id(cbtf)], mesh) for cbtf, mesh in parts], camera, lights)
     working_space, ocio_config = spaces.pop()
     return RenderResult(image, working_space, ocio_config)
 

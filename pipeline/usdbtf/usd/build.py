@@ -41,6 +41,7 @@ from __future__ import annotations
 import logging
 import argparse
 import contextlib
+import hashlib
 import json
 import os
 import shlex
@@ -64,17 +65,23 @@ BUILD_DIR = ".usdbtf-build"
 _STEPS = "steps.json"
 _FAILURE = "failure.json"
 _OWNED = "outputs.json"
+_TIMES = "step_times.jsonl"
+_FULL_RECORD = "full_build.json"
 
 
 @dataclass(frozen=True)
 class Recipe:
     """What to build for one bound BTF material (absolute paths; ``options`` is the
-    checked, canonical compress argument list)."""
+    checked, canonical compress argument list; ``shape`` the compress arguments the scene's
+    needs add (:mod:`usdbtf.usd.plan`: ``--coverage``, ``--max-texels``, ``--target-error``),
+    ``requirements`` those needs as canonical JSON, part of the compress step's signature)."""
 
     material: str
     source: Path
     options: tuple[str, ...]
     asset: Path
+    shape: tuple[str, ...] = ()
+    requirements: str = ""
 
     @property
     def compressed(self) -> Path:
@@ -189,11 +196,17 @@ def _check_outputs(scene: Path, path: str, recipe: Recipe, protected: list[Path]
                                     "choose another asset path")
 
 
-def plan(scene) -> tuple[list[Recipe], dict]:
+def plan(scene, *, source_facts=None, target_error: float | None = None) -> tuple[list[Recipe], dict]:
     """(recipes of bound BTF materials, report) for ``scene``.
 
     The report lists ``bound`` materials with the prims bound to them and
-    ``without_recipe`` (bound materials that have nothing to build)."""
+    ``without_recipe`` (bound materials that have nothing to build).
+
+    source_facts : a callable, source path -> :class:`usdbtf.usd.plan.MaterialFacts`: shape the
+        build by the scene (:mod:`usdbtf.usd.plan`): materials the scene never shows are left
+        out (``report["skipped"]``), the others compress only what the scene needs
+        (``report["needs"]``: {material: Need}).  None: everything bound, in full (``--full``).
+    target_error : the screen-space percent error target (shaped builds)."""
     from ..usdstage import composition_cycle, composition_error_text, open_usd, usd_warnings_silenced
     from .package import ROOT_FORMATS
 
@@ -231,10 +244,74 @@ def plan(scene) -> tuple[list[Recipe], dict]:
     outputs = [o for r in recipes for o in r.outputs()]
     if len(set(outputs)) != len(outputs):
         raise BTFError(f"{scene}: two materials write the same btf:build:asset")
+    report = {"bound": bound, "without_recipe": without, "shaped": source_facts is not None}
+    if source_facts is not None:
+        with usd_warnings_silenced():   # the materials' assets are not built yet (see above)
+            recipes, report["needs"], report["skipped"] = _shaped(stage, scene, recipes, bound, source_facts,
+                                                                  target_error)
     from .binding import binding_targets, bindings
 
     chains = bindings(stage, recipes, binding_targets(stage, [r.material for r in recipes]), work_folder(scene))
-    return recipes, {"bound": bound, "without_recipe": without, "bindings": chains}
+    report["bindings"] = chains
+    return recipes, report
+
+
+def _shaped(stage, scene: Path, recipes: list[Recipe], bound: dict, source_facts, target_error):
+    """(the recipes of the materials the scene needs, with the compress arguments that shape
+    them; {material: Need}; [materials left out])."""
+    from dataclasses import replace
+
+    from .plan import analyse
+
+    facts = {r.material: _facts(source_facts, r) for r in recipes}
+    needs = analyse(stage, {r.material: bound[r.material] for r in recipes}, facts, target_error=target_error)
+    kept, skipped = [], []
+    for r in recipes:
+        need = needs[r.material]
+        if not need.needed:
+            log.info(f"{r.material}: not built: {need.why_not}")
+            skipped.append(r.material)
+            continue
+        shape, options = [], list(r.options)
+        if need.coverage() is not None:
+            shape += ["--coverage", str(coverage_path(scene, r))]
+        if need.max_texels is not None:
+            shape += ["--max-texels", str(need.max_texels)]
+        requirements = need.requirements()
+        target = need.target_error if need.full is None else None
+        if target is not None and "--target-error" in options:
+            at = options.index("--target-error")
+            if float(options[at + 1]) <= target:
+                target = None                 # the recipe's own target is the stricter one
+            else:
+                del options[at:at + 2]
+        if target is not None:
+            shape += ["--target-error", repr(float(target))]
+        requirements["target_error"] = target
+        kept.append(replace(r, options=tuple(options), shape=tuple(shape),
+                            # Nothing shaped is the full build: the same signature, nothing to rebuild.
+                            requirements=json.dumps(requirements, sort_keys=True) if shape else ""))
+    return kept, needs, skipped
+
+
+def _facts(source_facts, recipe: Recipe):
+    """The plan's facts of ``recipe``'s source; one it cannot read is built whole (its compress
+    step then says what is wrong with it, as a build always did)."""
+    import numpy as np
+
+    from .plan import MaterialFacts
+
+    try:
+        return source_facts(recipe.source)
+    except BTFError as exc:
+        return MaterialFacts(np.zeros((0, 2)), np.zeros((0, 2)), 1, 1, None,
+                             whole=f"its source could not be read for the plan ({exc}): built whole")
+
+
+def coverage_path(scene: Path, recipe: Recipe) -> Path:
+    """Where the build writes the coverage document of ``recipe``'s material."""
+    digest = hashlib.sha256(recipe.material.encode()).hexdigest()[:10]
+    return work_folder(Path(os.path.abspath(scene))) / "materials" / f"{recipe.asset.stem}_{digest}" / "coverage.json"
 
 
 def work_folder(scene: Path) -> Path:
@@ -263,9 +340,10 @@ def steps(recipes: list[Recipe], dask: dict | None = None, chains: list | None =
                 "package_source": str(r.compressed / COMPRESSED_METADATA),
                 "package": ["package", "--force", "-q", "-o", str(r.asset), "--", str(r.compressed)]}
         if r.compressed != r.source:
-            step["compress"] = {"sources": _source_files(r.source),
-                                "argv": ["compress", "--force", "-q", *r.options, "-o", str(r.compressed), "--",
-                                         str(r.source)]}
+            coverage = [r.shape[r.shape.index("--coverage") + 1]] if "--coverage" in r.shape else []
+            step["compress"] = {"sources": _source_files(r.source) + coverage, "requirements": r.requirements,
+                                "argv": ["compress", "--force", "-q", *r.options, *r.shape, "-o", str(r.compressed),
+                                         "--", str(r.source)]}
         else:
             step["compressed_files"] = _source_files(r.source)
         out.append(step)
@@ -273,7 +351,7 @@ def steps(recipes: list[Recipe], dask: dict | None = None, chains: list | None =
     # cached on one platform is not another's, so it enters every step's signature.
     compressed = {r.material: (str(r.compressed / COMPRESSED_METADATA),
                                [] if r.compressed != r.source else _source_files(r.source)) for r in recipes}
-    doc = {"python": sys.executable, "failure": _FAILURE, "steps": out, "platform": numeric.platform(),
+    doc = {"python": sys.executable, "failure": _FAILURE, "times": _TIMES, "steps": out, "platform": numeric.platform(),
            "commands": binding_steps(chains or [], compressed)}
     if dask is not None:
         doc["dask"] = dask
@@ -293,6 +371,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 
 Decider("content")
 SConsignFile(".sconsign")
@@ -308,6 +387,7 @@ def node(path):
 
 def usdbtf_step(argv, label):
     def run_step(target, source, env):
+        start = time.time()
         if "dask" in DATA:       # a task on the cluster (usdbtf build --dask)
             from usdbtf.cluster import run_command
 
@@ -322,6 +402,8 @@ def usdbtf_step(argv, label):
             with open(os.path.join(HERE, DATA["failure"]), "w") as out:
                 json.dump({"status": status, "message": lines[-1]}, out)
             sys.stderr.write(stderr)
+        with open(os.path.join(HERE, DATA["times"]), "a") as out:   # the build's report reads it
+            out.write(json.dumps({"label": label, "seconds": time.time() - start}) + "\\n")
         return status
 
     return Action(run_step, strfunction=lambda target, source, env: label)
@@ -333,7 +415,9 @@ targets = []
 for s in DATA["steps"]:
     if "compress" in s:
         c = s["compress"]
-        sources = env.Command(node(s["package_source"]), [node(p) for p in c["sources"]] + [PLATFORM],
+        # What the scene needs of the material (directions, resolution, error): its signature too.
+        needs = [env.Value(c["requirements"])] if c.get("requirements") else []
+        sources = env.Command(node(s["package_source"]), [node(p) for p in c["sources"]] + [PLATFORM] + needs,
                               usdbtf_step(c["argv"], "usdbtf-step compress " + json.dumps(s["material"])))
     else:
         sources = [node(s["package_source"])] + [node(p) for p in s["compressed_files"]]
@@ -373,21 +457,26 @@ def _claim_outputs(scene: Path, recipes: list[Recipe], work: Path, force: bool) 
         tmp.write_text(json.dumps(sorted(owned | set(mine)), indent=1) + "\n")
 
 
-def build(scene, *, force: bool = False, dask=None) -> dict:
-    """Build what ``scene`` needs; returns the report (plan + ``ran``: the steps SCons ran).
+def build(scene, *, force: bool = False, dask=None, source_facts=None, target_error: float | None = None) -> dict:
+    """Build what ``scene`` needs; returns the report (plan + ``ran``: the steps SCons ran,
+    ``times``: {step label: seconds}).
 
     force : replace existing outputs this build did not write before (only usdbtf outputs
         of the same kind; see the module docstring).
+    source_facts, target_error : shape the build by the scene (:func:`plan`); without
+        ``source_facts`` every bound material is built in full.
     dask : a cluster address (:func:`usdbtf.cluster.parse_address`): the steps run as Dask
         tasks there, as many at once as it has threads (each runs ``usdbtf`` on a worker,
         which must read and write the same paths); the outputs are the same."""
     scene = Path(scene).resolve()
-    recipes, report = plan(scene)
+    recipes, report = plan(scene, source_facts=source_facts, target_error=target_error)
+    report["times"] = {}
     for path in report["without_recipe"]:
         log.info(f"{path}: bound, no btf:build recipe (nothing to build)")
     if not recipes:
         log.info(f"{len(report['bound'])} bound BTF material(s), none with a btf:build recipe: nothing to build")
-        report.update(recipes=recipes, ran=[])
+        report.update(recipes=recipes, ran=[], costs={m: {"bytes": 0, "seconds": 0.0, "full_bytes": None,
+                                                          "full_seconds": None} for m in report.get("skipped", [])})
         return report
     work = work_folder(scene)
     made = [p for p in (work.parent, work) if not os.path.lexists(p)]
@@ -404,7 +493,13 @@ def build(scene, *, force: bool = False, dask=None) -> dict:
         for chain in report["bindings"]:
             chain.folder.mkdir(parents=True, exist_ok=True)
             _write_if_changed(chain.mesh_layer, chain.mesh_text)
+        for r in recipes:
+            coverage = (report.get("needs") or {}).get(r.material)
+            if coverage is not None and coverage.coverage() is not None:
+                coverage_path(scene, r).parent.mkdir(parents=True, exist_ok=True)
+                _write_if_changed(coverage_path(scene, r), json.dumps(coverage.coverage(), indent=1) + "\n")
         (work / _FAILURE).unlink(missing_ok=True)
+        (work / _TIMES).unlink(missing_ok=True)
         missing = [p for r in recipes for p in {r.compressed, r.asset.parent} if not os.path.lexists(p)]
         env = dict(os.environ)
         pipeline = str(Path(__file__).resolve().parents[2])
@@ -413,6 +508,7 @@ def build(scene, *, force: bool = False, dask=None) -> dict:
                                str(work / "SConstruct"), "-C", str(work)], capture_output=True, text=True, env=env,
                               stdin=subprocess.DEVNULL)
     ran = [line for line in proc.stdout.splitlines() if line.startswith("usdbtf-step ")]
+    report["times"] = _step_times(work)
     if proc.returncode:
         for p in sorted(missing, key=lambda q: len(q.parts), reverse=True):
             with contextlib.suppress(OSError):
@@ -434,7 +530,52 @@ def build(scene, *, force: bool = False, dask=None) -> dict:
         log.info(f"{r.material}: {r.asset}")
     log.info(f"{len(recipes)} bound BTF material(s); {len(ran)} step(s) run" + ("" if ran else " (all up to date)"))
     report.update(recipes=recipes, ran=ran)
+    report["costs"] = _costs(work, recipes, report)
     return report
+
+
+def _folder_bytes(path: Path) -> int:
+    if path.is_file():
+        return path.stat().st_size
+    return sum(f.stat().st_size for f in path.rglob("*") if f.is_file()) if path.is_dir() else 0
+
+
+def _step_material(label: str) -> str:
+    """The material a step label names ("usdbtf-step compress \"/M\"", "usdbtf-step quilt /M /prim")."""
+    parts = label.split(" ")
+    return json.loads(parts[2]) if len(parts) > 2 and parts[2].startswith('"') else (parts[2] if len(parts) > 2 else "")
+
+
+def _costs(work: Path, recipes: list[Recipe], report: dict) -> dict:
+    """{material: {"bytes": what its outputs hold now (compressed folder, asset, bound meshes'
+    chains), "seconds": its steps' time in this run (None: none ran), "full_bytes",
+    "full_seconds": the last ``--full`` build's (None: none recorded)}}; a ``--full`` build
+    records its own as the reference."""
+    costs = {}
+    for r in recipes:
+        chains = [c.folder for c in report["bindings"] if c.material == r.material]
+        spent = [t for label, t in report["times"].items() if _step_material(label) == r.material]
+        costs[r.material] = {"bytes": sum(_folder_bytes(p) for p in [*r.outputs(), *chains]
+                                          if p != r.source),
+                             "seconds": sum(spent) if spent else None}
+    for material in report.get("skipped", []):
+        costs[material] = {"bytes": 0, "seconds": 0.0}
+    try:
+        record = json.loads((work / _FULL_RECORD).read_text())
+    except (OSError, ValueError):
+        record = {}
+    record = record if isinstance(record, dict) else {}
+    if not report.get("shaped"):
+        for material, cost in costs.items():
+            old = record.get(material) if isinstance(record.get(material), dict) else {}
+            record[material] = {"bytes": cost["bytes"],
+                                "seconds": cost["seconds"] if cost["seconds"] is not None else old.get("seconds")}
+        with atomic_file(work / _FULL_RECORD, owner_checked=True) as tmp:
+            tmp.write_text(json.dumps(record, indent=1, sort_keys=True) + "\n")
+    for material, cost in costs.items():
+        ref = record.get(material) if isinstance(record.get(material), dict) else {}
+        cost["full_bytes"], cost["full_seconds"] = ref.get("bytes"), ref.get("seconds")
+    return costs
 
 
 def _write_if_changed(path: Path, text: str) -> None:
@@ -459,6 +600,21 @@ def _remove_made(made: list[Path]) -> None:
     for folder in reversed(made[:-1]):
         with contextlib.suppress(OSError):
             folder.rmdir()             # only if empty: another scene's build may live there
+
+
+def _step_times(work: Path) -> dict:
+    """{step label: seconds} of the steps this build ran (the SConstruct appends them)."""
+    times = {}
+    try:
+        lines = (work / _TIMES).read_text().splitlines()
+        (work / _TIMES).unlink()
+    except OSError:
+        return times
+    for line in lines:
+        with contextlib.suppress(ValueError, KeyError, TypeError):
+            doc = json.loads(line)
+            times[str(doc["label"])] = float(doc["seconds"])
+    return times
 
 
 def _failure(work: Path) -> tuple[int, str] | None:

@@ -15,7 +15,7 @@ import numpy as np
 from ..mesh.frames import uv_stretch as stretch
 from .material import NS
 
-__all__ = ["uv_area", "stretch", "mesh_prims", "binding_densities", "density_problems", "MAX_DENSITY_MISMATCH"]
+__all__ = ["uv_area", "stretch", "mesh_prims", "mesh_density", "binding_densities", "density_problems", "MAX_DENSITY_MISMATCH"]
 
 #: Largest relative difference between the density on a mesh and the material's that passes.
 MAX_DENSITY_MISMATCH = 0.02
@@ -38,7 +38,7 @@ def mesh_prims(stage):
     return [p for p in stage.Traverse(Usd.TraverseInstanceProxies()) if p.IsA(UsdGeom.Mesh)]
 
 
-def _mesh_density(mesh, width: int, height: int) -> float | None:
+def mesh_density(mesh, width: int, height: int) -> float | None:
     """Texels per metre of a (width, height) texture over ``mesh``'s UVs; None without UVs
     or area."""
     area, world_area = uv_area(mesh), mesh.area()
@@ -70,7 +70,7 @@ def binding_densities(stage) -> list[dict]:
         material_density = float(np.sqrt(w * h / (float(size[0]) * float(size[1]))))
         try:
             mesh = load_prim(prim)
-            on_mesh, anisotropy, problem = _mesh_density(mesh, w, h), stretch(mesh, w, h), None
+            on_mesh, anisotropy, problem = mesh_density(mesh, w, h), stretch(mesh, w, h), None
         except BTFError as exc:        # a broken mesh (NaN points, bad primvars): reported, not raised
             on_mesh, anisotropy, problem = None, None, str(exc)
         out.append({"prim": str(prim.GetPath()), "material": str(material.GetPath()),

@@ -150,13 +150,13 @@ def coverage_for(input_views, input_lights, view_vectors, light_vectors):
 def coverage_warnings(stage) -> list[str]:
     """One ``[usdbtf:Coverage]`` line per (bound mesh, camera or light) that asks a partial BTF
     material for a view or light direction outside what it keeps (module docstring)."""
-    from pxr import Gf, UsdGeom, UsdShade
+    from pxr import Gf, Usd, UsdGeom, UsdShade
 
     meters = float(UsdGeom.GetStageMetersPerUnit(stage))
     times = sample_times(stage)
     cameras = lights = None
     lines = []
-    for prim in stage.Traverse():
+    for prim in stage.Traverse(Usd.TraverseInstanceProxies()):    # instanced meshes are seen too
         if not prim.IsA(UsdGeom.Mesh):
             continue
         material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()

@@ -18,18 +18,22 @@ from ..usdstage import open_usd, usd_warnings_silenced
 from .material import LOD_VARIANT_SET, btf_materials, read_btf
 
 
-def open_stage(path, *, lod: str | None = None):
+def open_stage(path, *, lod: str | None = None, where_offered: bool = False):
     """Open an asset (see :func:`open_usd`); ``lod`` selects that variant of every ``lod``
-    variant set (in the session layer: nothing on disk changes)."""
+    variant set (in the session layer: nothing on disk changes; ``where_offered``: only of
+    those that have it)."""
     with usd_warnings_silenced():   # reported below, where they matter
         stage = open_usd(path, composition_errors=False)
     if lod is not None:
-        select_lod(stage, lod)
+        select_lod(stage, lod, where_offered=where_offered)
     return stage
 
 
-def select_lod(stage, lod: str) -> None:
-    """Select variant ``lod`` on every prim with a ``lod`` variant set (session layer only)."""
+def select_lod(stage, lod: str, *, where_offered: bool = False) -> None:
+    """Select variant ``lod`` on every prim with a ``lod`` variant set (session layer only).
+
+    where_offered : skip a variant set without ``lod`` (a scene whose materials have different
+        k, hence different levels), instead of an error naming the prim."""
     from pxr import Usd
 
     found = False
@@ -38,6 +42,8 @@ def select_lod(stage, lod: str) -> None:
             vset = prim.GetVariantSets().GetVariantSet(LOD_VARIANT_SET) if prim.HasVariantSets() else None
             if vset and vset.IsValid():
                 names = vset.GetVariantNames()
+                if lod not in names and where_offered:
+                    continue
                 if lod not in names:
                     raise BTFError(f"{prim.GetPath()}: no lod variant {lod!r} (has {', '.join(names)})")
                 vset.SetVariantSelection(lod)

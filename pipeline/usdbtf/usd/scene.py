@@ -35,8 +35,9 @@ from ..render.scene import Light
 
 log = logging.getLogger(__name__)
 
-__all__ = ["read_scene", "bound_btf_meshes", "write_scene", "new_scene", "add_camera", "add_distant",
-           "orient_towards", "distant_intensity", "POINT_RADIUS_M", "DISTANT_ANGLE"]
+__all__ = ["read_scene", "bound_btf_meshes", "write_scene", "scene_camera", "camera_prim", "scene_lights", "render_resolution",
+           "frame_times", "add_camera", "new_scene", "add_distant", "orient_towards", "distant_intensity", "POINT_RADIUS_M",
+           "DISTANT_ANGLE"]
 
 #: Radius (metres) of the SphereLight that stands for a CPU point light in a written stage.
 POINT_RADIUS_M = 1e-3
@@ -80,25 +81,6 @@ def orient_towards(xformable, towards) -> None:
     xformable.AddOrientOp().Set(Gf.Quatf(Gf.Rotation(Gf.Vec3d(0, 0, 1), Gf.Vec3d(*map(float, towards))).GetQuat()))
 
 
-def add_camera(stage, path: str, camera: Camera):
-    """``camera`` as a UsdGeom.Camera at ``path`` (metres; 50 mm focal length, apertures giving
-    its field of view and aspect), as :func:`read_scene` reads it back."""
-    from pxr import Gf, UsdGeom
-
-    cam = UsdGeom.Camera.Define(stage, path)
-    right, up, forward = camera.basis()
-    focal = 50.0
-    vertical = 2.0 * focal * math.tan(math.radians(camera.fov) / 2.0)
-    cam.CreateFocalLengthAttr(focal)
-    cam.CreateVerticalApertureAttr(vertical)
-    cam.CreateHorizontalApertureAttr(vertical * camera.width / camera.height)
-    near = 1e-3
-    cam.CreateClippingRangeAttr(Gf.Vec2f(near, 1e4))
-    rows = [[*right, 0.0], [*up, 0.0], [*(-forward), 0.0], [*camera.eye, 1.0]]
-    cam.AddTransformOp().Set(Gf.Matrix4d(rows))
-    return cam
-
-
 def add_distant(stage, path: str, towards, irradiance: float = 1.0):
     """A DistantLight at ``path`` shining from ``towards`` with ``irradiance`` (capture lights)."""
     from pxr import UsdLux
@@ -110,22 +92,24 @@ def add_distant(stage, path: str, towards, irradiance: float = 1.0):
     return light
 
 
-def _scale(light, prim) -> float:
-    """2^exposure times the mean colour of a UsdLux light."""
+def _scale(prim, code) -> float:
+    """2^exposure times the mean colour of a UsdLux light at time ``code``."""
     from pxr import UsdLux
 
     api = UsdLux.LightAPI(prim)
-    intensity = float(api.GetIntensityAttr().Get() or 0.0)
-    exposure = float(api.GetExposureAttr().Get() or 0.0)
-    colour = api.GetColorAttr().Get()
+    intensity = float(api.GetIntensityAttr().Get(code) or 0.0)
+    exposure = float(api.GetExposureAttr().Get(code) or 0.0)
+    colour = api.GetColorAttr().Get(code)
     mean = float(np.mean(colour)) if colour is not None else 1.0
     return intensity * 2.0 ** exposure * mean
 
 
-def _camera(prim, width: int, meters: float) -> Camera:
-    from pxr import Gf, UsdGeom
+def scene_camera(prim, width: int, meters: float, time=None) -> Camera:
+    """The UsdGeom.Camera ``prim`` at ``time`` (default: the default time) as a :class:`Camera`
+    (metres, ``width`` pixels wide, the height from its apertures)."""
+    from pxr import Gf, Usd, UsdGeom
 
-    cam = UsdGeom.Camera(prim).GetCamera()
+    cam = UsdGeom.Camera(prim).GetCamera(Usd.TimeCode.Default() if time is None else Usd.TimeCode(time))
     if cam.projection != Gf.Camera.Perspective:
         raise BTFError(f"{prim.GetPath()}: the CPU renderer takes perspective cameras only")
     m = cam.transform
@@ -137,21 +121,62 @@ def _camera(prim, width: int, meters: float) -> Camera:
     return Camera(eye, eye + forward / max(np.linalg.norm(forward), 1e-30), up, fov, width, height)
 
 
-def read_scene(path, camera_path: str, width: int) -> tuple[Camera, list[Light]]:
-    """(camera, lights) of the stage at ``path``: the UsdGeom.Camera ``camera_path`` (its
-    frame ``width`` pixels wide, the height from its apertures, as usdrecord frames it) and
-    its UsdLux lights in the CPU renderer's units (module docstring; possibly none)."""
-    from pxr import Gf, Usd, UsdGeom, UsdLux
+def read_scene(path, camera_path: str, width: int, time=None) -> tuple[Camera, list[Light]]:
+    """(camera, lights) of the stage at ``path`` at ``time`` (default: the default time): the
+    UsdGeom.Camera ``camera_path`` (its frame ``width`` pixels wide, the height from its
+    apertures, as usdrecord frames it) and its UsdLux lights in the CPU renderer's units
+    (module docstring; possibly none)."""
+    from pxr import UsdGeom
 
     from ..usdstage import open_usd
 
     stage = open_usd(path)
     meters = float(UsdGeom.GetStageMetersPerUnit(stage))
+    prim = camera_prim(stage, camera_path, path)
+    return scene_camera(prim, width, meters, time), scene_lights(stage, time, path)
+
+
+def camera_prim(stage, camera_path: str, where):
+    """The UsdGeom.Camera prim at ``camera_path``; BTFError naming ``where`` when there is none."""
+    from pxr import Usd, UsdGeom
+
     prim = stage.GetPrimAtPath(camera_path) if camera_path.startswith("/") else Usd.Prim()
     if not prim or not prim.IsA(UsdGeom.Camera):
-        raise BTFError(f"{path}: no UsdGeom.Camera at {camera_path}")
-    camera = _camera(prim, width, meters)
-    cache = UsdGeom.XformCache()
+        raise BTFError(f"{where}: no UsdGeom.Camera at {camera_path}")
+    return prim
+
+
+def frame_times(stage) -> list[float]:
+    """Every whole frame of the stage, startTimeCode..endTimeCode (the default time alone,
+    as None, when the stage has no time range)."""
+    if not stage.HasAuthoredTimeCodeRange():
+        return [None]
+    start, end = float(stage.GetStartTimeCode()), float(stage.GetEndTimeCode())
+    return [float(t) for t in np.arange(math.ceil(start), math.floor(end) + 1)] or [start]
+
+
+def render_resolution(stage) -> tuple[int, int] | None:
+    """(width, height) of the stage's UsdRender.Settings (the one the stage metadata names,
+    else the first one found); None without one."""
+    from pxr import UsdRender
+
+    settings = UsdRender.Settings.GetStageRenderSettings(stage)
+    if not settings:
+        found = [p for p in stage.Traverse() if p.IsA(UsdRender.Settings)]
+        settings = UsdRender.Settings(found[0]) if found else None
+    if not settings:
+        return None
+    res = settings.GetResolutionAttr().Get()
+    return (int(res[0]), int(res[1])) if res is not None and min(res) > 0 else None
+
+
+def scene_lights(stage, time=None, where="") -> list[Light]:
+    """The stage's UsdLux lights at ``time`` in the CPU renderer's units (module docstring)."""
+    from pxr import Gf, Usd, UsdGeom, UsdLux
+
+    meters = float(UsdGeom.GetStageMetersPerUnit(stage))
+    code = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
+    cache = UsdGeom.XformCache(code)
     lights = []
     for light in stage.Traverse():
         if not light.HasAPI(UsdLux.LightAPI):
@@ -159,23 +184,45 @@ def read_scene(path, camera_path: str, width: int) -> tuple[Camera, list[Light]]
         m = cache.GetLocalToWorldTransform(light)
         centre = np.array(m.Transform(Gf.Vec3d(0, 0, 0))) * meters
         lengths = [np.linalg.norm(m.TransformDir(Gf.Vec3d(*axis))) * meters for axis in np.eye(3)]
-        scale = _scale(light, light)
+        scale = _scale(light, code)
         if light.IsA(UsdLux.DistantLight):
             towards = np.array(m.TransformDir(Gf.Vec3d(0, 0, 1)))
-            angle = float(UsdLux.DistantLight(light).GetAngleAttr().Get())
+            angle = float(UsdLux.DistantLight(light).GetAngleAttr().Get(code))
             lights.append(Light("directional", towards / np.linalg.norm(towards), scale * _solid_angle(angle)))
         elif light.IsA(UsdLux.SphereLight) or light.IsA(UsdLux.DiskLight):
             schema = UsdLux.SphereLight(light) if light.IsA(UsdLux.SphereLight) else UsdLux.DiskLight(light)
-            r = float(schema.GetRadiusAttr().Get()) * max(lengths)
+            r = float(schema.GetRadiusAttr().Get(code)) * max(lengths)
             lights.append(Light("point", centre, scale * math.pi * r * r))
         elif light.IsA(UsdLux.RectLight):
             rect = UsdLux.RectLight(light)
-            area = float(rect.GetWidthAttr().Get()) * lengths[0] * float(rect.GetHeightAttr().Get()) * lengths[1]
+            area = float(rect.GetWidthAttr().Get(code)) * lengths[0] * float(rect.GetHeightAttr().Get(code)) * lengths[1]
             lights.append(Light("point", centre, scale * area))
         else:
-            log.info(f"{path}: {light.GetPath()} ({light.GetTypeName()}) adds nothing: a BTF measures "
-                     "directional light only")
-    return camera, lights
+            log.debug(f"{where}: {light.GetPath()} ({light.GetTypeName()}) adds nothing: a BTF measures "
+                      "directional light only")
+    return lights
+
+
+def add_camera(stage, path: str, cameras: dict, clipping=(1e-3, 1e4)):
+    """A UsdGeom.Camera at ``path`` (metres) framing as each :class:`Camera` of ``cameras``
+    {time code (None: the default time): Camera} does: its transform, and its apertures for
+    the vertical field of view and the width / height of the first one (focal length 50)."""
+    from pxr import Gf, Usd, UsdGeom
+
+    cam = UsdGeom.Camera.Define(stage, path)
+    first = next(iter(cameras.values()))
+    focal = 50.0
+    vertical = 2.0 * focal * math.tan(math.radians(first.fov) / 2.0)
+    cam.CreateFocalLengthAttr(focal)
+    cam.CreateVerticalApertureAttr(vertical)
+    cam.CreateHorizontalApertureAttr(vertical * first.width / first.height)
+    cam.CreateClippingRangeAttr(Gf.Vec2f(*map(float, clipping)))
+    op = cam.AddTransformOp()
+    for time, camera in cameras.items():
+        right, up, forward = camera.basis()
+        rows = [[*right, 0.0], [*up, 0.0], [*(-forward), 0.0], [*camera.eye, 1.0]]
+        op.Set(Gf.Matrix4d(rows), Usd.TimeCode.Default() if time is None else Usd.TimeCode(time))
+    return cam
 
 
 def bound_btf_meshes(stage, *, k: int | None = None) -> list[tuple]:
@@ -208,7 +255,7 @@ def write_scene(asset: Path, out: Path, camera: Camera, lights: list[Light], *, 
     from pxr import Gf, UsdLux
 
     stage, _ = new_scene(asset, out, lod)
-    add_camera(stage, "/World/Camera", camera)
+    add_camera(stage, "/World/Camera", {None: camera})
     for i, light in enumerate(lights):
         if light.kind == "directional":
             add_distant(stage, f"/World/Light{i}", light.vector, light.intensity)

@@ -70,7 +70,8 @@ def validation_by_lod(path, *, severities=("Error",)) -> dict[str, list[str]]:
     name = Path(str(path)).name
     report = {"": stage_issues(stage, severities=severities, name=name)}
     for lod in lod_selections(stage):
-        report[lod] = stage_issues(open_stage(path, lod=lod), severities=severities, name=name)
+        # Materials of different k offer different levels: each level where it is offered.
+        report[lod] = stage_issues(open_stage(path, lod=lod, where_offered=True), severities=severities, name=name)
     return report
 
 
