@@ -53,12 +53,15 @@ def _scene(folder: Path, captures: Path, *, second_camera: bool = False) -> Path
 def test_plan_skips_the_invisible_material_and_says_why(captures, tmp_path):
     recipes, report = plan(_scene(tmp_path, captures), source_facts=source_facts)
     needs = report["needs"]
-    assert report["skipped"] == ["/World/Looks/Hidden"]
+    assert report["skipped"] == [] and report["stand_ins"] == ["/World/Looks/Hidden"]
     assert needs["/World/Looks/Hidden"].prims == {
         "/World/Ghost": "invisible at every frame",
         "/World/Stand_in": "proxy-only (purpose proxy: not in a final render)"}
     assert not needs["/World/Looks/Hidden"].needed
-    assert [r.material for r in recipes] == ["/World/Looks/Far", "/World/Looks/Near"]
+    assert [r.material for r in recipes if not r.stand_in] == ["/World/Looks/Far", "/World/Looks/Near"]
+    hidden = next(r for r in recipes if r.stand_in)
+    assert hidden.options[-2:] == ("--k", "1") and "--max-texels" in hidden.shape
+    assert len(needs["/World/Looks/Hidden"].coverage()["views"]) == 1
     near, far = needs["/World/Looks/Near"], needs["/World/Looks/Far"]
     assert near.frames == 3 and near.max_texels is None              # close up: every texel
     # Far: 2 cm at 2 m under a 64-pixel-high 40-degree frame: ~1 pixel for its 32 texels,
@@ -93,7 +96,14 @@ def test_requirements_rebuild_on_a_needier_camera_and_nothing_on_no_change(captu
     scene = _scene(tmp_path, captures)
     first = build(scene, source_facts=source_facts)
     assert any("compress" in s and "Near" in s for s in first["ran"])
-    assert not (tmp_path / "build" / "Hidden_compressed").exists()
+    # The hidden material is a one-direction, k = 1 stand-in: the scene's reference resolves.
+    stand_in = json.loads((tmp_path / "build/Hidden_compressed/btf-compressed.json").read_text())
+    assert stand_in["k"] == 1 and len(stand_in["coverage"]["views"]) == len(stand_in["coverage"]["lights"]) == 1
+    from pxr import Usd
+    assert not Usd.Stage.Open(str(scene)).GetCompositionErrors()
+    from cli_helpers import run
+    code, _, err = run(capsys, "inspect", str(first["built_scene"]), "--validate")
+    assert code == 0, err
     _check_frames(scene, tmp_path / "frames", capsys)
     meta = json.loads((tmp_path / "build/Near_compressed/btf-compressed.json").read_text())
     kept = meta["coverage"]["views"]
@@ -148,8 +158,8 @@ def test_dry_run_json_and_table(captures, tmp_path, capsys):
     code, out, err = run(capsys, "build", str(scene), "--dry-run", "--json")
     assert code == 0, err
     doc = json.loads(out)
-    assert doc["shaped"] and doc["skipped"] == ["/World/Looks/Hidden"]
+    assert doc["shaped"] and doc["skipped"] == [] and doc["stand_ins"] == ["/World/Looks/Hidden"]
     near = doc["needs"]["/World/Looks/Near"]
     assert near["needed"] and near["lights"] == {"kept": 3, "measured": 13} and near["coverage"]["lights"]
-    assert "no: invisible at every frame; proxy-only" in err            # the table on stderr
+    assert "no, stand-in (k 1): invisible at every frame; proxy-only" in err            # the table on stderr
     assert not (tmp_path / "build").exists()                              # a dry run builds nothing

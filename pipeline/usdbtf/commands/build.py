@@ -63,6 +63,8 @@ def run(args) -> int:
             print(f"{path}: bound, no recipe")
         for path in report.get("skipped", []):
             print(f"{path}: not built: {report['needs'][path].why_not}")
+        for path in report.get("stand_ins", []):
+            print(f"{path}: a stand-in only (one view, one light, k 1): {report['needs'][path].why_not}")
         return 0
     report = build(args.scene, force=args.force, dask=args.dask, **shape)
     _log_table(report, report.get("costs"))
@@ -86,6 +88,9 @@ def _log_table(report: dict, costs: dict | None) -> None:
         need, cost = needs.get(material), (costs or {}).get(material, {})
         if need is not None and need.needed and need.full is not None:
             cells = (f"yes, whole: {need.full}", "all", "all", "full", "-")
+        elif need is not None and need.stand_in:
+            cells = (f"no, stand-in (k 1): {need.why_not}", f"1/{len(need.facts.views)}", f"1/{len(need.facts.lights)}",
+                     str(need.max_texels or "full"), "-")
         elif need is not None:
             cells = ("yes" if need.needed else f"no: {need.why_not}", f"{len(need.views)}/{len(need.facts.views)}",
                      f"{len(need.lights)}/{len(need.facts.lights)}", str(need.max_texels or "full"),
@@ -105,7 +110,8 @@ def _print_report(scene, recipes, report: dict, *, dry_run: bool) -> int:
     """``--json``: {"scene", "dry_run", "shaped", "recipes": [{material, source, options, shape,
     asset, compressed}], "bound": {material: [prims]}, "without_recipe": [materials],
     "needs": {material: what the scene needs of it (:meth:`usdbtf.usd.plan.Need.report`)},
-    "skipped": [materials not built], "bindings": [{material, prims, asset}] (the bound
+    "skipped": [materials not built], "stand_ins": [materials the scene never shows, built as
+    one-direction stand-ins so that its references resolve], "bindings": [{material, prims, asset}] (the bound
     meshes' unwrap/quilt/package chains), "ran": [commands], "costs": {material: {bytes,
     seconds, full_bytes, full_seconds}} and "built_scene" (builds only)}."""
     from . import print_json
@@ -115,7 +121,7 @@ def _print_report(scene, recipes, report: dict, *, dry_run: bool) -> int:
                         "shape": list(r.shape), "asset": r.asset, "compressed": r.compressed} for r in recipes],
            "bound": report["bound"], "without_recipe": report["without_recipe"],
            "needs": {m: n.report() for m, n in (report.get("needs") or {}).items()},
-           "skipped": report.get("skipped", []),
+           "skipped": report.get("skipped", []), "stand_ins": report.get("stand_ins", []),
            "bindings": [{"material": c.material, "prims": c.prims, "asset": c.asset} for c in report["bindings"]]}
     if not dry_run:
         out["ran"] = report["ran"]

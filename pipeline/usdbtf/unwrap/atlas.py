@@ -231,8 +231,13 @@ def keep_uvs(mesh: Mesh, density: float) -> Atlas:
     u = mesh.uv[mesh.triangles]
     area_uv = 0.5 * np.abs((u[:, 1, 0] - u[:, 0, 0]) * (u[:, 2, 1] - u[:, 0, 1])
                            - (u[:, 2, 0] - u[:, 0, 0]) * (u[:, 1, 1] - u[:, 0, 1])).sum()
-    side = int(np.ceil(np.sqrt(area3 / area_uv) * density))
-    return Atlas(np.arange(len(mesh.points)), mesh.triangles.copy(), mesh.uv.copy(), _uv_components(mesh.triangles),
+    # The side is whole texels, the UVs are scaled into its corner so that the density is exact:
+    # a 2 cm tile at 320 texels/m is 6.4 texels, and a whole side would be 6 % off.  (The
+    # tolerance: a 5 cm quad at 640 texels/m is 32.000000001 texels, not 33.)
+    exact = float(np.sqrt(area3 / area_uv) * density)
+    side = max(1, int(np.ceil(exact - 1e-6)))
+    uv = mesh.uv * min(1.0, exact / side)
+    return Atlas(np.arange(len(mesh.points)), mesh.triangles.copy(), uv, _uv_components(mesh.triangles),
                  side, side, float(density), 1.0, "kept")
 
 

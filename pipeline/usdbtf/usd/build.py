@@ -74,7 +74,9 @@ class Recipe:
     """What to build for one bound BTF material (absolute paths; ``options`` is the
     checked, canonical compress argument list; ``shape`` the compress arguments the scene's
     needs add (:mod:`usdbtf.usd.plan`: ``--coverage``, ``--max-texels``, ``--target-error``),
-    ``requirements`` those needs as canonical JSON, part of the compress step's signature)."""
+    ``requirements`` those needs as canonical JSON, part of the compress step's signature;
+    ``stand_in``: the scene never shows it, so it is built as a one-direction stand-in that
+    keeps the scene's reference valid, and its meshes get no atlas or quilt)."""
 
     material: str
     source: Path
@@ -82,6 +84,7 @@ class Recipe:
     asset: Path
     shape: tuple[str, ...] = ()
     requirements: str = ""
+    stand_in: bool = False
 
     @property
     def compressed(self) -> Path:
@@ -204,7 +207,9 @@ def plan(scene, *, source_facts=None, target_error: float | None = None) -> tupl
 
     source_facts : a callable, source path -> :class:`usdbtf.usd.plan.MaterialFacts`: shape the
         build by the scene (:mod:`usdbtf.usd.plan`): materials the scene never shows are left
-        out (``report["skipped"]``), the others compress only what the scene needs
+        out (``report["skipped"]``; one whose source has measured directions is built as a
+        one-direction, k = 1 stand-in instead, ``report["stand_ins"]``, so that the scene's
+        reference to its asset resolves), the others compress only what the scene needs
         (``report["needs"]``: {material: Need}).  None: everything bound, in full (``--full``).
     target_error : the screen-space percent error target (shaped builds)."""
     from ..usdstage import composition_cycle, composition_error_text, open_usd, usd_warnings_silenced
@@ -251,7 +256,10 @@ def plan(scene, *, source_facts=None, target_error: float | None = None) -> tupl
                                                                   target_error)
     from .binding import binding_targets, bindings
 
-    chains = bindings(stage, recipes, binding_targets(stage, [r.material for r in recipes]), work_folder(scene))
+    if source_facts is not None:
+        report["stand_ins"] = [r.material for r in recipes if r.stand_in]
+    shown = [r for r in recipes if not r.stand_in]      # a stand-in's meshes are never seen: no atlas, no quilt
+    chains = bindings(stage, shown, binding_targets(stage, [r.material for r in shown]), work_folder(scene))
     report["bindings"] = chains
     return recipes, report
 
@@ -268,17 +276,20 @@ def _shaped(stage, scene: Path, recipes: list[Recipe], bound: dict, source_facts
     kept, skipped = [], []
     for r in recipes:
         need = needs[r.material]
-        if not need.needed:
+        if not need.needed and not need.stand_in:
             log.info(f"{r.material}: not built: {need.why_not}")
             skipped.append(r.material)
             continue
         shape, options = [], list(r.options)
+        if need.stand_in:
+            log.info(f"{r.material}: a stand-in only (one view and one light, k = 1): {need.why_not}")
+            options = _without_rate_options(options) + ["--k", "1"]
         if need.coverage() is not None:
             shape += ["--coverage", str(coverage_path(scene, r))]
         if need.max_texels is not None:
             shape += ["--max-texels", str(need.max_texels)]
         requirements = need.requirements()
-        target = need.target_error if need.full is None else None
+        target = need.target_error if need.full is None and not need.stand_in else None
         if target is not None and "--target-error" in options:
             at = options.index("--target-error")
             if float(options[at + 1]) <= target:
@@ -288,10 +299,27 @@ def _shaped(stage, scene: Path, recipes: list[Recipe], bound: dict, source_facts
         if target is not None:
             shape += ["--target-error", repr(float(target))]
         requirements["target_error"] = target
-        kept.append(replace(r, options=tuple(options), shape=tuple(shape),
+        kept.append(replace(r, options=tuple(options), shape=tuple(shape), stand_in=need.stand_in,
                             # Nothing shaped is the full build: the same signature, nothing to rebuild.
                             requirements=json.dumps(requirements, sort_keys=True) if shape else ""))
     return kept, needs, skipped
+
+
+def _without_rate_options(options: list[str]) -> list[str]:
+    """``options`` without what sets k or the error/byte target (each is a flag and its value:
+    the canonical list :func:`parse_options` makes)."""
+    out, skip = [], False
+    for item in options:
+        if skip:
+            skip = False
+        elif item in _RATE_OPTIONS:
+            skip = True
+        else:
+            out.append(item)
+    return out
+
+
+_RATE_OPTIONS = ("--k", "--target-error", "--max-bytes", "--error-domain")
 
 
 def _facts(source_facts, recipe: Recipe):

@@ -141,6 +141,13 @@ class Need:
         return self.full is not None or any(status == "seen" for status in self.prims.values())
 
     @property
+    def stand_in(self) -> bool:
+        """Not needed, yet built as a stand-in: the scene references the material's asset, so
+        something valid must be there (a reference to a missing file fails validation), but one
+        measured direction pair at :data:`MIN_TEXELS` and k = 1 is all it holds."""
+        return not self.needed and self.full is None and len(self.facts.views) > 0 and len(self.facts.lights) > 0
+
+    @property
     def why_not(self) -> str | None:
         """Why the material is not needed (None when it is)."""
         if self.needed:
@@ -159,6 +166,8 @@ class Need:
         """The larger side after the box filter (None: the measured resolution); never below
         :data:`MIN_TEXELS` (nor a filter that would leave the size as it is)."""
         side = max(self.facts.width, self.facts.height)
+        if self.stand_in:
+            return MIN_TEXELS if side > MIN_TEXELS else None
         texels = max(MIN_TEXELS, -(-side // self.factor))
         return None if texels >= side else texels
 
@@ -179,7 +188,12 @@ class Need:
         return texel_target(self.screen_target, self.pixels_per_texel, side / (self.max_texels or side))
 
     def coverage(self) -> dict | None:
-        """The ``compress --coverage`` document, or None when every direction is needed."""
+        """The ``compress --coverage`` document, or None when every direction is needed (a
+        stand-in keeps the view and the light nearest the normal)."""
+        if self.stand_in:
+            view, light = (int(np.argmin(d[:, 0])) for d in (self.facts.views, self.facts.lights))
+            return {"format": COVERAGE_FORMAT, "views": [[float(t), float(p)] for t, p in self.facts.views[[view]]],
+                    "lights": [[float(t), float(p)] for t, p in self.facts.lights[[light]]]}
         if self.full is not None or (len(self.views) == len(self.facts.views)
                                      and len(self.lights) == len(self.facts.lights)):
             return None
@@ -189,7 +203,8 @@ class Need:
 
     def requirements(self) -> dict:
         """What the build of this material depends on (canonical, JSON): its SCons signature."""
-        return {"needed": self.needed, "coverage": self.coverage(), "max_texels": self.max_texels,
+        return {"needed": self.needed, "stand_in": self.stand_in, "coverage": self.coverage(),
+                "max_texels": self.max_texels,
                 "target_error": self.target_error}
 
     def sample_fraction(self) -> float:
@@ -200,7 +215,8 @@ class Need:
 
     def report(self) -> dict:
         """The ``--json`` entry of this material."""
-        return {"material": self.material, "needed": self.needed, "why_not": self.why_not, "full": self.full,
+        return {"material": self.material, "needed": self.needed, "why_not": self.why_not,
+                "stand_in": self.stand_in, "full": self.full,
                 "prims": dict(self.prims), "frames_seen": self.frames, "surface_samples": self.samples,
                 "views": {"kept": len(self.views), "measured": len(self.facts.views)},
                 "lights": {"kept": len(self.lights), "measured": len(self.facts.lights)},
