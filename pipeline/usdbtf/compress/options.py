@@ -9,11 +9,13 @@ from dataclasses import dataclass, field
 
 from ..errors import BTFError, UsageError
 
-__all__ = ["CompressOptions", "SOLVERS", "ERROR_DOMAINS", "CODEC_NAMES", "DEFAULT_CODEC", "DEFAULT_K", "BUDGET_K"]
+__all__ = ["CompressOptions", "SOLVERS", "EFFORTS", "ERROR_DOMAINS", "CODEC_NAMES", "DEFAULT_CODEC", "DEFAULT_K", "BUDGET_K"]
 
 SOLVERS = ("rsvd", "paper")
 #: The codecs :mod:`.codecs` defines, by name (here, light, for the command line).
 CODEC_NAMES = ("jxlp", "jxl", "png", "exr", "jpeg")
+#: Entropy-coder effort settings (``--effort``; see CompressOptions.quick_encode).
+EFFORTS = ("auto", "quick", "full")
 #: What ``--target-error`` is measured on: the input file's values, or scene-linear.
 ERROR_DOMAINS = ("encoded", "linear")
 #: The codec each solver stores with when none is asked for.
@@ -59,6 +61,8 @@ class CompressOptions:
                                           # solved on (default: factored.default_rows; >= S: all, exact)
     domain: str = "auto"                  # working-domain curve: auto, linear, srgb, gamma:G (see domain.py)
     error_domain: str = "encoded"         # target_error is on the input file's values ("encoded") or "linear"
+    effort: str = "auto"                  # entropy-coder effort: auto (quick for a plain k, full when bytes are
+                                          # asked for), quick or full (see quick_encode)
     extra: dict = field(default_factory=dict)
 
     def validate(self):
@@ -85,6 +89,8 @@ class CompressOptions:
             raise BTFError(f"unknown codec {self.codec_name!r}; choose from {', '.join(CODEC_NAMES)}")
         from .domain import parse_domain      # numpy: not at import (--help stays light)
         parse_domain(self.domain)
+        if self.effort not in EFFORTS:
+            raise BTFError(f"--effort must be one of {', '.join(EFFORTS)}, got {self.effort!r}")
         if self.error_domain not in ERROR_DOMAINS:
             raise BTFError(f"--error-domain must be one of {', '.join(ERROR_DOMAINS)}, got {self.error_domain!r}")
 
@@ -103,6 +109,13 @@ class CompressOptions:
         if self.solver == "paper" or self.codec_name == "jpeg":
             return "minmax"
         return "uniform"
+
+    @property
+    def quick_encode(self) -> bool:
+        """Encode at the codec's quick effort (:meth:`.codecs.Codec.quick`): asked for, or
+        ``auto`` with a plain k -- no size was asked for, so the 8x faster encode is worth its
+        7.5 % more bytes; under ``--max-bytes`` or ``--target-error`` the bytes buy components."""
+        return self.effort == "quick" or (self.effort == "auto" and not self.budgeted)
 
     @property
     def budgeted(self) -> bool:

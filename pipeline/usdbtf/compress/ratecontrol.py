@@ -25,7 +25,7 @@ from .parallel import in_threads
 from .decorrelate import planes_in_use
 from .encode import encode, truncate_encoded
 from .evaluate import HeldOut, held_out_error
-from .format import CompressedBTF, encode_basis
+from .format import CompressedBTF, encode_basis, encoder
 from .options import CompressOptions
 from .quantise import Factorisation, quantise
 
@@ -163,7 +163,7 @@ def _probe_codec_factors(table, f: Factorisation, k: int, step: float, options: 
     j = list(table.steps).index(step)
     probe = np.unique(np.linspace(0, k - 1, min(k, 12)).round().astype(int))
     cbtf = quantise(f, k, step, options)
-    codec = get_codec(cbtf.codec)
+    codec = encoder(cbtf)
     coeff_bytes = sum(len(d) for d in in_threads(lambda i: codec.encode(cbtf.coefficients[i], "data"), probe))
     basis_bytes = len(encode_basis(cbtf))
     overhead = len(probe) * ratedist.FILE_OVERHEAD_BYTES  # the model adds it unscaled
