@@ -119,7 +119,9 @@ def _max_bytes(f: Factorisation, options: CompressOptions, table) -> tuple[Compr
     fc, fb = _probe_codec_factors(table, f, min(k, options.k or k), step, options)
     k, step = ratedist.choose_for_bytes(table, 0.995 * budget, fc, fb)
     k = min(k, options.k or k)
+    predicted = _modelled(table, k, step, fc, fb)
     cbtf = _attempt(f, options, k, step, 1)
+    model = _prediction(predicted, cbtf.info["bytes"]["payload"])
     while cbtf.info["bytes"]["payload"] > budget:
         k2 = _fit_k_to_budget(cbtf.info["bytes"], k, budget)
         if k2 == 0 or k2 == k:
@@ -130,7 +132,7 @@ def _max_bytes(f: Factorisation, options: CompressOptions, table) -> tuple[Compr
         log.info(f"  trimmed to k = {k2}: {cbtf.info['bytes']['payload']} bytes")
         k = k2
     return cbtf, {"mode": "max_bytes", "k": k, "step": step, "bytes": cbtf.info["bytes"]["payload"],
-                  "codec_factor": {"coefficients": fc, "basis": fb}}
+                  "codec_factor": {"coefficients": fc, "basis": fb}, "model": model}
 
 
 def _target_error(f: Factorisation, options: CompressOptions, table, held: HeldOut) -> tuple[CompressedBTF, dict]:
@@ -140,13 +142,33 @@ def _target_error(f: Factorisation, options: CompressOptions, table, held: HeldO
     scale, factor = 1.0, 1.0
     for attempt in range(1, 5):
         k, step = ratedist.choose_for_error(table, rms_target**2 * N * scale, factor)
+        predicted = _modelled(table, k, step, factor)
         cbtf = _attempt(f, options, k, step, attempt)
+        model = _prediction(predicted, cbtf.info["bytes"]["payload"])
         err = held_out_error(cbtf, held, domain=options.error_domain).percent
+        # The model's error in the target's units (the Gaussian L1/RMS ratio the choice assumed).
+        model.update(target_percent=options.target_error, measured_percent=err, predicted_percent=100.0 *
+                     np.sqrt(predicted["sqerr"] / N) * _GAUSS_L1_OVER_RMS / float(truth.mean()))
         if err <= options.target_error:
             break
         scale *= (options.target_error / err) ** 2   # the L1/RMS ratio of these errors differs from Gaussian
     return cbtf, {"mode": "target_error", "k": k, "step": step, "bytes": cbtf.info["bytes"]["payload"],
-                  "estimated_percent": err}
+                  "estimated_percent": err, "model": model, "attempts": attempt}
+
+
+def _modelled(table, k: int, step: float, fc: float, fb: float | None = None) -> dict:
+    """What the rate-distortion model predicts for (k, step): bytes and squared error."""
+    bytes_, err = table.curves(fc, fb)
+    j = list(table.steps).index(step)
+    return {"bytes": float(bytes_[k, j]), "sqerr": float(err[k, j])}
+
+
+def _prediction(predicted: dict, measured_bytes: int) -> dict:
+    """The model's byte prediction against the verification encode (logged and recorded:
+    how far the model alone would have missed)."""
+    rel = measured_bytes / max(predicted["bytes"], 1.0) - 1.0
+    log.info(f"  model predicted {predicted['bytes']:.0f} bytes, the encode gave {measured_bytes} ({100 * rel:+.2f} %)")
+    return {"predicted_bytes": predicted["bytes"], "measured_bytes": measured_bytes, "bytes_error": rel}
 
 
 def _fit_k_to_budget(sizes: dict, k: int, budget: int, margin: float = 0.995) -> int:
