@@ -86,14 +86,18 @@ def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
         # before the projection: then the projection can skip what the step would zero out.
         sampled, outside = sampled_coefficients(fit, source.to_working, held.truth, btf.n_pixels)
         color = np.eye(3) if opts.solver == "paper" else color_decorrelation(sampled)
-        step, planes = step_for_k(rotate_color(sampled, color), fit.basis, outside, btf.n_pixels, opts)
+        step, planes = step_for_k(rotate_color(sampled, color), fit.basis, outside, btf.n_pixels, opts,
+                                  float(held.truth.mean(dtype=np.float64)))
         del sampled
         clock.lap("color")
-        coeff, energy = project(source, fit.basis, color, planes, energy=opts.target_error is not None)
+        # Only the components some plane is projected on (under a budget, what the sampled
+        # model could choose: the rest would be zeros for rate control to skip).
+        basis = fit.basis[:, :max(planes)]
+        coeff, energy = project(source, basis, color, planes, energy=opts.target_error is not None)
         clock.lap("project")
         if energy is None:   # not measured: the coefficients' energy plus the estimate outside the basis
             energy = float(np.einsum("kpc,kpc->", coeff, coeff, dtype=np.float64)) + outside
-        cbtf, choice = rate_control(Factorisation(btf, fit.basis, coeff, color, energy, planes, step, domain),
+        cbtf, choice = rate_control(Factorisation(btf, basis, coeff, color, energy, planes, step, domain),
                                     opts, held)
         if scores is not None:
             choice["domain_scores"] = scores

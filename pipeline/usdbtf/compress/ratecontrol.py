@@ -37,7 +37,7 @@ _GAUSS_L1_OVER_RMS = float(np.sqrt(2 / np.pi))  # E|e| / rms(e) for Gaussian err
 
 
 def step_for_k(sampled: np.ndarray, basis: np.ndarray, outside: float, n_pixels: int,
-               options: CompressOptions) -> tuple[float | None, tuple]:
+               options: CompressOptions, truth_mean: float = 1.0) -> tuple[float | None, tuple]:
     """The quantisation step and colour planes for a plain k, from sampled texels.
 
     Chosen before the projection, so the projection can skip the components the step would
@@ -52,21 +52,65 @@ def step_for_k(sampled: np.ndarray, basis: np.ndarray, outside: float, n_pixels:
     outside : energy outside the basis (working space, linear units squared), whole image.
     n_pixels : P, texels per image.
     options : ``k``, ``seed``, and whether a budget or another quantiser applies.
+    truth_mean : mean held-out working-space value (``--target-error``'s scale).
 
     Returns
     -------
     step : float, or None when rate control chooses later (budget) or there is no step.
-    planes : (k_0, k_1, k_2) components to project per colour plane (all k_fit with no step).
+    planes : (k_0, k_1, k_2) components to project per colour plane (all k_fit with no step;
+        under a budget, what the sampled model could choose: :func:`budget_planes`).
     """
     k_fit = basis.shape[1]
-    if options.budgeted or options.quantiser != "uniform":
+    if options.quantiser != "uniform":
         return None, (k_fit,) * 3
-    k = min(options.target_k, k_fit)
     inside = float(np.einsum("kpc,kpc->", sampled, sampled, dtype=np.float64)) * n_pixels / sampled.shape[1]
+    if options.budgeted:
+        return None, budget_planes(sampled, basis, inside + outside, n_pixels, options, truth_mean)
+    k = min(options.target_k, k_fit)
     table = ratedist.rd_table(sampled[:k], basis[:, :k], inside + outside, n_texels=n_pixels, seed=options.seed,
                               rates=False)
     step = ratedist.choose_for_k(table, k)
     return step, planes_in_use(sampled[:k], step)
+
+
+#: Under a budget the projection covers the components the sampled model chooses times this,
+#: plus :data:`_PLAN_EXTRA`, and each plane's components down to half the model's step: the
+#: final choice is made on the projected coefficients with the calibrated codec factors, and
+#: must not be capped by what was projected.
+_PLAN_MARGIN = 1.25
+_PLAN_EXTRA = 16
+#: Measured bytes / entropy-model bytes of the basis image at effort 7 (paper-scale presets,
+#: choice.codec_factor): the model's prior before any encode.
+_BASIS_FACTOR_PRIOR = 0.6
+
+
+def budget_planes(sampled: np.ndarray, basis: np.ndarray, total: float, n_pixels: int, options: CompressOptions,
+                  truth_mean: float) -> tuple:
+    """Components per colour plane to project under ``--max-bytes`` or ``--target-error``:
+    what the rate-distortion model on the sampled texels' coefficients chooses, with a margin.
+
+    The projection of every fitted component (a budget fits 500) costs 3.3x the floor's GEMM at
+    paper scale; rate control then keeps ~300-400 and zeroes most of the third plane.  The
+    sampled model (fitting texels, in-sample, overstate late components: more are projected,
+    not fewer) bounds what rate control can choose before anything is projected.
+
+    Returns
+    -------
+    (k_0, k_1, k_2) : components to project per plane.
+    """
+    k_fit = basis.shape[1]
+    table = ratedist.rd_table(sampled, basis, total, n_texels=n_pixels, seed=options.seed)
+    if options.max_bytes is not None:
+        k, step = ratedist.choose_for_bytes(table, options.max_bytes, 1.0, _BASIS_FACTOR_PRIOR)
+    else:
+        N = basis.shape[0] * 3 * n_pixels
+        rms = options.target_error / 100.0 * truth_mean / _GAUSS_L1_OVER_RMS
+        k, step = ratedist.choose_for_error(table, rms**2 * N, 1.0)
+    k_plan = min(k_fit, int(np.ceil(_PLAN_MARGIN * k)) + _PLAN_EXTRA)
+    planes = planes_in_use(sampled[:k_plan], step / 2)
+    log.info(f"  sampled model: k = {k}, step = {step:.4g}; projecting {'/'.join(map(str, planes))} components "
+             f"per colour plane of {k_fit}")
+    return planes
 
 
 def rate_control(f: Factorisation, options: CompressOptions, held: HeldOut) -> tuple[CompressedBTF, dict]:
