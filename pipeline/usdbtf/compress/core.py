@@ -29,7 +29,7 @@ from ..model import BTF
 from ..outputs import COMPRESSED as COMPRESSED_KIND
 from .curve import write_curve
 from .decorrelate import color_decorrelation, rotate_color
-from .evaluate import error_curve, held_out_error, held_out_set
+from .evaluate import error_curve, held_out_errors, held_out_set
 from .domain_choice import choose_domain
 from .fit import HDR_NORM_RANGE, fit_source, require_signal, sampled_coefficients
 from .format import CompressedBTF, write_metadata, write_textures
@@ -103,7 +103,7 @@ def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
             choice["domain_scores"] = scores
         clock.lap("encode")
         result = _described(cbtf, opts, dict(choice, planes=list(planes)), fit.singular_values, held,
-                            *_side_by_side(lambda: held_out_error(cbtf, held), lambda: error_curve(cbtf, source)),
+                            *_side_by_side(lambda: held_out_errors(cbtf, held), lambda: error_curve(cbtf, source)),
                             getattr(source, "provenance", None))
         clock.lap("evaluate")
     log.info(f"k = {result.k}, {result.info['bytes']['payload']} bytes, estimated error "
@@ -144,13 +144,14 @@ def write_compress(result: CompressedBTF, path, *, force: bool = False) -> dict:
 def _described(cbtf: CompressedBTF, opts: CompressOptions, choice: dict, singular_values, held, sums,
                curve: dict, transcoded: dict | None = None) -> CompressedBTF:
     """``cbtf`` with what the metadata records about how it was made (``transcoded``: how a
-    factorised input was compressed from its factors), and its error curve."""
+    factorised input was compressed from its factors), its held-out errors (``sums``: linear,
+    encoded) and its error curve."""
     info = dict(cbtf.info)
     info.update({
         "solver": opts.solver,
         "choice": choice,
         "singular_values": [float(s) for s in singular_values],
-        "estimated_error": {"linear": sums.report(), "encoded": held_out_error(cbtf, held, domain="encoded").report(),
+        "estimated_error": {"linear": sums[0].report(), "encoded": sums[1].report(),
                             "texels": int(len(held.texels)),
                             "note": ("held-out texels (not used in the fit)" if held.disjoint else
                                      "all texels (the image is smaller than the fitting sample: in-sample)")
