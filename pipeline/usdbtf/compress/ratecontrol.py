@@ -20,7 +20,6 @@ import numpy as np
 
 from ..errors import BTFError
 from . import ratedist
-from .codecs import get_codec
 from .parallel import in_threads
 from .decorrelate import planes_in_use
 from .encode import encode, truncate_encoded

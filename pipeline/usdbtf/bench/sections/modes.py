@@ -30,8 +30,8 @@ import numpy as np
 
 from . import Context, Section, SectionResult
 from ..methods import Method
-from ..report import Column, markdown_table, plot_tradeoffs
-from .compress import ROW_KEYS, Dataset, mark_pareto, measure_method
+from ..report import Column
+from .compress import ROW_KEYS, Dataset, add_dataset, measure_method
 
 MODE_KEYS = ROW_KEYS + ["mode", "floor_s", "x_floor", "vs_paper"]
 
@@ -134,15 +134,10 @@ def run(ctx: Context) -> SectionResult:
             if r.get("status") == "ok":
                 r["x_floor"] = r["wall_s"] / floor
                 r["vs_paper"] = r["fit_percent"] / paper["fit_percent"]
-        mark_pareto(rows)
-        result.rows.extend(rows)
         title = (f"{preset}, sampling {cfg.sampling} ({len(ds.fit_idx)} fitted + {len(ds.held_idx)} held-out samples), "
                  f"{size}x{size}; floor {floor:.2f} s (decode {decode:.2f} + GEMM {gemm:.2f})")
-        result.tables.append(f"#### {title}\n\n{markdown_table(rows, COLUMNS)}")
-        ok = [r for r in rows if r.get("status") == "ok"]
-        if ok:
-            result.plots.append(plot_tradeoffs(ok, plots_dir / f"{ds.name}.png",
-                                               f"usdbtf bench modes: {title}; {cfg.repeats} repeat(s)"))
+        add_dataset(result, rows, COLUMNS, title, plots_dir / f"{ds.name}.png",
+                    f"usdbtf bench modes: {title}; {cfg.repeats} repeat(s)")
     result.notes.append(
         "mode = how compress was asked (the paper baseline: --solver paper --k 150); --max-bytes and --target-error "
         "take the paper row's stored bytes and fitted error (scene-linear); time = median wall time of the "
