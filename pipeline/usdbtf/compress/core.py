@@ -71,14 +71,12 @@ def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
         log.info(f"loaded {btf.n_samples} samples of {btf.width}x{btf.height} ({source.kind}, {source.nbytes / 2**20:.0f} MiB) "
             f"in {clock.lap('load'):.2f} s")
         # The working domain first (auto fits each candidate; the winner's fit is kept), then
-        # the held-out truth is read while the basis is fitted (independent steps, one
-        # thread each: the fit's serial parts leave a core free) -- after it under a budget,
-        # whose 500-vector fit on 4096 texels is the run's peak of memory (paper scale: the
-        # truth's 0.13 GB on top of 1.1 GB).
+        # the basis, then the held-out truth: not beside the fit, whose columns are the run's
+        # peak of memory (paper scale: the truth's 0.13 GB on top of 1.1 GB).
         k_fit = opts.fit_k(btf.n_samples, btf.n_pixels)
         domain, chosen, scores = choose_domain(source, texels, k_fit, opts)
-        fit, held = _side_by_side(lambda: chosen or fit_source(source, texels.fit, k_fit, opts),
-                                  lambda: held_out_set(source, texels), threads=1 if opts.budgeted else 2)
+        fit = chosen or fit_source(source, texels.fit, k_fit, opts)
+        held = held_out_set(source, texels)
         if fit.weighted:
             log.info(f"texel norms span more than {HDR_NORM_RANGE:g}: basis fitted with weights ||x_t||^-1/2")
         require_signal(fit, btf, texels, opts)
@@ -113,10 +111,9 @@ def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
     return result
 
 
-def _side_by_side(first, second, threads: int = 2) -> tuple:
-    """(first(), second()) run at once on two threads (steps that share no data); one after
-    the other with ``threads=1``."""
-    return tuple(in_threads(lambda fn: fn(), [first, second], threads=threads))
+def _side_by_side(first, second) -> tuple:
+    """(first(), second()) run at once on two threads (steps that share no data)."""
+    return tuple(in_threads(lambda fn: fn(), [first, second], threads=2))
 
 
 def write_compress(result: CompressedBTF, path, *, force: bool = False) -> dict:

@@ -48,9 +48,8 @@ class CompressOptions:
     power_iterations: int = 1
     oversample: int = 16
     region: int | None = None             # paper: side of the central square region (texels)
-    memory_budget: float = 0.5e9          # hold stored values in memory up to this many bytes, else stream
-                                          # (0.5 GB: paper scale, 0.53 GB at 8 bits, streams -- peak RSS 0.75
-                                          # instead of 1.23 GB for --k 150, no more CPU, the same bytes)
+    memory_budget: float = 1.0e9          # hold stored values in memory when they and the fit's float32
+                                          # columns fit in this many bytes, else stream (select_source)
     chunk_bytes: float = 64e6             # streaming: stored bytes per chunk (rounded to whole projection tiles)
     eval_texels: int = 1024               # held-out texels for error estimates
     workers: int | None = None

@@ -4,7 +4,7 @@ Grid: image sizes ``scaling_sizes`` x the first ``scaling_views`` views of the s
 ``scaling_sampling`` (all lights of each view), plain ``usdbtf compress IN -o OUT --k K``
 in two memory modes:
 
-``auto``       the default ``--memory-budget`` (0.5 GB): the stored values are held in memory
+``auto``       the default ``--memory-budget`` (1 GB): the stored values are held in memory
                when they fit, else streamed (the run records which);
 ``streaming``  ``--memory-budget 0``: always streamed (two decoding passes, one chunk of
                samples held at a time).
@@ -153,7 +153,7 @@ def summarise(rows: list, plot_path=None, title: str = "") -> SectionResult:
     result.notes.append(
         "wall = median wall time of `usdbtf compress` (interpreter start and PNG decode included), CPU = median "
         "user + sys of the process and its decode workers (less disturbed by other load on a shared machine); "
-        "memory = worst max(peak RSS, sampled tree PSS); `auto` = default --memory-budget 0.5 GB (\"streamed\" "
+        "memory = worst max(peak RSS, sampled tree PSS); `auto` = default --memory-budget 1 GB (\"streamed\" "
         "where the stored values exceed it), `streaming` = --memory-budget 0; slopes are least-squares fits of "
         "log y on log x with one intercept per series; affine fit: y = fixed + c S P over all points of a mode.")
     return result
