@@ -57,7 +57,7 @@ def add_arguments(p) -> None:
     p.add_argument("--workers", type=WORKERS, help="decode processes (default: CPU count; with 2 or more, one more "
                    "while a streamed input is spilled to disk, since each waits for its writes)")
     p.add_argument("--memory-budget", type=float_in(0, 1e4), default=1.0, metavar="GB",
-                   help="hold the stored values in memory when they and the basis fit's float32 columns fit this "
+                   help="hold the stored values in memory when they and the basis fit's working set fit this "
                         "size, else stream them: decoded once into an anonymous spill file when the temporary folder "
                         "has room, else twice (default 1.0)")
     p.add_argument("--dask", type=parse_address, metavar="ADDRESS", help=ADDRESS_HELP + "; the output is "

@@ -86,11 +86,10 @@ def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
         # before the projection: then the projection can skip what the step would zero out.
         sampled, outside = sampled_coefficients(fit, source.to_working, held.truth, btf.n_pixels)
         color = np.eye(3) if opts.solver == "paper" else color_decorrelation(sampled)
-        step, planes = step_for_k(rotate_color(sampled, color), fit.basis, outside, btf.n_pixels, opts,
-                                  float(held.truth.mean(dtype=np.float64)))
+        step, planes = step_for_k(rotate_color(sampled, color), fit.basis, outside, btf.n_pixels, opts)
         del sampled
         clock.lap("color")
-        # Only the components some plane is projected on (under a budget, what the sampled
+        # Only the components some plane is projected on (under --max-bytes, what the sampled
         # model could choose: the rest would be zeros for rate control to skip).
         basis = fit.basis[:, :max(planes)]
         coeff, energy = project(source, basis, color, planes, energy=opts.target_error is not None)
