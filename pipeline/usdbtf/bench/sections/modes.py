@@ -75,12 +75,15 @@ def modes(paper_bytes: int, paper_percent: float) -> list:
 
 
 _FILES: list = []
+_OPEN: dict = {}
 
 
 def _decode(bounds) -> int:
     from ...io import open_btf
 
-    btf = open_btf(_FILES[0])
+    if "btf" not in _OPEN:                    # once per worker process (the manifest read is not decode time)
+        _OPEN["btf"] = open_btf(_FILES[0])
+    btf = _OPEN["btf"]
     for i in range(*bounds):
         btf.read_one(i)
     return bounds[1] - bounds[0]
@@ -93,6 +96,7 @@ def floor_seconds(fitted_dir, n_samples: int, n_pixels: int) -> tuple[float, flo
 
     workers = max(1, len(os.sched_getaffinity(0)))
     _FILES[:] = [fitted_dir]
+    _OPEN.clear()
     oiio.attribute("threads", 1)
     bounds = np.linspace(0, n_samples, workers * 8 + 1).astype(int)
     t = time.perf_counter()
