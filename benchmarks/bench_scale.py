@@ -24,6 +24,8 @@ pebbles --sampling paper --size 128``) and UBO2014-sized sets of 151 x 151 sampl
 ``scale_data.py`` (rendered at half the side with full tracing quality, tiled 2 x 2).
 
     .venv/bin/python benchmarks/bench_scale.py --sections floor --inputs paper,ubo400
+    .venv/bin/python benchmarks/bench_scale.py --sections floor --inputs paper:metal_flakes \
+        --modes '--k 150;--max-bytes 3418156;--target-error 11.396'
     .venv/bin/python benchmarks/bench_scale.py --sections scaling,workers
 
 Writes benchmarks/out/scale_<stamp>.json and prints markdown for RESULTS.md.
@@ -57,12 +59,13 @@ def say(msg: str = "") -> None:
 
 # -- inputs ---------------------------------------------------------------------------------------
 def input_folder(name: str, workdir: Path) -> tuple[Path, str]:
-    """(folder, how it was made) for 'paper' or 'uboNNN'."""
-    if name == "paper":
+    """(folder, how it was made) for 'paper' (pebbles), 'paper:PRESET' or 'uboNNN'."""
+    if name.split(":")[0] == "paper":
         from usdbtf.bench.datasets import ensure_dataset
 
-        info = ensure_dataset(workdir, "pebbles", "paper", 128, 0, "png", say=say)
-        return Path(info["folder"]), "usdbtf synth pebbles --sampling paper --size 128 --seed 0 (PNG)"
+        preset = name.split(":")[1] if ":" in name else "pebbles"
+        info = ensure_dataset(workdir, preset, "paper", 128, 0, "png", say=say)
+        return Path(info["folder"]), f"usdbtf synth {preset} --sampling paper --size 128 --seed 0 (PNG)"
     size = int(name[3:])
     info = ensure_tiled(workdir, "pebbles", "ubo151", size, 0, say=say)
     return Path(info["folder"]), info["how"]
@@ -147,40 +150,47 @@ def section_floor(inputs, cli, args, doc):
         say(f"\n### floor ratio: {name} ({S} samples of {btf.width}^2; {how})")
         warm = warm_page_cache(folder)
         say(f"  page cache warm-up: {warm['files']} files, {fmt_bytes(warm['bytes'])} in {warm['seconds']:.1f} s")
-        rounds = []
+        modes = [m.split() for m in args.modes.split(";") if m.strip()]
+        rounds = {" ".join(m): [] for m in modes}
         for rnd in range(args.repeats):
-            load = os.getloadavg()[0]
-            dec, dec_cpu = decode_pass(btf, args.workers)
-            gem, ginfo = gemm_pass(S, P)
-            run = compress_run(cli, folder, OUT / "scale" / f"{name}-plain", ["--workers", str(args.workers)])
-            ok = not run["returncode"]
-            ratio = run["wall_s"] / (dec + gem) if ok else float("nan")
-            ratio_cpu = run["cpu_s"] / (dec_cpu + ginfo["cpu_s"]) if ok else float("nan")
-            rounds.append({"load1": load, "decode_s": dec, "decode_cpu_s": dec_cpu, "gemm_s": gem, "gemm": ginfo,
-                           "compress": run, "ratio": ratio, "ratio_cpu": ratio_cpu})
-            say(f"  round {rnd + 1}: load {load:.1f}; decode {dec:.2f} s + GEMM {gem:.2f} s = floor {dec + gem:.2f} s "
-                f"(CPU {dec_cpu:.1f} + {ginfo['cpu_s']:.1f} s); compress {run['wall_s']:.2f} s (CPU "
-                f"{run['cpu_s']:.1f} s, peak RSS {fmt_bytes(run['max_rss_bytes'])}) -> ratio {ratio:.2f} "
-                f"(CPU {ratio_cpu:.2f})")
-            say(f"    {_stage_line(run['stderr_tail'])}")
-            write_json(args.json, doc)
-        row = {"input": name, "how": how, "samples": S, "texels": P, "stored_bytes": S * P * 3,
-               "decode_s": median(r["decode_s"] for r in rounds), "gemm_s": median(r["gemm_s"] for r in rounds),
-               "compress_s": median(r["compress"]["wall_s"] for r in rounds),
-               "ratio_median": median(r["ratio"] for r in rounds),
-               "ratio_cpu_median": median(r["ratio_cpu"] for r in rounds),
-               "load1_median": median(r["load1"] for r in rounds),
-               "peak_rss_bytes": max(r["compress"]["max_rss_bytes"] for r in rounds), "rounds": rounds}
-        rows.append(row)
+            for mode in modes:
+                # A floor right before each compress run (the machine is shared: load drifts).
+                load = os.getloadavg()[0]
+                dec, dec_cpu = decode_pass(btf, args.workers)
+                gem, ginfo = gemm_pass(S, P)
+                run = compress_run(cli, folder, OUT / "scale" / f"{name.replace(':', '-')}-plain",
+                                   ["--workers", str(args.workers), *mode])
+                ok = not run["returncode"]
+                ratio = run["wall_s"] / (dec + gem) if ok else float("nan")
+                ratio_cpu = run["cpu_s"] / (dec_cpu + ginfo["cpu_s"]) if ok else float("nan")
+                rounds[" ".join(mode)].append({"load1": load, "decode_s": dec, "decode_cpu_s": dec_cpu, "gemm_s": gem,
+                                               "gemm": ginfo, "compress": run, "ratio": ratio, "ratio_cpu": ratio_cpu})
+                say(f"  round {rnd + 1}, {' '.join(mode)}: load {load:.1f}; decode {dec:.2f} s + GEMM {gem:.2f} s = "
+                    f"floor {dec + gem:.2f} s (CPU {dec_cpu:.1f} + {ginfo['cpu_s']:.1f} s); compress "
+                    f"{run['wall_s']:.2f} s (CPU {run['cpu_s']:.1f} s, peak RSS {fmt_bytes(run['max_rss_bytes'])}) "
+                    f"-> ratio {ratio:.2f} (CPU {ratio_cpu:.2f})")
+                say(f"    {_stage_line(run['stderr_tail'])}")
+                write_json(args.json, doc)
+        for mode, rs in rounds.items():
+            rows.append({"input": name, "mode": mode, "how": how, "samples": S, "texels": P,
+                         "stored_bytes": S * P * 3, "decode_s": median(r["decode_s"] for r in rs),
+                         "gemm_s": median(r["gemm_s"] for r in rs),
+                         "compress_s": median(r["compress"]["wall_s"] for r in rs),
+                         "ratio_median": median(r["ratio"] for r in rs),
+                         "ratio_cpu_median": median(r["ratio_cpu"] for r in rs),
+                         "load1_median": median(r["load1"] for r in rs),
+                         "peak_rss_bytes": max(r["compress"]["max_rss_bytes"] for r in rs),
+                         "steps": _stage_line(rs[-1]["compress"]["stderr_tail"]), "rounds": rs})
         doc["floor"] = rows
         write_json(args.json, doc)
-    say("\n| input | samples x texels | stored (8 bit) | decode s | GEMM s | compress s | wall ratio (median; rounds) "
-        "| CPU ratio (median) | load | peak RSS |\n|---|---|---|---|---|---|---|---|---|---|")
+    say("\n| input | mode | decode s | GEMM s | compress s | wall ratio (median; rounds) | CPU ratio (median) | load "
+        "| peak RSS | compress steps (last round) |\n|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
-        say(f"| {r['input']} | {r['samples']} x {r['texels']} | {fmt_bytes(r['stored_bytes'])} | {r['decode_s']:.2f} | "
+        steps = r["steps"].split("(", 1)[-1].rstrip(")") if r["steps"] else ""
+        say(f"| {r['input']} | `{r['mode']}` | {r['decode_s']:.2f} | "
             f"{r['gemm_s']:.2f} | {r['compress_s']:.2f} | **{r['ratio_median']:.2f}** "
             f"({', '.join(format(x['ratio'], '.2f') for x in r['rounds'])}) | {r['ratio_cpu_median']:.2f} | "
-            f"{r['load1_median']:.1f} | {fmt_bytes(r['peak_rss_bytes'])} |")
+            f"{r['load1_median']:.1f} | {fmt_bytes(r['peak_rss_bytes'])} | {steps} |")
 
 
 def section_scaling(cli, args, doc):
@@ -242,6 +252,8 @@ def main(argv=None) -> int:
     ap.add_argument("--sections", default="floor,scaling,workers")
     ap.add_argument("--inputs", default="paper,ubo400", help="floor section: paper and/or uboNNN (e.g. ubo256)")
     ap.add_argument("--repeats", type=int, default=3, help="floor rounds per input (median quoted)")
+    ap.add_argument("--modes", default="--k 150", help="floor section: compress options per mode, ';'-separated "
+                    "(e.g. '--k 150;--max-bytes 3418156;--target-error 11.4'); a floor is measured before each run")
     ap.add_argument("--workers", type=int, default=len(os.sched_getaffinity(0)), help="decode processes")
     ap.add_argument("--scaling-sizes", default="256,400")
     ap.add_argument("--scaling-views", default="38,76,151")

@@ -74,6 +74,28 @@ def test_smoke_run_writes_report_tables_and_plots(smoke):
     assert not (out / "stored" / "scaling").exists() or not any((out / "stored" / "scaling").iterdir())
 
 
+def test_smoke_modes_table_puts_every_mode_against_the_floor_and_the_paper(smoke):
+    """Issue 27: the modes section times each way of asking compress, against the floor and
+    the paper baseline measured in the same run, and the budget modes get the paper's requests."""
+    _, out = smoke
+    rows = {r["method"]: r for r in read_csv(out / "modes.csv")}
+    paper = rows.pop("paper/jpeg")
+    assert paper["status"] == "ok" and paper["vs_paper"] == 1.0
+    assert [m.split()[1] for m in rows] == ["--k", "--k", "--max-bytes", "--target-error"]
+    for label, r in rows.items():
+        assert r["status"] == "ok", label
+        assert r["floor_s"] > 0 and abs(r["x_floor"] - r["wall_s"] / r["floor_s"]) < 1e-6 * r["x_floor"]
+        assert abs(r["vs_paper"] - r["fit_percent"] / paper["fit_percent"]) < 1e-6
+    budget = next(r for m, r in rows.items() if "--max-bytes" in m)
+    assert f"--max-bytes {int(paper['stored_bytes'])}" in budget["method"]
+    assert budget["stored_bytes"] <= paper["stored_bytes"]
+    # Quick entropy coding (the default for a plain k) stores the same values in more bytes.
+    quick, full = (r for m, r in rows.items() if m.startswith("compress --k"))
+    assert quick["fit_percent"] == full["fit_percent"] and quick["stored_bytes"] > full["stored_bytes"]
+    data = (out / "modes/pebbles-tiny-32.png").read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+
+
 def test_smoke_compress_table_is_sane(smoke):
     _, out = smoke
     rows = read_csv(out / "compress.csv")

@@ -419,6 +419,39 @@ def test_max_bytes_respected(tiny32, tmp_path):
     assert errs[1] < errs[0]
 
 
+def test_budget_projects_what_the_model_can_choose_and_records_its_prediction(tiny32, tmp_path):
+    """Issue 27: under --max-bytes the sampled model bounds the projection (fewer components
+    per colour plane than fitted), the choice stays inside it, and the model's prediction is recorded against
+    the verification encode's real bytes."""
+    btf = read_manifest(tiny32)
+    c = compress_into(btf, tmp_path / "b", CompressOptions(max_bytes=6000))
+    choice = c.info["choice"]
+    fitted = len(c.info["singular_values"])
+    # (few samples here: the first plane keeps every fitted vector, the others fewer)
+    assert sum(choice["planes"]) < 3 * fitted and c.k <= max(choice["planes"])
+    model = choice["model"]
+    measured = model["measured_bytes"]
+    assert measured >= c.info["bytes"]["payload"]         # before any trim
+    assert model["bytes_error"] == pytest.approx(measured / model["predicted_bytes"] - 1)
+    assert abs(model["bytes_error"]) < 0.25
+
+
+def test_effort_follows_the_mode_same_values_fewer_bytes_at_full(tiny32, tmp_path):
+    """A plain k encodes quickly (JPEG XL effort 2/3), --effort full at 7: the same stored
+    values, read back from the files, in fewer bytes; budget modes encode at full effort."""
+    from usdbtf.compress import read_compressed
+
+    btf = read_manifest(tiny32)
+    quick = compress_into(btf, tmp_path / "q", CompressOptions(k=8))
+    full = compress_into(btf, tmp_path / "f", CompressOptions(k=8, effort="full"))
+    assert quick.quick_encode and not full.quick_encode
+    assert not compress_into(btf, tmp_path / "m", CompressOptions(max_bytes=6000)).quick_encode
+    assert quick.info["bytes"]["payload"] > full.info["bytes"]["payload"]
+    a, b = read_compressed(tmp_path / "q"), read_compressed(tmp_path / "f")
+    assert np.array_equal(a.coefficient_values(), b.coefficient_values())
+    assert np.array_equal(a.basis_values(), b.basis_values())
+
+
 def test_max_bytes_impossible_raises_and_writes_nothing(tiny32, tmp_path):
     btf = read_manifest(tiny32)
     with pytest.raises(BTFError, match="--max-bytes"):
@@ -1033,6 +1066,30 @@ def test_streaming_source_holds_only_requested_columns(small32):
     assert np.allclose(got, want, atol=1e-6)
     with pytest.raises(ValueError):
         src.columns(np.arange(3))
+
+
+def test_memory_budget_counts_the_fit_columns_and_streams_a_budget_run(small32, tmp_path, caplog):
+    """Issue 27: the memory budget holds the stored values *and* the fit's working set (its
+    float32 columns and panels): room for the values alone streams them, and the files are
+    those of a streamed run either way."""
+    import logging
+
+    from usdbtf.compress.source import choose_source, stored_bytes
+    btf = read_manifest(small32)
+    stored = stored_bytes(btf)
+    with choose_source(btf, [np.arange(64)], [0], memory_budget=stored + 100, workers=1) as src:
+        assert src.kind == "in-memory"
+    with choose_source(btf, [np.arange(64)], [0], memory_budget=stored + 100, workers=1, beside=101) as src:
+        assert src.kind.startswith("streaming")
+    # Room for the stored values alone: the fit's working set no longer fits, the input streams.
+    for budget, kind in ((1e9, "in-memory"), (stored + 1, "streaming")):
+        caplog.clear()
+        with caplog.at_level(logging.INFO, logger="usdbtf.compress"):
+            compress_into(btf, tmp_path / "a", CompressOptions(max_bytes=6000, memory_budget=budget))
+        assert f"({kind}" in caplog.text
+        compress_into(btf, tmp_path / "s", CompressOptions(max_bytes=6000, memory_budget=0))
+        jxl = [{k: v for k, v in folder_files(tmp_path / d).items() if k.endswith(".jxl")} for d in ("a", "s")]
+        assert jxl[0] == jxl[1] and jxl[0]
 
 
 def test_streaming_source_hands_over_sets_from_threads_at_once(small32, monkeypatch):

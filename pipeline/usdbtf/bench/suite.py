@@ -55,6 +55,7 @@ class Config:
     jpeg_qualities: tuple = (90,)
     pca_view_ks: tuple = (2, 4, 8)
     video_crfs: tuple = (20, 28, 36)
+    modes_size: int = 128                 # modes section: image size (the paper's 128^2)
     scaling_sampling: str = "paper"
     scaling_sizes: tuple = (64, 128, 256, 512)
     scaling_views: tuple = (10, 30, 90)
@@ -76,13 +77,13 @@ class Config:
 CONFIGS = {
     "full": Config("full"),
     "quick": Config("quick", sampling="small", sizes=(64,), ks=(4, 8, 16, 32), repeats=3, holdout=0.15,
-                    eval_samples=None, pca_view_ks=(1, 2, 4), video_crfs=(20, 30), scaling_sampling="small",
+                    eval_samples=None, pca_view_ks=(1, 2, 4), video_crfs=(20, 30), modes_size=64, scaling_sampling="small",
                     scaling_sizes=(32, 64, 128), scaling_views=(4, 13), scaling_k=16, quilt_size=64, quilt_out=128,
                     quilt_k=32, quilt_ms=(1, 2, 4, 16), quilt_blocks=(12, 16), render_size=64,
                     render_ks=(4, 8, 16, 32), render_directions=24),
     "smoke": Config("smoke", sampling="tiny", sizes=(32,), solver_codecs=(("rsvd", "jxl"), ("paper", "jpeg")),
                     ks=(2, 4, 8), repeats=1, holdout=0.2, neighbours=3, eval_samples=None, pca_view_ks=(1, 2),
-                    video_crfs=(24,), scaling_sampling="tiny", scaling_sizes=(16, 32), scaling_views=(4,),
+                    video_crfs=(24,), modes_size=32, scaling_sampling="tiny", scaling_sizes=(16, 32), scaling_views=(4,),
                     scaling_k=4, pss_interval=0.1, quilt_size=32, quilt_out=48, quilt_k=8, quilt_ms=(1, 4),
                     quilt_blocks=(8,), render_size=32, render_ks=(2, 8), render_directions=4),
 }
@@ -107,7 +108,8 @@ def validate(cfg: Config) -> None:
     numbers = [("--sizes", cfg.sizes), ("--quilt-blocks", cfg.quilt_blocks), ("--quilt-m", cfg.quilt_ms),
                ("--render-k", cfg.render_ks), ("--scaling-sizes", cfg.scaling_sizes), ("--k", cfg.ks),
                ("--scaling-k", (cfg.scaling_k,)), ("--pca-view-k", cfg.pca_view_ks),
-               ("--scaling-views", cfg.scaling_views), ("--repeats", (cfg.repeats,))]
+               ("--scaling-views", cfg.scaling_views), ("--repeats", (cfg.repeats,)),
+               ("--modes-size", (cfg.modes_size,))]
     for flag, values in numbers:
         if any(v < 1 for v in values):
             raise ValueError(f"{flag} values must be at least 1, got {min(values)}")

@@ -31,6 +31,7 @@ OVERRIDES = [
     ("--jpeg-quality", "jpeg_qualities", _ints, "JPEG baseline qualities"),
     ("--pca-view-k", "pca_view_ks", _ints, "per-view PCA: k per view"),
     ("--video-crf", "video_crfs", _ints, "H.265 baseline CRFs"),
+    ("--modes-size", "modes_size", int, "modes section: image size (time against error per compress mode)"),
     ("--scaling-sampling", "scaling_sampling", str, "scaling section's sampling preset"),
     ("--scaling-sizes", "scaling_sizes", _ints, "scaling section's image sizes"),
     ("--scaling-views", "scaling_views", _ints, "scaling section's view counts"),

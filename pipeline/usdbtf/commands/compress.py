@@ -35,7 +35,7 @@ def run(args) -> int:
                           memory_budget=args.memory_budget * 1e9, expand_factors=args.expand_factors,
                           factor_rows=args.factor_rows, dask=args.dask, progress=not args.quiet,
                           domain=args.domain, error_domain=args.error_domain, coverage=coverage,
-                          max_texels=args.max_texels)
+                          max_texels=args.max_texels, effort=args.effort)
     extra = {key: v for key, v in btf.metadata.items() if not key.startswith("_")}
     opts.extra = {"source_metadata": extra} if extra else {}
     result = compress(btf, opts)

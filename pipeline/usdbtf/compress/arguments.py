@@ -7,14 +7,14 @@ from pathlib import Path
 
 from ..argtypes import SEED, WORKERS, add_outside_paths_flag, float_in, int_in
 from ..cluster import ADDRESS_HELP, parse_address
-from .options import CODEC_NAMES, DEFAULT_CODEC, ERROR_DOMAINS, SOLVERS
+from .options import CODEC_NAMES, DEFAULT_CODEC, EFFORTS, ERROR_DOMAINS, SOLVERS
 
 __all__ = ["SCENE_OPTIONS", "add_arguments"]
 
 #: Options a scene's ``btf:build:options`` may give (``usdbtf build``): everything that
 #: steers the result, nothing that names files or changes how the command runs.
 SCENE_OPTIONS = ("solver", "k", "target_error", "max_bytes", "codec", "seed", "fit_texels", "power_iterations",
-                 "region", "memory_budget", "domain", "error_domain")
+                 "region", "memory_budget", "domain", "error_domain", "effort")
 
 
 def add_arguments(p) -> None:
@@ -38,6 +38,10 @@ def add_arguments(p) -> None:
     p.add_argument("--max-bytes", type=int_in(1), metavar="B", help="byte budget for basis + coefficient textures")
     p.add_argument("--codec", choices=sorted(CODEC_NAMES), help=f"texture storage (default {DEFAULT_CODEC['rsvd']}; "
                    f"paper solver: {DEFAULT_CODEC['paper']})")
+    p.add_argument("--effort", choices=EFFORTS, default="auto",
+                   help="JPEG XL effort: auto (default) quick for a plain --k (effort 2, basis 3: 8x faster, "
+                        "~8 %% more bytes), full (effort 7) with --max-bytes or --target-error, where bytes buy "
+                        "components; quick or full force one")
     p.add_argument("--domain", type=_domain, default="auto", metavar="auto|linear|srgb|gamma:G",
                    help="working-domain curve the basis is fitted and quantised in; every reader applies its "
                         "inverse after the dot product.  auto (default): chosen per material from x^(1/1.6), "
@@ -53,8 +57,9 @@ def add_arguments(p) -> None:
     p.add_argument("--workers", type=WORKERS, help="decode processes (default: CPU count; with 2 or more, one more "
                    "while a streamed input is spilled to disk, since each waits for its writes)")
     p.add_argument("--memory-budget", type=float_in(0, 1e4), default=1.0, metavar="GB",
-                   help="hold the stored values in memory up to this size, else stream them: decoded once "
-                        "into an anonymous spill file when the temporary folder has room, else twice (default 1.0)")
+                   help="hold the stored values in memory when they and the basis fit's working set fit this "
+                        "size, else stream them: decoded once into an anonymous spill file when the temporary folder "
+                        "has room, else twice (default 1.0)")
     p.add_argument("--dask", type=parse_address, metavar="ADDRESS", help=ADDRESS_HELP + "; the output is "
                    "byte-identical to a run without --dask")
     p.add_argument("--expand-factors", action="store_true",

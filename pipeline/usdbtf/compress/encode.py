@@ -11,7 +11,7 @@ from dataclasses import replace
 
 from .codecs import Codec, Stored, get_codec
 from .parallel import in_threads
-from .format import CompressedBTF, EncodedTextures, decode_basis, encode_basis, truncate
+from .format import CompressedBTF, EncodedTextures, decode_basis, encode_basis, encoder, truncate
 
 __all__ = ["encode", "truncate_encoded"]
 
@@ -29,7 +29,7 @@ def encode(cbtf: CompressedBTF) -> CompressedBTF:
     basis, coefficients, payload, per_coefficient) and, for a lossy codec, the coefficient
     textures and basis as decoded from those bytes.  ``cbtf`` is not changed.
     """
-    codec = get_codec(cbtf.codec)
+    codec = encoder(cbtf)
     # The basis image (one large image, the longest single encode) first, in the same pool
     # as the coefficient textures: it no longer runs alone on one core after them.
     jobs = [lambda: encode_basis(cbtf)] + [lambda st=st: codec.encode(st, "data") for st in cbtf.coefficients]

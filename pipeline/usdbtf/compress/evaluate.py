@@ -20,7 +20,7 @@ from .texels import Texels
 #: Samples per block of the held-out error (fixed: the sums do not depend on the CPUs).
 _EVAL_BLOCK = 256
 
-__all__ = ["HeldOut", "held_out_set", "held_out_error", "error_curve"]
+__all__ = ["HeldOut", "held_out_set", "held_out_error", "held_out_errors", "error_curve"]
 
 
 @dataclass(frozen=True)
@@ -117,6 +117,13 @@ def held_out_error(cbtf: CompressedBTF, held: HeldOut, k: int | None = None, dom
     -------
     ErrorSums : ``percent`` (the paper's metric), ``rmse`` (linear units), ``psnr()``.
     """
+    return held_out_errors(cbtf, held, k, (domain,))[0]
+
+
+def held_out_errors(cbtf: CompressedBTF, held: HeldOut, k: int | None = None,
+                    domains=("linear", "encoded")) -> list:
+    """:func:`held_out_error` in each of ``domains``, from one reconstruction per block of
+    samples (the same sums, bit for bit, as one call per domain)."""
     k = cbtf.k if k is None else k
     coeff = working_coefficient_texels(cbtf, held.texels, k).reshape(k, -1)      # (k, n * 3)
     basis = cbtf.basis_values(k)                                                  # (S, k)
@@ -124,20 +131,22 @@ def held_out_error(cbtf: CompressedBTF, held: HeldOut, k: int | None = None, dom
     n = held.truth.shape[0]
     shape = held.truth.shape[1:]
 
-    def block(a: int) -> ErrorSums:
+    def block(a: int) -> list:
         # One block of samples at a time (a reconstruction of every sample at once would be
         # as large as the held-out truth again, twice with the encoded copy).
         sl = slice(a, min(a + _EVAL_BLOCK, n))
-        rec = dom.inverse(basis[sl] @ coeff).reshape((-1,) + shape)      # scene-linear, whatever the domain
-        if domain == "encoded":
-            rec = held.encoded(rec)
-        part = ErrorSums()
-        part.add(held.truth_block(dom, domain, sl), rec)
-        return part
+        linear = dom.inverse(basis[sl] @ coeff).reshape((-1,) + shape)   # scene-linear, whatever the domain
+        parts = []
+        for domain in domains:
+            part = ErrorSums()
+            part.add(held.truth_block(dom, domain, sl), held.encoded(linear) if domain == "encoded" else linear)
+            parts.append(part)
+        return parts
 
-    sums = ErrorSums()
+    sums = [ErrorSums() for _ in domains]
     with one_blas_thread():                                           # the sums as on any machine
-        parts = in_threads(block, range(0, n, _EVAL_BLOCK))
-    for part in parts:                                                # added in block order
-        sums.merge(part)
+        blocks = in_threads(block, range(0, n, _EVAL_BLOCK))
+    for parts in blocks:                                              # added in block order
+        for total, part in zip(sums, parts):
+            total.merge(part)
     return sums

@@ -113,6 +113,8 @@ class CompressedBTF:
         the textures; None when not measured (e.g. a folder that was read).
     domain : the working-domain curve (:mod:`.domain`); every reconstruction applies its
         inverse after the dot product and the colour matrix.
+    quick_encode : encode at the codec's quick effort (:meth:`.codecs.Codec.quick`: a run
+        that asked for no size); readers see the same values either way.
     """
 
     sampling: Sampling
@@ -130,6 +132,7 @@ class CompressedBTF:
     encoded: EncodedTextures | None = None
     curve: dict | None = None
     domain: Domain = LINEAR
+    quick_encode: bool = False
 
     @property
     def k(self) -> int:
@@ -272,11 +275,18 @@ def basis_file(codec: Codec) -> str:
     return f"basis.{codec.basis_ext}"
 
 
+def encoder(cbtf: CompressedBTF) -> Codec:
+    """The codec ``cbtf``'s textures are encoded with: its format at the effort its run asked
+    for (``cbtf.quick_encode``: :meth:`.codecs.Codec.quick`)."""
+    codec = get_codec(cbtf.codec)
+    return codec.quick() if cbtf.quick_encode else codec
+
+
 def encode_basis(cbtf: CompressedBTF) -> bytes:
     """The basis image's file bytes (layout per :func:`basis_layout`), encoded in memory."""
     layout = basis_layout(cbtf.sampling, cbtf.k, cbtf.codec)
     image = Stored(basis_to_image(cbtf.basis.pixels, layout), cbtf.basis.scale, cbtf.basis.bias)
-    return get_codec(cbtf.codec).encode(image, "data", basis=True)
+    return encoder(cbtf).encode(image, "data", basis=True)
 
 
 def decode_basis(data: bytes, cbtf: CompressedBTF) -> np.ndarray:
@@ -289,7 +299,7 @@ def encoded_textures(cbtf: CompressedBTF) -> EncodedTextures:
     ``cbtf``, else encoded now (in threads, :func:`.parallel.in_threads`)."""
     if cbtf.encoded is not None and cbtf.encoded.describes(cbtf):
         return cbtf.encoded
-    codec = get_codec(cbtf.codec)
+    codec = encoder(cbtf)
     coeff = tuple(in_threads(lambda st: codec.encode(st, "data"), cbtf.coefficients))
     return EncodedTextures(cbtf.codec, encode_basis(cbtf), coeff,
                            (cbtf.basis.pixels, *(st.pixels for st in cbtf.coefficients)))

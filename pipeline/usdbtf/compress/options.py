@@ -9,11 +9,13 @@ from dataclasses import dataclass, field
 
 from ..errors import BTFError, UsageError
 
-__all__ = ["CompressOptions", "SOLVERS", "ERROR_DOMAINS", "CODEC_NAMES", "DEFAULT_CODEC", "DEFAULT_K", "BUDGET_K"]
+__all__ = ["CompressOptions", "SOLVERS", "EFFORTS", "ERROR_DOMAINS", "CODEC_NAMES", "DEFAULT_CODEC", "DEFAULT_K", "BUDGET_K"]
 
 SOLVERS = ("rsvd", "paper")
 #: The codecs :mod:`.codecs` defines, by name (here, light, for the command line).
 CODEC_NAMES = ("jxlp", "jxl", "png", "exr", "jpeg")
+#: Entropy-coder effort settings (``--effort``; see CompressOptions.quick_encode).
+EFFORTS = ("auto", "quick", "full")
 #: What ``--target-error`` is measured on: the input file's values, or scene-linear.
 ERROR_DOMAINS = ("encoded", "linear")
 #: The codec each solver stores with when none is asked for.
@@ -46,7 +48,8 @@ class CompressOptions:
     power_iterations: int = 1
     oversample: int = 16
     region: int | None = None             # paper: side of the central square region (texels)
-    memory_budget: float = 1.0e9          # hold stored values in memory up to this many bytes, else stream
+    memory_budget: float = 1.0e9          # hold stored values in memory when they and the fit's float32
+                                          # columns fit in this many bytes, else stream (select_source)
     chunk_bytes: float = 64e6             # streaming: stored bytes per chunk (rounded to whole projection tiles)
     eval_texels: int = 1024               # held-out texels for error estimates
     workers: int | None = None
@@ -61,6 +64,8 @@ class CompressOptions:
     error_domain: str = "encoded"         # target_error is on the input file's values ("encoded") or "linear"
     coverage: object = None               # a usdbtf.sampling.Coverage: keep only these views x lights (coverage.py)
     max_texels: int | None = None         # box-filter so the larger side is at most this (coverage.py)
+    effort: str = "auto"                  # entropy-coder effort: auto (quick for a plain k, full when bytes are
+                                          # asked for), quick or full (see quick_encode)
     extra: dict = field(default_factory=dict)
 
     def validate(self):
@@ -91,6 +96,8 @@ class CompressOptions:
             raise BTFError(f"--max-texels must be at least 1, got {self.max_texels}")
         if self.max_texels is not None and self.dask is not None:
             raise UsageError("--max-texels with --dask: the box filter runs in this process; filter without --dask")
+        if self.effort not in EFFORTS:
+            raise BTFError(f"--effort must be one of {', '.join(EFFORTS)}, got {self.effort!r}")
         if self.error_domain not in ERROR_DOMAINS:
             raise BTFError(f"--error-domain must be one of {', '.join(ERROR_DOMAINS)}, got {self.error_domain!r}")
 
@@ -109,6 +116,13 @@ class CompressOptions:
         if self.solver == "paper" or self.codec_name == "jpeg":
             return "minmax"
         return "uniform"
+
+    @property
+    def quick_encode(self) -> bool:
+        """Encode at the codec's quick effort (:meth:`.codecs.Codec.quick`): asked for, or
+        ``auto`` with a plain k -- no size was asked for, so the 8x faster encode is worth its
+        7.5 % more bytes; under ``--max-bytes`` or ``--target-error`` the bytes buy components."""
+        return self.effort == "quick" or (self.effort == "auto" and not self.budgeted)
 
     @property
     def budgeted(self) -> bool:

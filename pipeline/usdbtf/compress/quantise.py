@@ -102,7 +102,7 @@ def quantise(f: Factorisation, k: int, step: float, options: CompressOptions) ->
     basis, coeffs = QUANTISERS[options.quantiser](f.basis[:, :k], f.coefficients[:k], textures, step)
     return CompressedBTF(
         sampling=btf.sampling, width=btf.width, height=btf.height, basis=basis, coefficients=coeffs,
-        color_matrix=f.color_matrix, codec=options.codec_name,
+        color_matrix=f.color_matrix, codec=options.codec_name, quick_encode=options.quick_encode,
         working_space=color.resolve_space(btf.working_space, btf.ocio_config),
         source={"color_space": btf.color_space, "bit_depth": btf.bit_depth,
                 "path": btf.path},

@@ -20,12 +20,11 @@ import numpy as np
 
 from ..errors import BTFError
 from . import ratedist
-from .codecs import get_codec
 from .parallel import in_threads
 from .decorrelate import planes_in_use
 from .encode import encode, truncate_encoded
 from .evaluate import HeldOut, held_out_error
-from .format import CompressedBTF, encode_basis
+from .format import CompressedBTF, encode_basis, encoder
 from .options import CompressOptions
 from .quantise import Factorisation, quantise
 
@@ -56,17 +55,60 @@ def step_for_k(sampled: np.ndarray, basis: np.ndarray, outside: float, n_pixels:
     Returns
     -------
     step : float, or None when rate control chooses later (budget) or there is no step.
-    planes : (k_0, k_1, k_2) components to project per colour plane (all k_fit with no step).
+    planes : (k_0, k_1, k_2) components to project per colour plane (all k_fit with no step;
+        under ``--max-bytes``, what the sampled model could choose: :func:`budget_planes`).
     """
     k_fit = basis.shape[1]
-    if options.budgeted or options.quantiser != "uniform":
+    if options.quantiser != "uniform":
+        return None, (k_fit,) * 3
+    inside = float(np.einsum("kpc,kpc->", sampled, sampled, dtype=np.float64)) * n_pixels / sampled.shape[1]
+    if options.max_bytes is not None:
+        return None, budget_planes(sampled, basis, inside + outside, n_pixels, options)
+    if options.budgeted:
+        # --target-error: every fitted component.  Its model (an L1 target through a Gaussian
+        # RMS ratio, in the working domain) is too loose to bound the projection: capped at
+        # 1.25 k + 16, a linear-light target on metal_flakes stopped at k 51 above the target.
         return None, (k_fit,) * 3
     k = min(options.target_k, k_fit)
-    inside = float(np.einsum("kpc,kpc->", sampled, sampled, dtype=np.float64)) * n_pixels / sampled.shape[1]
     table = ratedist.rd_table(sampled[:k], basis[:, :k], inside + outside, n_texels=n_pixels, seed=options.seed,
                               rates=False)
     step = ratedist.choose_for_k(table, k)
     return step, planes_in_use(sampled[:k], step)
+
+
+#: Under a budget the projection covers the components the sampled model chooses times this,
+#: plus :data:`_PLAN_EXTRA`, and each plane's components down to half the model's step: the
+#: final choice is made on the projected coefficients with the calibrated codec factors, and
+#: must not be capped by what was projected.
+_PLAN_MARGIN = 1.25
+_PLAN_EXTRA = 16
+#: Measured bytes / entropy-model bytes of the basis image at effort 7 (paper-scale presets,
+#: choice.codec_factor): the model's prior before any encode.
+_BASIS_FACTOR_PRIOR = 0.6
+
+
+def budget_planes(sampled: np.ndarray, basis: np.ndarray, total: float, n_pixels: int,
+                  options: CompressOptions) -> tuple:
+    """Components per colour plane to project under ``--max-bytes``: what the rate-distortion
+    model on the sampled texels' coefficients chooses within the budget, with a margin.
+
+    The projection of every fitted component (a budget fits 500) costs 3.3x the floor's GEMM at
+    paper scale; rate control then keeps ~300-400 and zeroes most of the third plane.  The
+    sampled model (fitting texels, in-sample, overstate late components: more are projected,
+    not fewer) bounds what rate control can choose before anything is projected.
+
+    Returns
+    -------
+    (k_0, k_1, k_2) : components to project per plane.
+    """
+    k_fit = basis.shape[1]
+    table = ratedist.rd_table(sampled, basis, total, n_texels=n_pixels, seed=options.seed)
+    k, step = ratedist.choose_for_bytes(table, options.max_bytes, 1.0, _BASIS_FACTOR_PRIOR)
+    k_plan = min(k_fit, int(np.ceil(_PLAN_MARGIN * k)) + _PLAN_EXTRA)
+    planes = planes_in_use(sampled[:k_plan], step / 2)
+    log.info(f"  sampled model: k = {k}, step = {step:.4g}; projecting {'/'.join(map(str, planes))} components "
+             f"per colour plane of {k_fit}")
+    return planes
 
 
 def rate_control(f: Factorisation, options: CompressOptions, held: HeldOut) -> tuple[CompressedBTF, dict]:
@@ -119,7 +161,11 @@ def _max_bytes(f: Factorisation, options: CompressOptions, table) -> tuple[Compr
     fc, fb = _probe_codec_factors(table, f, min(k, options.k or k), step, options)
     k, step = ratedist.choose_for_bytes(table, 0.995 * budget, fc, fb)
     k = min(k, options.k or k)
+    if k >= f.k:
+        log.warning(f"  --max-bytes: the choice (k = {k}) reached the {f.k} components projected")
+    predicted = _modelled(table, k, step, fc, fb)
     cbtf = _attempt(f, options, k, step, 1)
+    model = _prediction(predicted, cbtf.info["bytes"]["payload"])
     while cbtf.info["bytes"]["payload"] > budget:
         k2 = _fit_k_to_budget(cbtf.info["bytes"], k, budget)
         if k2 == 0 or k2 == k:
@@ -130,7 +176,7 @@ def _max_bytes(f: Factorisation, options: CompressOptions, table) -> tuple[Compr
         log.info(f"  trimmed to k = {k2}: {cbtf.info['bytes']['payload']} bytes")
         k = k2
     return cbtf, {"mode": "max_bytes", "k": k, "step": step, "bytes": cbtf.info["bytes"]["payload"],
-                  "codec_factor": {"coefficients": fc, "basis": fb}}
+                  "codec_factor": {"coefficients": fc, "basis": fb}, "model": model}
 
 
 def _target_error(f: Factorisation, options: CompressOptions, table, held: HeldOut) -> tuple[CompressedBTF, dict]:
@@ -140,13 +186,33 @@ def _target_error(f: Factorisation, options: CompressOptions, table, held: HeldO
     scale, factor = 1.0, 1.0
     for attempt in range(1, 5):
         k, step = ratedist.choose_for_error(table, rms_target**2 * N * scale, factor)
+        predicted = _modelled(table, k, step, factor)
         cbtf = _attempt(f, options, k, step, attempt)
+        model = _prediction(predicted, cbtf.info["bytes"]["payload"])
         err = held_out_error(cbtf, held, domain=options.error_domain).percent
+        # The model's error in the target's units (the Gaussian L1/RMS ratio the choice assumed).
+        model.update(target_percent=options.target_error, measured_percent=err, predicted_percent=100.0 *
+                     np.sqrt(predicted["sqerr"] / N) * _GAUSS_L1_OVER_RMS / float(truth.mean()))
         if err <= options.target_error:
             break
         scale *= (options.target_error / err) ** 2   # the L1/RMS ratio of these errors differs from Gaussian
     return cbtf, {"mode": "target_error", "k": k, "step": step, "bytes": cbtf.info["bytes"]["payload"],
-                  "estimated_percent": err}
+                  "estimated_percent": err, "model": model, "attempts": attempt}
+
+
+def _modelled(table, k: int, step: float, fc: float, fb: float | None = None) -> dict:
+    """What the rate-distortion model predicts for (k, step): bytes and squared error."""
+    bytes_, err = table.curves(fc, fb)
+    j = list(table.steps).index(step)
+    return {"bytes": float(bytes_[k, j]), "sqerr": float(err[k, j])}
+
+
+def _prediction(predicted: dict, measured_bytes: int) -> dict:
+    """The model's byte prediction against the verification encode (logged and recorded:
+    how far the model alone would have missed)."""
+    rel = measured_bytes / max(predicted["bytes"], 1.0) - 1.0
+    log.info(f"  model predicted {predicted['bytes']:.0f} bytes, the encode gave {measured_bytes} ({100 * rel:+.2f} %)")
+    return {"predicted_bytes": predicted["bytes"], "measured_bytes": measured_bytes, "bytes_error": rel}
 
 
 def _fit_k_to_budget(sizes: dict, k: int, budget: int, margin: float = 0.995) -> int:
@@ -163,7 +229,7 @@ def _probe_codec_factors(table, f: Factorisation, k: int, step: float, options: 
     j = list(table.steps).index(step)
     probe = np.unique(np.linspace(0, k - 1, min(k, 12)).round().astype(int))
     cbtf = quantise(f, k, step, options)
-    codec = get_codec(cbtf.codec)
+    codec = encoder(cbtf)
     coeff_bytes = sum(len(d) for d in in_threads(lambda i: codec.encode(cbtf.coefficients[i], "data"), probe))
     basis_bytes = len(encode_basis(cbtf))
     overhead = len(probe) * ratedist.FILE_OVERHEAD_BYTES  # the model adds it unscaled

@@ -29,7 +29,8 @@ def load_source(btf: BTF, texels: Texels, options: CompressOptions):
     btf : the BTF; its files are decoded (all at once, or streamed in chunks).
     texels : the fitting and evaluation texels, whose columns a streaming source keeps on its
         first pass (with the error curve's sample rows, :func:`.curve.curve_samples`).
-    options : ``memory_budget`` (bytes of stored values held in memory, else streamed),
+    options : ``memory_budget`` (bytes of stored values and the fit's working set held in
+        memory, else the values are streamed),
         ``chunk_bytes``, ``workers``, ``spill``, ``dask``, ``progress``.
 
     Returns
@@ -51,5 +52,12 @@ def load_source(btf: BTF, texels: Texels, options: CompressOptions):
         from .distributed import DaskSource
 
         return DaskSource(btf, keep, rows, options)
+    # The fit's columns as float32, and its float64 panels (S + 3n) x (k + oversample), two at
+    # once, are held beside the stored values: a budget's 4096 fitting texels and 500 vectors
+    # (paper scale: 0.53 + 0.27 GB) stream the input where a plain k's 2048 texels and 150
+    # vectors (0.27 + 0.05 GB) keep it in memory (issue 27: no mode holds more than --k does).
+    S, n = btf.n_samples, len(texels.fit)
+    panel = options.fit_k(S, btf.n_pixels) + options.oversample
+    fit_columns = S * 3 * n * 4 + 2 * (S + 3 * n) * panel * 8
     return choose_source(btf, keep, rows, memory_budget=options.memory_budget, workers=options.workers,
-                         chunk_bytes=options.chunk_bytes, spill=options.spill)
+                         chunk_bytes=options.chunk_bytes, spill=options.spill, beside=fit_columns)

@@ -447,9 +447,10 @@ class StreamingSource(_KeptSource):
 
 
 def choose_source(btf: BTF, keep_texels: list, keep_rows, *, memory_budget: float, workers=None,
-                  chunk_bytes: float = CHUNK_BYTES, spill: bool = True) -> _Source:
-    """In memory when the stored values fit ``memory_budget`` bytes, else streamed in chunks
-    of about ``chunk_bytes`` stored bytes.  Either gives bit-identical projections."""
-    if stored_bytes(btf) <= memory_budget:
+                  chunk_bytes: float = CHUNK_BYTES, spill: bool = True, beside: float = 0) -> _Source:
+    """In memory when the stored values and ``beside`` bytes (what the run holds with them)
+    fit ``memory_budget`` bytes, else streamed in chunks of about ``chunk_bytes`` stored
+    bytes.  Either gives bit-identical projections."""
+    if stored_bytes(btf) + beside <= memory_budget:
         return InMemorySource(btf, workers=workers)
     return StreamingSource(btf, keep_texels, keep_rows, workers=workers, chunk_bytes=chunk_bytes, spill=spill)

@@ -188,6 +188,18 @@ def mark_pareto(rows: list) -> None:
             r["peak_mem_mb"] = r["peak_mem_bytes"] / 1e6
 
 
+def add_dataset(result: SectionResult, rows: list, columns: list, title: str, plot, plot_title: str,
+                held_floor: float | None = None) -> None:
+    """One dataset's rows into ``result``: Pareto marks, its table under ``title`` and, when a
+    row succeeded, its time/bytes-against-error plot at ``plot``."""
+    mark_pareto(rows)
+    result.rows.extend(rows)
+    result.tables.append(f"#### {title}\n\n{markdown_table(rows, columns)}")
+    ok = [r for r in rows if r.get("status") == "ok"]
+    if ok:
+        result.plots.append(plot_tradeoffs(ok, plot, plot_title, held_floor=held_floor))
+
+
 def run(ctx: Context) -> SectionResult:
     from ..baselines import ffmpeg_x265
     from ..datasets import preset_split
@@ -208,16 +220,10 @@ def run(ctx: Context) -> SectionResult:
             warm = warm_page_cache(ds.folder)
             ctx.say(f"  page cache warm-up (untimed): {warm['files']} files, {warm['bytes'] / 1e6:.1f} MB")
             rows = [reference_row(ctx, ds)] + [measure_method(ctx, ds, m, video_ok) for m in methods]
-            mark_pareto(rows)
-            result.rows.extend(rows)
             title = (f"{preset}{' (held-out preset)' if preset_split(preset) == 'held-out' else ''}, sampling "
                      f"{cfg.sampling} ({len(ds.fit_idx)} fitted + {len(ds.held_idx)} held-out samples), {size}x{size}")
-            result.tables.append(f"#### {title}\n\n{markdown_table(rows, COLUMNS)}")
-            ok = [r for r in rows if r.get("status") == "ok"]
-            if ok:
-                result.plots.append(plot_tradeoffs(ok, plots_dir / f"{ds.name}.png",
-                                                   f"usdbtf bench: {title}; {cfg.repeats} repeat(s)",
-                                                   held_floor=rows[0].get("held_percent")))
+            add_dataset(result, rows, COLUMNS, title, plots_dir / f"{ds.name}.png",
+                        f"usdbtf bench: {title}; {cfg.repeats} repeat(s)", held_floor=rows[0].get("held_percent"))
     result.notes.append(
         "time = median wall time of the storing subprocess (interpreter start and image decode included, page "
         "cache warm); peak MB = worst max(peak RSS, sampled tree PSS) over repeats; stored B = texture/image/video "
