@@ -157,7 +157,7 @@ def main() -> int:
                 r["build_s"].append(build.wall_s)
                 r.update(bytes=built_bytes(folder), steps=len(report["ran"]),
                          step_seconds={m: c["seconds"] for m, c in report["costs"].items()},
-                         needs={m: {key: n[key] for key in ("needed", "why_not", "views", "lights",
+                         needs={m: {key: n[key] for key in ("needed", "why_not", "stand_in", "views", "lights",
                                                            "pixels_per_texel", "max_texels", "sample_fraction")}
                                 for m, n in report["needs"].items()})
         for variant, r in runs.items():
@@ -212,7 +212,7 @@ def report_text(doc: dict, args, k: int, out: Path) -> str:
               "|---|---|---|---|---|---|"]
     for m, n in sorted(shaped["needs"].items()):
         ppt = "-" if n["pixels_per_texel"] is None else f"{n['pixels_per_texel']:.2f}"
-        lines.append(f"| {m} | {'yes' if n['needed'] else 'no: ' + n['why_not']} | {n['views']['kept']}/"
+        lines.append(f"| {m} | {'yes' if n['needed'] else ('no, a k = 1 stand-in: ' if n.get('stand_in') else 'no: ') + n['why_not']} | {n['views']['kept']}/"
                      f"{n['views']['measured']} | {n['lights']['kept']}/{n['lights']['measured']} | {ppt} | "
                      f"{n['max_texels'] or 'full'} |")
     sc = doc["second_camera"]
