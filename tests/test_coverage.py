@@ -141,6 +141,11 @@ def test_cli_coverage_errors_are_one_line(tmp_path, pebbles_folder, capsys):
     wrong = tmp_path / "wrong.json"
     wrong.write_text(json.dumps({"format": "usdbtf-coverage/1", "views": [[0, "a"]], "lights": [[30, 30]]}))
     bad_input(capsys, "compress", pebbles_folder, "-o", tmp_path / "x", "--coverage", wrong, names="wrong.json")
+    # A link that leads nowhere is named as such, like every JSON input (jsontext.load).
+    (tmp_path / "dangling.json").symlink_to(tmp_path / "nowhere.json")
+    line = bad_input(capsys, "compress", pebbles_folder, "-o", tmp_path / "x", "--coverage",
+                     tmp_path / "dangling.json", names="dangling.json")
+    assert "dangling symbolic link (-> " in line and "nowhere.json: no such file)" in line
     assert not (tmp_path / "x").exists()
 
 

@@ -75,9 +75,12 @@ def load(path, what: str):
     """
     from pathlib import Path
 
-    from .errors import BTFError, IOFailure, os_error_message
+    from .errors import BTFError, IOFailure, link_error, os_error_message
 
     path = Path(path)
+    broken = link_error(path)          # a loop or a dangling link: say so, naming the chain
+    if broken is not None:
+        raise broken
     try:
         text = path.read_text()
     except FileNotFoundError:
