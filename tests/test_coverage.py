@@ -371,8 +371,9 @@ def test_degenerate_coverages_render_on_cpu_and_glsl_alike(pebbles_btf, views, l
 
 
 def test_coverage_for_directions_never_warns_for_them():
-    """The plan's side (coverage_for) and the check's side (coverage_warnings' test) agree: the
-    coverage made for some directions renders every one of them as the full input does."""
+    """coverage_for (the library's smallest coverage for given directions) and the check's side
+    (coverage_warnings' test) agree: the coverage made for some directions renders every one of
+    them as the full input does.  (The plan keeps a superset: test_scene_aware.)"""
     from usdbtf.render.hemisphere import directions_to_vectors
     from usdbtf.sampling import preset
     from usdbtf.compress.coverage import unique_directions

@@ -102,8 +102,10 @@ def test_requirements_rebuild_on_a_needier_camera_and_nothing_on_no_change(captu
     from pxr import Usd
     assert not Usd.Stage.Open(str(scene)).GetCompositionErrors()
     from cli_helpers import run
-    code, _, err = run(capsys, "inspect", str(first["built_scene"]), "--validate")
+    code, out, err = run(capsys, "inspect", str(first["built_scene"]), "--validate")
     assert code == 0, err
+    assert "validation: 0 error(s)" in out
+    assert "[usdbtf:Coverage]" not in out          # the plan keeps what its own camera and light ask for
     _check_frames(scene, tmp_path / "frames", capsys)
     meta = json.loads((tmp_path / "build/Near_compressed/btf-compressed.json").read_text())
     kept = meta["coverage"]["views"]

@@ -12,7 +12,8 @@ What is sampled, to stay cheap: up to :data:`POINTS` triangles of every Mesh bou
 partial BTF material (an even stride, their centroids and mean frames, the mesh at its
 default time), every UsdGeom.Camera at up to :data:`FRAMES` frames evenly spread over the
 stage's time range, every UsdLux light (Distant: its direction; Sphere, Disk, Rect: its
-centre; Dome adds no directional light) at the same frames.  A point counts for a camera
+centre; as the renderers read them, :func:`usdbtf.usd.scene.scene_light_prims`: Dome and
+the other kinds add no directional light) at the same frames.  A point counts for a camera
 when it is inside the camera's frustum and faces it; a light counts where it is above the
 point's horizon.  Occlusion is not traced: a hidden surface may warn.
 """
@@ -76,25 +77,13 @@ def _cameras(stage, times, meters: float) -> list:
     return out
 
 
-def _lights(stage, times, meters: float) -> list:
-    """[(light path, frame label, kind, vector)]: "distant" with the unit direction towards the
-    light, "point" with its centre in metres."""
-    from pxr import Gf, UsdGeom, UsdLux
+def _lights(stage, times) -> list:
+    """[(light path, frame label, :class:`usdbtf.render.Light`)] per light and time: the lights
+    the renderers honour, as they read them (:func:`usdbtf.usd.scene.scene_light_prims`)."""
+    from .scene import scene_light_prims
 
-    out = []
-    for t in times:
-        cache = UsdGeom.XformCache(t)
-        for prim in stage.Traverse():
-            if not prim.HasAPI(UsdLux.LightAPI) or prim.IsA(UsdLux.DomeLight):
-                continue
-            m = cache.GetLocalToWorldTransform(prim)
-            if prim.IsA(UsdLux.DistantLight):
-                towards = np.array(m.TransformDir(Gf.Vec3d(0, 0, 1)))
-                out.append((str(prim.GetPath()), _label(t), "distant", towards / np.linalg.norm(towards)))
-            else:
-                out.append((str(prim.GetPath()), _label(t), "point",
-                            np.array(m.Transform(Gf.Vec3d(0, 0, 0))) * meters))
-    return out
+    return [(path, _label(t), light) for t in times
+            for path, light in scene_light_prims(stage, None if t.IsDefault() else t.GetValue(), "stage")]
 
 
 def _label(t) -> str:
@@ -167,7 +156,7 @@ def coverage_warnings(stage) -> list[str]:
         if samples is None:
             continue
         if cameras is None:
-            cameras, lights = _cameras(stage, times, meters), _lights(stage, times, meters)
+            cameras, lights = _cameras(stage, times, meters), _lights(stage, times)
         points, frames = samples
         where = f"{prim.GetPath()} (bound to {material.GetPath()})"
         views = CoverageCheck(record["input_view_directions"], record["views"])
@@ -180,10 +169,10 @@ def coverage_warnings(stage) -> list[str]:
             visible = inside & (local[:, 2] > 0)
             seen |= visible
             lines += _report(where, "camera " + path, label, "view", local[visible], views)
-        for path, label, kind, vector in lights:
-            to_light = np.broadcast_to(vector, points.shape) if kind == "distant" else vector - points
-            local = np.einsum("nij,nj->ni", frames, to_light / np.linalg.norm(to_light, axis=1, keepdims=True))
-            lit = (local[:, 2] > 0) & (seen if cameras else True)
+        for path, label, light in lights:
+            to_light, scale = light.at(points)
+            local = np.einsum("nij,nj->ni", frames, to_light)
+            lit = (scale > 0) & (local[:, 2] > 0) & (seen if cameras else True)
             lines += _report(where, "light " + path, label, "light", local[lit], needed)
     return _first_per_source(lines)
 

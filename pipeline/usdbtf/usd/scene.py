@@ -35,7 +35,8 @@ from ..render.scene import Light
 
 log = logging.getLogger(__name__)
 
-__all__ = ["read_scene", "bound_btf_meshes", "write_scene", "scene_camera", "camera_prim", "scene_lights", "render_resolution",
+__all__ = ["read_scene", "bound_btf_meshes", "write_scene", "scene_camera", "camera_prim", "scene_lights",
+           "scene_light_prims", "render_resolution",
            "frame_times", "add_camera", "new_scene", "add_distant", "orient_towards", "distant_intensity", "POINT_RADIUS_M",
            "DISTANT_ANGLE"]
 
@@ -172,6 +173,12 @@ def render_resolution(stage) -> tuple[int, int] | None:
 
 def scene_lights(stage, time=None, where="") -> list[Light]:
     """The stage's UsdLux lights at ``time`` in the CPU renderer's units (module docstring)."""
+    return [light for _, light in scene_light_prims(stage, time, where)]
+
+
+def scene_light_prims(stage, time=None, where="") -> list[tuple[str, Light]]:
+    """[(light prim path, :class:`Light`)] of :func:`scene_lights`: what a report that names
+    the lights reads (``inspect --validate``'s coverage check)."""
     from pxr import Gf, Usd, UsdGeom, UsdLux
 
     meters = float(UsdGeom.GetStageMetersPerUnit(stage))
@@ -188,18 +195,20 @@ def scene_lights(stage, time=None, where="") -> list[Light]:
         if light.IsA(UsdLux.DistantLight):
             towards = np.array(m.TransformDir(Gf.Vec3d(0, 0, 1)))
             angle = float(UsdLux.DistantLight(light).GetAngleAttr().Get(code))
-            lights.append(Light("directional", towards / np.linalg.norm(towards), scale * _solid_angle(angle)))
+            made = Light("directional", towards / np.linalg.norm(towards), scale * _solid_angle(angle))
         elif light.IsA(UsdLux.SphereLight) or light.IsA(UsdLux.DiskLight):
             schema = UsdLux.SphereLight(light) if light.IsA(UsdLux.SphereLight) else UsdLux.DiskLight(light)
             r = float(schema.GetRadiusAttr().Get(code)) * max(lengths)
-            lights.append(Light("point", centre, scale * math.pi * r * r))
+            made = Light("point", centre, scale * math.pi * r * r)
         elif light.IsA(UsdLux.RectLight):
             rect = UsdLux.RectLight(light)
             area = float(rect.GetWidthAttr().Get(code)) * lengths[0] * float(rect.GetHeightAttr().Get(code)) * lengths[1]
-            lights.append(Light("point", centre, scale * area))
+            made = Light("point", centre, scale * area)
         else:
             log.debug(f"{where}: {light.GetPath()} ({light.GetTypeName()}) adds nothing: a BTF measures "
                       "directional light only")
+            continue
+        lights.append((str(light.GetPath()), made))
     return lights
 
 
