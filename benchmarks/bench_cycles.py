@@ -30,7 +30,7 @@ import numpy as np
 from common import format_machine, machine_info
 from usdbtf.camera import Camera
 from usdbtf.cli import main as usdbtf
-from usdbtf.commands.preview import srgb_encoded
+from usdbtf.render.output import srgb_encoded
 from usdbtf.decompress import DecompressOptions, decompress
 from usdbtf.gpu.headless import psnr
 from usdbtf.render.scene import Light

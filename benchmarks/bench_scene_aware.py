@@ -45,6 +45,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "pipeline"))
 import usdbtf  # noqa: E402,F401  (pins the numeric platform before numpy's BLAS loads)
 from common import OUT, cli_command, format_machine, machine_info, run_measured, timestamp, write_json  # noqa: E402
+from usdbtf.render.output import srgb_encoded  # noqa: E402
 
 MATERIALS = {"Near": "pebbles", "Far": "ridged_fabric", "Hidden": "fuzzy_moss"}
 LIGHT = (0.3, 0.5, 1.0)
@@ -87,15 +88,10 @@ def rgba(path: Path) -> np.ndarray:
     return np.asarray(oiio.ImageBuf(str(path)).get_pixels(oiio.FLOAT))
 
 
-def srgb(linear: np.ndarray) -> np.ndarray:
-    x = np.clip(linear, 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-
-
 def psnr(a: np.ndarray, b: np.ndarray) -> tuple[float, int]:
     """(PSNR dB in sRGB over pixels with geometry in either frame, those pixels)."""
     mask = (a[..., 3] > 0) | (b[..., 3] > 0)
-    d = srgb(a[..., :3])[mask] - srgb(b[..., :3])[mask]
+    d = srgb_encoded(a[..., :3])[mask] - srgb_encoded(b[..., :3])[mask]
     mse = float(np.mean(d * d)) if mask.any() else 0.0
     return (float("inf") if mse == 0 else 10 * np.log10(1.0 / mse)), int(mask.sum())
 
@@ -107,7 +103,7 @@ def figure(path: Path, full: Path, shaped: Path, frames: list[int]) -> None:
     rows = []
     for f in frames:
         a, b = rgba(full / f"f.{f:04d}.exr"), rgba(shaped / f"f.{f:04d}.exr")
-        sa, sb = srgb(a[..., :3]), srgb(b[..., :3])
+        sa, sb = srgb_encoded(a[..., :3]), srgb_encoded(b[..., :3])
         rows.append(np.concatenate([sa, sb, np.clip(np.abs(sa - sb) * 20, 0, 1)], axis=1))
     img = np.concatenate(rows, axis=0)
     buf = oiio.ImageBuf(oiio.ImageSpec(img.shape[1], img.shape[0], 3, oiio.UINT8))

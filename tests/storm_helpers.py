@@ -10,7 +10,7 @@ def against_cpu_render(image, scene, camera: str, size: int, tmp_path) -> tuple[
     """(PSNR in dB of the Storm frame ``image`` (H, W, 4) against `usdbtf render SCENE --camera
     PRIM` (no shadows, bilinear), both sRGB-encoded, over the pixels where both have full
     geometry coverage; that mask (H, W) bool; the CPU frame (H, W, 4) float64)."""
-    from usdbtf.commands.preview import srgb_encoded
+    from usdbtf.render.output import srgb_encoded
     from usdbtf.gpu.headless import psnr
     from usdbtf.usd.storm import read_rgba
 

@@ -116,7 +116,7 @@ def test_cycles_matches_usdbtf_render_on_a_curved_mesh(sphere_asset, tmp_path):
     """One camera and one sun: Cycles through the add-on against `usdbtf render` of a stage with
     the same camera and DistantLight, PSNR >= 35 dB (sRGB) where both have geometry."""
     from usdbtf.camera import Camera
-    from usdbtf.commands.preview import srgb_encoded
+    from usdbtf.render.output import srgb_encoded
     from usdbtf.gpu.headless import psnr
     from usdbtf.render.scene import Light
     from usdbtf.usd.scene import write_scene

@@ -29,6 +29,7 @@ import usdbtf  # noqa: F401  (registers the schema plugin first)
 from usdbtf.cli import main
 from usdbtf.errors import BTFError
 from usdbtf.usd import hydra
+from usdbtf.usd.cycles import common_gain, srgb8
 from storm_helpers import against_cpu_render
 
 PYTHONS = hydra.storm_pythons()
@@ -53,11 +54,6 @@ def render(version: str, frames, camera, size, **kw) -> hydra.StormFrames:
         if "no EGL" in str(exc) or "no imaging-capable" in str(exc):
             pytest.skip(f"Storm cannot run here: {exc}")
         raise
-
-
-def srgb8(linear: np.ndarray) -> np.ndarray:
-    x = np.clip(linear, 0.0, 1.0)
-    return 255.0 * np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
 
 
 @pytest.fixture(scope="module")
@@ -112,9 +108,7 @@ def test_storm_reproduces_the_decompressed_sample(version, assets, tmp_path):
     assert result.problems == [], "\n".join(result.problems)
     for k in assets:
         pairs = [(image[..., :3], sample) for image, (kk, _, sample) in zip(result.images, expected) if kk == k]
-        gains = [float((img * ref).sum() / (img * img).sum()) for img, ref in pairs]
-        gain = float(np.mean(gains))
-        steps = [float(np.abs(srgb8(img * gain) - srgb8(ref)).mean()) for img, ref in pairs]
+        gain, gains, steps = common_gain(pairs)
         print(f"USD {version} k {k}: gains {np.round(gains, 4).tolist()}, mean |d| {np.round(steps, 3).tolist()} "
               "8-bit steps")
         assert max(gains) / min(gains) - 1.0 <= GAIN_SPREAD, gains
@@ -188,7 +182,7 @@ def test_storm_matches_usdbtf_render_of_the_same_stage_on_a_curved_mesh(version,
     have geometry (full coverage: Storm's 4x MSAA blends the two sides of a chart seam or a
     silhouette, the CPU renderer takes one)."""
     from usdbtf.camera import Camera
-    from usdbtf.commands.preview import srgb_encoded
+    from usdbtf.render.output import srgb_encoded
     from usdbtf.gpu.headless import psnr
     from usdbtf.render.scene import Light
     from usdbtf.usd.scene import write_scene

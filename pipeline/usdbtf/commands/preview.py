@@ -86,6 +86,7 @@ def run(args) -> int:
     from ..errors import UsageError
     from ..gpu.headless import psnr
     from ..render import RenderOptions, Renderer, RenderResult, write_render
+    from ..render.output import srgb_encoded
     from ..usd.read import load_btf
     from ..usd.storm import layout_from_asset
     from .render import _angles, check_frame_args, scene_mesh, scene_view
@@ -136,11 +137,3 @@ def run(args) -> int:
         srgb = psnr(srgb_encoded(image[..., :3]), srgb_encoded(reference[..., :3]), mask)
         print(f"PSNR vs CPU renderer: {linear:.2f} dB (linear), {srgb:.2f} dB (sRGB)")
     return 0
-
-
-def srgb_encoded(linear):
-    """Linear values clipped to [0, 1] and sRGB-encoded (what a display shows)."""
-    import numpy as np
-
-    x = np.clip(np.asarray(linear, np.float64), 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)

@@ -19,7 +19,7 @@ from ..errors import BTFError
 from ..imageio import write_image
 from ..outputs import IMAGE_ATTRIBUTE, RENDER
 
-__all__ = ["display_processor", "to_display", "write_render", "DEFAULT_VIEW"]
+__all__ = ["display_processor", "to_display", "write_render", "srgb_encoded", "DEFAULT_VIEW"]
 
 # Measured BTF values are reflectance-like (a white diffuse texel lit head-on reads 0.8):
 # show them without a tone curve unless asked.
@@ -73,3 +73,12 @@ def write_render(result, exr_path, *, png_path=None, display=None, view=None) ->
                         color_space=disp, attributes={"png:compressionLevel": 6, IMAGE_ATTRIBUTE: RENDER})
             info.update(png=str(png_path), display=disp, view=v)
     return info
+
+
+def srgb_encoded(linear) -> np.ndarray:
+    """Linear values clipped to [0, 1] and sRGB-encoded (IEC 61966-2-1): the code values a
+    display shows, for comparing frames of different renderers (PSNR, 8-bit steps).  Not a
+    colour conversion of data (those go through OCIO): a fixed metric, the same in every
+    comparison."""
+    x = np.clip(np.asarray(linear, np.float64), 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)

@@ -101,14 +101,16 @@ def render_frames(python: Path, frames: list[CyclesFrame], *, timeout: float = 3
 
 def srgb8(linear: np.ndarray) -> np.ndarray:
     """Linear values -> 8-bit sRGB steps (float, 0..255), clipped to [0, 1] first."""
-    x = np.clip(linear, 0.0, 1.0)
-    return 255.0 * np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    from ..render.output import srgb_encoded
+
+    return 255.0 * srgb_encoded(linear)
 
 
 def common_gain(pairs) -> tuple[float, list[float], list[float]]:
     """(gain common to all, each pair's own gain, each pair's mean |difference| in 8-bit sRGB
     steps after the common gain) of (rendered, reference) linear RGB pairs: renderers' light
-    units differ, so one least-squares gain per light direction, their mean applied to all."""
+    units differ, so one least-squares gain per light direction, their mean applied to all
+    (the Storm and Cycles swatch checks both use it)."""
     own = [float((img * ref).sum() / max((img * img).sum(), 1e-30)) for img, ref in pairs]
     gain = float(np.mean(own))
     steps = [float(np.abs(srgb8(img * gain) - srgb8(ref)).mean()) for img, ref in pairs]

@@ -249,7 +249,7 @@ class _Shot:
 
 def _cameras(stage, time, width: int, meters: float) -> tuple[list, list]:
     """([_Shot], [problems]) of every UsdGeom.Camera at ``time``."""
-    from pxr import Gf, Usd, UsdGeom
+    from pxr import Usd, UsdGeom
 
     from .scene import scene_camera
 
