@@ -50,12 +50,21 @@ if [ ! -x "$PY" ] || ! "$PY" -m pip --version >/dev/null 2>&1; then
     rm -f "$STAMP"
 fi
 
-want="$(sha256sum pyproject.toml | cut -d' ' -f1)"
+# The dependencies' versions come from scripts/constraints.txt, those the suite last passed
+# with, so a run never depends on what PyPI published that day (OpenCV 5.1 once changed bits
+# under a green main). USDBTF_LATEST=1 takes the newest releases instead: how to try an update.
+constraints=(-c scripts/constraints.txt)
+storm_constraints=(-c scripts/constraints-storm.txt)
+if [ "${USDBTF_LATEST:-}" = 1 ]; then
+    constraints=()
+    storm_constraints=()
+fi
+want="$(cat pyproject.toml scripts/constraints.txt | sha256sum | cut -d' ' -f1)${USDBTF_LATEST:+-latest}"
 have="$(cat "$STAMP" 2>/dev/null || true)"
 if [ "$want" != "$have" ]; then
     echo "bootstrap: installing usdbtf and dependencies into $VENV (first run downloads wheels)" >&2
     "$PY" -m pip install --quiet --disable-pip-version-check --upgrade pip
-    "$PY" -m pip install --quiet --disable-pip-version-check -e '.[test]'
+    "$PY" -m pip install --quiet --disable-pip-version-check ${constraints[@]+"${constraints[@]}"} -e '.[test]'
     echo "$want" > "$STAMP"
     echo "bootstrap: done" >&2
 fi
@@ -102,7 +111,8 @@ storm_env() {  # storm_env FOLDER REQUIREMENTS...
     fi
     echo "bootstrap: installing $* into $folder (about 370 MB, first run only)" >&2
     if "$py311" -m venv "$folder" >/dev/null 2>&1 \
-        && "$folder/bin/python" -m pip install --quiet --disable-pip-version-check "$@" moderngl >/dev/null 2>&1; then
+        && "$folder/bin/python" -m pip install --quiet --disable-pip-version-check \
+            ${storm_constraints[@]+"${storm_constraints[@]}"} "$@" moderngl >/dev/null 2>&1; then
         echo "bootstrap: $folder ready" >&2
     else
         echo "bootstrap: could not install $* into $folder; the Storm tests will skip" >&2

@@ -137,7 +137,7 @@ def test_dask_worker_on_another_kernel_is_refused_naming_both(tmp_path):
 
 
 _CURVES_PROBE = r"""
-import hashlib, numpy as np, usdbtf
+import usdbtf, hashlib, numpy as np
 from usdbtf import numeric
 from usdbtf.compress.domain import AUTO_CANDIDATES
 x = np.random.default_rng(7).random((300, 97), dtype=np.float32) * np.float32(3)
@@ -150,10 +150,12 @@ print(numeric.platform()["numpy_simd"], h.hexdigest())
 """
 
 
-def test_domain_curves_have_the_same_bits_at_every_numpy_simd_level():
+def test_domain_curves_have_the_same_bits_with_avx2_and_avx512():
     """The working-domain curves (every compress value goes through one) give the same bits
-    with numpy's AVX-512, AVX2 and baseline loops: their power is OpenCV's, not numpy's
-    (whose AVX-512 SVML power rounds differently from libm's)."""
+    with numpy's AVX-512 loops (``USDBTF_NUMERIC=native``) as on the reference platform: their
+    power is numpy's own float32 log and exp, not ``power`` (whose AVX-512 SVML rounds
+    differently from libm's).  Below x86-64-v3 (numpy's baseline loops call libm) the bits are
+    that platform's own, as its BLAS's are, and still within float32 accuracy."""
     results = {}
     for label, env in (("native", bare_env(USDBTF_NUMERIC="native")), ("pinned", bare_env()),
                        ("baseline", bare_env(NPY_DISABLE_CPU_FEATURES="X86_V3 X86_V4 AVX512_ICL AVX512_SPR"))):
@@ -161,11 +163,14 @@ def test_domain_curves_have_the_same_bits_at_every_numpy_simd_level():
                               timeout=120)
         assert proc.returncode == 0, proc.stderr
         results[label] = proc.stdout.split()
-    assert len({digest for _, digest in results.values()}) == 1, results
+    assert results["baseline"][0] == "baseline", results
+    if numeric.runs_reference():
+        assert results["pinned"][0] == "X86_V3"
+        assert results["native"][1] == results["pinned"][1], results
 
 
 def test_domain_power_is_accurate():
-    """OpenCV's power against a float64 one: within 2e-5 relative wherever the result is a
+    """The curves' power against a float64 one: within 1e-5 relative wherever the result is a
     normal float32 (the curves feed 16-bit codes: a step is 1.5e-5 of full scale)."""
     import numpy as np
 
@@ -177,7 +182,7 @@ def test_domain_power_is_accurate():
         got = _power(x.copy(), np.float32(e)).astype(np.float64)
         normal = (want > 1.2e-38) & (want < 3e38)
         rel = np.abs(got[normal] - want[normal]) / want[normal]
-        assert rel.max() < 2e-5, (e, rel.max())
+        assert rel.max() < 1e-5, (e, rel.max())
         assert got[-3] == 0 and not np.signbit(got[-2]) and got[-1] == 1
     strided = np.ones((4, 6), np.float32) * 4
     _power(strided[:, ::2], np.float32(0.5))

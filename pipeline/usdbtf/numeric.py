@@ -10,8 +10,9 @@ Two libraries compute usdbtf's floating-point values with code chosen for the CP
   (:func:`usdbtf.compress.parallel.one_blas_thread`), cut into pieces of a fixed shape that
   usdbtf's own threads or Dask workers compute.
 * **numpy** dispatches its elementwise loops to the widest SIMD level the CPU has (``X86_V3``:
-  AVX2 and FMA; ``X86_V4``: AVX-512).  The AVX-512 power, exp and log (SVML) round differently
-  from the AVX2 ones, so the working-domain curves differ in their last bits.
+  AVX2 and FMA; ``X86_V4``: AVX-512).  Its AVX-512 ``power`` (SVML) rounds differently from
+  libm's, so usdbtf's curves use its float32 ``log`` and ``exp`` instead (numpy's own code:
+  the same bits with AVX2 and AVX-512); below x86-64-v3 those are libm's, other bits again.
 
 Both choices are made when the library loads, from the environment.  So that a farm of
 mixed CPUs builds the same bytes, ``import usdbtf`` pins them (:func:`pin`), before numpy

@@ -134,27 +134,27 @@ class Domain:
 def _power(x: np.ndarray, exponent: np.float32) -> np.ndarray:
     """``x **= exponent`` in place for float32 ``x >= 0`` (-0.0 allowed, 0 ** e = +0), exponent > 0.
 
-    OpenCV's ``pow`` (exp and log polynomials in its universal intrinsics), not numpy's: numpy
-    dispatches power to SVML on AVX-512 CPUs and to libm elsewhere, and the two round
-    differently, so the curve's bits would follow the CPU (``usdbtf.numeric``); OpenCV's gives
-    the same bits with AVX-512, AVX2 or SSE code (checked with ``OPENCV_CPU_DISABLE``).  It is
-    also fast everywhere: 1.0-1.6 ns a value on one core, where numpy's is 1.3 ns with AVX-512
-    and 14-17 ns without (its libm loop), and 11 ns with AVX-512 when a third of the values
-    are zero.  Within 2e-5 relative of a float64 power wherever the result is a normal
-    float32 (numpy's: 1e-7): about a 16-bit code's step at full scale, 1.5e-5."""
-    import cv2
-
-    flat = x.reshape(-1, 1) if x.flags.c_contiguous else np.ascontiguousarray(x).reshape(-1, 1)
-    # OpenCV takes at most 2^31 - 1 rows a call.
-    for a in range(0, flat.shape[0], _CV_ROWS):
-        part = flat[a:a + _CV_ROWS]
-        cv2.pow(part, float(exponent), dst=part)
+    Computed as ``exp(exponent * log(x))`` with numpy's float32 ``log`` and ``exp``, over one
+    contiguous run of values, because each value's bits must not depend on where it sits in
+    the array: the same sample compressed in a Dask chunk, a streaming block or a test's slice
+    gives the same bytes.  Neither library's ``pow`` keeps that: OpenCV 5.1's ``pow`` rounds
+    values in a partial SIMD vector, and vectors holding a zero or a denormal, another way than
+    full ones (found when CI installed OpenCV 5.1; 5.0 did not), and numpy's ``power`` goes to
+    SVML on AVX-512 CPUs and to libm elsewhere.  numpy's float32 ``log`` and ``exp`` are its own
+    SIMD code: the same bits with AVX2 and AVX-512 and at every offset (checked at every
+    offset 0-69, with zeros, -0.0 and denormals in the run; ``tests/test_domain.py``), libm's
+    on a CPU below x86-64-v3 (its own platform, :mod:`usdbtf.numeric`).  Within 5e-6 relative
+    of a float64 power wherever the result is a normal float32 (OpenCV's: 2e-5), 1 ** e = 1
+    exactly; 1 ns a value with AVX-512, 3.5 ns with AVX2 (OpenCV: 1.0-1.6 ns).  Bulk 8-bit
+    inputs never come here: their curve is folded into the decode table."""
+    flat = x.reshape(-1) if x.flags.c_contiguous else np.ascontiguousarray(x).reshape(-1)
+    with np.errstate(divide="ignore"):      # log(0) = -inf, and exp(-inf) = +0: what 0 ** e is
+        np.log(flat, out=flat)
+    flat *= exponent
+    np.exp(flat, out=flat)
     if not x.flags.c_contiguous:        # powered in a contiguous copy: back into x
         x[...] = flat.reshape(x.shape)
     return x
-
-
-_CV_ROWS = 1 << 30
 
 
 LINEAR = Domain()
