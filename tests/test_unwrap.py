@@ -245,3 +245,124 @@ def test_every_charts_rim_continues_its_neighbours(pebbles, sphere_uv, monkeypat
     assert border < 0.85 * border_first, (border, border_first)      # measured 0.93 against 1.26
     assert border < 1.0, border                          # below the material's own neighbour difference
     assert rims.record["atlas"]["ghost_texels"] > first_side.record["atlas"]["ghost_texels"]
+
+
+# -- chart orientation (issue 31) ------------------------------------------------------------------
+def _box_layer(orient: bool, density: float = 640.0):
+    """A 0.2 x 0.1 x 0.15 m box unwrapped by xatlas, its charts oriented or as cut."""
+    import trimesh
+
+    from usdbtf.mesh import Mesh
+    from usdbtf.unwrap import UnwrapOptions, unwrap
+
+    box = trimesh.creation.box(extents=(0.2, 0.1, 0.15))
+    return unwrap(Mesh(np.asarray(box.vertices, float), np.asarray(box.faces, np.int64)),
+                  UnwrapOptions(texels_per_metre=density, orient_charts=orient))
+
+
+def _aligned_share(unwrapped) -> float:
+    """Share of chart-border length (metres) whose texture axes continue (turn within 45 degrees
+    of none), measured on the layer as written and read back."""
+    from usdbtf.unwrap.orient import chart_turns
+
+    a, pts = unwrapped.atlas, unwrapped.mesh.points
+    turns = chart_turns(pts[a.vertex_of], a.faces, a.st * [a.width, a.height], a.face_chart)
+    return sum(abs(z) for z in turns.values() if z.real > abs(z) * np.cos(np.pi / 4)) / sum(abs(z) for z in
+                                                                                           turns.values())
+
+
+def test_charts_turn_so_the_texture_continues_across_borders(work, capsys):
+    """On a box, usdbtf unwrap turns the charts xatlas cut (quarter turns, never mirrored) so the
+    texture's axes continue across the most border length the box allows (6 of its 12 edges
+    aligned and 2 turned half way, 61 % of the length: every corner turns the axes by 90 degrees,
+    so no layout does better), packed again at exactly the same texel density; --no-orient-charts
+    leaves them as cut, and --keep-uvs turns a user's charts the same way."""
+    from usdbtf.unwrap.atlas import uv_problems
+
+    as_cut = _box_layer(False)
+    # The user's box: xatlas's charts as cut, with their st (per corner) written to the OBJ.
+    points, tris, st = as_cut.mesh.points, as_cut.mesh.triangles, as_cut.mesh.uv
+    corner_points = points[tris].reshape(-1, 3)
+    path = write_obj(work / "box_cut.obj", corner_points, np.arange(len(corner_points)).reshape(-1, 3),
+                     st.reshape(-1, 2))
+    ok(capsys, "unwrap", path, "-o", work / "box_kept", "--texels-per-metre", 640, "--keep-uvs", "-q")
+    ok(capsys, "unwrap", path, "-o", work / "box_as_is", "--texels-per-metre", 640, "--keep-uvs", "-q",
+       "--no-orient-charts")
+    record = json.loads((work / "box_kept" / "unwrap.json").read_text())["atlas"]
+    kept, as_is = read_unwrap(work / "box_kept" / "mesh.usda"), read_unwrap(work / "box_as_is" / "mesh.usda")
+    assert record["method"] == "kept" and any(record["orientation"]["quarter_turns"])
+    assert _aligned_share(as_is) < 0.4 and _aligned_share(kept) == pytest.approx(0.611, abs=0.005)
+    assert record["orientation"]["aligned_after"] == pytest.approx(_aligned_share(kept), abs=1e-9)
+    layer = kept.mesh
+    assert uv_problems(layer.split_corners()) is None   # no chart overlaps another, nothing stretched
+    # Turned and packed, every triangle edge keeps its length in texels: the density is the
+    # kept UVs' (640 texels/m on average), edge by edge.
+    assert np.array_equal(kept.mesh.corner(), as_is.mesh.corner())         # the same triangles, in order
+
+    def texels_per_metre(unwrapped):
+        xy, p = unwrapped.atlas.texel_coords(), unwrapped.mesh.points[unwrapped.mesh.triangles]
+        return np.linalg.norm(xy - np.roll(xy, 1, axis=1), axis=2) / np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2)
+
+    np.testing.assert_allclose(texels_per_metre(kept), texels_per_metre(as_is), rtol=1e-5)
+    assert np.median(texels_per_metre(kept)) == pytest.approx(640.0, rel=0.02)
+    assert kept.atlas.width == kept.atlas.height
+    assert json.loads((work / "box_kept" / "unwrap.json").read_text())["mirrored_triangles"] == 0
+    # xatlas's own charts get the same treatment.
+    assert _aligned_share(_box_layer(True)) == pytest.approx(0.611, abs=0.005)
+
+
+def test_quarter_turn_search_finds_a_consistent_layout():
+    """Charts whose borders all allow alignment (turns made from random quarter turns of a
+    consistent layout) end fully aligned, by the exact search (up to 7 charts) and by the greedy
+    one with sweeps (forced here on 7 charts, and on a 40-chart ring)."""
+    import usdbtf.unwrap.orient as orient
+
+    rng = np.random.default_rng(3)
+    for n, ring in ((7, False), (40, True)):
+        truth = rng.integers(0, 4, n)
+        pairs = [(c, c + 1) for c in range(n - 1)] + ([(0, n - 1)] if ring else [(0, 3), (2, 5), (1, 6)])
+        turns = {(a, b): rng.uniform(0.5, 2.0) * 1j ** int(truth[a] - truth[b]) for a, b in pairs}
+        area = rng.uniform(1, 2, n)
+        for exact in ((True, False) if n <= orient.EXACT_CHARTS else (False,)):
+            limit = orient.EXACT_CHARTS
+            try:
+                orient.EXACT_CHARTS = limit if exact else 0
+                quarter = orient.best_quarter_turns(turns, n, area)
+            finally:
+                orient.EXACT_CHARTS = limit
+            assert orient._aligned_share(turns, quarter) == pytest.approx(1.0), (n, exact, quarter)
+            assert quarter[int(np.argmax(area))] == 0 or not exact    # the largest chart keeps its orientation
+
+
+@pytest.fixture(scope="module")
+def ridged_fabric(work):
+    """A directional material: 48² ridged fabric (5 cm, 960 texels/m), k = 6."""
+    from usdbtf.cli import main
+
+    raw, out = work / "ridged_raw", work / "ridged"
+    assert main(["synth", "-q", "ridged_fabric", "-o", str(raw), "--sampling", "tiny", "--size", "48"]) == 0
+    assert main(["compress", "-q", str(raw), "-o", str(out), "--k", "6", "--codec", "png"]) == 0
+    return out
+
+
+def test_oriented_charts_continue_a_directional_material(work, ridged_fabric, capsys):
+    """A ridged fabric quilted over the box: with the charts turned, the error across chart
+    borders falls well below that of the charts as cut (measured 0.25-0.30 against 0.74-0.87 of
+    the material's natural neighbour difference, seeds 0-2) and stays below it."""
+    from usdbtf.quilt.features import image_features
+    from usdbtf.quilt.seams import natural_neighbour_error
+
+    cbtf = read_compressed(ridged_fabric)
+    natural = natural_neighbour_error(image_features(cbtf), cbtf.width, cbtf.height, cbtf.n_samples)
+    from usdbtf.mesh import Mesh
+    from usdbtf.unwrap import UnwrapOptions, unwrap
+
+    user = _box_layer(False).mesh               # the user's box: xatlas's charts as cut, at 640 texels/m
+    border = {}
+    for orient in (True, False):
+        unwrapped = unwrap(Mesh(user.points, user.triangles, uv=user.uv),
+                           UnwrapOptions(texels_per_metre=960.0, keep_uvs=True, orient_charts=orient))
+        assert unwrapped.atlas.method == "kept"
+        border[orient] = quilt(cbtf, QuiltOptions(seed=0), atlas=unwrapped).record["atlas"]["chart_border_error"]
+    assert border[True] < 0.6 * border[False], border
+    assert border[True] < natural, (border, natural)

@@ -22,6 +22,9 @@ def add_parser(sub) -> None:
                          help=f"texel density directly (0 < D <= {MAX_DENSITY:g})")
     p.add_argument("--keep-uvs", action="store_true",
                    help="keep the mesh's texture coordinates when they are usable (else unwrap)")
+    p.add_argument("--no-orient-charts", dest="orient_charts", action="store_false",
+                   help="leave every chart as xatlas or the mesh's UVs oriented it (default: turn charts by "
+                        "quarter turns so the texture's axes continue across chart borders, and pack them again)")
     p.add_argument("--max-resolution", type=int_in(16, MAX_TEXTURE_SIDE), default=4096,
                    help=f"atlas side cap in texels, 16..{MAX_TEXTURE_SIDE} (default 4096)")
     p.add_argument("--padding", type=int_in(1, 64), default=4, help="gutter texels between charts, 1..64 (default 4)")
@@ -51,7 +54,7 @@ def run(args) -> int:
     else:
         density = args.texels_per_metre
     opts = UnwrapOptions(texels_per_metre=density, keep_uvs=args.keep_uvs, max_resolution=args.max_resolution,
-                         padding=args.padding)
+                         padding=args.padding, orient_charts=args.orient_charts)
     opts.validate()                     # every number checked before the mesh is read
     mesh = load_mesh(args.mesh, meters_per_unit=args.meters_per_unit, up_axis=args.up_axis)
     write_unwrap(unwrap(mesh, opts), args.output)

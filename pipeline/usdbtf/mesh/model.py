@@ -302,6 +302,28 @@ def weld(points: np.ndarray, decimals: int = 9) -> np.ndarray:
     return inverse.ravel()
 
 
+def face_neighbours(faces_welded: np.ndarray) -> np.ndarray:
+    """(F, 3) face across edge i (corners i, i+1) of each face, -1 on boundaries.
+
+    faces_welded : (F, 3) vertex ids welded by position (so split seams still connect).
+    Non-manifold edges pair their first two faces.
+    """
+    F = len(faces_welded)
+    a = faces_welded
+    edges = np.stack([a, np.roll(a, -1, axis=1)], axis=2).reshape(-1, 2)          # (3F, 2)
+    key = np.sort(edges, axis=1)
+    order = np.lexsort((np.arange(3 * F), key[:, 1], key[:, 0]))
+    ks = key[order]
+    same = (ks[1:] == ks[:-1]).all(axis=1)
+    out = np.full(3 * F, -1, np.int64)
+    first = order[:-1][same]
+    second = order[1:][same]
+    keep = out[first] < 0                                 # a third face on the edge is ignored
+    out[first[keep]] = second[keep] // 3
+    out[second[keep]] = first[keep] // 3
+    return out.reshape(F, 3)
+
+
 def degenerate_triangles(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """(F,) bool: triangles without area -- repeated or collinear corners (twice the area at
     most 1e-12 of the longest edge squared, so rounding does not hide them)."""

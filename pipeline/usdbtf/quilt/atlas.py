@@ -28,7 +28,7 @@ import numpy as np
 
 from ..compress.format import CompressedBTF
 from ..errors import BTFError
-from ..mesh import Mesh, weld
+from ..mesh import Mesh, face_neighbours, weld
 from ..raster import pixel_barycentrics, rasterize, st_to_texels
 from ..unwrap import UnwrapResult, read_unwrap
 from .core import QuiltOptions, QuiltResult, prepare_source, quilt_record
@@ -39,28 +39,6 @@ __all__ = ["quilt_atlas", "face_neighbours", "chart_border_error"]
 
 _RINGS = 2
 log = logging.getLogger(__name__)
-
-
-def face_neighbours(faces_welded: np.ndarray) -> np.ndarray:
-    """(F, 3) face across edge i (corners i, i+1) of each face, -1 on boundaries.
-
-    faces_welded : (F, 3) vertex ids welded by position (so split seams still connect).
-    Non-manifold edges pair their first two faces.
-    """
-    F = len(faces_welded)
-    a = faces_welded
-    edges = np.stack([a, np.roll(a, -1, axis=1)], axis=2).reshape(-1, 2)          # (3F, 2)
-    key = np.sort(edges, axis=1)
-    order = np.lexsort((np.arange(3 * F), key[:, 1], key[:, 0]))
-    ks = key[order]
-    same = (ks[1:] == ks[:-1]).all(axis=1)
-    out = np.full(3 * F, -1, np.int64)
-    first = order[:-1][same]
-    second = order[1:][same]
-    keep = out[first] < 0                                 # a third face on the edge is ignored
-    out[first[keep]] = second[keep] // 3
-    out[second[keep]] = first[keep] // 3
-    return out.reshape(F, 3)
 
 
 def _unfold(a2, b2, anchor2, pa, pb, pr):

@@ -28,7 +28,7 @@ import numpy as np
 
 from ..compress.format import CompressedBTF
 from ..errors import BTFError, UsageError
-from ..mesh import Mesh, mirrored_faces, uv_gradients, uv_stretch
+from ..mesh import Mesh, mirrored_faces, uv_gradients, uv_stretch, weld
 from ..raster import rasterize, st_to_texels
 
 log = logging.getLogger(__name__)
@@ -237,12 +237,16 @@ def keep_uvs(mesh: Mesh, density: float) -> Atlas:
     exact = float(np.sqrt(area3 / area_uv) * density)
     side = max(1, int(np.ceil(exact - 1e-6)))
     uv = mesh.uv * min(1.0, exact / side)
-    return Atlas(np.arange(len(mesh.points)), mesh.triangles.copy(), uv, _uv_components(mesh.triangles),
-                 side, side, float(density), 1.0, "kept")
+    return Atlas(np.arange(len(mesh.points)), mesh.triangles.copy(), uv,
+                 _uv_components(mesh.triangles, mesh.points, mesh.uv), side, side, float(density), 1.0, "kept")
 
 
-def _uv_components(faces: np.ndarray) -> np.ndarray:
-    """(F,) component index of each face, faces joined when they share a uv vertex."""
+def _uv_components(faces: np.ndarray, points: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """(F,) component index of each face, faces joined when they share a vertex: one with the
+    same position and the same uv (so a file that repeats vertices per triangle, a "triangle
+    soup", still has the charts its UVs draw)."""
+    same = weld(np.concatenate([points, uv], axis=1))
+    faces = same[faces]
     parent = np.arange(faces.max() + 1)
 
     def find(a):

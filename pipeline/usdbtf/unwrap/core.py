@@ -27,6 +27,7 @@ from ..imageio import read_image, write_image
 from ..mesh import Mesh, load_mesh, mirrored_faces, tangent_frames
 from .atlas import MAX_ATLAS_SIDE, Atlas, chart_map, keep_uvs, make_atlas, uv_problems
 from .layer import layer_atlas_info, write_layer
+from .orient import orient_charts
 from ..numeric import single_blas_thread
 
 log = logging.getLogger(__name__)
@@ -44,12 +45,15 @@ class UnwrapOptions:
     """texels_per_metre : the sample's texel density (:func:`~.atlas.texel_density` of a compressed
     BTF); keep_uvs : use the mesh's own texture coordinates when they pass the checks
     (:func:`~.atlas.uv_problems`), else unwrap; max_resolution : atlas side cap, texels
-    (16 .. :data:`~.atlas.MAX_ATLAS_SIDE`); padding : gutter texels between charts (1 .. 64)."""
+    (16 .. :data:`~.atlas.MAX_ATLAS_SIDE`); padding : gutter texels between charts (1 .. 64);
+    orient_charts : turn charts by quarter turns so the texture's axes continue across chart
+    borders (:mod:`.orient`), packing them again at the same density."""
 
     texels_per_metre: float
     keep_uvs: bool = False
     max_resolution: int = 4096
     padding: int = 4
+    orient_charts: bool = True
 
     def validate(self) -> None:
         """UsageError for values out of range (before any work)."""
@@ -107,6 +111,15 @@ def unwrap(mesh: Mesh, options: UnwrapOptions) -> UnwrapResult:
             log.info(f"not keeping the mesh's texture coordinates: {kept_reason}; unwrapping with xatlas")
     if atlas is None:
         atlas = make_atlas(mesh, density, max_resolution=options.max_resolution, padding=options.padding)
+    orientation = None
+    if options.orient_charts:
+        turned, orientation = orient_charts(atlas, mesh.points, options.padding)
+        if max(turned.width, turned.height) <= options.max_resolution:
+            atlas = turned
+        else:       # the turned charts pack larger than allowed: keep them as they were
+            orientation["quarter_turns"] = [0] * atlas.charts
+            orientation["aligned_after"] = orientation["aligned_before"]
+            log.info(f"charts not turned: packed they would need more than {options.max_resolution} texels")
     normals = mesh.normals[atlas.vertex_of]
     points = mesh.points[atlas.vertex_of]
     tangents, bitangents = tangent_frames(points, atlas.faces, atlas.st, normals)
@@ -121,7 +134,8 @@ def unwrap(mesh: Mesh, options: UnwrapOptions) -> UnwrapResult:
               "atlas": {"width": atlas.width, "height": atlas.height, "charts": atlas.charts,
                         "method": atlas.method, "texels_per_metre": atlas.texels_per_metre,
                         "requested_texels_per_metre": density, "texel_scale": atlas.texel_scale,
-                        "padding": options.padding, "coverage": float((charts >= 0).mean())},
+                        "padding": options.padding, "coverage": float((charts >= 0).mean()),
+                        "orientation": orientation},
               "mirrored_triangles": mirrored, "kept_uvs_rejected": kept_reason, "up_axis": out.up_axis}
     if out.notes:
         record["notes"] = list(out.notes)
