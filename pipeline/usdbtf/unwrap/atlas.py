@@ -181,9 +181,13 @@ def make_atlas(mesh: Mesh, density: float, *, max_resolution: int = 4096, paddin
     face_chart = np.zeros(len(faces), np.int64)
     for c in range(atlas.get_mesh_chart_count(0)):
         face_chart[np.asarray(atlas.get_mesh_chart(0, c).faces, np.int64)] = c
-    st = np.asarray(uv, np.float64)        # xatlas uv, like st, has v up for counter-clockwise faces
+    # xatlas uv, like st, has v up for counter-clockwise faces.  The atlas is made square, st
+    # scaled into its corner: texels are then square in st too, so usdbtf's own output passes
+    # --keep-uvs (which reads UVs as laid on a square texture) when a scene brings it back.
+    side = max(int(atlas.width), int(atlas.height))
+    st = np.asarray(uv, np.float64) * np.array([atlas.width, atlas.height], np.float64) / side
     return Atlas(np.asarray(vmap, np.int64), np.asarray(faces, np.int64), st, face_chart,
-                 int(atlas.width), int(atlas.height), float(density * scale), float(scale), "xatlas")
+                 side, side, float(density * scale), float(scale), "xatlas")
 
 
 def uv_problems(mesh: Mesh, width: int = 512) -> str | None:
