@@ -29,7 +29,7 @@ import numpy as np
 from ..compress.format import CompressedBTF
 from ..errors import BTFError
 from ..mesh import Mesh, face_neighbours, weld
-from ..raster import pixel_barycentrics, rasterize, st_to_texels
+from ..raster import barycentrics, pixel_barycentrics, rasterize, st_to_texels
 from ..unwrap import UnwrapResult, read_unwrap
 from .core import QuiltOptions, QuiltResult, prepare_source, quilt_record
 from .engine import Grid, grid_for, place_blocks
@@ -38,6 +38,9 @@ from .seams import pair_error, seam_error_all_samples
 __all__ = ["quilt_atlas", "face_neighbours", "chart_border_error"]
 
 _RINGS = 2
+#: Texels inside a chart, from a border with an earlier-quilted chart, that continue that chart:
+#: every texel a point on the border can fall in (its centre within sqrt(2)/2 of the border).
+_BAND = 1.0
 log = logging.getLogger(__name__)
 
 
@@ -61,8 +64,9 @@ def _ghost_triangles(c, face_chart, done_chart, neighbours, welded, points, corn
 
     welded : (F, 3) welded vertex ids per face; points : (V, 3) position per welded id.
     Returns (unfolded (n, 3, 2) in the neighbour face's corner order, their face ids (n,),
-    ring (n,) 1 or 2)."""
-    out_xy, out_face, out_ring = [], [], []
+    ring (n,) 1 or 2, apex (n,): the corner not on c's border for ring 1 (the other two are
+    c's own corners), -1 for ring 2)."""
+    out_xy, out_face, out_ring, out_apex = [], [], [], []
     seen = set()
     frontier = []
     for f in np.flatnonzero(face_chart == c):
@@ -92,14 +96,16 @@ def _ghost_triangles(c, face_chart, done_chart, neighbours, welded, points, corn
             out_xy.append(g_xy)
             out_face.append(g)
             out_ring.append(ring)
+            out_apex.append(jr if ring == 1 else -1)
             for i in range(3):
                 h = neighbours[g, i]
                 if h >= 0 and h not in seen and face_chart[h] != c and done_chart[face_chart[h]]:
                     nxt.append((g, g_xy, h))
         frontier = nxt
     if not out_xy:
-        return np.zeros((0, 3, 2)), np.zeros(0, np.int64), np.zeros(0)
-    return np.asarray(out_xy), np.asarray(out_face, np.int64), np.asarray(out_ring, np.float64)
+        return np.zeros((0, 3, 2)), np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int64)
+    return (np.asarray(out_xy), np.asarray(out_face, np.int64), np.asarray(out_ring, np.float64),
+            np.asarray(out_apex, np.int64))
 
 
 def _chart_order(charts: np.ndarray, face_chart: np.ndarray, neighbours: np.ndarray) -> list[int]:
@@ -179,7 +185,7 @@ def quilt_atlas(cbtf: CompressedBTF, atlas, opts: QuiltOptions | None = None) ->
         canvas = np.full((gh, gw), -1, np.int32)
         if ghosts:
             ghost_texels += _place_ghosts(canvas, c, (y0, x0), positions, face_chart, done, neighbours,
-                                          welded, welded_points, corner_xy)
+                                          welded, welded_points, corner_xy, band=_BAND)
         active = np.array([[local_domain[y:y + opts.block, x:x + opts.block].any() for x in grid.xs]
                            for y in grid.ys])
         # Ghosts are kept where they fall in the chart's rim (texels just outside its triangles
@@ -238,10 +244,16 @@ def _continue_rims(positions, charts, order, face_chart, neighbours, welded, poi
     return count
 
 
-def _place_ghosts(canvas, c, origin, positions, face_chart, done, neighbours, welded, points, corner_xy) -> int:
+def _place_ghosts(canvas, c, origin, positions, face_chart, done, neighbours, welded, points, corner_xy,
+                  band: float = 0.0) -> int:
     """Put the unfolded neighbours' quilted texels on chart c's canvas (outside c's own
-    triangles); returns how many texels were placed."""
-    tri_xy, tri_face, ring = _ghost_triangles(c, face_chart, done, neighbours, welded, points, corner_xy)
+    triangles); returns how many texels were placed.
+
+    band : also put them on c's own texels whose centres lie within ``band`` texels of a border
+    with a done chart, the neighbour's texture continued across the border (read from its rim,
+    quilted with it).  The border itself then continues the neighbour exactly, and the quilting
+    seam lies ``band`` texels inside c, where block matching against these ghosts put it."""
+    tri_xy, tri_face, ring, apex = _ghost_triangles(c, face_chart, done, neighbours, welded, points, corner_xy)
     if not len(tri_xy):
         return 0
     y0, x0 = origin
@@ -252,6 +264,9 @@ def _place_ghosts(canvas, c, origin, positions, face_chart, done, neighbours, we
     idx, t, bary = pixel_barycentrics(local, raster.tri)
     keep = ~own.ravel()[idx]
     idx, t, bary = idx[keep], t[keep], bary[keep]
+    if band > 0:
+        b_idx, b_t, b_bary = _border_band(local, apex, own, band)
+        idx, t, bary = np.concatenate([idx, b_idx]), np.concatenate([t, b_t]), np.concatenate([bary, b_bary])
     src_xy = np.einsum("nk,nkd->nd", bary, corner_xy[tri_face[t]])
     H, W = positions.shape
     sx = np.clip(np.floor(src_xy[:, 0]).astype(np.int64), 0, W - 1)
@@ -260,6 +275,41 @@ def _place_ghosts(canvas, c, origin, positions, face_chart, done, neighbours, we
     ok = values >= 0
     canvas.ravel()[idx[ok]] = values[ok]
     return int(ok.sum())
+
+
+def _border_band(local: np.ndarray, apex: np.ndarray, own: np.ndarray, band: float):
+    """Chart c's own texels within ``band`` texels of its border with done charts, each with the
+    ring-1 ghost triangle across the nearest border edge and its (extrapolated) barycentrics.
+
+    local : (n, 3, 2) ghost triangles in canvas texels; apex : (n,) their corner off c's border
+    (-1: ring 2, skipped); own : (h, w) texels whose centres lie in c's triangles.
+    Returns (flat canvas index (m,), triangle (m,), barycentrics (m, 3)); a texel near two
+    edges takes the nearer."""
+    gh, gw = own.shape
+    best_d = np.full(gh * gw, np.inf)
+    best_t = np.full(gh * gw, -1, np.int64)
+    for t in np.flatnonzero(apex >= 0):
+        a, b = (local[t, j] for j in range(3) if j != apex[t])
+        lo = np.floor(np.minimum(a, b) - band).astype(np.int64)
+        hi = np.ceil(np.maximum(a, b) + band).astype(np.int64)
+        xs = np.arange(max(lo[0], 0), min(hi[0], gw - 1) + 1)
+        ys = np.arange(max(lo[1], 0), min(hi[1], gh - 1) + 1)
+        if not len(xs) or not len(ys):
+            continue
+        cx, cy = np.meshgrid(xs + 0.5, ys + 0.5)
+        p = np.stack([cx.ravel(), cy.ravel()], axis=1)
+        e = b - a
+        along = np.clip(((p - a) @ e) / max(float(e @ e), 1e-12), 0.0, 1.0)
+        d = np.linalg.norm(p - (a + along[:, None] * e), axis=1)
+        flat = (np.floor(p[:, 1]).astype(np.int64)) * gw + np.floor(p[:, 0]).astype(np.int64)
+        take = (d <= band) & own.ravel()[flat] & (d < best_d[flat])
+        best_d[flat[take]] = d[take]
+        best_t[flat[take]] = t
+    idx = np.flatnonzero(best_t >= 0)
+    t = best_t[idx]
+    bary = barycentrics(local[t], idx % gw + 0.5, idx // gw + 0.5)
+    ok = np.isfinite(bary).all(axis=1)              # (a degenerate ghost triangle continues nothing)
+    return idx[ok], t[ok], bary[ok]
 
 
 def _fill_gutters(positions: np.ndarray, valid: np.ndarray) -> np.ndarray:
