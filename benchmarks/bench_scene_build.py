@@ -15,8 +15,9 @@ seams        per binding, the mean squared difference (over every (view, light) 
              quilting seams inside charts and across chart boundaries on the surface, each
              against the material's natural neighbour difference (the same metric over the
              sample's own neighbours); see :func:`seams`.
-rebuilds     wall time of the first build, of a second build with nothing changed, and of a
-             build after one mesh (the cylinder) is edited, with the steps each ran.
+rebuilds     wall time of the first build, of a second build with nothing changed, of one after
+             the camera moved 1 cm (no material needs more), and of a build after one mesh
+             (the cylinder) is edited, with the steps each ran.
 
 Usage (repository root)::
 
@@ -143,7 +144,7 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--size", type=int, default=16, help="synthetic sample side in texels (default 16)")
     args = p.parse_args()
-    from pxr import Usd, UsdGeom
+    from pxr import Gf, Usd, UsdGeom
 
     from usdbtf.usd.build import build
     from usdbtf.usd.density import binding_densities
@@ -154,7 +155,13 @@ def main() -> int:
         with usd_warnings_silenced():           # the materials' assets do not exist before the build
             scene = write_scene(Path(tmp), args.size)
         runs = {}
-        for name in ("first", "nothing changed", "cylinder edited"):
+        for name in ("first", "nothing changed", "camera moved", "cylinder edited"):
+            if name == "camera moved":         # 1 cm sideways: no material needs more than it has
+                stage = Usd.Stage.Open(str(scene))
+                op = UsdGeom.Xformable(stage.GetPrimAtPath("/World/Cam")).GetOrderedXformOps()[0]
+                matrix = Gf.Matrix4d(op.Get())
+                op.Set(matrix.SetTranslateOnly(matrix.ExtractTranslation() + Gf.Vec3d(0.01, 0.0, 0.0)))
+                stage.Save()
             if name == "cylinder edited":
                 stage = Usd.Stage.Open(str(scene))
                 points = UsdGeom.Mesh.Get(stage, "/World/Cylinder").GetPointsAttr()
