@@ -49,18 +49,18 @@ def pair_cut_columns(old: np.ndarray, new: np.ndarray, placed: np.ndarray) -> np
     # old above new when k_{y+1} <= c < k_y.
     new_above = _squared(new[:, :-1, :w] - old[:, 1:]) * weight[:, 1:]        # (S, n - 1, w)
     old_above = _squared(old[:, :-1] - new[:, 1:, :w]) * weight[:, :-1]
-    zero = np.zeros((S, n - 1, 1))
-    sum_na = np.concatenate([zero, np.cumsum(new_above, axis=2)], axis=2)      # sum over c < j, j = 0..w
-    sum_oa = np.concatenate([zero, np.cumsum(old_above, axis=2)], axis=2)
-    k = np.arange(1, w + 1)
-    src, dst = k[:, None], k[None, :]
-    trans = np.where(src < dst, sum_na[:, :, dst] - sum_na[:, :, src],
-                     sum_oa[:, :, src] - sum_oa[:, :, dst])                    # (S, n - 1, w from, w to)
+    # trans[y, s, k, k2]: the vertical pairs' cost of cuts k (row y) and k2 (row y + 1), summed
+    # against the indicator of the columns in between (einsum's own loops, not BLAS: the same
+    # bits on every machine).
+    pairs = np.concatenate([new_above, old_above], axis=2)                     # (S, n - 1, 2w)
+    trans = np.einsum("syc,cq->ysq", pairs, _between(w)).reshape(n - 1, S, w, w)
+    h = np.ascontiguousarray(h.transpose(1, 0, 2))                             # (n, S, w)
     totals = np.empty((n - 1, S, w, w))
-    cost = h[:, 0]
+    cost = h[0]
     for y in range(n - 1):
-        np.add(cost[:, :, None], trans[:, y], out=totals[y])
-        cost = totals[y].min(axis=1) + h[:, y + 1]
+        np.add(cost[:, :, None], trans[y], out=totals[y])
+        cost = totals[y].min(axis=1)
+        cost += h[y + 1]
     back = totals.argmin(axis=2)                                              # ties: the lowest column
     path = np.empty((S, n), np.intp)
     strips = np.arange(S)
@@ -68,6 +68,22 @@ def pair_cut_columns(old: np.ndarray, new: np.ndarray, placed: np.ndarray) -> np
     for y in range(n - 2, -1, -1):
         path[:, y] = back[y, strips, path[:, y + 1]]
     return path + 1
+
+
+_BETWEEN: dict[int, np.ndarray] = {}
+
+
+def _between(w: int) -> np.ndarray:
+    """(2w, w * w) float64 indicator: row c is 1 at (k, k2) (cuts of two consecutive rows, 1..w)
+    when column c lies between them new above old (k <= c < k2); row w + c, old above new
+    (k2 <= c < k)."""
+    if w not in _BETWEEN:
+        k = np.arange(1, w + 1)
+        c = np.arange(w)[:, None, None]
+        src, dst = k[None, :, None], k[None, None, :]
+        rows = np.concatenate([(src <= c) & (c < dst), (dst <= c) & (c < src)])
+        _BETWEEN[w] = rows.reshape(2 * w, w * w).astype(np.float64)
+    return _BETWEEN[w]
 
 
 def keep_old_mask(image: np.ndarray, old: np.ndarray, new: np.ndarray, placed: np.ndarray,
