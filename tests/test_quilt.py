@@ -22,11 +22,11 @@ from usdbtf.compress.format import METADATA
 from usdbtf.imageio import read_image
 from usdbtf.io import open_btf
 from usdbtf.quilt import POSITION_MAP, QuiltOptions, quilt
-from usdbtf.quilt.cut import keep_old_mask, min_cut_columns
+from usdbtf.quilt.cut import keep_old_mask, pair_cut_columns
 from usdbtf.quilt.engine import Source, grid_for, place_blocks
 from usdbtf.quilt.features import image_features
 from usdbtf.quilt.matcher import Matcher
-from usdbtf.quilt.seams import pair_error, seam_error_images
+from usdbtf.quilt.seams import natural_neighbour_error, pair_error, seam_error_all_samples, seam_error_images
 
 
 # ------------------------------------------------------------------ building blocks
@@ -55,31 +55,52 @@ def test_fft_overlap_error_equals_direct_summation():
     assert err[4, 9] < 1e-3 * err.mean()
 
 
-def test_min_cut_is_the_cheapest_connected_path():
+def _pair_cost(old, new, cut):
+    """Summed squared difference over the neighbour pairs (one old, one new) of a left strip
+    composited by ``cut`` (row y takes new from column cut[y] on), counted directly."""
+    n, w1 = new.shape[:2]
+    is_old = np.arange(w1)[None, :] < np.asarray(cut)[:, None]
+    comp = np.where(is_old[..., None], np.pad(old, ((0, 0), (0, 1), (0, 0))), new)
+    total = 0.0
+    for (a, b), (c, d) in (((slice(None), slice(None, -1)), (slice(None), slice(1, None))),
+                           ((slice(None, -1), slice(None)), (slice(1, None), slice(None)))):
+        seam = is_old[a, b] != is_old[c, d]
+        total += float((((comp[a, b] - comp[c, d]) ** 2).sum(-1) * seam).sum())
+    return total
+
+
+def test_pair_cut_is_the_cheapest_cut_of_the_pairs_it_makes():
+    """Against exhaustive search over every cut (any column per row) of the pair cost counted on
+    the composited strip, the quantity the seam metric measures."""
     rng = np.random.default_rng(1)
-    for _ in range(20):
-        err = rng.random((5, 3))
-        path = min_cut_columns(err)
-        assert np.all(np.abs(np.diff(path)) <= 1)
-        best = min(sum(err[y, c] for y, c in enumerate(p))
-                   for p in itertools.product(range(3), repeat=5) if np.all(np.abs(np.diff(p)) <= 1))
-        assert err[np.arange(5), path].sum() == pytest.approx(best)
+    n, w = 4, 3
+    for _ in range(10):
+        old = rng.random((n, w, 2))
+        new = rng.random((n, w + 1, 2))
+        cut = pair_cut_columns(old[None], new[None], np.ones((1, n, w), bool))[0]
+        assert cut.min() >= 1 and cut.max() <= w
+        best = min(_pair_cost(old, new, c) for c in itertools.product(range(1, w + 1), repeat=n))
+        assert _pair_cost(old, new, cut) == pytest.approx(best)
 
 
-def test_keep_old_mask_follows_the_cheap_columns():
+def test_keep_old_mask_cuts_where_the_blocks_continue_each_other():
+    """Old texels are 0 in columns 0-1 and the new block's 0 from column 2 on (everything else a
+    distinct random feature): the only free cut of a left strip runs between columns 1 and 2."""
     B = 8
-    err = np.ones((B, B))
-    err[:, 2] = 0.0                          # the only free path through the left strip: column 2
-    keep = keep_old_mask(err, (3, 0, 0, 0))
+    rng = np.random.default_rng(2)
+    image = np.vstack([np.zeros((1, 3)), 1.0 + rng.random((2 * B * B, 3))])
+    ids = 1 + np.arange(2 * B * B).reshape(2, B, B)
+    old, new = ids[0].copy(), ids[1].copy()
+    old[:, :2] = 0
+    new[:, 2:] = 0
+    placed = np.ones((B, B), bool)
+    keep = keep_old_mask(image, old, new, placed, (3, 0, 0, 0))
     assert keep[:, :2].all() and not keep[:, 2:].any()
-    err = np.ones((B, B))
-    err[5, :] = 0.0                          # through the bottom strip (rows 4..7): row 5
-    keep = keep_old_mask(err, (0, 0, 0, 4))
+    # The same pattern turned to the bottom (rows 7..4) and the right strip (columns 7..5).
+    keep = keep_old_mask(image, old.T[::-1], new.T[::-1], placed, (0, 0, 0, 4))
     assert keep[6:].all() and not keep[:6].any()
-    err = np.ones((B, B))
-    err[:, 6] = 0.0                          # right strip (columns 5..7): column 6
-    keep = keep_old_mask(err, (0, 0, 3, 0))
-    assert keep[:, 7:].all() and not keep[:, :7].any()
+    keep = keep_old_mask(image, old[:, ::-1], new[:, ::-1], placed, (0, 0, 3, 0))
+    assert keep[:, 6:].all() and not keep[:, :6].any()
 
 
 # ------------------------------------------------------------------ quilting
@@ -124,18 +145,37 @@ def test_same_seed_same_bytes_other_seed_other_quilt(work, pebbles, capsys):
 
 
 def test_tileable_output_wraps_without_a_seam(pebbles):
+    """Pair errors across the wrap (last column/row to the first) against one column and row
+    inside, each summed over seeds 2 and 3: one line of ~180 pairs is noisy, one seed may put a
+    seam's worst stretch on it."""
     cbtf = read_compressed(pebbles)
     feats = image_features(cbtf)
     errors = {}
     for tileable in (True, False):
-        p = quilt(cbtf, QuiltOptions(size=(96, 80), block=16, seed=2, tileable=tileable)).positions
-        wrap = pair_error(feats, np.r_[p[:, -1], p[-1]], np.r_[p[:, 0], p[0]], cbtf.n_samples)
-        inner = pair_error(feats, np.r_[p[:, 47], p[39]], np.r_[p[:, 48], p[40]], cbtf.n_samples)
+        wrap = inner = 0.0
+        for seed in (2, 3):
+            p = quilt(cbtf, QuiltOptions(size=(96, 80), block=16, seed=seed, tileable=tileable)).positions
+            wrap += pair_error(feats, np.r_[p[:, -1], p[-1]], np.r_[p[:, 0], p[0]], cbtf.n_samples)
+            inner += pair_error(feats, np.r_[p[:, 47], p[39]], np.r_[p[:, 48], p[40]], cbtf.n_samples)
         errors[tileable] = (wrap, inner)
     wrap_t, inner_t = errors[True]
     wrap_p, _ = errors[False]
     assert wrap_t < 2.0 * inner_t            # across the wrap: like any column inside
     assert wrap_p > 2.0 * wrap_t             # a plain quilt has a real seam there
+
+
+def test_seams_stay_near_the_materials_own_neighbour_difference(pebbles):
+    """Seam quality with the default options: across the quilting seams of a 96^2 plane the mean
+    squared difference over every (view, light) image is within 1.2x of the sample's own neighbour
+    difference (seeds 0-2: 1.11, 1.08, 1.04 with the pair cut and 4-texel overlaps; the
+    Efros-Freeman cut with 3-texel overlaps gave 1.31, 1.27, 1.37).  Issue 31 asks for <= 1.5 on
+    meshes; this is the cheap guard against a regression of the cut or the defaults."""
+    cbtf = read_compressed(pebbles)
+    feats = image_features(cbtf)
+    natural = natural_neighbour_error(feats, cbtf.width, cbtf.height, cbtf.n_samples)
+    ratios = [seam_error_all_samples(quilt(cbtf, QuiltOptions(size=(96, 96), seed=seed)).positions, feats,
+                                     cbtf.width, cbtf.n_samples) / natural for seed in range(3)]
+    assert max(ratios) < 1.2, ratios
 
 
 def test_coefficient_matching_beats_one_images_layout_over_all_samples(pebbles):

@@ -5,7 +5,7 @@ source texel it copies (-1 while empty).  Blocks are placed in raster order over
 each is the source block whose features best match what is already on the canvas under
 the block (any filled texel, including fixed "ghost" texels a caller put there), chosen at
 random among those within ``tolerance`` of the best, then cut into its placed neighbours
-along minimum-error paths.  Working on positions, not values, means one pass decides the
+where the neighbour pairs the cut creates differ least (:mod:`.cut`).  Working on positions, not values, means one pass decides the
 output of every coefficient texture (and every (view, light) image) at once.
 """
 from __future__ import annotations
@@ -78,17 +78,22 @@ def default_block(source_width: int, source_height: int) -> int:
     offers 11 x 11 candidate blocks instead of 9 x 9.  Measured on the ridged fabric at 16^2
     (a 147^2 plane, seeds 0-2, `benchmarks/bench_scene_build.py` for the atlas): the seam error
     over the natural neighbour difference is 2.05-2.09 with blocks of 8 and 2-texel overlaps,
-    1.25-1.34 with blocks of 6 and 3-texel overlaps, and 1.56-1.61 with blocks of 8 overlapping by 4-5."""
+    1.25-1.34 with blocks of 6 and 3-texel overlaps, and 1.56-1.61 with blocks of 8 overlapping by 4-5
+    (all with the Efros-Freeman cut that preceded the pair cut of :mod:`.cut`)."""
     return int(np.clip(min(source_width, source_height) // 4, MIN_DEFAULT_BLOCK, 64))
 
 
 def default_overlap(block: int) -> int:
-    """One sixth of the block, as Efros & Freeman suggest, at least 3 texels.
+    """A third of the block, at least 3 texels.
 
-    A 2-texel strip leaves the minimum-error cut two columns to choose from: on small blocks it
-    cannot route around a difference (see :func:`default_block`).  Blocks of 16 and more (samples
-    of 64 texels and more) keep their one sixth."""
-    return max(MIN_DEFAULT_OVERLAP, int(round(block / 6)))
+    Efros & Freeman suggest one sixth; with the pair cut (:mod:`.cut`) a wider strip gives the
+    cut room to find where the two blocks continue each other.  Measured on the 64^2 tiny pebbles
+    (the scene benchmark's sphere atlas, `benchmarks/bench_scene_build.py --size 64`, blocks of
+    16): seams at 1.42x the natural neighbour difference with 3-texel overlaps, 1.27x with 5,
+    1.23x with 6, each texel of overlap adding ~10 % to the blocks placed.  A 2-texel strip leaves
+    the cut two columns to choose from: on small blocks it cannot route around a difference (see
+    :func:`default_block`)."""
+    return max(MIN_DEFAULT_OVERLAP, int(round(block / 3)))
 
 
 def grid_for(width: int, height: int, block: int, overlap: int, *, torus: bool = False) -> Grid:
@@ -174,11 +179,7 @@ def place_blocks(pos: np.ndarray, grid: Grid, source: Source, *, tolerance: floa
             widths = _overlaps(grid, done, r, c, B)
             keep = np.zeros((B, B), bool)
             if any(widths) and was_placed.any():
-                err = np.zeros((B, B), np.float32)
-                strip = was_placed & _strip_mask(B, widths)
-                d = source.image[new[strip]] - source.image[old[strip]]
-                err[strip] = np.einsum("nd,nd->n", d, d)
-                keep = keep_old_mask(err, widths) & was_placed
+                keep = keep_old_mask(source.image, old, new, was_placed, widths) & was_placed
             write = ~keep if domain is None else ~keep & domain[at]
             pos[at] = np.where(write, new, old)
             placed[at] |= write
@@ -186,15 +187,3 @@ def place_blocks(pos: np.ndarray, grid: Grid, source: Source, *, tolerance: floa
             count += 1
     return count
 
-
-def _strip_mask(block: int, widths: tuple[int, int, int, int]) -> np.ndarray:
-    """(B, B) bool: the texels inside any overlap strip."""
-    left, top, right, bottom = widths
-    m = np.zeros((block, block), bool)
-    m[:, :left] = True
-    m[:top, :] = True
-    if right:
-        m[:, block - right:] = True
-    if bottom:
-        m[block - bottom:, :] = True
-    return m
