@@ -23,7 +23,7 @@ def add_parser(sub) -> None:
     p.add_argument("--m", type=int_in(1), help="leading coefficient textures compared in block matching (default 4)")
     p.add_argument("--block", type=int_in(1, MAX_TEXTURE_SIDE),
                    help="block side in texels (default: a quarter of the sample, 6..64)")
-    p.add_argument("--overlap", type=int_in(0, MAX_TEXTURE_SIDE), help="block overlap in texels (default: block / 3, at least 3)")
+    p.add_argument("--overlap", type=int_in(0, MAX_TEXTURE_SIDE), help="block overlap in texels (default: block / 4, at least 3)")
     p.add_argument("--tolerance", type=float_in(0, 100), default=0.1,
                    help="pick among blocks within (1 + T) x the best overlap error (default 0.1)")
     p.add_argument("--seed", type=SEED, default=0)

@@ -11,12 +11,14 @@ above old), vertical pairs too.  So a seam settles where the two sides continue 
 often where the material itself is smooth, instead of merely where the overlap agrees.
 
 Measured on the scene benchmark's 64^2 tiny materials quilted over their meshes' charts
-(`benchmarks/bench_quilt_seams.py`, blocks of 16 and 3-texel overlaps both ways), seams inside
-charts against the natural neighbour difference went from 1.72 to 1.42 (pebbles on the sphere)
-with this cut alone; `benchmarks/RESULTS.md` has the table.
+(`benchmarks/bench_quilt_seams.py --size 64`, blocks of 16 and 3-texel overlaps both ways,
+seeds 0-1), seams inside charts against the natural neighbour difference went from 1.72 to
+1.42 (pebbles on the sphere), 1.33 to 1.08 (moss on the cylinder), 1.34 to 1.08 (fabric on the
+box) with this cut alone, at the same quilting time; `benchmarks/RESULTS.md` has the table.
 
 A dynamic program over the strip's rows (B of them, a vector operation over the columns each),
-any column to any column, the vertical pairs' cost from prefix sums.  Features are image
+any column to any column, the vertical pairs' cost summed against an indicator of the columns
+between two cuts.  Features are image
 features (:func:`~.features.image_features`): squared distances are image differences summed over
 every (view, light) sample.
 """

@@ -84,16 +84,18 @@ def default_block(source_width: int, source_height: int) -> int:
 
 
 def default_overlap(block: int) -> int:
-    """A third of the block, at least 3 texels.
+    """A quarter of the block, at least 3 texels.
 
-    Efros & Freeman suggest one sixth; with the pair cut (:mod:`.cut`) a wider strip gives the
-    cut room to find where the two blocks continue each other.  Measured on the 64^2 tiny pebbles
-    (the scene benchmark's sphere atlas, `benchmarks/bench_scene_build.py --size 64`, blocks of
-    16): seams at 1.42x the natural neighbour difference with 3-texel overlaps, 1.27x with 5,
-    1.23x with 6, each texel of overlap adding ~10 % to the blocks placed.  A 2-texel strip leaves
-    the cut two columns to choose from: on small blocks it cannot route around a difference (see
-    :func:`default_block`)."""
-    return max(MIN_DEFAULT_OVERLAP, int(round(block / 3)))
+    Efros & Freeman suggest one sixth; a wider strip gives the pair cut (:mod:`.cut`) room to find
+    where the two blocks continue each other, and costs blocks: the grid's step is the block less
+    the overlap.  Measured on the scene benchmark's 64^2 materials over their meshes' charts
+    (`benchmarks/bench_quilt_seams.py --size 64`, blocks of 16, seeds 0-1): seams inside charts over
+    the natural neighbour difference on the sphere (pebbles) 1.42 / 1.33 / 1.28 / 1.23 with
+    overlaps of 3 / 4 / 5 / 6 texels, for 7.6 / 9.9 / 12.7 / 16.0 s of quilting (Efros-Freeman's
+    cut with 3: 1.72, 7.7 s).  A quarter takes most of the gain for +30 % time.  A 2-texel strip
+    leaves the cut two columns to choose from: on small blocks it cannot route around a
+    difference (see :func:`default_block`)."""
+    return max(MIN_DEFAULT_OVERLAP, int(round(block / 4)))
 
 
 def grid_for(width: int, height: int, block: int, overlap: int, *, torus: bool = False) -> Grid:
