@@ -287,7 +287,7 @@ def _box_layer(orient: bool, density: float = 640.0):
                   UnwrapOptions(texels_per_metre=density, orient_charts=orient))
 
 
-def _aligned_share(unwrapped) -> float:
+def _measured_aligned_share(unwrapped) -> float:
     """Share of chart-border length (metres) whose texture axes continue (turn within 45 degrees
     of none), measured on the layer as written and read back."""
     from usdbtf.unwrap.orient import chart_turns
@@ -318,8 +318,8 @@ def test_charts_turn_so_the_texture_continues_across_borders(work, capsys):
     record = json.loads((work / "box_kept" / "unwrap.json").read_text())["atlas"]
     kept, as_is = read_unwrap(work / "box_kept" / "mesh.usda"), read_unwrap(work / "box_as_is" / "mesh.usda")
     assert record["method"] == "kept" and any(record["orientation"]["quarter_turns"])
-    assert _aligned_share(as_is) < 0.4 and _aligned_share(kept) == pytest.approx(0.611, abs=0.005)
-    assert record["orientation"]["aligned_after"] == pytest.approx(_aligned_share(kept), abs=1e-9)
+    assert _measured_aligned_share(as_is) < 0.4 and _measured_aligned_share(kept) == pytest.approx(0.611, abs=0.005)
+    assert record["orientation"]["aligned_after"] == pytest.approx(_measured_aligned_share(kept), abs=1e-9)
     layer = kept.mesh
     assert uv_problems(layer.split_corners()) is None   # no chart overlaps another, nothing stretched
     # Turned and packed, every triangle edge keeps its length in texels: the density is the
@@ -335,7 +335,7 @@ def test_charts_turn_so_the_texture_continues_across_borders(work, capsys):
     assert kept.atlas.width == kept.atlas.height
     assert json.loads((work / "box_kept" / "unwrap.json").read_text())["mirrored_triangles"] == 0
     # xatlas's own charts get the same treatment.
-    assert _aligned_share(_box_layer(True)) == pytest.approx(0.611, abs=0.005)
+    assert _measured_aligned_share(_box_layer(True)) == pytest.approx(0.611, abs=0.005)
 
 
 def test_quarter_turn_search_finds_a_consistent_layout():
@@ -357,7 +357,7 @@ def test_quarter_turn_search_finds_a_consistent_layout():
                 quarter = orient.best_quarter_turns(turns, n, area)
             finally:
                 orient.EXACT_CHARTS = limit
-            assert orient._aligned_share(turns, quarter) == pytest.approx(1.0), (n, exact, quarter)
+            assert orient.aligned_share(turns, quarter) == pytest.approx(1.0), (n, exact, quarter)
             assert quarter[int(np.argmax(area))] == 0 or not exact    # the largest chart keeps its orientation
 
 

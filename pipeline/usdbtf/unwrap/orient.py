@@ -34,7 +34,7 @@ from ..mesh import face_neighbours, weld
 
 log = logging.getLogger(__name__)
 
-__all__ = ["chart_turns", "best_quarter_turns", "orient_charts", "EXACT_CHARTS"]
+__all__ = ["chart_turns", "best_quarter_turns", "aligned_share", "orient_charts", "EXACT_CHARTS"]
 
 #: Up to this many charts every combination of quarter turns is tried (4^(n-1) of them).
 EXACT_CHARTS = 7
@@ -196,8 +196,8 @@ def orient_charts(atlas, points: np.ndarray, padding: int):
     area = 0.5 * np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
     chart_area = np.bincount(atlas.face_chart, weights=area, minlength=n)
     quarter = best_quarter_turns(turns, n, chart_area)
-    info = {"quarter_turns": [int(q) for q in quarter], "aligned_before": _aligned_share(turns, np.zeros(n, int)),
-            "aligned_after": _aligned_share(turns, quarter)}
+    info = {"quarter_turns": [int(q) for q in quarter], "aligned_before": aligned_share(turns, np.zeros(n, int)),
+            "aligned_after": aligned_share(turns, quarter)}
     if not quarter.any():
         return atlas, info
     turned = texels.copy()
@@ -224,7 +224,7 @@ def orient_charts(atlas, points: np.ndarray, padding: int):
                    width=width, height=height), info
 
 
-def _aligned_share(turns: dict, quarter: np.ndarray) -> float:
+def aligned_share(turns: dict, quarter: np.ndarray) -> float:
     """Share of border length whose turn, after the quarter turns, is within 45 degrees of 0."""
     total = sum(abs(z) for z in turns.values()) or 1.0
     return float(sum(abs(z) for (a, b), z in turns.items()
