@@ -225,6 +225,23 @@ def test_auto_rescores_near_ties_with_the_fine_pass(data, monkeypatch):
     assert coarse != fine                                               # two different subsamples
 
 
+@pytest.mark.parametrize("margin", [-1.0, 1e9], ids=["coarse-alone", "fine-over-ties"])
+def test_two_pass_choice_is_the_same_streamed_and_in_memory(data, monkeypatch, margin):
+    """The coarse pass and the fine pass read the same stored values from a streamed source
+    (first pass kept columns, spill file) as from memory: the same scores, the same bytes."""
+    from usdbtf.compress import domain_choice
+
+    _, raw = data
+    monkeypatch.setattr(domain_choice, "COARSE_MIN_SAMPLES", 1)
+    monkeypatch.setattr(domain_choice, "COARSE_MIN_TEXELS", 1)
+    monkeypatch.setattr(domain_choice, "TIE_MARGIN", margin)
+    mem = compress(open_btf(raw), CompressOptions(k=8))
+    streamed = compress(open_btf(raw), CompressOptions(k=8, memory_budget=0, workers=2, chunk_bytes=1))
+    assert mem.info["choice"]["domain_scores"] == streamed.info["choice"]["domain_scores"]
+    assert any("fine" in e for e in mem.info["choice"]["domain_scores"].values()) == (margin > 0)
+    assert mem.encoded.basis == streamed.encoded.basis and mem.encoded.coefficients == streamed.encoded.coefficients
+
+
 # ------------------------------------------------------------------ renderer
 
 
