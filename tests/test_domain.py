@@ -187,12 +187,59 @@ def test_auto_is_deterministic_and_keeps_linear_for_a_low_rank_input(data, tmp_p
     scores = a.info["choice"]["domain_scores"]
     assert set(scores) == {d.name for d in AUTO_CANDIDATES}
     assert min(scores, key=lambda n: scores[n]["score"]) == a.domain.name
+    assert not any("fine" in entry for entry in scores.values())      # a small input: the fine pass alone
     # rank 2: a linear basis is exact, any curve is not
     s = preset("tiny")
     rng = np.random.default_rng(0)
     x = (rng.random((len(s), 2)) @ rng.random((2, 8 * 8 * 3))).reshape(len(s), 8, 8, 3).astype(np.float32)
     low = compress(ArrayBTF.from_linear(s, x), CompressOptions(codec="exr", k=4))
     assert low.domain == LINEAR and low.k == 2
+
+
+def test_auto_rescores_near_ties_with_the_fine_pass(data, monkeypatch):
+    """The coarse pass (here on a small input, its size limits lowered) decides alone when no
+    candidate is within the tie margin of its best; candidates within it are scored again by
+    the fine pass, whose best wins, and the fine scores are recorded beside the coarse ones."""
+    from usdbtf.compress import domain_choice
+    from usdbtf.compress.select_source import load_source
+    from usdbtf.compress.texels import sample_texels
+
+    _, raw = data
+    btf = open_btf(raw)
+    opts = CompressOptions(k=8)
+    texels = sample_texels(btf, opts)
+    monkeypatch.setattr(domain_choice, "COARSE_MIN_SAMPLES", 1)
+    monkeypatch.setattr(domain_choice, "COARSE_MIN_TEXELS", 1)
+    with load_source(btf, texels, opts) as source:
+        coarse, _ = domain_choice.score_domains(source, texels, 8, opts, strides=domain_choice.COARSE)
+        fine, _ = domain_choice.score_domains(source, texels, 8, opts, strides=domain_choice.FINE)
+        monkeypatch.setattr(domain_choice, "TIE_MARGIN", -1.0)          # no ties: the coarse pass alone
+        alone, _, recorded = domain_choice.choose_by_scores(source, texels, 8, opts)
+        assert alone.name == min(coarse, key=lambda n: coarse[n]["score"])
+        assert recorded == coarse and not any("fine" in e for e in recorded.values())
+        monkeypatch.setattr(domain_choice, "TIE_MARGIN", 1e9)           # every candidate tied: all scored again
+        tied, _, recorded = domain_choice.choose_by_scores(source, texels, 8, opts)
+        assert tied.name == min(fine, key=lambda n: fine[n]["score"])
+        assert {n: e["fine"] for n, e in recorded.items()} == fine
+        assert {n: {k: v for k, v in e.items() if k != "fine"} for n, e in recorded.items()} == coarse
+    assert coarse != fine                                               # two different subsamples
+
+
+@pytest.mark.parametrize("margin", [-1.0, 1e9], ids=["coarse-alone", "fine-over-ties"])
+def test_two_pass_choice_is_the_same_streamed_and_in_memory(data, monkeypatch, margin):
+    """The coarse pass and the fine pass read the same stored values from a streamed source
+    (first pass kept columns, spill file) as from memory: the same scores, the same bytes."""
+    from usdbtf.compress import domain_choice
+
+    _, raw = data
+    monkeypatch.setattr(domain_choice, "COARSE_MIN_SAMPLES", 1)
+    monkeypatch.setattr(domain_choice, "COARSE_MIN_TEXELS", 1)
+    monkeypatch.setattr(domain_choice, "TIE_MARGIN", margin)
+    mem = compress(open_btf(raw), CompressOptions(k=8))
+    streamed = compress(open_btf(raw), CompressOptions(k=8, memory_budget=0, workers=2, chunk_bytes=1))
+    assert mem.info["choice"]["domain_scores"] == streamed.info["choice"]["domain_scores"]
+    assert any("fine" in e for e in mem.info["choice"]["domain_scores"].values()) == (margin > 0)
+    assert mem.encoded.basis == streamed.encoded.basis and mem.encoded.coefficients == streamed.encoded.coefficients
 
 
 # ------------------------------------------------------------------ renderer

@@ -98,12 +98,11 @@ class Domain:
             x = out
         if self.curve == "power":
             return _power(x, np.float32(1.0 / self.gamma))
-        toe = x <= np.float32(_SRGB_CUT)
-        low = x[toe] * np.float32(12.92)
+        toe, low = _toe(x, np.float32(_SRGB_CUT), np.float32(12.92))
         _power(x, np.float32(1 / 2.4))
         x *= np.float32(1.055)
         x -= np.float32(0.055)
-        x[toe] = low
+        _put_toe(x, toe, low)
         return x
 
     def inverse(self, d: np.ndarray) -> np.ndarray:
@@ -114,12 +113,11 @@ class Domain:
         d = np.maximum(d, np.float32(0.0))
         if self.curve == "power":
             return _power(d, np.float32(self.gamma))
-        toe = d <= np.float32(_SRGB_CUT_ENCODED)
-        low = d[toe] * np.float32(1 / 12.92)
+        toe, low = _toe(d, np.float32(_SRGB_CUT_ENCODED), np.float32(1 / 12.92))
         d += np.float32(0.055)
         d *= np.float32(1 / 1.055)
         _power(d, np.float32(2.4))
-        d[toe] = low
+        _put_toe(d, toe, low)
         return d
 
     def metadata(self) -> dict:
@@ -129,6 +127,30 @@ class Domain:
         if self.curve == "srgb":
             return {"curve": "srgb"}
         return {"curve": "power", "gamma": float(self.gamma)}
+
+
+def _toe(x: np.ndarray, cut: np.float32, slope: np.float32) -> tuple[np.ndarray, np.ndarray]:
+    """The sRGB curve's linear toe of float32 ``x``: (where the values ``<= cut`` are, those
+    values times ``slope``), taken before the power branch overwrites ``x``.
+
+    Where: flat indices for a C-contiguous ``x`` (a boolean mask otherwise).  A masked gather
+    and scatter each cost a pass over every value; indices cost one pass to find and then only
+    the toe's values (about 2 % of a material's): 1.10 -> 0.52 ns a value at paper scale.  The
+    same products and the same assignments either way, so the same bits."""
+    if not x.flags.c_contiguous:
+        toe = x <= cut
+        return toe, x[toe] * slope
+    flat = x.reshape(-1)
+    toe = np.flatnonzero(flat <= cut)
+    return toe, flat[toe] * slope
+
+
+def _put_toe(x: np.ndarray, toe: np.ndarray, low: np.ndarray) -> None:
+    """Write the toe's values (:func:`_toe`) back into ``x``, over the power branch's."""
+    if toe.dtype == bool:
+        x[toe] = low
+    else:
+        x.reshape(-1)[toe] = low
 
 
 def _power(x: np.ndarray, exponent: np.float32) -> np.ndarray:

@@ -2,15 +2,29 @@
 
 ``auto`` chooses per material, cheaply (issue 16's research, ``methods.domain_scores``):
 for each candidate curve (:data:`.domain.AUTO_CANDIDATES`) a basis is fitted as the
-compress fits it, on every other fitting texel and every second sample (the scored ones);
+compress fits it, on a subsample of the fitting texels and of the samples (the scored ones);
 the evaluation texels (disjoint from the fitting ones) are projected onto it over those
 samples, and the **unquantised** error of that basis is measured there, both on the
 input's encoded values and in scene-linear.  The candidate with the lowest
 ``log(encoded %) + log(linear %)`` wins: both errors at once, since a comparison against
 any fixed method (the paper's) divides each by a constant per material.  The compress then
-fits its basis in the winner's domain on every fitting texel and sample, so ``auto`` costs
-about one fit more than a fixed domain.  (Fitting the candidates on every sample instead
-chose the same curve on all seven presets and two UBO2014-sized inputs, at 1.6x the cost.)
+fits its basis in the winner's domain on every fitting texel and sample.
+
+Two passes (issue 27).  The **coarse** pass scores every candidate on every fourth sample,
+every fourth fitting texel and every other evaluation texel (:data:`COARSE`: a quarter to a
+third of the fine pass's cost).  Its scores sit at another level than the fine pass's, but
+the gaps to the best agree for the candidates near it (fine gap <= 0.15): at paper scale
+(seven presets, the plain and the budget probe: 14 cases) to within 0.021 in 12 cases, 0.037
+once (pebbles, budget: x^(1/2.2) further behind in the coarse pass) and 0.058 once, where two
+curves are in a near tie (ridged_fabric, budget: linear 0.044 behind x^(1/1.6) in the fine
+pass, 0.014 ahead in the coarse one).  Candidates within :data:`TIE_MARGIN` of the coarse best are therefore
+scored again by the **fine** pass (:data:`FINE`: every other sample and fitting texel, every
+evaluation texel: the scorer of issue 16) and the best of them wins.  The choice was the fine
+pass's in all 14 cases (``benchmarks/RESULTS.md``, "Compression speed against its floor").
+Inputs too small for the coarse subsample (fewer than :data:`COARSE_MIN_SAMPLES` samples or
+:data:`COARSE_MIN_TEXELS` fitting texels) are scored by the fine pass alone.  (Fitting the
+candidates on every sample instead of every other chose the same curve on all seven presets
+and two UBO2014-sized inputs, at 1.6x the cost.)
 
 No curve: ``--solver paper`` with ``auto`` fits the input's own encoding (sRGB for
 sRGB-encoded files, as the paper factorised the camera's 8-bit values; else linear), and an
@@ -33,15 +47,20 @@ __all__ = ["choose_domain", "resolve_domain", "score_domains", "encoding_domain"
 
 log = logging.getLogger(__name__)
 
-#: Every this-many-th sample is scored (halves the scorer's reconstruction cost).
-_SCORE_STRIDE = 2
+#: (sample stride, fitting-texel stride, evaluation-texel stride) of the scored subsample.
+FINE = (2, 2, 1)
+COARSE = (4, 4, 2)
+#: Candidates whose coarse score is within this of the best are scored again by the fine pass
+#: (scores are natural logs: 0.04 is 4 % of error; see the module docstring for the evidence).
+TIE_MARGIN = 0.04
+#: The coarse pass needs this many samples and fitting texels (else the fine pass alone).
+COARSE_MIN_SAMPLES = 4096
+COARSE_MIN_TEXELS = 2048
 #: The score truncates the basis to at most S / this many vectors: a basis of nearly S
 #: vectors reconstructs anything, whatever the curve.
 _PROBE_FRACTION = 4
 #: ... and to at most this many (the research scored 300 components).
 _PROBE_K = 300
-#: The candidates' bases are fitted on every this-many-th fitting texel.
-_FIT_TEXEL_STRIDE = 2
 #: Samples per block of the scorer's streamed products and error sums (fixed: the sums do
 #: not depend on the number of CPUs).
 _SCORE_BLOCK = 256
@@ -63,6 +82,7 @@ def choose_domain(source, texels, k: int, options) -> tuple[Domain, BasisFit | N
     domain, fit, scores = resolve_domain(source, texels, k, options)
     if scores is not None:
         log.info("domain: " + ", ".join(f"{n} {s['encoded']:.2f} % enc / {s['linear']:.2f} % lin"
+                                        + (f" (fine {s['fine']['score']:.3f})" if "fine" in s else "")
                                         for n, s in scores.items()) + f" -> {domain.name}")
     if not domain.is_linear:
         source.set_domain(domain)
@@ -93,13 +113,34 @@ def resolve_domain(source, texels, k: int, options) -> tuple[Domain, BasisFit | 
         return LINEAR, None, None
     if options.solver == "paper":
         return encoding_domain(source.btf), None, None
-    scores, fits = score_domains(source, texels, k, options)
+    return choose_by_scores(source, texels, k, options)
+
+
+def choose_by_scores(source, texels, k: int, options, candidates=AUTO_CANDIDATES) -> tuple[Domain, None, dict]:
+    """The coarse pass over ``candidates``, then the fine pass over those within
+    :data:`TIE_MARGIN` of the coarse best (see the module docstring).
+
+    Returns (the winner, None, scores): {name: {"encoded", "linear", "score"}} of the first pass
+    for every candidate (the coarse one, or the fine one for a small input), and under
+    ``"fine"`` the fine pass's for the candidates it scored again (the winner is the best of
+    those when there are any).
+    """
+    coarse = source.btf.n_samples >= COARSE_MIN_SAMPLES and len(texels.fit) >= COARSE_MIN_TEXELS
+    scores, fits = score_domains(source, texels, k, options, candidates, strides=COARSE if coarse else FINE)
     best = min(scores, key=lambda name: scores[name]["score"])
+    close = [dom for dom, _ in fits.values() if scores[dom.name]["score"] <= scores[best]["score"] + TIE_MARGIN]
+    if coarse and len(close) > 1:
+        fine, _ = score_domains(source, texels, k, options, close, strides=FINE)
+        best = min(fine, key=lambda name: fine[name]["score"])
+        scores = {name: dict(entry, fine=fine[name]) if name in fine else entry for name, entry in scores.items()}
     return fits[best][0], None, scores
 
 
-def score_domains(source, texels, k: int, options, candidates=AUTO_CANDIDATES) -> tuple[dict, dict]:
-    """Unquantised held-out error of each candidate's basis (see the module docstring).
+def score_domains(source, texels, k: int, options, candidates=AUTO_CANDIDATES, *,
+                  strides: tuple = FINE) -> tuple[dict, dict]:
+    """Unquantised held-out error of each candidate's basis (see the module docstring), on
+    every ``strides[0]``-th sample, ``strides[1]``-th fitting texel and ``strides[2]``-th
+    evaluation texel.
 
     Streams over blocks of samples (``_SCORE_BLOCK`` rows, on one thread each): the scorer
     holds the fitting columns in the candidate's domain and the evaluation texels' file
@@ -117,10 +158,13 @@ def score_domains(source, texels, k: int, options, candidates=AUTO_CANDIDATES) -
     # block (one table lookup per value for integer files: :meth:`~.source._Source.curves_in`).
     x_raw = source.raw_columns(texels.fit)                                       # (S, 3 n) stored
     y_raw = source.raw_columns(texels.evaluation)                                # (S, 3 m) stored
+    sample_stride, texel_stride, eval_stride = strides
+    if eval_stride > 1:
+        y_raw = np.ascontiguousarray(y_raw.reshape(S, -1, 3)[:, ::eval_stride]).reshape(S, -1)
     linear = source.curves_in(LINEAR)
     to_file = color.processor(btf.working_space, btf.color_space, btf.ocio_config)
     codes = _Codes(to_file, btf.bit_depth)
-    scored = np.arange(0, S, _SCORE_STRIDE)
+    scored = np.arange(0, S, sample_stride)
     blocks = [scored[a:a + _SCORE_BLOCK] for a in range(0, len(scored), _SCORE_BLOCK)]
     truth = in_threads(lambda rows: linear(y_raw[rows]), blocks)                # scored rows, working space
     truth_codes = in_threads(codes, truth)
@@ -128,11 +172,11 @@ def score_domains(source, texels, k: int, options, candidates=AUTO_CANDIDATES) -
     enc_total = sum(codes.total(c) for c in truth_codes)
     del truth
     scores, fits = {}, {}
-    # The candidates are fitted on the scored samples only (every other one) and every other
-    # fitting texel: a quarter of the columns the compress fits, so the four candidates cost
-    # about one fit; the compress then fits the winner's basis on all of them.  One buffer
-    # holds the candidate's columns (0.14 GB at UBO2014's size).
-    half = x_raw[scored].reshape(len(scored), -1, 3)[:, ::_FIT_TEXEL_STRIDE]
+    # The candidates are fitted on the scored samples only and a subsample of the fitting
+    # texels (fine: a quarter of the columns the compress fits, so the four candidates cost
+    # about one fit; coarse: a sixteenth); the compress then fits the winner's basis on all of
+    # them.  One buffer holds the candidate's columns (fine: 0.14 GB at UBO2014's size).
+    half = x_raw[scored].reshape(len(scored), -1, 3)[:, ::texel_stride]
     x_dom = np.empty((len(scored), 3 * half.shape[1]), np.float32)
     local = np.cumsum([0] + [len(rows) for rows in blocks])              # block b: rows local[b]..local[b + 1]
     # Only the first probe_k vectors are scored: fitting more (a budget's 500) costs ~1.7x

@@ -168,14 +168,19 @@ class TileProjector:
             if self.ks[0]:
                 accs[0] += np.matmul(self.panels[0][tile], y, out=self._scratch.get("p", (self.ks[0], 3 * n)))
         else:
-            y = np.matmul(self.mix, x.reshape(-1, 3).T)                  # (3, t n): planar
+            # Plane by plane (t, n), only the planes projected on some vector (and all three
+            # to measure energy): a plane is one row of the mix, one OpenCV transform.
+            energy = 0.0
             for j, kj in enumerate(self.ks):
+                if not kj and not self.energy:
+                    continue
+                y = color.mix_channel(x, self.mix[j], out=self._scratch.get("y", (t, n)))
                 if kj:
-                    accs[j] += np.matmul(self.panels[j][tile], y[j].reshape(t, n), out=self._scratch.get("p", (kj, n)))
-        if self.energy:
-            flat = y.reshape(1, -1)
-            return float(np.einsum("ij,ij->", flat, flat, dtype=np.float64))
-        return None
+                    accs[j] += np.matmul(self.panels[j][tile], y, out=self._scratch.get("p", (kj, n)))
+                if self.energy:
+                    energy += _energy(y)
+            return energy if self.energy else None
+        return _energy(y) if self.energy else None
 
     def partial(self, s0: int, raw: np.ndarray) -> TilePartial:
         """The tile of samples s0.. of one texel block alone: :meth:`accumulate` into zeros."""
@@ -194,6 +199,12 @@ class TileProjector:
         for j, kj in enumerate(self.ks):
             if kj:
                 coeff[:kj, a:b, j] += acc[j]
+
+
+def _energy(y: np.ndarray) -> float:
+    """||y||^2 of a float32 array, summed in float64."""
+    flat = y.reshape(1, -1)
+    return float(np.einsum("ij,ij->", flat, flat, dtype=np.float64))
 
 
 class ShardSums:
