@@ -29,6 +29,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import usdbtf  # noqa: F401,E402  (before numpy: pins the numeric platform, usdbtf.numeric)
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "pipeline"))

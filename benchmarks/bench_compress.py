@@ -32,6 +32,7 @@ import sys
 import time
 from pathlib import Path
 
+import usdbtf  # noqa: F401,E402  (before numpy: pins the numeric platform, usdbtf.numeric)
 import numpy as np
 
 from common import (OUT, REPO, cli_command, fmt_bytes, folder_bytes, format_machine, machine_info, run_repeated,

@@ -25,6 +25,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import usdbtf  # noqa: F401,E402  (before numpy: pins the numeric platform, usdbtf.numeric)
 import numpy as np
 
 from common import format_machine, machine_info

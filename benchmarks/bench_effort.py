@@ -18,6 +18,7 @@ import sys
 import time
 from dataclasses import replace
 
+import usdbtf  # noqa: F401,E402  (before numpy: pins the numeric platform, usdbtf.numeric)
 import numpy as np
 
 from common import format_machine, machine_info, median

@@ -33,6 +33,7 @@ import sys
 import time
 from pathlib import Path
 
+import usdbtf  # noqa: F401,E402  (before numpy: pins the numeric platform, usdbtf.numeric)
 import numpy as np
 
 from common import OUT, cli_command, format_machine, machine_info, timestamp, write_json

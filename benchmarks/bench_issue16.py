@@ -30,6 +30,7 @@ import sys
 import time
 from pathlib import Path
 
+import usdbtf  # noqa: F401,E402  (before numpy: pins the numeric platform, usdbtf.numeric)
 import numpy as np
 
 HERE = Path(__file__).resolve().parent

@@ -17,6 +17,7 @@ import statistics
 import sys
 import time
 
+import usdbtf  # noqa: F401,E402  (before numpy: pins the numeric platform, usdbtf.numeric)
 import numpy as np
 
 from common import format_machine, machine_info

@@ -42,6 +42,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+import usdbtf  # noqa: F401,E402  (before numpy: pins the numeric platform, usdbtf.numeric)
 import numpy as np
 
 from common import OUT, cli_command, format_machine, machine_info, run_repeated, time_call, timestamp, write_json

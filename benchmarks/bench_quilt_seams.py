@@ -31,6 +31,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+import usdbtf  # noqa: F401,E402  (before numpy: pins the numeric platform, usdbtf.numeric)
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "pipeline"))

@@ -64,6 +64,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import usdbtf  # noqa: F401,E402  (before numpy: pins the numeric platform, usdbtf.numeric)
 import numpy as np
 from common import OUT, format_machine, machine_info, median, timestamp, write_json
 

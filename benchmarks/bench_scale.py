@@ -42,6 +42,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+import usdbtf  # noqa: F401,E402  (before numpy: pins the numeric platform, usdbtf.numeric)
 import numpy as np
 
 from common import OUT, cli_command, fmt_bytes, format_machine, machine_info, median, run_measured, timestamp, \

@@ -40,6 +40,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import usdbtf  # noqa: F401,E402  (before numpy: pins the numeric platform, usdbtf.numeric)
 import numpy as np
 
 from common import REPO, format_machine, machine_info

@@ -18,6 +18,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+import usdbtf  # noqa: F401,E402  (before numpy: pins the numeric platform, usdbtf.numeric)
 import numpy as np
 
 from bench_compress import gemm_baseline

@@ -23,6 +23,7 @@ import sys
 import tempfile
 import zlib
 
+import usdbtf  # noqa: F401,E402  (before numpy: pins the numeric platform, usdbtf.numeric)
 import numpy as np
 from bench_rectify import LIN709, psnr
 from common import format_machine, machine_info, median

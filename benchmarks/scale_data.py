@@ -29,6 +29,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+import usdbtf  # noqa: F401,E402  (before numpy: pins the numeric platform, usdbtf.numeric)
 import numpy as np
 
 from usdbtf import __version__, color, jsontext, synth

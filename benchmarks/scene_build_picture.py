@@ -20,6 +20,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+import usdbtf  # noqa: F401,E402  (before numpy: pins the numeric platform, usdbtf.numeric)
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
