@@ -324,6 +324,24 @@ def face_neighbours(faces_welded: np.ndarray) -> np.ndarray:
     return out.reshape(F, 3)
 
 
+def chart_border_edges(welded: np.ndarray, face_chart: np.ndarray, neighbours: np.ndarray | None = None):
+    """The mesh edges between two charts, each once: (f, i, g, ja, jb), arrays of length E.
+
+    Edge i of face f (its corners i, i + 1) borders face g of another chart (f < g); ja and jb
+    are g's corners at the same two vertices (g's corner order may differ).
+
+    welded : (F, 3) vertex ids welded by position (:func:`weld`); face_chart : (F,) chart per
+    face; neighbours : :func:`face_neighbours` of ``welded`` when the caller has it."""
+    neighbours = face_neighbours(welded) if neighbours is None else neighbours
+    f, i = np.nonzero(neighbours >= 0)
+    g = neighbours[f, i]
+    cross = (face_chart[f] != face_chart[g]) & (f < g)
+    f, i, g = f[cross], i[cross], g[cross]
+    ja = np.argmax(welded[g] == welded[f, i][:, None], axis=1)
+    jb = np.argmax(welded[g] == welded[f, (i + 1) % 3][:, None], axis=1)
+    return f, i, g, ja, jb
+
+
 def degenerate_triangles(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """(F,) bool: triangles without area -- repeated or collinear corners (twice the area at
     most 1e-12 of the longest edge squared, so rounding does not hide them)."""

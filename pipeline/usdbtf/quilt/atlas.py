@@ -28,7 +28,7 @@ import numpy as np
 
 from ..compress.format import CompressedBTF
 from ..errors import BTFError
-from ..mesh import Mesh, face_neighbours, weld
+from ..mesh import Mesh, chart_border_edges, face_neighbours, weld
 from ..raster import barycentrics, pixel_barycentrics, rasterize, st_to_texels
 from ..unwrap import UnwrapResult, read_unwrap
 from .core import QuiltOptions, QuiltResult, prepare_source, quilt_record
@@ -332,18 +332,10 @@ def chart_border_error(positions: np.ndarray, layer: Mesh, neighbours: np.ndarra
     layer : the unwrapped mesh (per-corner st, charts) of the atlas ``positions`` (H, W) covers."""
     H, W = positions.shape
     corner_xy = corner_texels(layer, W, H)
-    f, i = np.nonzero(neighbours >= 0)
-    g = neighbours[f, i]
-    cross = (layer.charts[f] != layer.charts[g]) & (f < g)
-    f, i, g = f[cross], i[cross], g[cross]
+    f, i, g, ja, jb = chart_border_edges(weld(layer.points)[layer.triangles], layer.charts, neighbours)
     if not len(f):
         return 0.0
-    welded = weld(layer.points)[layer.triangles]
     a_f, b_f = corner_xy[f, i], corner_xy[f, (i + 1) % 3]
-    va, vb = welded[f, i], welded[f, (i + 1) % 3]
-    # The same two vertices in g (its corner order may differ).
-    ja = np.argmax(welded[g] == va[:, None], axis=1)
-    jb = np.argmax(welded[g] == vb[:, None], axis=1)
     a_g, b_g = corner_xy[g, ja], corner_xy[g, jb]
     n = np.maximum(1, np.ceil(np.linalg.norm(b_f - a_f, axis=1)).astype(np.int64))
     edge = np.repeat(np.arange(len(f)), n)

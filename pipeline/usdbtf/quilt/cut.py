@@ -18,9 +18,8 @@ box) with this cut alone, at the same quilting time; `benchmarks/RESULTS.md` has
 
 A dynamic program over the strip's rows (B of them, a vector operation over the columns each),
 any column to any column, the vertical pairs' cost summed against an indicator of the columns
-between two cuts.  Features are image
-features (:func:`~.features.image_features`): squared distances are image differences summed over
-every (view, light) sample.
+between two cuts.  Features are image features (:func:`~.features.image_features`): squared
+distances are image differences summed over every (view, light) sample.
 """
 from __future__ import annotations
 

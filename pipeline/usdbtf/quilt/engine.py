@@ -4,9 +4,10 @@ The canvas is a position map: for every output texel, the flat index ``y * Ws + 
 source texel it copies (-1 while empty).  Blocks are placed in raster order over a grid;
 each is the source block whose features best match what is already on the canvas under
 the block (any filled texel, including fixed "ghost" texels a caller put there), chosen at
-random among those within ``tolerance`` of the best, then cut into its placed neighbours
-where the neighbour pairs the cut creates differ least (:mod:`.cut`).  Working on positions, not values, means one pass decides the
-output of every coefficient texture (and every (view, light) image) at once.
+random among those within ``tolerance`` of the best, then cut into its placed neighbours where
+the neighbour pairs the cut creates differ least (:mod:`.cut`).  Working on positions, not
+values, means one pass decides the output of every coefficient texture (and every (view,
+light) image) at once.
 """
 from __future__ import annotations
 

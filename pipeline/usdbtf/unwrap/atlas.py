@@ -177,17 +177,26 @@ def make_atlas(mesh: Mesh, density: float, *, max_resolution: int = 4096, paddin
         raise UsageError(f"{mesh.source}: cannot fit the atlas into {max_resolution} texels without making the "
                          f"texture more than {1 / MIN_TEXEL_SCALE:g}x coarser than measured; lower the density or "
                          "raise --max-resolution")
+    vmap, faces, texels, face_chart = xatlas_charts(atlas)
+    side = max(int(atlas.width), int(atlas.height))
+    return Atlas(vmap, faces, texels / side, face_chart, side, side, float(density * scale), float(scale), "xatlas")
+
+
+def xatlas_charts(atlas) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A generated one-mesh ``xatlas.Atlas`` as arrays: (vmap (M,) input vertex of each output
+    vertex, faces (F, 3), texel positions (M, 2), face_chart (F,)).
+
+    xatlas's uv, like st, has v up for counter-clockwise faces; positions are in texels of its
+    width x height.  Callers divide them by the larger side: the atlas is made square, st scaled
+    into its corner, so texels are square in st too and usdbtf's own output passes --keep-uvs
+    (which reads UVs as laid on a square texture) when a scene brings it back."""
     vmap, faces, uv = atlas.get_mesh(0)
+    faces = np.asarray(faces, np.int64)
     face_chart = np.zeros(len(faces), np.int64)
     for c in range(atlas.get_mesh_chart_count(0)):
         face_chart[np.asarray(atlas.get_mesh_chart(0, c).faces, np.int64)] = c
-    # xatlas uv, like st, has v up for counter-clockwise faces.  The atlas is made square, st
-    # scaled into its corner: texels are then square in st too, so usdbtf's own output passes
-    # --keep-uvs (which reads UVs as laid on a square texture) when a scene brings it back.
-    side = max(int(atlas.width), int(atlas.height))
-    st = np.asarray(uv, np.float64) * np.array([atlas.width, atlas.height], np.float64) / side
-    return Atlas(np.asarray(vmap, np.int64), np.asarray(faces, np.int64), st, face_chart,
-                 side, side, float(density * scale), float(scale), "xatlas")
+    texels = np.asarray(uv, np.float64) * np.array([atlas.width, atlas.height], np.float64)
+    return np.asarray(vmap, np.int64), faces, texels, face_chart
 
 
 def uv_problems(mesh: Mesh, width: int = 512) -> str | None:

@@ -30,7 +30,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..mesh import face_neighbours, weld
+from ..mesh import chart_border_edges, weld
+from .atlas import xatlas_charts
 
 log = logging.getLogger(__name__)
 
@@ -62,17 +63,9 @@ def chart_turns(points: np.ndarray, faces: np.ndarray, st_texels: np.ndarray, fa
         texture space to its direction in chart b's.  |value| / total length near 1: one
         consistent turn along the border.
     """
-    welded = weld(points)[faces]
-    neighbours = face_neighbours(welded)
-    f, i = np.nonzero(neighbours >= 0)
-    g = neighbours[f, i]
-    cross = (face_chart[f] != face_chart[g]) & (f < g)
-    f, i, g = f[cross], i[cross], g[cross]
+    f, i, g, ja, jb = chart_border_edges(weld(points)[faces], face_chart)
     if not len(f):
         return {}
-    va, vb = welded[f, i], welded[f, (i + 1) % 3]
-    ja = np.argmax(welded[g] == va[:, None], axis=1)
-    jb = np.argmax(welded[g] == vb[:, None], axis=1)
     e_f = st_texels[faces[f, (i + 1) % 3]] - st_texels[faces[f, i]]
     e_g = st_texels[faces[g, jb]] - st_texels[faces[g, ja]]
     turn = np.arctan2(e_g[:, 1], e_g[:, 0]) - np.arctan2(e_f[:, 1], e_f[:, 0])
@@ -110,9 +103,10 @@ def _pair_alignment(z1: complex, z2: complex, length: float, k: int) -> float:
     return C0 * length + C1 * (z1 * 1j ** k).real + C2 * (z2 * 1j ** (2 * k)).real
 
 
-def _alignment(turns: dict, quarter: np.ndarray) -> float:
-    """Sum over borders of length x w(turn after turning chart c by quarter[c] x 90 degrees)."""
-    return float(sum(_pair_alignment(*w, int(quarter[b] - quarter[a])) for (a, b), w in _edge_weight(turns).items()))
+def _alignment(weights: dict, quarter: np.ndarray) -> float:
+    """Sum over borders of length x w(turn after turning chart c by quarter[c] x 90 degrees).
+    weights : :func:`_edge_weight` of the turns."""
+    return float(sum(_pair_alignment(*w, int(quarter[b] - quarter[a])) for (a, b), w in weights.items()))
 
 
 def best_quarter_turns(turns: dict, n_charts: int, chart_area: np.ndarray) -> np.ndarray:
@@ -125,13 +119,14 @@ def best_quarter_turns(turns: dict, n_charts: int, chart_area: np.ndarray) -> np
     if not turns:
         return quarter
     charts = sorted({c for pair in turns for c in pair})
+    weights = _edge_weight(turns)
     if len(charts) <= EXACT_CHARTS:
         rest = charts[1:]
-        best, best_score = quarter.copy(), _alignment(turns, quarter)
+        best, best_score = quarter.copy(), _alignment(weights, quarter)
         for combo in itertools.product(range(4), repeat=len(rest)):
             trial = np.zeros(n_charts, np.int64)
             trial[rest] = combo
-            score = _alignment(turns, trial)
+            score = _alignment(weights, trial)
             if score > best_score + 1e-12:
                 best, best_score = trial, score
         # Keep the largest chart as it was: turn everything by its inverse (alignment is unchanged).
@@ -139,7 +134,7 @@ def best_quarter_turns(turns: dict, n_charts: int, chart_area: np.ndarray) -> np
         best[charts] = (best[charts] - best[largest]) % 4
         return best
     adjacency: dict = {}
-    for (a, b), (z1, z2, length) in _edge_weight(turns).items():
+    for (a, b), (z1, z2, length) in weights.items():
         adjacency.setdefault(a, []).append((b, (z1, z2, length)))
         adjacency.setdefault(b, []).append((a, (np.conj(z1), np.conj(z2), length)))
 
@@ -233,8 +228,8 @@ def aligned_share(turns: dict, quarter: np.ndarray) -> float:
 
 def _pack(texels: np.ndarray, faces: np.ndarray, padding: int):
     """Pack charts given in texel units with xatlas, without rotating or scaling them, into a
-    square atlas (xatlas chooses where each chart goes; the chart is moved there as it is).  Returns (vmap (M,), faces (F, 3), st (M, 2) in [0, 1], face_chart (F,),
-    width, height)."""
+    square atlas (xatlas chooses where each chart goes; the chart is moved there as it is).
+    Returns (vmap (M,), faces (F, 3), st (M, 2) in [0, 1], face_chart (F,), width, height)."""
     import xatlas
 
     atlas = xatlas.Atlas()
@@ -247,12 +242,7 @@ def _pack(texels: np.ndarray, faces: np.ndarray, padding: int):
     pack.bilinear = True
     pack.resolution = 0
     atlas.generate(xatlas.ChartOptions(), pack)
-    vmap, new_faces, uv = atlas.get_mesh(0)
-    face_chart = np.zeros(len(new_faces), np.int64)
-    for c in range(atlas.get_mesh_chart_count(0)):
-        face_chart[np.asarray(atlas.get_mesh_chart(0, c).faces, np.int64)] = c
-    vmap, new_faces = np.asarray(vmap, np.int64), np.asarray(new_faces, np.int64)
-    placed = np.asarray(uv, np.float64) * np.array([atlas.width, atlas.height], np.float64)
+    vmap, new_faces, placed, face_chart = xatlas_charts(atlas)
     # xatlas rounds each chart's extent up to whole texels, scaling it by up to ~1.5 %: take only
     # where it put the chart (its lowest corner) and move the chart there unscaled, so every edge
     # keeps its length in texels (the density) and the chart still fits its slot.
@@ -266,7 +256,6 @@ def _pack(texels: np.ndarray, faces: np.ndarray, padding: int):
     vertex_chart = np.zeros(len(vmap), np.int64)
     vertex_chart[new_faces.ravel()] = corner_chart
     moved = mine + (low_placed - low_mine)[vertex_chart]
-    # A square atlas: st then has square texels too, as on the user's own square UV layouts
-    # (a 263 x 299 atlas would read as 1.14x stretched in st to anything assuming that).
+    # A square atlas (see xatlas_charts; a 263 x 299 one would read as 1.14x stretched).
     side = max(int(atlas.width), int(atlas.height), int(np.ceil(moved.max())))
     return vmap, new_faces, np.clip(moved / side, 0.0, 1.0), face_chart, side, side
