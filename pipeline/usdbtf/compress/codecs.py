@@ -31,7 +31,7 @@ from ..errors import BTFError
 from ..imageio import encode_image, memory_file, read_image
 from .options import CODEC_NAMES
 
-__all__ = ["Codec", "CODECS", "get_codec", "Stored", "quantize_uniform", "quantize_minmax", "quantize_half",
+__all__ = ["Codec", "CODECS", "get_codec", "codec_map", "Stored", "quantize_uniform", "quantize_minmax", "quantize_half",
            "memory_file", "to_planar"]
 
 
@@ -165,6 +165,13 @@ class Codec:
                      self.lossless, self.planar)
 
     @property
+    def forkable(self) -> bool:
+        """True when this format's files may be encoded and decoded in forked processes
+        (:func:`codec_map`): not OpenEXR, whose process-wide thread pool a forked child
+        inherits without its threads (an EXR write or read there can deadlock)."""
+        return "exr" not in (self.ext, self.basis_ext)
+
+    @property
     def effort(self) -> int | None:
         """JPEG XL effort of the coefficient textures (None for other formats)."""
         return self.attributes.get("jpegxl:effort")
@@ -216,6 +223,15 @@ if tuple(CODECS) != CODEC_NAMES:
 def to_planar(pixels: np.ndarray) -> np.ndarray:
     """(H, W, 3) -> (H, 3W, 1): the three channels side by side (``jxlp``'s file layout)."""
     return np.ascontiguousarray(np.concatenate([pixels[:, :, c] for c in range(pixels.shape[2])], axis=1)[:, :, None])
+
+
+def codec_map(codec: Codec, fn, items) -> list:
+    """``[fn(x) for x in items]`` for image encodes or decodes in ``codec``: in forked processes
+    where the codec allows (OpenImageIO holds the GIL while it codes, so threads would run one
+    at a time), else on threads.  The bytes do not depend on where they were coded."""
+    from .parallel import in_processes, in_threads
+
+    return (in_processes if codec.forkable else in_threads)(fn, items)
 
 
 def get_codec(name: str) -> Codec:

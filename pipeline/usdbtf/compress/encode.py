@@ -9,9 +9,8 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from .codecs import Codec, Stored, get_codec
-from .parallel import in_threads
-from .format import CompressedBTF, EncodedTextures, decode_basis, encode_basis, encoder, truncate
+from .codecs import Codec, Stored, codec_map, get_codec
+from .format import CompressedBTF, EncodedTextures, decode_basis, encode_basis, encoded_textures, encoder, truncate
 
 __all__ = ["encode", "truncate_encoded"]
 
@@ -30,13 +29,11 @@ def encode(cbtf: CompressedBTF) -> CompressedBTF:
     textures and basis as decoded from those bytes.  ``cbtf`` is not changed.
     """
     codec = encoder(cbtf)
-    # The basis image (one large image, the longest single encode) first, in the same pool
-    # as the coefficient textures: it no longer runs alone on one core after them.
-    jobs = [lambda: encode_basis(cbtf)] + [lambda st=st: codec.encode(st, "data") for st in cbtf.coefficients]
-    basis_data, *data = in_threads(lambda job: job(), jobs)
+    enc = encoded_textures(cbtf)
+    basis_data, data = enc.basis, enc.coefficients
     if not codec.lossless:
         cbtf = replace(cbtf, coefficients=[Stored(px, st.scale, st.bias)
-                                           for px, st in zip(in_threads(Codec.decode, data), cbtf.coefficients)])
+                                           for px, st in zip(codec_map(codec, Codec.decode, data), cbtf.coefficients)])
     return _with_basis(cbtf, data, basis_data)
 
 

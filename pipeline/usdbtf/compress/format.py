@@ -42,9 +42,8 @@ import numpy as np
 from .. import __version__, jsontext
 from ..errors import BTFError
 from ..sampling import Sampling
-from .codecs import Codec, Stored, get_codec
+from .codecs import Codec, Stored, codec_map, get_codec
 from .domain import LINEAR, Domain
-from .parallel import in_threads
 from ..numeric import single_blas_thread
 
 __all__ = ["FORMAT", "METADATA", "CompressedBTF", "EncodedTextures", "write_textures", "write_metadata",
@@ -296,13 +295,13 @@ def decode_basis(data: bytes, cbtf: CompressedBTF) -> np.ndarray:
 
 def encoded_textures(cbtf: CompressedBTF) -> EncodedTextures:
     """The bytes of every texture of ``cbtf``: ``cbtf.encoded`` when it still describes
-    ``cbtf``, else encoded now (in threads, :func:`.parallel.in_threads`)."""
+    ``cbtf``, else encoded now (the basis first, all in one pool: :func:`.codecs.codec_map`)."""
     if cbtf.encoded is not None and cbtf.encoded.describes(cbtf):
         return cbtf.encoded
     codec = encoder(cbtf)
-    coeff = tuple(in_threads(lambda st: codec.encode(st, "data"), cbtf.coefficients))
-    return EncodedTextures(cbtf.codec, encode_basis(cbtf), coeff,
-                           (cbtf.basis.pixels, *(st.pixels for st in cbtf.coefficients)))
+    jobs = [lambda: encode_basis(cbtf)] + [lambda st=st: codec.encode(st, "data") for st in cbtf.coefficients]
+    basis, *coeff = codec_map(codec, lambda job: job(), jobs)
+    return EncodedTextures(cbtf.codec, basis, tuple(coeff), (cbtf.basis.pixels, *(st.pixels for st in cbtf.coefficients)))
 
 
 def write_textures(cbtf: CompressedBTF, folder: Path) -> dict:

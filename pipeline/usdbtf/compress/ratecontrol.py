@@ -20,7 +20,7 @@ import numpy as np
 
 from ..errors import BTFError
 from . import ratedist
-from .parallel import in_threads
+from .codecs import codec_map
 from .decorrelate import planes_in_use
 from .encode import encode, truncate_encoded
 from .evaluate import HeldOut, held_out_error
@@ -230,8 +230,10 @@ def _probe_codec_factors(table, f: Factorisation, k: int, step: float, options: 
     probe = np.unique(np.linspace(0, k - 1, min(k, 12)).round().astype(int))
     cbtf = quantise(f, k, step, options)
     codec = encoder(cbtf)
-    coeff_bytes = sum(len(d) for d in in_threads(lambda i: codec.encode(cbtf.coefficients[i], "data"), probe))
-    basis_bytes = len(encode_basis(cbtf))
+    # The basis (the longest encode) first, in the same pool as the probed textures.
+    jobs = [lambda: encode_basis(cbtf)] + [lambda i=i: codec.encode(cbtf.coefficients[i], "data") for i in probe]
+    basis_bytes, *coeff_bytes = (len(d) for d in codec_map(codec, lambda job: job(), jobs))
+    coeff_bytes = sum(coeff_bytes)
     overhead = len(probe) * ratedist.FILE_OVERHEAD_BYTES  # the model adds it unscaled
     fc = max(coeff_bytes - overhead, 1.0) / max(float(table.coeff_bytes[probe, j].sum()), 1.0)
     fb = basis_bytes / max(float(table.basis_bytes[:k, j].sum()), 1.0)
