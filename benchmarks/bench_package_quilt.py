@@ -109,7 +109,7 @@ def child_write(textures: str, width: int, height: int, scratch: str, out_json: 
     import OpenImageIO as oiio
 
     from usdbtf.imageio import encode_image, write_encoded
-    from usdbtf.usd.textures import encode_in_threads
+    from usdbtf.usd.textures import encode_in_workers
 
     jobs = []
     for path in sorted(Path(textures).rglob("*.png")):
@@ -140,7 +140,7 @@ def child_write(textures: str, width: int, height: int, scratch: str, out_json: 
         write(job)
     serial = time.perf_counter() - t
     t = time.perf_counter()
-    encode_in_threads(write, enumerate(jobs), "write")      # a file per thread on every CPU, as package encodes
+    encode_in_workers(write, enumerate(jobs), "write")      # a file per worker on every CPU, as package encodes
     threaded = time.perf_counter() - t
     shutil.rmtree(scratch)
     Path(out_json).write_text(json.dumps({"serial": serial, "threaded": threaded, "files": len(jobs),

@@ -25,7 +25,7 @@ import threading
 
 from ..numeric import one_blas_thread
 
-__all__ = ["cpu_count", "in_threads", "in_processes", "forks_safely", "thread_map", "one_blas_thread", "rows_gemm",
+__all__ = ["cpu_count", "in_threads", "in_processes", "iter_processes", "forks_safely", "thread_map", "one_blas_thread", "rows_gemm",
            "gemm_row_cuts", "rows_apply"]
 
 
@@ -77,17 +77,24 @@ def in_processes(fn, items, *, processes: int | None = None) -> list:
     Code whose libraries keep threads that a fork loses (OpenEXR's process-wide pool) must
     not come here (:attr:`.codecs.Codec.forkable`).
     """
+    return list(iter_processes(fn, items, processes=processes))
+
+
+def iter_processes(fn, items, *, processes: int | None = None):
+    """:func:`in_processes` as an iterator: each result as soon as it and those before it are
+    done (for a progress bar); the workers end when it is exhausted or closed."""
     from concurrent.futures import ProcessPoolExecutor
 
     items = list(items)
     workers = min(len(items), processes or cpu_count())
     if workers <= 1 or not forks_safely():
-        return [fn(x) for x in items]
+        yield from (fn(x) for x in items)
+        return
     _FORKED_JOB["job"] = (fn, items)
     try:
         # The pool forks all its workers at the first submit, before it starts any thread.
         with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"), initializer=_forked_init) as pool:
-            return list(pool.map(_forked_call, range(len(items))))
+            yield from pool.map(_forked_call, range(len(items)))
     finally:
         _FORKED_JOB.pop("job", None)
 

@@ -228,6 +228,10 @@ class Pages(Sequence):
     def __len__(self) -> int:
         return len(self._plan)
 
+    def dtype(self, i: int) -> np.dtype:
+        """The dtype of page ``i`` (its packs'), without building it."""
+        return self._packs[self._plan[i][0]].dtype
+
     def __getitem__(self, i):
         if isinstance(i, slice):
             return [self[j] for j in range(*i.indices(len(self)))]

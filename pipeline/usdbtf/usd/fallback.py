@@ -79,7 +79,7 @@ def add_maps(maps: SvbrdfMaps, textures, ocio_config: str | None = None, names=t
     ``texels`` (a :class:`usdbtf.quilt.texels.QuiltTexels`): ``maps`` are those of its compact
     source texels, and the encoded pixels are gathered through its index (encoding is per
     texel, so this is the encoding of the gathered maps)."""
-    from .textures import DATA, encode_in_threads
+    from .textures import DATA, encode_in_workers
 
     encoded = {name: pixels for name, pixels in encode_maps(maps, ocio_config).items() if name in names}
 
@@ -88,7 +88,7 @@ def add_maps(maps: SvbrdfMaps, textures, ocio_config: str | None = None, names=t
         space = COLOUR_ENCODING if MAP_FILES[name][1] == "srgb" else DATA
         return encode_image(pixels, "png", color_space=space, attributes={"png:compressionLevel": 9})
 
-    files = encode_in_threads(encode, encoded, "fallback maps")
+    files = encode_in_workers(encode, encoded, "fallback maps")
     return {name: textures.add(f"{FALLBACK_DIR}/{MAP_FILES[name][0]}", data, MAP_FILES[name][1])
             for name, data in zip(encoded, files)}
 

@@ -89,7 +89,7 @@ def add_gpu_textures(cbtf: CompressedBTF, textures, lods=(), *, texels=None) -> 
     from ..compress.format import cross_layout
     from ..imageio import encode_image
     from ..render.core import default_wrap
-    from .textures import encode_in_threads
+    from .textures import encode_in_workers
 
     if cross_layout(cbtf.sampling) is None:
         return None
@@ -111,8 +111,11 @@ def add_gpu_textures(cbtf: CompressedBTF, textures, lods=(), *, texels=None) -> 
         return ".png", encode_image(pixels, "png", color_space="data",
                                     attributes={"png:compressionLevel": 6, "oiio:UnassociatedAlpha": 1}), "unorm"
 
-    # Each thread builds its page and encodes it: a few atlas-sized pages in memory at once.
-    encoded = encode_in_threads(lambda p: encode(layout.pages[p]), range(len(layout.pages)), "GPU pages")
+    # Each worker builds its page and encodes it: a few atlas-sized pages in memory at once.
+    # Forked workers only for 8-bit pages (PNG): the others are written as OpenEXR.
+    pages_range = range(len(layout.pages))
+    encoded = encode_in_workers(lambda p: encode(layout.pages[p]), pages_range, "GPU pages",
+                                forkable=all(layout.pages.dtype(p) == np.uint8 for p in pages_range))
     pages = [textures.add(f"{GPU_DIR}/{shaders.page_name(p)}{suffix}", data, kind)
              for p, (suffix, data, kind) in enumerate(encoded)]
     document = materialx_document(Path(tables).name, [Path(name).name for name in pages], layout.k)

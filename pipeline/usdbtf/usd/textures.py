@@ -32,16 +32,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ..compress.codecs import get_codec
+from ..compress.codecs import codec_map, get_codec
 from ..compress.format import CompressedBTF, basis_file, coefficient_file, encoded_textures
-from ..compress.parallel import cpu_count, in_threads
+from ..compress.parallel import cpu_count, iter_processes
 from ..errors import BTFError
 from ..imageio import decode_image, encode_image, native_stderr_captured, oiio_error, write_encoded
 from ..progress import track
 from .formats import TEXTURE_FORMATS
 
 __all__ = ["DATA", "PORTABLE", "TEXTURE_FORMATS", "USDZ_FORMATS", "Texture", "TextureSet", "png_as_data",
-           "portable_bytes", "package_textures", "encode_in_threads"]
+           "portable_bytes", "package_textures", "encode_in_workers"]
 
 log = logging.getLogger(__name__)
 
@@ -98,16 +98,27 @@ def portable_bytes(data: bytes, suffix: str, where: str) -> tuple[bytes, str]:
     return encode_image(pixels, "png", color_space=DATA, attributes={"png:compressionLevel": 6}), ".png"
 
 
-def encode_in_threads(encode, items, label: str) -> list:
-    """``[encode(x) for x in items]`` on the CPUs' threads, in the order of ``items``, with a
-    progress bar ``label``: for the atlas-sized textures of a package (GPU packs, fallback
-    maps), whose encoding is its longest step on a large mesh.  OIIO's encoders release the
-    GIL while they compress; the bytes do not depend on the threads."""
+def encode_in_workers(encode, items, label: str, *, forkable: bool = True) -> list:
+    """``[encode(x) for x in items]`` over the CPUs, in the order of ``items``, with a progress
+    bar ``label``: for the atlas-sized textures of a package (GPU packs, fallback maps), whose
+    encoding is its longest step on a large mesh.  OpenImageIO holds the GIL while it encodes,
+    so the encodes run in forked processes (:func:`~usdbtf.compress.parallel.iter_processes`);
+    on threads when ``forkable`` is false (``encode`` writes OpenEXR, whose thread pool does
+    not survive a fork).  The bytes do not depend on where they were encoded."""
+    items = list(items)
+    if forkable:
+        results = iter_processes(encode, items)
+    else:
+        results = _threads_in_order(encode, items)
+    return list(track(results, label, len(items), logger=log))
+
+
+def _threads_in_order(fn, items):
+    """``fn`` over ``items`` on the CPUs' threads, results in order as they come."""
     from concurrent.futures import ThreadPoolExecutor
 
-    items = list(items)
     with ThreadPoolExecutor(max(1, min(cpu_count(), len(items)))) as pool:
-        return list(track(pool.map(encode, items), label, len(items), logger=log))
+        yield from pool.map(fn, items)
 
 
 def package_textures(cbtf: CompressedBTF, textures: "TextureSet") -> tuple[str, list[str]]:
@@ -129,7 +140,7 @@ def package_textures(cbtf: CompressedBTF, textures: "TextureSet") -> tuple[str, 
         # The asset's coefficient textures are RGB (H, W, 3), what every shader samples: the
         # planar files are re-laid out from their codes, losslessly, as PNG.
         png = get_codec("png")
-        blobs, ext = in_threads(lambda st: png.encode(st, "data"), cbtf.coefficients), ".png"
+        blobs, ext = codec_map(png, lambda st: png.encode(st, "data"), cbtf.coefficients), ".png"
     coeffs = []
     for i, blob in enumerate(blobs):
         rel = Path(coefficient_file(codec, i))
