@@ -171,7 +171,12 @@ def _blocked(values, steps, rates, bits, err, last, threads):
     large = np.where(small.all(axis=1), J, np.argmin(small, axis=1))
     zero = (vmin == 0) & (vmax == 0)                        # error and entropy 0 at every step
     last[zero] = J - 1
+    # Up to step flat[i] row i quantises to one symbol: entropy 0, no need to divide.  Rows
+    # are grouped by it (most such steps first), so that in a block those rows lead.
+    one = span == 1
+    flat = np.where(one.all(axis=1), J, np.argmin(one, axis=1))
     rows = np.flatnonzero(~zero)
+    rows = rows[np.argsort(-flat[rows], kind="stable")]
     term = np.zeros(n + 1)                                  # -p log2 p of a bin counting c symbols
     p = np.arange(1, n + 1) / n
     term[1:] = -p * np.log2(p)
@@ -187,7 +192,7 @@ def _blocked(values, steps, rates, bits, err, last, threads):
         until = np.full(m, J)                               # each row's first step not measured exactly
         spans = np.zeros(J, np.int64)
         act = np.arange(m)
-        sp_b, lo_b, wide_b = span[ids], lo[ids], wide[ids]
+        sp_b, lo_b, wide_b, flat_b = span[ids], lo[ids], wide[ids], flat[ids]
         stop_at, int32_at = inexact[ids].min(), large[ids].min()
         stop = J
         for j in range(J):
@@ -201,32 +206,41 @@ def _blocked(values, steps, rates, bits, err, last, threads):
                 break
             spans[j] = total
             d = steps[j]
-            tq = np.divide(v, d, out=t[:a])
+            f = int(np.count_nonzero(flat_b > j))           # rows 0..f-1: one symbol (lo * d)
+            if f:
+                ee = np.subtract(v[:f], (lo_b[:f, j] * d)[:, None], out=t[:f])
+                np.multiply(ee, ee, out=ee)
+                er[j, act[:f]] = ee.sum(axis=1)
+            lst[act] = j
+            if f == a:
+                continue                                    # entropies 0, every row kept
+            vr, sr = v[f:], sp[f:]
+            tq = np.divide(vr, d, out=t[f:a])
             np.rint(tq, out=tq)
             if rates:
-                shift = np.cumsum(sp) - sp - lo_b[:, j]     # row i's symbols go to bins offset_i..
-                s = sym[:a]
+                shift = np.cumsum(sr) - sr - lo_b[f:, j]    # row i's symbols go to bins offset_i..
+                s = sym[f:a]
                 if j < int32_at:
                     np.copyto(s, tq, casting="unsafe")
                     np.add(s, shift.astype(np.int32)[:, None], out=s)
                 else:
                     np.copyto(s, tq + shift[:, None], casting="unsafe")
-                counts = np.bincount(s.ravel(), minlength=total)
+                counts = np.bincount(s.ravel(), minlength=int(sr.sum()))
             np.multiply(tq, d, out=tq)
-            np.subtract(v, tq, out=tq)
+            np.subtract(vr, tq, out=tq)
             np.multiply(tq, tq, out=tq)
-            er[j, act] = tq.sum(axis=1)
-            lst[act] = j
+            er[j, act[f:]] = tq.sum(axis=1)
             if rates:
-                h = np.bincount(np.repeat(np.arange(a), sp), weights=term[counts], minlength=a) * n
-                b[j, act] = h
+                h = np.bincount(np.repeat(np.arange(a - f), sr), weights=term[counts], minlength=a - f) * n
+                b[j, act[f:]] = h
                 keep = h <= limit
             else:
-                keep = ~wide_b[:, j]
+                keep = ~wide_b[f:, j]
             if not keep.all():
+                keep = np.concatenate([np.ones(f, bool), keep])
                 until[act[~keep]] = j + 1
                 act, v = act[keep], v[keep]
-                sp_b, lo_b, wide_b = sp_b[keep], lo_b[keep], wide_b[keep]
+                sp_b, lo_b, wide_b, flat_b = sp_b[keep], lo_b[keep], wide_b[keep], flat_b[keep]
                 if act.size:
                     stop_at, int32_at = inexact[ids[act]].min(), large[ids[act]].min()
         return b.T, er.T, lst, until, spans, stop
