@@ -221,8 +221,10 @@ def test_symbols_past_exact_integers():
     v[3] = 2.0**40
     v[4] = 2.0**53 + 2 * rng.integers(-3, 4, 256)   # symbols past 2^52 (int64 still holds them)
     v[5, ::2] = 1e4
+    v[7] = 60 - 2.0**31 + 10 * rng.standard_normal(256)   # shifting these into their bins passes int32
     for rates in (True, False):
         _check_rows(np.delete(v, 4, axis=0), steps, rates)
+        _check_rows(v[[5, 7]], steps, rates)
         _check_rows(v, steps, rates)
     v[6] = 2.0**70                                   # past int64: whatever the reference does, the same
     for rates in (True, False):

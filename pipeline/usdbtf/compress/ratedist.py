@@ -139,7 +139,7 @@ def _stepwise(values, steps, rates, bits, err, last, active, start):
 
 _BLOCK_ROWS = 64     # rows per block of _blocked (fixed: the numbers do not depend on it)
 _EXACT = 2.0**52     # symbols below this size are the same as floats and as int64
-_INT32 = 2.0**31     # symbols below this size are cast to int32 before they are shifted
+_INT32 = 2.0**30     # symbols below this size are cast to int32 before they are shifted (by < 2^31)
 
 
 def _blocked(values, steps, rates, bits, err, last, threads):
@@ -188,7 +188,6 @@ def _blocked(values, steps, rates, bits, err, last, threads):
         t = np.empty((m, n))
         sym = np.empty((m, n), np.int32)
         b, er = np.zeros((J, m)), np.zeros((J, m))          # per step: one row of the block's numbers
-        lst = np.full(m, -1)
         until = np.full(m, J)                               # each row's first step not measured exactly
         spans = np.zeros(J, np.int64)
         act = np.arange(m)
@@ -211,7 +210,6 @@ def _blocked(values, steps, rates, bits, err, last, threads):
                 ee = np.subtract(v[:f], (lo_b[:f, j] * d)[:, None], out=t[:f])
                 np.multiply(ee, ee, out=ee)
                 er[j, act[:f]] = ee.sum(axis=1)
-            lst[act] = j
             if f == a:
                 continue                                    # entropies 0, every row kept
             vr, sr = v[f:], sp[f:]
@@ -243,7 +241,7 @@ def _blocked(values, steps, rates, bits, err, last, threads):
                 sp_b, lo_b, wide_b, flat_b = sp_b[keep], lo_b[keep], wide_b[keep], flat_b[keep]
                 if act.size:
                     stop_at, int32_at = inexact[ids[act]].min(), large[ids[act]].min()
-        return b.T, er.T, lst, until, spans, stop
+        return b.T, er.T, np.minimum(until, stop) - 1, until, spans, stop
 
     blocks = [rows[i:i + _BLOCK_ROWS] for i in range(0, len(rows), _BLOCK_ROWS)]
     threads = cpu_count() if threads is None else threads
