@@ -301,3 +301,18 @@ def test_error_and_high_rate_values():
     assert err[0, -1] == pytest.approx(4000 * steps[-1] ** 2 / 12)
     assert bits[0, -1] - bits[0, -3] == pytest.approx(4000.0)
     assert np.all(np.diff(bits, axis=1) >= -1e-9)           # finer steps never need fewer bits
+
+
+def test_empty():
+    """No components: an empty table like the reference's; no texels: the reference's error."""
+    coeff, basis = np.zeros((0, 50, 3), np.float32), np.zeros((20, 0), np.float32)
+    _check(coeff, basis, 5.0, subsample=16)
+    _check(coeff, basis, None, subsample=16, rates=False)
+    coeff, basis = _inputs(40, 1, 30)
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
+        warnings.simplefilter("ignore")
+        for rates in (True, False):
+            with pytest.raises(Exception) as want:
+                _ref_rd_table(coeff[:, :0], basis, None, rates=rates)
+            with pytest.raises(want.type):
+                ratedist.rd_table(coeff[:, :0], basis, None, rates=rates)

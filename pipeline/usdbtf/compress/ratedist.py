@@ -273,17 +273,23 @@ def _energy_and_rows(coeff, sub, threads):
     (the tests check it against one call over all), so only a C-contiguous array is cut."""
     k, n, _ = coeff.shape
     rows = np.empty((k, 3, len(sub)))
-    cut = coeff.flags.c_contiguous and k > _SLAB
+    dense = coeff.flags.c_contiguous
+    cut = dense and k > _SLAB
     if not cut:
         energy = np.einsum("kpc,kpc->k", coeff, coeff, dtype=np.float64)
     else:
         energy = np.empty(k)
 
+    flat = (3 * sub[None, :] + np.arange(3)[:, None]).ravel()  # the sampled (texel, channel)s, channel-major
+
     def slab(i):
         part = coeff[i:i + _SLAB]
         if cut:
             energy[i:i + _SLAB] = np.einsum("kpc,kpc->k", part, part, dtype=np.float64)
-        rows[i:i + _SLAB] = part[:, sub].transpose(0, 2, 1)
+        if dense:
+            rows[i:i + _SLAB] = np.take(part.reshape(len(part), -1), flat, axis=1).reshape(len(part), 3, len(sub))
+        else:
+            rows[i:i + _SLAB] = part[:, sub].transpose(0, 2, 1)
 
     in_threads(slab, range(0, k, _SLAB), threads=cpu_count() if threads is None else threads)
     return energy, rows.reshape(3 * k, len(sub))
