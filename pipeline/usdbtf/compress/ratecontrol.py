@@ -8,7 +8,8 @@ Four cases, one function each, all returning an encoded :class:`CompressedBTF` (
 * ``--max-bytes``: (k, step) from the rate-distortion table (:mod:`.ratedist`), its entropy
   model calibrated on a probe encode, then trailing components dropped while over budget;
 * ``--target-error``: (k, step) with the fewest modelled bytes, re-chosen up to three times
-  against the held-out error of what was really stored;
+  against the held-out error of what is stored (a lossless codec's quantised values: only
+  the chosen attempt is encoded);
 * quantisers without a step (min-max, half floats): k alone meets the request.
 
 Every encode happens in memory; nothing is written.
@@ -20,7 +21,7 @@ import numpy as np
 
 from ..errors import BTFError
 from . import ratedist
-from .codecs import codec_map
+from .codecs import codec_map, get_codec
 from .decorrelate import planes_in_use
 from .encode import encode, truncate_encoded
 from .evaluate import HeldOut, held_out_error
@@ -183,19 +184,29 @@ def _target_error(f: Factorisation, options: CompressOptions, table, held: HeldO
     truth = held.truth
     N = truth.size * f.btf.n_pixels / len(held.texels)
     rms_target = options.target_error / 100.0 * float(truth.mean()) / _GAUSS_L1_OVER_RMS
+    # A lossless codec stores the quantised values exactly: each attempt's held-out error is
+    # measured on the quantised textures and only the chosen attempt is encoded (an effort-7
+    # encode of every texture per attempt was most of the time of a run).  A lossy codec's
+    # error depends on its decode: every attempt is encoded.
+    lossless = get_codec(options.codec_name).lossless
     scale, factor = 1.0, 1.0
     for attempt in range(1, 5):
         k, step = ratedist.choose_for_error(table, rms_target**2 * N * scale, factor)
         predicted = _modelled(table, k, step, factor)
-        cbtf = _attempt(f, options, k, step, attempt)
-        model = _prediction(predicted, cbtf.info["bytes"]["payload"])
+        cbtf = quantise(f, k, step, options) if lossless else _attempt(f, options, k, step, attempt)
         err = held_out_error(cbtf, held, domain=options.error_domain).percent
-        # The model's error in the target's units (the Gaussian L1/RMS ratio the choice assumed).
-        model.update(target_percent=options.target_error, measured_percent=err, predicted_percent=100.0 *
-                     np.sqrt(predicted["sqerr"] / N) * _GAUSS_L1_OVER_RMS / float(truth.mean()))
+        if lossless:
+            log.info(f"  try {attempt}: k = {k}, step = {step:.4g}, {err:.3f} % held-out")
         if err <= options.target_error:
             break
         scale *= (options.target_error / err) ** 2   # the L1/RMS ratio of these errors differs from Gaussian
+    if lossless:
+        cbtf = encode(cbtf)
+        log.info(f"  encoded try {attempt}: {cbtf.info['bytes']['payload']} bytes")
+    model = _prediction(predicted, cbtf.info["bytes"]["payload"])
+    # The model's error in the target's units (the Gaussian L1/RMS ratio the choice assumed).
+    model.update(target_percent=options.target_error, measured_percent=err, predicted_percent=100.0 *
+                 np.sqrt(predicted["sqerr"] / N) * _GAUSS_L1_OVER_RMS / float(truth.mean()))
     return cbtf, {"mode": "target_error", "k": k, "step": step, "bytes": cbtf.info["bytes"]["payload"],
                   "estimated_percent": err, "model": model, "attempts": attempt}
 
