@@ -38,7 +38,7 @@ from .options import CompressOptions
 from .parallel import in_threads, one_blas_thread
 from .projection import project
 from .quantise import Factorisation
-from .ratecontrol import rate_control, step_for_k
+from .ratecontrol import PlanCapped, rate_control, step_for_k
 from .select_source import load_source
 from .texels import sample_texels
 
@@ -96,18 +96,26 @@ def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
         # before the projection: then the projection can skip what the step would zero out.
         sampled, outside = sampled_coefficients(fit, source.to_working, held.truth, btf.n_pixels)
         color = np.eye(3) if opts.solver == "paper" else color_decorrelation(sampled)
-        step, planes = step_for_k(rotate_color(sampled, color), fit.basis, outside, btf.n_pixels, opts)
+        # --target-error's plan needs the truth's mean (its scale), held out before the fit's
+        # coefficients are sampled.
+        truth_mean = float(held.truth.mean()) if opts.target_error is not None else None
+        step, planes = step_for_k(rotate_color(sampled, color), fit.basis, outside, btf.n_pixels, opts, truth_mean)
         del sampled
         clock.lap("color")
-        # Only the components some plane is projected on (under --max-bytes, what the sampled
-        # model could choose: the rest would be zeros for rate control to skip).
-        basis = fit.basis[:, :max(planes)]
-        coeff, energy = project(source, basis, color, planes, energy=opts.target_error is not None)
-        clock.lap("project")
-        if energy is None:   # not measured: the coefficients' energy plus the estimate outside the basis
-            energy = float(np.einsum("kpc,kpc->", coeff, coeff, dtype=np.float64)) + outside
-        cbtf, choice = rate_control(Factorisation(btf, basis, coeff, color, energy, planes, step, domain),
-                                    opts, held)
+        try:
+            chosen = _project_and_choose(source, btf, fit.basis, color, planes, step, domain, outside, opts, held,
+                                         clock)
+        except PlanCapped as capped:
+            chosen, why = None, str(capped)   # (out of the handler: its traceback holds the coefficients)
+        if chosen is None:
+            # The plan capped --target-error's choice: every fitted component on every plane,
+            # and rate control again (the choice of a run that never planned).
+            clock.lap("capped")
+            planes = (fit.basis.shape[1],) * 3
+            log.info(f"  {why}: projecting all {planes[0]} components on every colour plane")
+            chosen = _project_and_choose(source, btf, fit.basis, color, planes, step, domain, outside, opts, held,
+                                         clock)
+        cbtf, choice = chosen
         if scores is not None:
             choice["domain_scores"] = scores
         clock.lap("encode")
@@ -119,6 +127,23 @@ def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
     log.info(f"k = {result.k}, {result.info['bytes']['payload']} bytes, estimated error "
         f"{result.info['estimated_error']['linear']['percent']:.3f} % ({clock})")
     return result
+
+
+def _project_and_choose(source, btf: BTF, fit_basis: np.ndarray, color: np.ndarray, planes: tuple, step, domain,
+                        outside: float, opts: CompressOptions, held, clock: "_Clock") -> tuple[CompressedBTF, dict]:
+    """Project ``planes`` components per colour plane, then rate control (:func:`.ratecontrol.rate_control`,
+    which raises :class:`.ratecontrol.PlanCapped` when the plan caps a ``--target-error``
+    choice)."""
+    # Only the components some plane is projected on (under a budget, what the sampled
+    # model could choose: the rest would be zeros for rate control to skip).
+    basis = fit_basis[:, :max(planes)]
+    coeff, energy = project(source, basis, color, planes, energy=opts.target_error is not None)
+    clock.lap("project")
+    if energy is None:   # not measured: the coefficients' energy plus the estimate outside the basis
+        energy = float(np.einsum("kpc,kpc->", coeff, coeff, dtype=np.float64)) + outside
+    f = Factorisation(btf, basis, coeff, color, energy, planes, step, domain)
+    del coeff
+    return rate_control(f, opts, held, k_fit=fit_basis.shape[1])
 
 
 def _side_by_side(first, second) -> tuple:

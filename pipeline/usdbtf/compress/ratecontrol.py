@@ -9,7 +9,8 @@ Four cases, one function each, all returning an encoded :class:`CompressedBTF` (
   model calibrated on a probe encode, then trailing components dropped while over budget;
 * ``--target-error``: (k, step) with the fewest modelled bytes, re-chosen up to three times
   against the held-out error of what is stored (a lossless codec's quantised values: only
-  the chosen attempt is encoded);
+  the chosen attempt is encoded); a choice the projection's plan caps is refused
+  (:class:`PlanCapped`: the caller projects everything and asks again);
 * quantisers without a step (min-max, half floats): k alone meets the request.
 
 Every encode happens in memory; nothing is written.
@@ -31,13 +32,13 @@ from .quantise import Factorisation, quantise
 
 log = logging.getLogger(__name__)
 
-__all__ = ["rate_control", "step_for_k"]
+__all__ = ["PlanCapped", "rate_control", "step_for_k"]
 
 _GAUSS_L1_OVER_RMS = float(np.sqrt(2 / np.pi))  # E|e| / rms(e) for Gaussian errors
 
 
 def step_for_k(sampled: np.ndarray, basis: np.ndarray, outside: float, n_pixels: int,
-               options: CompressOptions) -> tuple[float | None, tuple]:
+               options: CompressOptions, truth_mean: float | None = None) -> tuple[float | None, tuple]:
     """The quantisation step and colour planes for a plain k, from sampled texels.
 
     Chosen before the projection, so the projection can skip the components the step would
@@ -52,12 +53,15 @@ def step_for_k(sampled: np.ndarray, basis: np.ndarray, outside: float, n_pixels:
     outside : energy outside the basis (working space, linear units squared), whole image.
     n_pixels : P, texels per image.
     options : ``k``, ``seed``, and whether a budget or another quantiser applies.
+    truth_mean : mean of the held-out truth (``float(held.truth.mean())``, working domain):
+        ``--target-error``'s scale.  Without it ``--target-error`` projects every component.
 
     Returns
     -------
     step : float, or None when rate control chooses later (budget) or there is no step.
     planes : (k_0, k_1, k_2) components to project per colour plane (all k_fit with no step;
-        under ``--max-bytes``, what the sampled model could choose: :func:`budget_planes`).
+        under a budget, what the sampled model could choose: :func:`budget_planes`,
+        :func:`error_planes`).
     """
     k_fit = basis.shape[1]
     if options.quantiser != "uniform":
@@ -66,10 +70,14 @@ def step_for_k(sampled: np.ndarray, basis: np.ndarray, outside: float, n_pixels:
     if options.max_bytes is not None:
         return None, budget_planes(sampled, basis, inside + outside, n_pixels, options)
     if options.budgeted:
-        # --target-error: every fitted component.  Its model (an L1 target through a Gaussian
-        # RMS ratio, in the working domain) is too loose to bound the projection: capped at
-        # 1.25 k + 16, a linear-light target on metal_flakes stopped at k 51 above the target.
-        return None, (k_fit,) * 3
+        # --target-error.  Its model (an L1 target through a Gaussian RMS ratio, in the working
+        # domain) is loose: capped at 1.25 k + 16 with nothing behind it, a linear-light target
+        # on metal_flakes stopped at k 51 above the target.  Hence a wider margin, and rate
+        # control refuses a choice the plan caps (:class:`PlanCapped`): the caller then
+        # projects every fitted component and chooses again.
+        if truth_mean is None:
+            return None, (k_fit,) * 3
+        return None, error_planes(sampled, basis, inside + outside, n_pixels, options, truth_mean)
     k = min(options.target_k, k_fit)
     table = ratedist.rd_table(sampled[:k], basis[:, :k], inside + outside, n_texels=n_pixels, seed=options.seed,
                               rates=False)
@@ -112,7 +120,51 @@ def budget_planes(sampled: np.ndarray, basis: np.ndarray, total: float, n_pixels
     return planes
 
 
-def rate_control(f: Factorisation, options: CompressOptions, held: HeldOut) -> tuple[CompressedBTF, dict]:
+#: Under ``--target-error`` the projection covers the sampled model's k times this, plus
+#: :data:`_ERROR_PLAN_EXTRA` (wider than a byte budget's: the error model is looser), each
+#: plane down to half the model's step.  A choice that reaches the plan is not taken
+#: (:class:`PlanCapped`).
+_ERROR_PLAN_MARGIN = 1.5
+_ERROR_PLAN_EXTRA = 32
+
+
+def error_planes(sampled: np.ndarray, basis: np.ndarray, total: float, n_pixels: int, options: CompressOptions,
+                 truth_mean: float) -> tuple:
+    """Components per colour plane to project under ``--target-error``: what the
+    rate-distortion model on the sampled texels' coefficients chooses for the target, with a
+    margin (:func:`budget_planes` for a byte budget).
+
+    The target converts to a squared error as rate control's first attempt does (percent of
+    the truth's mean, through the Gaussian L1/RMS ratio, over S x 3 x P values).  The sampled
+    coefficients (fitting texels, in-sample) overstate the late components, as under a byte
+    budget: the model errs towards more components; what it misses (the error's real L1/RMS ratio, an
+    error domain other than the working one) rate control's later attempts correct, within
+    the margin or through :class:`PlanCapped`.
+
+    Returns
+    -------
+    (k_0, k_1, k_2) : components to project per plane.
+    """
+    k_fit = basis.shape[1]
+    table = ratedist.rd_table(sampled, basis, total, n_texels=n_pixels, seed=options.seed)
+    N = basis.shape[0] * 3 * n_pixels
+    rms_target = options.target_error / 100.0 * truth_mean / _GAUSS_L1_OVER_RMS
+    k, step = ratedist.choose_for_error(table, rms_target**2 * N, 1.0)
+    k_plan = min(k_fit, int(np.ceil(_ERROR_PLAN_MARGIN * k)) + _ERROR_PLAN_EXTRA)
+    planes = planes_in_use(sampled[:k_plan], step / 2)
+    log.info(f"  sampled model: k = {k}, step = {step:.4g}; projecting {'/'.join(map(str, planes))} components "
+             f"per colour plane of {k_fit}")
+    return planes
+
+
+class PlanCapped(Exception):
+    """``--target-error``'s choice is capped by the components projected (:func:`error_planes`):
+    it reached plane 0's, or the last attempt still missed the target.  The caller projects
+    every fitted component and runs :func:`rate_control` again."""
+
+
+def rate_control(f: Factorisation, options: CompressOptions, held: HeldOut,
+                 k_fit: int | None = None) -> tuple[CompressedBTF, dict]:
     """Choose k (and the step) for ``options``, quantise and encode.
 
     Parameters
@@ -121,6 +173,8 @@ def rate_control(f: Factorisation, options: CompressOptions, held: HeldOut) -> t
     options : ``k``, ``max_bytes`` (bytes of basis + coefficient textures), ``target_error``
         (percent, the paper's metric), ``seed``, and the quantiser.
     held : held-out texels, to check an error target on what is really stored.
+    k_fit : components fitted.  When given and ``f.planes`` projects fewer, a ``--target-error``
+        choice the plan caps raises :class:`PlanCapped` (before its encode).
 
     Returns
     -------
@@ -134,7 +188,8 @@ def rate_control(f: Factorisation, options: CompressOptions, held: HeldOut) -> t
     table = ratedist.rd_table(f.coefficients, f.basis, f.total_energy, seed=options.seed)
     if options.max_bytes is not None:
         return _max_bytes(f, options, table)
-    return _target_error(f, options, table, held)
+    restricted = k_fit is not None and tuple(f.planes) != (k_fit,) * 3
+    return _target_error(f, options, table, held, restricted)
 
 
 def _plain_k(f: Factorisation, options: CompressOptions) -> tuple[CompressedBTF, dict]:
@@ -180,7 +235,8 @@ def _max_bytes(f: Factorisation, options: CompressOptions, table) -> tuple[Compr
                   "codec_factor": {"coefficients": fc, "basis": fb}, "model": model}
 
 
-def _target_error(f: Factorisation, options: CompressOptions, table, held: HeldOut) -> tuple[CompressedBTF, dict]:
+def _target_error(f: Factorisation, options: CompressOptions, table, held: HeldOut,
+                  restricted: bool = False) -> tuple[CompressedBTF, dict]:
     truth = held.truth
     N = truth.size * f.btf.n_pixels / len(held.texels)
     rms_target = options.target_error / 100.0 * float(truth.mean()) / _GAUSS_L1_OVER_RMS
@@ -192,6 +248,9 @@ def _target_error(f: Factorisation, options: CompressOptions, table, held: HeldO
     scale, factor = 1.0, 1.0
     for attempt in range(1, 5):
         k, step = ratedist.choose_for_error(table, rms_target**2 * N * scale, factor)
+        if restricted and k >= f.planes[0]:
+            # Components past plane 0's are zeros here: the choice would be capped.
+            raise PlanCapped(f"try {attempt} chose k = {k}, the {f.planes[0]} components projected")
         predicted = _modelled(table, k, step, factor)
         cbtf = quantise(f, k, step, options) if lossless else _attempt(f, options, k, step, attempt)
         err = held_out_error(cbtf, held, domain=options.error_domain).percent
@@ -200,6 +259,8 @@ def _target_error(f: Factorisation, options: CompressOptions, table, held: HeldO
         if err <= options.target_error:
             break
         scale *= (options.target_error / err) ** 2   # the L1/RMS ratio of these errors differs from Gaussian
+    if restricted and err > options.target_error:
+        raise PlanCapped(f"try {attempt} (k = {k}) still missed the target: {err:.3f} % > {options.target_error} %")
     if lossless:
         cbtf = encode(cbtf)
         log.info(f"  encoded try {attempt}: {cbtf.info['bytes']['payload']} bytes")
