@@ -1,0 +1,161 @@
+"""--target-error's speed-ups, checked against what they must not change.
+
+* A lossless codec: each attempt's held-out error is measured on the quantised textures and
+  only the chosen attempt is encoded (``ratecontrol._target_error``).  The error is the
+  encoded one bit for bit, and the result is that of encoding every attempt.
+* The projection covers what the sampled model needs (``ratecontrol.error_planes``); when
+  rate control's choice reaches the plan, or the last attempt misses the target, every
+  fitted component is projected and rate control runs again (``core.compress``): the result
+  is then that of a run that never planned.
+
+Real compresses of small synthetic materials (169 samples of 32 x 32), a second or two each.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from usdbtf.compress import CompressOptions, compress, core, ratecontrol
+from usdbtf.compress.encode import encode as real_encode
+from usdbtf.manifest import read_manifest
+
+from test_compress import synth_manifest
+
+K_FIT = 169   # the small sampling's 169 samples: every fitted component
+
+
+@pytest.fixture(scope="module")
+def pebbles(tmp_path_factory):
+    return read_manifest(synth_manifest(tmp_path_factory.mktemp("te") / "pebbles32", "small", 32))
+
+
+@pytest.fixture(scope="module")
+def flakes(tmp_path_factory):
+    return read_manifest(synth_manifest(tmp_path_factory.mktemp("te") / "flakes32", "small", 32,
+                                        material="metal_flakes"))
+
+
+@dataclasses.dataclass
+class Run:
+    result: object
+    projected: list = dataclasses.field(default_factory=list)   # planes of each projection
+    encodes: list = dataclasses.field(default_factory=list)     # k of each encode by rate control
+    measured: list = dataclasses.field(default_factory=list)    # k of each held-out measurement
+
+
+def _run(btf, monkeypatch, **options) -> Run:
+    """compress(btf, options), watching the projections, rate control's encodes and its
+    held-out measurements."""
+    run = Run(None)
+    real_project, real_error = core.project, ratecontrol.held_out_error
+
+    def project(source, basis, color, planes, **kw):
+        run.projected.append(tuple(planes))
+        return real_project(source, basis, color, planes, **kw)
+
+    def encode(cbtf):
+        run.encodes.append(cbtf.k)
+        return real_encode(cbtf)
+
+    def held_out_error(cbtf, *a, **kw):
+        run.measured.append(cbtf.k)
+        return real_error(cbtf, *a, **kw)
+
+    with monkeypatch.context() as m:
+        m.setattr(core, "project", project)
+        m.setattr(ratecontrol, "encode", encode)
+        m.setattr(ratecontrol, "held_out_error", held_out_error)
+        run.result = compress(btf, CompressOptions(**options))
+    return run
+
+
+def _unplanned(btf, monkeypatch, **options):
+    """The run without a plan (as before it): every fitted component on every plane."""
+    with monkeypatch.context() as m:
+        m.setattr(ratecontrol, "error_planes", lambda sampled, basis, *a: (basis.shape[1],) * 3)
+        return _run(btf, monkeypatch, **options)
+
+
+def _same_output(a, b):
+    assert a.info["choice"] == b.info["choice"]
+    assert a.info["bytes"] == b.info["bytes"]
+    assert a.encoded.basis == b.encoded.basis and a.encoded.coefficients == b.encoded.coefficients
+    assert a.info["estimated_error"] == b.info["estimated_error"]
+
+
+LINEAR3 = dict(target_error=3.0, error_domain="linear")   # pebbles: 4 attempts, met at the 4th
+
+
+def test_attempts_are_measured_unencoded_and_encoded_once(pebbles, monkeypatch):
+    measured = []
+    real_error = ratecontrol.held_out_error
+
+    def held_out_error(cbtf, held, *a, **kw):
+        e = real_error(cbtf, held, *a, **kw)
+        assert cbtf.encoded is None                      # the quantised textures, not an encode
+        measured.append((e.percent, real_error(real_encode(cbtf), held, *a, **kw).percent))
+        return e
+
+    with monkeypatch.context() as m:
+        m.setattr(ratecontrol, "held_out_error", held_out_error)
+        run = _run(pebbles, monkeypatch, **LINEAR3)
+    choice = run.result.info["choice"]
+    assert choice["attempts"] == 4 and len(measured) == 4
+    assert all(unencoded == encoded for unencoded, encoded in measured)   # bit for bit
+    assert measured[-1][1] == choice["estimated_percent"] <= 3.0
+    assert all(m > 3.0 for m, _ in measured[:-1])
+    assert run.encodes == [choice["k"]]                  # one encode: the chosen attempt's
+    assert choice["model"]["measured_bytes"] == choice["bytes"] == run.result.info["bytes"]["payload"]
+
+    # A codec that is not lossless encodes (and measures) every attempt: the same result.
+    lossy = dataclasses.replace(ratecontrol.get_codec(run.result.codec), lossless=False)
+    with monkeypatch.context() as m:
+        m.setattr(ratecontrol, "get_codec", lambda name: lossy)
+        every = _run(pebbles, monkeypatch, **LINEAR3)
+    assert len(every.encodes) == 4 and every.encodes[-1] == choice["k"]
+    _same_output(run.result, every.result)
+
+
+def test_plan_projects_less_for_the_same_choice(pebbles, monkeypatch):
+    planned = _run(pebbles, monkeypatch, **LINEAR3)
+    unplanned = _unplanned(pebbles, monkeypatch, **LINEAR3)
+    assert unplanned.projected == [(K_FIT,) * 3]
+    assert len(planned.projected) == 1 and planned.result.info["choice"]["planes"] == list(planned.projected[0])
+    k0, k1, k2 = planned.projected[0]
+    assert k0 < K_FIT and k1 < k0 and k2 < k1           # every plane cut (101/41/0 when written)
+    a, b = planned.result.info["choice"], unplanned.result.info["choice"]
+    assert a["k"] == b["k"] < k0 and a["attempts"] == b["attempts"] == 4
+    # The steps come from the coefficients' energy: the projection's rounding differs per plane.
+    assert a["step"] == pytest.approx(b["step"], rel=1e-6)
+    assert a["estimated_percent"] == pytest.approx(b["estimated_percent"], rel=1e-4)
+    assert a["estimated_percent"] <= 3.0
+    assert a["bytes"] == pytest.approx(b["bytes"], rel=2e-3)
+
+
+def test_choice_reaching_the_plan_projects_everything(pebbles, monkeypatch):
+    # A plan of one component: the first attempt's choice reaches it, and is refused before
+    # anything is measured or encoded.
+    monkeypatch.setattr(ratecontrol, "_ERROR_PLAN_MARGIN", 0.0)
+    monkeypatch.setattr(ratecontrol, "_ERROR_PLAN_EXTRA", 1)
+    capped = _run(pebbles, monkeypatch, target_error=4.0)
+    monkeypatch.undo()
+    unplanned = _unplanned(pebbles, monkeypatch, target_error=4.0)
+    assert capped.projected[0][0] == 1 and capped.projected[1:] == [(K_FIT,) * 3]
+    assert unplanned.result.info["choice"]["k"] > 1
+    assert capped.measured == unplanned.measured and capped.encodes == unplanned.encodes == [capped.result.k]
+    _same_output(capped.result, unplanned.result)
+
+
+def test_target_missed_on_the_plan_projects_everything(flakes, monkeypatch):
+    # metal_flakes' encoded 2 %: four attempts miss within the plan (plane 0 all 169, the
+    # others cut): a missed target is not taken on a plan either.
+    capped = _run(flakes, monkeypatch, target_error=2.0)
+    unplanned = _unplanned(flakes, monkeypatch, target_error=2.0)
+    assert len(capped.projected) == 2 and capped.projected[0] != (K_FIT,) * 3 and capped.projected[0][0] == K_FIT
+    assert capped.projected[1] == (K_FIT,) * 3
+    assert len(capped.measured) == 8 and capped.measured[4:] == unplanned.measured
+    assert capped.encodes == unplanned.encodes == [capped.result.k]   # the refused choice was never encoded
+    assert unplanned.result.info["choice"]["attempts"] == 4
+    assert unplanned.result.info["choice"]["estimated_percent"] > 2.0
+    _same_output(capped.result, unplanned.result)
