@@ -97,8 +97,13 @@ def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
         sampled, outside = sampled_coefficients(fit, source.to_working, held.truth, btf.n_pixels)
         color = np.eye(3) if opts.solver == "paper" else color_decorrelation(sampled)
         # --target-error's plan needs the truth's mean (its scale), held out before the fit's
-        # coefficients are sampled.
-        truth_mean = float(held.truth.mean()) if opts.target_error is not None else None
+        # coefficients are sampled.  Its model measures error in the working domain: a plan only
+        # where that is the target's kind (scene-linear targets in the linear domain, targets
+        # on the encoded values in a curve); else the plan is capped (ubo81 metal_flakes with
+        # linear-light targets: both fell back to every component, 1.5-2.4 s lost) and every
+        # component is projected from the start.
+        planned = opts.target_error is not None and (opts.error_domain == "linear") == domain.is_linear
+        truth_mean = float(held.truth.mean()) if planned else None
         step, planes = step_for_k(rotate_color(sampled, color), fit.basis, outside, btf.n_pixels, opts, truth_mean)
         del sampled
         clock.lap("color")
