@@ -25,8 +25,8 @@ import threading
 
 from ..numeric import one_blas_thread
 
-__all__ = ["cpu_count", "in_threads", "in_processes", "iter_processes", "forks_safely", "thread_map", "one_blas_thread", "rows_gemm",
-           "gemm_row_cuts", "rows_apply"]
+__all__ = ["cpu_count", "in_threads", "in_processes", "iter_processes", "forks_safely", "thread_map",
+           "one_blas_thread", "rows_gemm", "gemm_row_cuts", "rows_apply"]
 
 
 def cpu_count() -> int:
