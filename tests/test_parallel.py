@@ -139,9 +139,14 @@ def test_compress_on_one_cpu_writes_the_bytes_of_two(ubo81_btf, tmp_path, option
 
 # -- image codecs in forked processes --------------------------------------------------------------
 _PIDS_PROBE = r"""
-import json, os, usdbtf
+import json, os, time, usdbtf
 from usdbtf.compress.parallel import forks_safely, in_processes
-print(json.dumps([os.getpid(), forks_safely(), in_processes(lambda x: os.getpid(), range(8), processes=2)]))
+
+def pid(x):
+    time.sleep(0.2)      # long enough that both workers take items, however loaded the machine
+    return os.getpid()
+
+print(json.dumps([os.getpid(), forks_safely(), in_processes(pid, range(8), processes=2)]))
 """
 
 
