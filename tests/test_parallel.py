@@ -153,11 +153,12 @@ print(json.dumps([os.getpid(), forks_safely(), in_processes(pid, range(8), proce
 @pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="one CPU: in_processes runs in this process")
 def test_in_processes_runs_in_forked_children():
     """In a fresh interpreter (this one may hold threads from earlier tests, which rightly
-    keep it from forking): the items run in two other processes."""
+    keep it from forking): the items run in other processes (at most two)."""
     proc = subprocess.run([sys.executable, "-c", _PIDS_PROBE], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     parent, safe, pids = json.loads(proc.stdout)
-    assert safe and parent not in pids and len(set(pids)) == 2
+    # Two workers; on a loaded machine one may take every item before the other starts.
+    assert safe and parent not in pids and 1 <= len(set(pids)) <= 2
 
 
 def test_in_processes_closures_order_and_errors():
