@@ -49,7 +49,7 @@ from ..numeric import single_blas_thread
 __all__ = ["FORMAT", "METADATA", "CompressedBTF", "EncodedTextures", "write_textures", "write_metadata",
            "metadata_document", "metadata_text", "read_compressed", "reconstruct", "reconstruct_rows",
            "working_coefficients", "FORMAT_DOMAIN",
-           "working_coefficient_texels", "folder_bytes", "digest_without_platform", "basis_layout", "encode_basis", "decode_basis",
+           "working_coefficient_texels", "folder_bytes", "digest_without_platform", "basis_layout", "encode_basis", "encode_files", "decode_basis",
            "encoded_textures", "basis_to_image", "image_to_basis", "cross_layout", "truncate", "write_basis"]
 
 FORMAT = "btf-compressed/1"
@@ -295,13 +295,22 @@ def decode_basis(data: bytes, cbtf: CompressedBTF) -> np.ndarray:
 
 def encoded_textures(cbtf: CompressedBTF) -> EncodedTextures:
     """The bytes of every texture of ``cbtf``: ``cbtf.encoded`` when it still describes
-    ``cbtf``, else encoded now (the basis first, all in one pool: :func:`.codecs.codec_map`)."""
+    ``cbtf``, else encoded now (:func:`encode_files`)."""
     if cbtf.encoded is not None and cbtf.encoded.describes(cbtf):
         return cbtf.encoded
-    codec = encoder(cbtf)
-    jobs = [lambda: encode_basis(cbtf)] + [lambda st=st: codec.encode(st, "data") for st in cbtf.coefficients]
-    basis, *coeff = codec_map(codec, lambda job: job(), jobs)
+    basis, coeff = encode_files(cbtf)
     return EncodedTextures(cbtf.codec, basis, tuple(coeff), (cbtf.basis.pixels, *(st.pixels for st in cbtf.coefficients)))
+
+
+def encode_files(cbtf: CompressedBTF, indices=None) -> tuple[bytes, list[bytes]]:
+    """(the basis image's bytes, the bytes of coefficient textures ``indices``, default all),
+    encoded in one pool (:func:`.codecs.codec_map`), the basis first: the longest single
+    encode does not run alone on one core after the others."""
+    codec = encoder(cbtf)
+    indices = range(len(cbtf.coefficients)) if indices is None else indices
+    jobs = [lambda: encode_basis(cbtf)] + [lambda i=i: codec.encode(cbtf.coefficients[i], "data") for i in indices]
+    basis, *coeff = codec_map(codec, lambda job: job(), jobs)
+    return basis, coeff
 
 
 def write_textures(cbtf: CompressedBTF, folder: Path) -> dict:

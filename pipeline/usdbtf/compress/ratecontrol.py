@@ -22,11 +22,11 @@ import numpy as np
 
 from ..errors import BTFError
 from . import ratedist
-from .codecs import codec_map, get_codec
+from .codecs import get_codec
 from .decorrelate import planes_in_use
 from .encode import encode, truncate_encoded
 from .evaluate import HeldOut, held_out_error
-from .format import CompressedBTF, encode_basis, encoder
+from .format import CompressedBTF, encode_files
 from .options import CompressOptions
 from .quantise import Factorisation, quantise
 
@@ -113,11 +113,23 @@ def budget_planes(sampled: np.ndarray, basis: np.ndarray, total: float, n_pixels
     k_fit = basis.shape[1]
     table = ratedist.rd_table(sampled, basis, total, n_texels=n_pixels, seed=options.seed)
     k, step = ratedist.choose_for_bytes(table, options.max_bytes, 1.0, _BASIS_FACTOR_PRIOR)
-    k_plan = min(k_fit, int(np.ceil(_PLAN_MARGIN * k)) + _PLAN_EXTRA)
+    return _plan(sampled, k_fit, k, step, _PLAN_MARGIN, _PLAN_EXTRA)
+
+
+def _plan(sampled: np.ndarray, k_fit: int, k: int, step: float, margin: float, extra: int) -> tuple:
+    """Components per colour plane to project for the sampled model's choice (``k``, ``step``):
+    the first ``margin * k + extra`` of the ``k_fit`` fitted, each plane down to half the step."""
+    k_plan = min(k_fit, int(np.ceil(margin * k)) + extra)
     planes = planes_in_use(sampled[:k_plan], step / 2)
     log.info(f"  sampled model: k = {k}, step = {step:.4g}; projecting {'/'.join(map(str, planes))} components "
              f"per colour plane of {k_fit}")
     return planes
+
+
+def _rms_target(options: CompressOptions, truth_mean: float) -> float:
+    """``--target-error`` (percent of the truth's mean, an L1 error) as an RMS error, through the
+    Gaussian L1/RMS ratio."""
+    return options.target_error / 100.0 * truth_mean / _GAUSS_L1_OVER_RMS
 
 
 #: Under ``--target-error`` the projection covers the sampled model's k times this, plus
@@ -148,13 +160,8 @@ def error_planes(sampled: np.ndarray, basis: np.ndarray, total: float, n_pixels:
     k_fit = basis.shape[1]
     table = ratedist.rd_table(sampled, basis, total, n_texels=n_pixels, seed=options.seed)
     N = basis.shape[0] * 3 * n_pixels
-    rms_target = options.target_error / 100.0 * truth_mean / _GAUSS_L1_OVER_RMS
-    k, step = ratedist.choose_for_error(table, rms_target**2 * N, 1.0)
-    k_plan = min(k_fit, int(np.ceil(_ERROR_PLAN_MARGIN * k)) + _ERROR_PLAN_EXTRA)
-    planes = planes_in_use(sampled[:k_plan], step / 2)
-    log.info(f"  sampled model: k = {k}, step = {step:.4g}; projecting {'/'.join(map(str, planes))} components "
-             f"per colour plane of {k_fit}")
-    return planes
+    k, step = ratedist.choose_for_error(table, _rms_target(options, truth_mean)**2 * N, 1.0)
+    return _plan(sampled, k_fit, k, step, _ERROR_PLAN_MARGIN, _ERROR_PLAN_EXTRA)
 
 
 class PlanCapped(Exception):
@@ -239,7 +246,7 @@ def _target_error(f: Factorisation, options: CompressOptions, table, held: HeldO
                   restricted: bool = False) -> tuple[CompressedBTF, dict]:
     truth = held.truth
     N = truth.size * f.btf.n_pixels / len(held.texels)
-    rms_target = options.target_error / 100.0 * float(truth.mean()) / _GAUSS_L1_OVER_RMS
+    rms_target = _rms_target(options, float(truth.mean()))
     # A lossless codec stores the quantised values exactly: each attempt's held-out error is
     # measured on the quantised textures and only the chosen attempt is encoded (an effort-7
     # encode of every texture per attempt was most of the time of a run).  A lossy codec's
@@ -301,11 +308,8 @@ def _probe_codec_factors(table, f: Factorisation, k: int, step: float, options: 
     j = list(table.steps).index(step)
     probe = np.unique(np.linspace(0, k - 1, min(k, 12)).round().astype(int))
     cbtf = quantise(f, k, step, options)
-    codec = encoder(cbtf)
-    # The basis (the longest encode) first, in the same pool as the probed textures.
-    jobs = [lambda: encode_basis(cbtf)] + [lambda i=i: codec.encode(cbtf.coefficients[i], "data") for i in probe]
-    basis_bytes, *coeff_bytes = (len(d) for d in codec_map(codec, lambda job: job(), jobs))
-    coeff_bytes = sum(coeff_bytes)
+    basis, coeff = encode_files(cbtf, probe)
+    basis_bytes, coeff_bytes = len(basis), sum(len(d) for d in coeff)
     overhead = len(probe) * ratedist.FILE_OVERHEAD_BYTES  # the model adds it unscaled
     fc = max(coeff_bytes - overhead, 1.0) / max(float(table.coeff_bytes[probe, j].sum()), 1.0)
     fb = basis_bytes / max(float(table.basis_bytes[:k, j].sum()), 1.0)
