@@ -176,6 +176,34 @@ def test_randomized_basis_deterministic_per_seed():
     assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
 
 
+def test_q_of_applies_householder_q_or_falls_back_for_rank_deficient_data():
+    """randomized_basis applies the final Q as Y (R^-1 w) (no Q formed): the same product as
+    Householder's Q to float64 rounding where R is well conditioned; for a rank-deficient Y
+    (R's diagonal spans more than _R_INVERSE_RANGE) Householder's Q itself."""
+    from usdbtf.compress import linalg
+
+    rng = np.random.default_rng(4)
+    w = rng.standard_normal((40, 7))
+    y = rng.standard_normal((300, 40)) * np.logspace(0, -4, 40)        # condition ~1e4
+    q, r = np.linalg.qr(y)
+    np.testing.assert_allclose(linalg._q_of(y, np.linalg.qr(y, mode="r"))(w), q @ w, atol=1e-11)
+    deficient = np.concatenate([y[:, :20], y[:, :20] @ rng.standard_normal((20, 20))], axis=1)
+    q, r = np.linalg.qr(deficient)
+    assert np.abs(np.diag(r)).min() < np.abs(np.diag(r)).max() / linalg._R_INVERSE_RANGE
+    got = linalg._q_of(deficient, np.linalg.qr(deficient, mode="r"))(w)
+    assert np.isfinite(got).all() and np.array_equal(got, linalg.rows_gemm(q, w))
+
+
+def test_randomized_basis_of_rank_deficient_data_is_orthonormal_and_finite():
+    """Fewer nonzero singular values than vectors asked for (the range finder's R singular):
+    the basis stays finite and orthonormal, with the true singular values first."""
+    u_true, s, _, x = _known_svd(200, 300, [9.0, 4.0, 1.0], seed=6)
+    u, got = randomized_basis(x.astype(np.float32), 10, oversample=6, seed=2)
+    assert np.isfinite(u).all() and np.isfinite(got).all()
+    np.testing.assert_allclose(got[:3], s, rtol=1e-4)
+    np.testing.assert_allclose(u.T.astype(np.float64) @ u, np.eye(u.shape[1]), atol=1e-4)
+
+
 def test_fix_signs_convention():
     u = np.array([[0.1, -3.0, 0.0, 2.0],
                   [-0.9, 1.0, 0.0, -2.0],
