@@ -176,7 +176,7 @@ def test_randomized_basis_deterministic_per_seed():
     assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
 
 
-def test_q_of_applies_householder_q_or_falls_back_for_rank_deficient_data():
+def test_q_times_applies_householder_q_or_falls_back_for_rank_deficient_data():
     """randomized_basis applies the final Q as Y (R^-1 w) (no Q formed): the same product as
     Householder's Q to float64 rounding where R is well conditioned; for a rank-deficient Y
     (R's diagonal spans more than _R_INVERSE_RANGE) Householder's Q itself."""
@@ -186,11 +186,11 @@ def test_q_of_applies_householder_q_or_falls_back_for_rank_deficient_data():
     w = rng.standard_normal((40, 7))
     y = rng.standard_normal((300, 40)) * np.logspace(0, -4, 40)        # condition ~1e4
     q, r = np.linalg.qr(y)
-    np.testing.assert_allclose(linalg._q_of(y, np.linalg.qr(y, mode="r"))(w), q @ w, atol=1e-11)
+    np.testing.assert_allclose(linalg._q_times(y, np.linalg.qr(y, mode="r"), w), q @ w, atol=1e-11)
     deficient = np.concatenate([y[:, :20], y[:, :20] @ rng.standard_normal((20, 20))], axis=1)
     q, r = np.linalg.qr(deficient)
     assert np.abs(np.diag(r)).min() < np.abs(np.diag(r)).max() / linalg._R_INVERSE_RANGE
-    got = linalg._q_of(deficient, np.linalg.qr(deficient, mode="r"))(w)
+    got = linalg._q_times(deficient, np.linalg.qr(deficient, mode="r"), w)
     assert np.isfinite(got).all() and np.array_equal(got, linalg.rows_gemm(q, w))
 
 
