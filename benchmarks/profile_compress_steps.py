@@ -40,7 +40,8 @@ def main(argv=None) -> int:
     from usdbtf.compress.options import CompressOptions
     from usdbtf.io import open_btf
 
-    for module, name in [(ratedist, "rd_table"), (ratecontrol, "_probe_codec_factors"), (ratecontrol, "encode"),
+    for module, name in [(ratedist, "rd_table"), (ratecontrol, "_coefficient_factor"), (ratecontrol, "_basis_factor"),
+                         (ratecontrol, "encode"), (ratecontrol, "encode_coefficients"), (ratecontrol, "encode_first"),
                          (ratecontrol, "quantise"), (ratecontrol, "truncate_encoded"), (domain_choice, "fit_basis"),
                          (core, "fit_source"), (core, "held_out_errors"), (core, "error_curve"),
                          (core, "choose_domain"), (ratecontrol, "held_out_error"), (core, "project"),

@@ -464,6 +464,74 @@ def test_budget_projects_what_the_model_can_choose_and_records_its_prediction(ti
     assert abs(model["bytes_error"]) < 0.25
 
 
+def test_budget_probes_parts_and_encodes_the_basis_once(tiny32, tmp_path, monkeypatch, caplog):
+    """Issue 27: under --max-bytes the probes quantise only the components they encode, with
+    the integers a quantisation of all k gives them; the coefficient textures are encoded
+    once and the basis once more (plus once per trim), for the k their measured bytes leave
+    room for; those bytes are the ones encoding everything at k and truncating gives."""
+    import importlib
+    import logging
+
+    from usdbtf.compress import ratecontrol
+    from usdbtf.compress.encode import encode, encode_coefficients, encode_first, truncate_encoded
+    from usdbtf.compress.quantise import quantise
+
+    encode_module = importlib.import_module("usdbtf.compress.encode")   # the package's `encode` is the function
+    seen, basis_encodes = {}, []
+    probe, encode_basis = ratecontrol._basis_factor, encode_module.encode_basis
+
+    def spied_probe(table, f, k, step, options):
+        seen.update(f=f, k=k, step=step, options=options)
+        return probe(table, f, k, step, options)
+
+    def counted(cbtf):
+        basis_encodes.append(cbtf.k)
+        return encode_basis(cbtf)
+
+    monkeypatch.setattr(ratecontrol, "_basis_factor", spied_probe)
+    monkeypatch.setattr(encode_module, "encode_basis", counted)
+    btf = read_manifest(tiny32)
+    with caplog.at_level(logging.INFO, logger="usdbtf.compress"):
+        c = compress_into(btf, tmp_path / "b", CompressOptions(max_bytes=9000))
+    assert c.info["bytes"]["payload"] <= 9000
+    assert len(basis_encodes) == 1 + caplog.text.count("trimmed to k")
+    assert basis_encodes[-1] == c.k
+
+    f, k, step, options = seen["f"], seen["k"], seen["step"], seen["options"]
+    assert k >= 4
+    whole = quantise(f, k, step, options)
+    idx = np.arange(1, k, 2)
+    part = quantise(ratecontrol._part(f, idx), len(idx), step, options)
+    for i, st in zip(idx, part.coefficients):
+        assert np.array_equal(st.pixels, whole.coefficients[i].pixels)
+        assert np.array_equal(st.bias, whole.coefficients[i].bias) and np.array_equal(st.scale, whole.coefficients[i].scale)
+    def basis_values(stored):                            # (S, k): code * scale + bias per column
+        return stored.pixels[:, :, 0].astype(np.float64) * stored.scale + stored.bias
+
+    assert np.array_equal(basis_values(part.basis), basis_values(whole.basis)[:, idx])
+
+    coefficient_bytes = encode_coefficients(whole)
+    everything = encode(whole)
+    assert coefficient_bytes == everything.encoded.coefficients
+    first = encode_first(whole, k - 2, coefficient_bytes)
+    assert first.encoded.basis == truncate_encoded(everything, k - 2).encoded.basis
+    assert first.info["bytes"]["payload"] == len(first.encoded.basis) + sum(map(len, coefficient_bytes[:k - 2]))
+
+
+def test_room_for_keeps_what_the_measured_textures_and_the_modelled_basis_fit():
+    """The k a budget keeps once the coefficient textures are encoded: their measured bytes plus
+    the modelled basis of that many components and its 1 % margin."""
+    from usdbtf.compress.ratecontrol import _room_for
+
+    coefficient_bytes = [b"x" * 100] * 5
+    basis = np.array([50.0, 100.0, 150.0, 200.0, 250.0])      # modelled basis of 1..5 components
+    # totals with the margin: 150.5, 301, 451.5, 602, 752.5
+    assert _room_for(coefficient_bytes, basis, 753) == 5
+    assert _room_for(coefficient_bytes, basis, 752) == 4
+    assert _room_for(coefficient_bytes, basis, 451) == 2
+    assert _room_for(coefficient_bytes, basis, 10) == 1       # the trim loop refuses it
+
+
 def test_effort_follows_the_mode_same_values_fewer_bytes_at_full(tiny32, tmp_path):
     """A plain k encodes quickly (JPEG XL effort 2/3), --effort full at 7: the same stored
     values, read back from the files, in fewer bytes; budget modes encode at full effort."""

@@ -302,15 +302,19 @@ def encoded_textures(cbtf: CompressedBTF) -> EncodedTextures:
     return EncodedTextures(cbtf.codec, basis, tuple(coeff), (cbtf.basis.pixels, *(st.pixels for st in cbtf.coefficients)))
 
 
-def encode_files(cbtf: CompressedBTF, indices=None) -> tuple[bytes, list[bytes]]:
+def encode_files(cbtf: CompressedBTF, indices=None, *, basis: bool = True) -> tuple[bytes | None, list[bytes]]:
     """(the basis image's bytes, the bytes of coefficient textures ``indices``, default all),
     encoded in one pool (:func:`.codecs.codec_map`), the basis first: the longest single
-    encode does not run alone on one core after the others."""
+    encode does not run alone on one core after the others.  ``basis=False``: the
+    coefficient textures alone, and None for the basis (rate control encodes the basis once
+    it knows how many components the textures' bytes leave room for)."""
     codec = encoder(cbtf)
     indices = range(len(cbtf.coefficients)) if indices is None else indices
-    jobs = [lambda: encode_basis(cbtf)] + [lambda i=i: codec.encode(cbtf.coefficients[i], "data") for i in indices]
-    basis, *coeff = codec_map(codec, lambda job: job(), jobs)
-    return basis, coeff
+    jobs = [lambda i=i: codec.encode(cbtf.coefficients[i], "data") for i in indices]
+    if not basis:
+        return None, codec_map(codec, lambda job: job(), jobs)
+    basis_bytes, *coeff = codec_map(codec, lambda job: job(), [lambda: encode_basis(cbtf)] + jobs)
+    return basis_bytes, coeff
 
 
 def write_textures(cbtf: CompressedBTF, folder: Path) -> dict:

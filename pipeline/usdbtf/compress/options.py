@@ -135,7 +135,7 @@ class CompressOptions:
         return self.k or DEFAULT_K
 
     def fit_k(self, n_samples: int, n_pixels: int) -> int:
-        """Basis vectors to fit for S samples of P texels: ``k`` (default 150, or 300 for the
+        """Basis vectors to fit for S samples of P texels: ``k`` (default 150, or 500 for the
         default solver with a budget, see :data:`BUDGET_K`), at most min(S, 3 P)."""
         default = BUDGET_K if self.budgeted and self.solver == "rsvd" else DEFAULT_K
         return min(self.k or default, n_samples, 3 * n_pixels)

@@ -6,7 +6,9 @@ Four cases, one function each, all returning an encoded :class:`CompressedBTF` (
 * a plain k with the uniform quantiser: the step was chosen on the sampled texels before
   the projection (:func:`step_for_k`); encode once;
 * ``--max-bytes``: (k, step) from the rate-distortion table (:mod:`.ratedist`), its entropy
-  model calibrated on a probe encode, then trailing components dropped while over budget;
+  model calibrated on probe encodes (a dozen coefficient textures, half the basis); the k
+  coefficient textures encoded once, the basis once for the components their measured bytes
+  leave room for, then trailing components dropped while over budget;
 * ``--target-error``: (k, step) with the fewest modelled bytes, re-chosen up to three times
   against the held-out error of what is stored (a lossless codec's quantised values: only
   the chosen attempt is encoded); a choice the projection's plan caps is refused
@@ -17,16 +19,18 @@ Every encode happens in memory; nothing is written.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
+
 import numpy as np
 
 from ..errors import BTFError
 from . import ratedist
 from .codecs import get_codec
 from .decorrelate import planes_in_use
-from .encode import encode, truncate_encoded
+from .encode import encode, encode_coefficients, encode_first, truncate_encoded
 from .evaluate import HeldOut, held_out_error
-from .format import CompressedBTF, encode_files
+from .format import CompressedBTF, encode_basis, encode_files
 from .options import CompressOptions
 from .quantise import Factorisation, quantise
 
@@ -217,18 +221,32 @@ def _attempt(f: Factorisation, options: CompressOptions, k: int, step: float, at
 
 def _max_bytes(f: Factorisation, options: CompressOptions, table) -> tuple[CompressedBTF, dict]:
     budget = options.max_bytes
+    # Calibrate the entropy model on probe encodes: the coefficient textures' factor on a
+    # dozen textures of the uncalibrated choice, then the basis's on every other vector of
+    # the choice that factor gives (the basis's bytes per modelled byte grow with the
+    # vectors' index: probed short of the final k, the basis came out 6 % over its model).
+    # Then encode the chosen k's coefficient textures once, and the basis last, once, for
+    # the components their measured bytes and the calibrated basis model leave room for.
+    # If still over budget, drop trailing components (only the basis is encoded again).
     k, step = ratedist.choose_for_bytes(table, budget, 1.0)
-    # Calibrate the entropy model on a probe encode (a dozen textures + the basis),
-    # then encode once; if still over budget, drop trailing components (energy order:
-    # only the basis image is encoded again).
-    fc, fb = _probe_codec_factors(table, f, min(k, options.k or k), step, options)
+    fc = _coefficient_factor(table, f, min(k, options.k or k), step, options)
+    k, step = ratedist.choose_for_bytes(table, budget, fc, _BASIS_FACTOR_PRIOR)
+    fb = _basis_factor(table, f, min(k, options.k or k), step, options)
     k, step = ratedist.choose_for_bytes(table, 0.995 * budget, fc, fb)
     k = min(k, options.k or k)
     if k >= f.k:
         log.warning(f"  --max-bytes: the choice (k = {k}) reached the {f.k} components projected")
-    predicted = _modelled(table, k, step, fc, fb)
-    cbtf = _attempt(f, options, k, step, 1)
-    model = _prediction(predicted, cbtf.info["bytes"]["payload"])
+    quantised = quantise(f, k, step, options)
+    if get_codec(options.codec_name).lossless:
+        coefficient_bytes = encode_coefficients(quantised)
+        basis_model = fb * np.cumsum(table.basis_bytes[:k, list(table.steps).index(step)])
+        k = _room_for(coefficient_bytes, basis_model, budget)
+        cbtf = encode_first(quantised, k, coefficient_bytes)
+        log.info(f"  basis: the model gave {basis_model[k - 1]:.0f} bytes, the encode {cbtf.info['bytes']['basis']}")
+    else:
+        cbtf = encode(quantised)
+    log.info(f"  try 1: k = {k}, step = {step:.4g}, {cbtf.info['bytes']['payload']} bytes")
+    model = _prediction(_modelled(table, k, step, fc, fb), cbtf.info["bytes"]["payload"])
     while cbtf.info["bytes"]["payload"] > budget:
         k2 = _fit_k_to_budget(cbtf.info["bytes"], k, budget)
         if k2 == 0 or k2 == k:
@@ -240,6 +258,25 @@ def _max_bytes(f: Factorisation, options: CompressOptions, table) -> tuple[Compr
         k = k2
     return cbtf, {"mode": "max_bytes", "k": k, "step": step, "bytes": cbtf.info["bytes"]["payload"],
                   "codec_factor": {"coefficients": fc, "basis": fb}, "model": model}
+
+
+#: Relative error allowed for the calibrated model of the basis image's bytes when the
+#: coefficient textures' bytes are measured: within 0.1-0.9 % on metal_flakes and velvet
+#: at paper scale (the log's "basis: the model gave ..., the encode ...").
+_BASIS_MODEL_MARGIN = 0.01
+
+
+def _room_for(coefficient_bytes, basis_bytes: np.ndarray, budget: int) -> int:
+    """Components to keep of the k encoded coefficient textures: the most, k', whose measured
+    bytes and the modelled basis image of k' components, ``basis_bytes[k' - 1]`` plus
+    :data:`_BASIS_MODEL_MARGIN`, fit ``budget``; at least 1 (the trim loop then refuses a
+    budget one component does not fit).
+
+    basis_bytes : (k,) modelled bytes of the basis image of the first 1..k components.
+    """
+    total = np.cumsum([len(c) for c in coefficient_bytes]) + basis_bytes * (1 + _BASIS_MODEL_MARGIN)
+    fits = np.flatnonzero(total <= budget)
+    return int(fits[-1]) + 1 if len(fits) else 1
 
 
 def _target_error(f: Factorisation, options: CompressOptions, table, held: HeldOut,
@@ -302,18 +339,37 @@ def _fit_k_to_budget(sizes: dict, k: int, budget: int, margin: float = 0.995) ->
     return int(fits[-1]) + 1 if len(fits) else 0
 
 
-def _probe_codec_factors(table, f: Factorisation, k: int, step: float, options: CompressOptions) -> tuple[float, float]:
-    """Measured bytes / entropy-model bytes for coefficient textures and for the basis,
-    from encoding (in memory) ~12 textures spread over the first k and the k-column basis."""
+#: The basis probe encodes the basis image of every other one of the first k vectors: bytes
+#: per modelled byte within 0.13 % of the whole basis's for half of its encode (paper scale,
+#: metal_flakes and velvet; every 4th: 0.16 %, every 6th: 0.41 %;
+#: ``benchmarks/bench_basis_probe.py``).
+_BASIS_PROBE_STRIDE = 2
+
+
+def _part(f: Factorisation, components: np.ndarray) -> Factorisation:
+    """``f`` reduced to some of its components, for a probe: each coefficient texture and each
+    basis column is quantised on its own, so they get the integers a quantisation of all k
+    gives them (the basis image may be 8-bit where all k columns would need 16)."""
+    return dataclasses.replace(f, basis=f.basis[:, components], coefficients=f.coefficients[components])
+
+
+def _coefficient_factor(table, f: Factorisation, k: int, step: float, options: CompressOptions) -> float:
+    """Measured bytes / entropy-model bytes of the coefficient textures, from encoding (in
+    memory) ~12 textures spread over the first k at ``step``."""
     j = list(table.steps).index(step)
     probe = np.unique(np.linspace(0, k - 1, min(k, 12)).round().astype(int))
-    cbtf = quantise(f, k, step, options)
-    basis, coeff = encode_files(cbtf, probe)
-    basis_bytes, coeff_bytes = len(basis), sum(len(d) for d in coeff)
+    _, coeff = encode_files(quantise(_part(f, probe), len(probe), step, options), basis=False)
     overhead = len(probe) * ratedist.FILE_OVERHEAD_BYTES  # the model adds it unscaled
-    fc = max(coeff_bytes - overhead, 1.0) / max(float(table.coeff_bytes[probe, j].sum()), 1.0)
-    fb = basis_bytes / max(float(table.basis_bytes[:k, j].sum()), 1.0)
-    return float(fc), float(fb)
+    return float(max(sum(len(d) for d in coeff) - overhead, 1.0) / max(float(table.coeff_bytes[probe, j].sum()), 1.0))
+
+
+def _basis_factor(table, f: Factorisation, k: int, step: float, options: CompressOptions) -> float:
+    """Measured bytes / entropy-model bytes of the basis image, from encoding (in memory) the
+    basis image of every :data:`_BASIS_PROBE_STRIDE`-th of the first k vectors at ``step``."""
+    j = list(table.steps).index(step)
+    vectors = np.arange(0, k, _BASIS_PROBE_STRIDE)
+    basis = encode_basis(quantise(_part(f, vectors), len(vectors), step, options))
+    return float(len(basis) / max(float(table.basis_bytes[vectors, j].sum()), 1.0))
 
 
 def _by_k_only(f: Factorisation, options: CompressOptions, held: HeldOut) -> tuple[CompressedBTF, dict]:
