@@ -494,7 +494,7 @@ def test_budget_probes_parts_and_encodes_the_basis_once(tiny32, tmp_path, monkey
     with caplog.at_level(logging.INFO, logger="usdbtf.compress"):
         c = compress_into(btf, tmp_path / "b", CompressOptions(max_bytes=9000))
     assert c.info["bytes"]["payload"] <= 9000
-    assert len(basis_encodes) == 1 + caplog.text.count("trimmed to k")
+    assert len(basis_encodes) == 1 + caplog.text.count("room for k =") + caplog.text.count("trimmed to k")
     assert basis_encodes[-1] == c.k
 
     f, k, step, options = seen["f"], seen["k"], seen["step"], seen["options"]
@@ -530,6 +530,22 @@ def test_room_for_keeps_what_the_measured_textures_and_the_modelled_basis_fit():
     assert _room_for(coefficient_bytes, basis, 752) == 4
     assert _room_for(coefficient_bytes, basis, 451) == 2
     assert _room_for(coefficient_bytes, basis, 10) == 1       # the trim loop refuses it
+
+
+def test_room_after_takes_what_the_encoded_basis_leaves_room_for():
+    """Once the basis of k components is encoded, more of the encoded textures are kept where its
+    real bytes and the modelled growth of the basis (with the 1 % margin) leave room."""
+    from usdbtf.compress.ratecontrol import _room_after
+
+    coefficient_bytes = [b"x" * 100] * 5
+    basis = np.array([50.0, 100.0, 150.0, 200.0, 250.0])
+    encoded = {"per_coefficient": [100, 100], "basis": 60}     # k = 2: the model had said 100
+    # k' = 2..5: textures 200..500 + the encoded 60 + growth 0, 50.5, 101, 151.5
+    assert _room_after(encoded, coefficient_bytes, basis, 712) == 5
+    assert _room_after(encoded, coefficient_bytes, basis, 711) == 4
+    assert _room_after(encoded, coefficient_bytes, basis, 560) == 3
+    assert _room_after(encoded, coefficient_bytes, basis, 410) == 2
+    assert _room_after(encoded, coefficient_bytes, basis, 100) == 2   # over already: the trim loop's
 
 
 def test_effort_follows_the_mode_same_values_fewer_bytes_at_full(tiny32, tmp_path):
