@@ -6,9 +6,11 @@ Reads the coefficient textures and the basis image of a ``usdbtf compress`` outp
 settings otherwise (planar files for ``jxlp``), one texture at a time on one thread, and prints
 per effort: total bytes, relative to effort 7 (the budget modes' effort), and encode seconds
 (the median of ``--repeats`` passes).  Every encode is decoded back and checked to give the
-same integers (a lossless effort that does not round-trip is marked).
+same integers (a lossless effort that does not round-trip is marked).  An effort written
+``EsT`` (e.g. ``7s1``) also sets JPEG XL's decoding-speed tier T (``jpegxl:speed``, 0-4:
+higher tiers restrict the encoder's modelling for faster decoding, and also encode faster).
 
-    .venv/bin/python benchmarks/bench_effort.py OUT_FOLDER [--efforts 2,3,4,5,7] [--repeats 1]
+    .venv/bin/python benchmarks/bench_effort.py OUT_FOLDER [--efforts 2,3,4,5,7,7s1,7s2] [--repeats 1]
 """
 from __future__ import annotations
 
@@ -41,9 +43,11 @@ def main(argv=None) -> int:
     print(f"input: {args.folder}: codec {cbtf.codec}, k = {cbtf.k}, {cbtf.width}x{cbtf.height} texels; "
           f"load {os.getloadavg()[0]:.1f}")
     rows = []
-    for effort in [int(e) for e in args.efforts.split(",")]:
-        attrs = dict(base.attributes, **{"jpegxl:effort": effort})
-        battrs = dict(base.basis_attributes, **{"jpegxl:effort": effort})
+    for setting in args.efforts.split(","):
+        effort, _, tier = setting.strip().partition("s")
+        extra = {"jpegxl:effort": int(effort), **({"jpegxl:speed": int(tier)} if tier else {})}
+        attrs = dict(base.attributes, **extra)
+        battrs = dict(base.basis_attributes, **extra)
         codec = replace(base, attributes=attrs, basis_attributes=battrs)
         times, coeff_bytes, ok = [], 0, True
         for _ in range(args.repeats):
@@ -59,11 +63,11 @@ def main(argv=None) -> int:
         image = Stored(basis_to_image(cbtf.basis.pixels, layout), cbtf.basis.scale, cbtf.basis.bias)
         basis = len(codec.encode(image, "data", basis=True))
         basis_s = time.perf_counter() - t
-        rows.append((effort, coeff_bytes, median(times), basis, basis_s, ok))
-        print(f"  effort {effort}: coefficients {coeff_bytes} bytes in {median(times):.2f} s"
+        rows.append((setting.strip(), coeff_bytes, median(times), basis, basis_s, ok))
+        print(f"  effort {setting.strip()}: coefficients {coeff_bytes} bytes in {median(times):.2f} s"
               f"; basis {basis} bytes in {basis_s:.2f} s{'' if ok else ' (NOT lossless)'}",
               flush=True)
-    ref = {e: b for e, b, *_ in rows}.get(7, rows[-1][1])
+    ref = {e: b for e, b, *_ in rows}.get("7", rows[-1][1])
     print("\n| effort | coefficient bytes | vs effort 7 | encode s (one thread) | basis bytes | basis s | round trip |"
           "\n|---|---|---|---|---|---|---|")
     for e, b, s, bb, bs, ok in rows:
