@@ -467,8 +467,8 @@ def test_budget_projects_what_the_model_can_choose_and_records_its_prediction(ti
 def test_budget_probes_parts_and_encodes_the_basis_once(tiny32, tmp_path, monkeypatch, caplog):
     """Issue 27: under --max-bytes the probes quantise only the components they encode, with
     the integers a quantisation of all k gives them; the coefficient textures are encoded
-    once and the basis once more (plus once per trim), for the k their measured bytes leave
-    room for; those bytes are the ones encoding everything at k and truncating gives."""
+    once and the basis once for the k their measured bytes leave room for (and once more per
+    refill or trim); those bytes are the ones encoding everything at k and truncating gives."""
     import importlib
     import logging
 
