@@ -40,7 +40,7 @@ STRIDES = (1, 2, 3, 4, 6)
 def _basis_factors(table, f, k: int, step: float, options) -> list[tuple[int, float, float]]:
     """(stride, codec factor, encode seconds) of the basis image of every stride-th of the
     first k vectors, quantised at ``step``."""
-    j = list(table.steps).index(step)
+    j = table.column(step)
     whole = quantise(f, k, step, options)
     rows = []
     for stride in STRIDES:

@@ -310,11 +310,10 @@ def encode_files(cbtf: CompressedBTF, indices=None, *, basis: bool = True) -> tu
     it knows how many components the textures' bytes leave room for)."""
     codec = encoder(cbtf)
     indices = range(len(cbtf.coefficients)) if indices is None else indices
-    jobs = [lambda i=i: codec.encode(cbtf.coefficients[i], "data") for i in indices]
-    if not basis:
-        return None, codec_map(codec, lambda job: job(), jobs)
-    basis_bytes, *coeff = codec_map(codec, lambda job: job(), [lambda: encode_basis(cbtf)] + jobs)
-    return basis_bytes, coeff
+    jobs = [lambda: encode_basis(cbtf)] if basis else []
+    jobs += [lambda i=i: codec.encode(cbtf.coefficients[i], "data") for i in indices]
+    done = codec_map(codec, lambda job: job(), jobs)
+    return (done[0], done[1:]) if basis else (None, done)
 
 
 def write_textures(cbtf: CompressedBTF, folder: Path) -> dict:

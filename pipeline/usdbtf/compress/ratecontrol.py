@@ -239,7 +239,7 @@ def _max_bytes(f: Factorisation, options: CompressOptions, table) -> tuple[Compr
     quantised = quantise(f, k, step, options)
     if get_codec(options.codec_name).lossless:
         coefficient_bytes = encode_coefficients(quantised)
-        basis_model = fb * np.cumsum(table.basis_bytes[:k, list(table.steps).index(step)])
+        basis_model = fb * np.cumsum(table.basis_bytes[:k, table.column(step)])
         k = _room_for(coefficient_bytes, basis_model, budget)
         cbtf = encode_first(quantised, k, coefficient_bytes)
         log.info(f"  basis: the model gave {basis_model[k - 1]:.0f} bytes, the encode {cbtf.info['bytes']['basis']}")
@@ -282,8 +282,7 @@ def _room_for(coefficient_bytes, basis_bytes: np.ndarray, budget: int) -> int:
     basis_bytes : (k,) modelled bytes of the basis image of the first 1..k components.
     """
     total = np.cumsum([len(c) for c in coefficient_bytes]) + basis_bytes * (1 + _BASIS_MODEL_MARGIN)
-    fits = np.flatnonzero(total <= budget)
-    return int(fits[-1]) + 1 if len(fits) else 1
+    return max(1, _most_that_fit(total, budget))
 
 
 def _room_after(sizes: dict, coefficient_bytes, basis_bytes: np.ndarray, budget: int) -> int:
@@ -297,8 +296,7 @@ def _room_after(sizes: dict, coefficient_bytes, basis_bytes: np.ndarray, budget:
     k = len(sizes["per_coefficient"])
     growth = (basis_bytes[k - 1:] - basis_bytes[k - 1]) * (1 + _BASIS_MODEL_MARGIN)
     total = np.cumsum([len(c) for c in coefficient_bytes])[k - 1:] + sizes["basis"] + growth
-    fits = np.flatnonzero(total <= budget)
-    return k + int(fits[-1]) if len(fits) else k
+    return k + max(0, _most_that_fit(total, budget) - 1)
 
 
 def _target_error(f: Factorisation, options: CompressOptions, table, held: HeldOut,
@@ -341,7 +339,7 @@ def _target_error(f: Factorisation, options: CompressOptions, table, held: HeldO
 def _modelled(table, k: int, step: float, fc: float, fb: float | None = None) -> dict:
     """What the rate-distortion model predicts for (k, step): bytes and squared error."""
     bytes_, err = table.curves(fc, fb)
-    j = list(table.steps).index(step)
+    j = table.column(step)
     return {"bytes": float(bytes_[k, j]), "sqerr": float(err[k, j])}
 
 
@@ -356,8 +354,14 @@ def _prediction(predicted: dict, measured_bytes: int) -> dict:
 def _fit_k_to_budget(sizes: dict, k: int, budget: int, margin: float = 0.995) -> int:
     """Largest k' <= k whose measured textures fit ``margin * budget`` (basis bytes pro rata);
     0 when not even one does.  The margin leaves room for the basis re-encode's rounding."""
-    per = np.cumsum(sizes["per_coefficient"]) + sizes["basis"] * np.arange(1, k + 1) / k
-    fits = np.flatnonzero(per <= margin * budget)
+    return _most_that_fit(np.cumsum(sizes["per_coefficient"]) + sizes["basis"] * np.arange(1, k + 1) / k,
+                          margin * budget)
+
+
+def _most_that_fit(totals: np.ndarray, limit: float) -> int:
+    """The largest n with ``totals[n - 1] <= limit`` (totals: bytes of the first 1, 2, ...
+    components), 0 when none fits."""
+    fits = np.flatnonzero(totals <= limit)
     return int(fits[-1]) + 1 if len(fits) else 0
 
 
@@ -378,7 +382,7 @@ def _part(f: Factorisation, components: np.ndarray) -> Factorisation:
 def _coefficient_factor(table, f: Factorisation, k: int, step: float, options: CompressOptions) -> float:
     """Measured bytes / entropy-model bytes of the coefficient textures, from encoding (in
     memory) ~12 textures spread over the first k at ``step``."""
-    j = list(table.steps).index(step)
+    j = table.column(step)
     probe = np.unique(np.linspace(0, k - 1, min(k, 12)).round().astype(int))
     _, coeff = encode_files(quantise(_part(f, probe), len(probe), step, options), basis=False)
     overhead = len(probe) * ratedist.FILE_OVERHEAD_BYTES  # the model adds it unscaled
@@ -388,7 +392,7 @@ def _coefficient_factor(table, f: Factorisation, k: int, step: float, options: C
 def _basis_factor(table, f: Factorisation, k: int, step: float, options: CompressOptions) -> float:
     """Measured bytes / entropy-model bytes of the basis image, from encoding (in memory) the
     basis image of every :data:`_BASIS_PROBE_STRIDE`-th of the first k vectors at ``step``."""
-    j = list(table.steps).index(step)
+    j = table.column(step)
     vectors = np.arange(0, k, _BASIS_PROBE_STRIDE)
     basis = encode_basis(quantise(_part(f, vectors), len(vectors), step, options))
     return float(len(basis) / max(float(table.basis_bytes[vectors, j].sum()), 1.0))

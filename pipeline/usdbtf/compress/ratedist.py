@@ -45,6 +45,10 @@ class RDTable:
     energy: np.ndarray
     residual: float
 
+    def column(self, step: float) -> int:
+        """j, the column of candidate step ``step`` (one of :attr:`steps`)."""
+        return list(self.steps).index(step)
+
     def curves(self, factor: float, basis_factor: float | None = None):
         """bytes (k+1, J) and sqerr (k+1, J) of keeping the first 0..k components.
 
