@@ -17,7 +17,7 @@ import zipfile
 from pathlib import Path
 
 ADDON = Path(__file__).resolve().parent.parent / "plugin" / "blender" / "usdbtf"
-FILES = ("__init__.py", "network.py", "blender_manifest.toml", "usdbtf_surface.osl")
+FILES = ("__init__.py", "network.py", "blender_manifest.toml", "LICENSE", "usdbtf_surface.osl")
 
 
 def build_zip(output: Path) -> Path:
