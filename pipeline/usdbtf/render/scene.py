@@ -5,8 +5,9 @@ The camera is :class:`usdbtf.camera.Camera`, the mesh :class:`usdbtf.mesh.Mesh`.
 
 Light  ``"point:X,Y,Z[:INTENSITY]"`` or ``"dir:X,Y,Z[:INTENSITY]"``: a point light at X,Y,Z,
        or a distant light in direction X,Y,Z (pointing *towards* the light).  Intensity is
-       irradiance relative to the capture's light: a distant light of intensity 1 reproduces
-       the measured images; a point light gives ``INTENSITY / d^2`` at distance d metres.
+       the irradiance E of :mod:`usdbtf.photometry` (radiance = value x E / (pi W)): a distant
+       light of intensity pi W reproduces the measured images; a point light gives
+       ``INTENSITY / d^2`` at distance d metres.
 """
 from __future__ import annotations
 

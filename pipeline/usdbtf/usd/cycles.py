@@ -9,8 +9,9 @@ with Blender's USD importer and gives it the OSL network, and renders each frame
 
 A frame is a :class:`CyclesFrame`: the asset (and ``lod``), a camera (``"pole"``: orthographic
 down the swatch's normal, or a :class:`usdbtf.camera.Camera` in the asset's USD space), one
-sun (direction towards it in the asset's USD space, irradiance: 1 is the capture light,
-which is also a Blender sun of 1 W/m^2 here), the image size and the samples.
+sun (direction towards it in the asset's USD space; irradiance E, a Blender sun of strength E
+W/m^2, radiance = value x E / (pi W) as in :mod:`usdbtf.photometry`, so pi W is the capture
+light), the image size and the samples.
 """
 from __future__ import annotations
 

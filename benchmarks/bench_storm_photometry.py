@@ -1,0 +1,188 @@
+#!/usr/bin/env python
+"""The BTF and its UsdPreviewSurface fallback under the same UsdLux light, in real Storm (issue 40).
+
+For each preset: ``usdbtf synth PRESET --sampling SAMPLING --size SIZE`` (seed 5),
+``compress --k K --codec png``, ``package --physical-size 0.05 0.05``; then per USD version
+(the ``.venv-storm-*`` environments) one Storm process draws, for each of ``--lights``
+measured light directions at the pole view, orthographically from the pole, one texel a
+pixel, under one ``UsdLux.DistantLight`` of irradiance 1 (``usd.hydra.swatch_scene``):
+
+btf       the asset as packaged (the BTF shader, this convention: radiance = value x E / (pi W));
+fallback  the same asset with ``outputs:glslfx:surface`` blocked: the UsdPreviewSurface fallback;
+legacy    the BTF shader with ``inputs:exposure = pi W``: exactly the shader before this convention
+          (irradiance 1 = the capture light), the baseline, measured in the same run.
+
+Reported: the BTF's gain against the decompressed samples (``usd.cycles.common_gain``: one
+least-squares gain per light, their mean; the convention says pi W) and its mean |difference|
+in 8-bit sRGB steps after that gain; per light the fallback's mean brightness over the BTF's
+(``fallback.mean() / btf.mean()``, linear RGB, no gain) now and before (over ``legacy``).
+
+Usage (repository root)::
+
+    .venv/bin/python benchmarks/bench_storm_photometry.py
+    .venv/bin/python benchmarks/bench_storm_photometry.py --presets satin_weave --usd 25.08
+
+Writes benchmarks/out/storm_photometry_<timestamp>.json and prints a markdown block.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import usdbtf  # noqa: F401  (before numpy: pins the numeric platform; registers the schema plugin)
+import numpy as np
+
+from common import OUT, format_machine, machine_info, timestamp, write_json
+
+
+def say(msg: str = "") -> None:
+    print(msg, flush=True)
+
+
+def build(preset: str, work: Path, sampling: str, size: int, k: int) -> Path:
+    from usdbtf.cli import main
+
+    src, comp, asset = work / "src", work / "c", work / "a" / f"{preset}.usda"
+    for argv in (["synth", preset, "-o", str(src), "--sampling", sampling, "--size", str(size), "--seed", "5"],
+                 ["compress", str(src), "-o", str(comp), "--k", str(k), "--codec", "png"],
+                 ["package", str(comp), "-o", str(asset), "--physical-size", "0.05", "0.05"]):
+        if main(argv + ["-q"]) != 0:
+            raise SystemExit(f"usdbtf {' '.join(argv)} failed")
+    return asset
+
+
+def pole_lights(cbtf, count: int) -> list[tuple[int, tuple[float, float]]]:
+    """[(sample index, light (theta, phi))] of ``count`` measured lights at the pole view with
+    theta in 15..65 degrees, spread over the list (deterministic)."""
+    view0 = np.flatnonzero(np.all(np.abs(cbtf.sampling.view) < 1e-9, axis=1))
+    cand = [int(s) for s in view0 if 15.0 <= cbtf.sampling.light[s][0] <= 65.0]
+    picks = [cand[int(round(i))] for i in np.linspace(0, len(cand) - 1, min(count, len(cand)))]
+    return [(s, tuple(float(a) for a in cbtf.sampling.light[s])) for s in picks]
+
+
+def flat_normal(scene: Path) -> None:
+    """Block the fallback's normal-map connection in ``scene`` (normal (0, 0, 1))."""
+    from pxr import Gf, Usd, UsdShade
+
+    from usdbtf.usd.material import btf_materials
+
+    stage = Usd.Stage.Open(str(scene))
+    for material in btf_materials(stage):
+        surface = UsdShade.Shader(stage.GetPrimAtPath(material.GetPath().AppendChild("PreviewSurface")))
+        surface.GetInput("normal").GetAttr().SetConnections([])
+        surface.GetInput("normal").Set(Gf.Vec3f(0.0, 0.0, 1.0))
+    stage.Save()
+
+
+def legacy_exposure(scene: Path, value: float) -> None:
+    """Set the BTF shader's inputs:exposure in ``scene`` (the old convention's brightness)."""
+    from pxr import Usd
+
+    from usdbtf.usd.material import btf_materials
+    from usdbtf.usd.storm import storm_shader
+
+    stage = Usd.Stage.Open(str(scene))
+    for material in btf_materials(stage):
+        storm_shader(material).GetInput("exposure").Set(float(value))
+    stage.Save()
+
+
+def measure(asset: Path, python: Path, work: Path, count: int) -> dict:
+    from usdbtf.color import processor
+    from usdbtf.decompress import DecompressOptions, decompress
+    from usdbtf.photometry import capture_irradiance, white_level_of
+    from usdbtf.usd import hydra
+    from usdbtf.usd.cycles import common_gain
+    from usdbtf.usd.read import load_btf
+
+    cbtf = load_btf(asset)
+    white = white_level_of(cbtf.info)
+    lights = pole_lights(cbtf, count)
+    frames, kinds = [], []
+    for s, light in lights:
+        for kind in ("btf", "fallback", "legacy", "flat"):
+            scene = work / f"{kind}_{s}.usda"
+            camera, size = hydra.swatch_scene(asset, scene, light, irradiance=1.0, fallback=kind in ("fallback", "flat"))
+            if kind == "legacy":
+                legacy_exposure(scene, capture_irradiance(white))
+            if kind == "flat":
+                flat_normal(scene)
+            frames.append((scene, scene.with_suffix(".exr")))
+            kinds.append((s, kind))
+    t = time.perf_counter()
+    result = hydra.render_frames(python, frames, camera, size)
+    seconds = time.perf_counter() - t
+    if result.problems:
+        raise SystemExit("\n".join(result.problems))
+    images = {key: img[..., :3].astype(np.float64) for key, img in zip(kinds, result.images)}
+    # Storm decodes the fallback's sRGB maps to linear Rec.709 and shades in it; the BTF shader
+    # returns working-space values (the Material's ColorSpaceAPI): the fallback's frame taken to
+    # the working space compares like with like.
+    to_working = processor("Linear Rec.709 (sRGB)", cbtf.working_space, cbtf.ocio_config)
+    matched = {s: to_working.apply(images[(s, "fallback")].astype(np.float32)).astype(np.float64) for s, _ in lights}
+    samples = {s: decompress(cbtf, DecompressOptions(samples=str(s))).btf.read_samples([0])[0] for s, _ in lights}
+    gain, gains, steps = common_gain([(images[(s, "btf")], samples[s]) for s, _ in lights])
+    lgain, _, _ = common_gain([(images[(s, "legacy")], samples[s]) for s, _ in lights])
+    rows = [{"sample": s, "light": light, "btf_gain": g, "btf_steps": d,
+             "fallback_over_btf": float(images[(s, "fallback")].mean() / images[(s, "btf")].mean()),
+             "fallback_over_legacy": float(images[(s, "fallback")].mean() / images[(s, "legacy")].mean()),
+             "fallback_working_over_btf": float(matched[s].mean() / images[(s, "btf")].mean()),
+             "flat_normal_over_btf": float(images[(s, "flat")].mean() / images[(s, "btf")].mean())}
+            for (s, light), g, d in zip(lights, gains, steps)]
+    return {"white_level": white, "btf_gain": gain, "legacy_gain": lgain, "convention_gain": capture_irradiance(white),
+            "storm_seconds": seconds, "lights": rows}
+
+
+def main(argv=None) -> int:
+    from usdbtf.usd import hydra
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--presets", nargs="+", default=["satin_weave", "pebbles", "velvet"])
+    ap.add_argument("--sampling", default="small")
+    ap.add_argument("--size", type=int, default=32)
+    ap.add_argument("--k", type=int, default=64)
+    ap.add_argument("--lights", type=int, default=6)
+    ap.add_argument("--usd", nargs="+", default=None, help="USD versions (default: every Storm environment)")
+    args = ap.parse_args(argv)
+    pythons = hydra.storm_pythons()
+    versions = args.usd or sorted(pythons)
+    info = machine_info()
+    say(format_machine(info))
+    say(f"inputs: synth --sampling {args.sampling} --size {args.size} --seed 5, compress --k {args.k} --codec png, "
+        f"package --physical-size 0.05 0.05; {args.lights} pole-view lights, DistantLight irradiance 1")
+    out = {"machine": info, "args": vars(args), "results": {}}
+    lines = ["| preset | USD | BTF gain vs samples (convention: pi W) | before | BTF mean steps | "
+             "fallback / BTF mean per light | before (fallback / legacy BTF) |", "|---|---|---|---|---|---|---|"]
+    with tempfile.TemporaryDirectory(prefix="usdbtf-bench-") as tmp:
+        for preset in args.presets:
+            asset = build(preset, Path(tmp) / preset, args.sampling, args.size, args.k)
+            for version in versions:
+                work = Path(tmp) / preset / f"storm{version}"
+                work.mkdir()
+                r = measure(asset, pythons[version], work, args.lights)
+                out["results"][f"{preset} {version}"] = r
+                ratios = [row["fallback_over_btf"] for row in r["lights"]]
+                before = [row["fallback_over_legacy"] for row in r["lights"]]
+                steps = [row["btf_steps"] for row in r["lights"]]
+                say(f"{preset} USD {version}: BTF gain {r['btf_gain']:.4f} (pi W = {r['convention_gain']:.4f}, "
+                    f"{r['btf_gain'] / r['convention_gain']:.4f} of it), before {r['legacy_gain']:.4f}; "
+                    f"fallback/BTF {np.round(ratios, 3).tolist()}, in the working space "
+                    f"{np.round([row['fallback_working_over_btf'] for row in r['lights']], 3).tolist()}, normal map blocked "
+                    f"{np.round([row['flat_normal_over_btf'] for row in r['lights']], 3).tolist()}, before {np.round(before, 3).tolist()} "
+                    f"({r['storm_seconds']:.1f} s Storm)")
+                lines.append(f"| {preset} | {version} | {r['btf_gain']:.4f} ({r['btf_gain'] / r['convention_gain']:.4f}"
+                             f" x pi W) | {r['legacy_gain']:.4f} | {min(steps):.2f}-{max(steps):.2f} | "
+                             f"{min(ratios):.3f}-{max(ratios):.3f} | {min(before):.3f}-{max(before):.3f} |")
+    path = OUT / f"storm_photometry_{timestamp()}.json"
+    write_json(path, out)
+    say(f"\nwrote {path}\n")
+    say("\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
