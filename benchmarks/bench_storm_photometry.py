@@ -15,7 +15,19 @@ legacy    the BTF shader with ``inputs:exposure = pi W``: exactly the shader bef
 Reported: the BTF's gain against the decompressed samples (``usd.cycles.common_gain``: one
 least-squares gain per light, their mean; the convention says pi W) and its mean |difference|
 in 8-bit sRGB steps after that gain; per light the fallback's mean brightness over the BTF's
-(``fallback.mean() / btf.mean()``, linear RGB, no gain) now and before (over ``legacy``).
+(``fallback.mean() / btf.mean()``, linear RGB, no gain) now and before (over ``legacy``).  To
+tell the causes apart, in the same run and at the same lights:
+
+model     the fit's own prediction (``svbrdf.evaluate`` of the maps as shipped) over the BTF's
+          reconstruction, mean over the swatch (exact sampling, no renderer);
+working   the Storm fallback frame taken from linear Rec.709 (what Storm shades the sRGB maps
+          in) to the BTF's working space (what the BTF shader returns) before the mean;
+flat      the Storm fallback with its normal map blocked;
+cycles    Cycles (bpy 5.0.1): Blender's USD importer's Principled BSDF from the fallback over
+          the add-on's OSL BTF, one sun of 1 W/m^2 (``--cycles``);
+checker   Storm's sampling of a UsdUVTexture at one texel a pixel: the fallback's diffuse map
+          replaced by a black/white checker, flat normal, no specular, light at the pole;
+          the frame's min and max over the white level 1/pi (exact sampling: 0 and 1).
 
 Usage (repository root)::
 
@@ -78,6 +90,70 @@ def flat_normal(scene: Path) -> None:
     stage.Save()
 
 
+def fit_model_ratios(asset: Path, cbtf, samples: list[int]) -> list[float]:
+    """Per sample: the shipped fallback maps' prediction (svbrdf.evaluate) over the BTF's
+    reconstruction, mean over the swatch."""
+    from usdbtf import svbrdf
+    from usdbtf.compress import reconstruct
+    from usdbtf.imageio import read_image
+    from usdbtf.usd.fallback import FALLBACK_DIR, MAP_FILES, decode_maps
+
+    folder = asset.with_name(f"{asset.stem}_textures") / FALLBACK_DIR
+    pixels = {name: read_image(folder / MAP_FILES[name][0])[0] for name in MAP_FILES}
+    maps = decode_maps(pixels, cbtf.working_space, ocio_config=cbtf.ocio_config)
+    pred = svbrdf.evaluate(maps, cbtf.sampling.view[samples], cbtf.sampling.light[samples])
+    rec = reconstruct(cbtf, samples)
+    return [float(pred[i].mean() / rec[i].mean()) for i in range(len(samples))]
+
+
+def cycles_ratios(asset: Path, lights, work: Path) -> list[float]:
+    """Per light: Blender's Principled BSDF from the fallback over the add-on's OSL BTF (Cycles)."""
+    from usdbtf.usd import cycles
+    from usdbtf.usd.hydra import storm_pythons
+
+    def towards(light):
+        theta, phi = (math.radians(a) for a in light)
+        return (math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta))
+
+    frames = [cycles.CyclesFrame(asset, work / f"cycles_{s}_{fb}.exr", towards(light), size=(32, 32), fallback=fb)
+              for s, light in lights for fb in (False, True)]
+    images = cycles.render_frames(storm_pythons()["25.08"], frames).images
+    return [float(images[2 * i + 1][..., :3].mean() / images[2 * i][..., :3].mean()) for i in range(len(lights))]
+
+
+def storm_checker(asset: Path, python: Path, work: Path) -> dict:
+    """Storm's sampling of a UsdUVTexture at one texel a pixel (see the module docstring)."""
+    import shutil
+
+    import OpenImageIO as oiio
+    from pxr import Gf, Usd, UsdShade
+
+    from usdbtf.usd import hydra
+    from usdbtf.usd.material import btf_materials
+
+    copy = work / "checker"
+    shutil.copytree(asset.parent, copy)
+    asset = copy / asset.name
+    diffuse = copy / f"{asset.stem}_textures" / "fallback" / "diffuse.png"
+    h, w = oiio.ImageInput.open(str(diffuse)).spec().height, oiio.ImageInput.open(str(diffuse)).spec().width
+    pixels = np.where((np.add.outer(np.arange(h), np.arange(w)) % 2 == 0)[..., None], 255, 0).astype(np.uint8)
+    out = oiio.ImageOutput.create(str(diffuse))
+    out.open(str(diffuse), oiio.ImageSpec(w, h, 3, "uint8"))
+    out.write_image(np.repeat(pixels, 3, axis=2))
+    out.close()
+    scene = copy / "scene.usda"
+    camera, size = hydra.swatch_scene(asset, scene, (0.0, 0.0), irradiance=1.0, fallback=True)
+    stage = Usd.Stage.Open(str(scene))
+    for material in btf_materials(stage):
+        surface = UsdShade.Shader(stage.GetPrimAtPath(material.GetPath().AppendChild("PreviewSurface")))
+        for name, value in (("normal", Gf.Vec3f(0, 0, 1)), ("specularColor", Gf.Vec3f(0, 0, 0))):
+            surface.GetInput(name).GetAttr().SetConnections([])
+            surface.GetInput(name).Set(value)
+    stage.Save()
+    image = hydra.render_frames(python, [(scene, scene.with_suffix(".exr"))], camera, size).images[0][..., 0]
+    return {"min": float(image.min() * math.pi), "max": float(image.max() * math.pi)}
+
+
 def legacy_exposure(scene: Path, value: float) -> None:
     """Set the BTF shader's inputs:exposure in ``scene`` (the old convention's brightness)."""
     from pxr import Usd
@@ -133,6 +209,9 @@ def measure(asset: Path, python: Path, work: Path, count: int) -> dict:
              "fallback_working_over_btf": float(matched[s].mean() / images[(s, "btf")].mean()),
              "flat_normal_over_btf": float(images[(s, "flat")].mean() / images[(s, "btf")].mean())}
             for (s, light), g, d in zip(lights, gains, steps)]
+    model = fit_model_ratios(asset, cbtf, [s for s, _ in lights])
+    for row, m in zip(rows, model):
+        row["model_over_btf"] = m
     return {"white_level": white, "btf_gain": gain, "legacy_gain": lgain, "convention_gain": capture_irradiance(white),
             "storm_seconds": seconds, "lights": rows}
 
@@ -147,6 +226,7 @@ def main(argv=None) -> int:
     ap.add_argument("--k", type=int, default=64)
     ap.add_argument("--lights", type=int, default=6)
     ap.add_argument("--usd", nargs="+", default=None, help="USD versions (default: every Storm environment)")
+    ap.add_argument("--cycles", action="store_true", help="also Cycles (bpy 5.0.1, .venv-storm-5.0)")
     args = ap.parse_args(argv)
     pythons = hydra.storm_pythons()
     versions = args.usd or sorted(pythons)
@@ -155,8 +235,9 @@ def main(argv=None) -> int:
     say(f"inputs: synth --sampling {args.sampling} --size {args.size} --seed 5, compress --k {args.k} --codec png, "
         f"package --physical-size 0.05 0.05; {args.lights} pole-view lights, DistantLight irradiance 1")
     out = {"machine": info, "args": vars(args), "results": {}}
-    lines = ["| preset | USD | BTF gain vs samples (convention: pi W) | before | BTF mean steps | "
-             "fallback / BTF mean per light | before (fallback / legacy BTF) |", "|---|---|---|---|---|---|---|"]
+    lines = ["| preset | USD | BTF gain vs samples (pi W = 3.1416) | before | BTF steps | Storm fallback / BTF | "
+             "before (/ legacy BTF) | in the working space | normal map blocked | fit model / BTF | "
+             "Cycles Principled / OSL BTF | Storm checker |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     with tempfile.TemporaryDirectory(prefix="usdbtf-bench-") as tmp:
         for preset in args.presets:
             asset = build(preset, Path(tmp) / preset, args.sampling, args.size, args.k)
@@ -164,6 +245,9 @@ def main(argv=None) -> int:
                 work = Path(tmp) / preset / f"storm{version}"
                 work.mkdir()
                 r = measure(asset, pythons[version], work, args.lights)
+                r["checker"] = storm_checker(asset, pythons[version], work)
+                if args.cycles and version == versions[-1]:
+                    r["cycles"] = cycles_ratios(asset, [(row["sample"], row["light"]) for row in r["lights"]], work)
                 out["results"][f"{preset} {version}"] = r
                 ratios = [row["fallback_over_btf"] for row in r["lights"]]
                 before = [row["fallback_over_legacy"] for row in r["lights"]]
@@ -173,10 +257,20 @@ def main(argv=None) -> int:
                     f"fallback/BTF {np.round(ratios, 3).tolist()}, in the working space "
                     f"{np.round([row['fallback_working_over_btf'] for row in r['lights']], 3).tolist()}, normal map blocked "
                     f"{np.round([row['flat_normal_over_btf'] for row in r['lights']], 3).tolist()}, before {np.round(before, 3).tolist()} "
-                    f"({r['storm_seconds']:.1f} s Storm)")
-                lines.append(f"| {preset} | {version} | {r['btf_gain']:.4f} ({r['btf_gain'] / r['convention_gain']:.4f}"
-                             f" x pi W) | {r['legacy_gain']:.4f} | {min(steps):.2f}-{max(steps):.2f} | "
-                             f"{min(ratios):.3f}-{max(ratios):.3f} | {min(before):.3f}-{max(before):.3f} |")
+                    f"({r['storm_seconds']:.1f} s Storm); fit model / BTF "
+                    f"{np.round([row['model_over_btf'] for row in r['lights']], 3).tolist()}; Storm checker at one "
+                    f"texel a pixel: {r['checker']['min']:.3f}..{r['checker']['max']:.3f} (exact: 0..1)"
+                    + (f"; Cycles Principled / OSL BTF {np.round(r['cycles'], 3).tolist()}" if "cycles" in r else ""))
+                def span(key):
+                    values = [row[key] for row in r["lights"]]
+                    return f"{min(values):.3f}-{max(values):.3f}"
+
+                cyc = f"{min(r['cycles']):.3f}-{max(r['cycles']):.3f}" if "cycles" in r else "-"
+                lines.append(f"| {preset} | {version} | {r['btf_gain']:.4f} | {r['legacy_gain']:.4f} | "
+                             f"{min(steps):.2f}-{max(steps):.2f} | {span('fallback_over_btf')} | "
+                             f"{span('fallback_over_legacy')} | {span('fallback_working_over_btf')} | "
+                             f"{span('flat_normal_over_btf')} | {span('model_over_btf')} | {cyc} | "
+                             f"{r['checker']['min']:.2f}..{r['checker']['max']:.2f} |")
     path = OUT / f"storm_photometry_{timestamp()}.json"
     write_json(path, out)
     say(f"\nwrote {path}\n")

@@ -68,6 +68,7 @@ def test_package_records_the_convention(lambertian, tmp_path):
     read back, the CPU renderer on the asset follows W; without the attributes (an old asset)
     the values read relative to W = 1; an unknown token is refused."""
     from usdbtf.usd import package as pkg
+    from usdbtf.usd.inspect import describe
     from usdbtf.usd.material import btf_materials
     from usdbtf.usd.read import load_btf
     from usdbtf.usd.storm import storm_shader
@@ -80,6 +81,7 @@ def test_package_records_the_convention(lambertian, tmp_path):
     assert material.GetAttribute("btf:photometry").Get() == photometry.CONVENTION
     assert material.GetAttribute("btf:whiteLevel").Get() == pytest.approx(WHITE)
     assert storm_shader(material).GetInput("whiteLevel").Get() == pytest.approx(WHITE)
+    assert "photometry   reflectance: radiance = value x irradiance / (pi x 0.8)" in describe(asset)
     back = load_btf(asset)
     assert photometry.white_level_of(back.info) == pytest.approx(WHITE)
     s = int(np.argmax(cos_l < 0.9))
@@ -95,6 +97,7 @@ def test_package_records_the_convention(lambertian, tmp_path):
     old = Usd.Stage.Open(str(asset))
     assert btf_materials(old)[0].GetAttribute("btf:photometry").Get() == photometry.LEGACY    # the fallback
     assert photometry.white_level_of(load_btf(asset).info) == 1.0
+    assert "photometry   legacy: radiance = value x irradiance / (pi x 1) (written before" in describe(asset)
     btf_materials(old)[0].GetAttribute("btf:photometry").Set("photons")
     old.GetRootLayer().Save()
     with pytest.raises(BTFError, match="btf:photometry 'photons'"):

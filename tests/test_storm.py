@@ -37,7 +37,7 @@ from usdbtf.errors import BTFError
 from usdbtf.photometry import capture_irradiance, white_level_of
 from usdbtf.usd import hydra
 from usdbtf.usd.cycles import common_gain, srgb8
-from storm_helpers import against_cpu_render
+from storm_helpers import against_cpu_render, pole_lights, write_lambertian_asset
 
 PYTHONS = hydra.storm_pythons()
 MAX_STEPS = 2.0          # mean |difference|, 8-bit sRGB steps
@@ -254,37 +254,10 @@ CONVENTION_LIGHTS = 4
 
 @pytest.fixture(scope="module")
 def lambertian_asset(tmp_path_factory) -> Path:
-    """A flat Lambertian BTF, white (albedo 1) on the left half and grey (0.35) on the right,
-    recorded with white level 0.8 (a white Lambertian lit head-on reads 0.8), packaged: its
-    fallback fit is exact (diffuse = albedo, no specular, flat normal), so the BTF and the
-    fallback differ only by what each path makes of a value and of a light."""
-    from usdbtf.compress import CompressOptions, compress
-    from usdbtf.model import ArrayBTF
-    from usdbtf.sampling import preset, to_vectors
-    from usdbtf.usd import package as pkg
-
+    """storm_helpers.write_lambertian_asset: white and grey halves, white level 0.8."""
     if not PYTHONS:
         pytest.skip("no Storm environment")
-    sampling = preset("small")
-    albedo = np.full((16, 16, 3), 0.35, np.float32)
-    albedo[:, :8] = 1.0
-    cos_l = np.clip(to_vectors(sampling.light)[:, 2], 0, 1).astype(np.float32)
-    btf = ArrayBTF.from_linear(sampling, WHITE_LEVEL * albedo[None] * cos_l[:, None, None, None])
-    btf.metadata.update(physical_size_m=[0.02, 0.02], white_level=WHITE_LEVEL)
-    opts = CompressOptions(k=2, codec="exr")
-    opts.extra = {"source_metadata": dict(btf.metadata)}
-    out = tmp_path_factory.mktemp("lambertian") / "a" / "white.usda"
-    pkg.write_package(pkg.package(compress(btf, opts), pkg.PackageOptions(thumbnail=False)), out)
-    return out
-
-
-def pole_lights(cbtf, count: int) -> list[tuple[int, tuple]]:
-    """[(sample index, light (theta, phi))]: ``count`` measured lights at the pole view, theta
-    15..65 degrees, spread over the list."""
-    view0 = np.flatnonzero(np.all(np.abs(cbtf.sampling.view) < 1e-9, axis=1))
-    cand = [int(s) for s in view0 if 15.0 <= cbtf.sampling.light[s][0] <= 65.0]
-    return [(cand[i], tuple(float(a) for a in cbtf.sampling.light[cand[i]]))
-            for i in np.linspace(0, len(cand) - 1, count).round().astype(int)]
+    return write_lambertian_asset(tmp_path_factory.mktemp("lambertian") / "a" / "white.usda", WHITE_LEVEL)
 
 
 @pytest.mark.parametrize("version", sorted(hydra.STORM_ENVIRONMENTS))

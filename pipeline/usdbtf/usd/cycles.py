@@ -47,6 +47,8 @@ class CyclesFrame:
     lod: str | None = None
     irradiance: float = 1.0
     samples: int = 1
+    #: True: Blender's USD importer only (the UsdPreviewSurface fallback as a Principled BSDF).
+    fallback: bool = False
 
     def job(self) -> dict:
         camera = {"kind": "pole"} if isinstance(self.camera, str) else {
@@ -55,7 +57,7 @@ class CyclesFrame:
             "fov": float(self.camera.fov)}
         return {"asset": str(Path(self.asset).resolve()), "lod": self.lod, "output": str(self.output),
                 "size": [int(s) for s in self.size], "camera": camera, "sun": [float(x) for x in self.sun],
-                "irradiance": float(self.irradiance), "samples": int(self.samples)}
+                "irradiance": float(self.irradiance), "samples": int(self.samples), "fallback": bool(self.fallback)}
 
 
 @dataclass
