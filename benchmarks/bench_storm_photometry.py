@@ -25,9 +25,10 @@ working   the Storm fallback frame taken from linear Rec.709 (what Storm shades 
 flat      the Storm fallback with its normal map blocked;
 cycles    Cycles (bpy 5.0.1): Blender's USD importer's Principled BSDF from the fallback over
           the add-on's OSL BTF, one sun of 1 W/m^2 (``--cycles``);
-checker   Storm's sampling of a UsdUVTexture at one texel a pixel: the fallback's diffuse map
-          replaced by a black/white checker, flat normal, no specular, light at the pole;
-          the frame's min and max over the white level 1/pi (exact sampling: 0 and 1).
+checker   Storm's sampling of a UsdUVTexture: the fallback's diffuse map replaced by a
+          black/white checker, flat normal, no specular, light at the pole; min and max over the
+          white level 1/pi of the frame's middle half at one texel a pixel (in brackets: at four
+          pixels a texel); exact sampling: 0 and 1.
 
 Usage (repository root)::
 
@@ -150,8 +151,16 @@ def storm_checker(asset: Path, python: Path, work: Path) -> dict:
             surface.GetInput(name).GetAttr().SetConnections([])
             surface.GetInput(name).Set(value)
     stage.Save()
-    image = hydra.render_frames(python, [(scene, scene.with_suffix(".exr"))], camera, size).images[0][..., 0]
-    return {"min": float(image.min() * math.pi), "max": float(image.max() * math.pi)}
+    out = {}
+    for mag in (1, 4):
+        frame = hydra.render_frames(python, [(scene, copy / f"x{mag}.exr")], camera,
+                                    (size[0] * mag, size[1] * mag)).images[0][..., 0] * math.pi
+        h4, w4 = frame.shape[0] // 4, frame.shape[1] // 4
+        middle = frame[h4:3 * h4, w4:3 * w4]                 # the frame's middle half, away from the edges
+        out[f"x{mag}"] = {"min": float(frame.min()), "max": float(frame.max()),
+                          "middle_min": float(middle.min()), "middle_max": float(middle.max())}
+    out.update(min=out["x1"]["min"], max=out["x1"]["max"])
+    return out
 
 
 def legacy_exposure(scene: Path, value: float) -> None:
@@ -259,7 +268,10 @@ def main(argv=None) -> int:
                     f"{np.round([row['flat_normal_over_btf'] for row in r['lights']], 3).tolist()}, before {np.round(before, 3).tolist()} "
                     f"({r['storm_seconds']:.1f} s Storm); fit model / BTF "
                     f"{np.round([row['model_over_btf'] for row in r['lights']], 3).tolist()}; Storm checker at one "
-                    f"texel a pixel: {r['checker']['min']:.3f}..{r['checker']['max']:.3f} (exact: 0..1)"
+                    f"texel a pixel: {r['checker']['min']:.3f}..{r['checker']['max']:.3f}, middle "
+                    f"{r['checker']['x1']['middle_min']:.3f}..{r['checker']['x1']['middle_max']:.3f}, at 4 pixels a "
+                    f"texel middle {r['checker']['x4']['middle_min']:.3f}..{r['checker']['x4']['middle_max']:.3f} "
+                    "(exact: 0..1)"
                     + (f"; Cycles Principled / OSL BTF {np.round(r['cycles'], 3).tolist()}" if "cycles" in r else ""))
                 def span(key):
                     values = [row[key] for row in r["lights"]]
@@ -270,7 +282,8 @@ def main(argv=None) -> int:
                              f"{min(steps):.2f}-{max(steps):.2f} | {span('fallback_over_btf')} | "
                              f"{span('fallback_over_legacy')} | {span('fallback_working_over_btf')} | "
                              f"{span('flat_normal_over_btf')} | {span('model_over_btf')} | {cyc} | "
-                             f"{r['checker']['min']:.2f}..{r['checker']['max']:.2f} |")
+                             f"{r['checker']['x1']['middle_min']:.2f}..{r['checker']['x1']['middle_max']:.2f} "
+                             f"({r['checker']['x4']['middle_min']:.2f}..{r['checker']['x4']['middle_max']:.2f}) |")
     path = OUT / f"storm_photometry_{timestamp()}.json"
     write_json(path, out)
     say(f"\nwrote {path}\n")
