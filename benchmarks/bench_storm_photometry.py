@@ -28,7 +28,8 @@ cycles    Cycles (bpy 5.0.1): Blender's USD importer's Principled BSDF from the 
 checker   Storm's sampling of a UsdUVTexture: the fallback's diffuse map replaced by a
           black/white checker, flat normal, no specular, light at the pole; min and max over the
           white level 1/pi of the frame's middle half at one texel a pixel (in brackets: at four
-          pixels a texel); exact sampling: 0 and 1.
+          pixels a texel); exact sampling: 0 and 1.  Once per USD version the same checker on a
+          hand-authored quad (UsdPreviewSurface <- UsdUVTexture, no usdbtf asset).
 
 Usage (repository root)::
 
@@ -163,6 +164,67 @@ def storm_checker(asset: Path, python: Path, work: Path) -> dict:
     return out
 
 
+def storm_minimal_checker(python: Path, work: Path, n: int = 32) -> dict:
+    """The checker without usdbtf: a hand-authored unit quad, UsdPreviewSurface <- UsdUVTexture
+    (sRGB PNG, n x n black/white checker) <- UsdPrimvarReader_float2 st, an orthographic camera
+    one texel a pixel, one DistantLight of irradiance pi from the pole.  Frame middle-half
+    min..max over the white level (exact: 0..1)."""
+    import OpenImageIO as oiio
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
+
+    from usdbtf.usd import hydra
+    from usdbtf.usd.scene import add_distant
+
+    folder = work / "minimal"
+    folder.mkdir()
+    pixels = np.where((np.add.outer(np.arange(n), np.arange(n)) % 2 == 0)[..., None], 255, 0).astype(np.uint8)
+    out = oiio.ImageOutput.create(str(folder / "checker.png"))
+    out.open(str(folder / "checker.png"), oiio.ImageSpec(n, n, 3, "uint8"))
+    out.write_image(np.repeat(pixels, 3, axis=2))
+    out.close()
+    path = folder / "quad.usda"
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    mesh = UsdGeom.Mesh.Define(stage, "/World/Quad")
+    mesh.CreatePointsAttr([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)])
+    mesh.CreateFaceVertexCountsAttr([4])
+    mesh.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    mesh.CreateExtentAttr([(0, 0, 0), (1, 1, 0)])
+    UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex).Set(
+        [(0, 0), (1, 0), (1, 1), (0, 1)])
+    material = UsdShade.Material.Define(stage, "/World/Mat")
+    reader = UsdShade.Shader.Define(stage, "/World/Mat/St")
+    reader.CreateIdAttr("UsdPrimvarReader_float2")
+    reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
+    reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
+    tex = UsdShade.Shader.Define(stage, "/World/Mat/Tex")
+    tex.CreateIdAttr("UsdUVTexture")
+    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set("./checker.png")
+    tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
+    tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+    tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+    surface = UsdShade.Shader.Define(stage, "/World/Mat/Surface")
+    surface.CreateIdAttr("UsdPreviewSurface")
+    surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(tex.ConnectableAPI(), "rgb")
+    surface.CreateInput("useSpecularWorkflow", Sdf.ValueTypeNames.Int).Set(1)
+    surface.CreateInput("specularColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(0, 0, 0))
+    surface.CreateOutput("surface", Sdf.ValueTypeNames.Token)
+    material.CreateSurfaceOutput().ConnectToSource(surface.ConnectableAPI(), "surface")
+    UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
+    camera = UsdGeom.Camera.Define(stage, "/World/Camera")
+    camera.CreateProjectionAttr(UsdGeom.Tokens.orthographic)
+    camera.CreateHorizontalApertureAttr(10.0)           # tenths of a scene unit: the unit quad
+    camera.CreateVerticalApertureAttr(10.0)
+    camera.CreateClippingRangeAttr(Gf.Vec2f(0.5, 2.0))
+    camera.AddTranslateOp().Set(Gf.Vec3d(0.5, 0.5, 1.0))
+    add_distant(stage, "/World/Sun", (0.0, 0.0, 1.0), math.pi)
+    stage.GetRootLayer().Save()
+    frame = hydra.render_frames(python, [(path, folder / "quad.exr")], "/World/Camera", (n, n)).images[0][..., 0]
+    middle = frame[n // 4:3 * n // 4, n // 4:3 * n // 4]
+    return {"middle_min": float(middle.min()), "middle_max": float(middle.max())}
+
+
 def legacy_exposure(scene: Path, value: float) -> None:
     """Set the BTF shader's inputs:exposure in ``scene`` (the old convention's brightness)."""
     from pxr import Usd
@@ -284,6 +346,14 @@ def main(argv=None) -> int:
                              f"{span('flat_normal_over_btf')} | {span('model_over_btf')} | {cyc} | "
                              f"{r['checker']['x1']['middle_min']:.2f}..{r['checker']['x1']['middle_max']:.2f} "
                              f"({r['checker']['x4']['middle_min']:.2f}..{r['checker']['x4']['middle_max']:.2f}) |")
+    with tempfile.TemporaryDirectory(prefix="usdbtf-bench-") as tmp:
+        for version in versions:
+            work = Path(tmp) / version
+            work.mkdir()
+            m = storm_minimal_checker(pythons[version], work)
+            out[f"minimal checker {version}"] = m
+            say(f"USD {version}: the checker on a hand-authored UsdPreviewSurface quad (no usdbtf), one texel a "
+                f"pixel: middle {m['middle_min']:.3f}..{m['middle_max']:.3f} (exact: 0..1)")
     path = OUT / f"storm_photometry_{timestamp()}.json"
     write_json(path, out)
     say(f"\nwrote {path}\n")
