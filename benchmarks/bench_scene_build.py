@@ -52,7 +52,7 @@ def _meshes():
             "Box": (trimesh.creation.box(extents=(0.2, 0.1, 0.15)), (0.45, 0.05, 0.1))}
 
 
-#: The scene's camera (/World/Cam) and its one distant light (/World/Sun, irradiance 1.5 capture lights).
+#: The scene's camera (/World/Cam) and its one distant light (/World/Sun, irradiance 1.5: usdbtf.photometry).
 CAMERA = "eye=-0.05,0.6,1.3 target=-0.05,0.15,0.05 fov=40"
 SUN = (0.4, 1.0, 0.6)
 

@@ -94,7 +94,8 @@ def main(argv=None) -> int:
             centre = mesh.corner().reshape(-1, 3).mean(axis=0)
             for direction, dist in zip(LIGHT_DIRECTIONS, LIGHT_DISTANCES):
                 pos = centre + direction / np.linalg.norm(direction) * dist
-                light = Light("point", pos, 1.2 * dist ** 2)            # same irradiance at the object
+                # The same irradiance at the object: 1.2 capture lights (pi, usdbtf.photometry).
+                light = Light("point", pos, 1.2 * np.pi * dist ** 2)
                 image = renderer.render(mesh, camera, [light])
                 row.append(tile(image, cbtf.working_space))
             print(f"{preset} {shape}: atlas {q.width}x{q.height}, {time.perf_counter() - t0:.0f} s", flush=True)

@@ -45,7 +45,7 @@ def figure(asset: Path, size: int = 256) -> np.ndarray:
         else:
             mesh = uv_sphere(0.05, 64, 32)
             camera = auto_camera(mesh.corner(), size, size)
-            lights = [parse_light("dir:-0.5,0.7,1"), parse_light("point:0.12,-0.02,0.1:0.01")]
+            lights = [parse_light("dir:-0.5,0.7,1"), parse_light("point:0.12,-0.02,0.1:0.0314")]
             a, b = gl.render(mesh, camera, lights), cpu.render(mesh, camera, lights)
             mask = (a[..., 3] > 0) & (b[..., 3] > 0)
         value = psnr(a[..., :3], b[..., :3], mask)

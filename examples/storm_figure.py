@@ -38,7 +38,7 @@ def figure(asset: Path, version: str, size: int) -> np.ndarray:
         raise SystemExit(f"no Storm environment for USD {version}: run scripts/bootstrap.sh")
     cbtf = load_btf(asset)
     camera = Camera(np.array([0.05, 0.06, 0.15]), np.zeros(3), np.array([0.0, 1.0, 0.0]), 35.0, size, size)
-    lights = [parse_light("dir:0.3,0.5,1"), parse_light("point:0.1,0.05,0.1:0.02")]
+    lights = [parse_light("dir:0.3,0.5,1"), parse_light("point:0.1,0.05,0.1:0.0628")]
     with tempfile.TemporaryDirectory(prefix="usdbtf-figure-") as tmp:
         scene, cpu_out = Path(tmp) / "scene.usda", Path(tmp) / "cpu.exr"
         prim = write_scene(asset.resolve(), scene, camera, lights)

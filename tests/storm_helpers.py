@@ -21,3 +21,35 @@ def against_cpu_render(image, scene, camera: str, size: int, tmp_path) -> tuple[
     image = np.asarray(image, np.float64)
     both = (image[..., 3] > 0.999) & (cpu[..., 3] > 0.999)
     return psnr(srgb_encoded(image[..., :3]), srgb_encoded(cpu[..., :3]), both), both, cpu
+
+
+def write_lambertian_asset(out, white_level: float = 0.8, grey: float = 0.35):
+    """Package (``out``, .usda) a flat Lambertian BTF on the "small" sampling, white (albedo 1)
+    on the left half of its 16 x 16 texels and ``grey`` on the right, recorded with
+    ``white_level`` (a white Lambertian lit head-on reads it): values ``W x albedo x cos``.  Its
+    fallback fit is exact (diffuse = albedo, no specular, flat normal), so the BTF and its
+    fallback differ only in what each path makes of a value and of a light (usdbtf.photometry)."""
+    from usdbtf.compress import CompressOptions, compress
+    from usdbtf.model import ArrayBTF
+    from usdbtf.sampling import preset, to_vectors
+    from usdbtf.usd import package as pkg
+
+    sampling = preset("small")
+    albedo = np.full((16, 16, 3), grey, np.float32)
+    albedo[:, :8] = 1.0
+    cos_l = np.clip(to_vectors(sampling.light)[:, 2], 0, 1).astype(np.float32)
+    btf = ArrayBTF.from_linear(sampling, white_level * albedo[None] * cos_l[:, None, None, None])
+    btf.metadata.update(physical_size_m=[0.02, 0.02], white_level=white_level)
+    opts = CompressOptions(k=2, codec="exr")
+    opts.extra = {"source_metadata": dict(btf.metadata)}
+    pkg.write_package(pkg.package(compress(btf, opts), pkg.PackageOptions(thumbnail=False)), out)
+    return out
+
+
+def pole_lights(cbtf, count: int) -> list[tuple[int, tuple]]:
+    """[(sample index, light (theta, phi))]: ``count`` measured lights at the pole view, theta
+    15..65 degrees, spread over the list."""
+    view0 = np.flatnonzero(np.all(np.abs(cbtf.sampling.view) < 1e-9, axis=1))
+    cand = [int(s) for s in view0 if 15.0 <= cbtf.sampling.light[s][0] <= 65.0]
+    return [(cand[i], tuple(float(a) for a in cbtf.sampling.light[cand[i]]))
+            for i in np.linspace(0, len(cand) - 1, count).round().astype(int)]

@@ -11,7 +11,9 @@ linear domain for data a linear basis reconstructs exactly; a folder without ``d
 from __future__ import annotations
 
 import json
+import math
 import shutil
+
 
 import numpy as np
 import pytest
@@ -253,8 +255,9 @@ def test_swatch_equals_reconstruction_and_lights_add_after_the_curve(gamma_folde
     view, light = cbtf.sampling.view[s], cbtf.sampling.light[s]
     want = reconstruct(cbtf, [s])[0]
     np.testing.assert_allclose(r.swatch(view, light), want, rtol=1e-4, atol=1e-5 * np.abs(want).max())
-    # intensity is a radiance factor: twice the light, twice the image (not f^-1(2 d))
-    np.testing.assert_allclose(r.swatch(view, light, 2.0), 2 * want, rtol=1e-4, atol=1e-5 * np.abs(want).max())
+    # intensity is a radiance factor: twice the capture light (pi W, usdbtf.photometry), twice the
+    # image (not f^-1(2 d))
+    np.testing.assert_allclose(r.swatch(view, light, 2.0 * math.pi), 2 * want, rtol=1e-4, atol=1e-5 * np.abs(want).max())
     # two lights on a plane seen from above: the sum of the two one-light renders
     from quilt_render_data import PHYSICAL_SIZE, plane_with_uv
     from usdbtf.camera import Camera

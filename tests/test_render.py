@@ -23,6 +23,7 @@ from usdbtf.color import resolve_space
 from usdbtf.compress import read_compressed
 from usdbtf.imageio import read_image, read_info
 from usdbtf.mesh import Mesh
+from usdbtf.photometry import capture_irradiance
 from usdbtf.raster import rasterize
 from usdbtf.render import Light, RenderOptions, Renderer
 from usdbtf.render.hemisphere import Triangulation, directions_to_vectors, project
@@ -197,7 +198,8 @@ def test_flat_plane_from_far_above_reproduces_the_swatch(renderer, light):
     half = PHYSICAL_SIZE / 2
     cam = Camera(np.array([0, 0, 50.0]), np.zeros(3), np.array([0, 1.0, 0]), np.degrees(2 * np.arctan(half / 50)),
                  48, 48)
-    sun = Light("directional", directions_to_vectors([light])[0], 1.0)
+    # The capture light (irradiance pi W, usdbtf.photometry) reproduces the measured values.
+    sun = Light("directional", directions_to_vectors([light])[0], capture_irradiance())
     image = renderer.render(_plane(PHYSICAL_SIZE), cam, [sun])
     assert (image[..., 3] == 1).all()
     swatch = renderer.swatch((0.0, 0.0), light)
@@ -215,7 +217,7 @@ def test_minified_texture_is_mip_filtered(renderer):
     half = PHYSICAL_SIZE / 2
     cam = Camera(np.array([0, 0, 50.0]), np.zeros(3), np.array([0, 1.0, 0]), np.degrees(2 * np.arctan(half / 50)),
                  12, 12)
-    sun = Light("directional", directions_to_vectors([(45.0, 0.0)])[0], 1.0)
+    sun = Light("directional", directions_to_vectors([(45.0, 0.0)])[0], capture_irradiance())
     dom = renderer.cbtf.domain
     swatch = dom.forward(renderer.swatch((0.0, 0.0), (45.0, 0.0)))
     want = dom.inverse(swatch.reshape(12, 4, 12, 4, 3).mean(axis=(1, 3)))

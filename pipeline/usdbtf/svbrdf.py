@@ -7,9 +7,9 @@ UsdPreviewSurface's specular workflow.  :func:`evaluate` is that surface's direc
 k = alpha / 2, Schlick Fresnel between F0 and 1, alpha = roughness^2), so the error of a fit
 against the BTF is measured with the model a renderer evaluates.
 
-Units: a BTF value is ``I = W * pi * f(v, l) * (n . l)``, with W the source's white level
-(what a white Lambertian lit head-on reads; 1 unless recorded), i.e. the capture's light
-has irradiance ``pi * W``.  Directions are in the sample's tangent frame (x = image right,
+Units (:mod:`usdbtf.photometry`, the convention every path follows): a BTF value is
+``I = W * pi * f(v, l) * (n . l)``, with W the source's white level (what a white Lambertian
+lit head-on reads; 1 unless recorded), i.e. the capture's light has irradiance ``pi * W``.  Directions are in the sample's tangent frame (x = image right,
 y = image up, z = normal); maps are (H, W, ...) arrays in the BTF's texel order.
 
 The fit, streamed over blocks of texels (the reconstruction of a block over the fit
@@ -44,6 +44,7 @@ import numpy as np
 
 from .compress.format import CompressedBTF, working_coefficient_texels
 from .numeric import single_blas_thread
+from .photometry import capture_irradiance, radiance_per_irradiance
 from .progress import track
 from .sampling import to_vectors
 
@@ -177,7 +178,7 @@ def evaluate(maps: SvbrdfMaps, view_deg: np.ndarray, light_deg: np.ndarray, texe
         fres = f0[sel][None] * (1.0 - geo.w)[..., None] + geo.w[..., None]           # F = mix(F0, 1, w)
         diffuse = rho[sel][None] / np.pi * (1.0 - fres) * geo.nl[..., None]
         out[:, sel] = diffuse + geo.specular_nl(float(r))[..., None] * fres
-    return out * np.float32(np.pi * maps.white_level)
+    return out * np.float32(capture_irradiance(maps.white_level))      # f (n.l) -> value: usdbtf.photometry
 
 
 # ------------------------------------------------------------------ the fit
@@ -320,7 +321,7 @@ def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: in
     diffuse, specular = np.zeros((texels, 3), np.float32), np.zeros((texels, 3), np.float32)
     rough, normal = np.ones(texels, np.float32), np.zeros((texels, 3), np.float32)
     step = _chunk_texels(max(len(fit), len(ps)), chunk_bytes)
-    scale = np.float32(1.0 / (np.pi * white_level))
+    scale = np.float32(radiance_per_irradiance(white_level))     # value -> f (n.l): usdbtf.photometry
     flat = np.array([0.0, 0.0, 1.0], np.float32)
     for t0 in track(range(0, texels, step), "fallback fit", -(-texels // step), logger=log):
         block = slice(t0, min(t0 + step, texels))

@@ -118,7 +118,9 @@ def run(args) -> int:
     else:
         from ..gpu.headless import HeadlessRenderer
 
-        gl = HeadlessRenderer(layout, wrap=wrap)
+        from ..photometry import white_level_of
+
+        gl = HeadlessRenderer(layout, wrap=wrap, white_level=white_level_of(cbtf.info))
         image = gl.swatch(view, light) if args.swatch else gl.render(mesh, camera, lights)
     if args.swatch:
         if cpu is not None:

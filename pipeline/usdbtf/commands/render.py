@@ -25,7 +25,8 @@ def add_scene_arguments(p, *, mesh_help: str) -> None:
     p.add_argument("--view", metavar="THETA,PHI", help="swatch: view direction in degrees")
     p.add_argument("--light", action="append", default=[], metavar="SPEC",
                    help="swatch: THETA,PHI degrees (distant light); mesh: point:X,Y,Z[:I] or dir:X,Y,Z[:I] "
-                        "(repeatable; I = irradiance relative to the capture light, point lights I/d^2)")
+                        "(repeatable; I = irradiance, default pi: radiance = value x I / (pi W), so pi W is "
+                        "the capture light; point lights I/d^2)")
     p.add_argument("--camera", metavar="SPEC", help='"eye=X,Y,Z target=X,Y,Z [up=X,Y,Z] [fov=DEG]" '
                    "(default: frame the mesh), or the prim path of a UsdGeom.Camera of a USD scene (/World/Cam): "
                    "then the scene's UsdLux lights light it too, and the frame's height follows the apertures")

@@ -7,7 +7,9 @@ Run by the Python of the bpy 5.0.1 environment (``scripts/bootstrap.sh`` makes
 
 JOBS.json: ``{"frames": [{"asset", "lod" (null: the asset's own), "output" (.exr), "size": [w, h],
 "camera": {"kind": "pole"} | {"kind": "perspective", "eye", "target", "up", "fov"},
-"sun": [x, y, z] (towards the light, the asset's USD space), "irradiance", "samples"}], "report": path}``.
+"sun": [x, y, z] (towards the light, the asset's USD space), "irradiance", "samples", "fallback"}],
+"report": path}``.  ``"fallback": true`` imports the asset with Blender's USD importer only (its
+UsdPreviewSurface fallback as a Principled BSDF, what Blender shows without the add-on).
 Everything in USD space is converted to Blender's with the imported root's transform (the
 importer's up-axis and unit conversion).  Frames of one asset and lod share one import.  A
 "pole" camera looks orthographically down the swatch's normal (+z in USD), its extent filling
@@ -117,12 +119,19 @@ def main(argv=None) -> int:
     addon = _addon(Path(argv[1]))
     report, loaded = [], None
     for frame in jobs["frames"]:
-        key = (frame["asset"], frame.get("lod"))
+        key = (frame["asset"], frame.get("lod"), bool(frame.get("fallback")))
         if key != loaded:
             bpy.ops.wm.read_factory_settings(use_empty=True)
             scene = _setup_scene(bpy)
             start = time.perf_counter()
-            objects, materials = addon.network.import_asset(frame["asset"], frame.get("lod"))
+            if frame.get("fallback"):
+                before = set(bpy.data.objects)
+                if "FINISHED" not in bpy.ops.wm.usd_import(filepath=frame["asset"], import_usd_preview=True):
+                    print(f"cycles_frame: {frame['asset']}: Blender's USD import failed", file=sys.stderr)
+                    return 5
+                objects, materials = [o for o in bpy.data.objects if o not in before], []
+            else:
+                objects, materials = addon.network.import_asset(frame["asset"], frame.get("lod"))
             import_seconds = time.perf_counter() - start
             roots = [o for o in objects if o.parent is None]
             to_world = roots[0].matrix_world.copy() if roots else mathutils.Matrix.Identity(4)

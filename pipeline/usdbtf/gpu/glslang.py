@@ -105,8 +105,10 @@ vec3 HdGet_tangents() {{ return tangentIn; }}
 vec3 HdGet_bitangents() {{ return bitangentIn; }}
 uniform int basisCountValue;
 uniform float exposureValue;
+uniform float whiteLevelValue;
 int HdGet_basisCount() {{ return basisCountValue; }}
 float HdGet_exposure() {{ return exposureValue; }}
+float HdGet_whiteLevel() {{ return whiteLevelValue; }}
 {samplers}
 // surfaceHelpers.glslfx (SurfaceHelpers.TangentSpace): same signature.
 mat3 ComputeTBNMatrix(vec3 P, vec3 N, vec2 st)

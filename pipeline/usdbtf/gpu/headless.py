@@ -4,7 +4,8 @@ usd-core has no Hydra, so this is how the Storm/MaterialX shading code is run: t
 ``btf_core.glsl`` inside :func:`usdbtf.gpu.shaders.harness_fragment`, fed the textures
 packaging writes, under the CPU renderer's scene model (:class:`usdbtf.mesh.Mesh`,
 :class:`usdbtf.camera.Camera`, :mod:`usdbtf.render.scene` lights: white point and distant
-lights, irradiance relative to the capture light).
+lights, irradiance in the convention of :mod:`usdbtf.photometry`: a light of irradiance
+``pi * white_level`` reproduces the measured values).
 
     >>> from usdbtf.gpu.headless import HeadlessRenderer
     >>> gl = HeadlessRenderer(gpu_layout(cbtf))            # or layout_from_asset("a.usda")
@@ -21,6 +22,7 @@ import numpy as np
 
 from ..errors import BTFError
 from ..mesh import Mesh
+from ..photometry import capture_irradiance, check_white_level
 from . import shaders
 from .tables import MAX_PAGES, GpuLayout, with_wrap
 
@@ -101,7 +103,7 @@ class HeadlessRenderer:
     shader filters them itself, as in Storm: the tables say which).
     """
 
-    def __init__(self, layout: GpuLayout, wrap: str = "clamp", ctx=None):
+    def __init__(self, layout: GpuLayout, wrap: str = "clamp", ctx=None, white_level: float = 1.0):
         import moderngl
 
         layout = with_wrap(layout, wrap)
@@ -123,6 +125,9 @@ class HeadlessRenderer:
             self.pages.append(tex)
         self.empty = self.ctx.texture((1, 1), 4, np.zeros(4, np.float32).tobytes(), dtype="f4")
         self.program["uTables"].value = 0
+        # usdbtf.photometry: radiance = value x irradiance / (pi W).
+        self.white_level = check_white_level(white_level)
+        self.program["uWhiteLevel"].value = self.white_level
         for p in range(MAX_PAGES):
             self.program[shaders.page_sampler(p)].value = p + 1
 
@@ -160,9 +165,11 @@ class HeadlessRenderer:
                 obj.release()
         return raw.reshape(height, width, 4)[::-1].copy()
 
-    def swatch(self, view_deg, light_deg, intensity: float = 1.0, k: int | None = None) -> np.ndarray:
-        """(H, W, 3) float32: the flat patch, one pixel per texel, one distant light (the CPU
-        renderer's :meth:`~usdbtf.render.core.Renderer.swatch`)."""
+    def swatch(self, view_deg, light_deg, intensity: float | None = None, k: int | None = None) -> np.ndarray:
+        """(H, W, 3) float32: the flat patch, one pixel per texel, one distant light of
+        irradiance ``intensity`` (None: the capture light, ``pi W``; the CPU renderer's
+        :meth:`~usdbtf.render.core.Renderer.swatch`)."""
+        intensity = capture_irradiance(self.white_level) if intensity is None else intensity
         from ..render.hemisphere import directions_to_vectors
 
         h, w = (int(x) for x in self.layout.tables.reshape(-1, 4)[3, 2:0:-1])     # tile height, width

@@ -9,8 +9,9 @@ and lights.  Per visible pixel:
    reaching behind the camera are dropped, not clipped (keep the camera outside the mesh);
 2. interpolate position, normal, tangent, bitangent, st; orthonormalise the frame
    (x = tangent = image right, y = image up, z = normal, the rectified sample's axes);
-3. local view and light directions in that frame; for each light its irradiance scale
-   (1/d^2 for point lights) and shadow-map visibility;
+3. local view and light directions in that frame; for each light its irradiance (1/d^2 for
+   point lights) times ``1 / (pi W)`` (:mod:`usdbtf.photometry`: a light of irradiance
+   ``pi W`` reproduces the measured values) and shadow-map visibility;
 4. equation 2: 3 view x 3 light basis rows blended (:mod:`.shading`), then one dot with the
    k coefficients, filtered bilinearly or trilinearly over mip levels (:mod:`.texture`).
 
@@ -40,6 +41,7 @@ from .shading import BasisInterpolator
 from .shadows import ShadowMap
 from .texture import CoefficientTexture
 from ..numeric import single_blas_thread
+from ..photometry import radiance_per_irradiance, white_level_of
 
 __all__ = ["RenderOptions", "RenderResult", "Renderer", "render", "render_parts", "render_scene", "render_swatch",
            "front_facing", "point_frames", "perspective_weights"]
@@ -88,10 +90,17 @@ class Renderer:
         self.interp = BasisInterpolator(cbtf, k)
         self.domain = cbtf.domain
         self.texture = CoefficientTexture(cbtf, k, self.opts.wrap or default_wrap(cbtf), texel_map)
+        # usdbtf.photometry: radiance = value x irradiance / (pi W).
+        self.white_level = white_level_of(cbtf.info, "source_metadata.white_level")
+        self.radiance_per_irradiance = radiance_per_irradiance(self.white_level)
 
     # -- swatch ------------------------------------------------------------------------
-    def swatch(self, view_deg, light_deg, intensity: float = 1.0) -> np.ndarray:
-        """(H, W, 3) float32 working-space image of the flat patch, one pixel per texel."""
+    def swatch(self, view_deg, light_deg, intensity: float | None = None) -> np.ndarray:
+        """(H, W, 3) float32 working-space image of the flat patch, one pixel per texel, under a
+        distant light of irradiance ``intensity`` (None: the capture light, ``pi W``, which
+        reproduces the measured values)."""
+        # The capture light's pi W times 1 / (pi W) is 1 exactly (not 1 - 1 ulp).
+        intensity = 1.0 if intensity is None else float(intensity) * self.radiance_per_irradiance
         H, W = self.texture.height, self.texture.width
         j, i = np.meshgrid(np.arange(W), np.arange(H))
         st = np.stack([(j.ravel() + 0.5) / W, 1.0 - (i.ravel() + 0.5) / H], axis=1)
@@ -147,6 +156,7 @@ class Renderer:
         out = None if self.domain.is_linear else np.zeros((len(tri), 3), np.float32)
         for light, smap in zip(lights, shadow_maps):
             to_light, scale = light.at(p)
+            scale = scale * self.radiance_per_irradiance
             if smap is not None:
                 scale = scale * smap.visibility(p, normal)
             lit = np.flatnonzero(scale > 0)

@@ -5,11 +5,14 @@ The camera is :class:`usdbtf.camera.Camera`, the mesh :class:`usdbtf.mesh.Mesh`.
 
 Light  ``"point:X,Y,Z[:INTENSITY]"`` or ``"dir:X,Y,Z[:INTENSITY]"``: a point light at X,Y,Z,
        or a distant light in direction X,Y,Z (pointing *towards* the light).  Intensity is
-       irradiance relative to the capture's light: a distant light of intensity 1 reproduces
-       the measured images; a point light gives ``INTENSITY / d^2`` at distance d metres.
+       the irradiance E of :mod:`usdbtf.photometry` (radiance = value x E / (pi W)): a distant
+       light of intensity pi W reproduces the measured images; a point light gives
+       ``INTENSITY / d^2`` at distance d metres.  Without ``:INTENSITY``: pi
+       (:data:`DEFAULT_INTENSITY`, the capture light of a BTF that records no white level).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,7 +20,11 @@ import numpy as np
 from ..camera import parse_vec3, unit
 from ..errors import BTFError
 
-__all__ = ["Light", "parse_light"]
+__all__ = ["Light", "parse_light", "DEFAULT_INTENSITY"]
+
+#: A command-line light's intensity when it gives none: pi, the capture light (usdbtf.photometry)
+#: of a BTF that records no white level, so ``dir:X,Y,Z`` shows the measured brightness.
+DEFAULT_INTENSITY = math.pi
 
 
 @dataclass
@@ -45,7 +52,7 @@ def parse_light(text: str) -> Light:
         raise BTFError(f"--light: cannot parse {text!r} (use point:X,Y,Z[:I] or dir:X,Y,Z[:I])")
     vec = parse_vec3(parts[1], f"--light {text}")
     try:
-        intensity = float(parts[2]) if len(parts) == 3 else 1.0
+        intensity = float(parts[2]) if len(parts) == 3 else DEFAULT_INTENSITY
     except ValueError:
         raise BTFError(f"--light {text}: intensity must be a number") from None
     if not (np.isfinite(intensity) and intensity >= 0):

@@ -54,7 +54,7 @@ class BasisInterpolator:
         """rows (n, k) += scale * sum of the 9 weighted basis rows.
 
         view, light : (indices, weights) from :meth:`view_weights` / :meth:`light_weights`.
-        scale : (n,) or scalar light intensity (irradiance relative to the capture light,
+        scale : (n,) or scalar light intensity (irradiance x 1 / (pi W), usdbtf.photometry,
         shadowing included).
         """
         (iv, wv), (il, wl) = view, light

@@ -9,8 +9,9 @@ with Blender's USD importer and gives it the OSL network, and renders each frame
 
 A frame is a :class:`CyclesFrame`: the asset (and ``lod``), a camera (``"pole"``: orthographic
 down the swatch's normal, or a :class:`usdbtf.camera.Camera` in the asset's USD space), one
-sun (direction towards it in the asset's USD space, irradiance: 1 is the capture light,
-which is also a Blender sun of 1 W/m^2 here), the image size and the samples.
+sun (direction towards it in the asset's USD space; irradiance E, a Blender sun of strength E
+W/m^2, radiance = value x E / (pi W) as in :mod:`usdbtf.photometry`, so pi W is the capture
+light), the image size and the samples.
 """
 from __future__ import annotations
 
@@ -46,6 +47,8 @@ class CyclesFrame:
     lod: str | None = None
     irradiance: float = 1.0
     samples: int = 1
+    #: True: Blender's USD importer only (the UsdPreviewSurface fallback as a Principled BSDF).
+    fallback: bool = False
 
     def job(self) -> dict:
         camera = {"kind": "pole"} if isinstance(self.camera, str) else {
@@ -54,7 +57,7 @@ class CyclesFrame:
             "fov": float(self.camera.fov)}
         return {"asset": str(Path(self.asset).resolve()), "lod": self.lod, "output": str(self.output),
                 "size": [int(s) for s in self.size], "camera": camera, "sun": [float(x) for x in self.sun],
-                "irradiance": float(self.irradiance), "samples": int(self.samples)}
+                "irradiance": float(self.irradiance), "samples": int(self.samples), "fallback": bool(self.fallback)}
 
 
 @dataclass

@@ -12,8 +12,9 @@ does not compile, a node Sdr does not know.
 
 :func:`swatch_scene` writes the stage the accuracy check renders: the asset referenced, an
 orthographic camera looking down the swatch's normal (one pixel per texel) and one
-``UsdLux.DistantLight`` from a given direction whose irradiance is 1 -- the capture light
-(see :func:`usdbtf.usd.scene.distant_intensity`).
+``UsdLux.DistantLight`` from a given direction, by default of irradiance ``pi * W`` -- the
+capture light, which reproduces the measured values (:mod:`usdbtf.photometry`,
+:func:`usdbtf.usd.scene.distant_intensity`).
 """
 from __future__ import annotations
 
@@ -112,17 +113,22 @@ FAR = 10.0
 
 
 def swatch_scene(asset: Path, out: Path, light_deg, *, lod: str | None = None, kind: str = "distant",
-                 intensity: float | None = None, distance: float = 1.0) -> tuple[str, tuple[int, int]]:
+                 intensity: float | None = None, distance: float = 1.0,
+                 irradiance: float | None = None, fallback: bool = False) -> tuple[str, tuple[int, int]]:
     """Write ``out`` (.usda): ``asset`` (its ``lod`` selection) seen orthographically from the
     pole of its swatch (the quad in z = 0, tangent +x, bitangent +y), its extent filling the
     frame, lit from ``light_deg`` = (theta, phi) degrees in the swatch's frame by one light of
-    ``kind`` (:data:`LIGHT_KINDS`): a DistantLight of irradiance 1 (the capture light) unless
-    ``intensity`` is given; a SphereLight or a RectLight facing the swatch :data:`FAR` away
-    (intensity 1 unless given); "none" for only the renderer's camera light (a point light at
-    the camera, ``distance`` above the swatch: make it far for one direction).  Returns
+    ``kind`` (:data:`LIGHT_KINDS`): a DistantLight of irradiance ``pi * W`` (the capture light,
+    :mod:`usdbtf.photometry`) unless ``irradiance`` (or the raw ``intensity``) is given; a
+    SphereLight or a RectLight facing the swatch :data:`FAR` away (intensity 1 unless given);
+    "none" for only the renderer's camera light (a point light at the camera, ``distance`` above
+    the swatch: make it far for one direction).  ``fallback``: the scene blocks the BTF
+    materials' ``outputs:glslfx:surface`` connection, so Storm draws their ``UsdPreviewSurface``
+    fallback, what renderers without the BTF shader draw.  Returns
     (camera prim path, (width, height) = the texture's texels)."""
     from pxr import Gf, Usd, UsdGeom, UsdLux
 
+    from ..photometry import capture_irradiance, white_level_of
     from .read import load_btf
     from .scene import add_distant, new_scene, orient_towards
 
@@ -146,7 +152,8 @@ def swatch_scene(asset: Path, out: Path, light_deg, *, lod: str | None = None, k
     theta, phi = (math.radians(float(a)) for a in light_deg)
     towards = (math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta))
     if kind == "distant":
-        light = add_distant(stage, "/World/Light", towards)
+        light = add_distant(stage, "/World/Light", towards,
+                            capture_irradiance(white_level_of(cbtf.info)) if irradiance is None else irradiance)
         if intensity is not None:
             light.GetIntensityAttr().Set(intensity)
     elif kind in ("sphere", "rect"):
@@ -155,6 +162,15 @@ def swatch_scene(asset: Path, out: Path, light_deg, *, lod: str | None = None, k
         light.AddTranslateOp().Set(Gf.Vec3d(*(centre[i] + FAR * towards[i] for i in range(3))))
         light.CreateIntensityAttr(1.0 if intensity is None else intensity)
         orient_towards(light, towards)
+    if fallback:
+        from pxr import UsdShade
+
+        from .material import btf_materials
+
+        for material in btf_materials(stage):
+            output = UsdShade.Material(material).GetSurfaceOutput("glslfx")
+            if output:
+                output.GetAttr().SetConnections([])      # an explicit empty list blocks the asset's
     stage.GetRootLayer().customLayerData = {"usdbtf": {"output": "storm-check-scene"}}
     stage.Save()
     return "/World/Camera", (cbtf.width, cbtf.height)

@@ -88,6 +88,7 @@ def material_summary(stage, prim) -> dict:
         view_theta_deg=_theta_range(view), light_theta_deg=_theta_range(light),
         interpolated=len(get("interpolatedSamples") or []), error_percent=_error_at(prim, k),
         color_space=get("colorSpace"), ocio_config=get("ocioConfig"),
+        photometry=str(get("photometry")), white_level=float(get("whiteLevel")),
         source={"color_space": get("source:colorSpace"), "bit_depth": get("source:bitDepth")},
         provenance={"solver": get("provenance:solver"), "codec": get("provenance:codec"),
                     "version": get("provenance:version"), "source": get("provenance:source")},
@@ -143,6 +144,9 @@ def describe(path, info: dict | None = None) -> str:
                                              if err is not None else "not recorded"))
         lines.append(f"    colour       {m['color_space']} ({m['ocio_config']}); measured in "
                      f"{m['source']['color_space']} {m['source']['bit_depth']}")
+        lines.append(f"    photometry   {m['photometry']}: radiance = value x irradiance / (pi x {m['white_level']:g})"
+                     + (" (written before the convention: renders 1/pi as bright as it did)"
+                        if m["photometry"] == "legacy" else ""))
         p = m["provenance"]
         lines.append(f"    provenance   {p['solver']} solver, {p['codec']} codec, usdbtf {p['version']}, "
                      f"from {p['source']}")

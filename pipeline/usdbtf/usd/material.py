@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
+from .. import __version__, photometry
 from ..color import usd_color_space
 from ..compress.codecs import Codec, Stored
 from ..compress.format import CompressedBTF, basis_layout, image_to_basis
@@ -90,6 +90,9 @@ def author_btf(material, cbtf: CompressedBTF, basis: str, coefficients: list[str
     _set(material, "lightDirections", Vt.Vec2dArray([Gf.Vec2d(*map(float, v)) for v in cbtf.sampling.light]))
     if cbtf.interpolated is not None and cbtf.interpolated.any():
         _set(material, "interpolatedSamples", Vt.IntArray([int(i) for i in np.flatnonzero(cbtf.interpolated)]))
+    # usdbtf.photometry: what the values mean, and the white level they are relative to.
+    _set(material, "photometry", photometry.CONVENTION)
+    _set(material, "whiteLevel", photometry.white_level_of(cbtf.info, f"{material.GetPath()}: white_level"))
     _set(material, "colorSpace", cbtf.working_space)
     _set(material, "ocioConfig", cbtf.ocio_config or "ocio://default")
     if cbtf.source.get("color_space"):
@@ -186,6 +189,12 @@ def _get(prim, name: str, required: bool = True):
     return value
 
 
+def _authored(prim, name: str):
+    """The authored (composed) value of a schema attribute, None where only the fallback applies."""
+    attr = _attr(prim, name)
+    return attr.Get() if attr and attr.HasAuthoredValue() else None
+
+
 def _read_asset(prim, asset, what: str) -> np.ndarray:
     """Stored pixels of an asset-valued attribute, read through Ar (so usdz members work)."""
     from pxr import Ar
@@ -274,6 +283,11 @@ def read_btf(material, *, k: int | None = None) -> CompressedBTF:
     coverage = read_coverage(material)
     if coverage is not None:
         info["coverage"] = coverage
+    # Unauthored btf:photometry: an asset from before the convention (legacy), values relative to W = 1.
+    photometry.check_photometry(_authored(material, "photometry"), str(path))
+    white = _authored(material, "whiteLevel")
+    info["source_metadata"] = {"white_level": photometry.check_white_level(
+        photometry.DEFAULT_WHITE_LEVEL if white is None else white, f"{path}: {NS}whiteLevel")}
     matrix = np.asarray(_get(material, "colorMatrix"), np.float64).reshape(3, 3)
     source = {"color_space": _get(material, "source:colorSpace", required=False),
               "bit_depth": _get(material, "source:bitDepth", required=False)}

@@ -74,6 +74,7 @@ from .textures import TEXTURE_FORMATS, USDZ_FORMATS, TextureSet, package_texture
 from .validate import validate_layer
 from .formats import PAYLOAD_FORMATS
 from ..numeric import single_blas_thread
+from ..photometry import white_level_of
 
 __all__ = ["PackageOptions", "PackageResult", "package", "write_package", "asset_layers", "read_input",
            "asset_pieces", "check_root_layer", "make_usdz", "default_lods", "LOD_VARIANT_SET", "FULL_LOD",
@@ -249,10 +250,7 @@ def package(compressed, options: PackageOptions | None = None) -> PackageResult:
     if bad:
         raise UsageError(f"--lod {bad[0]} is outside 1..{cbtf.k} (the asset's k)")
     shape = load_mesh(options.mesh, need_uv=True).compacted().with_normals() if options.mesh else Mesh.swatch(*size)
-    source_meta = cbtf.info.get("source_metadata") or {}
-    white = float(source_meta.get("white_level", 1.0))
-    if not (np.isfinite(white) and white > 0):
-        raise BTFError(f"{where}: white_level {white!r} must be a positive number")
+    white = white_level_of(cbtf.info, f"{where}: source_metadata.white_level")
     curve = list(zip(cbtf.curve["k"], cbtf.curve["percent"])) if cbtf.curve else []
     source = str((cbtf.info.get("provenance") or {}).get("source") or cbtf.source.get("path") or "")
 
@@ -334,7 +332,7 @@ def _author_payload(stage, result: PackageResult, names: _Names, provenance: str
         g = result.gpu
         gpu = storm.author_gpu_preview(stage, material, textures.texture(g.tables, names.textures),
                                        [textures.texture(p, names.textures) for p in g.pages], g.k, wrap,
-                                       g.first_packs)
+                                       g.first_packs, white_level_of(cbtf.info))
     prim = author_mesh(stage, f"/{names.root}/geo/{valid_name(result.mesh.name)}", result.mesh)
     UsdShade.MaterialBindingAPI.Apply(prim).Bind(material)
     return coefficients, gpu

@@ -4,7 +4,8 @@ So the CPU reference (``usdbtf render SCENE.usda --camera PRIM``) and Storm
 (``usdbtf preview --renderer storm``, :mod:`usdbtf.usd.hydra`) render the same stage.  The
 light convention is the one Storm applies (measured in Storm 25.02 and 25.08 on a
 Lambertian ``UsdPreviewSurface`` and on the BTF shader, ``tests/test_storm.py``), expressed
-as the CPU renderer's irradiance relative to the capture light (:mod:`usdbtf.render.scene`):
+as the CPU renderer's irradiance (:mod:`usdbtf.render.scene`; what a BTF returns under it is
+:mod:`usdbtf.photometry`'s ``value x E / (pi W)``):
 
 ============== ===================================================================== ========
 UsdLux         Storm's simple lighting                                               CPU light
@@ -17,9 +18,10 @@ DomeLight      indirect: the BTF measures directional light only, so it adds not
 ============== ===================================================================== ========
 
 Each is also multiplied by ``2^exposure`` and the mean of its colour (the CPU renderer's
-lights are white).  A DistantLight of intensity 1 is therefore 1 / 14880 of the capture
-light at the default 0.53 degree angle: black, not ignored (the schema's default intensity,
-50000, is 3.4 capture lights).  Lengths are scaled to metres by the stage's metersPerUnit.
+lights are white).  A DistantLight of intensity 1 therefore has irradiance 1 / 14880 at the
+default 0.53 degree angle, 1 / 46747 of the capture light (pi W, W = 1): black, not ignored
+(the schema's default intensity, 50000, is irradiance 3.4).  Lengths are scaled to metres by
+the stage's metersPerUnit.
 """
 from __future__ import annotations
 
@@ -52,7 +54,8 @@ def _solid_angle(angle_deg: float) -> float:
 
 def distant_intensity(angle_deg: float = DISTANT_ANGLE) -> float:
     """The ``inputs:intensity`` of a UsdLux.DistantLight of angular diameter ``angle_deg`` whose
-    irradiance is 1 (the capture light): 1 / (2 pi (1 - cos(angle / 2))), 14880 at 0.53 deg."""
+    irradiance is 1: 1 / (2 pi (1 - cos(angle / 2))), 14880 at 0.53 deg (the capture light,
+    irradiance pi W, is pi W times that: :mod:`usdbtf.photometry`)."""
     return 1.0 / _solid_angle(angle_deg)
 
 
@@ -83,7 +86,8 @@ def orient_towards(xformable, towards) -> None:
 
 
 def add_distant(stage, path: str, towards, irradiance: float = 1.0):
-    """A DistantLight at ``path`` shining from ``towards`` with ``irradiance`` (capture lights)."""
+    """A DistantLight at ``path`` shining from ``towards`` with ``irradiance`` (E of
+    :mod:`usdbtf.photometry`; pi W is the capture light)."""
     from pxr import UsdLux
 
     light = UsdLux.DistantLight.Define(stage, path)

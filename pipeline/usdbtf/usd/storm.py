@@ -46,6 +46,7 @@ from ..compress.format import CompressedBTF
 from ..errors import BTFError
 from ..gpu import shaders
 from ..gpu.tables import MAX_PAGES, gpu_layout
+from ..photometry import white_level_of
 
 __all__ = ["plugin_dir_resources", "GPU_DIR", "STORM_SURFACE", "GpuTextures", "add_gpu_textures",
            "author_gpu_preview", "author_materialx_preview", "materialx_document", "storm_shader", "layout_from_asset", "read_rgba"]
@@ -118,14 +119,16 @@ def add_gpu_textures(cbtf: CompressedBTF, textures, lods=(), *, texels=None) -> 
                                 forkable=all(layout.pages.dtype(p) == np.uint8 for p in pages_range))
     pages = [textures.add(f"{GPU_DIR}/{shaders.page_name(p)}{suffix}", data, kind)
              for p, (suffix, data, kind) in enumerate(encoded)]
-    document = materialx_document(Path(tables).name, [Path(name).name for name in pages], layout.k)
+    document = materialx_document(Path(tables).name, [Path(name).name for name in pages], layout.k,
+                                  white_level_of(cbtf.info))
     textures.add_file(f"{GPU_DIR}/{MTLX_FILE}", document.encode())
     return GpuTextures(tables, pages, layout.k, layout.first_packs)
 
 
-def materialx_document(tables: str, pages: list[str], k: int) -> str:
+def materialx_document(tables: str, pages: list[str], k: int, white_level: float = 1.0) -> str:
     """A MaterialX document instancing usdbtf_surface on the given texture files (paths
-    relative to the document), bound to a surfacematerial named BtfMaterial."""
+    relative to the document), bound to a surfacematerial named BtfMaterial; ``white_level``:
+    the BTF's W (:mod:`usdbtf.photometry`)."""
     lines = ['<?xml version="1.0"?>',
              "<!-- usdbtf: the packaged BTF as MaterialX; needs plugin/usdBtf/resources/materialx on the"
              " library search path (PXR_MTLX_PLUGIN_SEARCH_PATHS for Hydra). -->",
@@ -135,6 +138,7 @@ def materialx_document(tables: str, pages: list[str], k: int) -> str:
     lines += [f'    <input name="{shaders.page_name(p)}" type="filename" value="{name}" />'
               for p, name in enumerate(pages)]
     lines += [f'    <input name="basisCount" type="integer" value="{k}" />',
+              f'    <input name="whiteLevel" type="float" value="{float(white_level)!r}" />',
               "  </usdbtf_surface>",
               '  <surfacematerial name="BtfMaterial" type="material">',
               '    <input name="surfaceshader" type="surfaceshader" nodename="btf" />',
@@ -156,12 +160,13 @@ def _texture(stage, path, texture, reader, wrap: str):
 
 
 def author_gpu_preview(stage, material, tables, pages: list, k: int, wrap: str,
-                       first_packs: list) -> tuple[str, list, int]:
+                       first_packs: list, white_level: float = 1.0) -> tuple[str, list, int]:
     """Author the Storm shader network in ``material`` (a UsdShade.Material on ``stage``, whose
     layer sits next to the texture folder) on the GPU textures ``tables`` and ``pages``
     (:class:`~usdbtf.usd.textures.Texture`\\ s of :func:`add_gpu_textures`' files; the tables
     hold ``k`` basis vectors; ``wrap`` for the page nodes, which the shader reads texel by
-    texel; ``first_packs``: the first pack of each page).  Returns (the shader's name under the
+    texel; ``first_packs``: the first pack of each page; ``white_level``: the BTF's W,
+    :mod:`usdbtf.photometry`).  Returns (the shader's name under the
     material, ``first_packs``, k) for the ``lod`` variants (:mod:`usdbtf.usd.lod`)."""
     from pxr import Sdf, UsdShade
 
@@ -178,6 +183,8 @@ def author_gpu_preview(stage, material, tables, pages: list, k: int, wrap: str,
                    surface.CreateInput("exposure", Sdf.ValueTypeNames.Float)]
     data_inputs[0].Set(k)
     data_inputs[1].Set(1.0)
+    data_inputs.append(surface.CreateInput("whiteLevel", Sdf.ValueTypeNames.Float))
+    data_inputs[-1].Set(float(white_level))
     tex = _texture(stage, mpath.AppendChild(TABLES_NODE), tables, reader, "clamp")
     data_inputs.append(surface.CreateInput("tables", Sdf.ValueTypeNames.Float))
     data_inputs[-1].ConnectToSource(tex.ConnectableAPI(), "r")
@@ -192,7 +199,8 @@ def author_gpu_preview(stage, material, tables, pages: list, k: int, wrap: str,
     return STORM_SURFACE, list(first_packs), k
 
 
-def author_materialx_preview(stage, material_path: str, tables: str, pages: list[str], k: int):
+def author_materialx_preview(stage, material_path: str, tables: str, pages: list[str], k: int,
+                             white_level: float = 1.0):
     """A Material at ``material_path`` whose ``outputs:mtlx:surface`` is the usdbtf node in
     Hydra's MaterialX path: ``ND_surface`` <- ``ND_usdbtf_bsdf`` (the tables and pages as
     asset inputs, ``texcoord`` from ``ND_texcoord_vector2``, ``basisCount`` = ``k``).  Storm
@@ -209,6 +217,7 @@ def author_materialx_preview(stage, material_path: str, tables: str, pages: list
     for p, page in enumerate(pages):
         bsdf.CreateInput(shaders.page_name(p), Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(page))
     bsdf.CreateInput("basisCount", Sdf.ValueTypeNames.Int).Set(int(k))
+    bsdf.CreateInput("whiteLevel", Sdf.ValueTypeNames.Float).Set(float(white_level))     # usdbtf.photometry
     st = UsdShade.Shader.Define(stage, f"{material_path}/TexCoord")
     st.CreateIdAttr("ND_texcoord_vector2")
     bsdf.CreateInput("texcoord", Sdf.ValueTypeNames.Float2).ConnectToSource(

@@ -2,7 +2,9 @@
 
 ``usdbtf.render`` evaluates the BTF itself (equation 2 with cast shadows), so the thumbnail
 shows the measured material, not its fallback.  The camera frames the geometry's bounding
-sphere from above the front (``auto_camera``); one distant light comes from the upper left.
+sphere from above the front (``auto_camera``); one distant light comes from the upper left,
+the capture light (irradiance ``pi * W``, :mod:`usdbtf.photometry`), so the thumbnail shows
+the measured values' own brightness.
 The image is display-encoded through OCIO (the renderer's default display and view) as an
 8-bit RGBA PNG, transparent where nothing was hit, and declared on the root prim with
 ``UsdMedia.AssetPreviewsAPI`` (``defaultImage``).
@@ -29,13 +31,14 @@ def render_thumbnail(cbtf: CompressedBTF, mesh: Mesh, size: int = THUMBNAIL_SIZE
     texels (a :class:`usdbtf.quilt.texels.QuiltTexels`), which the renderer gathers (the same
     image, without holding the quilt's texel-major texture)."""
     from ..camera import auto_camera
+    from ..photometry import capture_irradiance, white_level_of
     from ..render import Light, RenderOptions, Renderer, to_display
 
     camera = auto_camera(mesh.corner(), size, size)
     light = np.asarray(LIGHT_DIRECTION, np.float64)
     source, texel_map = (cbtf, None) if texels is None else (texels.compact, texels.index)
     image = Renderer(source, RenderOptions(threads=2), texel_map=texel_map).render(
-        mesh, camera, [Light("directional", light / np.linalg.norm(light), 1.0)])
+        mesh, camera, [Light("directional", light / np.linalg.norm(light), capture_irradiance(white_level_of(cbtf.info)))])
     return to_display(image, cbtf.working_space, config=cbtf.ocio_config)
 
 

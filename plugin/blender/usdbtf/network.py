@@ -117,7 +117,7 @@ def _storm_shader(stage):
 
 
 def read_lods(asset: str) -> tuple[str, str, dict]:
-    """(material prim name, default lod, {lod: {"basisCount", "tables", "pages"}}) of a
+    """(material prim name, default lod, {lod: {"basisCount", "whiteLevel", "tables", "pages"}}) of a
     usdbtf asset (a .usda/.usdc on disk: the textures must be files OSL can open).
 
     The textures and basis count come from the asset's Storm network under each selection
@@ -146,7 +146,9 @@ def read_lods(asset: str) -> tuple[str, str, dict]:
             raise ValueError(f"{asset}: the {STORM_ID} shader has no tables texture on disk (open the .usda, "
                              "not a .usdz)")
         count = shader.GetInput("basisCount").Get() if shader.GetInput("basisCount") else 0
-        lods[name] = {"basisCount": int(count or 0), "tables": tables,
+        # The white level (usdbtf.photometry); an asset from before it has none: 1.
+        white = shader.GetInput("whiteLevel").Get() if shader.GetInput("whiteLevel") else None
+        lods[name] = {"basisCount": int(count or 0), "whiteLevel": float(white or 1.0), "tables": tables,
                       "pages": [_connected_file(shader, page_name(p)) for p in range(MAX_PAGES)]}
     return material, default, lods
 
@@ -251,6 +253,7 @@ def apply_lod(material, lod: str) -> None:
     for p, path in enumerate(level["pages"]):
         node.inputs[page_name(p)].default_value = raw_texture(path)
     node.inputs["basisCount"].default_value = level["basisCount"]
+    node.inputs["whiteLevel"].default_value = level.get("whiteLevel", 1.0)
 
 
 def sun_direction(sun) -> tuple[float, float, float]:
@@ -261,7 +264,8 @@ def sun_direction(sun) -> tuple[float, float, float]:
 
 
 def sync_sun(material, sun) -> None:
-    """Copy ``sun``'s direction and strength (W/m^2; 1 = the capture light) into the shader."""
+    """Copy ``sun``'s direction and strength (W/m^2: the irradiance; pi x the white level is the
+    capture light, usdbtf.photometry) into the shader."""
     node = script_node(material)
     if node is None or sun is None or sun.type != "LIGHT" or sun.data.type != "SUN":
         return

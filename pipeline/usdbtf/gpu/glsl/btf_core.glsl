@@ -45,6 +45,7 @@
 // arguments by reference), no arrays, no block comments, no write to a swizzle.
 
 #define BTF_HALF_PI 1.5707963267948966
+#define BTF_PI 3.141592653589793
 // Query points this close outside a triangle (disc units) still count as inside:
 // float32 rounding on shared edges and on the outermost ring.
 #define BTF_INSIDE_EPS 1e-5
@@ -222,6 +223,15 @@ vec4 btfPack(sampler2D btfTables, BTF_PAGE_PARAMS, int p, vec2 st)
     vec4 c = btfPageTexel(BTF_PAGE_ARGS, page, x0 + i0.x, y0 + i1.y);
     vec4 d = btfPageTexel(BTF_PAGE_ARGS, page, x0 + i1.x, y0 + i1.y);
     return mix(mix(a, b, w.x), mix(c, d, w.x), w.y);
+}
+
+// The photometric convention (usdbtf.photometry): a BTF value is the radiance under a light of
+// irradiance pi * W (W: the white level, what a white Lambertian lit head-on reads), so under
+// irradiance E the radiance is value * E / (pi * W).  Every environment multiplies a light's
+// irradiance by this before btfShadeLight.
+float btfRadiancePerIrradiance(float whiteLevel)
+{
+    return 1.0 / (BTF_PI * max(whiteLevel, 1e-30));
 }
 
 // One light's working-space radiance at texture coordinate st from the first k basis

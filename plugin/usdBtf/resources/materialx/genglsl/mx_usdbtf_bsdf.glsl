@@ -52,6 +52,7 @@
 // arguments by reference), no arrays, no block comments, no write to a swizzle.
 
 #define BTF_HALF_PI 1.5707963267948966
+#define BTF_PI 3.141592653589793
 // Query points this close outside a triangle (disc units) still count as inside:
 // float32 rounding on shared edges and on the outermost ring.
 #define BTF_INSIDE_EPS 1e-5
@@ -231,6 +232,15 @@ vec4 btfPack(sampler2D btfTables, BTF_PAGE_PARAMS, int p, vec2 st)
     return mix(mix(a, b, w.x), mix(c, d, w.x), w.y);
 }
 
+// The photometric convention (usdbtf.photometry): a BTF value is the radiance under a light of
+// irradiance pi * W (W: the white level, what a white Lambertian lit head-on reads), so under
+// irradiance E the radiance is value * E / (pi * W).  Every environment multiplies a light's
+// irradiance by this before btfShadeLight.
+float btfRadiancePerIrradiance(float whiteLevel)
+{
+    return 1.0 / (BTF_PI * max(whiteLevel, 1e-30));
+}
+
 // One light's working-space radiance at texture coordinate st from the first k basis
 // vectors: per group of 4 vectors, the 3 x 3 basis rows blended with weights summing to 1
 // (in the working domain) dotted with the group's 3 packs, then the colour matrix and the
@@ -286,7 +296,8 @@ vec3 btfShadeLight(sampler2D btfTables, BTF_PAGE_PARAMS, ivec3 viewIndex, vec3 v
 // term: the measurement has no such thing.
 // lightdirection is for OSL (genosl), which cannot be called per light; GLSL is.
 void mx_usdbtf_bsdf(ClosureData closureData, sampler2D btfTables, BTF_PAGE_PARAMS, vec2 texcoord, int basisCount,
-               float weight, vec3 normal, vec3 tangent, vec3 bitangent, vec3 lightdirection, inout BSDF bsdf)
+               float weight, vec3 normal, vec3 tangent, vec3 bitangent, vec3 lightdirection, float whiteLevel,
+               inout BSDF bsdf)
 {
     bsdf.throughput = vec3(0.0);
     bsdf.response = vec3(0.0);
@@ -299,6 +310,6 @@ void mx_usdbtf_bsdf(ClosureData closureData, sampler2D btfTables, BTF_PAGE_PARAM
     btfViewLookup(btfTables, btfLocal(frame, closureData.V), viewIndex, viewWeight);
     int k = basisCount > 0 ? basisCount : 1 << 20;
     bsdf.response = weight * closureData.occlusion
-                  * btfShadeLight(btfTables, BTF_PAGE_ARGS, viewIndex, viewWeight, btfLocal(frame, closureData.L), 1.0,
-                                  texcoord, k);
+                  * btfShadeLight(btfTables, BTF_PAGE_ARGS, viewIndex, viewWeight, btfLocal(frame, closureData.L),
+                                  btfRadiancePerIrradiance(whiteLevel), texcoord, k);
 }

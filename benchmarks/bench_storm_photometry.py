@@ -1,0 +1,365 @@
+#!/usr/bin/env python
+"""The BTF and its UsdPreviewSurface fallback under the same UsdLux light, in real Storm (issue 40).
+
+For each preset: ``usdbtf synth PRESET --sampling SAMPLING --size SIZE`` (seed 5),
+``compress --k K --codec png``, ``package --physical-size 0.05 0.05``; then per USD version
+(the ``.venv-storm-*`` environments) one Storm process draws, for each of ``--lights``
+measured light directions at the pole view, orthographically from the pole, one texel a
+pixel, under one ``UsdLux.DistantLight`` of irradiance 1 (``usd.hydra.swatch_scene``):
+
+btf       the asset as packaged (the BTF shader, this convention: radiance = value x E / (pi W));
+fallback  the same asset with ``outputs:glslfx:surface`` blocked: the UsdPreviewSurface fallback;
+legacy    the BTF shader with ``inputs:exposure = pi W``: exactly the shader before this convention
+          (irradiance 1 = the capture light), the baseline, measured in the same run.
+
+Reported: the BTF's gain against the decompressed samples (``usd.cycles.common_gain``: one
+least-squares gain per light, their mean; the convention says pi W) and its mean |difference|
+in 8-bit sRGB steps after that gain; per light the fallback's mean brightness over the BTF's
+(``fallback.mean() / btf.mean()``, linear RGB, no gain) now and before (over ``legacy``).  To
+tell the causes apart, in the same run and at the same lights:
+
+model     the fit's own prediction (``svbrdf.evaluate`` of the maps as shipped) over the BTF's
+          reconstruction, mean over the swatch (exact sampling, no renderer);
+working   the Storm fallback frame taken from linear Rec.709 (what Storm shades the sRGB maps
+          in) to the BTF's working space (what the BTF shader returns) before the mean;
+flat      the Storm fallback with its normal map blocked;
+cycles    Cycles (bpy 5.0.1): Blender's USD importer's Principled BSDF from the fallback over
+          the add-on's OSL BTF, one sun of 1 W/m^2 (``--cycles``);
+checker   Storm's sampling of a UsdUVTexture: the fallback's diffuse map replaced by a
+          black/white checker, flat normal, no specular, light at the pole; min and max over the
+          white level 1/pi of the frame's middle half at one texel a pixel (in brackets: at four
+          pixels a texel); exact sampling: 0 and 1.  Once per USD version the same checker on a
+          hand-authored quad (UsdPreviewSurface <- UsdUVTexture, no usdbtf asset).
+
+Usage (repository root)::
+
+    .venv/bin/python benchmarks/bench_storm_photometry.py
+    .venv/bin/python benchmarks/bench_storm_photometry.py --presets satin_weave --usd 25.08
+
+Writes benchmarks/out/storm_photometry_<timestamp>.json and prints a markdown block.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import usdbtf  # noqa: F401  (before numpy: pins the numeric platform; registers the schema plugin)
+import numpy as np
+
+from common import OUT, format_machine, machine_info, timestamp, write_json
+
+
+def say(msg: str = "") -> None:
+    print(msg, flush=True)
+
+
+def build(preset: str, work: Path, sampling: str, size: int, k: int) -> Path:
+    from usdbtf.cli import main
+
+    src, comp, asset = work / "src", work / "c", work / "a" / f"{preset}.usda"
+    for argv in (["synth", preset, "-o", str(src), "--sampling", sampling, "--size", str(size), "--seed", "5"],
+                 ["compress", str(src), "-o", str(comp), "--k", str(k), "--codec", "png"],
+                 ["package", str(comp), "-o", str(asset), "--physical-size", "0.05", "0.05"]):
+        if main(argv + ["-q"]) != 0:
+            raise SystemExit(f"usdbtf {' '.join(argv)} failed")
+    return asset
+
+
+def pole_lights(cbtf, count: int) -> list[tuple[int, tuple[float, float]]]:
+    """[(sample index, light (theta, phi))] of ``count`` measured lights at the pole view with
+    theta in 15..65 degrees, spread over the list (deterministic)."""
+    view0 = np.flatnonzero(np.all(np.abs(cbtf.sampling.view) < 1e-9, axis=1))
+    cand = [int(s) for s in view0 if 15.0 <= cbtf.sampling.light[s][0] <= 65.0]
+    picks = [cand[int(round(i))] for i in np.linspace(0, len(cand) - 1, min(count, len(cand)))]
+    return [(s, tuple(float(a) for a in cbtf.sampling.light[s])) for s in picks]
+
+
+def flat_normal(scene: Path) -> None:
+    """Block the fallback's normal-map connection in ``scene`` (normal (0, 0, 1))."""
+    from pxr import Gf, Usd, UsdShade
+
+    from usdbtf.usd.material import btf_materials
+
+    stage = Usd.Stage.Open(str(scene))
+    for material in btf_materials(stage):
+        surface = UsdShade.Shader(stage.GetPrimAtPath(material.GetPath().AppendChild("PreviewSurface")))
+        surface.GetInput("normal").GetAttr().SetConnections([])
+        surface.GetInput("normal").Set(Gf.Vec3f(0.0, 0.0, 1.0))
+    stage.Save()
+
+
+def fit_model_ratios(asset: Path, cbtf, samples: list[int]) -> list[float]:
+    """Per sample: the shipped fallback maps' prediction (svbrdf.evaluate) over the BTF's
+    reconstruction, mean over the swatch."""
+    from usdbtf import svbrdf
+    from usdbtf.compress import reconstruct
+    from usdbtf.imageio import read_image
+    from usdbtf.usd.fallback import FALLBACK_DIR, MAP_FILES, decode_maps
+
+    folder = asset.with_name(f"{asset.stem}_textures") / FALLBACK_DIR
+    pixels = {name: read_image(folder / MAP_FILES[name][0])[0] for name in MAP_FILES}
+    maps = decode_maps(pixels, cbtf.working_space, ocio_config=cbtf.ocio_config)
+    pred = svbrdf.evaluate(maps, cbtf.sampling.view[samples], cbtf.sampling.light[samples])
+    rec = reconstruct(cbtf, samples)
+    return [float(pred[i].mean() / rec[i].mean()) for i in range(len(samples))]
+
+
+def cycles_ratios(asset: Path, lights, work: Path) -> list[float]:
+    """Per light: Blender's Principled BSDF from the fallback over the add-on's OSL BTF (Cycles)."""
+    from usdbtf.usd import cycles
+    from usdbtf.usd.hydra import storm_pythons
+
+    def towards(light):
+        theta, phi = (math.radians(a) for a in light)
+        return (math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta))
+
+    frames = [cycles.CyclesFrame(asset, work / f"cycles_{s}_{fb}.exr", towards(light), size=(32, 32), fallback=fb)
+              for s, light in lights for fb in (False, True)]
+    images = cycles.render_frames(storm_pythons()["25.08"], frames).images
+    return [float(images[2 * i + 1][..., :3].mean() / images[2 * i][..., :3].mean()) for i in range(len(lights))]
+
+
+def storm_checker(asset: Path, python: Path, work: Path) -> dict:
+    """Storm's sampling of a UsdUVTexture at one texel a pixel (see the module docstring)."""
+    import shutil
+
+    import OpenImageIO as oiio
+    from pxr import Gf, Usd, UsdShade
+
+    from usdbtf.usd import hydra
+    from usdbtf.usd.material import btf_materials
+
+    copy = work / "checker"
+    shutil.copytree(asset.parent, copy)
+    asset = copy / asset.name
+    diffuse = copy / f"{asset.stem}_textures" / "fallback" / "diffuse.png"
+    h, w = oiio.ImageInput.open(str(diffuse)).spec().height, oiio.ImageInput.open(str(diffuse)).spec().width
+    pixels = np.where((np.add.outer(np.arange(h), np.arange(w)) % 2 == 0)[..., None], 255, 0).astype(np.uint8)
+    out = oiio.ImageOutput.create(str(diffuse))
+    out.open(str(diffuse), oiio.ImageSpec(w, h, 3, "uint8"))
+    out.write_image(np.repeat(pixels, 3, axis=2))
+    out.close()
+    scene = copy / "scene.usda"
+    camera, size = hydra.swatch_scene(asset, scene, (0.0, 0.0), irradiance=1.0, fallback=True)
+    stage = Usd.Stage.Open(str(scene))
+    for material in btf_materials(stage):
+        surface = UsdShade.Shader(stage.GetPrimAtPath(material.GetPath().AppendChild("PreviewSurface")))
+        for name, value in (("normal", Gf.Vec3f(0, 0, 1)), ("specularColor", Gf.Vec3f(0, 0, 0))):
+            surface.GetInput(name).GetAttr().SetConnections([])
+            surface.GetInput(name).Set(value)
+    stage.Save()
+    out = {}
+    for mag in (1, 4):
+        frame = hydra.render_frames(python, [(scene, copy / f"x{mag}.exr")], camera,
+                                    (size[0] * mag, size[1] * mag)).images[0][..., 0] * math.pi
+        h4, w4 = frame.shape[0] // 4, frame.shape[1] // 4
+        middle = frame[h4:3 * h4, w4:3 * w4]                 # the frame's middle half, away from the edges
+        out[f"x{mag}"] = {"min": float(frame.min()), "max": float(frame.max()),
+                          "middle_min": float(middle.min()), "middle_max": float(middle.max())}
+    out.update(min=out["x1"]["min"], max=out["x1"]["max"])
+    return out
+
+
+def storm_minimal_checker(python: Path, work: Path, n: int = 32) -> dict:
+    """The checker without usdbtf: a hand-authored unit quad, UsdPreviewSurface <- UsdUVTexture
+    (sRGB PNG, n x n black/white checker) <- UsdPrimvarReader_float2 st, an orthographic camera
+    one texel a pixel, one DistantLight of irradiance pi from the pole.  Frame middle-half
+    min..max over the white level (exact: 0..1)."""
+    import OpenImageIO as oiio
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
+
+    from usdbtf.usd import hydra
+    from usdbtf.usd.scene import add_distant
+
+    folder = work / "minimal"
+    folder.mkdir()
+    pixels = np.where((np.add.outer(np.arange(n), np.arange(n)) % 2 == 0)[..., None], 255, 0).astype(np.uint8)
+    out = oiio.ImageOutput.create(str(folder / "checker.png"))
+    out.open(str(folder / "checker.png"), oiio.ImageSpec(n, n, 3, "uint8"))
+    out.write_image(np.repeat(pixels, 3, axis=2))
+    out.close()
+    path = folder / "quad.usda"
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    mesh = UsdGeom.Mesh.Define(stage, "/World/Quad")
+    mesh.CreatePointsAttr([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)])
+    mesh.CreateFaceVertexCountsAttr([4])
+    mesh.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    mesh.CreateExtentAttr([(0, 0, 0), (1, 1, 0)])
+    UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex).Set(
+        [(0, 0), (1, 0), (1, 1), (0, 1)])
+    material = UsdShade.Material.Define(stage, "/World/Mat")
+    reader = UsdShade.Shader.Define(stage, "/World/Mat/St")
+    reader.CreateIdAttr("UsdPrimvarReader_float2")
+    reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
+    reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
+    tex = UsdShade.Shader.Define(stage, "/World/Mat/Tex")
+    tex.CreateIdAttr("UsdUVTexture")
+    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set("./checker.png")
+    tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
+    tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+    tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+    surface = UsdShade.Shader.Define(stage, "/World/Mat/Surface")
+    surface.CreateIdAttr("UsdPreviewSurface")
+    surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(tex.ConnectableAPI(), "rgb")
+    surface.CreateInput("useSpecularWorkflow", Sdf.ValueTypeNames.Int).Set(1)
+    surface.CreateInput("specularColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(0, 0, 0))
+    surface.CreateOutput("surface", Sdf.ValueTypeNames.Token)
+    material.CreateSurfaceOutput().ConnectToSource(surface.ConnectableAPI(), "surface")
+    UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
+    camera = UsdGeom.Camera.Define(stage, "/World/Camera")
+    camera.CreateProjectionAttr(UsdGeom.Tokens.orthographic)
+    camera.CreateHorizontalApertureAttr(10.0)           # tenths of a scene unit: the unit quad
+    camera.CreateVerticalApertureAttr(10.0)
+    camera.CreateClippingRangeAttr(Gf.Vec2f(0.5, 2.0))
+    camera.AddTranslateOp().Set(Gf.Vec3d(0.5, 0.5, 1.0))
+    add_distant(stage, "/World/Sun", (0.0, 0.0, 1.0), math.pi)
+    stage.GetRootLayer().Save()
+    frame = hydra.render_frames(python, [(path, folder / "quad.exr")], "/World/Camera", (n, n)).images[0][..., 0]
+    middle = frame[n // 4:3 * n // 4, n // 4:3 * n // 4]
+    return {"middle_min": float(middle.min()), "middle_max": float(middle.max())}
+
+
+def legacy_exposure(scene: Path, value: float) -> None:
+    """Set the BTF shader's inputs:exposure in ``scene`` (the old convention's brightness)."""
+    from pxr import Usd
+
+    from usdbtf.usd.material import btf_materials
+    from usdbtf.usd.storm import storm_shader
+
+    stage = Usd.Stage.Open(str(scene))
+    for material in btf_materials(stage):
+        storm_shader(material).GetInput("exposure").Set(float(value))
+    stage.Save()
+
+
+def measure(asset: Path, python: Path, work: Path, count: int) -> dict:
+    from usdbtf.color import processor
+    from usdbtf.decompress import DecompressOptions, decompress
+    from usdbtf.photometry import capture_irradiance, white_level_of
+    from usdbtf.usd import hydra
+    from usdbtf.usd.cycles import common_gain
+    from usdbtf.usd.read import load_btf
+
+    cbtf = load_btf(asset)
+    white = white_level_of(cbtf.info)
+    lights = pole_lights(cbtf, count)
+    frames, kinds = [], []
+    for s, light in lights:
+        for kind in ("btf", "fallback", "legacy", "flat"):
+            scene = work / f"{kind}_{s}.usda"
+            camera, size = hydra.swatch_scene(asset, scene, light, irradiance=1.0, fallback=kind in ("fallback", "flat"))
+            if kind == "legacy":
+                legacy_exposure(scene, capture_irradiance(white))
+            if kind == "flat":
+                flat_normal(scene)
+            frames.append((scene, scene.with_suffix(".exr")))
+            kinds.append((s, kind))
+    t = time.perf_counter()
+    result = hydra.render_frames(python, frames, camera, size)
+    seconds = time.perf_counter() - t
+    if result.problems:
+        raise SystemExit("\n".join(result.problems))
+    images = {key: img[..., :3].astype(np.float64) for key, img in zip(kinds, result.images)}
+    # Storm decodes the fallback's sRGB maps to linear Rec.709 and shades in it; the BTF shader
+    # returns working-space values (the Material's ColorSpaceAPI): the fallback's frame taken to
+    # the working space compares like with like.
+    to_working = processor("Linear Rec.709 (sRGB)", cbtf.working_space, cbtf.ocio_config)
+    matched = {s: to_working.apply(images[(s, "fallback")].astype(np.float32)).astype(np.float64) for s, _ in lights}
+    samples = {s: decompress(cbtf, DecompressOptions(samples=str(s))).btf.read_samples([0])[0] for s, _ in lights}
+    gain, gains, steps = common_gain([(images[(s, "btf")], samples[s]) for s, _ in lights])
+    lgain, _, _ = common_gain([(images[(s, "legacy")], samples[s]) for s, _ in lights])
+    rows = [{"sample": s, "light": light, "btf_gain": g, "btf_steps": d,
+             "fallback_over_btf": float(images[(s, "fallback")].mean() / images[(s, "btf")].mean()),
+             "fallback_over_legacy": float(images[(s, "fallback")].mean() / images[(s, "legacy")].mean()),
+             "fallback_working_over_btf": float(matched[s].mean() / images[(s, "btf")].mean()),
+             "flat_normal_over_btf": float(images[(s, "flat")].mean() / images[(s, "btf")].mean())}
+            for (s, light), g, d in zip(lights, gains, steps)]
+    model = fit_model_ratios(asset, cbtf, [s for s, _ in lights])
+    for row, m in zip(rows, model):
+        row["model_over_btf"] = m
+    return {"white_level": white, "btf_gain": gain, "legacy_gain": lgain, "convention_gain": capture_irradiance(white),
+            "storm_seconds": seconds, "lights": rows}
+
+
+def main(argv=None) -> int:
+    from usdbtf.usd import hydra
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--presets", nargs="+", default=["satin_weave", "pebbles", "velvet"])
+    ap.add_argument("--sampling", default="small")
+    ap.add_argument("--size", type=int, default=32)
+    ap.add_argument("--k", type=int, default=64)
+    ap.add_argument("--lights", type=int, default=6)
+    ap.add_argument("--usd", nargs="+", default=None, help="USD versions (default: every Storm environment)")
+    ap.add_argument("--cycles", action="store_true", help="also Cycles (bpy 5.0.1, .venv-storm-5.0)")
+    args = ap.parse_args(argv)
+    pythons = hydra.storm_pythons()
+    versions = args.usd or sorted(pythons)
+    info = machine_info()
+    say(format_machine(info))
+    say(f"inputs: synth --sampling {args.sampling} --size {args.size} --seed 5, compress --k {args.k} --codec png, "
+        f"package --physical-size 0.05 0.05; {args.lights} pole-view lights, DistantLight irradiance 1")
+    out = {"machine": info, "args": vars(args), "results": {}}
+    lines = ["| preset | USD | BTF gain vs samples (pi W = 3.1416) | before | BTF steps | Storm fallback / BTF | "
+             "before (/ legacy BTF) | in the working space | normal map blocked | fit model / BTF | "
+             "Cycles Principled / OSL BTF | Storm checker |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    with tempfile.TemporaryDirectory(prefix="usdbtf-bench-") as tmp:
+        for preset in args.presets:
+            asset = build(preset, Path(tmp) / preset, args.sampling, args.size, args.k)
+            for version in versions:
+                work = Path(tmp) / preset / f"storm{version}"
+                work.mkdir()
+                r = measure(asset, pythons[version], work, args.lights)
+                r["checker"] = storm_checker(asset, pythons[version], work)
+                if args.cycles and version == versions[-1]:
+                    r["cycles"] = cycles_ratios(asset, [(row["sample"], row["light"]) for row in r["lights"]], work)
+                out["results"][f"{preset} {version}"] = r
+                ratios = [row["fallback_over_btf"] for row in r["lights"]]
+                before = [row["fallback_over_legacy"] for row in r["lights"]]
+                steps = [row["btf_steps"] for row in r["lights"]]
+                say(f"{preset} USD {version}: BTF gain {r['btf_gain']:.4f} (pi W = {r['convention_gain']:.4f}, "
+                    f"{r['btf_gain'] / r['convention_gain']:.4f} of it), before {r['legacy_gain']:.4f}; "
+                    f"fallback/BTF {np.round(ratios, 3).tolist()}, in the working space "
+                    f"{np.round([row['fallback_working_over_btf'] for row in r['lights']], 3).tolist()}, normal map blocked "
+                    f"{np.round([row['flat_normal_over_btf'] for row in r['lights']], 3).tolist()}, before {np.round(before, 3).tolist()} "
+                    f"({r['storm_seconds']:.1f} s Storm); fit model / BTF "
+                    f"{np.round([row['model_over_btf'] for row in r['lights']], 3).tolist()}; Storm checker at one "
+                    f"texel a pixel: {r['checker']['min']:.3f}..{r['checker']['max']:.3f}, middle "
+                    f"{r['checker']['x1']['middle_min']:.3f}..{r['checker']['x1']['middle_max']:.3f}, at 4 pixels a "
+                    f"texel middle {r['checker']['x4']['middle_min']:.3f}..{r['checker']['x4']['middle_max']:.3f} "
+                    "(exact: 0..1)"
+                    + (f"; Cycles Principled / OSL BTF {np.round(r['cycles'], 3).tolist()}" if "cycles" in r else ""))
+                def span(key):
+                    values = [row[key] for row in r["lights"]]
+                    return f"{min(values):.3f}-{max(values):.3f}"
+
+                cyc = f"{min(r['cycles']):.3f}-{max(r['cycles']):.3f}" if "cycles" in r else "-"
+                lines.append(f"| {preset} | {version} | {r['btf_gain']:.4f} | {r['legacy_gain']:.4f} | "
+                             f"{min(steps):.2f}-{max(steps):.2f} | {span('fallback_over_btf')} | "
+                             f"{span('fallback_over_legacy')} | {span('fallback_working_over_btf')} | "
+                             f"{span('flat_normal_over_btf')} | {span('model_over_btf')} | {cyc} | "
+                             f"{r['checker']['x1']['middle_min']:.2f}..{r['checker']['x1']['middle_max']:.2f} "
+                             f"({r['checker']['x4']['middle_min']:.2f}..{r['checker']['x4']['middle_max']:.2f}) |")
+    with tempfile.TemporaryDirectory(prefix="usdbtf-bench-") as tmp:
+        for version in versions:
+            work = Path(tmp) / version
+            work.mkdir()
+            m = storm_minimal_checker(pythons[version], work)
+            out[f"minimal checker {version}"] = m
+            say(f"USD {version}: the checker on a hand-authored UsdPreviewSurface quad (no usdbtf), one texel a "
+                f"pixel: middle {m['middle_min']:.3f}..{m['middle_max']:.3f} (exact: 0..1)")
+    path = OUT / f"storm_photometry_{timestamp()}.json"
+    write_json(path, out)
+    say(f"\nwrote {path}\n")
+    say("\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
