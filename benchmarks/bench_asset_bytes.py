@@ -5,7 +5,7 @@ For one synthetic material (``usdbtf synth``, cached) compressed twice (``usdbtf
 ``--k K``, cached), ``usdbtf package`` (this checkout's code) writes the asset; its files are counted by kind:
 ``tables.exr`` (split into the basis block and the rest: hemisphere tables, de-quantisation, directory; the
 rest measured by encoding the same tables with the basis block zeroed), the coefficient pages, ``coeff/``,
-``basis.*``, the fallback maps, the thumbnail, the MaterialX document and the USD layers.
+``basis.*`` (before issue 39), the fallback maps, the thumbnail, the MaterialX document and the USD layers.
 
 Then, from the same codes (the compressed folder's, read with ``read_compressed``), the bytes of candidate
 single-copy layouts, every one PNG at compression level 6 for 8-bit codes (what ``package`` writes) and the
@@ -16,11 +16,13 @@ coefficients
   (b) single-channel pages, each coefficient's three colour planes side by side in one tile (planar);
   (c) RGB pages, one coefficient per tile.
 basis
-  (1) float32 de-quantised values inside ``tables.exr`` (today's GPU copy);
-  (2) the integer codes as float32 inside ``tables.exr`` (the shader de-quantises, scale and bias per vector);
-  (3) the codes in a separate half-float EXR (exact for 8-bit codes; one more sampler) + tables without basis;
-  (4) the codes as an RGBA8 PNG in the shader's order (4 vectors per texel; 8-bit codes only; one more sampler);
-  (5) ``basis.png``, the codec's tiled basis image as the asset holds it today.
+  each as a standalone float/PNG image of 512-texel rows, 4 vectors per texel:
+  (1) float32 de-quantised values, sample-major (the GPU copy before issue 39);
+  (2) the stored codes as float32, sample-major; (3) the same, group-major (one group of 4 vectors'
+  samples after the other: what the tables hold after issue 39, the shader de-quantises);
+  (4) the codes as half floats (exact only for codes <= 2048; a sampler of its own);
+  (5) the codes' high and low bytes as two RGBA8 PNGs (what Storm can read exactly; two samplers);
+  (6) the codec's tiled basis image as 16-bit PNG (``basis.png`` of the asset before issue 39).
 
 Shader cost per pixel and light, per coefficient: texel fetches of the coefficient pages (bilinear = 4 fetches
 per tile read) and of the de-quantisation (2 per tile), from the layout.
@@ -142,26 +144,43 @@ def candidates(folder: Path) -> dict:
 
     flat = layout.tables.reshape(-1, 4)
     V, L, groups = int(flat[0][1]), int(flat[0][2]), int(flat[0][3])
-    basis_at = int(flat[1][1])
     S = V * L
+    # The basis block runs from its offset to the view hemisphere's table (both layouts).
+    basis_at, view_at = int(flat[1][1]), int(flat[1][2])
+    zeroed = layout.tables.copy()
+    zeroed.reshape(-1, 4)[basis_at:view_at] = 0
+    out["tables_this_checkout"] = exr(layout.tables)
+    out["tables_rest"] = exr(zeroed)
+
+    def rows512(texels: np.ndarray) -> np.ndarray:
+        rows = -(-len(texels) // 512)
+        block = np.zeros((rows * 512, 4), texels.dtype)
+        block[:len(texels)] = texels
+        return block.reshape(rows, 512, 4)
+
     codes = np.zeros((S, groups * 4), np.float32)
     codes[:, :k] = cbtf.basis.pixels[:, :k, 0].astype(np.float32)
-    tables_today = exr(layout.tables)
-    zeroed = layout.tables.copy()
-    zeroed.reshape(-1, 4)[basis_at:basis_at + S * groups] = 0
-    rest = exr(zeroed)
-    with_codes = layout.tables.copy()
-    with_codes.reshape(-1, 4)[basis_at:basis_at + S * groups] = codes.reshape(-1, 4)
-    rows = -(-S * groups // 512)
-    block = np.zeros((rows * 512, 4), np.float32)
-    block[:S * groups] = codes.reshape(-1, 4)
-    out["tables_today"] = tables_today
-    out["tables_rest"] = rest
-    out["basis_1_float32_values"] = tables_today - rest
-    out["basis_2_float32_codes"] = exr(with_codes) - rest
-    out["basis_3_half_codes_exr"] = exr(block.reshape(rows, 512, 4).astype(np.float16))
-    out["basis_4_rgba8_png"] = (png(block.reshape(rows, 512, 4).astype(np.uint8))
-                                if cbtf.basis.pixels.dtype == np.uint8 else None)
+    values = np.zeros((S, groups * 4), np.float32)
+    values[:, :k] = cbtf.basis_values(k)
+    group_major = codes.reshape(S, groups, 4).transpose(1, 0, 2).reshape(-1, 4)
+    out["basis_1_float32_values_sample_major"] = exr(rows512(values.reshape(-1, 4)))
+    out["basis_2_float32_codes_sample_major"] = exr(rows512(codes.reshape(-1, 4)))
+    out["basis_3_float32_codes_group_major"] = exr(rows512(group_major))
+    half_exact = bool(np.array_equal(codes.astype(np.float16).astype(np.float32), codes))
+    out["basis_4_half_codes_group_major"] = exr(rows512(group_major.astype(np.float16)))
+    out["basis_4_exact"] = half_exact
+    ints = group_major.astype(np.uint16)
+    out["basis_5_hi_lo_rgba8_png_group_major"] = png(rows512((ints >> 8).astype(np.uint8))) + \
+        png(rows512((ints & 255).astype(np.uint8)))
+    from usdbtf.compress.format import basis_layout, basis_to_image
+    from usdbtf.imageio import encode_image
+
+    image = basis_to_image(cbtf.basis.pixels, basis_layout(cbtf.sampling, k, "png"))
+    out["basis_6_png_tiles"] = len(encode_image(image, "png", color_space="data",
+                                                attributes={"png:compressionLevel": 6}))
+    out["coeff_files_rgb_png"] = sum(len(encode_image(st.pixels, "png", color_space="data",
+                                                      attributes={"png:compressionLevel": 6}))
+                                     for st in cbtf.coefficients)
     return out
 
 
@@ -207,11 +226,12 @@ def main(argv=None) -> int:
     for label, r in report["runs"].items():
         print(f"| {label} | {r['candidates']['k']} | {r['folder_payload']:,} | {r['total']:,} | "
               + " | ".join(f"{r['kinds'].get(c, 0):,}" for c in cols) + " |")
-    print("\ntables.exr split (bytes): basis block = tables - tables with the basis zeroed")
+    print("\ntables.exr (this checkout): the basis block = tables - the same tables with the block zeroed")
     for label, r in report["runs"].items():
         c = r["candidates"]
-        print(f"- {label}: tables {c['tables_today']:,} = basis {c['basis_1_float32_values']:,} + rest "
-              f"{c['tables_rest']:,}; codes {c['coefficient_dtype']}, basis {c['basis_dtype']}")
+        print(f"- {label}: tables {c['tables_this_checkout']:,} = basis block "
+              f"{c['tables_this_checkout'] - c['tables_rest']:,} + rest {c['tables_rest']:,}; "
+              f"coefficient codes {c['coefficient_dtype']}, basis codes {c['basis_dtype']}")
     print("\n| run | coefficients layout | bytes | pages | page fetches / coeff | dequant fetches / coeff |")
     print("|---|---|---|---|---|---|")
     for label, r in report["runs"].items():
@@ -219,14 +239,19 @@ def main(argv=None) -> int:
             c = r["candidates"][key]
             print(f"| {label} | {key} | {c['bytes']:,} | {c['pages']} | {c['page_fetches_per_coeff']} | "
                   f"{c['dequant_fetches_per_coeff']} |")
-    print("\n| run | basis as | bytes |")
-    print("|---|---|---|")
+        print(f"| {label} | coeff/ files (RGB PNG, one per coefficient; not a GPU layout) | "
+              f"{r['candidates']['coeff_files_rgb_png']:,} | - | - | - |")
+    print("\n| run | basis as (standalone files, 512-texel rows) | bytes | sampler of its own |")
+    print("|---|---|---|---|")
     for label, r in report["runs"].items():
         c = r["candidates"]
-        for key in ("basis_1_float32_values", "basis_2_float32_codes", "basis_3_half_codes_exr",
-                    "basis_4_rgba8_png"):
-            print(f"| {label} | {key} | {c[key] if c[key] is None else format(c[key], ',')} |")
-        print(f"| {label} | basis_5_png (the asset's basis file today) | {r['kinds'].get('basis file', 0):,} |")
+        for key, own in (("basis_1_float32_values_sample_major", "no (in tables)"),
+                         ("basis_2_float32_codes_sample_major", "no (in tables)"),
+                         ("basis_3_float32_codes_group_major", "no (in tables)"),
+                         ("basis_4_half_codes_group_major", "yes" + ("" if c["basis_4_exact"] else ", NOT exact")),
+                         ("basis_5_hi_lo_rgba8_png_group_major", "yes (two)"),
+                         ("basis_6_png_tiles", "yes (16-bit PNG: Storm reads 8 bits)")):
+            print(f"| {label} | {key} | {c[key]:,} | {own} |")
     return 0
 
 

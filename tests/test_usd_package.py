@@ -586,3 +586,21 @@ def test_usdz_refuses_tiff_textures(compressed, tmp_path, capsys):
     code, _, err = run(capsys, "package", compressed, "-o", tmp_path / "a.usda", "--texture-format", "tx", "--usdz")
     assert code != 0 and "--usdz cannot hold tx" in err
     assert not (tmp_path / "a.usda").exists()
+
+
+def test_package_reports_the_assets_bytes_against_the_budget(src, tmp_path, capsys):
+    """``package`` reports the bytes every ``lod`` loads (as inspect counts them) and the
+    ``--max-bytes`` budget compress recorded: the asset's bytes, not the compressed folder's."""
+    import json
+
+    folder = tmp_path / "c"
+    ok(capsys, "compress", src, "-o", folder, "--max-bytes", "30000", "-q")
+    out = tmp_path / "a" / "pebbles.usda"
+    summary = json.loads(ok(capsys, "package", folder, "-o", out, "--json", "-q"))
+    assert summary["max_bytes"] == 30000
+    info = json.loads(ok(capsys, "inspect", out, "--json"))
+    totals = {lv["name"]: lv["total"] for lv in info["materials"][0]["lod_files"]}
+    assert summary["bytes"] == totals and totals["full"] > max(v for n, v in totals.items() if n != "full")
+    code, _, err = run(capsys, "package", folder, "-o", out, "--force")
+    assert code == 0 and f"the asset's bytes (every file the full lod loads): {totals['full']:,}" in err
+    assert f"x the --max-bytes budget of 30,000" in err

@@ -24,11 +24,12 @@ that reads it); this module writes it.  Pure arrays in, arrays out:
 
 The tables and pages are the packaged asset's one copy of the BTF (issue 39): :func:`unpack`
 reads the stored codes back from them, bit for bit, for every CPU consumer.  Why these
-layouts (``benchmarks/bench_asset_bytes.py``, paper sampling at 128^2): the RGBA packs were
-the smallest PNG pages of three layouts (planar single-channel tiles +3..4 %, RGB tiles
-+4..8 %) and the fewest texel fetches (3 per coefficient, against 12 and 4); the basis codes
-group-major in float32 OpenEXR (zip) took 1.58 MB against 2.67 MB sample-major and 7.26 MB as
-float32 values, within 3 % of the 16-bit PNG basis image, with no sampler of their own.
+layouts (``benchmarks/bench_asset_bytes.py``, paper sampling at 128^2, RESULTS.md): the RGBA
+packs were the smallest PNG pages of three layouts (planar single-channel tiles +2.4..3.5 %,
+RGB tiles +4.1..7.6 %) and need the fewest texel fetches (3 per coefficient, against 12 and 4);
+the basis codes group-major in float32 OpenEXR (zip) took 1.58 MB against 2.67 MB sample-major
+and 7.28 MB as float32 values (the asset's former 16-bit basis.png: 1.53 MB, which Storm would
+read as 8 bits), with no sampler of their own.
 """
 from __future__ import annotations
 
