@@ -6,8 +6,8 @@ that reads it); this module writes it.  Pure arrays in, arrays out:
 * ``tables`` (R, TABLE_WIDTH, 4) float32: a header, the basis (its stored integer codes or
   halves, exactly, group-major: 4 basis vectors per texel, one group's S samples after the
   other, with each vector's de-quantisation: the shader de-quantises, so the tables hold the
-  compressed basis itself and nothing else needs to, :func:`unpack`), a point-location table for the view and for the light hemisphere
-  (the triangulations of :mod:`usdbtf.render.hemisphere`, so the GPU interpolates exactly as
+  compressed basis itself and nothing else needs to, :func:`unpack`), a point-location table
+  for the view and for the light hemisphere (the triangulations of :mod:`usdbtf.render.hemisphere`, so the GPU interpolates exactly as
   the CPU renderer does), the de-quantisation of every pack, the colour matrix and the
   directory of the packs (which page, where);
 * coefficient *packs*, 3 * ceil(k / 4) tiles (H, W, 4): pack ``p = 3 g + c`` holds colour

@@ -289,7 +289,7 @@ class _LazyPages:
 def _read_gpu_copy(material, pages: list, k: int, samples: int, shape: tuple) -> tuple:
     """(basis codes (S, k, 1), k coefficient codes (H, W, 3)) from the GPU tables and pages."""
     from ..gpu.tables import unpack
-    from .storm import read_rgba
+    from ..imageio import read_rgba
 
     path = material.GetPath()
     tables = _read_asset(material, _get(material, "basis"), "basis", read_rgba)
