@@ -604,3 +604,14 @@ def test_package_reports_the_assets_bytes_against_the_budget(src, tmp_path, caps
     code, _, err = run(capsys, "package", folder, "-o", out, "--force")
     assert code == 0 and f"the asset's bytes (every file the full lod loads): {totals['full']:,}" in err
     assert f"x the --max-bytes budget of 30,000" in err
+
+
+def test_cross_sampling_stores_each_direction_once(asset, compressed):
+    """13 views x 13 lights: btf:directionLayout 'cross' stores 13 + 13 directions, and
+    load_btf expands them to the compressed folder's 169 rows exactly."""
+    material = Usd.Stage.Open(str(asset)).GetPrimAtPath("/pebbles/mtl/BtfMaterial")
+    assert material.GetAttribute("btf:directionLayout").Get() == "cross"
+    assert len(material.GetAttribute("btf:viewDirections").Get()) == 13
+    assert len(material.GetAttribute("btf:lightDirections").Get()) == 13
+    got, want = load_btf(asset).sampling, read_compressed(compressed).sampling
+    assert np.array_equal(got.view, want.view) and np.array_equal(got.light, want.light)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..compress.coverage import coverage_summary, coverage_text
-from .material import LOD_VARIANT_SET, NS, btf_materials, read_coverage
+from .material import LOD_VARIANT_SET, NS, btf_materials, read_coverage, read_directions
 from ..usdstage import resolve_usd
 from .density import binding_densities
 from .read import find_material, open_stage
@@ -169,8 +169,7 @@ def material_summary(stage, prim) -> dict:
     paged = str(get("coefficientLayout") or "files") == "gpuPages"
     vectors = len(get("coefficientScale") or []) if paged else len(coeffs)
     k = int(get("basisCount") or vectors)
-    view = np.asarray(get("viewDirections") or [], float).reshape(-1, 2)
-    light = np.asarray(get("lightDirections") or [], float).reshape(-1, 2)
+    view, light = read_directions(prim) if get("viewDirections") else (np.zeros((0, 2)), np.zeros((0, 2)))
     basis_bytes = asset_bytes(get("basis"))
     coeff_bytes = sum(asset_bytes(a) for a in coeffs[:k])
     size = get("physicalSize")

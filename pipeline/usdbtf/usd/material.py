@@ -24,7 +24,7 @@ import numpy as np
 from .. import __version__
 from ..color import usd_color_space
 from ..compress.codecs import Codec, Stored
-from ..compress.format import CompressedBTF, basis_layout, image_to_basis
+from ..compress.format import CompressedBTF, basis_layout, cross_layout, image_to_basis
 from ..errors import BTFError
 from ..sampling import Sampling
 from .plugin import API_SCHEMA, require_schema
@@ -107,8 +107,14 @@ def author_btf(material, cbtf: CompressedBTF, basis: str, coefficients: list[str
         if cbtf.domain.curve == "power":
             _set(material, "domain:gamma", float(cbtf.domain.gamma))
     _set(material, "resolution", Gf.Vec2i(cbtf.width, cbtf.height))
-    _set(material, "viewDirections", Vt.Vec2dArray([Gf.Vec2d(*map(float, v)) for v in cbtf.sampling.view]))
-    _set(material, "lightDirections", Vt.Vec2dArray([Gf.Vec2d(*map(float, v)) for v in cbtf.sampling.light]))
+    views, lights = cbtf.sampling.view, cbtf.sampling.light
+    cross = cross_layout(cbtf.sampling)
+    if cross is not None:          # V + L entries, not 2 V L (345,600 bytes of doubles at paper scale)
+        V, L = cross
+        views, lights = views[::L], lights[:L]
+        _set(material, "directionLayout", "cross")
+    _set(material, "viewDirections", Vt.Vec2dArray([Gf.Vec2d(*map(float, v)) for v in views]))
+    _set(material, "lightDirections", Vt.Vec2dArray([Gf.Vec2d(*map(float, v)) for v in lights]))
     if cbtf.interpolated is not None and cbtf.interpolated.any():
         _set(material, "interpolatedSamples", Vt.IntArray([int(i) for i in np.flatnonzero(cbtf.interpolated)]))
     _set(material, "colorSpace", cbtf.working_space)
@@ -255,8 +261,7 @@ def read_btf(material, *, k: int | None = None) -> CompressedBTF:
     if not 1 <= k <= min(listed, len(scales), len(biases), len(bscale), len(bbias)):
         raise BTFError(f"{path}: basis count {k} does not match {listed} coefficient textures, "
                        f"{len(scales)} scales, {len(bscale)} basis scales")
-    view = np.asarray(_get(material, "viewDirections"), np.float64).reshape(-1, 2)
-    light = np.asarray(_get(material, "lightDirections"), np.float64).reshape(-1, 2)
+    view, light = read_directions(material)
     if len(view) != len(light) or not len(view):
         raise BTFError(f"{path}: {len(view)} view and {len(light)} light directions")
     sampling = Sampling(view, light)
@@ -284,6 +289,16 @@ class _LazyPages:
         if i not in self._cache:
             self._cache = {i: self._read(i)}         # one page at a time: pages are atlas-sized
         return self._cache[i]
+
+
+def read_directions(material) -> tuple[np.ndarray, np.ndarray]:
+    """(view, light) (S, 2) degrees per basis row of a BtfMaterialAPI prim: the arrays as
+    authored, or the view-major cross product of btf:directionLayout 'cross'."""
+    view = np.asarray(_get(material, "viewDirections"), np.float64).reshape(-1, 2)
+    light = np.asarray(_get(material, "lightDirections"), np.float64).reshape(-1, 2)
+    if str(_get(material, "directionLayout", required=False) or "perSample") == "cross":
+        view, light = np.repeat(view, len(light), axis=0), np.tile(light, (len(view), 1))
+    return view, light
 
 
 def _read_gpu_copy(material, pages: list, k: int, samples: int, shape: tuple) -> tuple:
