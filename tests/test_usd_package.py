@@ -609,7 +609,8 @@ def test_package_reports_the_assets_bytes_against_the_budget(src, tmp_path, caps
 def test_cross_sampling_stores_each_direction_once(asset, compressed):
     """13 views x 13 lights: btf:directionLayout 'cross' stores 13 + 13 directions, and
     load_btf expands them to the compressed folder's 169 rows exactly."""
-    material = Usd.Stage.Open(str(asset)).GetPrimAtPath("/pebbles/mtl/BtfMaterial")
+    stage = Usd.Stage.Open(str(asset))
+    material = stage.GetPrimAtPath("/pebbles/mtl/BtfMaterial")
     assert material.GetAttribute("btf:directionLayout").Get() == "cross"
     assert len(material.GetAttribute("btf:viewDirections").Get()) == 13
     assert len(material.GetAttribute("btf:lightDirections").Get()) == 13
