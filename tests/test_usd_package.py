@@ -500,6 +500,29 @@ def test_missing_texture_in_packaged_asset(asset, tmp_path, capsys):
     assert not (tmp_path / "d").exists()
 
 
+def test_a_page_that_no_longer_holds_the_codes_is_refused(asset, tmp_path, capsys):
+    """The one copy read back strictly: a page of the wrong size, or whose texels are not
+    codes of the recorded storage type (a lossy re-save), is one line naming the problem."""
+    from usdbtf.imageio import write_image
+
+    copy = tmp_path / "a"
+    shutil.copytree(asset.parent, copy)
+    page = next((copy / "pebbles_textures" / "gpu").glob("page00.*"))
+    small = np.zeros((8, 8, 4), np.float16 if page.suffix == ".exr" else np.uint8)
+    page.unlink()
+    write_image(page, small, color_space="data")
+    bad_input(capsys, "decompress", copy / "pebbles.usda", "-o", tmp_path / "d", names="does not hold coefficient pack")
+    assert not (tmp_path / "d").exists()
+    if page.suffix == ".png":       # the same size, but values between 8-bit codes: not codes
+        from usdbtf.usd.storm import read_rgba
+
+        original = read_rgba(asset.with_name("pebbles_textures") / "gpu" / page.name)
+        page.unlink()
+        write_image(page.with_suffix(".exr"), original.astype(np.float32) / 255 + 0.3 / 255, color_space="data")
+        page.with_suffix(".exr").rename(page)       # an EXR under the PNG's name: OIIO reads it by content
+        bad_input(capsys, "decompress", copy / "pebbles.usda", "-o", tmp_path / "d", names="not uint8 codes")
+
+
 def test_corrupt_layer(asset, tmp_path, capsys):
     copy = tmp_path / "a"
     shutil.copytree(asset.parent, copy)
