@@ -25,8 +25,9 @@ that reads it); this module writes it.  Pure arrays in, arrays out:
 The tables and pages are the packaged asset's one copy of the BTF (issue 39): :func:`unpack`
 reads the stored codes back from them, bit for bit, for every CPU consumer.  Why these
 layouts (``benchmarks/bench_asset_bytes.py``, paper sampling at 128^2, RESULTS.md): the RGBA
-packs were the smallest PNG pages of three layouts (planar single-channel tiles +2.4..3.5 %,
-RGB tiles +4.1..7.6 %) and need the fewest texel fetches (3 per coefficient, against 12 and 4);
+packs were the smallest PNG pages of three layouts (in tall pages: planar single-channel tiles
++8.6..8.7 %, RGB tiles +11..14 %) and need the fewest texel fetches (3 per coefficient, against
+12 and 4);
 the basis codes group-major in float32 OpenEXR (zip) took 1.58 MB against 2.67 MB sample-major
 and 7.28 MB as float32 values (the asset's former 16-bit basis.png: 1.53 MB, which Storm would
 read as 8 bits), with no sampler of their own.
