@@ -105,7 +105,7 @@ def test_every_piece_is_a_usdbtf_output_that_force_replaces(asset, tmp_path, cap
     ok(capsys, "package", compressed, "-o", root, "--usdz", "--usdz-ar", "--texture-format", "exr", "--force", "-q")
     assert sorted(p.name for p in folder.iterdir()) == sorted(pieces)          # nothing else left behind
     assert {name: outputs.identify(folder / name) for name in pieces} == pieces
-    assert {p.suffix for p in (folder / "fabric_textures" / "coeff").iterdir()} == {".exr"}
+    assert {p.suffix for p in (folder / "fabric_textures" / "gpu").iterdir()} == {".exr", ".mtlx"}
     # Anything foreign in a piece: not a usdbtf output any more, so not replaced.
     (folder / "fabric_textures" / "notes.txt").write_text("mine\n")
     before = {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()}

@@ -110,7 +110,7 @@ def test_textures_open_in_oiiotool_and_paths_are_relative_and_resolve(asset):
         info = subprocess.run([str(OIIOTOOL), "--info", a.resolvedPath], capture_output=True, text=True)
         assert info.returncode == 0 and "x" in info.stdout, info.stderr
         checked += 1
-    assert checked >= 12 + 1 + 4    # coefficients, basis, fallback maps
+    assert checked >= 1 + 1 + 4    # GPU tables (the basis), coefficient pages, fallback maps
 
 
 def test_asset_structure(asset):
@@ -191,10 +191,13 @@ def test_data_is_raw_and_color_is_declared(asset):
     for name in ("basis", "coefficients", "basisScale", "coefficientScale", "coefficientBias", "colorMatrix",
                  "viewDirections"):
         assert space(material.GetAttribute(f"btf:{name}")) == "raw", name
-    select = Usd.Stage.Open(str(asset))
+    full = list(material.GetAttribute("btf:coefficients").Get())
+    select = Usd.Stage.Open(Sdf.Layer.OpenAsAnonymous(str(asset)))       # the lod chosen off the shared layer
     select.GetDefaultPrim().GetVariantSets().SetSelection("lod", "k6")
     coeffs = select.GetPrimAtPath("/pebbles/mtl/BtfMaterial").GetAttribute("btf:coefficients")
-    assert len(coeffs.Get()) == 6 and space(coeffs) == "raw"             # the lod override too
+    # The lod lists the pages its 6 vectors are on: a prefix of the full list.
+    assert [a.path for a in coeffs.Get()] == [a.path for a in full[:len(coeffs.Get())]]
+    assert 1 <= len(coeffs.Get()) < len(full) and space(coeffs) == "raw"  # the lod override too
     files = {}
     for prim in stage.Traverse():
         shader = S.Shader(prim)
@@ -310,10 +313,84 @@ def test_inspect_reports_k_bytes_directions_error(asset, capsys):
     assert "k            12 of 12" in out
     assert "169 samples: 13 views" in out
     assert "% at k = 12" in out and "0 error(s)" in out
+    gpu = asset.with_name("pebbles_textures") / "gpu"
+    on_disk = sum(p.stat().st_size for p in gpu.iterdir() if p.name.startswith(("tables", "page")))
+    assert f"bytes        {on_disk} " in out    # the BTF's one copy: the GPU tables and its pages
+
+
+def test_inspect_lists_the_files_each_lod_loads(asset, capsys):
+    """Every lod's file list is files on disk with their sizes, totals are their sums, the full
+    lod loads every file of the asset but the usdz and the MaterialX document (which no layer
+    names), and a lower lod loads a subset: fewer pages."""
+    import json
+
+    info = json.loads(ok(capsys, "inspect", asset, "--json"))
+    levels = {lv["name"]: lv for lv in info["materials"][0]["lod_files"]}
+    assert list(levels) == ["full", "k6"]
+    for lv in levels.values():
+        sizes = {f["path"]: f["bytes"] for f in lv["files"]}
+        assert all(sizes[p] == (asset.parent / p).stat().st_size for p in sizes), sizes
+        assert lv["total"] == sum(sizes.values())
+    full = {f["path"] for f in levels["full"]["files"]}
+    shipped = {str(p.relative_to(asset.parent)) for p in asset.parent.rglob("*") if p.is_file()
+               and p.suffix not in (".usdz", ".mtlx")}
+    assert full == shipped
+    low = {f["path"] for f in levels["k6"]["files"]}
+    assert low < full and all("page" in Path(p).name for p in full - low)
+    out = ok(capsys, "inspect", asset)
+    assert f"loads        full (k = 12): {len(full)} files, {levels['full']['total']} bytes" in out
+
+
+def test_asset_holds_each_coefficient_once(asset, compressed):
+    """One copy: the BTF's names are the Storm preview's textures, no coeff/ or basis image
+    beside them, and the pages hold each stored code once (one tile per pack)."""
+    from usdbtf.gpu.tables import pack_count
+
     tex = asset.with_name("pebbles_textures")
-    on_disk = sum(p.stat().st_size for p in (tex / "coeff").iterdir()) + \
-        sum(p.stat().st_size for p in tex.glob("basis.*"))    # the BTF's own textures, not fallback/GPU/thumbnail
-    assert f"bytes        {on_disk} " in out
+    assert not (tex / "coeff").exists() and not list(tex.glob("basis.*"))
+    stage = Usd.Stage.Open(str(asset))
+    material = stage.GetPrimAtPath("/pebbles/mtl/BtfMaterial")
+    assert material.GetAttribute("btf:coefficientLayout").Get() == "gpuPages"
+    pages = [a.path for a in material.GetAttribute("btf:coefficients").Get()]
+    storm_files = {}
+    for prim in stage.Traverse():
+        if prim.GetName().startswith("Storm") and UsdShade.Shader(prim).GetInput("file"):
+            storm_files[prim.GetName()] = UsdShade.Shader(prim).GetInput("file").Get().path
+    assert material.GetAttribute("btf:basis").Get().path == storm_files["StormTables"]
+    assert pages == [storm_files[f"StormPage{i:02d}"] for i in range(len(pages))]
+    from usdbtf.usd.storm import layout_from_asset
+
+    layout, _, _ = layout_from_asset(asset)
+    flat = layout.tables.reshape(-1, 4)
+    directory = flat[int(flat[3, 0]):int(flat[3, 0]) + pack_count(12), :3].astype(int)
+    assert len({tuple(d) for d in directory}) == pack_count(12)                  # no tile twice
+    used = {tuple(d) for d in directory}
+    for page, pixels in enumerate(layout.pages):                                 # and nothing else: the
+        for y0 in range(0, pixels.shape[0], 32):                                 # rest of a page's grid
+            for x0 in range(0, pixels.shape[1], 32):                             # is empty
+                if (page, x0, y0) not in used:
+                    assert not np.any(pixels[y0:y0 + 32, x0:x0 + 32]), (page, x0, y0)
+
+
+def test_old_files_layout_assets_keep_reading(compressed, tmp_path, monkeypatch):
+    """An asset of schema version 1 (one file per coefficient, a basis image: no
+    btf:coefficientLayout) reads back as before, bit for bit; so does the files layout a
+    sampling the preview cannot draw gets."""
+    from usdbtf.usd import storm
+
+    monkeypatch.setattr(storm, "add_gpu_textures", lambda *a, **k: None)
+    out = tmp_path / "old" / "pebbles.usda"
+    pkg.write_package(pkg.package(compressed, pkg.PackageOptions(thumbnail=False)), out)
+    tex = out.with_name("pebbles_textures")
+    assert len(list((tex / "coeff").iterdir())) == 12 and list(tex.glob("basis.*"))
+    want = reconstruct(read_compressed(compressed))
+    assert np.array_equal(reconstruct(load_btf(out)), want)
+    payload = Sdf.Layer.FindOrOpen(str(out.with_name("pebbles_payload.usdc")))
+    prim = payload.GetPrimAtPath("/pebbles/mtl/BtfMaterial")
+    prim.attributes["btf:schemaVersion"].default = 1
+    prim.RemoveProperty(prim.attributes["btf:coefficientLayout"])
+    payload.Save()
+    assert np.array_equal(reconstruct(load_btf(out)), want)
 
 
 # ------------------------------------------------------------------ the fallback
@@ -417,9 +494,33 @@ def test_missing_texture(compressed, tmp_path, capsys):
 def test_missing_texture_in_packaged_asset(asset, tmp_path, capsys):
     copy = tmp_path / "a"
     shutil.copytree(asset.parent, copy)
-    (copy / "pebbles_textures" / "coeff" / sorted(p.name for p in (copy / "pebbles_textures" / "coeff").iterdir())[5]).unlink()
+    (copy / "pebbles_textures" / "gpu" / "page01.png").unlink(missing_ok=True)
+    (copy / "pebbles_textures" / "gpu" / "page01.exr").unlink(missing_ok=True)
     bad_input(capsys, "decompress", copy / "pebbles.usda", "-o", tmp_path / "d", names="does not resolve")
     assert not (tmp_path / "d").exists()
+
+
+def test_a_page_that_no_longer_holds_the_codes_is_refused(asset, tmp_path, capsys):
+    """The one copy read back strictly: a page of the wrong size, or whose texels are not
+    codes of the recorded storage type (a lossy re-save), is one line naming the problem."""
+    from usdbtf.imageio import write_image
+
+    copy = tmp_path / "a"
+    shutil.copytree(asset.parent, copy)
+    page = next((copy / "pebbles_textures" / "gpu").glob("page00.*"))
+    small = np.zeros((8, 8, 4), np.float16 if page.suffix == ".exr" else np.uint8)
+    page.unlink()
+    write_image(page, small, color_space="data")
+    bad_input(capsys, "decompress", copy / "pebbles.usda", "-o", tmp_path / "d", names="does not hold coefficient pack")
+    assert not (tmp_path / "d").exists()
+    if page.suffix == ".png":       # the same size, but values between 8-bit codes: not codes
+        from usdbtf.usd.storm import read_rgba
+
+        original = read_rgba(asset.with_name("pebbles_textures") / "gpu" / page.name)
+        page.unlink()
+        write_image(page.with_suffix(".exr"), original.astype(np.float32) / 255 + 0.3 / 255, color_space="data")
+        page.with_suffix(".exr").rename(page)       # an EXR under the PNG's name: OIIO reads it by content
+        bad_input(capsys, "decompress", copy / "pebbles.usda", "-o", tmp_path / "d", names="not uint8 codes")
 
 
 def test_corrupt_layer(asset, tmp_path, capsys):
@@ -479,7 +580,7 @@ def test_texture_formats_are_tiled_mipmapped_and_bit_exact(compressed, tmp_path,
     out = tmp_path / fmt / "pebbles.usda"
     ok(capsys, "package", compressed, "-o", out, "--texture-format", fmt, "--no-thumbnail", "-q")
     files = _texture_files(out)
-    assert len(files) >= 1 + 12 + 4 + 1 and {p.suffix for p in files} == {f".{fmt}"}
+    assert len(files) >= 1 + 2 + 4 and {p.suffix for p in files} == {f".{fmt}"}   # tables, pages, fallback
     for path in files:
         inp = oiio.ImageInput.open(str(path))
         spec, levels = inp.spec(), 0
@@ -508,3 +609,33 @@ def test_usdz_refuses_tiff_textures(compressed, tmp_path, capsys):
     code, _, err = run(capsys, "package", compressed, "-o", tmp_path / "a.usda", "--texture-format", "tx", "--usdz")
     assert code != 0 and "--usdz cannot hold tx" in err
     assert not (tmp_path / "a.usda").exists()
+
+
+def test_package_reports_the_assets_bytes_against_the_budget(src, tmp_path, capsys):
+    """``package`` reports the bytes every ``lod`` loads (as inspect counts them) and the
+    ``--max-bytes`` budget compress recorded: the asset's bytes, not the compressed folder's."""
+    import json
+
+    folder = tmp_path / "c"
+    ok(capsys, "compress", src, "-o", folder, "--max-bytes", "30000", "-q")
+    out = tmp_path / "a" / "pebbles.usda"
+    summary = json.loads(ok(capsys, "package", folder, "-o", out, "--json", "-q"))
+    assert summary["max_bytes"] == 30000
+    info = json.loads(ok(capsys, "inspect", out, "--json"))
+    totals = {lv["name"]: lv["total"] for lv in info["materials"][0]["lod_files"]}
+    assert summary["bytes"] == totals and totals["full"] > max(v for n, v in totals.items() if n != "full")
+    code, _, err = run(capsys, "package", folder, "-o", out, "--force")
+    assert code == 0 and f"the asset's bytes (every file the full lod loads): {totals['full']:,}" in err
+    assert f"x the --max-bytes budget of 30,000" in err
+
+
+def test_cross_sampling_stores_each_direction_once(asset, compressed):
+    """13 views x 13 lights: btf:directionLayout 'cross' stores 13 + 13 directions, and
+    load_btf expands them to the compressed folder's 169 rows exactly."""
+    stage = Usd.Stage.Open(str(asset))
+    material = stage.GetPrimAtPath("/pebbles/mtl/BtfMaterial")
+    assert material.GetAttribute("btf:directionLayout").Get() == "cross"
+    assert len(material.GetAttribute("btf:viewDirections").Get()) == 13
+    assert len(material.GetAttribute("btf:lightDirections").Get()) == 13
+    got, want = load_btf(asset).sampling, read_compressed(compressed).sampling
+    assert np.array_equal(got.view, want.view) and np.array_equal(got.light, want.light)

@@ -18,8 +18,8 @@ import OpenImageIO as oiio
 
 from .errors import BTFError, IOFailure, UsageError, one_line
 
-__all__ = ["ImageInfo", "read_info", "read_image", "write_image", "encode_image", "decode_image", "write_encoded",
-           "memory_file", "BIT_DEPTHS", "numpy_dtype", "oiio_error", "native_stderr_captured"]
+__all__ = ["ImageInfo", "read_info", "read_image", "read_rgba", "write_image", "encode_image", "decode_image",
+           "write_encoded", "memory_file", "BIT_DEPTHS", "numpy_dtype", "oiio_error", "native_stderr_captured"]
 
 log = logging.getLogger(__name__)
 
@@ -362,3 +362,25 @@ def _os_reason(path: Path) -> str:
     if not os.access(folder, os.W_OK):
         return "permission denied"
     return "unknown error"
+
+
+def read_rgba(path):
+    """(H, W, 4) pixels of a GPU texture (usdbtf.gpu.tables: the tables, the coefficient pages)
+    in the file's own type, level 0 of a tiled file (:func:`read_image` returns RGB only; the
+    packs and tables use all four channels)."""
+    config = oiio.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)       # the fourth layer is data, not coverage
+    with native_stderr_captured():
+        inp = oiio.ImageInput.open(str(path), config)
+        if inp is None:
+            raise BTFError(f"{path}: cannot open GPU texture ({oiio_error()})")
+        try:
+            spec = inp.spec()
+            if spec.nchannels != 4:
+                raise BTFError(f"{path}: GPU texture has {spec.nchannels} channels, expected 4 (RGBA)")
+            data = inp.read_image(0, 0, 0, 4, spec.format)
+            if data is None or inp.has_error:
+                raise BTFError(f"{path}: GPU texture is corrupt or truncated ({oiio_error(inp)})")
+        finally:
+            inp.close()
+    return np.asarray(data)

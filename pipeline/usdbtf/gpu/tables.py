@@ -3,9 +3,11 @@
 The layout is documented texel by texel at the top of ``glsl/btf_core.glsl`` (the shader
 that reads it); this module writes it.  Pure arrays in, arrays out:
 
-* ``tables`` (R, TABLE_WIDTH, 4) float32: a header, the basis rows (sample-major, 4 basis
-  vectors per texel), a point-location table for the view and for the light hemisphere
-  (the triangulations of :mod:`usdbtf.render.hemisphere`, so the GPU interpolates exactly as
+* ``tables`` (R, TABLE_WIDTH, 4) float32: a header, the basis (its stored integer codes or
+  halves, exactly, group-major: 4 basis vectors per texel, one group's S samples after the
+  other, with each vector's de-quantisation: the shader de-quantises, so the tables hold the
+  compressed basis itself and nothing else needs to, :func:`unpack`), a point-location table
+  for the view and for the light hemisphere (the triangulations of :mod:`usdbtf.render.hemisphere`, so the GPU interpolates exactly as
   the CPU renderer does), the de-quantisation of every pack, the colour matrix and the
   directory of the packs (which page, where);
 * coefficient *packs*, 3 * ceil(k / 4) tiles (H, W, 4): pack ``p = 3 g + c`` holds colour
@@ -19,6 +21,16 @@ that reads it); this module writes it.  Pure arrays in, arrays out:
   only its own pages, and where the storage type changes.  The shader filters a pack itself
   (bilinear from four texel fetches, wrapped or clamped inside its own tile), so tiles need
   no padding and no sampler state or GPU filter (anisotropy, mip maps) changes a value.
+
+The tables and pages are the packaged asset's one copy of the BTF (issue 39): :func:`unpack`
+reads the stored codes back from them, bit for bit, for every CPU consumer.  Why these
+layouts (``benchmarks/bench_asset_bytes.py``, paper sampling at 128^2, RESULTS.md): the RGBA
+packs were the smallest PNG pages of three layouts (in tall pages: planar single-channel tiles
++8.6..8.7 %, RGB tiles +11..14 %) and need the fewest texel fetches (3 per coefficient, against
+12 and 4);
+the basis codes group-major in float32 OpenEXR (zip) took 1.58 MB against 2.67 MB sample-major
+and 7.28 MB as float32 values (the asset's former 16-bit basis.png: 1.53 MB, which Storm would
+read as 8 bits), with no sampler of their own.
 """
 from __future__ import annotations
 
@@ -31,7 +43,7 @@ from ..compress.format import CompressedBTF, cross_layout
 from ..errors import BTFError
 
 __all__ = ["MAX_PAGES", "PAGE_SIZE", "TABLE_WIDTH", "GpuLayout", "gpu_layout", "pack_count", "page_breaks",
-           "page_plan", "with_wrap", "HemisphereTable", "Pages", "PAGE_TEXELS"]
+           "page_plan", "with_wrap", "HemisphereTable", "Pages", "PAGE_TEXELS", "unpack", "storage_dtype"]
 
 #: Atlas textures ("pages") of coefficient packs a material binds: with the tables, 16
 #: samplers, for every k.
@@ -47,6 +59,14 @@ _GRID = 32
 _HEADER = 4
 #: Largest code of each storage type: what a GPU's normalised read divides by.
 _MAX_CODE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0, np.dtype(np.float16): 1.0}
+
+
+def storage_dtype(max_code: float, where: str = "GPU tables") -> np.dtype:
+    """The storage type whose largest code is ``max_code`` (what the tables record)."""
+    for dtype, code in _MAX_CODE.items():
+        if float(max_code) == code:
+            return dtype
+    raise BTFError(f"{where}: unknown storage type (largest code {max_code!r})")
 
 
 def pack_count(k: int) -> int:
@@ -184,9 +204,10 @@ def _pack(cbtf: CompressedBTF, k: int, breaks: list[int]) -> tuple[list, np.ndar
 def page_plan(n_packs: int, width: int, height: int, breaks: list[int], dtypes=None):
     """Where ``n_packs`` tiles of ``width`` x ``height`` texels go: a new page at every break
     (pack index), at every change of storage type (``dtypes``, one per pack) and when a page
-    is full (``PAGE_SIZE``); tiles fill a page row by row, the page as square as its tile
-    count allows.  Returns ([(first pack, end, columns, rows)] per page, directory (P, 4):
-    page, tile column x0, tile row y0 (image rows from the top), 0)."""
+    is full (``PAGE_SIZE``); tiles fill a page column by column, in as few columns as
+    ``PAGE_SIZE`` rows allow (tall pages: smaller PNG files).  Returns ([(first pack, end, columns, rows)] per page, directory (P, 4):
+    page, tile column x0, tile row y0 (image rows from the top), 0; :func:`gpu_layout` sets the
+    fourth to the largest code of the pack's storage type)."""
     if height > PAGE_SIZE or width > PAGE_SIZE:
         raise BTFError(f"coefficient textures of {width}x{height} texels do not fit a {PAGE_SIZE}-texel GPU page")
     # As many tiles as PAGE_TEXELS holds, more where the page count must stay in the sampler
@@ -202,12 +223,14 @@ def page_plan(n_packs: int, width: int, height: int, breaks: list[int], dtypes=N
         if p < n_packs and p not in breaks and dtypes[p] == dtypes[start] and p - start < per_page:
             continue
         n = p - start
-        cols = min(PAGE_SIZE // width, max(1, int(np.ceil(np.sqrt(n * height / width)))))
-        if -(-n // cols) * height > PAGE_SIZE:             # a tall page: fill whole rows first
-            cols = PAGE_SIZE // width
+        # As few tile columns as the page height allows, filled column by column: a PNG row
+        # then runs through one tile (or a few), whose texels its filters predict from; square
+        # pages of 128^2 tiles took 5.1-5.5 % more bytes (benchmarks/RESULTS.md, issue 39).
+        cols = -(-n // (PAGE_SIZE // height))
+        rows = -(-n // cols)
         for j in range(n):
-            directory[start + j] = [len(plan), (j % cols) * width, (j // cols) * height, 0]
-        plan.append((start, p, cols, -(-n // cols)))
+            directory[start + j] = [len(plan), (j // rows) * width, (j % rows) * height, 0]
+        plan.append((start, p, cols, rows))
         start = p
     return plan, directory
 
@@ -273,8 +296,6 @@ def gpu_layout(cbtf: CompressedBTF, k: int | None = None, lods=(), wrap: str = "
     groups = -(-k // 4)
     views = Triangulation.from_directions(cbtf.sampling.view[::L], "view directions")
     lights = Triangulation.from_directions(cbtf.sampling.light[:L], "light directions")
-    basis = np.zeros((V * L, groups * 4), np.float32)
-    basis[:, :k] = cbtf.basis_values(k)
     breaks = page_breaks(k, lods)
     if texels is None:
         packs, scales, biases = _pack(cbtf, k, breaks)
@@ -287,9 +308,10 @@ def gpu_layout(cbtf: CompressedBTF, k: int | None = None, lods=(), wrap: str = "
                        f"pages; a material binds at most {MAX_PAGES} (use a smaller k or texture)")
 
     table = _Texels()
-    basis_at = table.add(basis)
+    basis_at = table.add(_basis_block(cbtf, k, groups))
     view_at = HemisphereTable.from_triangulation(views).write(table)
     light_at = HemisphereTable.from_triangulation(lights).write(table)
+    directory[:, 3] = [_MAX_CODE[np.dtype(pages.dtype(page))] for page in directory[:, 0].astype(int)]
     dequant_at = table.add(np.stack([scales, biases], axis=1))
     matrix_at = table.add(np.c_[np.asarray(cbtf.color_matrix, np.float64), np.zeros(3)])
     directory_at = table.add(directory)
@@ -302,6 +324,100 @@ def gpu_layout(cbtf: CompressedBTF, k: int | None = None, lods=(), wrap: str = "
     if table.size >= 2**24:
         raise BTFError(f"GPU tables need {table.size} texels; addresses must stay below 2^24 (float precision)")
     return GpuLayout(image, pages, k, first_packs)
+
+
+def _basis_block(cbtf: CompressedBTF, k: int, groups: int) -> np.ndarray:
+    """The tables' basis block (texels, 4): (largest code of its storage type, S, groups, 0),
+    then per group g the scale and the bias of vectors 4g..4g+3 (float32, as
+    ``CompressedBTF.basis_values`` rounds them), then the stored codes group-major (texel
+    1 + 2 groups + g S + s: vectors 4g..4g+3 of sample s; vectors past k are 0)."""
+    b = cbtf.basis
+    S = cbtf.n_samples
+    dtype = np.dtype(b.pixels.dtype)
+    if dtype not in _MAX_CODE:
+        raise BTFError(f"basis stored as {dtype}: the GPU tables hold uint8, uint16 or half codes")
+    scale = np.zeros(groups * 4, np.float32)
+    bias = np.zeros(groups * 4, np.float32)
+    scale[:k], bias[:k] = b.scale[:k], b.bias[:k]
+    codes = np.zeros((S, groups * 4), np.float32)
+    codes[:, :k] = b.pixels[:, :k, 0]                       # exact: integers below 2^24, halves
+    head = np.array([[_MAX_CODE[dtype], S, groups, 0]], np.float32)
+    dequant = np.stack([scale.reshape(groups, 4), bias.reshape(groups, 4)], axis=1).reshape(-1, 4)
+    return np.concatenate([head, dequant, codes.reshape(S, groups, 4).transpose(1, 0, 2).reshape(-1, 4)])
+
+
+def _codes(values: np.ndarray, max_code: float, where: str, normalised: bool = True) -> np.ndarray:
+    """Stored codes from texel values as a texture file holds them: integer pixels as they
+    are; floats (EXR, or a tiled conversion) as the normalised read code / max_code (the
+    codes themselves when not ``normalised``: the tables' basis), or half values (max_code 1).
+    BTFError unless they are exactly codes of that storage type."""
+    dtype = storage_dtype(max_code, where)
+    if values.dtype.kind in "ui":
+        if values.dtype != dtype and not (dtype == np.uint16 and values.dtype == np.uint8):
+            raise BTFError(f"{where}: {values.dtype} texels where the tables say {dtype} codes")
+        return values.astype(dtype)
+    if dtype == np.float16:
+        codes = values.astype(np.float16)
+        exact = np.array_equal(codes.astype(np.float64), values.astype(np.float64))
+    else:
+        scaled = values.astype(np.float64) * (max_code if normalised else 1.0)
+        codes_f = np.rint(scaled)
+        exact = bool(np.all(np.abs(scaled - codes_f) < 0.25)) and codes_f.min(initial=0) >= 0 \
+            and codes_f.max(initial=0) <= max_code
+        codes = codes_f.astype(dtype)
+    if not exact:
+        raise BTFError(f"{where}: texels are not {dtype} codes (a lossy re-encode?)")
+    return codes
+
+
+def unpack(tables: np.ndarray, pages: list, k: int | None = None) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The stored codes :func:`gpu_layout` packed, read back from its textures.
+
+    Parameters
+    ----------
+    tables : (R, TABLE_WIDTH, 4) float32, the tables texture as written.
+    pages : the first pages, (H, W, 4) arrays as read from their files (uint8 codes, or floats:
+        code / largest code, or halves); enough of them for the ``k`` vectors asked for.
+    k : basis vectors to read (default all the tables hold).
+
+    Returns
+    -------
+    (basis (S, k, 1) codes in their storage type, k coefficient textures (h, w, 3) codes):
+    bit for bit what the compressed BTF stored (a uint8 texture packed beside uint16 ones comes
+    back as uint16 holding the same values: reconstructions are identical).
+    """
+    flat = np.asarray(tables, np.float32).reshape(-1, 4)
+    if len(flat) < _HEADER:
+        raise BTFError("GPU tables: too small for a header")
+    groups, stored_k = int(flat[0, 3]), int(flat[1, 0])
+    k = stored_k if k is None else int(k)
+    if not 1 <= k <= stored_k:
+        raise BTFError(f"GPU tables hold {stored_k} basis vectors, {k} asked for")
+    basis_at, directory_at = int(flat[1, 1]), int(flat[3, 0])
+    width, height = int(flat[3, 1]), int(flat[3, 2])
+    max_code, S, block_groups = float(flat[basis_at, 0]), int(flat[basis_at, 1]), int(flat[basis_at, 2])
+    if block_groups != groups:
+        raise BTFError("GPU tables: the basis block does not match the header (written by an older usdbtf?)")
+    at = basis_at + 1 + 2 * groups
+    codes = flat[at:at + groups * S].reshape(groups, S, 4).transpose(1, 0, 2).reshape(S, groups * 4)[:, :k]
+    basis = _codes(codes, max_code, "GPU tables basis", normalised=False)
+    coefficients = [np.empty((height, width, 3), np.uint8) for _ in range(k)]
+    for g in range(-(-k // 4)):
+        for c in range(3):
+            p = 3 * g + c
+            page, x0, y0, code = flat[directory_at + p]
+            if int(page) >= len(pages):
+                raise BTFError(f"coefficient pack {p} is on page {int(page)}; {len(pages)} page(s) given")
+            tile = np.asarray(pages[int(page)])[int(y0):int(y0) + height, int(x0):int(x0) + width]
+            if tile.shape[:2] != (height, width) or tile.ndim != 3 or tile.shape[2] != 4:
+                raise BTFError(f"page {int(page)} does not hold coefficient pack {p} ({width}x{height} RGBA tile)")
+            tile = _codes(tile, float(code), f"page {int(page)}")
+            for j in range(min(4, k - 4 * g)):
+                i = 4 * g + j
+                if coefficients[i].dtype != tile.dtype:
+                    coefficients[i] = coefficients[i].astype(tile.dtype)
+                coefficients[i][:, :, c] = tile[:, :, j]
+    return basis[:, :, None], coefficients
 
 
 def with_wrap(layout: GpuLayout, wrap: str) -> GpuLayout:

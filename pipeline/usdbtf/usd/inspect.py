@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..compress.coverage import coverage_summary, coverage_text
-from .material import LOD_VARIANT_SET, NS, btf_materials, read_coverage
+from .material import LOD_VARIANT_SET, NS, btf_materials, read_coverage, read_directions
 from ..usdstage import resolve_usd
 from .density import binding_densities
 from .read import find_material, open_stage
@@ -22,6 +22,99 @@ def asset_bytes(asset) -> int:
         return 0
     info = Ar.GetResolver().OpenAsset(Ar.ResolvedPath(asset.resolvedPath))
     return int(info.GetSize()) if info is not None else 0
+
+
+def _resolved_size(resolved: str) -> int:
+    from pxr import Ar
+
+    info = Ar.GetResolver().OpenAsset(Ar.ResolvedPath(resolved))
+    return int(info.GetSize()) if info is not None else 0
+
+
+def _network_assets(prim) -> list:
+    """Sdf.AssetPaths a renderer loads for the material ``prim``: its ``btf:`` textures and
+    the asset inputs of every shader reachable from its outputs through connections (a
+    connection a ``lod`` variant blocks is not followed: that page is not loaded)."""
+    from pxr import Sdf, UsdShade
+
+    found = [a for name in ("basis", "coefficients") for a in _as_list(prim.GetAttribute(NS + name).Get())]
+    seen, todo = set(), [o for o in UsdShade.Material(prim).GetOutputs()]
+    while todo:
+        port = todo.pop()
+        for source in (port.GetConnectedSources()[0] if port.HasConnectedSource() else []):
+            node = source.source.GetPrim()
+            if node.GetPath() in seen:
+                continue
+            seen.add(node.GetPath())
+            for attr in node.GetAttributes():
+                if attr.GetTypeName() in (Sdf.ValueTypeNames.Asset, Sdf.ValueTypeNames.AssetArray):
+                    found += _as_list(attr.Get())
+            todo += UsdShade.ConnectableAPI(node).GetInputs()
+    return found
+
+
+def _as_list(value) -> list:
+    if value is None:
+        return []
+    return [value] if hasattr(value, "resolvedPath") else list(value)
+
+
+def loaded_files(stage, prim) -> list[tuple[str, int]]:
+    """[(resolved path, bytes)] of every file rendering material ``prim`` loads on ``stage``
+    as composed now: the stage's layers (file-backed), the asset's thumbnail (the default
+    prim's), the material's BTF textures and those its shader networks read; sorted, each
+    file once."""
+    from pxr import UsdMedia
+
+    files = {layer.realPath for layer in stage.GetUsedLayers() if not layer.anonymous and layer.realPath}
+    assets = _network_assets(prim)
+    root = stage.GetDefaultPrim()
+    if root and root.HasAPI(UsdMedia.AssetPreviewsAPI):
+        thumbs = UsdMedia.AssetPreviewsAPI(root).GetDefaultThumbnails()
+        if thumbs and thumbs.defaultImage.resolvedPath:
+            assets.append(thumbs.defaultImage)
+    files |= {a.resolvedPath for a in assets if a.resolvedPath}
+    return sorted((f, _resolved_size(f)) for f in files)
+
+
+def lod_files(stage, prim) -> list[dict]:
+    """Per ``lod`` variant of material ``prim`` (largest first; the composed selection alone
+    when it has none): {"name", "k", "files": [{"path", "bytes"}], "total"}, the files
+    :func:`loaded_files` finds with that variant selected (session layer only).  Paths are
+    relative to the stage's root layer's folder where they are inside it."""
+    import os
+
+    from pxr import Usd
+
+    base = os.path.dirname(stage.GetRootLayer().realPath or "")
+
+    def rel(path: str) -> str:
+        inside = base and (path.startswith(base + os.sep) or "[" in path and path.split("[")[0].startswith(base))
+        return os.path.relpath(path, base) if inside and "[" not in path else path
+
+    def entry(name, p):
+        files = loaded_files(stage, p)
+        k = int(p.GetAttribute(NS + "basisCount").Get() or 0)
+        return {"name": name, "k": k, "files": [{"path": rel(f), "bytes": n} for f, n in files],
+                "total": int(sum(n for _, n in files))}
+
+    owner = prim
+    while owner and not (owner.HasVariantSets() and owner.GetVariantSets().HasVariantSet(LOD_VARIANT_SET)):
+        owner = owner.GetParent()
+    if not owner or owner.IsPseudoRoot():
+        return [entry(None, prim)]
+    vset = owner.GetVariantSets().GetVariantSet(LOD_VARIANT_SET)
+    current = vset.GetVariantSelection()
+    out = []
+    with Usd.EditContext(stage, stage.GetSessionLayer()):
+        for name in vset.GetVariantNames():
+            vset.SetVariantSelection(name)
+            out.append(entry(name, stage.GetPrimAtPath(prim.GetPath())))
+        if current:
+            vset.SetVariantSelection(current)
+        else:
+            vset.ClearVariantSelection()
+    return sorted(out, key=lambda x: -x["k"])
 
 
 def _error_at(prim, k: int) -> float | None:
@@ -73,15 +166,16 @@ def material_summary(stage, prim) -> dict:
                                           "options": get("build:options") or "",
                                           "asset": get("build:asset").path if get("build:asset") else None})
         return entry
-    k = int(get("basisCount") or len(coeffs))
-    view = np.asarray(get("viewDirections") or [], float).reshape(-1, 2)
-    light = np.asarray(get("lightDirections") or [], float).reshape(-1, 2)
+    paged = str(get("coefficientLayout") or "files") == "gpuPages"
+    vectors = len(get("coefficientScale") or []) if paged else len(coeffs)
+    k = int(get("basisCount") or vectors)
+    view, light = read_directions(prim) if get("viewDirections") else (np.zeros((0, 2)), np.zeros((0, 2)))
     basis_bytes = asset_bytes(get("basis"))
     coeff_bytes = sum(asset_bytes(a) for a in coeffs[:k])
     size = get("physicalSize")
     resolution = [int(x) for x in (get("resolution") or (0, 0))]
     entry.update(
-        built=True, k=k, coefficients=len(coeffs), resolution=resolution,
+        built=True, k=k, coefficients=vectors, coefficient_files=len(coeffs), resolution=resolution,
         physical_size_m=[float(x) for x in size] if size and size[0] > 0 else None,
         bytes={"total": basis_bytes + coeff_bytes, "basis": basis_bytes, "coefficients": coeff_bytes},
         samples=len(view), views=len({tuple(v) for v in view}), lights=len({tuple(v) for v in light}),
@@ -93,6 +187,7 @@ def material_summary(stage, prim) -> dict:
         provenance={"solver": get("provenance:solver"), "codec": get("provenance:codec"),
                     "version": get("provenance:version"), "source": get("provenance:source")},
         lod=[{"name": name, "k": n, "error_percent": _error_at(prim, n)} for name, n in _lod_levels(stage, prim)],
+        lod_files=lod_files(stage, prim),
         coverage=coverage_summary(read_coverage(prim), len(view), *resolution))
     return entry
 
@@ -132,7 +227,8 @@ def describe(path, info: dict | None = None) -> str:
         lines.append(f"    k            {m['k']} of {m['coefficients']} coefficient textures, {w}x{h} texels"
                      + (f", tile {size[0] * 100:.2f} x {size[1] * 100:.2f} cm" if size else ""))
         b = m["bytes"]
-        lines.append(f"    bytes        {b['total']} (basis {b['basis']}, coefficients {b['coefficients']})")
+        lines.append(f"    bytes        {b['total']} (basis {b['basis']}, coefficients {b['coefficients']}"
+                     f"{' in GPU tables and pages' if m['coefficient_files'] != m['coefficients'] else ''})")
         if m["samples"]:
             (v0, v1), (l0, l1) = m["view_theta_deg"], m["light_theta_deg"]
             lines.append(f"    directions   {m['samples']} samples: {m['views']} views (theta {v0:g}..{v1:g} deg), "
@@ -155,6 +251,10 @@ def describe(path, info: dict | None = None) -> str:
                 f"{lv['name']} (k = {lv['k']}"
                 + (f", {lv['error_percent']:.2f} %" if lv["error_percent"] is not None else "") + ")"
                 for lv in m["lod"]))
+        for lv in m.get("lod_files", []):
+            lines.append(f"    loads        {lv['name'] or 'as composed'} (k = {lv['k']}): {len(lv['files'])} files, "
+                         f"{lv['total']} bytes")
+            lines += [f"                   {f['bytes']:>12}  {f['path']}" for f in lv["files"]]
     for b in info.get("bindings", []):
         on_mesh = b["mesh_texels_per_metre"]
         lines.append(f"  {b['prim']} -> {b['material']}: " + (

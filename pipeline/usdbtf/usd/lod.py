@@ -5,7 +5,8 @@ files.  Two variant sets named ``lod``, both authored in the root layer (outside
 payload, so they can be chosen before it loads):
 
 * on the **Material** (``/<root>/mtl/BtfMaterial``): variant ``k<n>`` sets
-  ``btf:basisCount`` and ``btf:coefficients`` to the first n, and on the Storm shader sets
+  ``btf:basisCount`` and ``btf:coefficients`` to the files of the first n (the pages they
+  are on: the asset's one copy, ``gpuPages``; or the first n files), and on the Storm shader sets
   ``inputs:basisCount`` and blocks the connections of the coefficient pages it no longer
   needs (pages end where levels end, so Storm then loads only its own textures); variant
   ``full`` changes nothing.  A scene that
@@ -41,13 +42,14 @@ def lod_name(n: int) -> str:
 
 
 def author_lod_variants(stage, root_path: str, material_path: str, levels: list[int], coefficients: list[str],
-                        storm: tuple[str, list, int] | None = None) -> list[str]:
+                        storm: tuple[str, list, int] | None = None, *, paged: bool = False) -> list[str]:
     """Author both ``lod`` variant sets on ``stage`` (the root layer); returns the variant names.
 
     levels : basis counts below k (descending); coefficients : the k coefficient asset
-    paths (relative to this layer).  storm : (Storm shader's name under the material, the
-    first pack of each of its pages, the basis count its tables hold), or None without a
-    Storm preview.
+    paths (relative to this layer), or with ``paged`` the coefficient pages (one per entry
+    of storm's first packs: a level lists the pages its vectors are on, a prefix).
+    storm : (Storm shader's name under the material, the first pack of each of its pages,
+    the basis count its tables hold), or None without a Storm preview.
     """
     from pxr import Sdf
 
@@ -68,7 +70,12 @@ def author_lod_variants(stage, root_path: str, material_path: str, levels: list[
             count.Set(n)
             coeffs = material.CreateAttribute(NS + "coefficients", Sdf.ValueTypeNames.AssetArray, custom=False,
                                               variability=Sdf.VariabilityUniform)
-            coeffs.Set(Sdf.AssetPathArray([Sdf.AssetPath(p) for p in coefficients[:n]]))
+            if paged:
+                _, first_packs, gpu_k = storm
+                files = [c for c, first in zip(coefficients, first_packs) if first < pack_count(min(n, gpu_k))]
+            else:
+                files = coefficients[:n]
+            coeffs.Set(Sdf.AssetPathArray([Sdf.AssetPath(p) for p in files]))
             for attr in (count, coeffs):
                 attr.SetColorSpace("raw")
             if storm is not None:

@@ -5,6 +5,14 @@
 the same CompressedBTF back from a composed prim, from any stage that references the
 asset, so ``reconstruct(read_btf(prim))`` equals ``reconstruct(read_compressed(folder))``
 bit for bit.
+
+Two layouts of the textures (``btf:coefficientLayout``, schema version 2): ``gpuPages``, what
+``package`` writes for a BTF the real-time preview draws (every light at every view): the one
+copy of the BTF is the GPU tables (``btf:basis``, whose basis block holds the stored basis
+codes) and the RGBA coefficient pages (``btf:coefficients``; a ``lod`` lists the pages its
+vectors need, a prefix), which the Storm shader, the MaterialX node, the OSL shader and the CPU
+readers all read (:func:`usdbtf.gpu.tables.unpack`); ``files``, one image per coefficient and a
+basis image (other samplings, and every asset of schema version 1, which keeps reading).
 """
 from __future__ import annotations
 
@@ -16,12 +24,18 @@ import numpy as np
 from .. import __version__, photometry
 from ..color import usd_color_space
 from ..compress.codecs import Codec, Stored
-from ..compress.format import CompressedBTF, basis_layout, image_to_basis
+from ..compress.format import CompressedBTF, basis_layout, cross_layout, image_to_basis
 from ..errors import BTFError
 from ..sampling import Sampling
 from .plugin import API_SCHEMA, require_schema
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+#: Versions :func:`read_btf` reads (1: the ``files`` layout only, before btf:coefficientLayout).
+READABLE_VERSIONS = (1, 2)
+#: btf:coefficientLayout values.
+FILES, GPU_PAGES = "files", "gpuPages"
+#: btf:basisLayout of the GPU tables.
+GPU_TABLES = "gpuTables"
 NS = "btf:"
 SCHEMA_VERSION_ATTR = NS + "schemaVersion"
 #: Variant set on a packaged asset's root prim choosing how many basis vectors to use.
@@ -42,11 +56,12 @@ def _set(prim, name: str, value) -> None:
 
 def author_btf(material, cbtf: CompressedBTF, basis: str, coefficients: list[str], *,
                physical_size: tuple[float, float] | None = None, error_curve: list | None = None,
-               provenance_source: str | None = None) -> None:
+               provenance_source: str | None = None, layout: str = FILES) -> None:
     """Apply BtfMaterialAPI to ``material`` (a Material prim) and author ``cbtf``'s description.
 
     basis, coefficients : asset paths (relative to the layer being edited) of the
-        basis image and the k coefficient textures, energy order.
+        basis image and the k coefficient textures, energy order; with ``layout``
+        :data:`GPU_PAGES`, of the GPU tables and the coefficient pages (module docstring).
     physical_size : (width, height) of the tile in metres.
     error_curve : [(k, percent), ...] measured reconstruction errors.
     provenance_source : what ``btf:provenance:source`` records (default: the path the
@@ -62,15 +77,21 @@ def author_btf(material, cbtf: CompressedBTF, basis: str, coefficients: list[str
     if not material.ApplyAPI(API_SCHEMA):
         raise BTFError(f"{material.GetPath()}: cannot apply {API_SCHEMA} (only Material prims can hold a BTF)")
     k = cbtf.k
-    if len(coefficients) != k:
+    if layout not in (FILES, GPU_PAGES):
+        raise ValueError(f"coefficient layout {layout!r}")
+    if layout == FILES and len(coefficients) != k:
         raise ValueError(f"{len(coefficients)} coefficient paths for k = {k}")
-    layout = basis_layout(cbtf.sampling, k, cbtf.codec)
     _set(material, "schemaVersion", SCHEMA_VERSION)
     _set(material, "basis", Sdf.AssetPath(basis))
-    _set(material, "basisLayout", layout["kind"])
-    if layout["kind"] == "tiles":
-        _set(material, "basisTile", Gf.Vec2i(layout["views"], layout["lights"]))
-        _set(material, "basisGrid", Gf.Vec2i(*layout["grid"]))
+    _set(material, "coefficientLayout", layout)
+    if layout == GPU_PAGES:
+        _set(material, "basisLayout", GPU_TABLES)
+    else:
+        tiles = basis_layout(cbtf.sampling, k, cbtf.codec)
+        _set(material, "basisLayout", tiles["kind"])
+        if tiles["kind"] == "tiles":
+            _set(material, "basisTile", Gf.Vec2i(tiles["views"], tiles["lights"]))
+            _set(material, "basisGrid", Gf.Vec2i(*tiles["grid"]))
     _set(material, "basisScale", Vt.DoubleArray([float(x) for x in cbtf.basis.scale]))
     _set(material, "basisBias", Vt.DoubleArray([float(x) for x in cbtf.basis.bias]))
     _set(material, "basisCount", k)
@@ -86,8 +107,14 @@ def author_btf(material, cbtf: CompressedBTF, basis: str, coefficients: list[str
         if cbtf.domain.curve == "power":
             _set(material, "domain:gamma", float(cbtf.domain.gamma))
     _set(material, "resolution", Gf.Vec2i(cbtf.width, cbtf.height))
-    _set(material, "viewDirections", Vt.Vec2dArray([Gf.Vec2d(*map(float, v)) for v in cbtf.sampling.view]))
-    _set(material, "lightDirections", Vt.Vec2dArray([Gf.Vec2d(*map(float, v)) for v in cbtf.sampling.light]))
+    views, lights = cbtf.sampling.view, cbtf.sampling.light
+    cross = cross_layout(cbtf.sampling)
+    if cross is not None:          # V + L entries, not 2 V L (345,600 bytes of doubles at paper scale)
+        V, L = cross
+        views, lights = views[::L], lights[:L]
+        _set(material, "directionLayout", "cross")
+    _set(material, "viewDirections", Vt.Vec2dArray([Gf.Vec2d(*map(float, v)) for v in views]))
+    _set(material, "lightDirections", Vt.Vec2dArray([Gf.Vec2d(*map(float, v)) for v in lights]))
     if cbtf.interpolated is not None and cbtf.interpolated.any():
         _set(material, "interpolatedSamples", Vt.IntArray([int(i) for i in np.flatnonzero(cbtf.interpolated)]))
     # usdbtf.photometry: what the values mean, and the white level they are relative to.
@@ -195,16 +222,18 @@ def _authored(prim, name: str):
     return attr.Get() if attr and attr.HasAuthoredValue() else None
 
 
-def _read_asset(prim, asset, what: str) -> np.ndarray:
-    """Stored pixels of an asset-valued attribute, read through Ar (so usdz members work)."""
+def _read_asset(prim, asset, what: str, reader=None) -> np.ndarray:
+    """Stored pixels of an asset-valued attribute, read through Ar (so usdz members work);
+    ``reader(path)`` reads a file (default ``Codec.read``)."""
     from pxr import Ar
 
+    reader = reader or Codec.read
     where = f"{prim.GetStage().GetRootLayer().identifier}: {prim.GetPath()}.{NS}{what}"
     resolved = asset.resolvedPath
     if not resolved:
         raise BTFError(f"{where}: texture {asset.path!r} does not resolve (missing file?)")
     if "[" not in resolved and Path(resolved).is_file():
-        return Codec.read(Path(resolved))
+        return reader(Path(resolved))
     # A file inside a package (pkg.usdz[textures/c000.png]): OIIO reads files, so
     # copy the member's bytes out through Ar first.
     handle = Ar.GetResolver().OpenAsset(Ar.ResolvedPath(resolved))
@@ -214,7 +243,7 @@ def _read_asset(prim, asset, what: str) -> np.ndarray:
     with tempfile.TemporaryDirectory(prefix="usdbtf-asset-") as tmp:
         path = Path(tmp) / f"texture{suffix}"
         path.write_bytes(bytes(handle.GetBuffer()))
-        return Codec.read(path)
+        return reader(path)
 
 
 def read_btf(material, *, k: int | None = None) -> CompressedBTF:
@@ -225,26 +254,88 @@ def read_btf(material, *, k: int | None = None) -> CompressedBTF:
     if not material.HasAPI(API_SCHEMA):
         raise BTFError(f"{path}: has no {API_SCHEMA}")
     version = _get(material, "schemaVersion")
-    if version != SCHEMA_VERSION:
-        raise BTFError(f"{path}: {SCHEMA_VERSION_ATTR} = {version}, this usdbtf ({__version__}) reads version "
-                       f"{SCHEMA_VERSION} only")
+    if version not in READABLE_VERSIONS:
+        raise BTFError(f"{path}: {SCHEMA_VERSION_ATTR} = {version}, this usdbtf ({__version__}) reads versions "
+                       f"{', '.join(map(str, READABLE_VERSIONS))}")
     coeff_assets = list(_get(material, "coefficients"))
     scales = np.asarray(_get(material, "coefficientScale"), np.float64).reshape(-1, 3)
     biases = np.asarray(_get(material, "coefficientBias"), np.float64).reshape(-1, 3)
     bscale = np.asarray(_get(material, "basisScale"), np.float64)
     bbias = np.asarray(_get(material, "basisBias"), np.float64)
-    listed = len(coeff_assets)
+    gpu = version >= 2 and str(_get(material, "coefficientLayout", required=False) or FILES) == GPU_PAGES
+    # The pages list the files a level needs, not one per vector: the scales count the vectors.
+    listed = len(scales) if gpu else len(coeff_assets)
     count = int(_get(material, "basisCount") or listed)
     k = min(count, listed) if k is None else k
     if not 1 <= k <= min(listed, len(scales), len(biases), len(bscale), len(bbias)):
         raise BTFError(f"{path}: basis count {k} does not match {listed} coefficient textures, "
                        f"{len(scales)} scales, {len(bscale)} basis scales")
-    view = np.asarray(_get(material, "viewDirections"), np.float64).reshape(-1, 2)
-    light = np.asarray(_get(material, "lightDirections"), np.float64).reshape(-1, 2)
+    view, light = read_directions(material)
     if len(view) != len(light) or not len(view):
         raise BTFError(f"{path}: {len(view)} view and {len(light)} light directions")
     sampling = Sampling(view, light)
     width, height = (int(x) for x in _get(material, "resolution"))
+    if gpu:
+        basis, coefficients = _read_gpu_copy(material, coeff_assets, k, len(sampling), (height, width))
+        basis = Stored(basis, bscale[:k], bbias[:k])
+        coefficients = [Stored(px, scales[i], biases[i]) for i, px in enumerate(coefficients)]
+    else:
+        basis, coefficients = _read_files(material, coeff_assets, k, sampling, (height, width), bscale, bbias,
+                                          scales, biases)
+    return _compressed(material, path, sampling, width, height, basis, coefficients, k)
+
+
+class _LazyPages:
+    """A sequence of ``n`` pages, page i read by ``read(i)`` when first asked for."""
+
+    def __init__(self, read, n: int):
+        self._read, self._n, self._cache = read, n, {}
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, i: int):
+        if i not in self._cache:
+            self._cache = {i: self._read(i)}         # one page at a time: pages are atlas-sized
+        return self._cache[i]
+
+
+def read_directions(material) -> tuple[np.ndarray, np.ndarray]:
+    """(view, light) (S, 2) degrees per basis row of a BtfMaterialAPI prim: the arrays as
+    authored, or the view-major cross product of btf:directionLayout 'cross'."""
+    view = np.asarray(_get(material, "viewDirections"), np.float64).reshape(-1, 2)
+    light = np.asarray(_get(material, "lightDirections"), np.float64).reshape(-1, 2)
+    if str(_get(material, "directionLayout", required=False) or "perSample") == "cross":
+        view, light = np.repeat(view, len(light), axis=0), np.tile(light, (len(view), 1))
+    return view, light
+
+
+def _read_gpu_copy(material, pages: list, k: int, samples: int, shape: tuple) -> tuple:
+    """(basis codes (S, k, 1), k coefficient codes (H, W, 3)) from the GPU tables and pages."""
+    from ..gpu.tables import unpack
+    from ..imageio import read_rgba
+
+    path = material.GetPath()
+    tables = _read_asset(material, _get(material, "basis"), "basis", read_rgba)
+    # Only the pages the first k vectors are on are read (unpack asks for them in order).
+    read = _LazyPages(lambda i: _read_asset(material, pages[i], f"coefficients[{i}]", read_rgba), len(pages))
+    try:
+        basis, coefficients = unpack(tables, read, k)
+    except BTFError as exc:
+        raise BTFError(f"{path}: {exc}") from None
+    if basis.shape[0] != samples:
+        raise BTFError(f"{path}: the GPU tables hold {basis.shape[0]} basis rows for {samples} directions")
+    if coefficients[0].shape[:2] != shape:
+        raise BTFError(f"{path}: GPU pages hold {coefficients[0].shape[1]}x{coefficients[0].shape[0]} texels, "
+                       f"btf:resolution says {shape[1]}x{shape[0]}")
+    return basis, coefficients
+
+
+def _read_files(material, coeff_assets, k, sampling, shape, bscale, bbias, scales, biases) -> tuple:
+    """(basis Stored, k coefficient Stored) of the ``files`` layout: a basis image, one file
+    per coefficient."""
+    path = material.GetPath()
+    height, width = shape
     kind = str(_get(material, "basisLayout"))
     if kind == "tiles":
         views, lights = (int(x) for x in _get(material, "basisTile"))
@@ -269,6 +360,11 @@ def read_btf(material, *, k: int | None = None) -> CompressedBTF:
             raise BTFError(f"{path}: coefficient texture {coeff_assets[i].path} is {px.shape[1]}x{px.shape[0]}, "
                            f"btf:resolution says {width}x{height}")
         coefficients.append(Stored(px, scales[i], biases[i]))
+    return basis, coefficients
+
+
+def _compressed(material, path, sampling, width, height, basis, coefficients, k) -> CompressedBTF:
+    """The CompressedBTF of ``material`` around its read textures."""
     interp = np.zeros(len(sampling), bool)
     flagged = _get(material, "interpolatedSamples", required=False)
     if flagged:

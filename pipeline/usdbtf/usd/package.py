@@ -18,8 +18,11 @@ map (:mod:`usdbtf.quilt.texels`): the same files as texel by texel.  Files writt
                                  usda): geo/ (swatch quad at physical size, or the given mesh)
                                  and mtl/BtfMaterial (BtfMaterialAPI, the fitted
                                  UsdPreviewSurface fallback, the Storm preview), bound
-    out/pebbles_textures/        basis, coeff/c000 ..., fallback/ (usd.fallback), gpu/
-                                 (usd.storm), thumbnail.png
+    out/pebbles_textures/        gpu/ (usd.storm: the tables and coefficient pages, the asset's
+                                 one copy of the BTF, which btf:basis and btf:coefficients
+                                 name), fallback/ (usd.fallback), thumbnail.png; for a
+                                 sampling the preview cannot draw, basis and coeff/c000 ...
+                                 instead of gpu/
     out/pebbles.usdz             with --usdz: the same, packaged (variants and payload kept)
     out/pebbles_ar.usdz          with --usdz-ar: one usdc layer for AR viewers (usd.arkit)
 
@@ -30,8 +33,11 @@ file-backed layer, so authoring straight into the staged files keeps a given ass
 what they have always been.  :func:`asset_layers` authors the same layers into anonymous,
 in-memory ones (for inspection and tests).
 
-Textures are re-encoded losslessly into formats every USD consumer reads (JPEG XL and
-TIFF become PNG holding the same integer codes; PNG, JPEG and EXR are copied), or into
+The BTF is stored once (issue 39): its stored codes in the GPU tables and pages, read by
+Storm, the MaterialX node, the OSL shader and ``load_btf`` alike (usd.material).  Textures
+are re-encoded losslessly into formats every USD consumer reads (the pages: 8-bit PNG, 16-bit
+codes and halves as OpenEXR; the files layout: JPEG XL and TIFF become PNG holding the same
+integer codes; PNG, JPEG and EXR are copied), or into
 tiled, mip-mapped files with ``--texture-format`` (usd.textures; those are made from the
 in-memory bytes while staging, as OIIO's maketx writes only files); a reconstruction from
 the asset equals one from the compressed folder bit for bit.  Every asset path is relative,
@@ -69,7 +75,7 @@ from .arkit import AR_SUFFIX
 from .finite import non_finite_in_stage, non_finite_values
 from .layers import MATERIAL, make_usdz, stage_metadata, usd_write, valid_name
 from .lod import FULL_LOD, default_lods
-from .material import LOD_VARIANT_SET, author_btf
+from .material import FILES, GPU_PAGES, LOD_VARIANT_SET, author_btf
 from .textures import TEXTURE_FORMATS, USDZ_FORMATS, TextureSet, package_textures
 from .validate import validate_layer
 from .formats import PAYLOAD_FORMATS
@@ -219,6 +225,24 @@ def provenance_path(source: str, asset_dir: Path) -> str:
         return "sha256:" + hashlib.sha256(str(absolute).encode()).hexdigest()
 
 
+def budget_of(cbtf: CompressedBTF) -> int | None:
+    """The ``--max-bytes`` budget ``compress`` recorded for ``cbtf`` (None without one)."""
+    options = (cbtf.info.get("provenance") or {}).get("options") or {}
+    value = options.get("max_bytes")
+    return int(value) if isinstance(value, (int, float)) and value > 0 else None
+
+
+def shipped_bytes(root) -> dict:
+    """{lod name: bytes of every file that ``lod`` loads} of the written asset ``root``
+    (:func:`usdbtf.usd.inspect.lod_files`: its layers, thumbnail, the BTF's textures and
+    what its shader networks read), largest first."""
+    from .inspect import lod_files
+    from .read import find_material, open_stage
+
+    stage = open_stage(root)
+    return {lv["name"] or FULL_LOD: lv["total"] for lv in lod_files(stage, find_material(stage))}
+
+
 def check_root_layer(out) -> None:
     """UsageError unless ``out`` names a root layer :data:`ROOT_FORMATS` allows."""
     out = Path(out)
@@ -258,13 +282,18 @@ def package(compressed, options: PackageOptions | None = None) -> PackageResult:
     from ..svbrdf import fit_svbrdf
 
     textures = TextureSet(options.texture_format)
-    basis, coefficients = package_textures(cbtf, textures)
     # Per-texel work (the fallback fit, the GPU packs, the thumbnail's texture) on a quilt
     # runs once per distinct source texel and is gathered through the position map.
     texels = quilt_texels(cbtf, folder)
+    # One copy of the BTF: the GPU tables and pages, which every consumer reads, where the
+    # preview can draw the sampling; else one file per coefficient and a basis image.
+    gpu = storm.add_gpu_textures(cbtf, textures, levels, texels=texels)
+    if gpu is not None:
+        basis, coefficients = gpu.tables, list(gpu.pages)
+    else:
+        basis, coefficients = package_textures(cbtf, textures)
     fitted = fit_svbrdf(cbtf if texels is None else texels.compact, white_level=white)
     maps_added = fallback.add_maps(fitted, textures, cbtf.ocio_config, texels=texels)
-    gpu = storm.add_gpu_textures(cbtf, textures, levels, texels=texels)
     thumb = None
     if options.thumbnail:
         thumb = textures.add_file(thumbnail.THUMBNAIL_FILE, thumbnail.thumbnail_png(cbtf, shape, texels=texels))
@@ -319,7 +348,8 @@ def _author_payload(stage, result: PackageResult, names: _Names, provenance: str
     material = UsdShade.Material.Define(stage, f"/{names.root}/mtl/{MATERIAL}")
     coefficients = [textures.texture(name, names.textures).path for name in result.coefficients]
     author_btf(material.GetPrim(), cbtf, textures.texture(result.basis, names.textures).path, coefficients,
-               physical_size=result.physical_size, error_curve=result.curve, provenance_source=provenance)
+               physical_size=result.physical_size, error_curve=result.curve, provenance_source=provenance,
+               layout=FILES if result.gpu is None else GPU_PAGES)
     maps = result.maps
     summary = {"diffuse": np.median(maps.diffuse.reshape(-1, 3), axis=0),
                "roughness": float(np.median(maps.roughness))}
@@ -363,7 +393,7 @@ def _author_root(stage, result: PackageResult, names: _Names, root_name: str, co
     if result.thumbnail:
         thumbnail.declare_thumbnail(prim, f"./{names.textures}/{result.thumbnail}")
     lod.author_lod_variants(stage, f"/{names.root}", f"/{names.root}/mtl/{MATERIAL}", result.levels, coefficients,
-                            gpu)
+                            gpu, paged=result.gpu is not None)
 
 
 def _authored(path: Path, author):
@@ -458,9 +488,16 @@ def write_package(result: PackageResult, out) -> dict:
     extra = published[2:]
     log.info(f"packaged {result.input_name} (k = {cbtf.k}, LODs {[cbtf.k] + result.levels}) as {out}"
              + (f" and {', '.join(extra)}" if extra else ""))
+    shipped = shipped_bytes(out)
+    budget = budget_of(cbtf)
+    log.info(f"the asset's bytes (every file the full lod loads): {shipped[FULL_LOD]:,}"
+             + ("" if budget is None else f", {shipped[FULL_LOD] / budget:.2f}x the --max-bytes budget of {budget:,} "
+                                          f"compress was given (which counts the compressed folder's textures)")
+             + "".join(f"; {name} {n:,}" for name, n in shipped.items() if name != FULL_LOD))
     summary = {"root": out, "payload": out.parent / names.payload, "textures": out.parent / names.textures,
                "k": cbtf.k, "lods": [[FULL_LOD, cbtf.k]] + [[lod.lod_name(n), n] for n in result.levels],
-               "texture_format": options.texture_format, "validated": options.validate}
+               "texture_format": options.texture_format, "validated": options.validate,
+               "bytes": shipped, "max_bytes": budget}
     if options.usdz:
         summary["usdz"] = out.parent / f"{names.stem}.usdz"
     if options.usdz_ar:

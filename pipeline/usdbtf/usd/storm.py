@@ -46,6 +46,7 @@ from ..compress.format import CompressedBTF
 from ..errors import BTFError
 from ..gpu import shaders
 from ..gpu.tables import MAX_PAGES, gpu_layout
+from ..imageio import read_rgba
 from ..photometry import white_level_of
 
 __all__ = ["plugin_dir_resources", "GPU_DIR", "STORM_SURFACE", "GpuTextures", "add_gpu_textures",
@@ -231,32 +232,6 @@ def author_materialx_preview(stage, material_path: str, tables: str, pages: list
 
 
 # ------------------------------------------------------------------ reading back
-def read_rgba(path):
-    """(H, W, 4) pixels of a GPU texture in the file's own type (usdbtf.imageio.read_image
-    returns RGB only; the packs and tables use all four channels)."""
-    import numpy as np
-    import OpenImageIO as oiio
-
-    from ..imageio import native_stderr_captured, oiio_error
-
-    config = oiio.ImageSpec()
-    config.attribute("oiio:UnassociatedAlpha", 1)       # the fourth layer is data, not coverage
-    with native_stderr_captured():
-        inp = oiio.ImageInput.open(str(path), config)
-        if inp is None:
-            raise BTFError(f"{path}: cannot open GPU texture ({oiio_error()})")
-        try:
-            spec = inp.spec()
-            if spec.nchannels != 4:
-                raise BTFError(f"{path}: GPU texture has {spec.nchannels} channels, expected 4 (RGBA)")
-            data = inp.read_image(0, 0, 0, 4, spec.format)
-            if data is None or inp.has_error:
-                raise BTFError(f"{path}: GPU texture is corrupt or truncated ({oiio_error(inp)})")
-        finally:
-            inp.close()
-    return np.asarray(data)
-
-
 def storm_shader(material):
     """The Storm preview Shader of a Material prim (composed), or None."""
     from pxr import UsdShade

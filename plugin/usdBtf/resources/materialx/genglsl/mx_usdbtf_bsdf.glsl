@@ -25,7 +25,11 @@
 //   texel 2        (dequantOffset, matrixOffset, curve, gamma)   working-domain curve:
 //                  0 linear, 1 power (inverse d^gamma), 2 sRGB (usdbtf.compress.domain)
 //   texel 3        (directoryOffset, tileWidth, tileHeight, repeat)   1 = wrap, 0 = clamp
-//   basis          basisOffset + (view * L + light) * G + g: vectors 4g..4g+3 of that sample
+//   basis          basisOffset (maxCode, S, G, 0)   S = V * L samples; maxCode: the codes' storage
+//                  (255 uint8, 65535 uint16, 1 half; for readers of the one copy, usdbtf.gpu.tables.unpack)
+//                  basisOffset + 1 + 2g = scale, + 2 + 2g = bias of vectors 4g..4g+3
+//                  basisOffset + 1 + 2G + g * S + view * L + light: the stored codes of vectors
+//                  4g..4g+3 at that sample (value = code * scale + bias, de-quantised here)
 //   hemisphere h   h+0 (origin.x, origin.y, cell, grid)   h+1 (candidateTexels, triangles,
 //                  boundaryEdges, 0)   h+2 (gridOffset, triangleOffset, boundaryOffset, 0)
 //                  grid cell (x, y): candidateTexels texels of 4 triangle ids (-1 = none)
@@ -33,8 +37,9 @@
 //                  boundary e: (a.x, a.y, b.x, b.y) (i0, i1, 0, 0)
 //   dequant        pack p: dequantOffset + 2p = scale, + 2p + 1 = bias (stored = t * scale + bias)
 //   matrix         matrixOffset + r: row r of M
-//   directory      directoryOffset + p: (page, x0, y0, 0): pack p is the tile whose top-left
-//                  texel is column x0, image row y0 (from the top) of page `page`
+//   directory      directoryOffset + p: (page, x0, y0, maxCode): pack p is the tile whose top-left
+//                  texel is column x0, image row y0 (from the top) of page `page`; maxCode: its
+//                  codes' storage (as the basis's; the shader reads normalised values)
 // Coefficient pack p = 3 g + c holds colour channel c of vectors 4g..4g+3; the packs are
 // tiles of at most BTF_MAX_PAGES RGBA textures ("pages"), filtered here (btfPack).
 //
@@ -262,20 +267,26 @@ vec3 btfShadeLight(sampler2D btfTables, BTF_PAGE_PARAMS, ivec3 viewIndex, vec3 v
     int lights = int(h0.z);
     int groups = int(h0.w);
     int basis = int(h1.y);
+    int samples = int(h0.y) * lights;
+    int codes = basis + 1 + 2 * groups;
     int dequant = int(h2.x);
     int matrix = int(h2.y);
     int k = min(basisCount, int(h1.x));
     vec3 stored = vec3(0.0);
     for (int g = 0; 4 * g < k && g < groups; ++g) {
+        // The blended codes, then de-quantised: the bias enters with the weights' sum.
         vec4 row = vec4(0.0);
+        float weights = 0.0;
         for (int a = 0; a < 3; ++a) {
             for (int b = 0; b < 3; ++b) {
                 float w = viewWeight[a] * lightWeight[b];
                 if (w != 0.0) {
-                    row += w * btfFetch(btfTables, basis + (viewIndex[a] * lights + lightIndex[b]) * groups + g);
+                    row += w * btfFetch(btfTables, codes + g * samples + viewIndex[a] * lights + lightIndex[b]);
+                    weights += w;
                 }
             }
         }
+        row = row * btfFetch(btfTables, basis + 1 + 2 * g) + weights * btfFetch(btfTables, basis + 2 + 2 * g);
         row *= vec4(greaterThan(ivec4(k), ivec4(4 * g) + ivec4(0, 1, 2, 3)));
         for (int c = 0; c < 3; ++c) {
             int p = 3 * g + c;

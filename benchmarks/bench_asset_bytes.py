@@ -1,0 +1,259 @@
+#!/usr/bin/env python
+"""What a packaged asset ships, file kind by file kind, and what single-copy layouts would ship (issue 39).
+
+For one synthetic material (``usdbtf synth``, cached) compressed twice (``usdbtf compress --max-bytes B`` and
+``--k K``, cached), ``usdbtf package`` (this checkout's code) writes the asset; its files are counted by kind:
+``tables.exr`` (split into the basis block and the rest: hemisphere tables, de-quantisation, directory; the
+rest measured by encoding the same tables with the basis block zeroed), the coefficient pages, ``coeff/``,
+``basis.*`` (before issue 39), the fallback maps, the thumbnail, the MaterialX document and the USD layers.
+
+Then, from the same codes (the compressed folder's, read with ``read_compressed``), the bytes of candidate
+single-copy layouts, every one PNG at compression level 6 for 8-bit codes (what ``package`` writes) and the
+same page breaks at the default ``lod`` levels:
+
+coefficients
+  (a) RGBA packs: pack 3g+c = colour channel c of coefficients 4g..4g+3 (today's ``gpu/pageNN.png``);
+  (b) single-channel pages, each coefficient's three colour planes side by side in one tile (planar);
+  (c) RGB pages, one coefficient per tile.
+basis
+  each as a standalone float/PNG image of 512-texel rows, 4 vectors per texel:
+  (1) float32 de-quantised values, sample-major (the GPU copy before issue 39);
+  (2) the stored codes as float32, sample-major; (3) the same, group-major (one group of 4 vectors'
+  samples after the other: what the tables hold after issue 39, the shader de-quantises);
+  (4) the codes as half floats (exact only for codes <= 2048; a sampler of its own);
+  (5) the codes' high and low bytes as two RGBA8 PNGs (what Storm can read exactly; two samplers);
+  (6) the codec's tiled basis image as 16-bit PNG (``basis.png`` of the asset before issue 39).
+
+Shader cost per pixel and light, per coefficient: texel fetches of the coefficient pages (bilinear = 4 fetches
+per tile read) and of the de-quantisation (2 per tile), from the layout.
+
+Usage (repository root)::
+
+    .venv/bin/python benchmarks/bench_asset_bytes.py                       # paper sampling, 128^2
+    .venv/bin/python benchmarks/bench_asset_bytes.py --size 64 --k 48      # quicker
+
+Writes benchmarks/out/asset_bytes_<timestamp>.json and prints a markdown block for RESULTS.md.
+"""
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import usdbtf  # noqa: F401  (before numpy: pins the numeric platform)
+import numpy as np
+
+from common import OUT, cli_command, format_machine, machine_info, timestamp, write_json
+
+
+def run(cmd: list) -> float:
+    t0 = time.perf_counter()
+    subprocess.run([str(c) for c in cmd], check=True)
+    return time.perf_counter() - t0
+
+
+def kind_of(rel: str) -> str:
+    """The file kind of a path relative to the asset's folder."""
+    parts = Path(rel).parts
+    name = parts[-1]
+    if name.endswith((".usda", ".usdc", ".usd")):
+        return "layers"
+    if "gpu" in parts and name.startswith("tables"):
+        return "tables"
+    if "gpu" in parts and name.startswith("page"):
+        return "pages"
+    if "gpu" in parts and name.endswith(".mtlx"):
+        return "materialx"
+    if "coeff" in parts:
+        return "coeff/"
+    if name.startswith("basis"):
+        return "basis file"
+    if "fallback" in parts:
+        return "fallback"
+    if name.startswith("thumbnail"):
+        return "thumbnail"
+    return "other"
+
+
+def asset_breakdown(folder: Path) -> dict:
+    out: dict = {}
+    for path in sorted(folder.rglob("*")):
+        if path.is_file():
+            kind = kind_of(str(path.relative_to(folder)))
+            out[kind] = out.get(kind, 0) + path.stat().st_size
+    return out
+
+
+def png(pixels) -> int:
+    from usdbtf.imageio import encode_image
+
+    return len(encode_image(pixels, "png", color_space="data",
+                            attributes={"png:compressionLevel": 6, "oiio:UnassociatedAlpha": 1}))
+
+
+def exr(pixels) -> int:
+    from usdbtf.imageio import encode_image
+
+    return len(encode_image(pixels, "exr", color_space="data", attributes={"compression": "zip"}))
+
+
+def page_bytes(tiles: list, breaks: list) -> tuple[int, int]:
+    """(bytes, pages) of ``tiles`` (same-shape arrays) laid out by usdbtf.gpu.tables.page_plan."""
+    from usdbtf.gpu.tables import page_plan
+
+    h, w = tiles[0].shape[:2]
+    plan, directory = page_plan(len(tiles), w, h, breaks, [t.dtype for t in tiles])
+    total = 0
+    for first, end, cols, rows in plan:
+        page = np.zeros((rows * h, cols * w) + tiles[0].shape[2:], tiles[0].dtype)
+        for p in range(first, end):
+            _, x0, y0, _ = (int(v) for v in directory[p])
+            page[y0:y0 + h, x0:x0 + w] = tiles[p]
+        if page.dtype == np.uint8:
+            total += png(page)
+        else:
+            total += exr((page.astype(np.float64) / 65535.0).astype(np.float32) if page.dtype == np.uint16 else page)
+    return total, len(plan)
+
+
+def candidates(folder: Path) -> dict:
+    """Bytes of the candidate layouts from the codes of compressed folder ``folder``."""
+    from usdbtf.compress.format import read_compressed
+    from usdbtf.gpu.tables import gpu_layout, page_breaks
+    from usdbtf.usd.lod import default_lods
+
+    cbtf = read_compressed(folder)
+    k = cbtf.k
+    lods = default_lods(k)
+    out = {"k": k, "coefficient_dtype": sorted({str(st.pixels.dtype) for st in cbtf.coefficients}),
+           "basis_dtype": str(cbtf.basis.pixels.dtype)}
+    layout = gpu_layout(cbtf, lods=lods)
+    breaks = page_breaks(k, lods)
+    packs = [layout.pages[i] for i in range(len(layout.pages))]
+    out["a_rgba_packs"] = {"bytes": sum(png(p) if p.dtype == np.uint8 else exr(p) for p in packs),
+                           "pages": len(packs), "page_fetches_per_coeff": 3.0, "dequant_fetches_per_coeff": 1.5}
+    planar = [np.concatenate([st.pixels[:, :, c] for c in range(3)], axis=1) for st in cbtf.coefficients]
+    # per-coefficient breaks: the lod's first coefficient begins a page
+    cbreaks = sorted({n for n in lods if 0 < n < k})
+    b, n = page_bytes(planar, cbreaks)
+    out["b_planar_single"] = {"bytes": b, "pages": n, "page_fetches_per_coeff": 12.0, "dequant_fetches_per_coeff": 2.0}
+    b, n = page_bytes([st.pixels for st in cbtf.coefficients], cbreaks)
+    out["c_rgb_tiles"] = {"bytes": b, "pages": n, "page_fetches_per_coeff": 4.0, "dequant_fetches_per_coeff": 2.0}
+
+    flat = layout.tables.reshape(-1, 4)
+    V, L, groups = int(flat[0][1]), int(flat[0][2]), int(flat[0][3])
+    S = V * L
+    # The basis block runs from its offset to the view hemisphere's table (both layouts).
+    basis_at, view_at = int(flat[1][1]), int(flat[1][2])
+    zeroed = layout.tables.copy()
+    zeroed.reshape(-1, 4)[basis_at:view_at] = 0
+    out["tables_this_checkout"] = exr(layout.tables)
+    out["tables_rest"] = exr(zeroed)
+
+    def rows512(texels: np.ndarray) -> np.ndarray:
+        rows = -(-len(texels) // 512)
+        block = np.zeros((rows * 512, 4), texels.dtype)
+        block[:len(texels)] = texels
+        return block.reshape(rows, 512, 4)
+
+    codes = np.zeros((S, groups * 4), np.float32)
+    codes[:, :k] = cbtf.basis.pixels[:, :k, 0].astype(np.float32)
+    values = np.zeros((S, groups * 4), np.float32)
+    values[:, :k] = cbtf.basis_values(k)
+    group_major = codes.reshape(S, groups, 4).transpose(1, 0, 2).reshape(-1, 4)
+    out["basis_1_float32_values_sample_major"] = exr(rows512(values.reshape(-1, 4)))
+    out["basis_2_float32_codes_sample_major"] = exr(rows512(codes.reshape(-1, 4)))
+    out["basis_3_float32_codes_group_major"] = exr(rows512(group_major))
+    half_exact = bool(np.array_equal(codes.astype(np.float16).astype(np.float32), codes))
+    out["basis_4_half_codes_group_major"] = exr(rows512(group_major.astype(np.float16)))
+    out["basis_4_exact"] = half_exact
+    ints = group_major.astype(np.uint16)
+    out["basis_5_hi_lo_rgba8_png_group_major"] = png(rows512((ints >> 8).astype(np.uint8))) + \
+        png(rows512((ints & 255).astype(np.uint8)))
+    from usdbtf.compress.format import basis_layout, basis_to_image
+    from usdbtf.imageio import encode_image
+
+    image = basis_to_image(cbtf.basis.pixels, basis_layout(cbtf.sampling, k, "png"))
+    out["basis_6_png_tiles"] = len(encode_image(image, "png", color_space="data",
+                                                attributes={"png:compressionLevel": 6}))
+    out["coeff_files_rgb_png"] = sum(len(encode_image(st.pixels, "png", color_space="data",
+                                                      attributes={"png:compressionLevel": 6}))
+                                     for st in cbtf.coefficients)
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--preset", default="metal_flakes")
+    ap.add_argument("--sampling", default="paper")
+    ap.add_argument("--size", type=int, default=128)
+    ap.add_argument("--k", type=int, default=150)
+    ap.add_argument("--max-bytes", type=int, default=2901868, help="the paper's bytes at k 150 (issue 39)")
+    ap.add_argument("--work", type=Path, default=OUT / "asset_bytes")
+    args = ap.parse_args(argv)
+    cli = cli_command()
+    machine = machine_info()
+    print(format_machine(machine))
+    work = args.work / f"{args.preset}_{args.sampling}{args.size}"
+    work.mkdir(parents=True, exist_ok=True)
+    src = work / "btf"
+    if not (src / "btf.json").is_file():
+        run(cli + ["synth", args.preset, "-o", src, "--sampling", args.sampling, "--size", args.size, "-q"])
+    print(f"inputs: {args.preset}, {args.sampling} sampling, {args.size}^2 texels; compress --max-bytes "
+          f"{args.max_bytes} and --k {args.k} (jxlp, the default codec); package (this checkout)")
+    report = {"machine": machine, "args": {k: str(v) for k, v in vars(args).items()}, "runs": {}}
+    for label, flags in (("max-bytes", ["--max-bytes", args.max_bytes]), ("k", ["--k", args.k])):
+        comp = work / f"c_{label}"
+        if not (comp / "btf-compressed.json").is_file():
+            run(cli + ["compress", src, "-o", comp, "-q"] + flags)
+        asset = work / f"a_{label}"
+        seconds = run(cli + ["package", comp, "-o", asset / "m.usda", "-q"])
+        kinds = asset_breakdown(asset)
+        cand = candidates(comp)
+        import json
+
+        folder_payload = json.loads((comp / "btf-compressed.json").read_text())["bytes"]["payload"]
+        report["runs"][label] = {"kinds": kinds, "total": sum(kinds.values()), "package_s": seconds,
+                                 "folder_payload": folder_payload, "candidates": cand}
+    write_json(OUT / f"asset_bytes_{timestamp()}.json", report)
+
+    print("\n| run | k | folder payload (basis + coeff) | asset total | " +
+          " | ".join(sorted({k for r in report["runs"].values() for k in r["kinds"]})) + " |")
+    cols = sorted({k for r in report["runs"].values() for k in r["kinds"]})
+    print("|" + "---|" * (4 + len(cols)))
+    for label, r in report["runs"].items():
+        print(f"| {label} | {r['candidates']['k']} | {r['folder_payload']:,} | {r['total']:,} | "
+              + " | ".join(f"{r['kinds'].get(c, 0):,}" for c in cols) + " |")
+    print("\ntables.exr (this checkout): the basis block = tables - the same tables with the block zeroed")
+    for label, r in report["runs"].items():
+        c = r["candidates"]
+        print(f"- {label}: tables {c['tables_this_checkout']:,} = basis block "
+              f"{c['tables_this_checkout'] - c['tables_rest']:,} + rest {c['tables_rest']:,}; "
+              f"coefficient codes {c['coefficient_dtype']}, basis codes {c['basis_dtype']}")
+    print("\n| run | coefficients layout | bytes | pages | page fetches / coeff | dequant fetches / coeff |")
+    print("|---|---|---|---|---|---|")
+    for label, r in report["runs"].items():
+        for key in ("a_rgba_packs", "b_planar_single", "c_rgb_tiles"):
+            c = r["candidates"][key]
+            print(f"| {label} | {key} | {c['bytes']:,} | {c['pages']} | {c['page_fetches_per_coeff']} | "
+                  f"{c['dequant_fetches_per_coeff']} |")
+        print(f"| {label} | coeff/ files (RGB PNG, one per coefficient; not a GPU layout) | "
+              f"{r['candidates']['coeff_files_rgb_png']:,} | - | - | - |")
+    print("\n| run | basis as (standalone files, 512-texel rows) | bytes | sampler of its own |")
+    print("|---|---|---|---|")
+    for label, r in report["runs"].items():
+        c = r["candidates"]
+        for key, own in (("basis_1_float32_values_sample_major", "no (in tables)"),
+                         ("basis_2_float32_codes_sample_major", "no (in tables)"),
+                         ("basis_3_float32_codes_group_major", "no (in tables)"),
+                         ("basis_4_half_codes_group_major", "yes" + ("" if c["basis_4_exact"] else ", NOT exact")),
+                         ("basis_5_hi_lo_rgba8_png_group_major", "yes (two)"),
+                         ("basis_6_png_tiles", "yes (16-bit PNG: Storm reads 8 bits)")):
+            print(f"| {label} | {key} | {c[key]:,} | {own} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
