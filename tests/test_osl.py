@@ -52,8 +52,7 @@ def test_osl_files_are_the_translation_of_the_one_core():
     assert osl.osl_core().endswith(translated)
     files = shaders.plugin_files()
     osl_files = {rel: text for rel, text in files.items() if rel.endswith(".osl")}
-    assert set(osl_files) == {"usdBtf/resources/osl/usdbtf_surface.osl", "blender/usdbtf/usdbtf_surface.osl",
-                              "usdBtf/resources/materialx/genosl/mx_usdbtf_bsdf.osl"}
+    assert set(osl_files) == {"usdBtf/resources/osl/usdbtf_surface.osl", "usdBtf/resources/materialx/genosl/mx_usdbtf_bsdf.osl"}
     for text in osl_files.values():
         assert osl.osl_core() in text                  # the same translation, not a hand-made copy
     for text in (files["usdBtf/resources/shaders/UsdBtfSurface.glslfx"],

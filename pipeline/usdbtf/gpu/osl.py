@@ -5,8 +5,8 @@
 :func:`usdbtf.gpu.glsl_to_osl.translate`, after ``glsl/osl_glsl_types.h`` (GLSL's types in
 OSL).  Two consumers wrap it:
 
-* :func:`surface_shader` -> ``plugin/usdBtf/resources/osl/usdbtf_surface.osl`` (and the
-  Blender add-on's copy): a standalone OSL shader for Cycles' script node or any OSL renderer;
+* :func:`surface_shader` -> ``plugin/usdBtf/resources/osl/usdbtf_surface.osl`` (the
+  Blender add-on reads it; its zip carries a copy): a standalone OSL shader for Cycles' script node or any OSL renderer;
 * :func:`materialx_osl` -> ``plugin/usdBtf/resources/materialx/genosl/mx_usdbtf_bsdf.osl``: the
   ``genosl`` implementation of ``ND_usdbtf_bsdf``, beside its ``genglsl`` one.
 

@@ -12,8 +12,8 @@ environment-specific wrapper for each consumer:
 * :func:`materialx_impl` / :func:`materialx_defs` -> ``plugin/usdBtf/resources/materialx/``:
   the ``usdbtf_bsdf`` nodedef, its genglsl implementation (and its genosl one, from
   :mod:`usdbtf.gpu.osl`), and the ``usdbtf_surface`` node graph that feeds it from image nodes;
-* :mod:`usdbtf.gpu.osl` -> ``plugin/usdBtf/resources/osl/usdbtf_surface.osl`` and the Blender
-  add-on's copy (``plugin/blender/usdbtf/``): the core translated to OSL
+* :mod:`usdbtf.gpu.osl` -> ``plugin/usdBtf/resources/osl/usdbtf_surface.osl`` (which the Blender
+  add-on reads, and its zip copies): the core translated to OSL
   (:mod:`usdbtf.gpu.glsl_to_osl`);
 * :func:`harness_fragment` / :data:`HARNESS_VERTEX`: the headless OpenGL check (gpu.headless).
 
@@ -357,7 +357,8 @@ def harness_fragment() -> str:
 # ------------------------------------------------------------------ plugin files
 def plugin_files() -> dict[str, str]:
     """Relative path under the plugin folder (``plugin/``) -> generated text: the Storm,
-    MaterialX (genglsl, genosl) and OSL shaders, and the Blender add-on's copy of the OSL."""
+    MaterialX (genglsl, genosl) and OSL shaders.  The Blender add-on reads the OSL surface from
+    here in a checkout; its zip (``scripts/blender_addon_zip.py``) carries a copy."""
     resources = "usdBtf/resources"
     surface = osl.surface_shader()
     return {f"{resources}/shaders/{SHADER_ID}.glslfx": storm_glslfx(),
@@ -365,8 +366,7 @@ def plugin_files() -> dict[str, str]:
             f"{resources}/materialx/usdbtf_defs.mtlx": materialx_defs(),
             f"{resources}/materialx/genglsl/mx_{MTLX_BSDF}.glsl": materialx_impl(),
             f"{resources}/materialx/genosl/mx_{MTLX_BSDF}.osl": osl.materialx_osl(),
-            f"{resources}/osl/{osl.SURFACE_NAME}.osl": surface,
-            f"blender/usdbtf/{osl.SURFACE_NAME}.osl": surface}
+            f"{resources}/osl/{osl.SURFACE_NAME}.osl": surface}
 
 
 def _root(plugin: Path | None) -> Path:

@@ -27,7 +27,13 @@ import mathutils
 #: The Storm shader's Sdr identifier in usdbtf assets: its inputs name the textures.
 STORM_ID = "UsdBtfSurface"
 MAX_PAGES = 15
-SHADER_FILE = Path(__file__).resolve().parent / "usdbtf_surface.osl"
+#: The generated OSL surface: beside this file in the add-on's zip (scripts/blender_addon_zip.py
+#: puts it there), else the plugin's own copy when the add-on runs from a usdbtf checkout
+#: (plugin/blender/usdbtf -> plugin/usdBtf/resources/osl): the source tree holds it once.
+_HERE = Path(__file__).resolve().parent
+SHADER_FILE = next((p for p in (_HERE / "usdbtf_surface.osl",
+                                 _HERE.parent.parent / "usdBtf" / "resources" / "osl" / "usdbtf_surface.osl")
+                    if p.is_file()), _HERE / "usdbtf_surface.osl")
 SCRIPT_TEXT = "usdbtf_surface.osl"
 SCRIPT_NODE = "usdbtf OSL"
 UV_MAP = "st"
