@@ -8,6 +8,8 @@ MaterialX's code, not against a copy of the fit's formulas.
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -172,3 +174,146 @@ def test_model_equals_materialx_generated_glsl(materialx_shader, index):
             f"case {index}, light {light}: max |MaterialX - model| {err.max():.3g} "
             f"at {np.unravel_index(err.argmax(), err.shape)}, value {want.flat[err.argmax()]:.4g}")
         assert float(np.abs(want).max()) > 1e-3                 # the case lights something
+
+
+# ------------------------------------------------------------------ the fit
+def _openpbr_btf(truth: dict, h: int, w: int):
+    """A compressed BTF (exact: k = samples' rank is not needed, k 24 of the small sampling)
+    whose samples are the OpenPBR surface ``truth`` ({input: (H*W, ...)}) times pi (W = 1)."""
+    from usdbtf.compress import CompressOptions, compress
+    from usdbtf.model import ArrayBTF
+    from usdbtf.sampling import preset, to_vectors
+
+    sampling = preset("small")
+    v, l = to_vectors(sampling.view), to_vectors(sampling.light)
+    values = evaluate_openpbr(truth, v, l, dtype=np.float64) * np.pi                    # (S, T, 3)
+    data = values.reshape(len(sampling), h, w, 3).astype(np.float32)
+    return compress(ArrayBTF.from_linear(sampling, data), CompressOptions(k=24, codec="exr"))
+
+
+def test_fit_recovers_fuzz_and_anisotropy_and_beats_the_preview_surface():
+    """Half the texels an anisotropic glossy dielectric along +y, half a fuzzy matte cloth:
+    the fit finds the anisotropy and its direction, the fuzz, and predicts the samples better
+    than the UsdPreviewSurface fit of the same BTF (which has neither lobe)."""
+    from usdbtf import openpbr, svbrdf
+    from usdbtf.compress import reconstruct
+    from usdbtf.compress.metrics import ErrorSums
+
+    h, w = 4, 8
+    t = h * w
+    glossy = (np.arange(t) % w) < w // 2
+    full = lambda a, b: np.where(glossy, a, b).astype(np.float64)  # noqa: E731
+    truth = {"normal": np.tile([0.0, 0.0, 1.0], (t, 1)),
+             "base_color": np.where(glossy[:, None], [0.1, 0.2, 0.5], [0.5, 0.15, 0.1]),
+             "specular_color": np.ones((t, 3)), "specular_weight": full(2.0, 1.0),
+             "specular_roughness": full(0.36, 0.8), "specular_anisotropy": full(0.7, 0.0),
+             "specular_rotation": full(np.pi / 2, 0.0), "fuzz_weight": full(0.0, 1.0),
+             "fuzz_color": np.where(glossy[:, None], [1.0, 1.0, 1.0], [0.9, 0.6, 0.5]),
+             "fuzz_roughness": full(0.5, 0.35), "base_diffuse_roughness": np.zeros(t)}
+    cbtf = _openpbr_btf(truth, h, w)
+    preview = svbrdf.fit_svbrdf(cbtf)
+    maps = openpbr.fit_openpbr(cbtf, svbrdf=preview)
+    g = glossy.reshape(h, w)
+    assert np.median(maps.specular_anisotropy[g]) >= 0.6
+    rot = maps.specular_rotation[g]
+    assert np.median(np.minimum(np.abs(rot - np.pi / 2), np.pi - np.abs(rot - np.pi / 2))) <= np.radians(25)
+    assert np.median(maps.fuzz_weight[~g]) >= 0.5 and np.median(maps.fuzz_weight[g]) == 0.0
+    truth_values = reconstruct(cbtf).reshape(cbtf.n_samples, -1, 3)
+    err = {}
+    for name, evaluate, m in (("openpbr", openpbr.evaluate, maps), ("preview", svbrdf.evaluate, preview)):
+        sums = ErrorSums()
+        sums.add(truth_values, evaluate(m, cbtf.sampling.view, cbtf.sampling.light))
+        err[name] = sums.percent
+    assert err["openpbr"] < 0.5 * err["preview"], err
+
+
+def test_maps_round_trip_through_their_files():
+    """encode_maps / decode_maps: what a renderer reads back is the fit to the files' precision."""
+    from usdbtf.openpbr import OpenPbrMaps
+    from usdbtf.usd import openpbr as usd_openpbr
+
+    rng = np.random.default_rng(1)
+    h, w = 3, 5
+    u = lambda *s: rng.uniform(0, 1, (h, w, *s)).astype(np.float32)  # noqa: E731
+    n = rng.normal(size=(h, w, 3)) * [0.3, 0.3, 0] + [0, 0, 1]
+    c = lambda: (0.2 + 0.5 * u(1) + 0.05 * u(3)).astype(np.float32)  # noqa: E731  (inside Rec.709's gamut)
+    maps = OpenPbrMaps(c(), u(), np.float32(25) * u(), c(), u(), u(), np.float32(np.pi) * u(), u(), c(), u(),
+                       (n / np.linalg.norm(n, axis=-1, keepdims=True)).astype(np.float32), "ACEScg")
+    back = usd_openpbr.decode_maps(usd_openpbr.encode_maps(maps), "ACEScg")
+    for name in ("specular_roughness", "specular_anisotropy", "base_diffuse_roughness", "fuzz_weight",
+                 "fuzz_roughness"):
+        np.testing.assert_allclose(getattr(back, name), getattr(maps, name), atol=1e-4, err_msg=name)
+    np.testing.assert_allclose(back.specular_weight, maps.specular_weight, atol=25 * 1e-4)
+    d = np.abs(back.specular_rotation - maps.specular_rotation)
+    assert np.minimum(d, np.pi - d).max() <= np.radians(0.5)
+    np.testing.assert_allclose(back.normal, maps.normal, atol=0.01)
+    for name in OpenPbrMaps.COLOURS:        # 8-bit sRGB: ~1 % at most in ACEScg
+        np.testing.assert_allclose(getattr(back, name), getattr(maps, name), atol=0.02, err_msg=name)
+
+
+# ------------------------------------------------------------------ the packaged network
+@pytest.fixture(scope="module")
+def packaged(tmp_path_factory):
+    from usdbtf.cli import main
+
+    work = tmp_path_factory.mktemp("openpbr")
+    assert main(["synth", "satin_weave", "-o", str(work / "src"), "--sampling", "small", "--size", "32", "-q"]) == 0
+    assert main(["compress", str(work / "src"), "-o", str(work / "c"), "--k", "12", "--codec", "png", "-q"]) == 0
+    out = work / "a" / "satin.usda"
+    assert main(["package", str(work / "c"), "-o", str(out), "--lod", "6", "-q"]) == 0
+    return out
+
+
+def test_package_authors_the_openpbr_network_beside_the_preview_surface(packaged):
+    """outputs:mtlx:surface is an open_pbr_surface whose image nodes read the written maps
+    (colour srgb_texture, data raw); outputs:surface is still the UsdPreviewSurface; the
+    maps the files hold are the fit's; inspect reports both fallbacks and their errors."""
+    import usdbtf  # noqa: F401
+    from pxr import Usd, UsdShade
+
+    from usdbtf.imageio import read_image
+    from usdbtf.usd.inspect import summary
+    from usdbtf.usd.openpbr import MAP_FILES, SHADER_ID, materialx_document
+
+    stage = Usd.Stage.Open(str(packaged))
+    material = UsdShade.Material(stage.GetPrimAtPath("/satin/mtl/BtfMaterial"))
+    mtlx = material.GetSurfaceOutput("mtlx").GetConnectedSources()[0][0].source
+    assert UsdShade.Shader(mtlx.GetPrim()).GetIdAttr().Get() == SHADER_ID
+    preview = material.GetSurfaceOutput().GetConnectedSources()[0][0].source
+    assert UsdShade.Shader(preview.GetPrim()).GetIdAttr().Get() == "UsdPreviewSurface"
+    files = {}
+    for prim in stage.Traverse():
+        shader = UsdShade.Shader(prim)
+        if shader and str(shader.GetIdAttr().Get()).startswith("ND_image_"):
+            attr = shader.GetInput("file").GetAttr()
+            files[Path(attr.Get().path).name] = attr.GetColorSpace()
+    assert files == {name: ("srgb_texture" if kind == "srgb" else "raw") for name, kind in MAP_FILES.values()}
+    folder = packaged.with_name("satin_textures") / "fallback"
+    params, _ = read_image(folder / "openpbr_params.png")
+    assert params.dtype == np.uint16 and params.shape == (32, 32, 3)
+    # The same network as a MaterialX document: MaterialX's own validation.
+    ok, message = materialx_document({k: str(folder / v[0]) for k, v in MAP_FILES.items()}).validate()
+    assert ok, message
+    fallbacks = summary(packaged)["materials"][0]["fallbacks"]
+    assert [f["shader"] for f in fallbacks] == ["UsdPreviewSurface", "OpenPBR (MaterialX)"]
+    assert all(0 < f["fit_error_percent"] < 100 for f in fallbacks)
+
+
+def test_openpbr_asset_passes_every_validator_in_a_usd_with_materialx(packaged):
+    """USD 25.08 (the bpy 5.0.1 wheel, built with MaterialX): every UsdValidation validator on
+    every lod selection, the MaterialX nodes' inputs checked against their Sdr definitions."""
+    import json
+    import subprocess
+    import sys
+
+    from usdbtf.usd.hydra import storm_pythons, storm_environment
+
+    python = storm_pythons().get("25.08")
+    if python is None:
+        pytest.skip("no .venv-storm-5.0 (scripts/bootstrap.sh makes it)")
+    proc = subprocess.run([str(python), str(Path(__file__).with_name("mtlx_usd_validate.py")), str(packaged)],
+                          capture_output=True, text=True, env=storm_environment(), timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    report = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert report["materialx_known"] and report["validators"] >= 20
+    assert report["assets"][str(packaged)] == {"": [], "full": [], "k6": []}
