@@ -1,17 +1,23 @@
 #!/usr/bin/env python
-"""The UsdPreviewSurface fallback against the BTF it stands in for (issue 15 part 3).
+"""The fallbacks against the BTF they stand in for (issue 15 part 3, issue 40 part 2).
 
 For each preset: the synthetic BTF (``usdbtf synth``, cached), compressed (``usdbtf compress
 --k K --codec png``, cached), then
 
 fitted   ``usdbtf.svbrdf.fit_svbrdf`` on the compressed BTF (timed, in this process), written
          and read back exactly as the asset ships it (``usd.fallback.encode_maps`` /
-         ``decode_maps``: 8-bit sRGB colour maps, 8-bit roughness and normal maps);
+         ``decode_maps``: 8-bit sRGB colour maps, 8-bit roughness and normal maps): the
+         UsdPreviewSurface on ``outputs:surface``;
+openpbr  ``usdbtf.openpbr.fit_openpbr`` (timed; it starts from the fitted UsdPreviewSurface's
+         normals), written and read back as shipped (``usd.openpbr.encode_maps`` /
+         ``decode_maps``): the OpenPBR Surface on ``outputs:mtlx:surface``, evaluated with
+         ``openpbr.evaluate`` (MaterialX's open_pbr_surface, checked against MaterialX's
+         generated GLSL by tests/test_openpbr.py);
 flat     the fallback usdbtf shipped before (the baseline, same run): per-texel median albedo
          as an 8-bit sRGB texture, one fitted roughness, no normal map, metallic 0
          (``svbrdf.flat_fallback``).
 
-Both are evaluated with UsdPreviewSurface's direct lighting (``svbrdf.evaluate``, the model of
+The UsdPreviewSurface fits are evaluated with its direct lighting (``svbrdf.evaluate``, the model of
 previewSurface.glslfx) at every measured (view, light) sample and compared, texel by texel,
 with (a) the measured samples (the synthetic originals) in the scene-linear working space
 ("lin") and on the 8-bit file values with the prediction encoded the same way ("enc"), and
@@ -21,10 +27,11 @@ run.  The compressed BTF's own error against the originals is printed for contex
 
 Usage (repository root)::
 
-    .venv/bin/python benchmarks/bench_fallback.py                 # paper sampling, 128^2, k 64
+    .venv/bin/python benchmarks/bench_fallback.py                 # all seven presets, paper sampling, 128^2, k 64
     .venv/bin/python benchmarks/bench_fallback.py --quick         # small sampling, 64^2 (a check)
 
-Writes benchmarks/out/fallback_<timestamp>.json and prints a markdown block for RESULTS.md.
+Writes benchmarks/out/fallback_<timestamp>.json and prints a markdown block for RESULTS.md
+(the held-out presets, ``usdbtf.bench.datasets.HELDOUT_PRESETS``, in a table of their own).
 """
 from __future__ import annotations
 
@@ -38,7 +45,7 @@ import numpy as np
 
 from common import OUT, cli_command, format_machine, machine_info, timestamp, write_json
 
-PRESETS = ("pebbles", "ridged_fabric", "fuzzy_moss")
+PRESETS = ("pebbles", "ridged_fabric", "fuzzy_moss", "metal_flakes", "satin_weave", "crevice_stones", "velvet")
 
 
 def say(msg: str = "") -> None:
@@ -49,15 +56,19 @@ def say(msg: str = "") -> None:
 ABLATIONS = {"fitted, no normal map": {"normals": False}, "fitted, 512 fit samples": {"max_samples": 512}}
 
 
-def shipped_fallbacks(cbtf, white: float, ablation: bool = False) -> tuple[dict, float]:
-    """({"fitted": maps, "flat": maps, ablations...} as a renderer reads them from the asset,
-    seconds of the default fit)."""
-    from usdbtf import svbrdf
+def shipped_fallbacks(cbtf, white: float, ablation: bool = False) -> tuple[dict, float, float]:
+    """({"fitted": maps, "openpbr": maps, "flat": maps, ablations...} as a renderer reads them
+    from the asset, seconds of the UsdPreviewSurface fit, seconds of the OpenPBR fit)."""
+    from usdbtf import openpbr, svbrdf
+    from usdbtf.usd import openpbr as usd_openpbr
     from usdbtf.usd.fallback import decode_maps, encode_maps
 
     t = time.perf_counter()
     fitted = svbrdf.fit_svbrdf(cbtf, white_level=white)
     seconds = time.perf_counter() - t
+    t = time.perf_counter()
+    op = openpbr.fit_openpbr(cbtf, svbrdf=fitted, white_level=white)
+    op_seconds = time.perf_counter() - t
     flat = svbrdf.flat_fallback(cbtf, white_level=white)
     maps = [("fitted", fitted), ("flat", flat)]
     if ablation:
@@ -70,7 +81,9 @@ def shipped_fallbacks(cbtf, white: float, ablation: bool = False) -> tuple[dict,
     old.normal[:] = (0.0, 0.0, 1.0)
     old.specular[:] = 0.04
     old.roughness[:] = flat.roughness
-    return shipped, seconds
+    shipped["openpbr"] = usd_openpbr.decode_maps(usd_openpbr.encode_maps(op, cbtf.ocio_config), cbtf.working_space,
+                                                 ocio_config=cbtf.ocio_config, white_level=white)
+    return shipped, seconds, op_seconds
 
 
 def errors(orig, cbtf, fallbacks: dict, chunk: int = 128) -> dict:
@@ -80,7 +93,7 @@ def errors(orig, cbtf, fallbacks: dict, chunk: int = 128) -> dict:
     from usdbtf.compress.format import reconstruct, working_coefficients
     from usdbtf.compress.metrics import ErrorSums
     from usdbtf.manifest import encode_for_file
-    from usdbtf.svbrdf import evaluate
+    from usdbtf import openpbr, svbrdf
 
     to_file = color.processor(orig.working_space, orig.color_space, orig.ocio_config)
     top = {"uint8": 255.0, "uint16": 65535.0}.get(orig.bit_depth, 1.0)
@@ -96,6 +109,7 @@ def errors(orig, cbtf, fallbacks: dict, chunk: int = 128) -> dict:
         recon = reconstruct(cbtf, idx, coefficients=coeff)
         preds = {"reconstruction": recon}
         for name, maps in fallbacks.items():
+            evaluate = openpbr.evaluate if isinstance(maps, openpbr.OpenPbrMaps) else svbrdf.evaluate
             preds[name] = evaluate(maps, cbtf.sampling.view[idx], cbtf.sampling.light[idx]).reshape(len(idx), *shape)
         for name, pred in preds.items():
             sums[name]["linear"].add(truth, pred)
@@ -122,14 +136,16 @@ def main(argv=None) -> int:
     from usdbtf.bench.datasets import compressed, ensure_dataset
     from usdbtf.io import open_btf
 
+    from usdbtf.bench.datasets import preset_split
+
     info = machine_info()
-    say("# bench_fallback: fitted UsdPreviewSurface vs the flat fallback, against the BTF")
+    say("# bench_fallback: flat / fitted UsdPreviewSurface / fitted OpenPBR, against the BTF")
     say(format_machine(info))
     say(f"- inputs: presets {args.presets}; sampling {args.sampling}, {args.size}x{args.size} texels, 8-bit sRGB "
         f"PNG, synth seed {args.seed}; compressed with `usdbtf compress --k {args.k} --codec png` (rsvd)")
     say(f"- command: {' '.join([Path(sys.executable).name, *sys.argv])}")
     cli = cli_command()
-    rows, ablation_rows, doc = [], [], {"machine": info, "args": vars(args), "presets": {}}
+    rows, ablation_rows, doc = {"tuning": [], "held-out": []}, [], {"machine": info, "args": vars(args), "presets": {}}
     for preset in args.presets.split(","):
         say(f"\n## {preset}")
         data = ensure_dataset(OUT / "data", preset, args.sampling, args.size, args.seed, say=say)
@@ -137,8 +153,9 @@ def main(argv=None) -> int:
         cbtf = compressed(cli, Path(data["folder"]), folder, args.k)
         orig = open_btf(data["folder"])
         white = float((cbtf.info.get("source_metadata") or {}).get("white_level", 1.0))
-        shipped, fit_s = shipped_fallbacks(cbtf, white, args.ablation)
-        say(f"  fit: {fit_s:.1f} s for {cbtf.width}x{cbtf.height} texels, {cbtf.n_samples} samples, k {cbtf.k}")
+        shipped, fit_s, op_s = shipped_fallbacks(cbtf, white, args.ablation)
+        say(f"  fits: UsdPreviewSurface {fit_s:.1f} s, OpenPBR {op_s:.1f} s for {cbtf.width}x{cbtf.height} texels, "
+            f"{cbtf.n_samples} samples, k {cbtf.k}")
         t = time.perf_counter()
         res = errors(orig, cbtf, shipped)
         say(f"  evaluation over {orig.n_samples} samples: {time.perf_counter() - t:.1f} s")
@@ -149,23 +166,32 @@ def main(argv=None) -> int:
             if name in ABLATIONS:
                 ablation_rows.append(f"| {preset} | {name} | {r['linear']['percent']:.2f} | {r['linear']['rmse']:.4f} | "
                                      f"{r['encoded']['percent']:.2f} | {r['encoded']['rmse']:.4f} |")
-        doc["presets"][preset] = {"fit_seconds": fit_s, "errors": res, "samples": orig.n_samples,
-                                  "texels": cbtf.width * cbtf.height, "k": cbtf.k}
-        f, fl, rc = res["fitted"], res["flat"], res["reconstruction"]
+        doc["presets"][preset] = {"fit_seconds": fit_s, "openpbr_fit_seconds": op_s, "errors": res,
+                                  "samples": orig.n_samples, "texels": cbtf.width * cbtf.height, "k": cbtf.k,
+                                  "split": preset_split(preset)}
+        f, o, fl, rc = res["fitted"], res["openpbr"], res["flat"], res["reconstruction"]
         for name in ("fitted", "flat"):
             ablation_rows.append(f"| {preset} | {name} | {res[name]['linear']['percent']:.2f} | "
                                  f"{res[name]['linear']['rmse']:.4f} | {res[name]['encoded']['percent']:.2f} | "
                                  f"{res[name]['encoded']['rmse']:.4f} |")
-        rows.append(f"| {preset} | {f['linear']['percent']:.2f} | {fl['linear']['percent']:.2f} | "
-                    f"{fl['linear']['percent'] / f['linear']['percent']:.2f}x | {f['encoded']['percent']:.2f} | "
-                    f"{fl['encoded']['percent']:.2f} | {f['vs_reconstruction']['percent']:.2f} | "
-                    f"{fl['vs_reconstruction']['percent']:.2f} | {rc['linear']['percent']:.2f} | {fit_s:.1f} |")
-    say("\n## results (markdown for benchmarks/RESULTS.md)\n")
-    say("| preset | fitted % lin | flat % lin | flat / fitted | fitted % enc | flat % enc | fitted % vs recon | "
-        "flat % vs recon | BTF (k) % lin | fit s |")
-    say("|---|---|---|---|---|---|---|---|---|---|")
-    for row in rows:
-        say(row)
+        pct = lambda r, d: r[d]["percent"]  # noqa: E731
+        rows[preset_split(preset)].append(
+            f"| {preset} | {pct(fl, 'linear'):.2f} | {pct(f, 'linear'):.2f} | {pct(o, 'linear'):.2f} | "
+            f"{pct(o, 'linear') / pct(f, 'linear'):.2f}x | {pct(fl, 'encoded'):.2f} | {pct(f, 'encoded'):.2f} | "
+            f"{pct(o, 'encoded'):.2f} | {pct(o, 'encoded') / pct(f, 'encoded'):.2f}x | "
+            f"{pct(f, 'vs_reconstruction'):.2f} | {pct(o, 'vs_reconstruction'):.2f} | {pct(rc, 'linear'):.2f} | "
+            f"{fit_s:.1f} | {op_s:.1f} |")
+    say("\n## results (markdown for benchmarks/RESULTS.md)")
+    for split, title in (("tuning", "tuning presets"), ("held-out", "held-out presets (no tuning run looked at them)")):
+        if not rows[split]:
+            continue
+        say(f"\n{title}:\n")
+        say("| preset | flat % lin | UsdPreviewSurface % lin | OpenPBR % lin | OpenPBR / UPS lin | flat % enc | "
+            "UPS % enc | OpenPBR % enc | OpenPBR / UPS enc | UPS % vs recon | OpenPBR % vs recon | BTF (k) % lin | "
+            "UPS fit s | OpenPBR fit s |")
+        say("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+        for row in rows[split]:
+            say(row)
     if args.ablation:
         say("\n| preset | fallback | % lin | RMSE lin | % enc | RMSE enc |\n|---|---|---|---|---|---|")
         for row in sorted(ablation_rows):

@@ -93,7 +93,8 @@ _BASELINE_VIEW = "view{:04d}"
 _SIM_FRAME_FILES = re.compile(r"(latest|s\d+|flat\d+|\.tmp-[^/]*)\.tif|\.[^/]*\.tmp-[^/]*")
 # preview_albedo.png: the flat fallback of assets written before the fitted one.
 _TEXTURE_FILES = re.compile(r"(basis\.\w+|coeff/c\d+\.\w+|preview_albedo\.png|gpu/[\w.-]+|thumbnail\.png"
-                            r"|fallback/(diffuse|specular|roughness|normal)\.\w+)")
+                            r"|fallback/(diffuse|specular|roughness|normal)\.\w+"
+                            r"|fallback/openpbr_(base|specular|fuzz|params|lobes|tangent|normal)\.\w+)")
 #: Root and payload layer names a texture folder ``<stem>_textures`` sits beside.
 _ASSET_LAYERS = ("_payload.usdc", "_payload.usda", ".usda", ".usdc", ".usd")
 _PORT_TEXT = re.compile(r"(/dev/\S+|socket://\S+)\n?")

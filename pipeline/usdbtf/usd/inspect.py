@@ -155,6 +155,31 @@ def _theta_range(directions: np.ndarray) -> list[float] | None:
     return [float(directions[:, 0].min()), float(directions[:, 0].max())] if len(directions) else None
 
 
+_FALLBACK_NAMES = {"UsdPreviewSurface": "UsdPreviewSurface", "ND_open_pbr_surface_surfaceshader": "OpenPBR (MaterialX)"}
+
+
+def fallback_summary(prim) -> list[dict]:
+    """The material's fallback surfaces: [{"output", "shader", "fit_error_percent"}] for each
+    surface output whose source is a UsdPreviewSurface or an OpenPBR Surface (the error
+    recorded when packaging, :data:`usdbtf.usd.openpbr.FIT_ERROR_KEY`, or None)."""
+    from pxr import UsdShade
+
+    from .openpbr import FIT_ERROR_KEY
+
+    out = []
+    material = UsdShade.Material(prim)
+    for output in material.GetSurfaceOutputs():
+        for source in output.GetConnectedSources()[0]:
+            shader = UsdShade.Shader(source.source.GetPrim())
+            shader_id = shader.GetIdAttr().Get() if shader else None
+            if shader_id in _FALLBACK_NAMES:
+                error = source.source.GetPrim().GetCustomDataByKey(FIT_ERROR_KEY)
+                out.append({"output": output.GetFullName(),
+                            "shader": _FALLBACK_NAMES[shader_id],
+                            "fit_error_percent": None if error is None else float(error)})
+    return out
+
+
 def material_summary(stage, prim) -> dict:
     """One BTF material's entry of :func:`summary`."""
     get = lambda name: prim.GetAttribute(NS + name).Get()  # noqa: E731
@@ -188,7 +213,8 @@ def material_summary(stage, prim) -> dict:
                     "version": get("provenance:version"), "source": get("provenance:source")},
         lod=[{"name": name, "k": n, "error_percent": _error_at(prim, n)} for name, n in _lod_levels(stage, prim)],
         lod_files=lod_files(stage, prim),
-        coverage=coverage_summary(read_coverage(prim), len(view), *resolution))
+        coverage=coverage_summary(read_coverage(prim), len(view), *resolution),
+        fallbacks=fallback_summary(prim))
     return entry
 
 
@@ -246,6 +272,11 @@ def describe(path, info: dict | None = None) -> str:
         p = m["provenance"]
         lines.append(f"    provenance   {p['solver']} solver, {p['codec']} codec, usdbtf {p['version']}, "
                      f"from {p['source']}")
+        if m.get("fallbacks"):
+            lines.append("    fallbacks    " + ", ".join(
+                f"{f['shader']} on {f['output']}"
+                + (f" ({f['fit_error_percent']:.2f} %)" if f["fit_error_percent"] is not None else "")
+                for f in m["fallbacks"]) + " (fitted error against the BTF, held-out samples)")
         if m["lod"]:
             lines.append("    lod          " + ", ".join(
                 f"{lv['name']} (k = {lv['k']}"

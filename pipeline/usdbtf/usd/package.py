@@ -71,6 +71,7 @@ from ..outputs import ASSET, ASSET_TEXTURES
 from ..render.core import default_wrap
 from ..svbrdf import SvbrdfMaps
 from . import fallback, lod, storm, thumbnail
+from . import openpbr as openpbr_fallback
 from .arkit import AR_SUFFIX
 from .finite import non_finite_in_stage, non_finite_values
 from .layers import MATERIAL, make_usdz, stage_metadata, usd_write, valid_name
@@ -151,6 +152,9 @@ class PackageResult:
     ``thumbnail`` (its name, or None).  maps : the fitted fallback (svbrdf.SvbrdfMaps).
     ar : (TextureSet, {map: name}) of the AR package with ``usdz_ar``, else None.
     input_name : what was packaged, for messages (the folder, or "compressed BTF").
+    openpbr : the OpenPBR fallback's maps ({map: name}); openpbr_maps : its fit
+    (usdbtf.openpbr.OpenPbrMaps, of a quilt's source texels); fit_errors : {fallback: percent}
+    (:func:`usdbtf.usd.openpbr.fit_errors`).
     """
 
     compressed: CompressedBTF
@@ -169,6 +173,9 @@ class PackageResult:
     maps: SvbrdfMaps
     ar: tuple | None = None
     input_name: str = "compressed BTF"
+    openpbr: dict | None = None
+    openpbr_maps: object = None
+    fit_errors: dict | None = None
 
 
 def read_error_curve(folder: Path, cbtf: CompressedBTF) -> list[tuple[int, float]]:
@@ -294,6 +301,8 @@ def package(compressed, options: PackageOptions | None = None) -> PackageResult:
         basis, coefficients = package_textures(cbtf, textures)
     fitted = fit_svbrdf(cbtf if texels is None else texels.compact, white_level=white)
     maps_added = fallback.add_maps(fitted, textures, cbtf.ocio_config, texels=texels)
+    op_fitted, op_added, errors = _openpbr_fallback(cbtf if texels is None else texels.compact, fitted, white,
+                                                    textures, texels)
     thumb = None
     if options.thumbnail:
         thumb = textures.add_file(thumbnail.THUMBNAIL_FILE, thumbnail.thumbnail_png(cbtf, shape, texels=texels))
@@ -308,7 +317,20 @@ def package(compressed, options: PackageOptions | None = None) -> PackageResult:
 
         ar = ar_textures(fitted, cbtf.ocio_config, texels)
     return PackageResult(cbtf, options, shape, tuple(size), levels, curve, source, textures, basis, coefficients,
-                         maps_added, gpu, thumb, maps, ar, name)
+                         maps_added, gpu, thumb, maps, ar, name, op_added, op_fitted, errors)
+
+
+def _openpbr_fallback(cbtf: CompressedBTF, preview: SvbrdfMaps, white: float, textures: TextureSet, texels):
+    """The OpenPBR fallback of ``cbtf`` (a quilt's source texels when ``texels``): (its fit,
+    its maps added to ``textures``, both fallbacks' errors)."""
+    from ..openpbr import fit_openpbr
+
+    fitted = fit_openpbr(cbtf, svbrdf=preview, white_level=white)
+    added = openpbr_fallback.add_maps(fitted, textures, cbtf.ocio_config, texels=texels)
+    errors = openpbr_fallback.fit_errors(cbtf, preview, fitted)
+    log.info(f"fallbacks against the BTF at held-out samples: UsdPreviewSurface {errors['preview_surface']:.2f} %, "
+             f"OpenPBR {errors['open_pbr']:.2f} %")
+    return fitted, added, errors
 
 
 @dataclass
@@ -357,6 +379,10 @@ def _author_payload(stage, result: PackageResult, names: _Names, provenance: str
     fallback.author_fallback(stage, material, {m: textures.texture(name, names.textures)
                                                for m, name in result.fallback.items()},
                              wrap=wrap, summary=summary)
+    if result.openpbr:
+        openpbr_fallback.author_openpbr(stage, material, {m: textures.texture(name, names.textures)
+                                                          for m, name in result.openpbr.items()},
+                                        wrap=wrap, fit_errors=result.fit_errors)
     gpu = None
     if result.gpu is not None:
         g = result.gpu

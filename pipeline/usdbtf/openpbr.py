@@ -1,0 +1,656 @@
+"""An OpenPBR Surface fitted per texel to a BTF: the fallback MaterialX renderers show.
+
+:func:`evaluate_openpbr` is the direct lighting of MaterialX 1.39's ``open_pbr_surface``
+(``libraries/bxdf/open_pbr_surface.mtlx`` and its genglsl lobes) for the inputs this fit
+uses, one directional light of irradiance 1, written from MaterialX's GLSL so that the fit
+and the renderers agree (``tests/test_openpbr.py`` renders MaterialX's generated shader and
+compares):
+
+- **base** (``oren_nayar_diffuse_bsdf`` with ``energy_compensation``, weight ``base_weight`` = 1):
+  Fujii's Oren-Nayar single scattering ``c A (1 + sigma s / max(n.l, n.v))`` plus the
+  multiple-scattering lobe ``c^2 E_avg / (1 - c (1 - E_avg)) (1 - E(n.v)) (1 - E(n.l)) / (1 - E_avg)``,
+  times ``n.l / pi``; ``sigma`` = ``base_diffuse_roughness`` (0 is Lambert);
+- **specular** (``dielectric_bsdf``, reflection, layered over the base): anisotropic GGX
+  ``D`` with ``alpha`` from ``open_pbr_anisotropy`` (``alpha_x = r^2 sqrt(2 / (1 + (1 - a)^2))``,
+  ``alpha_y = (1 - a) alpha_x``), height-correlated Smith ``G2`` at ``sqrt(alpha_x alpha_y)``,
+  the exact dielectric Fresnel at the IOR that ``specular_weight`` modulates
+  (``F0' = min(specular_weight F0(ior), 0.99999)``), Turquin's energy compensation from the
+  analytic GGX albedo fit, tinted by ``specular_color``; the base under it is scaled by
+  ``1 - E_spec(n.v)`` (MaterialX's ``layer``: ``top + base * top.throughput``);
+- **fuzz** (``sheen_bsdf`` mode ``zeltner``, layered over everything): Zeltner et al.'s LTC
+  sheen times its directional albedo, ``fuzz_weight`` and ``fuzz_color``; the layers under it
+  are scaled by ``1 - fuzz_weight E_fuzz(n.v)``.
+
+Coat, metalness, transmission, subsurface, thin film and emission stay at the definition's
+defaults (weight 0), which contribute nothing to the direct light.
+
+Units and frames follow :mod:`usdbtf.svbrdf`: a BTF value is ``W pi f (n . l)`` (the
+capture light has irradiance ``pi W``); directions are in the sample's tangent frame.  The
+anisotropy's direction is the tangent ``(cos phi, sin phi, 0)`` (``phi`` in [0, pi), from
+image right towards image up), projected onto the texel's normal as MaterialX does.
+
+:func:`fit_openpbr` fits the maps per texel, streamed over texel blocks like
+:func:`usdbtf.svbrdf.fit_svbrdf` and on the same samples, keeping its normals (the two
+fallbacks share one normal map).  The model is linear in the three colours (base,
+specular tint, fuzz) once the other inputs are fixed, so every candidate of those is a
+box-constrained least squares per channel (three unknowns in [0, 1]) from sums over the
+samples; the other inputs are searched per texel, a stage at a time:
+
+1. specular roughness x specular weight (F0 0.04, 0.2 or ~1), no fuzz, Lambert base: the
+   family of the UsdPreviewSurface fit;
+2. anisotropy (0.4, 0.7, 0.9) x direction (0, 45, 90, 135 degrees) x roughness around stage 1's;
+3. fuzz weight x fuzz roughness;
+4. base diffuse roughness (0.5, 1);
+5. specular roughness again, one grid step either side.
+
+Each stage keeps a candidate only where it lowers the fit samples' residual.  Last, every
+texel keeps stage 1's parameters unless the final ones predict the held-out samples
+(:func:`usdbtf.svbrdf.validation_samples`) better: a richer lobe that fits the fit samples
+must not flash elsewhere.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .compress.format import CompressedBTF
+from .numeric import single_blas_thread
+from .progress import track
+from .sampling import to_vectors
+from .svbrdf import (SvbrdfMaps, VALIDATION_SAMPLES, fit_samples, fit_svbrdf, validation_samples,
+                     _reconstruct)
+
+__all__ = ["OpenPbrMaps", "evaluate_openpbr", "evaluate", "fit_openpbr", "SPECULAR_IOR",
+           "SPECULAR_ROUGHNESS_GRID", "SPECULAR_WEIGHTS", "FUZZ_WEIGHTS", "FUZZ_ROUGHNESS_GRID"]
+
+log = logging.getLogger(__name__)
+
+M_FLOAT_EPS = 1e-8                     # MaterialX's M_FLOAT_EPS (mx_microfacet.glsl)
+#: The dielectric IOR the fit authors (the definition's default); ``specular_weight`` scales its F0.
+SPECULAR_IOR = 1.5
+SPECULAR_ROUGHNESS_GRID = np.array([0.12, 0.16, 0.2, 0.25, 0.3, 0.36, 0.43, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0],
+                                   np.float32)
+#: specular_weight candidates: F0 = 0.04 w (clamped at 0.99999): 0.04, 0.08, 0.2, ~1.
+SPECULAR_WEIGHTS = np.array([1.0, 2.0, 5.0, 25.0], np.float32)
+ANISOTROPY_GRID = np.array([0.4, 0.7, 0.9], np.float32)
+ROTATION_GRID = np.radians(np.array([0.0, 45.0, 90.0, 135.0])).astype(np.float32)
+FUZZ_WEIGHTS = np.array([0.3, 0.6, 1.0], np.float32)
+FUZZ_ROUGHNESS_GRID = np.array([0.2, 0.35, 0.5, 0.7, 1.0], np.float32)
+DIFFUSE_ROUGHNESS_GRID = np.array([0.5, 1.0], np.float32)
+_FUJII_1 = 0.5 - 2.0 / (3.0 * np.pi)
+_FUJII_2 = 2.0 / 3.0 - 28.0 / (15.0 * np.pi)
+
+
+@dataclass
+class OpenPbrMaps:
+    """Per-texel ``open_pbr_surface`` inputs (the ones the fit sets; the rest stay at their
+    defaults, ``specular_ior`` = :data:`SPECULAR_IOR`).
+
+    base_color, specular_color, fuzz_color : (H, W, 3) float32, linear ``working_space``, [0, 1].
+    base_diffuse_roughness, specular_weight, specular_roughness, specular_anisotropy,
+    fuzz_weight, fuzz_roughness : (H, W) float32 (``specular_weight`` in [0, 25], the rest [0, 1]).
+    specular_rotation : (H, W) float32 radians in [0, pi): the anisotropy's tangent
+    ``(cos, sin, 0)`` in the texel's frame (x image right, y image up).
+    normal : (H, W, 3) float32 unit tangent-space normals (the UsdPreviewSurface fit's).
+    white_level : the BTF value a white Lambertian lit head-on reads (:mod:`usdbtf.svbrdf`).
+    """
+
+    base_color: np.ndarray
+    base_diffuse_roughness: np.ndarray
+    specular_weight: np.ndarray
+    specular_color: np.ndarray
+    specular_roughness: np.ndarray
+    specular_anisotropy: np.ndarray
+    specular_rotation: np.ndarray
+    fuzz_weight: np.ndarray
+    fuzz_color: np.ndarray
+    fuzz_roughness: np.ndarray
+    normal: np.ndarray
+    working_space: str
+    white_level: float = 1.0
+
+    COLOURS = ("base_color", "specular_color", "fuzz_color")
+    SCALARS = ("base_diffuse_roughness", "specular_weight", "specular_roughness", "specular_anisotropy",
+               "specular_rotation", "fuzz_weight", "fuzz_roughness")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.specular_roughness.shape
+
+    def gathered(self, gather) -> "OpenPbrMaps":
+        """These maps with every per-texel array passed through ``gather`` ((H, W, ...) -> (H', W', ...))."""
+        return replace(self, **{name: gather(getattr(self, name))
+                                for name in (*self.COLOURS, *self.SCALARS, "normal")})
+
+    def params(self, texels=slice(None)) -> dict:
+        """{input: (T,) or (T, 3) float32} of ``texels`` (row-major), for :func:`evaluate_openpbr`."""
+        out = {name: getattr(self, name).reshape(-1, 3)[texels].astype(np.float32) for name in self.COLOURS}
+        out.update({name: getattr(self, name).reshape(-1)[texels].astype(np.float32) for name in self.SCALARS})
+        out["normal"] = self.normal.reshape(-1, 3)[texels].astype(np.float32)
+        return out
+
+
+# ------------------------------------------------------------------ MaterialX's lobes
+def _sq(x):
+    return x * x
+
+
+_GGX_ALBEDO = np.array([[0.1003, 0.9345, 1.0, 1.0], [-0.6303, -2.323, -1.765, 0.2281], [9.748, 2.229, 8.263, 15.94],
+                        [-2.038, -3.748, 11.53, -55.83], [29.34, 1.424, 28.96, 13.08],
+                        [-8.245, -0.7684, -7.507, 41.26], [-26.44, 1.436, -36.11, 54.9],
+                        [19.99, 0.2913, 15.86, 300.2], [-5.448, 0.6286, 33.37, -285.1]])
+
+
+_GGX_ALBEDO_ROWS = _GGX_ALBEDO.tolist()       # Python floats: they keep float32 arrays float32
+
+
+def ggx_albedo_ab(ndv, alpha):
+    """(A, B) of mx_ggx_dir_albedo_analytic (the albedo is ``F0 A + F90 B``): MaterialX's
+    rational fit, its polynomial in x = n.v written in Horner form with coefficients in
+    y = alpha (the same polynomial, fewer operations on (S, T) arrays)."""
+    c, y = _GGX_ALBEDO_ROWS, alpha
+    r = []
+    for j in range(4):
+        k0 = c[0][j] + y * (c[2][j] + y * c[5][j])
+        k1 = c[1][j] + y * (c[3][j] + y * c[7][j])
+        k2 = c[4][j] + y * (c[6][j] + y * c[8][j])
+        r.append(k0 + ndv * (k1 + ndv * k2))
+    return np.clip(r[0] / r[2], 0.0, 1.0), np.clip(r[1] / r[3], 0.0, 1.0)
+
+
+def ggx_dir_albedo(ndv, alpha, f0, f90):
+    """mx_ggx_dir_albedo_analytic: the rational fit of GGX's directional albedo."""
+    a, b = ggx_albedo_ab(ndv, alpha)
+    return f0 * a + f90 * b
+
+
+def fresnel_dielectric(cos_theta, ior):
+    """mx_fresnel_dielectric (total internal reflection -> 1)."""
+    c = cos_theta
+    g2 = ior * ior + c * c - 1.0
+    g = np.sqrt(np.maximum(g2, 0.0))
+    f = 0.5 * _sq((g - c) / (g + c)) * (1.0 + _sq(((g + c) * c - 1.0) / ((g - c) * c + 1.0)))
+    return np.where(g2 < 0.0, 1.0, f)
+
+
+def specular_alpha(roughness, anisotropy):
+    """(alpha_x, alpha_y) of open_pbr_anisotropy, clamped as dielectric_bsdf does."""
+    inv = 1.0 - anisotropy
+    ax = roughness * roughness * np.sqrt(2.0 / (inv * inv + 1.0))
+    return np.clip(ax, M_FLOAT_EPS, 1.0), np.clip(inv * ax, M_FLOAT_EPS, 1.0)
+
+
+def modulated_ior(specular_weight, ior=SPECULAR_IOR):
+    """The IOR open_pbr_surface gives dielectric_bsdf: F0 scaled by specular_weight (no coat)."""
+    f0 = np.clip(specular_weight * _sq((ior - 1.0) / (ior + 1.0)), 0.0, 0.99999)
+    s = (1.0 if ior > 1.0 else -1.0 if ior < 1.0 else 0.0) * np.sqrt(f0)
+    return (1.0 + s) / (1.0 - s)
+
+
+def zeltner_dir_albedo(x, y):
+    """mx_zeltner_sheen_dir_albedo (x = n.v, y = roughness)."""
+    s = y * (0.0206607 + 1.58491 * y) / (0.0379424 + y * (1.32227 + y))
+    m = y * (-0.193854 + y * (-1.14885 + y * (1.7932 - 0.95943 * y * y))) / (0.046391 + y)
+    o = y * (0.000654023 + (-0.0207818 + 0.119681 * y) * y) / (1.26264 + y * (-1.92021 + y))
+    return np.exp(-0.5 * _sq((x - m) / s)) / (s * math.sqrt(2.0 * math.pi)) + o
+
+
+def fujii_dir_albedo(cos_theta, sigma):
+    """mx_oren_nayar_fujii_diffuse_dir_albedo."""
+    a = 1.0 / (1.0 + _FUJII_1 * sigma)
+    b = sigma * a
+    si = np.sqrt(np.maximum(0.0, 1.0 - cos_theta * cos_theta))
+    g = si * (np.arccos(np.clip(cos_theta, -1.0, 1.0)) - si * cos_theta) + \
+        2.0 * ((si / cos_theta) * (1.0 - si * si * si) - si) / 3.0
+    return a + b * g / np.pi
+
+
+def fujii_avg_albedo(sigma):
+    a = 1.0 / (1.0 + _FUJII_1 * sigma)
+    return a * (1.0 + _FUJII_2 * sigma)
+
+
+class _Frame:
+    """Per (sample, texel) dot products of MaterialX's direct lighting: normals (T, 3) and
+    unit directions (S, 3); every array (S, T) in ``dtype``.  The lobes' local frames (the
+    specular tangent, the sheen's LTC frame) enter only through dot products, which are
+    written out here so that no (S, T, 3) array is made."""
+
+    def __init__(self, n, v, l, dtype=np.float32):
+        n = np.asarray(n, dtype)
+        v, l = np.asarray(v, dtype), np.asarray(l, dtype)
+        self.t = len(n)
+        if len(n) > 1 and np.all(n == n[:1]):
+            n = n[:1]                          # one normal for every texel: (S, 1) arrays, broadcast
+        h = v + l
+        h = h / np.linalg.norm(h, axis=1, keepdims=True)
+        nv_raw = v @ n.T
+        # mx_forward_facing_normal: a normal facing away from the view is flipped.
+        flip = np.where(nv_raw < 0.0, -1.0, 1.0).astype(dtype)
+        self.nv_f = nv_raw * flip                                          # N.V of the flipped normal
+        self.nv = np.clip(self.nv_f, M_FLOAT_EPS, 1.0)
+        self.nl_f = (l @ n.T) * flip
+        self.nl = np.clip(self.nl_f, M_FLOAT_EPS, 1.0)
+        self.hn_raw = h @ n.T
+        self.nh = self.hn_raw * flip
+        self.vh = np.clip(np.einsum("ij,ij->i", v, h), M_FLOAT_EPS, 1.0)[:, None].astype(dtype)
+        self.lv_raw = np.einsum("ij,ij->i", l, v)[:, None].astype(dtype)
+        self.lv = np.clip(self.lv_raw, M_FLOAT_EPS, 1.0)
+        self.h, self.n, self.dtype = h, n, dtype
+        self._memo = {}
+
+    def _per_value(self, kind, values, make):
+        """``make(value)`` for each distinct per-texel value (memoised: the fit's grids repeat
+        them), assembled per texel: an array of shape (S, T) (or (S, 1) for one value)."""
+        values = np.asarray(values, self.dtype)
+        if values.ndim == 0 or np.all(values == values.flat[0]):
+            key = (kind, float(values.flat[0]))
+            if key not in self._memo:
+                self._memo[key] = make(values.flat[0])
+            return self._memo[key]
+        distinct, index = np.unique(values, return_inverse=True)
+        if len(distinct) > 8:                  # continuous values (evaluating a fit): per texel, no memo
+            return make(values)
+        parts = [self._per_value(kind, u, make) for u in distinct]
+        if isinstance(parts[0], tuple):
+            return tuple(_gather([p[i] for p in parts], index, self.t) for i in range(len(parts[0])))
+        return _gather(parts, index, self.t)
+
+    def tangent_dots(self, rotation):
+        """(H.X, (H.Y)^2) (S, T) for tangents at ``rotation`` (T,) radians, X the tangent
+        projected onto the (flipped) normal and normalised, Y = N x X, as dielectric_bsdf
+        builds them; the flip cancels in H.X and D needs only (H.Y)^2 = 1 - (H.X)^2 - (H.N)^2."""
+        rotation = np.asarray(rotation, self.dtype).reshape(-1)
+        t = np.stack([np.cos(rotation), np.sin(rotation), np.zeros_like(rotation)], axis=-1)
+        tn = np.sum(t * self.n, axis=1)                                    # (T,) or (1,)
+        hx = (self.h @ t.T - tn * self.hn_raw) / np.sqrt(np.maximum(1.0 - tn * tn, 1e-30))
+        return hx, np.maximum(1.0 - hx * hx - self.nh * self.nh, 0.0)
+
+    def specular(self, roughness, anisotropy, rotation, weight):
+        """(response without tint, throughput) of dielectric_bsdf, each (S, T), for per-texel
+        (T,) or scalar inputs (``rotation`` None: isotropic, where D needs no tangent)."""
+        return self.specular_at(self.specular_shape(roughness, anisotropy, rotation), weight)
+
+    def specular_shape(self, roughness, anisotropy, rotation):
+        """The specular terms that do not depend on the Fresnel: (D G / (4 n.v), A, B) with
+        (A, B) the GGX albedo fit's (:func:`ggx_albedo_ab`), each (S, T)."""
+        ax, ay = specular_alpha(roughness, anisotropy)
+        avg = np.sqrt(ax * ay)
+        hz2 = self.nh * self.nh
+        if rotation is None:
+            denom = (1.0 - hz2) / (ax * ax) + hz2                          # |H_t.xy / alpha|^2 + H_t.z^2 (ax == ay)
+        else:
+            hx, hy2 = self.tangent_dots(rotation)
+            denom = hx * hx / (ax * ax) + hy2 / (ay * ay) + hz2
+        a2 = avg * avg
+        lam_l = np.sqrt(a2 + (1.0 - a2) * self.nl * self.nl)
+        lam_v = np.sqrt(a2 + (1.0 - a2) * self.nv * self.nv)
+        # D G / (4 n.v) with G = 2 n.l n.v / (lam_l n.v + lam_v n.l): the n.v cancels.
+        dg = self.nl / (2.0 * np.pi * ax * ay * denom * denom * (lam_l * self.nv + lam_v * self.nl))
+        a_, b_ = ggx_albedo_ab(self.nv, avg)
+        return dg, a_, b_
+
+    def specular_at(self, shape, weight):
+        """(response without tint, throughput) from :meth:`specular_shape` at ``specular_weight``:
+        the dielectric Fresnel F, energy compensation ``1 + F (1 - E) / E`` with ``E = A + B``,
+        throughput ``1 - (F0 A + B) comp``."""
+        dg, a_, b_ = shape
+        f = self._per_value("fresnel", weight, lambda w: fresnel_dielectric(self.vh, modulated_ior(w)).astype(self.dtype))
+        f0 = self._per_value("f0", weight, lambda w: np.asarray(_sq((modulated_ior(w) - 1.0) / (modulated_ior(w) + 1.0)),
+                                                                 self.dtype).reshape(1, -1))
+        ess = a_ + b_
+        comp = 1.0 + f * (1.0 - ess) / ess
+        return dg * f * comp, 1.0 - (f0 * a_ + b_) * comp
+
+    def fuzz(self, roughness, weight):
+        """(response without colour, throughput) of sheen_bsdf (zeltner), each (S, T).  The
+        LTC frame is X = normalise(V - N n.v), Y = N x X, N: w = (X.L, Y.L, N.L), and the
+        lobe needs only w.x and (w.y)^2 = 1 - w.x^2 - w.z^2."""
+        r = np.clip(roughness, 0.01, 1.0)
+        len2 = 1.0 - 2.0 * self.nv * self.nv_f + self.nv * self.nv          # |V - N n.v|^2 (n.v clamped)
+        ok = len2 > 1e-12
+        # V == N: any frame (bInv = 0 there, so the lobe is symmetric about N).
+        wx = np.where(ok, (self.lv_raw - self.nv * self.nl_f) / np.sqrt(np.where(ok, len2, 1.0)), 0.0)
+        wz = self.nl_f
+        wy2 = np.maximum(1.0 - wx * wx - wz * wz, 0.0)
+        ndv = self.nv
+        a_inv = (2.58126 * ndv + 0.813703 * r) * r / (1.0 + 0.310327 * ndv * ndv + 2.60994 * ndv * r)
+        b_inv = np.sqrt(1.0 - ndv) * (r - 1.0) * r ** 3 / (
+            0.0000254053 + 1.71228 * ndv - 1.71506 * ndv * r + 1.34174 * r * r)
+        ox = a_inv * wx + b_inv * wz
+        len2_o = ox * ox + a_inv * a_inv * wy2 + wz * wz
+        ltc = np.maximum(wz, 0.0) / np.pi * _sq(a_inv / len2_o)
+        albedo = zeltner_dir_albedo(ndv, r)
+        return albedo * ltc * weight, 1.0 - albedo * weight
+
+    def diffuse(self, sigma):
+        """(single-scattering factor, multiple-scattering factor, E_avg): the base's response is
+        ``(c * single + ms(c) * multi) n.l / pi`` with ``ms(c) = c^2 E_avg / (1 - c (1 - E_avg))``;
+        ``sigma`` a scalar or (T,)."""
+        single, multi = self._per_value("diffuse", sigma, self._diffuse)
+        return single, multi, fujii_avg_albedo(np.asarray(sigma, self.dtype))
+
+    def _diffuse(self, sigma):
+        s = self.lv - self.nl * self.nv
+        stinv = np.where(s > 0.0, s / np.maximum(self.nl, self.nv), s)
+        a = 1.0 / (1.0 + _FUJII_1 * sigma)
+        single = a * (1.0 + sigma * stinv)
+        avg = fujii_avg_albedo(sigma)
+        multi = (np.maximum(M_FLOAT_EPS, 1.0 - fujii_dir_albedo(self.nv, sigma))
+                 * np.maximum(M_FLOAT_EPS, 1.0 - fujii_dir_albedo(self.nl, sigma))
+                 / np.maximum(M_FLOAT_EPS, 1.0 - avg))
+        return single * self.nl / np.pi, multi * self.nl / np.pi
+
+
+def _gather(parts, index, t):
+    """(S, T) from per-value arrays ``parts`` ((S, T) or (S, 1) each): texel j from parts[index[j]]."""
+    cols = [np.broadcast_to(p, (p.shape[0], t)) for p in parts]
+    out = np.empty(cols[0].shape, np.result_type(*cols))
+    for i, col in enumerate(cols):
+        sel = np.flatnonzero(index == i)
+        out[:, sel] = col[:, sel]
+    return out
+
+
+def _multi_colour(c, avg):
+    return c * c * avg / (1.0 - c * np.maximum(0.0, 1.0 - avg))
+
+
+def evaluate_openpbr(params: dict, view: np.ndarray, light: np.ndarray, dtype=np.float32) -> np.ndarray:
+    """(S, T, 3) radiance of ``open_pbr_surface`` under a directional light of irradiance 1
+    from unit ``light`` (S, 3), seen from unit ``view`` (S, 3), for per-texel inputs
+    ``params`` ({input: (T,) or (T, 3)}, :meth:`OpenPbrMaps.params`; missing inputs take the
+    fit's neutral values).  This is ``f(v, l) (n . l)`` as MaterialX's GLSL computes it."""
+    t = len(params["normal"])
+    get = lambda name, default: np.asarray(params.get(name, np.full(t, default)), dtype)  # noqa: E731
+    fr = _Frame(params["normal"], view, light, dtype)
+    rotation = get("specular_rotation", 0.0)
+    aniso = get("specular_anisotropy", 0.0)
+    spec, t_spec = fr.specular(get("specular_roughness", 0.3), aniso, rotation, get("specular_weight", 1.0))
+    fuzz, t_fuzz = fr.fuzz(get("fuzz_roughness", 0.5), get("fuzz_weight", 0.0))
+    single, multi, avg = fr.diffuse(get("base_diffuse_roughness", 0.0))
+    base = np.maximum(np.asarray(params["base_color"], dtype), 0.0)
+    out = np.empty((len(view), t, 3), dtype)
+    for c in range(3):
+        diffuse = base[:, c] * single + _multi_colour(base[:, c], avg) * multi
+        spec_c = spec * np.maximum(np.asarray(params.get("specular_color", np.ones((t, 3))), dtype)[:, c], 0.0)
+        fuzz_c = fuzz * np.asarray(params.get("fuzz_color", np.ones((t, 3))), dtype)[:, c]
+        out[..., c] = fuzz_c + t_fuzz * (spec_c + t_spec * diffuse)
+    return out
+
+
+def evaluate(maps: OpenPbrMaps, view_deg: np.ndarray, light_deg: np.ndarray, texels=slice(None)) -> np.ndarray:
+    """(S, T, 3) float32 BTF values the fitted surface predicts at samples (view, light) in
+    degrees (S, 2 each), ``texels`` a slice or index array (row-major): :func:`evaluate_openpbr`
+    times ``pi W`` (module docstring)."""
+    v, l = to_vectors(np.asarray(view_deg, float)), to_vectors(np.asarray(light_deg, float))
+    return evaluate_openpbr(maps.params(texels), v, l) * np.float32(np.pi * maps.white_level)
+
+
+# ------------------------------------------------------------------ the fit
+def _box_lsq(gram: np.ndarray, rhs: np.ndarray, yy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least squares with every unknown in [0, 1], from normal equations: ``gram`` (P, m, m),
+    ``rhs`` (P, m), ``yy`` (P,) the sum of squares of the data.  Returns (x (P, m), residual
+    (P,)).  Exact: every assignment of each unknown to free / 0 / 1 is solved and the best
+    feasible one kept (the optimum of a convex QP is one of them); m <= 3."""
+    p, m = rhs.shape
+    best_x, best_r = np.zeros((p, m), gram.dtype), yy.copy()                  # x = 0 is always feasible
+    ridge = np.eye(m, dtype=gram.dtype) * (1e-9 * (np.trace(gram, axis1=1, axis2=2)[:, None, None] / m + 1e-30))
+    for code in range(3 ** m):
+        state = [(code // 3 ** j) % 3 for j in range(m)]                   # 0 free, 1 at 0, 2 at 1
+        free = [j for j in range(m) if state[j] == 0]
+        x = np.zeros((p, m), gram.dtype)
+        for j in range(m):
+            if state[j] == 2:
+                x[:, j] = 1.0
+        if free:
+            fixed = [j for j in range(m) if state[j] != 0]
+            b = rhs[:, free] - (np.einsum("pij,pj->pi", gram[:, free][:, :, fixed], x[:, fixed]) if fixed else 0.0)
+            a = gram[:, free][:, :, free] + ridge[:, :len(free), :len(free)]
+            x[:, free] = np.linalg.solve(a, b[..., None])[..., 0]
+            ok = np.all((x[:, free] >= 0.0) & (x[:, free] <= 1.0), axis=1)
+        else:
+            ok = np.ones(p, bool)
+        r = yy - 2.0 * np.einsum("pi,pi->p", rhs, x) + np.einsum("pi,pij,pj->p", x, gram, x)
+        better = ok & (r < best_r)
+        best_x[better], best_r[better] = x[better], r[better]
+    return best_x, best_r
+
+
+def _sum(a, b):
+    """Sum over samples (axis -2) of a * b, float64: (S, T), (3, S, T) or (S, 1) (the same
+    for every texel) operands."""
+    if a.shape[-1] == 1 and b.shape[-1] != 1:
+        a, b = b, a
+    if b.shape[-1] == 1 and b.ndim == 2:
+        return np.einsum("...st,s->...t", a, b[:, 0]).astype(np.float64)
+    return np.einsum("...st,...st->...t", a, b).astype(np.float64)
+
+
+class _Fit:
+    """One block's fit: the fit samples' values ``y`` (3, S, T) (divided by pi W) and the
+    frame, the per-texel state of the nonlinear inputs, and the solve of the colours."""
+
+    def __init__(self, y, frame: _Frame):
+        self.y, self.fr = y, frame
+        self.yy = np.einsum("cst,cst->tc", y, y).astype(np.float64)          # (T, 3)
+        self.t = y.shape[2]
+
+    def solve(self, spec, t_spec, fuzz, t_fuzz, diffuse):
+        """(colours (T, 3 channels, 3 lobes: base, specular, fuzz), residual (T,)) of the box
+        least squares for the given lobe features: ``spec``, ``t_spec``, ``fuzz``, ``t_fuzz``
+        (S, T) (fuzz None: no fuzz), ``diffuse`` (S, T) or (3, S, T) (per channel)."""
+        xb = (t_spec * diffuse) if t_fuzz is None else (t_fuzz * t_spec * diffuse)
+        xs = spec if t_fuzz is None else t_fuzz * spec
+        feats = [xb, xs] + ([fuzz] if fuzz is not None else [])
+        m = len(feats)
+        gram = np.empty((self.t, 3, m, m))
+        rhs = np.empty((self.t, 3, m))
+        for i, fi in enumerate(feats):
+            rhs[:, :, i] = (_sum(fi, self.y) if fi.ndim == 3 else _sum(fi[None], self.y)).T
+            for j in range(i, m):
+                g = _sum(fi, feats[j])
+                gram[:, :, i, j] = gram[:, :, j, i] = g.T if g.ndim == 2 else g[:, None]
+        x, r = _box_lsq(gram.reshape(-1, m, m), rhs.reshape(-1, m), self.yy.reshape(-1))
+        out = np.zeros((self.t, 3, 3), np.float32)
+        out[:, :, :m] = x.reshape(self.t, 3, m)
+        return out, r.reshape(self.t, 3).sum(axis=1)
+
+
+def _diffuse_features(fr: _Frame, sigma, base):
+    """(S, T) Lambert (sigma 0 everywhere) or (3, S, T) Oren-Nayar features per channel, with
+    the multiple scattering linearised at the colours ``base`` (T, 3): ``ms(c) ~ c g(c0)``."""
+    sigma = np.asarray(sigma, fr.dtype)
+    single, multi, avg = fr.diffuse(sigma)
+    if not np.any(sigma > 0):
+        return single
+    c0 = np.clip(base, 0.0, 1.0).T[:, None, :]                                # (3, 1, T)
+    g = c0 * avg / (1.0 - c0 * np.maximum(0.0, 1.0 - avg))
+    return single[None] + g * multi[None]
+
+
+@dataclass
+class _State:
+    """Per-texel nonlinear inputs (T,) and the colours (T, 3, 3) and residual (T,) they give."""
+
+    spec_weight: np.ndarray
+    roughness: np.ndarray
+    anisotropy: np.ndarray
+    rotation: np.ndarray
+    fuzz_weight: np.ndarray
+    fuzz_roughness: np.ndarray
+    sigma: np.ndarray
+    colours: np.ndarray
+    residual: np.ndarray
+
+    def take(self, other: "_State", where: np.ndarray) -> None:
+        for name in self.__dataclass_fields__:
+            getattr(self, name)[where] = getattr(other, name)[where]
+
+    def params(self, normals) -> dict:
+        c = np.clip(self.colours, 0.0, 1.0)
+        return {"normal": normals, "base_color": c[:, :, 0], "specular_color": c[:, :, 1],
+                "fuzz_color": c[:, :, 2], "base_diffuse_roughness": self.sigma, "specular_weight": self.spec_weight,
+                "specular_roughness": self.roughness, "specular_anisotropy": self.anisotropy,
+                "specular_rotation": self.rotation, "fuzz_weight": self.fuzz_weight,
+                "fuzz_roughness": self.fuzz_roughness}
+
+
+def _copy(state: _State) -> _State:
+    return _State(**{k: np.array(v) for k, v in vars(state).items()})
+
+
+def _fit_stage1(y, n, v, l) -> _State:
+    """Stage 1 for normals ``n`` (T, 3): specular roughness x specular weight, Lambert base, no fuzz."""
+    fr = _Frame(n, v, l)
+    fit = _Fit(y, fr)
+    t = y.shape[2]
+    full = lambda value: np.full(t, value, np.float32)  # noqa: E731
+    lambert = _diffuse_features(fr, 0.0, None)
+    best = _State(full(1.0), full(1.0), full(0.0), full(0.0), full(0.0), full(0.5), full(0.0),
+                  np.zeros((t, 3, 3), np.float32), np.full(t, np.inf))
+    for r in SPECULAR_ROUGHNESS_GRID:
+        shape = fr.specular_shape(r, 0.0, None)
+        for w in SPECULAR_WEIGHTS:
+            spec, t_spec = fr.specular_at(shape, w)
+            colours, res = fit.solve(spec, t_spec, None, None, lambert)
+            better = res < best.residual
+            best.spec_weight[better], best.roughness[better] = w, r
+            best.colours[better], best.residual[better] = colours[better], res[better]
+    return best
+
+
+def _fit_stages(y, n, v, l, start: _State) -> _State:
+    """Stages 2-5 from ``start`` (module docstring), each keeping what lowers the residual."""
+    fr = _Frame(n, v, l)
+    fit = _Fit(y, fr)
+    best = _copy(start)
+
+    def spec_of(st):
+        rotation = st.rotation if np.any(st.anisotropy > 0) else None
+        return fr.specular(st.roughness, st.anisotropy, rotation, st.spec_weight)
+
+    def fuzz_of(st):
+        return fr.fuzz(st.fuzz_roughness, st.fuzz_weight) if np.any(st.fuzz_weight > 0) else (None, None)
+
+    # The best state's lobes, kept up to date: a candidate recomputes only the lobe it changes.
+    lobes = {"spec": spec_of(best), "fuzz": fuzz_of(best)}
+    changes_lobe = {"spec_weight": "spec", "roughness": "spec", "anisotropy": "spec", "rotation": "spec",
+                    "fuzz_weight": "fuzz", "fuzz_roughness": "fuzz", "sigma": "diffuse"}
+
+    def consider(**changes):
+        cand = _copy(best)
+        for k, value in changes.items():
+            getattr(cand, k)[:] = value
+        changed = {changes_lobe[k] for k in changes}
+        spec = spec_of(cand) if "spec" in changed else lobes["spec"]
+        fuzz = fuzz_of(cand) if "fuzz" in changed else lobes["fuzz"]
+        diffuse = _diffuse_features(fr, cand.sigma, best.colours[:, :, 0])
+        cand.colours, cand.residual = fit.solve(*spec, *fuzz, diffuse)
+        better = cand.residual < best.residual
+        best.take(cand, better)
+        for lobe, new in (("spec", spec), ("fuzz", fuzz)):
+            if lobe in changed:
+                old = lobes[lobe]
+                if old[0] is None:
+                    old = tuple(np.zeros_like(x) if i == 0 else np.ones_like(x) for i, x in enumerate(new))
+                lobes[lobe] = tuple(np.where(better, n_, o_) for n_, o_ in zip(new, old))
+
+    # 2. anisotropy x direction x roughness around stage 1's.
+    r1 = best.roughness.copy()
+    for a in ANISOTROPY_GRID:
+        for phi in ROTATION_GRID:
+            for scale in (0.85, 1.0, 1.2):
+                consider(anisotropy=a, rotation=phi, roughness=np.clip(r1 * scale, 0.05, 1.0))
+    # 3. fuzz.
+    for fw in FUZZ_WEIGHTS:
+        for fr_ in FUZZ_ROUGHNESS_GRID:
+            consider(fuzz_weight=fw, fuzz_roughness=fr_)
+    # 4. base diffuse roughness.
+    for sigma in DIFFUSE_ROUGHNESS_GRID:
+        consider(sigma=sigma)
+    # 5. specular roughness, one step either side.
+    r2 = best.roughness.copy()
+    for scale in (0.85, 1.2):
+        consider(roughness=np.clip(r2 * scale, 0.05, 1.0))
+    return best
+
+
+def _held_out_residual(yv, params, vv, vl) -> np.ndarray:
+    """(T,) sum of absolute errors of the exact model (:func:`evaluate_openpbr`) against ``yv``
+    (3, S, T): the benchmark's (the paper's) metric, which a least-squares fit does not minimise."""
+    pred = evaluate_openpbr(params, vv, vl)                                     # (S, T, 3)
+    return np.abs(yv.transpose(1, 2, 0) - pred).sum(axis=(0, 2), dtype=np.float64)
+
+
+def _chunk_texels(n_samples: int, chunk_bytes: float) -> int:
+    # ~40 float32 (S, T) arrays live at once (the lobes' features, three channels of sums).
+    return int(max(128, chunk_bytes // (n_samples * 4 * 40)))
+
+
+@single_blas_thread
+def fit_openpbr(cbtf: CompressedBTF, *, svbrdf: SvbrdfMaps | None = None, white_level: float = 1.0,
+                max_samples: int = 1536, chunk_bytes: float = 64e6) -> OpenPbrMaps:
+    """Fit per-texel ``open_pbr_surface`` inputs to ``cbtf``'s reconstruction over its
+    measured samples (module docstring), streamed over blocks of texels.  ``svbrdf``: the
+    UsdPreviewSurface fit of the same BTF, whose normal map is kept (fitted here when None)."""
+    if not white_level > 0:
+        raise ValueError(f"white_level must be positive, got {white_level}")
+    if svbrdf is None:
+        svbrdf = fit_svbrdf(cbtf, white_level=white_level, max_samples=max_samples, chunk_bytes=chunk_bytes)
+    normals = svbrdf.normal.reshape(-1, 3).astype(np.float32)
+    fit = fit_samples(cbtf, max_samples)
+    val = validation_samples(cbtf, fit, VALIDATION_SAMPLES)
+    v, l = to_vectors(cbtf.sampling.view[fit]), to_vectors(cbtf.sampling.light[fit])
+    vv, vl = to_vectors(cbtf.sampling.view[val]), to_vectors(cbtf.sampling.light[val])
+    basis = cbtf.basis_values()
+    fit_rows, val_rows = basis[fit], basis[val]
+    texels = cbtf.width * cbtf.height
+    out = {name: np.zeros((texels, 3), np.float32) for name in OpenPbrMaps.COLOURS}
+    out.update({name: np.zeros(texels, np.float32) for name in OpenPbrMaps.SCALARS})
+    step = _chunk_texels(max(len(fit), len(val)), chunk_bytes)
+    scale = np.float32(1.0 / (np.pi * white_level))
+    kept = tilted = 0
+    flat = np.array([0.0, 0.0, 1.0], np.float32)
+    out_normal = np.zeros((texels, 3), np.float32)
+    for t0 in track(range(0, texels, step), "OpenPBR fit", -(-texels // step), logger=log):
+        block = slice(t0, min(t0 + step, texels))
+        n_map = normals[block]
+        y = np.ascontiguousarray((_reconstruct(cbtf, fit_rows, block) * scale).transpose(2, 0, 1))
+        yv = np.ascontiguousarray((_reconstruct(cbtf, val_rows, block) * scale).transpose(2, 0, 1))
+        # The normal map only where OpenPBR predicts the held-out samples better with it: a
+        # normal tilted away from the view is flipped by MaterialX (mx_forward_facing_normal),
+        # which UsdPreviewSurface's fit, where the map was chosen, does not do.
+        n = np.broadcast_to(flat, n_map.shape).copy()
+        stage1 = _fit_stage1(y, n, v, l)
+        held = _held_out_residual(yv, stage1.params(n), vv, vl)
+        tilt = n_map[:, 2] < 0.999999
+        if np.any(tilt):
+            # The map's tilt, and half of it: a normal tilted towards grazing views flips
+            # sooner than the measured surface darkens.
+            half = n_map + flat
+            half /= np.linalg.norm(half, axis=1, keepdims=True)
+            for cand_n in (half, n_map):
+                cand = _fit_stage1(y, cand_n, v, l)
+                cand_held = _held_out_residual(yv, cand.params(cand_n), vv, vl)
+                use = tilt & (cand_held < held)
+                stage1.take(cand, use)
+                n[use], held[use] = cand_n[use], cand_held[use]
+            tilted += int(np.count_nonzero(n[:, 2] < 0.999999))
+        final = _fit_stages(y, n, v, l, stage1)
+        p1, pf = stage1.params(n), final.params(n)
+        richer = _held_out_residual(yv, pf, vv, vl) < held
+        kept += int(np.count_nonzero(richer))
+        out_normal[block] = n
+        for name in out:
+            out[name][block] = np.where(richer[:, None] if out[name].ndim == 2 else richer, pf[name], p1[name])
+    log.info(f"OpenPBR fit: the normal map kept at {tilted} texels, the richer lobes at {kept} of {texels}")
+    h, w = cbtf.height, cbtf.width
+    maps = {name: a.reshape(h, w, 3) if a.ndim == 2 else a.reshape(h, w) for name, a in out.items()}
+    # A texel without fuzz carries a neutral fuzz colour (weight 0 ignores it).
+    maps["fuzz_color"][maps["fuzz_weight"] == 0] = 1.0
+    return OpenPbrMaps(**maps, normal=out_normal.reshape(h, w, 3), working_space=cbtf.working_space,
+                       white_level=float(white_level))
