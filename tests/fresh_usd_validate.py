@@ -15,8 +15,14 @@ LOD = "lod"
 
 def issues(stage):
     validators = UsdValidation.ValidationRegistry().GetOrLoadAllValidators()
+    # A USD without MaterialX (usd-core) has no Sdr entry for any MaterialX node (the OpenPBR
+    # fallback's ND_* ids); tests/mtlx_usd_validate.py checks them in a USD with MaterialX.
+    materialx = "ND_standard_surface_surfaceshader" in Sdr.Registry().GetShaderNodeIdentifiers()
     out = []
     for err in UsdValidation.ValidationContext(validators).Validate(stage):
+        if not materialx and "MissingShaderIdInRegistry" in str(err.GetIdentifier()) and \
+                "shaderId 'ND_" in err.GetMessage():
+            continue
         if not err.HasNoError():
             out.append(f"{str(err.GetType()).rsplit('.', 1)[-1]} [{err.GetIdentifier()}] {err.GetMessage()}")
     return out
