@@ -15,6 +15,7 @@ level) before numpy loads, so that any x86-64-v3 machine writes the same bytes.
 """
 __version__ = "0.1.0"
 
+from . import lifetime as _lifetime  # noqa: F401 - its fork hooks: what usdbtf forks dies with its parent
 from .numeric import pin as _pin_numeric_platform
 from .usd.plugin import register_lazily as _register_usd_plugin
 

@@ -26,7 +26,12 @@ The policy (one set of rules for every command):
   any other, so nothing accumulates.
 * A lock file ``.<name>.usdbtf-lock`` (``flock``) beside each output: a second process
   writing the same output stops at once with "being written by another process".  The
-  lock file is removed when the writer finishes.
+  lock file is removed when the writer finishes.  The lock belongs to the process that
+  took it alone: a forked child closes its copy at once (an ``flock`` lasts as long as any
+  process holds its open file; subprocesses never get it, it is opened close-on-exec), and
+  only that process removes it, publishes a staging folder or removes one.  A lock whose
+  holder is no longer running (a process that kept it open although it is not its holder,
+  e.g. the orphan of an older usdbtf) is broken, with a debug line.
 * Modes follow the umask (temporary folders are created 0700 by ``mkdtemp``; they are
   opened up to ``0777 & ~umask`` before they become outputs).
 * Operating-system errors while writing become :class:`~usdbtf.errors.IOFailure`
@@ -48,11 +53,12 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
-from . import outputs
+from . import lifetime, outputs
 from .errors import BTFError, IOFailure, OutputRefused, os_error_message
 
 __all__ = ["Policy", "output_policy", "current_policy", "check_output", "claim", "atomic_dir", "atomic_file",
-           "atomic_group", "scratch_dir", "umask", "interrupt", "related", "TMP_TAG", "LOCK_TAG"]
+           "atomic_group", "scratch_dir", "umask", "interrupt", "raise_if_interrupted", "interruption_forgotten",
+           "related", "TMP_TAG", "LOCK_TAG"]
 
 log = logging.getLogger(__name__)
 TMP_TAG = ".usdbtf-tmp-"
@@ -190,6 +196,7 @@ class _Lock:
         self.path = target.parent / f".{target.name}{LOCK_TAG}"
         self.count = 0
         self.fd = None
+        self.pid = None
 
     def acquire(self, shown: Path) -> None:
         for _ in range(20):
@@ -198,6 +205,14 @@ class _Lock:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
                 holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+                taker = _flock_taker(fd)
+                if taker is not None and not lifetime.running(taker):
+                    # Held open by processes that outlived the one that took it: broken.
+                    log.debug(f"{shown}: lock {self.path.name} taken by pid {taker}, which is no longer "
+                              "running: broken")
+                    self._unlink_if(fd)
+                    os.close(fd)
+                    continue
                 os.close(fd)
                 raise OutputRefused(f"{shown}: being written by another process (pid {holder}; lock "
                                     f"{self.path.name}); try again when it has finished") from None
@@ -209,21 +224,59 @@ class _Lock:
             except FileNotFoundError:
                 same = False
             if same:            # not a lock file that its last holder unlinked meanwhile
+                left = os.pread(fd, 32, 0).decode(errors="replace").strip()
+                if left:        # a killed writer's (the lock was free, so it is not running)
+                    log.debug(f"{shown}: lock {self.path.name} left by pid {left}, no longer running: taken over")
                 os.ftruncate(fd, 0)
                 os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-                self.fd = fd
+                self.fd, self.pid = fd, os.getpid()
                 return
             os.close(fd)
         raise OutputRefused(f"{shown}: could not take the lock {self.path}")  # pragma: no cover
 
+    def _unlink_if(self, fd: int) -> None:
+        """Remove the lock file if it is still the one open as ``fd``."""
+        with contextlib.suppress(OSError):
+            if os.fstat(fd).st_ino == os.stat(self.path).st_ino:
+                os.unlink(self.path)
+
     def release(self) -> None:
+        if self.pid != os.getpid():
+            return                   # a forked child's copy: the lock is its parent's
         with contextlib.suppress(FileNotFoundError):
             os.unlink(self.path)     # still holding it: nobody else can be inside
         os.close(self.fd)
         self.fd = None
 
 
+def _flock_taker(fd: int) -> int | None:
+    """The pid that took the ``flock`` on ``fd``'s file, from /proc/locks (None: not known).
+    Not who holds it now: every process with the open file (a forked child) holds it."""
+    st = os.fstat(fd)
+    key = f"{os.major(st.st_dev):02x}:{os.minor(st.st_dev):02x}:{st.st_ino}"
+    try:
+        with open("/proc/locks") as fh:
+            for line in fh:
+                f = line.split()
+                if len(f) >= 6 and f[1] == "FLOCK" and f[5] == key and f[4].isdigit():
+                    return int(f[4]) or None        # 0: a pid outside this pid namespace
+    except OSError:
+        pass
+    return None
+
+
+def _forget_locks_in_child() -> None:
+    """In a forked child: close its copies of the parent's lock files (the parent alone holds
+    them; a child that outlived it would keep the output locked)."""
+    for lock in _HELD.values():
+        if lock.fd is not None:
+            with contextlib.suppress(OSError):
+                os.close(lock.fd)
+            lock.fd = None
+
+
 _HELD: dict[Path, _Lock] = {}
+os.register_at_fork(after_in_child=_forget_locks_in_child)
 
 
 def _cleanup_stale(target: Path) -> None:
@@ -276,6 +329,7 @@ def claim(target, *, folder: bool, kind: str | None = None, what: str = "output"
     created for the output are removed again if the block fails.
     """
     target = Path(target)
+    raise_if_interrupted()
     state = check_output(target, folder=folder, kind=kind, what=what)
     log.debug(f"{target}: output {state} ({kind or 'any usdbtf kind'})")
     real = _real(target if target.name not in ("", ".", "..") else Path(os.path.realpath(target)))
@@ -316,7 +370,7 @@ def claim(target, *, folder: bool, kind: str | None = None, what: str = "output"
         _remove_made(made)             # after the lock file is gone, so they can be empty
 
 
-_CRITICAL = {"depth": 0, "pending": None}
+_CRITICAL = {"depth": 0, "pending": None, "signalled": None}
 
 
 @contextlib.contextmanager
@@ -337,11 +391,30 @@ def _signals_deferred():
 
 def interrupt(exc: BaseException) -> None:
     """Raise ``exc`` now, or when the current critical section ends (for signal handlers:
-    the CLI turns SIGTERM and SIGINT into exceptions through this)."""
+    the CLI turns SIGTERM and SIGINT into exceptions through this).
+
+    ``exc`` is also kept until :func:`interruption_forgotten`: Python drops an exception
+    raised where it cannot propagate (a signal that arrives while an ``os.fork`` hook of
+    ``logging`` or ``concurrent.futures`` runs is printed and ignored), so
+    :func:`raise_if_interrupted` raises it again where the work can stop: before an output
+    is published, between a pool's results, when a command returns."""
+    _CRITICAL["signalled"] = _CRITICAL.get("signalled") or exc
     if _CRITICAL["depth"]:
         _CRITICAL["pending"] = _CRITICAL["pending"] or exc
         return
     raise exc
+
+
+def raise_if_interrupted() -> None:
+    """Raise the interruption :func:`interrupt` was given, if any (outside a critical section)."""
+    exc = _CRITICAL.get("signalled")
+    if exc is not None and not _CRITICAL["depth"]:
+        raise exc
+
+
+def interruption_forgotten() -> None:
+    """Start afresh (a command's start and end: :func:`usdbtf.cli.main` runs in tests many times)."""
+    _CRITICAL["signalled"] = None
 
 
 # ----------------------------------------------------------------------------- staging
@@ -425,12 +498,21 @@ def _translate(exc: BaseException, staging: Path, shown_dir: Path, main: Path) -
     return exc
 
 
+def _only_in(owner: int) -> None:
+    """End this process at once unless it is ``owner``, the process that made the staging
+    folder: a forked child that somehow came back into its parent's code (an exception it
+    raised, e.g. on a signal, unwinding the ``with`` blocks it inherited) must neither publish
+    nor remove the parent's work."""
+    if os.getpid() != owner:
+        os._exit(1)
+
+
 @contextlib.contextmanager
 def _staged(real_dir: Path, names: list[str], shown_dir: Path, check=None):
     """Yield a staging folder's ``new/`` beside the outputs ``names`` in ``real_dir``;
     commit when the block succeeds (after ``check(new)``), remove it when it fails."""
     main = shown_dir / names[0]
-    staging = None
+    staging, owner = None, os.getpid()
     try:
         with _signals_deferred():
             try:
@@ -440,11 +522,14 @@ def _staged(real_dir: Path, names: list[str], shown_dir: Path, check=None):
         yield staging / "new"
         if check is not None:
             check(staging / "new")
+        _only_in(owner)
+        raise_if_interrupted()           # a stopped command publishes nothing
         with _signals_deferred():        # a commit, once started, is finished
             _commit(staging, real_dir, [n for n in names if os.path.lexists(staging / "new" / n)])
     except BaseException as exc:
         if staging is None:
             raise
+        _only_in(owner)
         if not (staging / _READY).exists():
             shutil.rmtree(staging, ignore_errors=True)
         # else: the commit itself failed half-way; the next claim of the output finishes it.
@@ -536,10 +621,13 @@ def scratch_dir(target):
         path.mkdir(mode=0o700)
     except OSError as exc:
         raise IOFailure(os_error_message(exc, target)) from None
+    owner = os.getpid()
     try:
         yield path
     except BaseException:
+        _only_in(owner)
         shutil.rmtree(path, ignore_errors=True)
         _remove_made(made)
         raise
+    _only_in(owner)
     shutil.rmtree(path, ignore_errors=True)

@@ -184,7 +184,7 @@ def _signals_raise():
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    from .atomic import interrupt
+    from .atomic import interrupt, interruption_forgotten
 
     def on_term(signum, frame):
         interrupt(Terminated())
@@ -192,12 +192,14 @@ def _signals_raise():
     def on_int(signum, frame):
         interrupt(KeyboardInterrupt())
 
+    interruption_forgotten()
     old = {signal.SIGTERM: signal.signal(signal.SIGTERM, on_term), signal.SIGINT: signal.signal(signal.SIGINT, on_int)}
     try:
         yield
     finally:
         for sig, handler in old.items():
             signal.signal(sig, handler)
+        interruption_forgotten()
 
 
 def version_report() -> dict:
@@ -228,6 +230,10 @@ def _version_json_asked(argv) -> bool:
 
 
 def main(argv=None) -> int:
+    if argv is None:     # started by usdbtf (build's SCons, a Dask worker): die with that process
+        from .lifetime import adopt_parent_from_environment
+
+        adopt_parent_from_environment()
     if _version_json_asked(sys.argv[1:] if argv is None else list(argv)):
         from . import jsontext
 
@@ -245,7 +251,11 @@ def main(argv=None) -> int:
     try:
         # Every command's products on one BLAS thread: no byte depends on thread counts.
         with _signals_raise(), _outputs_claimed(args), one_blas_thread():
-            return args.func(args)
+            status = args.func(args)
+            from .atomic import raise_if_interrupted
+
+            raise_if_interrupted()     # a signal Python dropped (usdbtf.atomic.interrupt): still a stop
+            return status
     except Terminated:
         print(f"usdbtf {args.command}: terminated", file=sys.stderr)
         return 128 + signal.SIGTERM

@@ -310,6 +310,8 @@ def _command_task(argv: list, expected: dict) -> tuple[int, str]:
     import subprocess
     import sys
 
+    from .lifetime import child_environment
+
     try:
         from distributed import get_worker
 
@@ -320,6 +322,7 @@ def _command_task(argv: list, expected: dict) -> tuple[int, str]:
     env = dict(os.environ)
     pipeline = str(Path(__file__).resolve().parents[1])
     env["PYTHONPATH"] = pipeline + os.pathsep + env.get("PYTHONPATH", "")
+    # The command dies with this worker (usdbtf.lifetime).
     res = subprocess.run([sys.executable, "-m", "usdbtf.cli", *argv], stdin=subprocess.DEVNULL, capture_output=True,
-                         text=True, env=env)
+                         text=True, env=child_environment(env))
     return res.returncode, res.stderr

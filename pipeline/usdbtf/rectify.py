@@ -41,6 +41,7 @@ from .errors import BTFError
 from .fiducials import Board, apply_homography, detect_markers, fit_homography, make_board, parse_board, to_cv
 from .fill import combine, plan_fill
 from .imageio import read_image
+from .lifetime import stop_pool
 from .manifest import MANIFEST, read_manifest, write_manifest
 from .model import BTF
 from .progress import track
@@ -439,6 +440,10 @@ def rectify(raw, options: RectifyOptions, *, board: Board | None = None, scratch
                 residuals.append(res.residual_px)
                 if res.saturated_share > 0:
                     saturated[i] = res.saturated_share
+    except BaseException:
+        if pool is not None:
+            stop_pool(pool)          # SIGTERM, Ctrl-C, an error: the workers stop now
+        raise
     finally:
         if pool is not None:
             pool.shutdown(cancel_futures=True)

@@ -14,14 +14,14 @@ of S strided rows, which on 4 KiB-page shared memory costs a TLB miss per row.
 from __future__ import annotations
 
 import mmap
-import multiprocessing as mp
 import os
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
+from ..atomic import raise_if_interrupted
 from ..errors import BTFError
+from ..lifetime import forked_pool
 from ..model import BTF, FileBTF
 
 __all__ = ["BlockedData", "load_encoded", "default_workers", "texel_blocks", "stored_dtype", "DEFAULT_BLOCK",
@@ -153,9 +153,9 @@ def load_encoded(btf: BTF, *, workers: int | None = None, block: int = DEFAULT_B
     data = BlockedData(np.frombuffer(mmap.mmap(-1, nbytes, flags=flags), dtype).reshape(shape), P, block)
     bounds = np.linspace(0, S, workers * 8 + 1).astype(int)
     # fork: the workers inherit ``btf`` and the mapping; nothing is pickled but the index ranges.
-    with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"), initializer=_init,
-                             initargs=(btf, data)) as pool:
+    with forked_pool(workers, initializer=_init, initargs=(btf, data)) as pool:
         for err in pool.map(_read_range, bounds[:-1], bounds[1:]):
+            raise_if_interrupted()
             if err:
                 raise BTFError(err)
     return data

@@ -23,6 +23,8 @@ import multiprocessing as mp
 import os
 import threading
 
+from ..atomic import raise_if_interrupted
+from ..lifetime import forked_pool
 from ..numeric import one_blas_thread
 
 __all__ = ["cpu_count", "in_threads", "in_processes", "iter_processes", "forks_safely", "thread_map",
@@ -83,8 +85,6 @@ def in_processes(fn, items, *, processes: int | None = None) -> list:
 def iter_processes(fn, items, *, processes: int | None = None):
     """:func:`in_processes` as an iterator: each result as soon as it and those before it are
     done (for a progress bar); the workers end when it is exhausted or closed."""
-    from concurrent.futures import ProcessPoolExecutor
-
     items = list(items)
     workers = min(len(items), processes or cpu_count())
     if workers <= 1 or not forks_safely():
@@ -93,8 +93,12 @@ def iter_processes(fn, items, *, processes: int | None = None):
     _FORKED_JOB["job"] = (fn, items)
     try:
         # The pool forks all its workers at the first submit, before it starts any thread.
-        with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"), initializer=_forked_init) as pool:
-            yield from pool.map(_forked_call, range(len(items)))
+        # The workers die with this process, and at once when the iteration is stopped
+        # (:mod:`usdbtf.lifetime`).
+        with forked_pool(workers, initializer=_forked_init) as pool:
+            for result in pool.map(_forked_call, range(len(items))):
+                raise_if_interrupted()
+                yield result
     finally:
         _FORKED_JOB.pop("job", None)
 

@@ -32,14 +32,14 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-import multiprocessing as mp
 import threading
-from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
 from .. import color
+from ..atomic import raise_if_interrupted
 from ..errors import BTFError
+from ..lifetime import forked_pool
 from ..model import BTF, FileBTF
 from .convert import Conversion, Scratch
 from .domain import LINEAR
@@ -387,8 +387,7 @@ class StreamingSource(_KeptSource):
         """Yield (first sample, fn's result) over ``bounds``, in order, from forked decode
         workers: at most workers + 1 chunks in flight (pool.map would queue every result in
         this process when the consumer is slower than the decoders)."""
-        with ProcessPoolExecutor(self.workers, mp_context=mp.get_context("fork"), initializer=_init,
-                                 initargs=(self.btf, extra)) as pool:
+        with forked_pool(self.workers, initializer=_init, initargs=(self.btf, extra)) as pool:
             pending = collections.deque()
             for bound in bounds:
                 pending.append((bound[0], pool.submit(fn, bound)))
@@ -416,6 +415,7 @@ class StreamingSource(_KeptSource):
     @staticmethod
     def _checked(first: int, future):
         result = future.result()
+        raise_if_interrupted()
         if isinstance(result, str):
             raise BTFError(result)
         return first, result

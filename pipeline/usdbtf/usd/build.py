@@ -55,6 +55,7 @@ from .. import numeric
 from ..atomic import atomic_file, related
 from ..compress.format import METADATA as COMPRESSED_METADATA
 from ..errors import BTFError, OutputRefused, error_for_status
+from ..lifetime import child_environment, guarded_module_argv
 from .material import NS
 
 log = logging.getLogger(__name__)
@@ -532,15 +533,20 @@ def build(scene, *, force: bool = False, dask=None, source_facts=None, target_er
         env = dict(os.environ)
         pipeline = str(Path(__file__).resolve().parents[2])
         env["PYTHONPATH"] = pipeline + os.pathsep + env.get("PYTHONPATH", "")
-        proc = subprocess.run([sys.executable, "-m", "SCons", "-Q", "--no-site-dir", "-j", str(jobs), "-f",
-                               str(work / "SConstruct"), "-C", str(work)], capture_output=True, text=True, env=env,
-                              stdin=subprocess.DEVNULL)
+        # SCons, and the usdbtf steps it runs, die with this process (usdbtf.lifetime); stopped
+        # (SIGTERM, Ctrl-C), this process kills SCons and its steps remove their own staging.
+        try:
+            proc = subprocess.run(guarded_module_argv("SCons", "-Q", "--no-site-dir", "-j", str(jobs), "-f",
+                                                      str(work / "SConstruct"), "-C", str(work)),
+                                  capture_output=True, text=True, env=child_environment(env),
+                                  stdin=subprocess.DEVNULL)
+        except BaseException:
+            _remove_empty(missing)
+            raise
     ran = [line for line in proc.stdout.splitlines() if line.startswith("usdbtf-step ")]
     report["times"] = _step_times(work)
     if proc.returncode:
-        for p in sorted(missing, key=lambda q: len(q.parts), reverse=True):
-            with contextlib.suppress(OSError):
-                p.rmdir()              # a folder SCons made for a target it did not build
+        _remove_empty(missing)
         failure = _failure(work)
         if not any(os.path.lexists(o) for r in recipes for o in r.outputs()):
             _remove_made(made)         # nothing was built: leave no build folder behind
@@ -560,6 +566,13 @@ def build(scene, *, force: bool = False, dask=None, source_facts=None, target_er
     report.update(recipes=recipes, ran=ran)
     report["costs"] = _costs(work, recipes, report)
     return report
+
+
+def _remove_empty(missing: list[Path]) -> None:
+    """Remove the folders of ``missing`` that SCons made for a target it did not build (empty)."""
+    for p in sorted(missing, key=lambda q: len(q.parts), reverse=True):
+        with contextlib.suppress(OSError):
+            p.rmdir()
 
 
 def _folder_bytes(path: Path) -> int:
