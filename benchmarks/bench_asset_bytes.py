@@ -118,6 +118,19 @@ def page_bytes(tiles: list, breaks: list) -> tuple[int, int]:
     return total, len(plan)
 
 
+def probe(folder: Path) -> dict:
+    """The shipped-bytes probe rate control can use (issue 39): sum of the per-pack bytes and the
+    basis codes' bytes of compressed folder ``folder``, and the seconds both took."""
+    from usdbtf.compress.format import read_compressed
+    from usdbtf.compress.packs import shipped_basis_bytes, shipped_pack_bytes
+
+    cbtf = read_compressed(folder)
+    t0 = time.perf_counter()
+    packs = sum(shipped_pack_bytes(cbtf))
+    basis = shipped_basis_bytes(cbtf)
+    return {"packs": packs, "basis": basis, "seconds": time.perf_counter() - t0}
+
+
 def candidates(folder: Path) -> dict:
     """Bytes of the candidate layouts from the codes of compressed folder ``folder``."""
     from usdbtf.compress.format import read_compressed
@@ -216,7 +229,7 @@ def main(argv=None) -> int:
 
         folder_payload = json.loads((comp / "btf-compressed.json").read_text())["bytes"]["payload"]
         report["runs"][label] = {"kinds": kinds, "total": sum(kinds.values()), "package_s": seconds,
-                                 "folder_payload": folder_payload, "candidates": cand}
+                                 "folder_payload": folder_payload, "candidates": cand, "probe": probe(comp)}
     write_json(OUT / f"asset_bytes_{timestamp()}.json", report)
 
     print("\n| run | k | folder payload (basis + coeff) | asset total | " +
@@ -232,6 +245,15 @@ def main(argv=None) -> int:
         print(f"- {label}: tables {c['tables_this_checkout']:,} = basis block "
               f"{c['tables_this_checkout'] - c['tables_rest']:,} + rest {c['tables_rest']:,}; "
               f"coefficient codes {c['coefficient_dtype']}, basis codes {c['basis_dtype']}")
+    print("\nshipped-bytes probe (usdbtf.compress.packs: each pack on its own, the basis codes alone) "
+          "against the asset's files")
+    print("\n| run | probe packs | pages | probe / pages | probe basis codes | tables basis block | probe s |")
+    print("|---|---|---|---|---|---|---|")
+    for label, r in report["runs"].items():
+        pr, c, pages = r["probe"], r["candidates"], r["kinds"].get("pages", 0)
+        block = c["tables_this_checkout"] - c["tables_rest"]
+        print(f"| {label} | {pr['packs']:,} | {pages:,} | {pr['packs'] / max(1, pages):.4f} | {pr['basis']:,} | "
+              f"{block:,} | {pr['seconds']:.2f} |")
     print("\n| run | coefficients layout | bytes | pages | page fetches / coeff | dequant fetches / coeff |")
     print("|---|---|---|---|---|---|")
     for label, r in report["runs"].items():

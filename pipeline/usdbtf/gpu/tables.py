@@ -40,6 +40,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..compress.format import CompressedBTF, cross_layout
+from ..compress.packs import (MAX_CODE as _MAX_CODE, TABLE_WIDTH, basis_codes_group_major,
+                              coefficient_packs as _pack, pack_count)
 from ..errors import BTFError
 
 __all__ = ["MAX_PAGES", "PAGE_SIZE", "TABLE_WIDTH", "GpuLayout", "gpu_layout", "pack_count", "page_breaks",
@@ -54,11 +56,8 @@ PAGE_SIZE = 16384
 #: packs spread over several pages, so pages are built and encoded a few at a time, on
 #: every CPU (one 16384-texel page of a quilted sphere took 13 s to encode on one core).
 PAGE_TEXELS = 4096 * 4096
-TABLE_WIDTH = 512
 _GRID = 32
 _HEADER = 4
-#: Largest code of each storage type: what a GPU's normalised read divides by.
-_MAX_CODE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0, np.dtype(np.float16): 1.0}
 
 
 def storage_dtype(max_code: float, where: str = "GPU tables") -> np.dtype:
@@ -67,11 +66,6 @@ def storage_dtype(max_code: float, where: str = "GPU tables") -> np.dtype:
         if float(max_code) == code:
             return dtype
     raise BTFError(f"{where}: unknown storage type (largest code {max_code!r})")
-
-
-def pack_count(k: int) -> int:
-    """Coefficient packs (RGBA tiles) holding the first ``k`` basis vectors."""
-    return 3 * -(-k // 4)
 
 
 @dataclass
@@ -170,35 +164,6 @@ class HemisphereTable:
         return table.add([[self.origin[0], self.origin[1], self.cell, _GRID],
                           [self.candidates.shape[2] // 4, len(self.triangles), len(self.boundary), 0],
                           [grid_at, tri_at, bound_at, 0]])
-
-
-def _pack(cbtf: CompressedBTF, k: int, breaks: list[int]) -> tuple[list, np.ndarray, np.ndarray]:
-    """Coefficient packs plus per-pack (scale, bias) (P, 4) for normalised GPU reads.  The
-    packs between two ``breaks`` (pack indices: where pages must begin) share one storage
-    type, the widest of their codes (uint8 codes in a uint16 pack keep their values: the
-    scale follows the type), so storage types never split a level's pages."""
-    groups = -(-k // 4)
-    bounds = sorted({0, groups, *(b // 3 for b in breaks)})
-    packs, scales, biases = [], [], []
-    for start, end in zip(bounds, bounds[1:]):
-        layers = cbtf.coefficients[4 * start:min(4 * end, k)]
-        dtypes = {np.dtype(st.pixels.dtype) for st in layers}
-        dtype = np.dtype(np.float16) if np.dtype(np.float16) in dtypes else \
-            np.dtype(np.uint16) if np.dtype(np.uint16) in dtypes else np.dtype(np.uint8)
-        if not dtypes <= set(_MAX_CODE) or (np.dtype(np.float16) in dtypes and len(dtypes) > 1):
-            raise BTFError(f"coefficient textures {4 * start}..{4 * start + len(layers) - 1}: cannot pack storage "
-                           f"types {sorted(str(d) for d in dtypes)} into one texture")
-        for g in range(start, end):
-            for c in range(3):
-                pix = np.zeros((cbtf.height, cbtf.width, 4), dtype)
-                scale, bias = np.zeros(4), np.zeros(4)
-                for j, st in enumerate(cbtf.coefficients[4 * g:min(4 * g + 4, k)]):
-                    pix[:, :, j] = st.pixels[:, :, c]
-                    scale[j], bias[j] = float(st.scale[c]) * _MAX_CODE[dtype], float(st.bias[c])
-                packs.append(pix)
-                scales.append(scale)
-                biases.append(bias)
-    return packs, np.asarray(scales), np.asarray(biases)
 
 
 def page_plan(n_packs: int, width: int, height: int, breaks: list[int], dtypes=None):
@@ -339,11 +304,9 @@ def _basis_block(cbtf: CompressedBTF, k: int, groups: int) -> np.ndarray:
     scale = np.zeros(groups * 4, np.float32)
     bias = np.zeros(groups * 4, np.float32)
     scale[:k], bias[:k] = b.scale[:k], b.bias[:k]
-    codes = np.zeros((S, groups * 4), np.float32)
-    codes[:, :k] = b.pixels[:, :k, 0]                       # exact: integers below 2^24, halves
     head = np.array([[_MAX_CODE[dtype], S, groups, 0]], np.float32)
     dequant = np.stack([scale.reshape(groups, 4), bias.reshape(groups, 4)], axis=1).reshape(-1, 4)
-    return np.concatenate([head, dequant, codes.reshape(S, groups, 4).transpose(1, 0, 2).reshape(-1, 4)])
+    return np.concatenate([head, dequant, basis_codes_group_major(cbtf, k)])
 
 
 def _codes(values: np.ndarray, max_code: float, where: str, normalised: bool = True) -> np.ndarray:

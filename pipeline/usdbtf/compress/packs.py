@@ -1,0 +1,129 @@
+"""The pure layout of the coefficient packs the packaged asset ships, and what they cost.
+
+A pack ``p = 3 g + c`` is an (H, W, 4) tile holding colour channel ``c`` of coefficient
+layers ``4g .. 4g+3`` as their stored integer codes (uint8/uint16) or halves; the GPU
+pages of the packaged asset (``usdbtf.gpu.tables``, which lays these packs out as tiles of
+atlas pages, and ``usdbtf.usd.storm.add_gpu_textures``, which encodes the pages) are these
+packs and nothing else.  This module sits in ``compress`` so that rate control can measure
+the bytes it ships without importing ``gpu`` (layers: docs/architecture.md).
+
+What :func:`shipped_pack_bytes` and :func:`shipped_basis_bytes` measure (issue 39): each pack
+encoded on its own exactly as the asset encodes a page (8-bit: RGBA PNG, compression level 6,
+unassociated alpha; 16-bit: float32 code / 65535 and half: as they are, OpenEXR zip), and the
+basis codes group-major as float32 OpenEXR zip in rows of the tables' width, as
+``gpu/tables.exr`` holds them.  They are a probe, not the asset's files: the asset's pages
+hold several packs each (one PNG stream per page) and the tables hold a header, hemisphere
+tables, de-quantisation and directory beside the basis (issue 39 measured per-pack PNG totals
+within 2.4..3.5 % of the paged files on metal_flakes).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import BTFError
+
+__all__ = ["MAX_CODE", "pack_count", "coefficient_packs", "shipped_pack_bytes", "shipped_basis_bytes",
+           "basis_codes_group_major", "pack_bytes_by_k"]
+
+#: Largest code of each storage type: what a GPU's normalised read divides by.
+MAX_CODE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0, np.dtype(np.float16): 1.0}
+#: Width (texels) of the rows the tables texture holds the basis codes in (gpu.tables.TABLE_WIDTH).
+TABLE_WIDTH = 512
+
+
+def pack_count(k: int) -> int:
+    """Coefficient packs (RGBA tiles) holding the first ``k`` basis vectors."""
+    return 3 * -(-k // 4)
+
+
+def coefficient_packs(cbtf, k: int, breaks: list[int]) -> tuple[list, np.ndarray, np.ndarray]:
+    """Coefficient packs of the first ``k`` layers of ``cbtf`` (a CompressedBTF), a list of
+    (H, W, 4) arrays, plus per-pack (scale, bias), each (P, 4), for normalised GPU reads.  The
+    packs between two ``breaks`` (pack indices: where pages must begin) share one storage
+    type, the widest of their codes (uint8 codes in a uint16 pack keep their values: the
+    scale follows the type), so storage types never split a level's pages.  Layers past
+    ``k`` in a group's last pack are 0."""
+    groups = -(-k // 4)
+    bounds = sorted({0, groups, *(b // 3 for b in breaks)})
+    packs, scales, biases = [], [], []
+    for start, end in zip(bounds, bounds[1:]):
+        layers = cbtf.coefficients[4 * start:min(4 * end, k)]
+        dtypes = {np.dtype(st.pixels.dtype) for st in layers}
+        dtype = np.dtype(np.float16) if np.dtype(np.float16) in dtypes else \
+            np.dtype(np.uint16) if np.dtype(np.uint16) in dtypes else np.dtype(np.uint8)
+        if not dtypes <= set(MAX_CODE) or (np.dtype(np.float16) in dtypes and len(dtypes) > 1):
+            raise BTFError(f"coefficient textures {4 * start}..{4 * start + len(layers) - 1}: cannot pack storage "
+                           f"types {sorted(str(d) for d in dtypes)} into one texture")
+        for g in range(start, end):
+            for c in range(3):
+                pix = np.zeros((cbtf.height, cbtf.width, 4), dtype)
+                scale, bias = np.zeros(4), np.zeros(4)
+                for j, st in enumerate(cbtf.coefficients[4 * g:min(4 * g + 4, k)]):
+                    pix[:, :, j] = st.pixels[:, :, c]
+                    scale[j], bias[j] = float(st.scale[c]) * MAX_CODE[dtype], float(st.bias[c])
+                packs.append(pix)
+                scales.append(scale)
+                biases.append(bias)
+    return packs, np.asarray(scales), np.asarray(biases)
+
+
+def _encode_pack(pixels: np.ndarray) -> bytes:
+    """One pack (H, W, 4) encoded as the asset encodes a page of it (usd.storm.add_gpu_textures)."""
+    from ..imageio import encode_image
+
+    if pixels.dtype != np.uint8:
+        if pixels.dtype == np.uint16:
+            pixels = (pixels.astype(np.float64) / 65535.0).astype(np.float32)
+        return encode_image(pixels, "exr", color_space="data", attributes={"compression": "zip"})
+    return encode_image(pixels, "png", color_space="data",
+                        attributes={"png:compressionLevel": 6, "oiio:UnassociatedAlpha": 1})
+
+
+def shipped_pack_bytes(cbtf, k: int | None = None) -> list[int]:
+    """Bytes of each coefficient pack of the first ``k`` (default all) layers, encoded on its
+    own as the asset encodes pages (module docstring): a list of ``pack_count(k)`` ints, pack
+    ``3 g + c`` at index ``3 g + c``.  The first ``k'`` layers ship ``sum(result[:pack_count(k')])``:
+    a group of four layers shares its three packs, so the shipped bytes grow in steps of
+    four layers.  Deterministic (same codes -> same bytes)."""
+    k = min(cbtf.k if k is None else k, cbtf.k)
+    packs, _, _ = coefficient_packs(cbtf, k, [])
+    return [len(_encode_pack(p)) for p in packs]
+
+
+def pack_bytes_by_k(per_pack, k: int) -> np.ndarray:
+    """(k,) int64 shipped pack bytes of the first 1..k layers from :func:`shipped_pack_bytes`'s
+    per-pack bytes (at least ``pack_count(k)`` of them): element ``n - 1`` is the sum of the
+    first ``pack_count(n)`` packs, a partial group's three packs counted fully (they ship
+    whole), so the result is constant over each group of four layers and steps at 1, 5, 9, ...
+    What rate control adds to the basis's bytes for a budget of the asset's files."""
+    per_pack = np.asarray(per_pack, np.int64)
+    if len(per_pack) < pack_count(k):
+        raise ValueError(f"{len(per_pack)} packs measured; the first {k} layers need {pack_count(k)}")
+    totals = np.cumsum(per_pack)
+    return totals[np.array([pack_count(n) for n in range(1, k + 1)], np.int64) - 1]
+
+
+def basis_codes_group_major(cbtf, k: int) -> np.ndarray:
+    """The stored basis codes of the first ``k`` vectors, group-major as the GPU tables hold
+    them: (ceil(k/4) * S, 4) float32, row ``g S + s`` = vectors 4g..4g+3 of sample s (vectors
+    past k are 0).  Exact: integer codes below 2^24, or halves."""
+    S = cbtf.n_samples
+    groups = -(-k // 4)
+    codes = np.zeros((S, groups * 4), np.float32)
+    codes[:, :k] = cbtf.basis.pixels[:, :k, 0]
+    return codes.reshape(S, groups, 4).transpose(1, 0, 2).reshape(-1, 4)
+
+
+def shipped_basis_bytes(cbtf, k: int | None = None) -> int:
+    """Bytes of the first ``k`` (default all) basis vectors' codes, group-major, as float32
+    OpenEXR zip in rows of TABLE_WIDTH texels (the basis block of ``gpu/tables.exr`` without
+    the tables' other blocks; the last row padded with zeros).  Deterministic."""
+    from ..imageio import encode_image
+
+    k = min(cbtf.k if k is None else k, cbtf.k)
+    block = basis_codes_group_major(cbtf, k)
+    rows = -(-len(block) // TABLE_WIDTH)
+    image = np.zeros((rows * TABLE_WIDTH, 4), np.float32)
+    image[:len(block)] = block
+    return len(encode_image(image.reshape(rows, TABLE_WIDTH, 4), "exr", color_space="data",
+                            attributes={"compression": "zip"}))

@@ -1,0 +1,72 @@
+"""Issue 39: the coefficient packs' layout lives in ``compress`` (``compress.packs``), and its
+shipped-bytes probe measures what the packaged asset's GPU pages and tables cost.
+
+A small synthetic material is compressed and packaged for real (PNG codec, k 12); the probe's
+per-pack bytes must add up to the asset's PNG pages, group by group, and the layout must hold
+each coefficient's colour channel where the shader reads it.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import usdbtf  # noqa: F401  (registers the schema plugin first)
+from usdbtf.cli import main
+from usdbtf.compress import packs
+from usdbtf.compress.format import read_compressed
+
+K = 12
+
+
+@pytest.fixture(scope="module")
+def made(tmp_path_factory) -> tuple[Path, Path]:
+    work = tmp_path_factory.mktemp("packs")
+    assert main(["synth", "pebbles", "-o", str(work / "src"), "--sampling", "small", "--size", "48", "-q"]) == 0
+    assert main(["compress", str(work / "src"), "-o", str(work / "c"), "--k", str(K), "--codec", "png", "-q"]) == 0
+    assert main(["package", str(work / "c"), "-o", str(work / "a" / "p.usda"), "-q"]) == 0
+    return work / "c", work / "a" / "p_textures" / "gpu"
+
+
+def test_pack_layout_is_the_codes_by_colour_channel(made):
+    cbtf = read_compressed(made[0])
+    k = 6                                           # a partial second group: layers 6, 7 are zero
+    tiles, scales, biases = packs.coefficient_packs(cbtf, k, [])
+    assert len(tiles) == packs.pack_count(k) == 6
+    for g in range(2):
+        for c in range(3):
+            for j in range(4):
+                layer = 4 * g + j
+                want = cbtf.coefficients[layer].pixels[:, :, c] if layer < k else 0
+                np.testing.assert_array_equal(tiles[3 * g + c][:, :, j], want)
+                if layer < k:
+                    assert scales[3 * g + c, j] == pytest.approx(float(cbtf.coefficients[layer].scale[c]) * 255.0)
+    # gpu.tables re-uses this layout rather than keeping its own copy
+    from usdbtf.gpu import tables
+    assert tables._pack is packs.coefficient_packs and tables.pack_count is packs.pack_count
+
+
+def test_probe_matches_the_asset_pages(made):
+    compressed, gpu = made
+    cbtf = read_compressed(compressed)
+    per_pack = packs.shipped_pack_bytes(cbtf)
+    assert len(per_pack) == packs.pack_count(K) == 9
+    assert per_pack == packs.shipped_pack_bytes(cbtf)       # deterministic
+    pages = sum(p.stat().st_size for p in gpu.glob("page*.png"))
+    # one PNG stream per page against one per pack: 0.1 % apart here, 2.4..3.5 % at paper scale
+    assert abs(sum(per_pack) - pages) <= 0.05 * pages, (sum(per_pack), pages)
+    # a group of four layers shares its three packs: k 5..8 all ship six packs, the first
+    # group's three unchanged; k 8 ships exactly the first six packs of k 12
+    five, eight = packs.shipped_pack_bytes(cbtf, 5), packs.shipped_pack_bytes(cbtf, 8)
+    assert len(five) == len(eight) == 6 and five[:3] == eight[:3] == per_pack[:3]
+    assert eight == per_pack[:6]
+    by_k = packs.pack_bytes_by_k(per_pack, K)
+    assert by_k.tolist() == [sum(per_pack[:3])] * 4 + [sum(per_pack[:6])] * 4 + [sum(per_pack)] * 4
+    with pytest.raises(ValueError):
+        packs.pack_bytes_by_k(per_pack[:6], 9)
+    # the basis codes alone are part of tables.exr (header, hemisphere tables, directory beside them)
+    tables = (gpu / "tables.exr").stat().st_size
+    basis = packs.shipped_basis_bytes(cbtf)
+    assert 0 < packs.shipped_basis_bytes(cbtf, 4) < basis < tables
+    assert basis == packs.shipped_basis_bytes(cbtf, K)
