@@ -251,13 +251,11 @@ def _cameras(stage, time, width: int, meters: float) -> tuple[list, list]:
     """([_Shot], [problems]) of every UsdGeom.Camera at ``time``."""
     from pxr import Usd, UsdGeom
 
-    from .scene import scene_camera
+    from .scene import camera_prims, scene_camera
 
     shots, problems = [], []
     code = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
-    for prim in stage.Traverse():
-        if not prim.IsA(UsdGeom.Camera):
-            continue
+    for prim in camera_prims(stage):
         try:
             camera = scene_camera(prim, width, meters, time)
         except BTFError as exc:

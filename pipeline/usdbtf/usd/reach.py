@@ -66,10 +66,10 @@ def _cameras(stage, times, meters: float) -> list:
     """[(camera path, frame label, eye (3,) metres, Gf.Frustum in stage units)] per camera and time."""
     from pxr import Gf, UsdGeom
 
+    from .scene import camera_prims
+
     out = []
-    for prim in stage.Traverse():
-        if not prim.IsA(UsdGeom.Camera):
-            continue
+    for prim in camera_prims(stage):
         for t in times:
             cam = UsdGeom.Camera(prim).GetCamera(t)
             eye = np.array(cam.transform.Transform(Gf.Vec3d(0, 0, 0))) * meters

@@ -37,7 +37,7 @@ from ..render.scene import Light
 
 log = logging.getLogger(__name__)
 
-__all__ = ["read_scene", "bound_btf_meshes", "write_scene", "scene_camera", "camera_prim", "scene_lights",
+__all__ = ["read_scene", "bound_btf_meshes", "write_scene", "scene_camera", "camera_prim", "camera_prims", "scene_lights",
            "scene_light_prims", "render_resolution",
            "frame_times", "add_camera", "new_scene", "add_distant", "orient_towards", "distant_intensity", "POINT_RADIUS_M",
            "DISTANT_ANGLE"]
@@ -149,6 +149,15 @@ def camera_prim(stage, camera_path: str, where):
     if not prim or not prim.IsA(UsdGeom.Camera):
         raise BTFError(f"{where}: no UsdGeom.Camera at {camera_path}")
     return prim
+
+
+def camera_prims(stage) -> list:
+    """Every UsdGeom.Camera prim of the composed ``stage`` (default predicate, traversal order):
+    the cameras a scene plan (:mod:`usdbtf.usd.plan`) and the coverage check
+    (:mod:`usdbtf.usd.reach`) look through."""
+    from pxr import UsdGeom
+
+    return [prim for prim in stage.Traverse() if prim.IsA(UsdGeom.Camera)]
 
 
 def frame_times(stage) -> list[float]:
