@@ -26,7 +26,7 @@ from ..color import processor
 from ..imageio import encode_image
 from ..svbrdf import SvbrdfMaps
 
-__all__ = ["COLOUR_ENCODING", "FALLBACK_DIR", "MAP_FILES", "encode_maps", "decode_maps", "add_maps",
+__all__ = ["COLOUR_ENCODING", "FALLBACK_DIR", "MAP_FILES", "encode_maps", "decode_maps", "add_maps", "add_map_pngs",
            "author_fallback", "uv_texture", "st_reader"]
 
 #: The colour maps' file encoding: what UsdUVTexture decodes with sourceColorSpace "sRGB".
@@ -79,18 +79,29 @@ def add_maps(maps: SvbrdfMaps, textures, ocio_config: str | None = None, names=t
     ``texels`` (a :class:`usdbtf.quilt.texels.QuiltTexels`): ``maps`` are those of its compact
     source texels, and the encoded pixels are gathered through its index (encoding is per
     texel, so this is the encoding of the gathered maps)."""
-    from .textures import DATA, encode_in_workers
-
     encoded = {name: pixels for name, pixels in encode_maps(maps, ocio_config).items() if name in names}
+    return add_map_pngs(encoded, MAP_FILES, textures, texels, "fallback maps")
+
+
+def add_map_pngs(encoded: dict, files: dict, textures, texels, label: str) -> dict:
+    """Encode fallback map pixels as PNG files (in memory, on every CPU) into ``textures`` under
+    :data:`FALLBACK_DIR`: the one writer of the UsdPreviewSurface and OpenPBR maps.
+
+    encoded : {map: (H, W, C) uint8/uint16 pixels}, or a quilt's source-texel pixels when
+        ``texels`` (a :class:`usdbtf.quilt.texels.QuiltTexels`) gathers them per pixel.
+    files : {map: (file name, kind)}; kind "srgb" is colour (:data:`COLOUR_ENCODING`), any
+        other kind data.
+    Returns {map: its name in ``textures``}."""
+    from .textures import DATA, encode_in_workers
 
     def encode(name):
         pixels = encoded[name] if texels is None else texels.gather(encoded[name])
-        space = COLOUR_ENCODING if MAP_FILES[name][1] == "srgb" else DATA
+        space = COLOUR_ENCODING if files[name][1] == "srgb" else DATA
         return encode_image(pixels, "png", color_space=space, attributes={"png:compressionLevel": 9})
 
-    files = encode_in_workers(encode, encoded, "fallback maps")
-    return {name: textures.add(f"{FALLBACK_DIR}/{MAP_FILES[name][0]}", data, MAP_FILES[name][1])
-            for name, data in zip(encoded, files)}
+    data = encode_in_workers(encode, encoded, label)
+    return {name: textures.add(f"{FALLBACK_DIR}/{files[name][0]}", blob, files[name][1])
+            for name, blob in zip(encoded, data)}
 
 
 # ------------------------------------------------------------------ authoring

@@ -32,9 +32,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..color import processor
-from ..imageio import encode_image
 from ..openpbr import OpenPbrMaps
-from .fallback import COLOUR_ENCODING, FALLBACK_DIR
+from .fallback import COLOUR_ENCODING, FALLBACK_DIR, add_map_pngs
 
 __all__ = ["FIT_ERROR_KEY", "fit_errors", "MAP_FILES", "SPECULAR_WEIGHT_SCALE", "MTLX_COLOUR_SPACE", "encode_maps", "decode_maps", "add_maps",
            "network", "author_openpbr", "materialx_document", "SHADER_ID"]
@@ -101,18 +100,7 @@ def add_maps(maps: OpenPbrMaps, textures, ocio_config: str | None = None, texels
     """Encode the maps as PNG files (in memory) into ``textures`` (a textures.TextureSet,
     under FALLBACK_DIR); {map: its name in ``textures``}.  ``texels``: as
     :func:`usdbtf.usd.fallback.add_maps` (maps of a quilt's source texels, gathered per pixel)."""
-    from .textures import DATA, encode_in_workers
-
-    encoded = encode_maps(maps, ocio_config)
-
-    def encode(name):
-        pixels = encoded[name] if texels is None else texels.gather(encoded[name])
-        space = COLOUR_ENCODING if MAP_FILES[name][1] == "srgb" else DATA
-        return encode_image(pixels, "png", color_space=space, attributes={"png:compressionLevel": 9})
-
-    files = encode_in_workers(encode, encoded, "OpenPBR maps")
-    return {name: textures.add(f"{FALLBACK_DIR}/{MAP_FILES[name][0]}", data, MAP_FILES[name][1])
-            for name, data in zip(encoded, files)}
+    return add_map_pngs(encode_maps(maps, ocio_config), MAP_FILES, textures, texels, "OpenPBR maps")
 
 
 # ------------------------------------------------------------------ the network
