@@ -84,8 +84,6 @@ def lod_files(stage, prim) -> list[dict]:
     relative to the stage's root layer's folder where they are inside it."""
     import os
 
-    from pxr import Usd
-
     base = os.path.dirname(stage.GetRootLayer().realPath or "")
 
     def rel(path: str) -> str:
@@ -98,23 +96,8 @@ def lod_files(stage, prim) -> list[dict]:
         return {"name": name, "k": k, "files": [{"path": rel(f), "bytes": n} for f, n in files],
                 "total": int(sum(n for _, n in files))}
 
-    owner = prim
-    while owner and not (owner.HasVariantSets() and owner.GetVariantSets().HasVariantSet(LOD_VARIANT_SET)):
-        owner = owner.GetParent()
-    if not owner or owner.IsPseudoRoot():
-        return [entry(None, prim)]
-    vset = owner.GetVariantSets().GetVariantSet(LOD_VARIANT_SET)
-    current = vset.GetVariantSelection()
-    out = []
-    with Usd.EditContext(stage, stage.GetSessionLayer()):
-        for name in vset.GetVariantNames():
-            vset.SetVariantSelection(name)
-            out.append(entry(name, stage.GetPrimAtPath(prim.GetPath())))
-        if current:
-            vset.SetVariantSelection(current)
-        else:
-            vset.ClearVariantSelection()
-    return sorted(out, key=lambda x: -x["k"])
+    out = _per_lod(stage, prim, entry)
+    return [entry(None, prim)] if out is None else sorted(out, key=lambda x: -x["k"])
 
 
 def _error_at(prim, k: int) -> float | None:
@@ -128,27 +111,37 @@ def _error_at(prim, k: int) -> float | None:
 def _lod_levels(stage, prim) -> list[tuple[str, int]]:
     """(variant name, basis count) for each ``lod`` variant of the material (its own set,
     else the nearest ancestor's), largest first."""
+    def level(name, p):
+        count = p.GetAttribute(NS + "basisCount").Get() or len(p.GetAttribute(NS + "coefficients").Get() or [])
+        return name, int(count)
+
+    return sorted(_per_lod(stage, prim, level) or [], key=lambda x: -x[1])
+
+
+def _per_lod(stage, prim, fn) -> list | None:
+    """``[fn(variant name, material prim composed with it)]`` for each ``lod`` variant of
+    material ``prim``'s own set, else its nearest ancestor's (the root prim's set switches the
+    whole asset); None when there is none.  Each selection is made in the session layer and
+    the previous one is put back after."""
     from pxr import Usd
 
     owner = prim
     while owner and not (owner.HasVariantSets() and owner.GetVariantSets().HasVariantSet(LOD_VARIANT_SET)):
         owner = owner.GetParent()
     if not owner or owner.IsPseudoRoot():
-        return []
+        return None
     vset = owner.GetVariantSets().GetVariantSet(LOD_VARIANT_SET)
     current = vset.GetVariantSelection()
-    levels = []
+    out = []
     with Usd.EditContext(stage, stage.GetSessionLayer()):
         for name in vset.GetVariantNames():
             vset.SetVariantSelection(name)
-            p = stage.GetPrimAtPath(prim.GetPath())
-            count = p.GetAttribute(NS + "basisCount").Get() or len(p.GetAttribute(NS + "coefficients").Get() or [])
-            levels.append((name, int(count)))
+            out.append(fn(name, stage.GetPrimAtPath(prim.GetPath())))
         if current:
             vset.SetVariantSelection(current)
         else:
             vset.ClearVariantSelection()
-    return sorted(levels, key=lambda x: -x[1])
+    return out
 
 
 def _theta_range(directions: np.ndarray) -> list[float] | None:
