@@ -18,8 +18,8 @@
 # differing file and exits 1 on any difference, 0 when every file is identical, 2 when a stage
 # fails.
 #
-# The numeric platform (the BLAS kernel and numpy's SIMD level: README "Same bytes on any
-# machine") decides the bits.  Both runs start from this checkout's pin (exported first, so a
+# The numeric platform (the BLAS kernel and numpy's SIMD level: docs/conventions.md, "Same bytes
+# on any machine") decides the bits.  Both runs start from this checkout's pin (exported first, so a
 # REF from before the pin computes on the same platform); each run's platform is printed, and
 # when an --env changes it (OPENBLAS_CORETYPE=Nehalem, say) differing bytes are expected: the
 # script says so and exits 0 (3 if the two platforms' bytes are all equal, which proves nothing).
@@ -80,7 +80,7 @@ mkdir -p "$WORK/ref-code" "$WORK/logs"
 [ "$MODE" = env ] || git -C "$ROOT" archive "$COMMIT" | tar -x -C "$WORK/ref-code"
 export OCIO=ocio://default
 # Both runs on one numeric platform (the BLAS kernel and numpy's SIMD level decide the bits;
-# README "Same bytes on any machine"): this checkout's pin, exported before either run, so a
+# docs/conventions.md, "Same bytes on any machine"): this checkout's pin, exported before either run, so a
 # REF from before the pin computes on the same platform.  The platform is printed.
 eval "$(PYTHONPATH="$ROOT/pipeline" "$PY" -c 'import sys; from usdbtf.commands.env import numeric_lines; print("\n".join(numeric_lines()))')"
 

@@ -19,7 +19,7 @@ so the values include the light's foreshortening, and the capture's light has ir
 What a renderer returns
 -----------------------
 Under a light of irradiance ``E`` on a plane facing it (a UsdLux light's intensity x
-``2^exposure`` x colour, times the solid angle for a ``DistantLight``: see README "Which
+``2^exposure`` x colour, times the solid angle for a ``DistantLight``: see docs/previews.md, "Which
 lights the preview honours"), every BTF path returns the radiance::
 
     L = I * E / (pi * W)          (= f * E * (n . l), the physically based answer)

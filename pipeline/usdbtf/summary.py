@@ -1,7 +1,7 @@
 """Machine-readable summaries of BTF inputs and compressed BTFs (``info --json``, ``compress --json``).
 
-Both return plain dicts (JSON types only); the keys are documented in the README
-("Scripting").  The human-readable ``usdbtf info`` text is written from the same dicts.
+Both return plain dicts (JSON types only); the keys are documented in
+docs/unattended-runs-errors-outputs.md ("Scripting").  The human-readable ``usdbtf info`` text is written from the same dicts.
 """
 from __future__ import annotations
 

@@ -12,7 +12,7 @@ def add_parser(sub) -> None:
     p = sub.add_parser("info", help="summarise a BTF or a compressed BTF")
     p.add_argument("path", type=Path)
     add_outside_paths_flag(p)
-    p.add_argument("--json", action="store_true", help="print the summary as JSON (keys in the README)")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON (keys in docs/unattended-runs-errors-outputs.md)")
     p.set_defaults(func=run)
 
 

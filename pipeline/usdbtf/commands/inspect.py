@@ -14,7 +14,7 @@ def add_parser(sub) -> None:
                         "for NaN or Inf and every bound mesh's texel density against its material's (within 2 "
                         "%%) (exit status 65 when there is an error); warn where a camera or light of the stage "
                         "asks a partial asset for a view or light direction it does not keep")
-    p.add_argument("--json", action="store_true", help="print the summary as JSON (keys in the README)")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON (keys in docs/unattended-runs-errors-outputs.md)")
     p.set_defaults(func=run)
 
 

@@ -1,7 +1,7 @@
 """What the BTF materials on a stage hold (``usdbtf inspect``): a summary dict and its text.
 
-:func:`summary` is the machine-readable form (``inspect --json``; keys in the README's
-"Scripting" section), :func:`describe` the human-readable one written from it.
+:func:`summary` is the machine-readable form (``inspect --json``; keys in
+docs/unattended-runs-errors-outputs.md, "Scripting"), :func:`describe` the human-readable one written from it.
 """
 from __future__ import annotations
 

@@ -10,8 +10,8 @@ payload, so they can be chosen before it loads):
   ``inputs:basisCount`` and blocks the connections of the coefficient pages it no longer
   needs (pages end where levels end, so Storm then loads only its own textures); variant
   ``full`` changes nothing.  A scene that
-  references only the material (``@asset.usda@</pebbles/mtl/BtfMaterial>``, the README's
-  scene pattern) switches it with its own ``variants = {lod = "k16"}``.
+  references only the material (``@asset.usda@</pebbles/mtl/BtfMaterial>``, the scene pattern
+  of docs/scenes-and-build.md) switches it with its own ``variants = {lod = "k16"}``.
 * on the **root prim**: variant ``<name>`` selects the Material's variant ``<name>``, so
   the asset's own selection drives it.
 
