@@ -10,7 +10,7 @@ Codecs
           texture **planar**: one single-channel H x 3W image, the three decorrelated colour
           planes side by side (JPEG XL's 3-channel lossless path models the very unequal
           decorrelated channels badly: planar files are 20-25 % smaller, effort 7 ~9 % more;
-          issue 16's research, ``benchmarks/research/``).  Readers see (H, W, 3) as ever.
+          issue 16's research, ``benchmarks/probes/research/``).  Readers see (H, W, 3) as ever.
 ``jxl``   the same integers as one RGB JPEG XL per texture at effort 2 (the default before
           issue 16): within ~15% of the entropy of the quantised symbols.
 ``png``   the same integers, lossless PNG: larger, readable everywhere.

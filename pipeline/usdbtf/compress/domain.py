@@ -4,7 +4,7 @@ A least-squares fit on scene-linear values spends its components on the brightes
 (the paper's metric is an L1 sum, and a few clipped highlights decide what a linear basis
 represents).  Fitting and quantising ``d = f(x)`` instead, with ``x`` the scene-linear
 working-space value of one colour channel, spreads the components over the whole range
-(issue 16's research, ``benchmarks/research/``: at the paper's bytes the error fell by
+(issue 16's research, ``benchmarks/probes/research/``: at the paper's bytes the error fell by
 up to half, in both error domains).
 
 Every consumer reconstructs ``x = f^-1(M . sum_i U[s, i] c_i)``: the dot product and the

@@ -368,7 +368,7 @@ def _most_that_fit(totals: np.ndarray, limit: float) -> int:
 #: The basis probe encodes the basis image of every other one of the first k vectors: bytes
 #: per modelled byte within 0.13 % of the whole basis's for half of its encode (paper scale,
 #: metal_flakes and velvet; every 4th: 0.16 %, every 6th: 0.41 %;
-#: ``benchmarks/bench_basis_probe.py``).
+#: ``benchmarks/probes/bench_basis_probe.py``).
 _BASIS_PROBE_STRIDE = 2
 
 

@@ -154,7 +154,7 @@ def add_sensor_noise(signal: np.ndarray, camera: Camera, rng: np.random.Generato
     """Noisy, clipped sensor values for a vignetted radiance frame (H, W, 3) float32.
 
     clip=False keeps the values above the clip level (a sensor that does not saturate: what
-    benchmarks/rectify_clipping.py compares the clipping sensor with)."""
+    benchmarks/probes/rectify_clipping.py compares the clipping sensor with)."""
     var = camera.read_noise ** 2 + camera.shot_noise * np.maximum(signal, 0.0)
     noisy = signal + np.sqrt(var).astype(np.float32) * rng.standard_normal(signal.shape, dtype=np.float32)
     return np.clip(noisy, 0.0, 1.0 if clip else None)

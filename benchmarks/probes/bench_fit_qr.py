@@ -9,9 +9,14 @@ the singular values and the coefficients are bit-identical, and the largest diff
 Usage::
 
     git archive d6e0080 pipeline | tar -x -C /tmp/base
-    PYTHONPATH=pipeline .venv/bin/python benchmarks/bench_fit_qr.py /tmp/base/pipeline [--repeats 4]
+    PYTHONPATH=pipeline .venv/bin/python benchmarks/probes/bench_fit_qr.py /tmp/base/pipeline [--repeats 4]
 """
 from __future__ import annotations
+
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parents[1]))   # benchmarks/: common.py and the benchmarks a probe reuses
 
 import argparse
 import importlib.util

@@ -6,9 +6,14 @@ texel projected, NO quantisation; percent error (encoded, linear) of the first k
 for each k in --ks.  This is the floor any storage of a k-component basis reaches; the gap
 to the quantised result at the paper's bytes is what storage costs.  Usage::
 
-    .venv/bin/python benchmarks/research/truncation.py [--presets a,b] [--domains linear,srgb] [--ks 150,300]
+    .venv/bin/python benchmarks/probes/research/truncation.py [--presets a,b] [--domains linear,srgb] [--ks 150,300]
 """
 from __future__ import annotations
+
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parents[2] / "research"))   # rlib, methods: issue 16's library
 
 import argparse
 import sys

@@ -13,10 +13,15 @@ for the final k against the encode.
 
 Usage::
 
-    .venv/bin/python benchmarks/bench_basis_probe.py benchmarks/out/data/metal_flakes-paper-128-seed0:3418156 \\
+    .venv/bin/python benchmarks/probes/bench_basis_probe.py benchmarks/out/data/metal_flakes-paper-128-seed0:3418156 \\
         benchmarks/out/data/velvet-paper-128-seed0:3416429
 """
 from __future__ import annotations
+
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parents[1]))   # benchmarks/: common.py and the benchmarks a probe reuses
 
 import argparse
 import dataclasses

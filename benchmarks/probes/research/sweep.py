@@ -9,10 +9,15 @@ and evaluated in both error domains; ratios are to the paper.  A configuration i
 power_iterations, fit_weight, layout (rgb, planar), effort, basis_effort.  Held-out presets
 are refused.  Usage::
 
-    .venv/bin/python benchmarks/research/sweep.py --presets fuzzy_moss \\
+    .venv/bin/python benchmarks/probes/research/sweep.py --presets fuzzy_moss \\
         --configs "dom=linear" "dom=gamma2,k_max=450,layout=planar" [--stride 4]
 """
 from __future__ import annotations
+
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parents[2] / "research"))   # rlib, methods: issue 16's library
 
 import argparse
 import sys

@@ -9,9 +9,14 @@ on every vector: one interleaved GEMM); then times the sRGB curve (forward and i
 threads), min and median of N runs.  Run it with ``PYTHONPATH`` at each tree to compare them;
 nothing is written.
 
-    .venv/bin/python benchmarks/bench_projection_steps.py INPUT [N]
+    .venv/bin/python benchmarks/probes/bench_projection_steps.py INPUT [N]
 """
 from __future__ import annotations
+
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parents[1]))   # benchmarks/: common.py and the benchmarks a probe reuses
 
 import statistics
 import sys

@@ -15,9 +15,14 @@ budget for that subset, and the held-out images are predicted from the 4 nearest
 directions (basis rows blended in each method's working domain, ``methods.heldout_predictor``);
 the "floor" row predicts them from the original images.  Usage::
 
-    .venv/bin/python benchmarks/research/final.py [--presets a,b] [--stride 1] [--no-heldout-directions]
+    .venv/bin/python benchmarks/probes/research/final.py [--presets a,b] [--stride 1] [--no-heldout-directions]
 """
 from __future__ import annotations
+
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parents[2] / "research"))   # rlib, methods: issue 16's library
 
 import argparse
 import json

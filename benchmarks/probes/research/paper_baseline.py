@@ -13,9 +13,14 @@ usdbtf   today's ``usdbtf compress IN -o OUT --max-bytes <paper bytes>`` (defaul
 Percent error on the 8-bit encoded values and in scene-linear (ACEScg), every sample, texel
 and channel (``--stride N`` evaluates every N-th sample only).  Usage::
 
-    .venv/bin/python benchmarks/research/paper_baseline.py [--presets a,b] [--stride 1]
+    .venv/bin/python benchmarks/probes/research/paper_baseline.py [--presets a,b] [--stride 1]
 """
 from __future__ import annotations
+
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parents[2] / "research"))   # rlib, methods: issue 16's library
 
 import argparse
 import json

@@ -13,10 +13,15 @@ rectified with the simulator's exact homography, it prints per frame
 * the PSNR over all texels if the sensor did not clip (same noise, values above 1 kept), the
   rectified texels clipped at 1 like the truth: what a rectifier would get from an HDR merge.
 
-    .venv/bin/python benchmarks/rectify_clipping.py                      # metal_flakes, satin_weave, 60 frames
-    .venv/bin/python benchmarks/rectify_clipping.py --materials metal_flakes --frames 12
+    .venv/bin/python benchmarks/probes/rectify_clipping.py                      # metal_flakes, satin_weave, 60 frames
+    .venv/bin/python benchmarks/probes/rectify_clipping.py --materials metal_flakes --frames 12
 """
 from __future__ import annotations
+
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parents[1]))   # benchmarks/: common.py and the benchmarks a probe reuses
 
 import argparse
 import sys
@@ -45,7 +50,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     print(format_machine(machine_info()))
-    print(f"\ncommand: benchmarks/rectify_clipping.py {' '.join(sys.argv[1:] if argv is None else argv)}")
+    print(f"\ncommand: benchmarks/probes/rectify_clipping.py {' '.join(sys.argv[1:] if argv is None else argv)}")
     board = make_board()
     camera = Camera.framing(board, 1600, 1200)
     plan = make_plan(preset("paper"))

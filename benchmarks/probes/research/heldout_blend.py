@@ -8,9 +8,14 @@ by blending basis rows in the working domain before the dot product and the inve
 ("rows": one dot product per texel, what ``final.py`` reports) or by blending the
 neighbours' linear reconstructions ("images": 4 dot products per texel).  Usage::
 
-    .venv/bin/python benchmarks/research/heldout_blend.py --presets velvet [--stride 1]
+    .venv/bin/python benchmarks/probes/research/heldout_blend.py --presets velvet [--stride 1]
 """
 from __future__ import annotations
+
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parents[2] / "research"))   # rlib, methods: issue 16's library
 
 import argparse
 import sys
