@@ -248,3 +248,61 @@ def test_extraction_rules(tmp_path):
     assert [_words(c) for c in commands] == [["compress", "IN", "-o", "OUT", "--k", "8"], None, ["bench", "--quick"],
                                              ["env"], ["render", "C", "--swatch", "--view", "30,0", "-o", "x.exr"],
                                              ["rig-sim", "--pty"]]
+
+
+# --- links -----------------------------------------------------------------------------------
+
+_LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")
+
+
+def _slug(heading: str) -> str:
+    """GitHub's anchor of a heading: lower case, punctuation dropped, spaces to hyphens."""
+    text = re.sub(r"[^\w\- ]", "", heading.strip().lower().replace("`", ""))
+    return text.replace(" ", "-")
+
+
+def _anchors(path: Path) -> set[str]:
+    lines, inside = [], False
+    for line in path.read_text(encoding="utf-8").splitlines():
+        if _FENCE.match(line):
+            inside = not inside
+        elif not inside and line.startswith("#"):
+            lines.append(_slug(line.lstrip("#")))
+    return set(lines)
+
+
+LINKED = [ROOT / "README.md", ROOT / "benchmarks" / "README.md", ROOT / "benchmarks" / "RESULTS.md",
+          *(ROOT / "docs").glob("*.md"), *(ROOT / "benchmarks" / "history").glob("*.md")]
+
+
+@pytest.mark.parametrize("path", LINKED, ids=lambda p: str(p.relative_to(ROOT)))
+def test_relative_links_resolve(path):
+    """Every relative link and picture of the documents names a file (and a heading) that exists,
+    so moving a guide or renaming a section cannot leave a dead link behind."""
+    text = re.sub(r"```.*?```", "", path.read_text(encoding="utf-8"), flags=re.S)
+    dead = []
+    for target in _LINK.findall(text):
+        if re.match(r"[a-z]+:", target):
+            continue                                # http(s), mailto: not checked here
+        name, _, anchor = target.partition("#")
+        file = (path.parent / name).resolve() if name else path
+        if not file.exists():
+            dead.append(target)
+        elif anchor and file.suffix == ".md" and anchor not in _anchors(file):
+            dead.append(target)
+    assert not dead, f"{path.relative_to(ROOT)}: dead links {dead}"
+
+
+def test_a_dead_link_is_found(tmp_path):
+    """The control: a missing file and a missing heading both count as dead."""
+    (tmp_path / "a.md").write_text("# A page\n\n## The `usdbtf` part, twice\n", encoding="utf-8")
+    assert _anchors(tmp_path / "a.md") == {"a-page", "the-usdbtf-part-twice"}
+    doc = tmp_path / "b.md"
+    doc.write_text("[ok](a.md#the-usdbtf-part-twice) [no file](c.md) [no heading](a.md#gone)\n", encoding="utf-8")
+    with pytest.raises(AssertionError, match=r"c\.md.*a\.md#gone"):
+        global ROOT
+        saved, ROOT = ROOT, tmp_path
+        try:
+            test_relative_links_resolve(doc)
+        finally:
+            ROOT = saved
