@@ -1,5 +1,5 @@
 """Issue 30: the usdbtf OSL shader in Blender's Cycles against the decompressed samples, the CPU
-reference and Storm; and the README figure (Cycles, Storm, CPU side by side).
+reference and Storm; and the figure of docs/production-renderers-and-fallbacks.md (Cycles, Storm, CPU side by side).
 
     python benchmarks/bench_cycles.py [--figure docs/cycles_preview.png] [--size 192]
 
@@ -141,7 +141,7 @@ def figure(frames: dict, working_space: str, size: int) -> np.ndarray:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--figure", type=Path, help="write the README figure (PNG) here")
+    p.add_argument("--figure", type=Path, help="write the Cycles | Storm | CPU figure (PNG) here")
     p.add_argument("--size", type=int, default=192, help="the figure's frame size (pixels)")
     args = p.parse_args(argv)
     python = cycles.cycles_python()

@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """``usdbtf package --mesh`` of quilted atlases against atlas size (issue 32).
 
-The README's manual mesh route at several sizes: a 5 cm swatch (pebbles, sampling "small",
+The manual mesh route of docs/meshes-quilting-and-rendering.md at several sizes: a 5 cm swatch (pebbles, sampling "small",
 64², ``--k 48 --codec png``); icospheres (4 subdivisions) of radius ``--radii`` metres,
 ``usdbtf unwrap --btf`` (atlases at the swatch's texel density), ``usdbtf quilt --atlas``;
 then ``usdbtf package Q --mesh mesh.usda``.  Inputs are cached under ``--workdir``.

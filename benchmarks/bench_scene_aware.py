@@ -22,7 +22,7 @@ cameras     a second camera added (a grazing view of the floor): the next shaped
 The recipe's k is the sampling's sample count by default (169 for ``small``): the full build
 is then exact up to its 8-bit codes, so the frame comparison measures what the shaped build
 leaves out, not the full build's own compression error (at k = 24 on ``ubo81`` that error
-alone is 26 dB: see the README).
+alone is 26 dB: see docs/scenes-and-build.md).
 
 Usage (repository root)::
 

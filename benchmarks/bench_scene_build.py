@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """A scene's meshes at their material's measured scale (issue 31): ``usdbtf build`` on a scene of
 three meshes (sphere r = 0.3 m, cylinder, box) with their own UVs on the [0, 1] square, as a user
-brings them, bound to three synthetic materials (plus a camera and a light: the README picture,
+brings them, bound to three synthetic materials (plus a camera and a light: the picture in docs/scenes-and-build.md,
 ``benchmarks/scene_build_picture.py``, renders this scene).
 
 Measures, in one run:
@@ -59,7 +59,7 @@ SUN = (0.4, 1.0, 0.6)
 
 def _user_uvs(points: np.ndarray, faces: np.ndarray):
     """The mesh as a user would bring it: unwrapped once into the [0, 1] square (usdbtf unwrap at
-    640 texels/m, the README's suggestion), st per face corner.  Returns (points, faces, st (F, 3, 2))."""
+    640 texels/m, the suggestion in docs/scenes-and-build.md), st per face corner.  Returns (points, faces, st (F, 3, 2))."""
     from usdbtf.mesh import Mesh
     from usdbtf.unwrap import UnwrapOptions, unwrap
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""The README picture of issue 31: the benchmark's scene (``bench_scene_build.write_scene``: a
+"""The picture of issue 31 in docs/scenes-and-build.md: the benchmark's scene (``bench_scene_build.write_scene``: a
 sphere, a cylinder and a box with their own [0, 1] UVs, three synthetic 16-texel materials of
 5 cm, a camera /World/Cam and a distant light /World/Sun) rendered from its own camera by the
 CPU renderer, before the build (each material's swatch asset stretched over the mesh's UVs) and

@@ -1,4 +1,4 @@
-"""Headless-GL render of the asset's real-time shader next to the CPU reference (README figure).
+"""Headless-GL render of the asset's real-time shader next to the CPU reference (figure of docs/previews.md).
 
     python examples/preview_figure.py ASSET.usda -o docs/gpu_preview.png
 

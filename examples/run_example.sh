@@ -84,7 +84,7 @@ step "quilt into the knot's atlas (every chart filled, borders matched, gutters 
 step "render: the knot under a near point light with cast shadows (EXR + sRGB PNG)" \
     usdbtf render --force "$OUT/knot_btf" --mesh "$OUT/knot_uv/mesh.usda" --light point:-0.05,0.07,0.06:0.01 \
     --size 320 320 -o "$OUT/knot.exr"
-step "figure: three materials on a sphere, a cylinder and a torus knot, two lights (small; full: README)" \
+step "figure: three materials on a sphere, a cylinder and a torus knot, two lights (small; full: docs/meshes-quilting-and-rendering.md)" \
     .venv/bin/python examples/fig5.py -o "$OUT/fig5_small.png" --workdir "$OUT/fig5" --size 64 --k 24 --tile 160
 
 # -- Hydra preview: Storm shader / MaterialX, checked headless (issue 7) --

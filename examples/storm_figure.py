@@ -1,4 +1,4 @@
-"""Real Hydra Storm next to the CPU reference on a curved mesh (README figure).
+"""Real Hydra Storm next to the CPU reference on a curved mesh (figure of docs/previews.md).
 
     python examples/storm_figure.py ASSET.usda -o docs/storm_preview.png [--usd 25.08] [--size 256]
 
