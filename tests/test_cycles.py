@@ -219,3 +219,35 @@ def test_addon_zip_installs_as_an_extension_and_imports_an_asset(asset, tmp_path
     # +Z turned 0.5 rad about x: (0, -sin 0.5, cos 0.5)
     assert "SUN (0.0, -0.4794, 0.8776) 2.5 WHITE 1.0" in proc.stdout, proc.stdout[-2000:]
     assert (tmp_path / "user" / "extensions" / "user_default" / "usdbtf" / "blender_manifest.toml").is_file()
+
+
+def test_principled_fallback_of_the_fitted_lobes(asset, tmp_path):
+    """Issue 40 item 3: the add-on's second surface, a Principled BSDF on the asset's OpenPBR maps
+    (network.build_principled), under one sun of the capture irradiance pi W, pole view, one
+    texel a pixel, against the fit's own model (usdbtf.openpbr.evaluate on the maps as shipped,
+    in Blender's linear Rec.709) and against the add-on's OSL BTF under the same sun.
+
+    Measured (notes/issue40-consumers-results.md): the Principled frame is 10-12 % brighter than
+    the model, mean 4-6 steps: Blender's Principled is not open_pbr_surface lobe for lobe (the
+    specular tint, Blender's Oren-Nayar and sheen differ; the mapping's notes), so the
+    thresholds are what holds now, tight enough to catch a factor pi, a lost lobe or a
+    mis-wired map; the issue's 2 steps is not reached."""
+    from storm_helpers import openpbr_frame, pole_lights, shipped_openpbr_maps
+
+    maps, cbtf = shipped_openpbr_maps(asset)
+    lights = pole_lights(cbtf, 2)
+    irradiance = capture_irradiance(white_level_of(cbtf.info))
+    frames = [cycles.CyclesFrame(asset, tmp_path / f"{surface}_{s}.exr", towards(light), size=maps.shape[::-1],
+                                 irradiance=irradiance, surface=surface)
+              for surface in ("PRINCIPLED", "BTF") for s, light in lights]
+    result = cycles.render_frames(bpy_python(), frames)
+    for i, (s, light) in enumerate(lights):
+        principled = result.images[i][..., :3].astype(np.float64)
+        btf = result.images[len(lights) + i][..., :3].astype(np.float64)
+        model = openpbr_frame(maps, light, "Linear Rec.709 (sRGB)", cbtf.ocio_config)
+        steps = float(np.abs(cycles.srgb8(principled) - cycles.srgb8(model)).mean())
+        ratio, over_btf = principled.mean() / model.mean(), principled.mean() / btf.mean()
+        print(f"Cycles Principled (fitted OpenPBR) at {light}: {steps:.2f} steps from the fit's model, "
+              f"mean / model {ratio:.3f}, / OSL BTF {over_btf:.3f}")
+        assert steps <= 8.0 and 0.9 <= ratio <= 1.2, (light, steps, ratio)
+        assert 0.6 <= over_btf <= 1.6, (light, over_btf)
