@@ -223,15 +223,14 @@ def test_addon_zip_installs_as_an_extension_and_imports_an_asset(asset, tmp_path
 
 def test_principled_fallback_of_the_fitted_lobes(asset, tmp_path):
     """Issue 40 item 3: the add-on's second surface, a Principled BSDF on the asset's OpenPBR maps
-    (network.build_principled), under one sun of the capture irradiance pi W, pole view, one
-    texel a pixel, against the fit's own model (usdbtf.openpbr.evaluate on the maps as shipped,
-    in Blender's linear Rec.709) and against the add-on's OSL BTF under the same sun.
-
-    Measured (notes/issue40-consumers-results.md): the Principled frame is 10-12 % brighter than
-    the model, mean 4-6 steps: Blender's Principled is not open_pbr_surface lobe for lobe (the
-    specular tint, Blender's Oren-Nayar and sheen differ; the mapping's notes), so the
-    thresholds are what holds now, tight enough to catch a factor pi, a lost lobe or a
-    mis-wired map; the issue's 2 steps is not reached."""
+    (network.build_principled, principled.py's conversions), under one sun of the capture
+    irradiance pi W, pole view, one texel a pixel: it equals the fit's own model
+    (usdbtf.openpbr.evaluate on the maps as shipped, in Blender's linear Rec.709), mean <= 2
+    8-bit steps and mean brightness within 5 %, no gain (measured: the same maps wired straight
+    into the Principled inputs, without those conversions, missed by 4.4-6.0 steps and 9-12 %;
+    tests/test_openpbr.py checks the conversions themselves).  Against the add-on's OSL BTF under the same
+    sun the brightness is printed and kept within the fit's own bias (issue 40: the fit, not
+    the Principled mapping, decides it; notes/issue40-consumers-results.md)."""
     from storm_helpers import openpbr_frame, pole_lights, shipped_openpbr_maps
 
     maps, cbtf = shipped_openpbr_maps(asset)
@@ -249,5 +248,5 @@ def test_principled_fallback_of_the_fitted_lobes(asset, tmp_path):
         ratio, over_btf = principled.mean() / model.mean(), principled.mean() / btf.mean()
         print(f"Cycles Principled (fitted OpenPBR) at {light}: {steps:.2f} steps from the fit's model, "
               f"mean / model {ratio:.3f}, / OSL BTF {over_btf:.3f}")
-        assert steps <= 8.0 and 0.9 <= ratio <= 1.2, (light, steps, ratio)
+        assert steps <= MAX_STEPS and abs(ratio - 1.0) <= 0.05, (light, steps, ratio)
         assert 0.6 <= over_btf <= 1.6, (light, over_btf)

@@ -401,3 +401,46 @@ def test_openpbr_network_renders_in_storms_materialx_path(packaged, tmp_path):
             assert abs(ratio - 1.0) <= 0.05, (light, ratio)
         else:                                   # the controls
             assert mean > 3.0 * max(m for (k, _), (m, _, _) in steps.items() if k == "closest"), (kind, mean)
+
+
+# ------------------------------------------------------------------ the Blender add-on's Principled inputs
+def _principled_module():
+    """plugin/blender/usdbtf/principled.py (numpy only), loaded by path: the add-on's package
+    imports bpy, this module does not."""
+    import importlib.util
+
+    path = Path(__file__).resolve().parent.parent / "plugin" / "blender" / "usdbtf" / "principled.py"
+    spec = importlib.util.spec_from_file_location("usdbtf_blender_principled", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_principled_inputs_reproduce_open_pbr_parameters():
+    """The add-on's conversion (issue 40 item 3): Cycles' Disney anisotropy of the converted
+    (Roughness, Anisotropic) gives open_pbr_anisotropy's alphas (a <= 0.9, the fit's range);
+    the Specular IOR Level gives F0 = 0.04 specular_weight; with white tints nothing is
+    rescaled, and a dark specular tint over F0 0.2 darkens the base by MaterialX's untinted
+    throughput over Cycles' tinted one (< 1 head-on, the base MaterialX attenuates more)."""
+    from usdbtf.openpbr import specular_alpha
+
+    pr = _principled_module()
+    rng = np.random.default_rng(3)
+    n = 64
+    r, a = rng.uniform(0.1, 1.0, n), rng.choice([0.0, 0.4, 0.7, 0.9], n)
+    w = rng.choice([1.0, 2.0, 5.0, 25.0], n)
+    white = np.ones((n, 3))
+    base = rng.uniform(0.0, 1.0, (n, 3))
+    params = np.stack([r, a, np.zeros(n)], axis=-1)
+    lobes = np.stack([np.zeros(n), np.full(n, 0.5), w / 25.0], axis=-1)
+    out = pr.principled_inputs(base, white, white, params, lobes)
+    aspect = np.sqrt(1.0 - 0.9 * out["Anisotropic"])
+    ax, ay = specular_alpha(r, a)
+    np.testing.assert_allclose(out["Roughness"] ** 2 / aspect, ax, rtol=1e-6)
+    np.testing.assert_allclose(out["Roughness"] ** 2 * aspect, ay, rtol=1e-6)
+    np.testing.assert_allclose(0.04 * 2.0 * out["Specular IOR Level"], np.minimum(0.04 * w, 0.99999), rtol=1e-6)
+    np.testing.assert_allclose(out["Base Color"], pr.srgb_to_linear(base), rtol=1e-9)
+    dark = pr.principled_inputs(base, np.full((n, 3), 0.05), white, params, lobes)
+    ratio = dark["Base Color"] / pr.srgb_to_linear(np.maximum(base, 1e-3))
+    f0_02 = w == 5.0
+    assert np.all(ratio[f0_02] < 0.9) and np.all(ratio[f0_02] > 0.6), ratio[f0_02]

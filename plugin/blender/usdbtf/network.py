@@ -26,12 +26,11 @@ OpenPBR -> Principled mapping (Blender 4.x/5.x Principled BSDF):
 =============================== ==================================================
 open_pbr_surface                Principled BSDF
 =============================== ==================================================
-base_color (sRGB file)          Base Color (the image, sRGB)
 base_diffuse_roughness          Diffuse Roughness
-specular_weight                 Specular IOR Level = specular_weight / 2 (F0 x 2 x level), IOR 1.5
-specular_color (sRGB file)      Specular Tint
-specular_roughness              Roughness
-specular_roughness_anisotropy   Anisotropic
+specular_weight                 Specular IOR Level = F0 / 0.08 (F0 = 0.04 specular_weight), IOR 1.5
+specular_color (sRGB file)      Specular Tint (x the fuzz throughput ratio, principled.py)
+base_color x throughput ratios  Base Color (principled.py: untinted vs tinted layers)
+specular_roughness, _anisotropy Roughness = (alpha_x alpha_y)^(1/4), Anisotropic ~ a / 0.9
 tangent map (cos, sin, 0)       Anisotropic Rotation = atan2(sin, cos) / 2 pi, Tangent: the UV map's
 fuzz_weight / _color / _rough.  Sheen Weight / Sheen Tint / Sheen Roughness
 normal map                      Normal Map node (tangent space, the UV map) -> Normal
@@ -222,18 +221,71 @@ def _image(tree, path: str, colour: bool, location):
     return node
 
 
+def _pixels(path: str, colour: bool):
+    """(H, W, 3) float64 of an image file as stored (bottom row first, as Blender holds it):
+    sRGB-encoded values for colour files, data for the rest."""
+    import numpy as np
+
+    image = bpy.data.images.load(path, check_existing=True)
+    image.colorspace_settings.name = "sRGB" if colour else "Non-Color"
+    w, h = image.size
+    rgba = np.empty(w * h * 4, np.float32)
+    image.pixels.foreach_get(rgba)
+    return rgba.reshape(h, w, 4)[..., :3].astype(np.float64)
+
+
+def _baked(name: str, rgb, data: bool):
+    """A float image (packed into the .blend) holding ``rgb`` (H, W, 3), bottom row first."""
+    import numpy as np
+
+    h, w = rgb.shape[:2]
+    image = bpy.data.images.get(name)
+    if image is None or tuple(image.size) != (w, h):
+        if image is not None:
+            bpy.data.images.remove(image)
+        image = bpy.data.images.new(name, w, h, alpha=False, float_buffer=True, is_data=data)
+    rgba = np.ones((h, w, 4), np.float32)
+    rgba[..., :3] = rgb
+    image.pixels.foreach_set(rgba.ravel())
+    try:
+        image.pack()
+    except RuntimeError:            # kept in memory; a saved .blend then lacks it
+        pass
+    return image
+
+
 def build_principled(material, maps: dict, uv_map: str = UV_MAP):
     """Add to ``material``'s node tree the Principled BSDF of the fitted OpenPBR lobes on
-    ``maps`` (:func:`read_openpbr_maps`); returns the Principled node (not linked to the output)."""
+    ``maps`` (:func:`read_openpbr_maps`); returns the Principled node (not linked to the
+    output).  The inputs whose parameterisation differs from open_pbr_surface's (anisotropy,
+    the tinted layers' throughput: ``principled.py``) are baked per texel into float images
+    named after the material; the rest read the asset's files."""
+    import numpy as np
+
+    from .principled import principled_inputs
+
     tree = material.node_tree
     links = tree.links
+    inputs = principled_inputs(*(_pixels(maps[k], k in _OPENPBR_COLOURS)
+                                 for k in ("base", "specular", "fuzz", "params", "lobes")))
+    prefix = f"usdbtf {material.name} "
+    baked = {"base": _baked(prefix + "base (Principled)", inputs["Base Color"], False),
+             "tint": _baked(prefix + "specular tint (Principled)", inputs["Specular Tint"], False),
+             "specular": _baked(prefix + "specular (Principled)", np.stack(
+                 [inputs["Roughness"], inputs["Anisotropic"], inputs["Specular IOR Level"]], axis=-1), True)}
     uv = tree.nodes.new("ShaderNodeUVMap")
     uv.uv_map = uv_map
     uv.location = (-1400, -600)
     images = {}
-    for row, key in enumerate(OPENPBR_MAPS):
+    for row, key in enumerate(("fuzz", "params", "lobes", "tangent", "normal")):
         images[key] = _image(tree, maps[key], key in _OPENPBR_COLOURS, (-1100, -400 - 280 * row))
-        links.new(uv.outputs["UV"], images[key].inputs["Vector"])
+    for row, (key, image) in enumerate(baked.items()):
+        node = tree.nodes.new("ShaderNodeTexImage")
+        node.image, node.interpolation, node.extension = image, "Linear", "REPEAT"
+        node.location = (-1100, -1900 - 280 * row)
+        images[key] = node
+    for node in images.values():
+        links.new(uv.outputs["UV"], node.inputs["Vector"])
     bsdf = tree.nodes.new("ShaderNodeBsdfPrincipled")
     bsdf.name = bsdf.label = PRINCIPLED_NODE
     bsdf.location = (0, -600)
@@ -241,7 +293,7 @@ def build_principled(material, maps: dict, uv_map: str = UV_MAP):
     bsdf.inputs["IOR"].default_value = 1.5
     bsdf.inputs["Coat Weight"].default_value = 0.0
     links.new(images["base"].outputs["Color"], bsdf.inputs["Base Color"])
-    links.new(images["specular"].outputs["Color"], bsdf.inputs["Specular Tint"])
+    links.new(images["tint"].outputs["Color"], bsdf.inputs["Specular Tint"])
     links.new(images["fuzz"].outputs["Color"], bsdf.inputs["Sheen Tint"])
 
     def separate(key, x):
@@ -250,26 +302,22 @@ def build_principled(material, maps: dict, uv_map: str = UV_MAP):
         links.new(images[key].outputs["Color"], node.inputs["Color"])
         return node
 
-    params, lobes, tangent = separate("params", -800), separate("lobes", -800), separate("tangent", -800)
-    links.new(params.outputs["Red"], bsdf.inputs["Roughness"])
-    links.new(params.outputs["Green"], bsdf.inputs["Anisotropic"])
+    specular, params, lobes, tangent = (separate(k, -800) for k in ("specular", "params", "lobes", "tangent"))
+    links.new(specular.outputs["Red"], bsdf.inputs["Roughness"])
+    links.new(specular.outputs["Green"], bsdf.inputs["Anisotropic"])
+    links.new(specular.outputs["Blue"], bsdf.inputs["Specular IOR Level"])
     if "Diffuse Roughness" in bsdf.inputs:               # Blender 4.3+
         links.new(params.outputs["Blue"], bsdf.inputs["Diffuse Roughness"])
     links.new(lobes.outputs["Red"], bsdf.inputs["Sheen Weight"])
     links.new(lobes.outputs["Green"], bsdf.inputs["Sheen Roughness"])
-    level = tree.nodes.new("ShaderNodeMath")            # Specular IOR Level = specular_weight / 2
-    level.operation = "MULTIPLY"
-    level.use_clamp = False
-    level.inputs[1].default_value = SPECULAR_WEIGHT_SCALE / 2.0
-    level.location = (-500, lobes.location[1])
-    links.new(lobes.outputs["Blue"], level.inputs[0])
-    links.new(level.outputs["Value"], bsdf.inputs["Specular IOR Level"])
 
-    def math_node(operation, a, b, x):
+    def math_node(operation, a, b, x, c=None):
         node = tree.nodes.new("ShaderNodeMath")
         node.operation = operation
         node.location = (x, tangent.location[1])
-        for i, value in enumerate((a, b)):
+        for i, value in enumerate((a, b, c)):
+            if value is None:
+                continue
             if isinstance(value, (int, float)):
                 node.inputs[i].default_value = value
             else:
@@ -277,21 +325,19 @@ def build_principled(material, maps: dict, uv_map: str = UV_MAP):
         return node.outputs["Value"]
 
     # The stored (cos, sin) * 0.5 + 0.5 -> phi / 2 pi (Blender's rotation is a fraction of a turn).
-    cos_phi = math_node("MULTIPLY_ADD", tangent.outputs["Red"], 2.0, -650)
-    cos_phi.node.inputs[2].default_value = -1.0
-    sin_phi = math_node("MULTIPLY_ADD", tangent.outputs["Green"], 2.0, -650)
-    sin_phi.node.inputs[2].default_value = -1.0
+    cos_phi = math_node("MULTIPLY_ADD", tangent.outputs["Red"], 2.0, -650, -1.0)
+    sin_phi = math_node("MULTIPLY_ADD", tangent.outputs["Green"], 2.0, -650, -1.0)
     phi = math_node("ARCTAN2", sin_phi, cos_phi, -500)
     links.new(math_node("DIVIDE", phi, 2.0 * 3.141592653589793, -350), bsdf.inputs["Anisotropic Rotation"])
     uv_tangent = tree.nodes.new("ShaderNodeTangent")
     uv_tangent.direction_type = "UV_MAP"
     uv_tangent.uv_map = uv_map
-    uv_tangent.location = (-350, -1900)
+    uv_tangent.location = (-350, -2700)
     links.new(uv_tangent.outputs["Tangent"], bsdf.inputs["Tangent"])
     normal = tree.nodes.new("ShaderNodeNormalMap")
     normal.space = "TANGENT"
     normal.uv_map = uv_map
-    normal.location = (-350, -2100)
+    normal.location = (-350, -2900)
     links.new(images["normal"].outputs["Color"], normal.inputs["Color"])
     links.new(normal.outputs["Normal"], bsdf.inputs["Normal"])
     return bsdf
