@@ -444,3 +444,89 @@ def test_principled_inputs_reproduce_open_pbr_parameters():
     ratio = dark["Base Color"] / pr.srgb_to_linear(np.maximum(base, 1e-3))
     f0_02 = w == 5.0
     assert np.all(ratio[f0_02] < 0.9) and np.all(ratio[f0_02] > 0.6), ratio[f0_02]
+
+
+def _document_from_usd(material):
+    """A MaterialX document of the OpenPBR network as ``material`` (UsdShade.Material) holds it:
+    every shader its ``outputs:mtlx:surface`` reaches, with the authored values, colour spaces
+    and connections (so MaterialX validates what is written, not what usd.openpbr.network says)."""
+    import MaterialX as mx
+    from pxr import Sdf, UsdShade
+
+    lib = mx.createDocument()
+    mx.loadLibraries(mx.getDefaultDataLibraryFolders(), mx.getDefaultDataSearchPath(), lib)
+    doc = mx.createDocument()
+    doc.importLibrary(lib)
+    types = {"float": "float", "float2": "vector2", "float3": "vector3", "color3f": "color3", "string": "string",
+             "asset": "filename", "token": "string"}
+    order, seen = [], set()
+
+    def visit(prim):                                # every node upstream of the surface, sources first
+        if prim.GetPath() in seen:
+            return
+        seen.add(prim.GetPath())
+        shader = UsdShade.Shader(prim)
+        for inp in shader.GetInputs():
+            for src in inp.GetConnectedSources()[0]:
+                visit(src.source.GetPrim())
+        order.append(shader)
+
+    visit(material.GetSurfaceOutput("mtlx").GetConnectedSources()[0][0].source.GetPrim())
+    made = {}
+    for shader in order:
+        nodedef = lib.getNodeDef(shader.GetIdAttr().Get())
+        assert nodedef is not None, shader.GetIdAttr().Get()
+        node = doc.addNodeInstance(nodedef, shader.GetPrim().GetName())
+        for inp in shader.GetInputs():
+            port = node.addInput(inp.GetBaseName(), types[str(inp.GetTypeName())])
+            sources = inp.GetConnectedSources()[0]
+            if sources:
+                src = sources[0]
+                port.setNodeName(src.source.GetPrim().GetName())
+                if made[src.source.GetPrim().GetName()].getType() == "multioutput":
+                    port.setOutputString(src.sourceName)
+            elif inp.GetTypeName() == Sdf.ValueTypeNames.Asset:
+                port.setValueString(inp.Get().path)
+                port.setColorSpace(inp.GetAttr().GetColorSpace())
+            elif port.getType() == "string":
+                port.setValueString(str(inp.Get()))
+            else:
+                port.setValue(inp.Get(), port.getType())
+        made[shader.GetPrim().GetName()] = node
+    doc.addMaterialNode("OpenPbrMaterial", made["OpenPbrSurface"])
+    return doc, made
+
+
+def test_openpbr_network_as_authored_validates_at_every_lod(packaged):
+    """Issue 40: MaterialX's document validation of the network the asset holds (read back from
+    USD, not rebuilt from usd.openpbr.network) under every ``lod`` selection and as authored:
+    valid, the same nodes and node definitions as usd.openpbr.network, colour maps srgb_texture,
+    data maps raw.  The control: a wrong input type on the authored surface fails validation."""
+    pytest.importorskip("MaterialX", reason="materialx not installed (pip install -e '.[test]')")
+    import usdbtf  # noqa: F401
+    from pxr import Usd, UsdShade
+
+    from usdbtf.usd.openpbr import network
+
+    from usdbtf.usd.openpbr import MAP_FILES
+
+    expected = sorted(nodedef for _, nodedef, _ in network({k: "x" for k in MAP_FILES}))
+    stage = Usd.Stage.Open(str(packaged))
+    root = stage.GetDefaultPrim()
+    selections = [""] + list(root.GetVariantSet("lod").GetVariantNames())
+    assert len(selections) >= 3
+    for selection in selections:
+        stage = Usd.Stage.Open(str(packaged))
+        if selection:
+            with Usd.EditContext(stage, stage.GetSessionLayer()):
+                stage.GetDefaultPrim().GetVariantSet("lod").SetVariantSelection(selection)
+        material = UsdShade.Material(stage.GetPrimAtPath(f"{stage.GetDefaultPrim().GetPath()}/mtl/BtfMaterial"))
+        doc, made = _document_from_usd(material)
+        ok, message = doc.validate()
+        assert ok, (selection, message)
+        assert sorted(n.getNodeDefString() for n in made.values()) == expected, selection
+        spaces = {name: node.getInput("file").getColorSpace() for name, node in made.items() if node.getInput("file")}
+        assert sorted(spaces.values()) == ["raw"] * 4 + ["srgb_texture"] * 3, spaces
+    # The control: the same document with base_color typed float does not validate.
+    made["OpenPbrSurface"].getInput("base_color").setType("float")
+    assert not doc.validate()[0]
