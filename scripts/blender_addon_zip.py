@@ -20,7 +20,7 @@ from pathlib import Path
 ADDON = Path(__file__).resolve().parent.parent / "plugin" / "blender" / "usdbtf"
 PLUGIN = ADDON.parent.parent
 #: zip entry -> its file in the source tree
-FILES = {name: ADDON / name for name in ("__init__.py", "network.py", "blender_manifest.toml", "LICENSE")}
+FILES = {name: ADDON / name for name in ("__init__.py", "network.py", "principled.py", "blender_manifest.toml", "LICENSE")}
 FILES["usdbtf_surface.osl"] = PLUGIN / "usdBtf" / "resources" / "osl" / "usdbtf_surface.osl"
 
 

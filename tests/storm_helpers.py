@@ -53,3 +53,34 @@ def pole_lights(cbtf, count: int) -> list[tuple[int, tuple]]:
     cand = [int(s) for s in view0 if 15.0 <= cbtf.sampling.light[s][0] <= 65.0]
     return [(cand[i], tuple(float(a) for a in cbtf.sampling.light[cand[i]]))
             for i in np.linspace(0, len(cand) - 1, count).round().astype(int)]
+
+
+def shipped_openpbr_maps(asset):
+    """The OpenPBR maps of a packaged ``asset`` as its files hold them and a renderer reads them
+    (usd.openpbr.decode_maps of the written PNGs), in the BTF's working space, with its white level."""
+    from pathlib import Path
+
+    from usdbtf.imageio import read_image
+    from usdbtf.photometry import white_level_of
+    from usdbtf.usd.fallback import FALLBACK_DIR
+    from usdbtf.usd.openpbr import MAP_FILES, decode_maps
+    from usdbtf.usd.read import load_btf
+
+    asset = Path(asset)
+    cbtf = load_btf(asset)
+    folder = asset.with_name(f"{asset.stem}_textures") / FALLBACK_DIR
+    pixels = {name: read_image(folder / MAP_FILES[name][0])[0] for name in MAP_FILES}
+    return decode_maps(pixels, cbtf.working_space, ocio_config=cbtf.ocio_config,
+                       white_level=white_level_of(cbtf.info)), cbtf
+
+
+def openpbr_frame(maps, light_deg, out_space: str, ocio_config=None) -> np.ndarray:
+    """(H, W, 3) the fit's own model (usdbtf.openpbr.evaluate of ``maps``) at the pole view under
+    ``light_deg`` = (theta, phi) with the capture light (irradiance pi W: radiance = the BTF
+    value, usdbtf.photometry), in ``out_space`` (a renderer's rendering space)."""
+    from usdbtf import openpbr
+    from usdbtf.color import processor
+
+    h, w = maps.shape
+    value = openpbr.evaluate(maps, np.zeros((1, 2)), np.asarray([light_deg], float))[0].reshape(h, w, 3)
+    return processor(maps.working_space, out_space, ocio_config).apply(np.ascontiguousarray(value, np.float32))

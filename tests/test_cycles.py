@@ -219,3 +219,34 @@ def test_addon_zip_installs_as_an_extension_and_imports_an_asset(asset, tmp_path
     # +Z turned 0.5 rad about x: (0, -sin 0.5, cos 0.5)
     assert "SUN (0.0, -0.4794, 0.8776) 2.5 WHITE 1.0" in proc.stdout, proc.stdout[-2000:]
     assert (tmp_path / "user" / "extensions" / "user_default" / "usdbtf" / "blender_manifest.toml").is_file()
+
+
+def test_principled_fallback_of_the_fitted_lobes(asset, tmp_path):
+    """Issue 40 item 3: the add-on's second surface, a Principled BSDF on the asset's OpenPBR maps
+    (network.build_principled, principled.py's conversions), under one sun of the capture
+    irradiance pi W, pole view, one texel a pixel: it equals the fit's own model
+    (usdbtf.openpbr.evaluate on the maps as shipped, in Blender's linear Rec.709), mean <= 2
+    8-bit steps and mean brightness within 5 %, no gain (measured: the same maps wired straight
+    into the Principled inputs, without those conversions, missed by 4.4-6.0 steps and 9-12 %;
+    tests/test_openpbr.py checks the conversions themselves).  Against the add-on's OSL BTF under the same
+    sun the brightness is printed and kept within the fit's own bias (issue 40: the fit, not
+    the Principled mapping, decides it; notes/issue40-consumers-results.md)."""
+    from storm_helpers import openpbr_frame, pole_lights, shipped_openpbr_maps
+
+    maps, cbtf = shipped_openpbr_maps(asset)
+    lights = pole_lights(cbtf, 2)
+    irradiance = capture_irradiance(white_level_of(cbtf.info))
+    frames = [cycles.CyclesFrame(asset, tmp_path / f"{surface}_{s}.exr", towards(light), size=maps.shape[::-1],
+                                 irradiance=irradiance, surface=surface)
+              for surface in ("PRINCIPLED", "BTF") for s, light in lights]
+    result = cycles.render_frames(bpy_python(), frames)
+    for i, (s, light) in enumerate(lights):
+        principled = result.images[i][..., :3].astype(np.float64)
+        btf = result.images[len(lights) + i][..., :3].astype(np.float64)
+        model = openpbr_frame(maps, light, "Linear Rec.709 (sRGB)", cbtf.ocio_config)
+        steps = float(np.abs(cycles.srgb8(principled) - cycles.srgb8(model)).mean())
+        ratio, over_btf = principled.mean() / model.mean(), principled.mean() / btf.mean()
+        print(f"Cycles Principled (fitted OpenPBR) at {light}: {steps:.2f} steps from the fit's model, "
+              f"mean / model {ratio:.3f}, / OSL BTF {over_btf:.3f}")
+        assert steps <= MAX_STEPS and abs(ratio - 1.0) <= 0.05, (light, steps, ratio)
+        assert 0.6 <= over_btf <= 1.6, (light, over_btf)

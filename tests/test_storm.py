@@ -262,8 +262,10 @@ def lambertian_asset(tmp_path_factory) -> Path:
 
 @pytest.mark.parametrize("version", sorted(hydra.STORM_ENVIRONMENTS))
 def test_btf_and_its_fallback_agree_on_white(version, lambertian_asset, tmp_path):
-    """Issue 40, real Storm: the BTF swatch and the same asset's UsdPreviewSurface fallback
-    (outputs:glslfx:surface blocked), pole view, orthographic, one texel a pixel, under the same
+    """Issue 40, real Storm: the BTF swatch and the same asset's two fallbacks, the
+    UsdPreviewSurface (glslfx and mtlx outputs blocked) and the OpenPBR network (glslfx and
+    universal outputs blocked: Storm's MaterialX path; with only glslfx blocked Storm draws it,
+    both builds), pole view, orthographic, one texel a pixel, under the same
     DistantLight of irradiance 1 from several measured directions: the same mean brightness
     within 5 % with no gain between them (the white half: E cos / pi, what a white Lambertian
     UsdPreviewSurface returns), and the BTF's gain against the measured samples is pi W within
@@ -280,11 +282,12 @@ def test_btf_and_its_fallback_agree_on_white(version, lambertian_asset, tmp_path
     assert white_level_of(cbtf.info) == pytest.approx(WHITE_LEVEL)
     lights = pole_lights(cbtf, CONVENTION_LIGHTS)
     frames = []
+    kinds = ("btf", "preview", "openpbr")
     for s, light in lights:
-        for kind in ("btf", "fallback"):
+        for kind in kinds:
             scene = tmp_path / f"{kind}_{s}.usda"
             camera, size = hydra.swatch_scene(lambertian_asset, scene, light, irradiance=1.0,
-                                              fallback=kind == "fallback")
+                                              fallback=False if kind == "btf" else kind)
             frames.append((scene, scene.with_suffix(".exr")))
     legacy = tmp_path / "legacy.usda"
     hydra.swatch_scene(lambertian_asset, legacy, lights[0][1], irradiance=1.0)
@@ -295,20 +298,23 @@ def test_btf_and_its_fallback_agree_on_white(version, lambertian_asset, tmp_path
     result = render(version, frames, camera, size)
     assert result.problems == [], "\n".join(result.problems)
     images = [image[..., :3].astype(np.float64) for image in result.images]
-    pairs, ratios = [], []
+    pairs, ratios, openpbr = [], [], []
     for i, (s, light) in enumerate(lights):
-        btf, fallback = images[2 * i], images[2 * i + 1]
+        btf, fallback, mtlx = images[3 * i: 3 * i + 3]
         sample = decompress(cbtf, DecompressOptions(samples=str(s))).btf.read_samples([0])[0]
         pairs.append((btf, sample))
         ratios.append(fallback.mean() / btf.mean())
+        openpbr.append(mtlx.mean() / btf.mean())
         # The white half is what a white Lambertian UsdPreviewSurface returns: E cos(theta) / pi.
         white = math.cos(math.radians(light[0])) / math.pi
         assert btf[:, 2:6].mean() == pytest.approx(white, rel=0.03), (light, btf[:, 2:6].mean(), white)
     gain, gains, steps = common_gain(pairs)
-    print(f"USD {version} Lambertian, W {WHITE_LEVEL}: fallback / BTF mean {np.round(ratios, 4).tolist()}, "
+    print(f"USD {version} Lambertian, W {WHITE_LEVEL}: UsdPreviewSurface / BTF mean {np.round(ratios, 4).tolist()}, "
+          f"OpenPBR / BTF {np.round(openpbr, 4).tolist()}, "
           f"BTF gain {gain:.4f} (pi W = {capture_irradiance(WHITE_LEVEL):.4f}), legacy / BTF "
           f"{images[-1].mean() / images[0].mean():.3f}")
     assert max(abs(r - 1.0) for r in ratios) <= 0.05, ratios
+    assert max(abs(r - 1.0) for r in openpbr) <= 0.05, openpbr
     assert abs(gain / capture_irradiance(WHITE_LEVEL) - 1.0) <= 0.03, gain
     assert max(steps) <= MAX_STEPS, steps
     assert images[-1].mean() / images[1].mean() > 1.5          # the old convention fails

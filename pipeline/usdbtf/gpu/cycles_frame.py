@@ -7,9 +7,11 @@ Run by the Python of the bpy 5.0.1 environment (``scripts/bootstrap.sh`` makes
 
 JOBS.json: ``{"frames": [{"asset", "lod" (null: the asset's own), "output" (.exr), "size": [w, h],
 "camera": {"kind": "pole"} | {"kind": "perspective", "eye", "target", "up", "fov"},
-"sun": [x, y, z] (towards the light, the asset's USD space), "irradiance", "samples", "fallback"}],
-"report": path}``.  ``"fallback": true`` imports the asset with Blender's USD importer only (its
-UsdPreviewSurface fallback as a Principled BSDF, what Blender shows without the add-on).
+"sun": [x, y, z] (towards the light, the asset's USD space), "irradiance", "samples", "fallback",
+"surface"}], "report": path}``.  ``"fallback": true`` imports the asset with Blender's USD importer
+only (its UsdPreviewSurface fallback as a Principled BSDF, what Blender shows without the add-on);
+``"surface"``: the add-on's surface shown ("BTF", the default: the OSL BTF; "PRINCIPLED": its
+Principled BSDF of the fitted OpenPBR lobes).
 Everything in USD space is converted to Blender's with the imported root's transform (the
 importer's up-axis and unit conversion).  Frames of one asset and lod share one import.  A
 "pole" camera looks orthographically down the swatch's normal (+z in USD), its extent filling
@@ -119,7 +121,7 @@ def main(argv=None) -> int:
     addon = _addon(Path(argv[1]))
     report, loaded = [], None
     for frame in jobs["frames"]:
-        key = (frame["asset"], frame.get("lod"), bool(frame.get("fallback")))
+        key = (frame["asset"], frame.get("lod"), bool(frame.get("fallback")), frame.get("surface", "BTF"))
         if key != loaded:
             bpy.ops.wm.read_factory_settings(use_empty=True)
             scene = _setup_scene(bpy)
@@ -131,7 +133,8 @@ def main(argv=None) -> int:
                     return 5
                 objects, materials = [o for o in bpy.data.objects if o not in before], []
             else:
-                objects, materials = addon.network.import_asset(frame["asset"], frame.get("lod"))
+                objects, materials = addon.network.import_asset(frame["asset"], frame.get("lod"),
+                                                                frame.get("surface", "BTF"))
             import_seconds = time.perf_counter() - start
             roots = [o for o in objects if o.parent is None]
             to_world = roots[0].matrix_world.copy() if roots else mathutils.Matrix.Identity(4)

@@ -49,6 +49,8 @@ class CyclesFrame:
     samples: int = 1
     #: True: Blender's USD importer only (the UsdPreviewSurface fallback as a Principled BSDF).
     fallback: bool = False
+    #: The add-on's surface: "BTF" (the OSL BTF, one sun) or "PRINCIPLED" (the fitted OpenPBR lobes).
+    surface: str = "BTF"
 
     def job(self) -> dict:
         camera = {"kind": "pole"} if isinstance(self.camera, str) else {
@@ -57,7 +59,8 @@ class CyclesFrame:
             "fov": float(self.camera.fov)}
         return {"asset": str(Path(self.asset).resolve()), "lod": self.lod, "output": str(self.output),
                 "size": [int(s) for s in self.size], "camera": camera, "sun": [float(x) for x in self.sun],
-                "irradiance": float(self.irradiance), "samples": int(self.samples), "fallback": bool(self.fallback)}
+                "irradiance": float(self.irradiance), "samples": int(self.samples), "fallback": bool(self.fallback),
+                "surface": str(self.surface)}
 
 
 @dataclass

@@ -114,7 +114,7 @@ FAR = 10.0
 
 def swatch_scene(asset: Path, out: Path, light_deg, *, lod: str | None = None, kind: str = "distant",
                  intensity: float | None = None, distance: float = 1.0,
-                 irradiance: float | None = None, fallback: bool = False) -> tuple[str, tuple[int, int]]:
+                 irradiance: float | None = None, fallback: bool | str = False) -> tuple[str, tuple[int, int]]:
     """Write ``out`` (.usda): ``asset`` (its ``lod`` selection) seen orthographically from the
     pole of its swatch (the quad in z = 0, tangent +x, bitangent +y), its extent filling the
     frame, lit from ``light_deg`` = (theta, phi) degrees in the swatch's frame by one light of
@@ -123,8 +123,13 @@ def swatch_scene(asset: Path, out: Path, light_deg, *, lod: str | None = None, k
     SphereLight or a RectLight facing the swatch :data:`FAR` away (intensity 1 unless given);
     "none" for only the renderer's camera light (a point light at the camera, ``distance`` above
     the swatch: make it far for one direction).  ``fallback``: the scene blocks the BTF
-    materials' ``outputs:glslfx:surface`` connection, so Storm draws their ``UsdPreviewSurface``
-    fallback, what renderers without the BTF shader draw.  Returns
+    materials' ``outputs:glslfx:surface`` connection, so Storm draws their fallback, what
+    renderers without the BTF shader draw: the OpenPBR network (``outputs:mtlx:surface``) where
+    the asset has one (Storm 25.02 and 25.08 both prefer the ``mtlx`` render context to the
+    universal one), else the ``UsdPreviewSurface``; ``"openpbr"`` also blocks
+    ``outputs:surface`` (only the MaterialX network can draw), ``"preview"`` also blocks
+    ``outputs:mtlx:surface`` (the ``UsdPreviewSurface``, what renderers without MaterialX draw).
+    Returns
     (camera prim path, (width, height) = the texture's texels)."""
     from pxr import Gf, Usd, UsdGeom, UsdLux
 
@@ -167,10 +172,14 @@ def swatch_scene(asset: Path, out: Path, light_deg, *, lod: str | None = None, k
 
         from .material import btf_materials
 
+        if fallback not in (True, "openpbr", "preview"):
+            raise BTFError(f"fallback {fallback!r}: choose True, 'openpbr' or 'preview'")
+        blocked = {True: ("glslfx",), "openpbr": ("glslfx", ""), "preview": ("glslfx", "mtlx")}[fallback]
         for material in btf_materials(stage):
-            output = UsdShade.Material(material).GetSurfaceOutput("glslfx")
-            if output:
-                output.GetAttr().SetConnections([])      # an explicit empty list blocks the asset's
+            for context in blocked:
+                output = UsdShade.Material(material).GetSurfaceOutput(context)
+                if output:
+                    output.GetAttr().SetConnections([])  # an explicit empty list blocks the asset's
     stage.GetRootLayer().customLayerData = {"usdbtf": {"output": "storm-check-scene"}}
     stage.Save()
     return "/World/Camera", (cbtf.width, cbtf.height)

@@ -1,10 +1,18 @@
-"""usdbtf for Blender: import a usdbtf asset and render its measured BTF in Cycles (OSL).
+"""usdbtf for Blender: import a usdbtf asset, render its measured BTF (Cycles, OSL) or its
+fitted lobes (Principled BSDF) in Cycles.
 
 File > Import > usdbtf asset: Blender's own USD importer brings the geometry and the
-UsdPreviewSurface fallback; the add-on then replaces each BTF material with a Cycles OSL
-network on the asset's textures (``network.py``).  Material properties > usdbtf: the level of
-detail (``lod``) and the sun that lights the BTF.  Render with Cycles, Open Shading Language
-on (Render properties > Open Shading Language; CPU).
+UsdPreviewSurface fallback; the add-on then gives each BTF material two surfaces
+(``network.py``) and shows one (Material properties > usdbtf > Surface):
+
+* **Measured BTF (one sun)**: the Cycles OSL network on the asset's BTF textures, the
+  measurement itself, lit by the one sun chosen in the panel (as emission: no other lamp, the
+  world or bounces light it).  Render with Cycles, Open Shading Language on (CPU).
+* **Fitted lobes (every light)**: a Principled BSDF on the asset's OpenPBR fallback maps (base,
+  specular with anisotropy, sheen = fuzz, normal map), which every lamp, the world and bounces
+  light; an approximation of the BTF (its fitted error is in ``usdbtf inspect``).
+
+The panel also picks the level of detail (``lod``) of the measured BTF.
 """
 import bpy
 from bpy.app.handlers import persistent
@@ -19,7 +27,8 @@ bl_info = {
     "version": (0, 1, 0),
     "blender": (4, 2, 0),
     "location": "File > Import > usdbtf asset; Material properties > usdbtf",
-    "description": "Import usdbtf assets and render the measured BTF in Cycles through OSL",
+    "description": "Import usdbtf assets: the measured BTF (Cycles OSL, one sun) or its fitted lobes "
+                   "(Principled BSDF, every light)",
     "category": "Import-Export",
 }
 
@@ -36,6 +45,19 @@ def _lod_changed(material, context):
         network.apply_lod(material, material.usdbtf_lod)
 
 
+#: (identifier, label, description) of the material's two surfaces (network.set_surface).
+SURFACE_ITEMS = [
+    (network.SURFACE_BTF, "Measured BTF (one sun)",
+     "The measurement itself, Cycles OSL: lit by the one sun below only (no other lamps, world or bounces)"),
+    (network.SURFACE_PRINCIPLED, "Fitted lobes (every light)",
+     "Principled BSDF fitted to the BTF (the asset's OpenPBR maps): every lamp, the world and bounces light it"),
+]
+
+
+def _surface_changed(material, context):
+    network.set_surface(material, material.usdbtf_surface)
+
+
 def _is_sun(_, obj):
     return obj.type == "LIGHT" and obj.data.type == "SUN"
 
@@ -48,10 +70,11 @@ class IMPORT_SCENE_OT_usdbtf(bpy.types.Operator, ImportHelper):
     bl_options = {"REGISTER", "UNDO"}
     filter_glob: StringProperty(default="*.usd;*.usda;*.usdc", options={"HIDDEN"})
     lod: StringProperty(name="lod", description="Level of detail (the asset's lod variant); empty: its default")
+    surface: EnumProperty(name="Surface", items=SURFACE_ITEMS, default=network.SURFACE_BTF)
 
     def execute(self, context):
         try:
-            objects, materials = network.import_asset(self.filepath, self.lod or None)
+            objects, materials = network.import_asset(self.filepath, self.lod or None, self.surface)
         except (ValueError, RuntimeError) as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
@@ -61,6 +84,7 @@ class IMPORT_SCENE_OT_usdbtf(bpy.types.Operator, ImportHelper):
         sun = next((o for o in context.scene.objects if _is_sun(None, o)), None)
         for material in materials:
             material.usdbtf_sun = sun
+            material.usdbtf_surface = self.surface
             network.sync_sun(material, sun)
         self.report({"INFO"}, f"usdbtf: {len(objects)} objects, {len(materials)} BTF materials")
         return {"FINISHED"}
@@ -78,9 +102,13 @@ class MATERIAL_PT_usdbtf(bpy.types.Panel):
 
     def draw(self, context):
         material = context.material
+        self.layout.prop(material, "usdbtf_surface")
+        if material.usdbtf_surface == network.SURFACE_PRINCIPLED:
+            self.layout.label(text="Principled BSDF fitted to the BTF: every lamp, the world and bounces")
+            return
         self.layout.prop(material, "usdbtf_lod")
         self.layout.prop(material, "usdbtf_sun")
-        self.layout.label(text="Cycles, Open Shading Language: the BTF under this sun, as emission")
+        self.layout.label(text="Measured BTF (Cycles, Open Shading Language): this sun only, as emission")
 
 
 @persistent
@@ -101,6 +129,9 @@ def register():
     bpy.utils.register_class(MATERIAL_PT_usdbtf)
     bpy.types.Material.usdbtf_lod = EnumProperty(name="lod", description="Level of detail: basis vectors and "
                                                  "the textures they need", items=_lod_items, update=_lod_changed)
+    bpy.types.Material.usdbtf_surface = EnumProperty(name="Surface", items=SURFACE_ITEMS,
+                                                     default=network.SURFACE_BTF, update=_surface_changed,
+                                                     description="Which of the material's two surfaces renders")
     bpy.types.Material.usdbtf_sun = PointerProperty(name="Sun", type=bpy.types.Object, poll=_is_sun,
                                                     description="The sun lamp whose direction lights the BTF")
     bpy.types.TOPBAR_MT_file_import.append(_menu)
@@ -114,6 +145,7 @@ def unregister():
             handlers.remove(_follow_suns)
     bpy.types.TOPBAR_MT_file_import.remove(_menu)
     del bpy.types.Material.usdbtf_sun
+    del bpy.types.Material.usdbtf_surface
     del bpy.types.Material.usdbtf_lod
     bpy.utils.unregister_class(MATERIAL_PT_usdbtf)
     bpy.utils.unregister_class(IMPORT_SCENE_OT_usdbtf)

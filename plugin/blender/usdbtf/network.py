@@ -1,4 +1,4 @@
-"""The usdbtf Cycles network: read a usdbtf asset's levels of detail, build the OSL material.
+"""The usdbtf Cycles networks: read a usdbtf asset, build its two Blender surfaces.
 
 No user interface here (``__init__.py`` has it), so scripts and tests call these directly:
 :func:`import_asset` lets Blender's USD importer bring the geometry and the
@@ -12,7 +12,30 @@ What the OSL shader can do in Cycles: an OSL surface returns closures that Cycle
 itself; it is never told a light's direction.  So the material evaluates the BTF for one
 sun, whose direction and strength :func:`sync_sun` copies into the shader (the add-on does
 it whenever the scene changes), and returns that as emission.  That sun casts no shadow on
-the material and other lights, the world and bounces do not light it.
+the material and other lights, the world and bounces do not light it: the **measured BTF,
+one sun** (``SURFACE_BTF``).
+
+The other surface, the **fitted lobes, every light** (``SURFACE_PRINCIPLED``,
+:func:`build_principled`): a Principled BSDF on the asset's OpenPBR fallback maps (the
+``open_pbr_surface`` network usdbtf authors on ``outputs:mtlx:surface``,
+:func:`read_openpbr_maps`), which Cycles lights like any material: every lamp, the world,
+bounces, shadows.  It is the per-texel fit of the BTF, not the measurement.  Both networks are
+in the material's node tree; :func:`set_surface` links the chosen one to the output.  The
+OpenPBR -> Principled mapping (Blender 4.x/5.x Principled BSDF):
+
+=============================== ==================================================
+open_pbr_surface                Principled BSDF
+=============================== ==================================================
+base_diffuse_roughness          Diffuse Roughness
+specular_weight                 Specular IOR Level = F0 / 0.08 (F0 = 0.04 specular_weight), IOR 1.5
+specular_color (sRGB file)      Specular Tint (x the fuzz throughput ratio, principled.py)
+base_color x throughput ratios  Base Color (principled.py: untinted vs tinted layers)
+specular_roughness, _anisotropy Roughness = (alpha_x alpha_y)^(1/4), Anisotropic ~ a / 0.9
+tangent map (cos, sin, 0)       Anisotropic Rotation = atan2(sin, cos) / 2 pi, Tangent: the UV map's
+fuzz_weight / _color / _rough.  Sheen Weight / Sheen Tint / Sheen Roughness
+normal map                      Normal Map node (tangent space, the UV map) -> Normal
+coat, metalness, transmission   0 (the fit does not use them)
+=============================== ==================================================
 """
 from __future__ import annotations
 
@@ -38,6 +61,16 @@ SCRIPT_TEXT = "usdbtf_surface.osl"
 SCRIPT_NODE = "usdbtf OSL"
 UV_MAP = "st"
 FRAME_ATTRIBUTES = ("tangents", "bitangents")
+#: The material's two surfaces (the add-on's menu items).
+SURFACE_BTF = "BTF"
+SURFACE_PRINCIPLED = "PRINCIPLED"
+PRINCIPLED_NODE = "usdbtf Principled (fitted OpenPBR)"
+#: OpenPBR map -> the image node of the asset's network (usdbtf.usd.openpbr: "OpenPbr<Map>Image").
+OPENPBR_MAPS = ("base", "specular", "fuzz", "params", "lobes", "tangent", "normal")
+#: Colour maps (sRGB files); the rest are data.
+_OPENPBR_COLOURS = ("base", "specular", "fuzz")
+#: lobes.b x this = specular_weight (usdbtf.usd.openpbr.SPECULAR_WEIGHT_SCALE).
+SPECULAR_WEIGHT_SCALE = 25.0
 
 
 def page_name(page: int) -> str:
@@ -159,6 +192,169 @@ def read_lods(asset: str) -> tuple[str, str, dict]:
     return material, default, lods
 
 
+def read_openpbr_maps(asset: str) -> dict:
+    """{map: resolved file} of the asset's OpenPBR fallback (:data:`OPENPBR_MAPS`), from the
+    ``ND_image_*`` nodes named ``OpenPbr<Map>Image``; {} for an asset without one (older assets)."""
+    Usd, UsdShade = _pxr()
+
+    stage = Usd.Stage.Open(str(asset))
+    found = {}
+    for prim in stage.Traverse() if stage else ():
+        shader = UsdShade.Shader(prim)
+        name = prim.GetName()
+        if not shader or not name.startswith("OpenPbr") or not name.endswith("Image"):
+            continue
+        key = name[len("OpenPbr"):-len("Image")].lower()
+        value = shader.GetInput("file").Get() if shader.GetInput("file") else None
+        if key in OPENPBR_MAPS and value is not None and value.resolvedPath:
+            found[key] = str(value.resolvedPath)
+    return found if all(k in found for k in OPENPBR_MAPS) else {}
+
+
+def _image(tree, path: str, colour: bool, location):
+    node = tree.nodes.new("ShaderNodeTexImage")
+    node.image = bpy.data.images.load(path, check_existing=True)
+    node.image.colorspace_settings.name = "sRGB" if colour else "Non-Color"
+    node.interpolation = "Linear"
+    node.extension = "REPEAT"
+    node.location = location
+    return node
+
+
+def _pixels(path: str, colour: bool):
+    """(H, W, 3) float64 of an image file as stored (bottom row first, as Blender holds it):
+    sRGB-encoded values for colour files, data for the rest."""
+    import numpy as np
+
+    image = bpy.data.images.load(path, check_existing=True)
+    image.colorspace_settings.name = "sRGB" if colour else "Non-Color"
+    w, h = image.size
+    rgba = np.empty(w * h * 4, np.float32)
+    image.pixels.foreach_get(rgba)
+    return rgba.reshape(h, w, 4)[..., :3].astype(np.float64)
+
+
+def _baked(name: str, rgb, data: bool):
+    """A float image (packed into the .blend) holding ``rgb`` (H, W, 3), bottom row first."""
+    import numpy as np
+
+    h, w = rgb.shape[:2]
+    image = bpy.data.images.get(name)
+    if image is None or tuple(image.size) != (w, h):
+        if image is not None:
+            bpy.data.images.remove(image)
+        image = bpy.data.images.new(name, w, h, alpha=False, float_buffer=True, is_data=data)
+    rgba = np.ones((h, w, 4), np.float32)
+    rgba[..., :3] = rgb
+    image.pixels.foreach_set(rgba.ravel())
+    try:
+        image.pack()
+    except RuntimeError:            # kept in memory; a saved .blend then lacks it
+        pass
+    return image
+
+
+def build_principled(material, maps: dict, uv_map: str = UV_MAP):
+    """Add to ``material``'s node tree the Principled BSDF of the fitted OpenPBR lobes on
+    ``maps`` (:func:`read_openpbr_maps`); returns the Principled node (not linked to the
+    output).  The inputs whose parameterisation differs from open_pbr_surface's (anisotropy,
+    the tinted layers' throughput: ``principled.py``) are baked per texel into float images
+    named after the material; the rest read the asset's files."""
+    import numpy as np
+
+    from .principled import principled_inputs
+
+    tree = material.node_tree
+    links = tree.links
+    inputs = principled_inputs(*(_pixels(maps[k], k in _OPENPBR_COLOURS)
+                                 for k in ("base", "specular", "fuzz", "params", "lobes")))
+    prefix = f"usdbtf {material.name} "
+    baked = {"base": _baked(prefix + "base (Principled)", inputs["Base Color"], False),
+             "tint": _baked(prefix + "specular tint (Principled)", inputs["Specular Tint"], False),
+             "specular": _baked(prefix + "specular (Principled)", np.stack(
+                 [inputs["Roughness"], inputs["Anisotropic"], inputs["Specular IOR Level"]], axis=-1), True)}
+    uv = tree.nodes.new("ShaderNodeUVMap")
+    uv.uv_map = uv_map
+    uv.location = (-1400, -600)
+    images = {}
+    for row, key in enumerate(("fuzz", "params", "lobes", "tangent", "normal")):
+        images[key] = _image(tree, maps[key], key in _OPENPBR_COLOURS, (-1100, -400 - 280 * row))
+    for row, (key, image) in enumerate(baked.items()):
+        node = tree.nodes.new("ShaderNodeTexImage")
+        node.image, node.interpolation, node.extension = image, "Linear", "REPEAT"
+        node.location = (-1100, -1900 - 280 * row)
+        images[key] = node
+    for node in images.values():
+        links.new(uv.outputs["UV"], node.inputs["Vector"])
+    bsdf = tree.nodes.new("ShaderNodeBsdfPrincipled")
+    bsdf.name = bsdf.label = PRINCIPLED_NODE
+    bsdf.location = (0, -600)
+    bsdf.inputs["Metallic"].default_value = 0.0
+    bsdf.inputs["IOR"].default_value = 1.5
+    bsdf.inputs["Coat Weight"].default_value = 0.0
+    links.new(images["base"].outputs["Color"], bsdf.inputs["Base Color"])
+    links.new(images["tint"].outputs["Color"], bsdf.inputs["Specular Tint"])
+    links.new(images["fuzz"].outputs["Color"], bsdf.inputs["Sheen Tint"])
+
+    def separate(key, x):
+        node = tree.nodes.new("ShaderNodeSeparateColor")
+        node.location = (x, images[key].location[1])
+        links.new(images[key].outputs["Color"], node.inputs["Color"])
+        return node
+
+    specular, params, lobes, tangent = (separate(k, -800) for k in ("specular", "params", "lobes", "tangent"))
+    links.new(specular.outputs["Red"], bsdf.inputs["Roughness"])
+    links.new(specular.outputs["Green"], bsdf.inputs["Anisotropic"])
+    links.new(specular.outputs["Blue"], bsdf.inputs["Specular IOR Level"])
+    if "Diffuse Roughness" in bsdf.inputs:               # Blender 4.3+
+        links.new(params.outputs["Blue"], bsdf.inputs["Diffuse Roughness"])
+    links.new(lobes.outputs["Red"], bsdf.inputs["Sheen Weight"])
+    links.new(lobes.outputs["Green"], bsdf.inputs["Sheen Roughness"])
+
+    def math_node(operation, a, b, x, c=None):
+        node = tree.nodes.new("ShaderNodeMath")
+        node.operation = operation
+        node.location = (x, tangent.location[1])
+        for i, value in enumerate((a, b, c)):
+            if value is None:
+                continue
+            if isinstance(value, (int, float)):
+                node.inputs[i].default_value = value
+            else:
+                links.new(value, node.inputs[i])
+        return node.outputs["Value"]
+
+    # The stored (cos, sin) * 0.5 + 0.5 -> phi / 2 pi (Blender's rotation is a fraction of a turn).
+    cos_phi = math_node("MULTIPLY_ADD", tangent.outputs["Red"], 2.0, -650, -1.0)
+    sin_phi = math_node("MULTIPLY_ADD", tangent.outputs["Green"], 2.0, -650, -1.0)
+    phi = math_node("ARCTAN2", sin_phi, cos_phi, -500)
+    links.new(math_node("DIVIDE", phi, 2.0 * 3.141592653589793, -350), bsdf.inputs["Anisotropic Rotation"])
+    uv_tangent = tree.nodes.new("ShaderNodeTangent")
+    uv_tangent.direction_type = "UV_MAP"
+    uv_tangent.uv_map = uv_map
+    uv_tangent.location = (-350, -2700)
+    links.new(uv_tangent.outputs["Tangent"], bsdf.inputs["Tangent"])
+    normal = tree.nodes.new("ShaderNodeNormalMap")
+    normal.space = "TANGENT"
+    normal.uv_map = uv_map
+    normal.location = (-350, -2900)
+    links.new(images["normal"].outputs["Color"], normal.inputs["Color"])
+    links.new(normal.outputs["Normal"], bsdf.inputs["Normal"])
+    return bsdf
+
+
+def set_surface(material, surface: str) -> None:
+    """Link ``surface`` (:data:`SURFACE_BTF` or :data:`SURFACE_PRINCIPLED`) to the material output."""
+    tree = material.node_tree
+    output = next(n for n in tree.nodes if n.bl_idname == "ShaderNodeOutputMaterial")
+    source = (tree.nodes.get(PRINCIPLED_NODE).outputs["BSDF"] if surface == SURFACE_PRINCIPLED and
+              tree.nodes.get(PRINCIPLED_NODE) else script_node(material).outputs["Radiance"])
+    if surface == SURFACE_PRINCIPLED and tree.nodes.get(PRINCIPLED_NODE) is None:
+        raise ValueError(f"usdbtf: {material.name} has no OpenPBR fallback (an asset packaged before it)")
+    tree.links.new(source, output.inputs["Surface"])
+    material["usdbtf_surface"] = surface
+
+
 def _script_text():
     """The OSL source as a text data-block (saved inside the .blend, so a file renders on
     machines without the add-on's folder)."""
@@ -193,8 +389,11 @@ def _uses_frame_attributes(material) -> bool:
     return bool(meshes) and all(all(a in m.attributes for a in FRAME_ATTRIBUTES) for m in meshes)
 
 
-def build_material(material, asset: str, lods: dict, lod: str) -> None:
-    """Replace ``material``'s nodes with the usdbtf OSL network for ``asset`` at ``lod``."""
+def build_material(material, asset: str, lods: dict, lod: str, surface: str = SURFACE_BTF,
+                   openpbr: dict | None = None) -> None:
+    """Replace ``material``'s nodes with the usdbtf OSL network for ``asset`` at ``lod`` and,
+    where ``openpbr`` ({map: file}, :func:`read_openpbr_maps`) is given, the Principled BSDF of
+    the fitted lobes beside it; ``surface`` is linked to the output (:func:`set_surface`)."""
     material.use_nodes = True
     tree = material.node_tree
     tree.nodes.clear()
@@ -233,6 +432,9 @@ def build_material(material, asset: str, lods: dict, lod: str) -> None:
         tangent.uv_map = UV_MAP
         tangent.location = (0, -150)
         tree.links.new(tangent.outputs["Tangent"], script.inputs["frameTangent"])
+    if openpbr:
+        build_principled(material, openpbr)
+    set_surface(material, surface)
     material["usdbtf_asset"] = str(asset)
     material["usdbtf_lods"] = json.dumps(lods)
     apply_lod(material, lod)
@@ -282,13 +484,15 @@ def sync_sun(material, sun) -> None:
         node.inputs["lightIrradiance"].default_value = sun.data.energy
 
 
-def import_asset(asset: str, lod: str | None = None) -> tuple[list, list]:
+def import_asset(asset: str, lod: str | None = None, surface: str = SURFACE_BTF) -> tuple[list, list]:
     """Import ``asset`` with Blender's USD importer and give its BTF materials the OSL
-    network at ``lod`` (default: the asset's own selection).  Use Cycles with Open Shading
-    Language (``scene.cycles.shading_system = True``) to see it.  Returns (new objects,
-    BTF materials)."""
+    network at ``lod`` (default: the asset's own selection) and the Principled BSDF of its
+    fitted OpenPBR lobes, ``surface`` shown (:data:`SURFACE_BTF`: the measured BTF under one
+    sun, Cycles with Open Shading Language, ``scene.cycles.shading_system = True``;
+    :data:`SURFACE_PRINCIPLED`: the fit, lit by every light).  Returns (new objects, BTF materials)."""
     asset = os.path.abspath(asset)
     name, default, lods = read_lods(asset)
+    openpbr = read_openpbr_maps(asset)
     lod = default if lod is None else lod
     if lod not in lods:
         raise ValueError(f"{asset}: no lod {lod!r} (has {', '.join(lods)})")
@@ -299,5 +503,5 @@ def import_asset(asset: str, lod: str | None = None) -> tuple[list, list]:
     new_objects = [o for o in bpy.data.objects if o not in objects]
     btf = [m for m in bpy.data.materials if m not in materials and (m.name == name or m.name.startswith(name + "."))]
     for material in btf:
-        build_material(material, asset, lods, lod)
+        build_material(material, asset, lods, lod, surface, openpbr)
     return new_objects, btf
