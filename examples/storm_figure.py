@@ -1,6 +1,9 @@
-"""Real Hydra Storm next to the CPU reference on a curved mesh (README figure).
+"""Real Hydra Storm next to the CPU reference on a curved mesh (a comparison sheet).
 
-    python examples/storm_figure.py ASSET.usda -o docs/storm_preview.png [--usd 25.08] [--size 256]
+    python examples/storm_figure.py ASSET.usda -o storm_vs_cpu.png [--usd 25.08] [--size 256]
+
+(The docs' Storm picture, ``docs/storm_preview.png``, shows a built scene instead:
+``examples/built_figure.py --renderer storm``.)
 
 ASSET is a packaged asset on a curved unwrapped mesh (``usdbtf unwrap`` then ``usdbtf package
 --mesh``).  One stage references it with a UsdGeom camera, a DistantLight and a SphereLight
