@@ -20,13 +20,16 @@ cycles  Blender 5.0.1's Cycles (CPU, OSL) through the usdbtf add-on, which impor
         irradiance (:func:`usdbtf.usd.cycles.render_frames`; its OSL BTF answers one sun).
 
 The frame (over grey) gets a legend: renderer and USD version, material, size, the texel density
-measured on the built mesh (:func:`usdbtf.usd.density.binding_densities`) and the light.  About
-two minutes on two busy cores for the first picture; ``--workdir DIR`` keeps the scene and the
-build, so the second renderer reuses it (SCons runs nothing when nothing changed).  Needs the bpy
-environments of ``scripts/bootstrap.sh``.
+measured on the built mesh (:func:`usdbtf.usd.density.binding_densities`) and the light.  A first
+run took 4 minutes on the shared two-core machine (about 1.5 min of CPU: compress, package, unwrap,
+quilt, package the 670 x 670 quilt); ``--workdir DIR`` keeps the scene and its build, so the other
+renderer reuses it (SCons runs nothing when nothing changed) and takes about 40 s.  The build's
+files and the picture are the same bytes on a rebuild from scratch.  Needs the bpy environments of
+``scripts/bootstrap.sh``.
 
 The output must be a ``.png`` path that is absent or already a PNG picture; anything else is
-refused (exit 73), as is a ``--workdir`` that is neither empty nor one this script made.
+refused (exit 73, ``examples/pictures.py``), as is a ``--workdir`` that is neither empty nor one
+this script made.
 """
 from __future__ import annotations
 
@@ -44,9 +47,9 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+from pictures import PNG_SIGNATURE, REFUSED, picture_refusal  # noqa: E402,F401
 from shapes import torus_knot  # noqa: E402
 
-PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 #: The file that marks a --workdir as this script's (so a second run may reuse it).
 MARKER = "built_figure.json"
 #: The capture: usdbtf synth PRESET --size SIZE --physical-size METRES --sampling small --seed 1.
@@ -58,25 +61,12 @@ CAMERA = "eye=0.0,0.21,0.25 target=0.0,-0.01,0.0 fov=40"
 SUN = (0.4, 1.0, 0.6)
 IRRADIANCE = math.pi
 BACKGROUND = 0.18           # linear grey under the frame's alpha
-REFUSED, USAGE = 73, 2
+USAGE = 2
 
 
 def fail(message: str, code: int) -> int:
     print(f"built_figure: error: {message}", file=sys.stderr)
     return code
-
-
-def picture_refusal(path: Path) -> str | None:
-    """Why ``path`` may not be written (None: it may): only a .png that is absent or a PNG file."""
-    if path.suffix.lower() != ".png":
-        return f"{path}: the picture must be a .png path"
-    if path.is_symlink() or (path.exists() and not path.is_file()):
-        return f"{path}: exists and is not a plain file; refusing to replace it"
-    if path.exists():
-        with open(path, "rb") as f:
-            if f.read(len(PNG_SIGNATURE)) != PNG_SIGNATURE:
-                return f"{path}: exists and is not a PNG picture; refusing to replace it"
-    return None
 
 
 def workdir_refusal(path: Path) -> str | None:

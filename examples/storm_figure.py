@@ -23,9 +23,10 @@ import cv2
 import numpy as np
 
 from preview_figure import _tile
+from pictures import refused
 from usdbtf.camera import Camera
 from usdbtf.cli import main as usdbtf_main
-from usdbtf.commands.preview import srgb_encoded
+from usdbtf.render.output import srgb_encoded
 from usdbtf.gpu.headless import psnr
 from usdbtf.imageio import write_image
 from usdbtf.render import parse_light
@@ -67,6 +68,8 @@ def main(argv=None) -> int:
     p.add_argument("--usd", default="25.08", choices=sorted(hydra.STORM_ENVIRONMENTS))
     p.add_argument("--size", type=int, default=256)
     args = p.parse_args(argv)
+    if (code := refused(args.output, 'storm_figure')) is not None:
+        return code
     args.output.parent.mkdir(parents=True, exist_ok=True)
     write_image(args.output, figure(args.asset, args.usd, args.size), color_space="sRGB Encoded Rec.709 (sRGB)")
     print(args.output)

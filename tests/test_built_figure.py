@@ -88,3 +88,20 @@ def test_scene_is_what_build_reads(figure):
     assert recipe.GetAttribute("btf:build:options").Get() == f"--k {figure.K}"
     assert stage.GetPrimAtPath("/World/Sun").GetTypeName() == "DistantLight"
     assert stage.GetPrimAtPath("/World/Cam").GetTypeName() == "Camera"
+
+
+@pytest.mark.parametrize("script,args", [("storm_figure", ["asset.usda"]), ("preview_figure", ["asset.usda"]),
+                                         ("fig5", []), ("figure", ["raw", "compressed"])])
+def test_every_picture_script_refuses_a_file_that_is_not_a_png(script, args, tmp_path, monkeypatch, capsys):
+    """The other example scripts that draw pictures share examples/pictures.py's rule, checked
+    before any work (their inputs here do not exist)."""
+    monkeypatch.syspath_prepend(str(SCRIPT.parent))
+    spec = importlib.util.spec_from_file_location(f"example_{script}", SCRIPT.parent / f"{script}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    scene = tmp_path / "scene.png"
+    scene.write_text("#usda 1.0\n")
+    assert module.main([*args, "-o", str(scene)]) == 73
+    assert scene.read_text() == "#usda 1.0\n"
+    assert capsys.readouterr().err == f"{script}: error: {scene}: exists and is not a PNG picture; refusing to " \
+                                      "replace it\n"
