@@ -23,6 +23,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import shapes  # noqa: E402  (examples/shapes.py)
+from pictures import refused  # noqa: E402
 
 from usdbtf.camera import auto_camera  # noqa: E402
 from usdbtf.cli import main as usdbtf  # noqa: E402
@@ -67,6 +68,8 @@ def main(argv=None) -> int:
     p.add_argument("--tile", type=int, default=256, help="pixels per rendered image (default 256)")
     p.add_argument("--seed", type=int, default=1)
     args = p.parse_args(argv)
+    if (code := refused(args.output, 'fig5')) is not None:
+        return code
     t0 = time.perf_counter()
     work = args.workdir
     work.mkdir(parents=True, exist_ok=True)

@@ -18,6 +18,8 @@ from usdbtf.compress import read_compressed, reconstruct
 from usdbtf.imageio import write_image
 from usdbtf.io import open_btf
 
+from pictures import refused
+
 
 def sheet(raw, cbtf, indices, *, scale: int = 2) -> np.ndarray:
     """(rows * (H*scale + label), cols * (W*scale + gap), 3) uint8 sRGB image."""
@@ -71,6 +73,8 @@ def main(argv=None):
     p.add_argument("-o", "--output", required=True)
     p.add_argument("--samples", help="comma-separated sample indices (default: 4 spread out)")
     a = p.parse_args(argv)
+    if (code := refused(a.output, 'figure')) is not None:
+        return code
     raw = open_btf(a.raw)
     cbtf = read_compressed(a.compressed)
     if a.samples:
@@ -82,4 +86,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

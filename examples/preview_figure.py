@@ -16,6 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from pictures import refused
 from usdbtf.camera import auto_camera
 from usdbtf.gpu.headless import HeadlessRenderer, psnr, uv_sphere
 from usdbtf.imageio import write_image
@@ -62,6 +63,8 @@ def main(argv=None) -> int:
     p.add_argument("asset", type=Path, help="packaged asset (.usda)")
     p.add_argument("-o", "--output", type=Path, required=True, help="PNG to write")
     args = p.parse_args(argv)
+    if (code := refused(args.output, 'preview_figure')) is not None:
+        return code
     args.output.parent.mkdir(parents=True, exist_ok=True)
     write_image(args.output, figure(args.asset), color_space="sRGB Encoded Rec.709 (sRGB)")
     print(args.output)

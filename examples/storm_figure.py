@@ -1,6 +1,9 @@
-"""Real Hydra Storm next to the CPU reference on a curved mesh (figure of docs/previews.md).
+"""Real Hydra Storm next to the CPU reference on a curved mesh (a comparison sheet).
 
-    python examples/storm_figure.py ASSET.usda -o docs/storm_preview.png [--usd 25.08] [--size 256]
+    python examples/storm_figure.py ASSET.usda -o storm_vs_cpu.png [--usd 25.08] [--size 256]
+
+(The docs' Storm picture, ``docs/storm_preview.png``, shows a built scene instead:
+``examples/built_figure.py --renderer storm``.)
 
 ASSET is a packaged asset on a curved unwrapped mesh (``usdbtf unwrap`` then ``usdbtf package
 --mesh``).  One stage references it with a UsdGeom camera, a DistantLight and a SphereLight
@@ -20,9 +23,10 @@ import cv2
 import numpy as np
 
 from preview_figure import _tile
+from pictures import refused
 from usdbtf.camera import Camera
 from usdbtf.cli import main as usdbtf_main
-from usdbtf.commands.preview import srgb_encoded
+from usdbtf.render.output import srgb_encoded
 from usdbtf.gpu.headless import psnr
 from usdbtf.imageio import write_image
 from usdbtf.render import parse_light
@@ -64,6 +68,8 @@ def main(argv=None) -> int:
     p.add_argument("--usd", default="25.08", choices=sorted(hydra.STORM_ENVIRONMENTS))
     p.add_argument("--size", type=int, default=256)
     args = p.parse_args(argv)
+    if (code := refused(args.output, 'storm_figure')) is not None:
+        return code
     args.output.parent.mkdir(parents=True, exist_ok=True)
     write_image(args.output, figure(args.asset, args.usd, args.size), color_space="sRGB Encoded Rec.709 (sRGB)")
     print(args.output)
