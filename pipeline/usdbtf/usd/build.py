@@ -568,6 +568,9 @@ def build(scene, *, force: bool = False, dask=None, source_facts=None, target_er
     stage_out = Path(os.path.abspath(output)) if output is not None else built_stage_path(scene)
     if report["bindings"]:              # refused before anything runs
         _check_stage_output(scene, stage_out, recipes, report, work, force)
+    elif output is not None:
+        log.warning(f"{scene}: no mesh is bound to a material with a recipe, so there is no built stage to write "
+                    f"at {stage_out}: the scene itself is what to open")
     made = [p for p in (work.parent, work) if not os.path.lexists(p)]
     _claim_outputs(scene, recipes, work, force)
     with contextlib.ExitStack() as stack:
