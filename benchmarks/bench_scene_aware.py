@@ -202,7 +202,7 @@ def report_text(doc: dict, args, k: int, out: Path) -> str:
     p = np.asarray(doc["psnr_db"])
     lines = [format_machine(doc["machine"]), "",
              f"Scene: {args.frames} frames at {args.resolution[0]}x{args.resolution[1]}, materials "
-             f"{args.sampling} sampling, {args.size}x{args.size} texels, recipe --k {k} --codec png --domain srgb",
+             f"{args.sampling} sampling, {args.size}x{args.size} texels, recipe --k {k} --codec png --domain {args.domain}",
              "", f"| build | wall s (median of {len(full['build_s'])}; each) | bytes | steps run | render all frames s |",
              "|---|---|---|---|---|"]
     for name, r in (("full (`--full`)", full), ("scene-shaped", shaped)):
