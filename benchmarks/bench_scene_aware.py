@@ -6,7 +6,8 @@ The scene (:mod:`usdbtf.bench.scenes`): a camera dollying sideways over ``--fram
 past a 5 cm floor quad (material Near, close up: about a pixel per texel), a 3 cm tile 1.6 m
 away (material Far: a few pixels on screen), a quad behind the camera (material Hidden: never
 in any frustum), and one distant light.  Three synthetic materials (``--sampling``,
-``--size`` texels, recipe ``--k``, ``--codec png --domain srgb``).
+``--size`` texels, recipe ``--k``, ``--codec png --domain srgb``; ``--domain auto`` for the
+recipes' automatic choice, which the shaped build takes from the full input, issue 41).
 
 Measures:
 
@@ -52,7 +53,8 @@ MATERIALS = {"Near": "pebbles", "Far": "ridged_fabric", "Hidden": "fuzzy_moss"}
 LIGHT = (0.3, 0.5, 1.0)
 
 
-def scene(folder: Path, captures: Path, frames: int, *, second_camera: bool, k: int, resolution) -> Path:
+def scene(folder: Path, captures: Path, frames: int, *, second_camera: bool, k: int, resolution,
+          domain: str = "srgb") -> Path:
     """Write ``folder/scene.usda`` (module docstring)."""
     from usdbtf.bench.scenes import Quad, Shot, write_scene
 
@@ -66,7 +68,7 @@ def scene(folder: Path, captures: Path, frames: int, *, second_camera: bool, k: 
     path.unlink(missing_ok=True)
     mats = {name: captures / preset for name, preset in MATERIALS.items()}
     return write_scene(path, mats, quads, shots, light_towards=LIGHT, frames=(1, frames), resolution=resolution,
-                       options=f"--k {k} --codec png --domain srgb")
+                       options=f"--k {k} --codec png --domain {domain}")
 
 
 def built_bytes(folder: Path) -> int:
@@ -123,6 +125,8 @@ def main() -> int:
     ap.add_argument("--resolution", type=int, nargs=2, default=(192, 128), metavar=("W", "H"))
     ap.add_argument("--repeats", type=int, default=3, help="builds of each kind, from scratch, alternating "
                     "(the median is reported; default 3)")
+    ap.add_argument("--domain", default="srgb", help="the recipes' --domain (default srgb; auto: the shaped "
+                    "build keeps the full build's choice, issue 41)")
     ap.add_argument("--work", type=Path, help="work folder (default: a temporary one, removed)")
     ap.add_argument("--figure", type=Path, help="write the frames picture (PNG) here")
     args = ap.parse_args()
@@ -139,6 +143,7 @@ def main() -> int:
                        "--size", str(args.size), "-q", cwd=work)
         doc = {"machine": machine_info(), "inputs": {"frames": args.frames, "sampling": args.sampling,
                                                      "size": args.size, "k": k, "resolution": list(args.resolution),
+                                                     "domain": args.domain,
                                                      "materials": MATERIALS}}
         runs = {"full": {"build_s": []}, "shaped": {"build_s": []}}
         for repeat in range(args.repeats):          # each build from scratch, the two alternating
@@ -146,7 +151,8 @@ def main() -> int:
                 folder = work / variant
                 shutil.rmtree(folder, ignore_errors=True)
                 folder.mkdir()
-                path = scene(folder, captures, args.frames, second_camera=False, k=k, resolution=args.resolution)
+                path = scene(folder, captures, args.frames, second_camera=False, k=k, resolution=args.resolution,
+                             domain=args.domain)
                 flags = ["--full"] if variant == "full" else []
                 build = usdbtf("build", str(path), "--json", *flags, cwd=folder)
                 report = json.loads(build.stdout)
@@ -169,7 +175,8 @@ def main() -> int:
         doc["geometry_pixels"] = [n for _, n in scores]
         # A second camera, then nothing changed.
         folder = work / "shaped"
-        path = scene(folder, captures, args.frames, second_camera=True, k=k, resolution=args.resolution)
+        path = scene(folder, captures, args.frames, second_camera=True, k=k, resolution=args.resolution,
+                     domain=args.domain)
         second = usdbtf("build", str(path), "--json", cwd=folder)
         again = usdbtf("build", str(path), "--json", cwd=folder)
         doc["second_camera"] = {"build_s": second.wall_s, "ran": json.loads(second.stdout)["ran"],
@@ -195,7 +202,7 @@ def report_text(doc: dict, args, k: int, out: Path) -> str:
     p = np.asarray(doc["psnr_db"])
     lines = [format_machine(doc["machine"]), "",
              f"Scene: {args.frames} frames at {args.resolution[0]}x{args.resolution[1]}, materials "
-             f"{args.sampling} sampling, {args.size}x{args.size} texels, recipe --k {k} --codec png --domain srgb",
+             f"{args.sampling} sampling, {args.size}x{args.size} texels, recipe --k {k} --codec png --domain {args.domain}",
              "", f"| build | wall s (median of {len(full['build_s'])}; each) | bytes | steps run | render all frames s |",
              "|---|---|---|---|---|"]
     for name, r in (("full (`--full`)", full), ("scene-shaped", shaped)):

@@ -10,7 +10,7 @@ Usage (repository root)::
     .venv/bin/python benchmarks/scene_build_picture.py              # -> docs/scene_build_scene.png, ~1 min
 
 Each half is ``usdbtf render SCENE --camera /World/Cam --size 480 270`` (SCENE: the user's
-``scene.usda``, then ``.usdbtf-build/scene/scene.usda``), composed over grey.
+``scene.usda``, then the built stage ``scene.built.usda``), composed over grey.
 """
 from __future__ import annotations
 

@@ -8,16 +8,17 @@ from usdbtf.cli import main
 from usdbtf.usd.build import build
 
 
-def build_scene(root: Path, text: str):
+def build_scene(root: Path, text: str, **options):
     """Write the scene ``text`` in ``root`` beside the two synthetic captures it names, build it
-    once.  Returns (scene path, the build's report, the scene's bytes before the build)."""
+    once (``options``: :func:`usdbtf.usd.build.build`'s, e.g. ``jobs``).  Returns (scene path, the
+    build's report, the scene's bytes before the build)."""
     for preset, name in (("pebbles", "pebbles"), ("fuzzy_moss", "moss")):
         assert main(["synth", preset, "-o", str(root / "captures" / name), "--sampling", "tiny", "--size", "16",
                      "-q"]) == 0
     scene = root / "scene.usda"
     scene.write_text(text)
     before = scene.read_bytes()
-    return scene, build(scene), before
+    return scene, build(scene, **options), before
 
 
 def open_stage(path):

@@ -10,6 +10,7 @@ manifest folder of PNG files; real folders and USD assets read back.
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -391,3 +392,23 @@ def test_coverage_for_directions_never_warns_for_them():
     elsewhere = directions_to_vectors([[60.0, 300.0]])
     assert CoverageCheck(views, cov.views.tolist()).missing(elsewhere).all()
     assert coverage_for(views, lights, asked_v, np.zeros((0, 3))) is None
+
+
+def test_a_shaped_compress_keeps_the_full_builds_working_domain():
+    """Issue 41: with ``--domain auto`` a scene-shaped compress works in the domain a full compress
+    of the input chooses (scored on the whole input), not in the one its few directions would
+    pick: metal_flakes (32 texels, small sampling) chooses sRGB whole, linear on three views by
+    three lights alone."""
+    from usdbtf.compress.core import full_input_domain
+    from usdbtf.compress.coverage import unique_directions
+
+    btf = synth("metal_flakes", SynthOptions(size=32, sampling="small")).to_btf()
+    opts = CompressOptions(k=4, codec="png")
+    views, _ = unique_directions(btf.sampling.view)
+    lights, _ = unique_directions(btf.sampling.light)
+    coverage = Coverage(views[:3], lights[-3:])
+    alone, _ = shaped_input(btf, coverage, None)
+    assert full_input_domain(btf, opts)[0].name == "srgb" and full_input_domain(alone, opts)[0].name == "linear"
+    shaped = compress(btf, replace(opts, coverage=coverage))
+    assert shaped.domain.name == "srgb" and shaped.info["choice"]["domain_scored_on"].startswith("the full input")
+    assert compress(btf, replace(opts, coverage=coverage, domain="linear")).domain.name == "linear"   # as asked

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,8 +16,9 @@ from usdbtf.camera import Camera
 from usdbtf.cli import main
 from usdbtf.fiducials import apply_homography, detect_markers, load_board, make_board
 from usdbtf.fill import combine, plan_fill, spherical_weights
-from usdbtf.imageio import read_image, write_image
-from usdbtf.manifest import read_manifest
+from usdbtf.errors import BTFError
+from usdbtf.imageio import read_attribute, read_image, read_info, write_image
+from usdbtf.manifest import read_manifest, read_masks
 from usdbtf.rectify import clipped_pixels, rectify_frame, warp_window, window_homography
 from usdbtf.rig import kinematics as K
 from usdbtf.rig.capture import decode_frame
@@ -323,6 +325,32 @@ def test_clipped_frames_are_reported(raw_capture, tmp_path, capsys):
     # 6 x 6 pixels and a pixel around them, about 3.8 pixels per texel: 2 x 2 to 3 x 3 texels.
     assert 4 <= round(saturated[0]["share"] * 32 ** 2) <= 9, saturated
     assert f"1 of 24 frames clipped under the sample window (worst: {glare['image']}" in err, err
+    # The flags themselves: a mask image beside the sample (8-bit, Raw), read back and checked.
+    doc = json.loads((tmp_path / "RECT" / "btf.json").read_text())
+    assert [i for i, s in enumerate(doc["samples"]) if "mask" in s] == [3]
+    mask_file = tmp_path / "RECT" / doc["samples"][3]["mask"]
+    assert mask_file.name == Path(doc["samples"][3]["image"]).stem + "_mask.png"
+    info = read_info(mask_file)
+    assert (info.width, info.height, info.channels, info.bit_depth) == (32, 32, 1, "uint8")
+    assert read_attribute(mask_file, "usdbtf:colorSpace") == "Raw"
+    masks = read_masks(tmp_path / "RECT")
+    assert list(masks) == [3] and masks[3].sum() == round(saturated[0]["share"] * 32 ** 2)
+    ys, xs = np.nonzero(masks[3])                         # one blob, at the glint (the window's middle)
+    assert ys.max() - ys.min() <= 3 and xs.max() - xs.min() <= 3 and 8 <= ys.mean() <= 24 and 8 <= xs.mean() <= 24
+    assert read_manifest(tmp_path / "RECT").n_samples == 24
+    # The reader refuses a mask that is not one: grey values, or another share than the report's.
+    values = np.where(masks[3], 255, 0).astype(np.uint8)
+    raw = {"usdbtf:colorSpace": "Raw"}
+    write_image(mask_file, np.where(masks[3], 128, 0).astype(np.uint8), color_space="Raw", attributes=raw)
+    with pytest.raises(BTFError, match="holds only 0"):
+        read_masks(tmp_path / "RECT")
+    values[0, 0] = 255 - values[0, 0]
+    write_image(mask_file, values, color_space="Raw", attributes=raw)
+    with pytest.raises(BTFError, match="rectify.saturated says"):
+        read_masks(tmp_path / "RECT")
+    write_image(mask_file, np.zeros((32, 32, 3), np.uint8), color_space="Raw", attributes=raw)
+    code, err = cli(capsys, "info", tmp_path / "RECT")
+    assert code == 65 and "a mask must be one 8-bit channel" in err, err
 
 
 def test_obstructed_samples_are_filled(raw_capture, tmp_path, capsys):

@@ -107,6 +107,7 @@ def test_requirements_rebuild_on_a_needier_camera_and_nothing_on_no_change(captu
     assert "validation: 0 error(s)" in out
     assert "[usdbtf:Coverage]" not in out          # the plan keeps what its own camera and light ask for
     _check_frames(scene, tmp_path / "frames", capsys)
+    _check_mesh_walks(scene)
     meta = json.loads((tmp_path / "build/Near_compressed/btf-compressed.json").read_text())
     kept = meta["coverage"]["views"]
     assert build(scene, source_facts=source_facts)["ran"] == []             # nothing changed
@@ -141,6 +142,25 @@ def _check_frames(scene: Path, folder: Path, capsys) -> None:
     assert images[0].shape == (64, 96, 4)
     assert 0.1 < images[0][..., 3].mean() < 1.0 and images[0][..., :3].max() > 0.05     # the floor, lit
     assert not np.array_equal(images[0], images[1])                                     # the camera moved
+
+
+def _check_mesh_walks(scene: Path) -> None:
+    """The one walk over a stage's BTF meshes (issue 41) gives both callers the prims they took
+    before: ``render ASSET`` (:func:`usdbtf.usd.scene.bound_btf_meshes`) every bound mesh, the
+    invisible and the proxy one included; ``render --camera`` (:func:`usdbtf.usd.shots.scene_shots`)
+    only what a final render shows at each frame."""
+    from pxr import Usd
+
+    from usdbtf.usd.scene import bound_btf_meshes
+    from usdbtf.usd.shots import scene_shots
+
+    parts = bound_btf_meshes(Usd.Stage.Open(str(scene)))
+    assert [m.name for _, m in parts] == ["Floor", "Tile", "Ghost", "Stand_in"]
+    assert parts[2][0] is parts[3][0] and parts[0][0] is not parts[1][0]      # one CompressedBTF a material
+    materials, shots = scene_shots(scene, "/World/Cam", 96, [1, 3])
+    assert [[(material, m.name) for material, m in shot.parts] for shot in shots] == \
+        [[("/World/Looks/Near", "Floor"), ("/World/Looks/Far", "Tile")]] * 2
+    assert sorted(materials) == ["/World/Looks/Far", "/World/Looks/Near"]
 
 
 def test_screen_error_target_becomes_a_per_texel_target(captures, tmp_path):

@@ -8,7 +8,7 @@ import json
 import pytest
 
 import usdbtf  # noqa: F401
-from cli_helpers import bad_input, ok, run
+from cli_helpers import bad_input, bad_usage, ok, refused, run
 from scene_build_data import build_scene, open_stage
 from usdbtf.usd.build import build
 from usdbtf.usd.density import binding_densities
@@ -80,7 +80,7 @@ SCENE = HEADER + '''def Xform "World"
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
     """The scene built once: (scene path, the first build's report, the scene's bytes before)."""
-    return build_scene(tmp_path_factory.mktemp("meshes"), SCENE)
+    return build_scene(tmp_path_factory.mktemp("meshes"), SCENE, jobs=2)
 
 
 def test_every_binding_has_the_materials_density_after_build(built):
@@ -120,6 +120,33 @@ def test_identical_meshes_of_a_material_share_one_quilt(built):
         assert tuple(material.GetPrim().GetAttribute(NS + "resolution").Get()) == \
             (unwrap["atlas"]["width"], unwrap["atlas"]["height"])
         assert material.GetPrim().GetAttribute(NS + "basisCount").Get() == 4
+
+
+def _outputs(folder) -> dict:
+    """{relative path: bytes} of every build output under ``folder`` (the assets, the bound
+    meshes' chains, the coverage documents, the built stage), not the build's bookkeeping."""
+    roots = [folder / "build", folder / ".usdbtf-build" / "scene" / "bindings",
+             folder / ".usdbtf-build" / "scene" / "materials"]
+    files = [p for root in roots if root.is_dir() for p in sorted(root.rglob("*")) if p.is_file()]
+    return {str(p.relative_to(folder)): p.read_bytes() for p in files + [folder / "scene.built.usda"]}
+
+
+def test_one_step_at_a_time_or_two_at_once_the_same_bytes(built):
+    """Issue 41: SCons runs independent material and mesh chains at once (the fixture: -j 2);
+    built again from scratch in the same folder one step at a time (-j 1), every output has the
+    same bytes (the same folder: the compressed metadata records its source's absolute path)."""
+    import shutil
+
+    scene, report, _ = built
+    want = _outputs(scene.parent)
+    for old in (scene.parent / "build", scene.parent / ".usdbtf-build"):
+        shutil.rmtree(old)
+    (scene.parent / "scene.built.usda").unlink()
+    serial = build(scene, jobs=1)
+    assert sorted(serial["ran"]) == sorted(report["ran"]) and len(report["ran"]) == 12
+    got = _outputs(scene.parent)
+    assert sorted(got) == sorted(want) and len(want) > 30
+    assert [name for name in want if got[name] != want[name]] == []
 
 
 def test_inspect_validate_flags_a_stretched_material_and_passes_the_built_scene(built, capsys):
@@ -184,6 +211,62 @@ def test_render_draws_every_bound_mesh_with_its_own_material(built, capsys):
     np.testing.assert_allclose(both[on_box], alone[0][on_box], atol=1e-6)          # the box in front
     np.testing.assert_allclose(both[on_plane & ~on_box], alone[1][on_plane & ~on_box], atol=1e-6)
     assert not both[~(on_box | on_plane)].any()
+
+
+def _resolved_dependencies(path) -> list:
+    """Every layer and asset the stage at ``path`` depends on, each resolved (an unresolved one
+    is listed as unresolved by UsdUtils)."""
+    from pxr import Sdf, UsdUtils
+
+    layers, assets, unresolved = UsdUtils.ComputeAllDependencies(Sdf.AssetPath(str(path)))
+    assert unresolved == [], unresolved
+    return [layer.realPath for layer in layers] + list(assets)
+
+
+def test_the_built_stage_is_a_visible_file_beside_the_scene(built, capsys):
+    """Issue 41: the stage to open is ``scene.built.usda`` beside the user's ``scene.usda`` (its
+    paths relative to it, every one resolving), ``build`` prints it last, ``inspect --validate``
+    on the user's file names it, and ``-o`` puts it elsewhere; an existing file is replaced only
+    when it is this scene's last built stage, or with --force another usdbtf built stage."""
+    from pxr import Sdf
+
+    scene, report, _ = built
+    stage_path = scene.parent / "scene.built.usda"
+    assert report["built_scene"] == stage_path and stage_path.is_file()
+    assert not (scene.parent / ".usdbtf-build" / "scene" / "scene.usda").exists()
+    layer = Sdf.Layer.FindOrOpen(str(stage_path))
+    assert list(layer.subLayerPaths) == ["scene.usda"]                # relative to the built stage
+    assert dict(layer.customLayerData)["usdbtf"] == {"output": "usdbtf-built-stage", "scene": "scene.usda"}
+    deps = _resolved_dependencies(stage_path)
+    assert str(scene) in deps and any("/.usdbtf-build/scene/bindings/" in d for d in deps)
+    assert not open_stage(stage_path).GetCompositionErrors()
+    # The user's own scene: still stretched (an error), and one line names the stage to open.
+    code, out, err = run(capsys, "inspect", scene, "--validate")
+    assert code == 65 and "[usdbtf:TexelDensity] /World/Box" in out
+    names = [line for line in out.splitlines() if "[usdbtf:BuiltStage]" in line]
+    assert names == [f"  [usdbtf:BuiltStage] {scene}: superseded by the built stage {stage_path} (usdbtf build: "
+                     "its bound meshes quilted at measured scale); open that one"]
+    # A rebuild replaces its own stage without --force, and prints its path last.
+    code, out, err = run(capsys, "build", scene)
+    assert code == 0 and out.splitlines()[-1] == str(stage_path), err
+    # -o elsewhere: the paths are relative to that file, and still resolve.
+    other = scene.parent / "shots" / "lit.usda"
+    out = ok(capsys, "build", scene, "-o", other)
+    assert out.splitlines()[-1] == str(other)
+    assert list(Sdf.Layer.FindOrOpen(str(other)).subLayerPaths) == ["../scene.usda"]
+    assert str(scene) in _resolved_dependencies(other) and not open_stage(other).GetCompositionErrors()
+    assert f"superseded by the built stage {other} " in run(capsys, "inspect", scene, "--validate")[1]
+    # Not a file of ours: refused, even with --force; the old default stage, no longer this
+    # build's, needs --force (and is a built stage, so --force replaces it).
+    mine = scene.parent / "mine.usda"
+    mine.write_text("#usda 1.0\n")
+    refused(capsys, "build", scene, "-o", mine, names=f"{mine}: exists")
+    refused(capsys, "build", scene, "-o", mine, "--force", names="not a usdbtf usdbtf-built-stage")
+    assert mine.read_text() == "#usda 1.0\n"
+    refused(capsys, "build", scene, names=f"{stage_path}: exists; pass --force")
+    bad_usage(capsys, "build", scene, "-o", scene.parent / "x.txt", names="*.usda")
+    refused(capsys, "build", scene, "-o", scene, names="a layer of the scene being built")
+    assert ok(capsys, "build", scene, "--force").splitlines()[-1] == str(stage_path)
 
 
 def test_rebuilds_only_what_a_mesh_edit_touches(built):

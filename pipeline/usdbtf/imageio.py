@@ -18,7 +18,7 @@ import OpenImageIO as oiio
 
 from .errors import BTFError, IOFailure, UsageError, one_line
 
-__all__ = ["ImageInfo", "read_info", "read_image", "read_rgba", "write_image", "encode_image", "decode_image",
+__all__ = ["ImageInfo", "read_info", "read_attribute", "read_image", "read_rgba", "write_image", "encode_image", "decode_image",
            "write_encoded", "memory_file", "BIT_DEPTHS", "numpy_dtype", "oiio_error", "native_stderr_captured"]
 
 log = logging.getLogger(__name__)
@@ -165,6 +165,17 @@ def read_info(path) -> ImageInfo:
         inp = _open(path)
         try:
             return _info(path, inp)
+        finally:
+            inp.close()
+
+
+def read_attribute(path, name: str) -> str:
+    """The string attribute ``name`` of the image at ``path``'s header ("" when absent), e.g. a
+    PNG text chunk a writer put there through :func:`write_image`'s ``attributes``."""
+    with native_stderr_captured():
+        inp = _open(path)
+        try:
+            return inp.spec().get_string_attribute(name, "")
         finally:
             inp.close()
 

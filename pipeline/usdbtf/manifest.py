@@ -7,6 +7,15 @@
 
 Angles in degrees; images in any format OpenImageIO reads; extra keys are kept
 (per sample, e.g. ``"interpolated": true``; top level, e.g. ``"physical_size_m"``).
+
+A sample may name a mask, ``"mask": "<file>"`` (``usdbtf rectify`` writes one for every sample
+whose frame clipped under the window): a W x H single-channel 8-bit PNG in the ``Raw`` colour
+space (data, not colour: OpenImageIO writes no colour chunk for it, and the text chunk
+``usdbtf:colorSpace = "Raw"`` says so, since a PNG without one reads as sRGB), 255 where the
+texel was not recorded (the sensor clipped within a pixel of its footprint: its value is not
+a measurement), 0 elsewhere.  A sample without one
+was recorded everywhere.  :func:`read_manifest` checks every mask's header and
+:func:`read_masks` its pixels.
 """
 from __future__ import annotations
 
@@ -21,17 +30,22 @@ import numpy as np
 from . import color, jsontext
 from .atomic import atomic_dir
 from .errors import BTFError
-from .imageio import numpy_dtype, read_info, write_image
+from .imageio import numpy_dtype, read_attribute, read_image, read_info, write_image
 from .model import FileBTF, validate_sampling
 from .outputs import MANIFEST as _MANIFEST_KIND
 from .sampling import Sampling
 
-__all__ = ["FORMAT", "MANIFEST", "read_manifest", "write_manifest", "encode_for_file", "FORMAT_ATTRIBUTES",
-           "outside_paths_allowed", "outside_paths_are_allowed"]
+__all__ = ["FORMAT", "MANIFEST", "read_manifest", "read_masks", "write_manifest", "encode_for_file",
+           "FORMAT_ATTRIBUTES", "MASK_SPACE", "outside_paths_allowed", "outside_paths_are_allowed"]
 
 FORMAT = "btf-manifest/1"
 MANIFEST = "btf.json"
 _RESERVED = {"format", "color_space", "width", "height", "samples"}
+#: The colour space a sample's mask declares: data, no colour transform applies.
+MASK_SPACE = "Raw"
+#: The PNG text chunk that declares it (OpenImageIO reads a PNG without colour chunks as sRGB).
+MASK_SPACE_ATTRIBUTE = "usdbtf:colorSpace"
+_MASK_ON = 255
 
 # Writer options per file extension: fast lossless PNG (the zlib level barely changes size on
 # noisy texture data, but level 9 is 10x slower to write), lossless zip EXR, raw TIFF.
@@ -137,6 +151,8 @@ def read_manifest(folder, *, ocio_config: str | None = None, working_space: str 
         paths.append(_image_path(folder, real_folder, s["image"], path, label, outside))
         names.append(s["image"])
         interp.append(bool(s.get("interpolated", False)))
+        if "mask" in s:
+            _check_mask(_mask_path(folder, real_folder, s, path, label, outside), doc, label)
     sampling = Sampling(np.array(views), np.array(lights))
     validate_sampling(sampling, [f"{path.name} sample #{i} ({n})" for i, n in enumerate(names)])
     extra = {k: v for k, v in doc.items() if k not in _RESERVED}
@@ -148,6 +164,67 @@ def read_manifest(folder, *, ocio_config: str | None = None, working_space: str 
                         interpolated=np.array(interp), ocio_config=ocio_config, working_space=working_space,
                         metadata=extra)
     return btf
+
+
+def _mask_path(folder: Path, real_folder: str, sample: dict, manifest: Path, label: str, outside: bool) -> str:
+    if not isinstance(sample["mask"], str):
+        raise BTFError(f"{manifest}: sample {label}: \"mask\" must be a file name, got {sample['mask']!r}")
+    return _image_path(folder, real_folder, sample["mask"], manifest, label + " mask", outside)
+
+
+def _check_mask(path: str, doc: dict, label: str) -> None:
+    """A mask's header: the manifest's size, one 8-bit channel, the Raw colour space."""
+    if not os.path.isfile(path):
+        raise BTFError(f"{path}: sample {label}: mask not found")
+    info = read_info(path)
+    if (info.width, info.height) != (doc["width"], doc["height"]):
+        raise BTFError(f"{path}: sample {label}: mask is {info.width}x{info.height}, but the manifest declares "
+                       f"{doc['width']}x{doc['height']}")
+    if info.channels != 1 or info.bit_depth != "uint8":
+        raise BTFError(f"{path}: sample {label}: a mask must be one 8-bit channel, got {info.channels} "
+                       f"{info.bit_depth} channel(s)")
+    declared = read_attribute(path, MASK_SPACE_ATTRIBUTE)
+    if declared != MASK_SPACE:
+        raise BTFError(f"{path}: sample {label}: a mask is data and declares {MASK_SPACE_ATTRIBUTE} = "
+                       f"{MASK_SPACE!r}, got {declared or info.color_space!r}")
+
+
+def read_masks(folder, *, allow_outside_paths: bool | None = None) -> dict[int, np.ndarray]:
+    """{sample index: (H, W) bool, True where the texel was not recorded} for every sample of
+    the manifest at ``folder`` that names a mask (the others were recorded everywhere).
+
+    Each mask is checked (:func:`read_manifest`'s header checks, then only the values 0 and 255),
+    and where the manifest's ``rectify.saturated`` report gives the sample's flagged share, the
+    mask must hold that share (to the report's 6 decimals)."""
+    outside = _OUTSIDE.get() if allow_outside_paths is None else bool(allow_outside_paths)
+    folder = Path(folder)
+    path = folder / MANIFEST if folder.is_dir() else folder
+    folder = path.parent
+    doc = jsontext.load(path, "JSON manifest")
+    if not isinstance(doc, dict) or not isinstance(doc.get("samples"), list):
+        raise BTFError(f"{path}: not a {FORMAT} manifest")
+    report = doc.get("rectify") if isinstance(doc.get("rectify"), dict) else {}
+    shares = {e.get("index"): e.get("share") for e in report.get("saturated") or [] if isinstance(e, dict)}
+    real_folder = os.path.realpath(folder)
+    out = {}
+    for i, s in enumerate(doc["samples"]):
+        if not isinstance(s, dict) or "mask" not in s:
+            continue
+        label = f"#{i} ({s.get('image')})"
+        mask_file = _mask_path(folder, real_folder, s, path, label, outside)
+        _check_mask(mask_file, doc, label)
+        pixels, _ = read_image(mask_file)
+        values = pixels[..., 0]
+        if not np.isin(values, (0, _MASK_ON)).all():
+            raise BTFError(f"{mask_file}: sample {label}: a mask holds only 0 (recorded) and {_MASK_ON} (not "
+                           f"recorded), found {sorted(set(np.unique(values).tolist()) - {0, _MASK_ON})[:3]}")
+        mask = values == _MASK_ON
+        share = shares.get(i)
+        if isinstance(share, (int, float)) and abs(float(mask.mean()) - share) > 6e-7:
+            raise BTFError(f"{mask_file}: sample {label}: the mask flags {mask.mean():.6f} of the texels, the "
+                           f"manifest's rectify.saturated says {share}")
+        out[i] = mask
+    return out
 
 
 def encode_for_file(linear: np.ndarray, processor: color.Processor, bit_depth: str) -> np.ndarray:
@@ -173,7 +250,7 @@ def _sample_file(i: int, view, light, ext: str) -> str:
 def write_manifest(folder, sampling: Sampling, images: Iterable[np.ndarray], *, color_space: str,
                    bit_depth: str = "uint8", ext: str = "png", array_space: str = color.WORKING_SPACE,
                    ocio_config: str | None = None, interpolated=None, metadata: dict | None = None,
-                   attributes: dict | None = None) -> Path:
+                   attributes: dict | None = None, masks: dict | None = None) -> Path:
     """Write a manifest folder atomically.
 
     Parameters
@@ -184,6 +261,8 @@ def write_manifest(folder, sampling: Sampling, images: Iterable[np.ndarray], *, 
     ext : file extension, picks the OIIO writer.
     interpolated : optional (S,) bool, marks filled samples.
     metadata : extra top-level keys (e.g. {"physical_size_m": [0.05, 0.05]}).
+    masks : optional {sample index: (H, W) bool, True where not recorded}: each written beside
+        its sample as ``<sample file stem>_mask.png`` (see the module docstring).
     """
     space = color.resolve_space(color_space, ocio_config)
     proc = color.processor(array_space, space, ocio_config)
@@ -211,6 +290,14 @@ def write_manifest(folder, sampling: Sampling, images: Iterable[np.ndarray], *, 
                      "light": [float(x) for x in sampling.light[i]]}
             if interpolated[i]:
                 entry["interpolated"] = True
+            if masks and i in masks:
+                mask = np.asarray(masks[i], bool)
+                if mask.shape != (height, width):
+                    raise BTFError(f"sample #{i}: mask is {mask.shape}, expected {(height, width)}")
+                entry["mask"] = f"{Path(name).stem}_mask.png"
+                write_image(tmp / entry["mask"], np.where(mask, _MASK_ON, 0).astype(np.uint8),
+                            color_space=MASK_SPACE,
+                            attributes={**FORMAT_ATTRIBUTES["png"], MASK_SPACE_ATTRIBUTE: MASK_SPACE})
             entries.append(entry)
             count += 1
         if count != len(sampling):

@@ -10,6 +10,7 @@ attribute, not how to write one, so it sits below every writer.
 kind                          what     recognised by
 ============================  =======  ==========================================================
 ``btf-manifest/1``            folder   ``btf.json`` with that ``format``; only the listed images
+                                       (and masks)
 ``btf-compressed/1``          folder   ``btf-compressed.json`` with that ``format``; only the
                                        basis, coefficient, error-curve and position-map files
 ``usdbtf-unwrap``             folder   ``unwrap.json`` with ``"tool": "usdbtf unwrap"``; only
@@ -23,6 +24,10 @@ kind                          what     recognised by
                                        folder ``viewNNNN`` per view it names (``pca-view``)
 ``usdbtf-asset``              file     a USD layer (or usdz) whose layer metadata holds
                                        ``customLayerData = {"usdbtf": {"output": ...}}``
+``usdbtf-built-stage``        file     a USD layer whose layer metadata holds ``customLayerData =
+                                       {"usdbtf": {"output": "usdbtf-built-stage"}}``: the stage
+                                       ``usdbtf build`` writes to open (the scene, bound meshes
+                                       quilted at measured scale)
 ``usdbtf-asset-textures``     folder   ``<stem>_textures`` beside a usdbtf asset; only packaged
                                        texture names (BTF codes, GPU tables and pages, the
                                        fallback's maps, the thumbnail; any texture format)
@@ -42,7 +47,7 @@ import re
 from pathlib import Path
 
 __all__ = ["MANIFEST", "COMPRESSED", "UNWRAP", "CAPTURE", "SIM_FRAMES", "BENCH", "BENCH_BASELINE", "ASSET",
-           "ASSET_TEXTURES", "RENDER", "BOARD_IMAGE", "BOARD", "PORT", "PTY_LINK", "OWNED", "FOLDER_KINDS",
+           "ASSET_TEXTURES", "BUILT_STAGE", "RENDER", "BOARD_IMAGE", "BOARD", "PORT", "PTY_LINK", "OWNED", "FOLDER_KINDS",
            "RESUMABLE_KINDS", "IMAGE_ATTRIBUTE", "USD_MARKER_KEY", "identify", "is_kind", "usd_marker"]
 
 MANIFEST = "btf-manifest/1"
@@ -58,6 +63,7 @@ BENCH = "usdbtf-bench"
 BENCH_BASELINE = "usdbtf-bench-baseline/1"
 ASSET = "usdbtf-asset"
 ASSET_TEXTURES = "usdbtf-asset-textures"
+BUILT_STAGE = "usdbtf-built-stage"
 RENDER = "usdbtf-render"
 BOARD_IMAGE = "usdbtf-board-image"
 BOARD = "usdbtf-board/1"
@@ -151,7 +157,7 @@ def _manifest(folder: Path) -> bool:
     doc = _json(folder / _MANIFEST_FILE)
     if not isinstance(doc, dict) or doc.get("format") != MANIFEST or not isinstance(doc.get("samples"), list):
         return False
-    images = {s.get("image") for s in doc["samples"] if isinstance(s, dict)}
+    images = {s.get(key) for s in doc["samples"] if isinstance(s, dict) for key in ("image", "mask")}
     return _only(folder, {_MANIFEST_FILE} | {i for i in images if isinstance(i, str)})
 
 
@@ -276,7 +282,8 @@ def identify(path) -> str | None:
         return None
     suffix = path.suffix.lower()
     if suffix in (".usda", ".usdc", ".usd", ".usdz"):
-        return ASSET if _usd_layer(path) == ASSET else None
+        kind = _usd_layer(path)
+        return kind if kind in (ASSET, BUILT_STAGE) else None
     if suffix in (".exr", ".png"):
         kind = _image_kind(path)
         return kind if kind in (RENDER, BOARD_IMAGE) else None

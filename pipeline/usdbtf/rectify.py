@@ -11,7 +11,9 @@ Per frame (pure core, :func:`rectify_frame`):
    Lanczos lookups, then a box filter), so a frame finer than the output is not aliased;
 4. flag the texels the sensor did not record: those within a pixel of a clipped sensor
    pixel (an integer frame at its top code), whose values the frame does not hold
-   (:func:`clipped_texels`).  The stage reports each sample's flagged share.
+   (:func:`clipped_texels`).  The stage reports each sample's flagged share, and writes the
+   flags as a mask image beside the sample (``"mask"`` in the manifest,
+   :func:`usdbtf.manifest.read_masks`).
 
 A frame is *rejected* (reported, and treated as missing rather than guessed) when it
 shows fewer than ``min_markers`` board markers, when the RANSAC fit leaves a mean inlier
@@ -352,6 +354,8 @@ class RectifyResult:
     report : what was done (frames, rejected, interpolated, residuals, board), stored under
         ``"rectify"`` in the output manifest; metadata : the manifest's extra keys.
     options : the :class:`RectifyOptions`.
+    masks : {sample: (N, N) bool, the texels not recorded} of the samples whose frame clipped
+        under the window (stored bit-packed: :meth:`mask`).
     """
 
     sampling: Sampling
@@ -361,6 +365,15 @@ class RectifyResult:
     report: dict
     metadata: dict
     options: RectifyOptions
+    masks: dict = field(default_factory=dict)
+
+    def mask(self, i: int) -> np.ndarray:
+        """(N, N) bool: the texels of sample ``i`` the sensor did not record (all False when
+        its frame clipped nowhere under the window)."""
+        n = self.options.size
+        if i not in self.masks:
+            return np.zeros((n, n), bool)
+        return np.unpackbits(self.masks[i], count=n * n).reshape(n, n).astype(bool)
 
     def image(self, i: int) -> np.ndarray:
         """Sample ``i`` (N, N, 3) float32 working space: its rectified frame, or the fill."""
@@ -417,7 +430,7 @@ def rectify(raw, options: RectifyOptions, *, board: Board | None = None, scratch
     else:
         require_memory(n * size * size * 12, what)
         texels = np.empty((n, size, size, 3), np.float32)
-    rejected, residuals, saturated = {}, [], {}
+    rejected, residuals, saturated, masks = {}, [], {}, {}
     order = sorted(plan.frame_of)
     available = np.zeros(n, bool)
     tasks = [plan.frame_of[i] for i in order]
@@ -440,6 +453,7 @@ def rectify(raw, options: RectifyOptions, *, board: Board | None = None, scratch
                 residuals.append(res.residual_px)
                 if res.saturated_share > 0:
                     saturated[i] = res.saturated_share
+                    masks[i] = np.packbits(res.saturated.ravel())      # 1 bit a texel until written
     except BaseException:
         if pool is not None:
             stop_pool(pool)          # SIGTERM, Ctrl-C, an error: the workers stop now
@@ -472,7 +486,7 @@ def rectify(raw, options: RectifyOptions, *, board: Board | None = None, scratch
               "saturated": [{"index": i, "share": round(share, 6)} for i, share in sorted(saturated.items())],
               "board": board.to_json()}
     metadata = {"physical_size_m": list(board.window_size_m), "rectify": report}
-    return RectifyResult(plan.sampling, texels, available, fills, report, metadata, options)
+    return RectifyResult(plan.sampling, texels, available, fills, report, metadata, options, masks)
 
 
 def write_rectify(result: RectifyResult, path) -> None:
@@ -480,4 +494,5 @@ def write_rectify(result: RectifyResult, path) -> None:
     ``result.options`` says, interpolated samples marked."""
     o = result.options
     write_manifest(path, result.sampling, result.images(), color_space=o.color_space, bit_depth=o.bit_depth,
-                   ext=o.ext, interpolated=~result.available, metadata=result.metadata)
+                   ext=o.ext, interpolated=~result.available, metadata=result.metadata,
+                   masks={i: result.mask(i) for i in sorted(result.masks)})

@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-from ..argtypes import float_in
+from ..argtypes import float_in, int_in
 from ..cluster import ADDRESS_HELP, parse_address
 
 log = logging.getLogger(__name__)
@@ -24,6 +24,13 @@ def add_parser(sub) -> None:
                         "else the recipe's k); scaled to a per-texel target by its size on screen")
     p.add_argument("--dask", type=parse_address, metavar="ADDRESS", help=ADDRESS_HELP + "; the material builds "
                    "run as tasks there, with the same outputs")
+    p.add_argument("-o", "--output", type=Path, metavar="PATH",
+                   help="the built stage to write and open: the scene with every bound mesh quilted at its "
+                        "material's measured scale (default: SCENE.built.usda beside the scene; .usda, .usdc or "
+                        ".usd); its path is printed last")
+    p.add_argument("--jobs", "-j", type=int_in(1, 4096), metavar="N",
+                   help="steps SCons runs at once (independent material and mesh chains; default: the CPU "
+                        "count); the outputs are the same bytes whatever N is")
     p.add_argument("--json", action="store_true", help="print the build's report as JSON on stdout "
                    "(bound materials, what the scene needs of each, recipes, steps run, bytes and time)")
     p.set_defaults(func=run)
@@ -66,10 +73,12 @@ def run(args) -> int:
         for path in report.get("stand_ins", []):
             print(f"{path}: a stand-in only (one view, one light, k 1): {report['needs'][path].why_not}")
         return 0
-    report = build(args.scene, force=args.force, dask=args.dask, **shape)
+    report = build(args.scene, force=args.force, dask=args.dask, output=args.output, jobs=args.jobs, **shape)
     _log_table(report, report.get("costs"))
     if args.json:
         return _print_report(args.scene, report["recipes"], report, dry_run=False)
+    if report.get("built_scene") is not None:
+        print(report["built_scene"])        # last: the stage to open
     return 0
 
 
@@ -125,7 +134,7 @@ def _print_report(scene, recipes, report: dict, *, dry_run: bool) -> int:
            "bindings": [{"material": c.material, "prims": c.prims, "asset": c.asset} for c in report["bindings"]]}
     if not dry_run:
         out["ran"] = report["ran"]
-        out["built_scene"] = report.get("built_scene")
+        out["built_scene"] = None if report.get("built_scene") is None else str(report["built_scene"])
         out["costs"] = report.get("costs", {})
     print_json(out)
     return 0

@@ -13,13 +13,15 @@ def add_parser(sub) -> None:
                    help="also run every UsdValidation validator on every lod selection, check every layer "
                         "for NaN or Inf and every bound mesh's texel density against its material's (within 2 "
                         "%%) (exit status 65 when there is an error); warn where a camera or light of the stage "
-                        "asks a partial asset for a view or light direction it does not keep")
+                        "asks a partial asset for a view or light direction it does not keep, and, on a scene `usdbtf build` "
+                        "has built, name the built stage that supersedes it")
     p.add_argument("--json", action="store_true", help="print the summary as JSON (keys in docs/unattended-runs-errors-outputs.md)")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from ..errors import BTFError
+    from ..usd.build import superseding_stage
     from ..usd.density import density_problems
     from ..usd.finite import non_finite_in_stage
     from ..usd.inspect import describe, summary
@@ -39,6 +41,11 @@ def run(args) -> int:
                                  for where in non_finite_in_stage(args.asset)] + density_problems(info["bindings"])
         # ... and warnings where the stage's cameras and lights ask a partial asset for more.
         warnings = flat(validation_by_lod(args.asset, severities=("Warn",))) + coverage_warnings(open_stage(args.asset))
+        # ... and, on a scene ``usdbtf build`` has built, the built stage to open instead.
+        built = superseding_stage(args.asset)
+        if built is not None:
+            warnings.insert(0, f"[usdbtf:BuiltStage] {args.asset}: superseded by the built stage {built} "
+                               "(usdbtf build: its bound meshes quilted at measured scale); open that one")
         info["validation"] = {"errors": errors, "warnings": warnings,
                               "selections": [lod or "(as authored)" for lod in by_lod]}
     if args.json:

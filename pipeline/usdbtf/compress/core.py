@@ -31,6 +31,7 @@ from .coverage import shaped_input
 from .curve import write_curve
 from .decorrelate import color_decorrelation, rotate_color
 from .evaluate import error_curve, held_out_errors, held_out_set
+from .domain import parse_domain
 from .domain_choice import choose_domain
 from .fit import HDR_NORM_RANGE, fit_source, require_signal, sampled_coefficients
 from .format import CompressedBTF, write_metadata, write_textures
@@ -68,12 +69,21 @@ def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
     # filtered images are floats; the source's record keeps the measured bit depth (what
     # decompress writes).
     measured_depth = btf.bit_depth
+    full = btf
     btf, covered = shaped_input(btf, opts.coverage, opts.max_texels)
     if covered is not None:
         log.info(f"coverage: {len(covered['views'])} of {covered['input_views']} views x {len(covered['lights'])} "
                  f"of {covered['input_lights']} lights ({btf.n_samples} of {covered['input_samples']} samples), "
                  f"{btf.width}x{btf.height} texels (factor {covered['resolution_factor']})")
     texels = sample_texels(btf, opts)
+    as_full = None
+    if covered is not None and parse_domain(opts.domain) is None:
+        # A scene-shaped compress works in the domain a full build chooses (issue 41), scored on
+        # the whole input as there, so the directions both keep reconstruct alike.
+        with one_blas_thread():
+            as_full = full_input_domain(full, opts)
+        log.info(f"domain: {as_full[0].name}, as a full build of the input chooses it "
+                 f"({clock.lap('domain of the full input'):.2f} s)")
     # The source holds the data (and a spill file or a cluster, which closing releases).
     # BLAS on one thread: the steps parallelise themselves, so no byte depends on thread
     # counts (see .parallel).
@@ -84,7 +94,11 @@ def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
         # the basis, then the held-out truth: not beside the fit, whose columns are the run's
         # peak of memory (paper scale: the truth's 0.13 GB on top of 1.1 GB).
         k_fit = opts.fit_k(btf.n_samples, btf.n_pixels)
-        domain, chosen, scores = choose_domain(source, texels, k_fit, opts)
+        if as_full is not None:
+            domain, chosen, _ = choose_domain(source, texels, k_fit, replace(opts, domain=as_full[0].name))
+            scores = as_full[1]
+        else:
+            domain, chosen, scores = choose_domain(source, texels, k_fit, opts)
         fit = chosen or fit_source(source, texels.fit, k_fit, opts)
         held = held_out_set(source, texels)
         if fit.weighted:
@@ -123,6 +137,8 @@ def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
         cbtf, choice = chosen
         if scores is not None:
             choice["domain_scores"] = scores
+        if as_full is not None:
+            choice["domain_scored_on"] = "the full input (a scene-shaped compress keeps the full build's domain)"
         clock.lap("encode")
         result = _described(cbtf, opts, dict(choice, planes=list(planes)), fit.singular_values, held,
                             *_side_by_side(lambda: held_out_errors(cbtf, held), lambda: error_curve(cbtf, source)),
@@ -132,6 +148,19 @@ def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
     log.info(f"k = {result.k}, {result.info['bytes']['payload']} bytes, estimated error "
         f"{result.info['estimated_error']['linear']['percent']:.3f} % ({clock})")
     return result
+
+
+def full_input_domain(btf: BTF, opts: CompressOptions):
+    """(the working domain ``--domain auto`` chooses for the whole of ``btf``, its scores or
+    None): what a full compress of it would work in (:func:`.domain_choice.resolve_domain`, on
+    the full input's fitting and evaluation texels; its coarse pass keeps that cheap)."""
+    from .domain_choice import resolve_domain
+
+    texels = sample_texels(btf, opts)
+    k_fit = opts.fit_k(btf.n_samples, btf.n_pixels)
+    with load_source(btf, texels, opts) as source:
+        domain, _, scores = resolve_domain(source, texels, k_fit, opts)
+    return domain, scores
 
 
 def _project_and_choose(source, btf: BTF, fit_basis: np.ndarray, color: np.ndarray, planes: tuple, step, domain,

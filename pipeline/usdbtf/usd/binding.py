@@ -11,8 +11,9 @@ rotating a mesh changes nothing; else in world space), and the build runs three 
 * ``usdbtf package QUILT --mesh mesh.usda`` -- the packaged material for that mesh.
 
 Bindings of one material whose extracted meshes are byte-identical share these steps (one
-atlas, one quilt).  The user's scene is never edited: :func:`write_built_scene` writes
-``scene.usda`` in the build folder, whose root layer sublayers the user's scene and, being
+atlas, one quilt).  The user's scene is never edited: the build writes the built stage
+(:func:`built_scene_text`; ``SCENE.built.usda`` beside the scene unless ``usdbtf build -o``
+names another path), whose root layer sublayers the user's scene and, being
 stronger, overrides each bound mesh's topology, points, normals, ``st`` and tangent frames
 with its atlas's and binds it to a Material referencing its packaged asset.
 
@@ -46,10 +47,9 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Binding", "bindings", "binding_steps", "binding_targets", "built_scene_text", "BUILT_SCENE",
+__all__ = ["Binding", "bindings", "binding_steps", "binding_targets", "built_scene_text",
            "BINDINGS_SCOPE", "INSTANCE_CLASS"]
 
-BUILT_SCENE = "scene.usda"
 #: The prim of the built scene under which the per-mesh Materials live.
 BINDINGS_SCOPE = "/UsdbtfBindings"
 #: Name prefix of the built scene's root ``class`` prims that carry instanced meshes' overrides.
@@ -323,12 +323,17 @@ def _override_tiled(stage, scene_stage, path: str, chain: Binding, material: str
     _bind(over, chain.relationships[path], material)
 
 
-def built_scene_text(scene: Path, scene_stage, chains: list[Binding], work: Path) -> str:
-    """The usda text of the built scene (see the module docstring); its paths are relative to
-    ``work``, where it is written."""
+def built_scene_text(scene: Path, scene_stage, chains: list[Binding], where: Path) -> str:
+    """The usda text of the built stage (see the module docstring); its paths (the user's scene
+    it sublayers, the packaged assets it references) are relative to ``where``, the folder it is
+    written in.  Its layer metadata marks it (``customLayerData = {"usdbtf": {"output":
+    "usdbtf-built-stage", "scene": <that sublayer path>}}``), so that a later build replaces it
+    and nothing else."""
     import os
 
     from pxr import Sdf, Usd, UsdGeom, UsdShade
+
+    from ..outputs import BUILT_STAGE, usd_marker
 
     layer = Sdf.Layer.CreateAnonymous(".usda")
     root = scene_stage.GetRootLayer().pseudoRoot
@@ -336,7 +341,11 @@ def built_scene_text(scene: Path, scene_stage, chains: list[Binding], work: Path
         if root.HasInfo(key):
             layer.pseudoRoot.SetInfo(key, root.GetInfo(key))
     layer.comment = "written by usdbtf build: the scene with every bound mesh at its material's measured scale"
-    # Authored through a stage without the sublayer and references (relative to ``work``, which
+    sublayer = os.path.relpath(scene, where)
+    marker = usd_marker(BUILT_STAGE)
+    marker["usdbtf"]["scene"] = sublayer
+    layer.customLayerData = marker
+    # Authored through a stage without the sublayer and references (relative to ``where``, which
     # an anonymous layer cannot resolve); those arcs are added to the layer afterwards.
     stage = Usd.Stage.Open(layer)
     UsdGeom.Scope.Define(stage, BINDINGS_SCOPE)
@@ -354,10 +363,10 @@ def built_scene_text(scene: Path, scene_stage, chains: list[Binding], work: Path
     for root in sorted(inherits):
         stage.OverridePrim(root).GetInherits().AddInherit(inherits[root])
     del stage
-    layer.subLayerPaths.append(os.path.relpath(scene, work))
+    layer.subLayerPaths.append(sublayer)
     for material, asset in references:
         target = Sdf.Path(f"/{Sdf.Layer.FindOrOpen(str(asset)).defaultPrim}/mtl/BtfMaterial")
-        layer.GetPrimAtPath(material).referenceList.Prepend(Sdf.Reference(os.path.relpath(asset, work), target))
+        layer.GetPrimAtPath(material).referenceList.Prepend(Sdf.Reference(os.path.relpath(asset, where), target))
     return layer.ExportToString()
 
 

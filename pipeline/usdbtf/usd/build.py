@@ -19,7 +19,17 @@ looked at again.  :func:`build` writes an SConstruct for those steps (compress, 
 source is not already compressed, then package) and runs SCons with content signatures,
 so a second build with unchanged inputs runs nothing.  Every ``Mesh`` prim bound to a recipe's
 material also gets an unwrap, quilt and package step (:mod:`usdbtf.usd.binding`), and the
-built scene ``.usdbtf-build/SCENE/scene.usda`` composes the results over the user's scene.
+built stage composes the results over the user's scene: ``SCENE.built.usda`` beside the scene
+(``usdbtf build -o PATH``: elsewhere), a visible file next to the one the user opens, since it is
+the product; the build folder ``.usdbtf-build/SCENE/`` keeps only intermediates and the record
+``built_stage.json`` that names it (``usdbtf inspect --validate SCENE`` reports it).  The built
+stage is written atomically; an existing file there is replaced only when it is the built stage
+of a previous build of this scene (named in that record), or, with ``--force``, another usdbtf
+built stage.
+
+SCons runs independent steps at once (``jobs``; ``usdbtf build --jobs``, default the CPU count):
+each step is its own ``usdbtf`` process writing its own outputs, so the bytes do not depend on
+the order or the parallelism.
 
 Scene text is data, never code:
 
@@ -60,7 +70,8 @@ from .material import NS
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Recipe", "plan", "build", "sconstruct", "parse_options", "BUILD_DIR"]
+__all__ = ["Recipe", "plan", "build", "sconstruct", "parse_options", "BUILD_DIR", "built_stage_path",
+           "superseding_stage", "STAGE_RECORD"]
 
 BUILD_DIR = ".usdbtf-build"
 _STEPS = "steps.json"
@@ -68,6 +79,13 @@ _FAILURE = "failure.json"
 _OWNED = "outputs.json"
 _TIMES = "step_times.jsonl"
 _FULL_RECORD = "full_build.json"
+#: The build folder's record of the built stage: {"built_stage": its path relative to the folder}.
+STAGE_RECORD = "built_stage.json"
+# Where builds before issue 41 wrote the built stage (inside the hidden build folder); a build
+# removes it, so that no stale copy is left to open.
+_OLD_BUILT_STAGE = "scene.usda"
+#: Suffixes the built stage may have (text, crate, either).
+STAGE_SUFFIXES = (".usda", ".usdc", ".usd")
 
 
 @dataclass(frozen=True)
@@ -250,7 +268,7 @@ def plan(scene, *, source_facts=None, target_error: float | None = None) -> tupl
     outputs = [o for r in recipes for o in r.outputs()]
     if len(set(outputs)) != len(outputs):
         raise BTFError(f"{scene}: two materials write the same btf:build:asset")
-    report = {"bound": bound, "without_recipe": without, "shaped": source_facts is not None}
+    report = {"bound": bound, "without_recipe": without, "shaped": source_facts is not None, "layers": protected}
     if source_facts is not None:
         with usd_warnings_silenced():   # the materials' assets are not built yet (see above)
             recipes, report["needs"], report["skipped"] = _shaped(stage, scene, recipes, bound, source_facts,
@@ -341,6 +359,39 @@ def coverage_path(scene: Path, recipe: Recipe) -> Path:
     """Where the build writes the coverage document of ``recipe``'s material."""
     digest = hashlib.sha256(recipe.material.encode()).hexdigest()[:10]
     return work_folder(Path(os.path.abspath(scene))) / "materials" / f"{recipe.asset.stem}_{digest}" / "coverage.json"
+
+
+def built_stage_path(scene) -> Path:
+    """The default built stage of ``scene``: ``SCENE.built.usda`` beside it (``scene.usda`` ->
+    ``scene.built.usda``), listed next to the file the user opens."""
+    scene = Path(scene)
+    return scene.with_name(f"{scene.stem}.built.usda")
+
+
+def _recorded_stage(work: Path) -> Path | None:
+    """The built stage the build folder ``work`` records (absolute), or None."""
+    try:
+        doc = json.loads((work / STAGE_RECORD).read_text())
+    except (OSError, ValueError):
+        return None
+    name = doc.get("built_stage") if isinstance(doc, dict) else None
+    return Path(os.path.normpath(work / name)) if isinstance(name, str) and name and "\0" not in name else None
+
+
+def superseding_stage(scene) -> Path | None:
+    """The built stage that supersedes the user's ``scene`` (a local file): the one its last
+    build recorded (:data:`STAGE_RECORD` in its build folder), when it is still there and still
+    a usdbtf built stage; None otherwise (never built, or a stage or path the resolver names)."""
+    from ..outputs import BUILT_STAGE, is_kind
+
+    try:
+        scene = Path(scene)
+        if not scene.is_file():
+            return None
+        stage = _recorded_stage(work_folder(Path(os.path.abspath(scene))))
+    except (OSError, ValueError):
+        return None
+    return stage if stage is not None and is_kind(stage, BUILT_STAGE) else None
 
 
 def work_folder(scene: Path) -> Path:
@@ -486,10 +537,16 @@ def _claim_outputs(scene: Path, recipes: list[Recipe], work: Path, force: bool) 
         tmp.write_text(json.dumps(sorted(owned | set(mine)), indent=1) + "\n")
 
 
-def build(scene, *, force: bool = False, dask=None, source_facts=None, target_error: float | None = None) -> dict:
+def build(scene, *, force: bool = False, dask=None, source_facts=None, target_error: float | None = None,
+          output=None, jobs: int | None = None) -> dict:
     """Build what ``scene`` needs; returns the report (plan + ``ran``: the steps SCons ran,
-    ``times``: {step label: seconds}).
+    ``times``: {step label: seconds}, ``built_scene``: the built stage's path when the scene
+    binds meshes to a recipe's material).
 
+    output : the built stage to write (None: :func:`built_stage_path`, ``SCENE.built.usda``
+        beside the scene); .usda, .usdc or .usd.
+    jobs : how many steps SCons runs at once (None: the CPUs this process may use; with
+        ``dask``, the cluster's threads); the outputs are the same whatever it is.
     force : replace existing outputs this build did not write before (only usdbtf outputs
         of the same kind; see the module docstring).
     source_facts, target_error : shape the build by the scene (:func:`plan`); without
@@ -508,10 +565,18 @@ def build(scene, *, force: bool = False, dask=None, source_facts=None, target_er
                                                           "full_seconds": None} for m in report.get("skipped", [])})
         return report
     work = work_folder(scene)
+    stage_out = Path(os.path.abspath(output)) if output is not None else built_stage_path(scene)
+    if report["bindings"]:              # refused before anything runs
+        _check_stage_output(scene, stage_out, recipes, report, work, force)
+    elif output is not None:
+        log.warning(f"{scene}: no mesh is bound to a material with a recipe, so there is no built stage to write "
+                    f"at {stage_out}: the scene itself is what to open")
     made = [p for p in (work.parent, work) if not os.path.lexists(p)]
     _claim_outputs(scene, recipes, work, force)
     with contextlib.ExitStack() as stack:
-        dask_info, jobs = None, 1
+        dask_info = None
+        if jobs is None:
+            jobs = default_jobs()
         if dask is not None:
             from ..cluster import command_info, session
 
@@ -554,18 +619,100 @@ def build(scene, *, force: bool = False, dask=None, source_facts=None, target_er
             raise error_for_status(failure[0], f"{scene}: build failed: {failure[1]}")
         detail = proc.stderr.strip().splitlines() or proc.stdout.strip().splitlines() or ["?"]
         raise BTFError(f"{scene}: build failed: {detail[-1]}")
+    _remove_old_built_stage(work)
     if report["bindings"]:
-        from .binding import BUILT_SCENE, built_scene_text
+        from .binding import built_scene_text
 
-        _write_if_changed(work / BUILT_SCENE, built_scene_text(scene, _open_scene(scene), report["bindings"], work))
-        report["built_scene"] = work / BUILT_SCENE
-        log.info(f"{len(report['bindings'])} bound mesh chain(s); the built scene: {work / BUILT_SCENE}")
+        text = built_scene_text(scene, _open_scene(scene), report["bindings"], stage_out.parent)
+        _write_stage(scene, stage_out, text, work, force)
+        report["built_scene"] = stage_out
+        log.info(f"{len(report['bindings'])} bound mesh chain(s); the built stage: {stage_out}")
     for r in recipes:
         log.info(f"{r.material}: {r.asset}")
     log.info(f"{len(recipes)} bound BTF material(s); {len(ran)} step(s) run" + ("" if ran else " (all up to date)"))
     report.update(recipes=recipes, ran=ran)
     report["costs"] = _costs(work, recipes, report)
     return report
+
+
+def default_jobs() -> int:
+    """The CPUs this process may run on (at least 1): SCons's default ``-j`` for a build."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def _owns_stage(work: Path, out: Path) -> bool:
+    """Whether ``out`` is the built stage the last build of this scene wrote (its record)."""
+    recorded = _recorded_stage(work)
+    return recorded is not None and related(recorded, out) == "is"
+
+
+def _check_stage_output(scene: Path, out: Path, recipes: list[Recipe], report: dict, work: Path,
+                        force: bool) -> None:
+    """Refuse a built stage path that is a layer of the scene, a recipe's source or output, or in
+    the build folder, and an existing file there that this scene's last build did not write
+    (unless ``force``, and then only a usdbtf built stage); see the module docstring."""
+    from ..atomic import check_output, current_policy, output_policy
+    from ..errors import UsageError
+    from ..outputs import BUILT_STAGE
+
+    if out.suffix.lower() not in STAGE_SUFFIXES:
+        raise UsageError(f"{out}: the built stage is a USD layer; name it *.usda, *.usdc or *.usd")
+    for p in report.get("layers", [scene]):
+        rel = related(out, p)
+        if rel:
+            raise OutputRefused(f"{out}: the built stage {rel} {p}, a layer of the scene being built; "
+                                "choose another -o path")
+    for r in recipes:
+        for p in [r.source, *r.outputs()]:
+            rel = related(out, p)
+            if rel:
+                raise OutputRefused(f"{out}: the built stage {rel} {p}, what {r.material} is built from or into; "
+                                    "choose another -o path")
+    if related(out, work.parent) in ("is", "is inside"):
+        raise OutputRefused(f"{out}: is inside the build folder {work.parent} (intermediates only); "
+                            "choose another -o path")
+    with output_policy(force=force or _owns_stage(work, out), inputs=(*current_policy().inputs, scene)):
+        check_output(out, folder=False, kind=BUILT_STAGE, what="built stage")
+
+
+def _write_stage(scene: Path, out: Path, text: str, work: Path, force: bool) -> None:
+    """Write the built stage ``out`` (usda ``text``; exported as crate for .usdc/.usd) atomically,
+    unless it already holds it, and record it in the build folder (:data:`STAGE_RECORD`)."""
+    from ..atomic import current_policy, output_policy
+    from ..outputs import BUILT_STAGE
+
+    if not (out.suffix == ".usda" and out.is_file() and _read_text(out) == text):
+        with output_policy(force=force or _owns_stage(work, out), inputs=(*current_policy().inputs, scene)), \
+                atomic_file(out, kind=BUILT_STAGE) as tmp:
+            if out.suffix.lower() == ".usda":
+                tmp.write_text(text)
+            else:
+                from pxr import Sdf
+
+                layer = Sdf.Layer.CreateAnonymous(".usda")
+                layer.ImportFromString(text)
+                if not layer.Export(str(tmp)):
+                    raise BTFError(f"{out}: the built stage could not be written as {out.suffix}")
+    _write_if_changed(work / STAGE_RECORD, json.dumps({"built_stage": os.path.relpath(out, work)}, indent=1) + "\n")
+
+
+def _read_text(path: Path) -> str | None:
+    try:
+        return path.read_text()
+    except (OSError, UnicodeDecodeError):
+        return None
+
+
+def _remove_old_built_stage(work: Path) -> None:
+    """Remove the built stage an older build wrote inside the build folder (``scene.usda``,
+    recognised by its comment), so that only the visible one is left to open."""
+    old = work / _OLD_BUILT_STAGE
+    text = _read_text(old) if old.is_file() and not old.is_symlink() else None
+    if text is not None and "written by usdbtf build: the scene with every bound mesh" in text[:400]:
+        old.unlink()
 
 
 def _remove_empty(missing: list[Path]) -> None:

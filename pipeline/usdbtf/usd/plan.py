@@ -26,7 +26,8 @@ material, and says for each material (a :class:`Need`):
   and light sets exactly as the renderers interpolate: the vertices of the triangle of the
   measured directions' Delaunay triangulation (:class:`usdbtf.render.hemisphere.Triangulation`,
   the one the CPU renderer and the GPU tables use) that holds the direction, or the two ends
-  of the boundary edge nearest to a direction outside the measured region.  Lights below a
+  of the boundary edge nearest to a direction outside the measured region, each one that
+  weighs in (:meth:`~usdbtf.render.hemisphere.Triangulation.stencil`).  Lights below a
   point's horizon add nothing (the renderers give them zero weight).  Shadows are ignored
   (a shadowed point's light direction is kept: conservative).
 * **k**: with a screen-space error target (``--target-error``, else the material's
@@ -310,12 +311,13 @@ def _surface_samples(surface, shot: _Shot):
 
 
 def _snap(tri, vectors: np.ndarray) -> np.ndarray:
-    """Indices of the measured directions the renderers interpolate ``vectors`` (n, 3) from:
-    the triangle's vertices (both ends of the nearest boundary edge outside the region)."""
+    """Indices of the measured directions the renderers interpolate ``vectors`` (n, 3) from: the
+    one rule, :meth:`usdbtf.render.hemisphere.Triangulation.stencil` (the vertices of the
+    triangle holding a direction, or of the nearest boundary edge outside the region, whose
+    weight is above 1e-6, as ``inspect --validate``'s coverage check counts them)."""
     if not len(vectors):
         return np.zeros(0, np.int64)
-    idx, w, _ = tri.weights(vectors)
-    return np.unique(np.concatenate([idx[:, :2].ravel(), idx[w[:, 2] > 0, 2]]))
+    return np.flatnonzero(tri.stencil(vectors))
 
 
 class _Accumulator:

@@ -37,7 +37,7 @@ from ..render.scene import Light
 
 log = logging.getLogger(__name__)
 
-__all__ = ["read_scene", "bound_btf_meshes", "write_scene", "scene_camera", "camera_prim", "camera_prims", "scene_lights",
+__all__ = ["read_scene", "bound_btf_meshes", "btf_mesh_prims", "write_scene", "scene_camera", "camera_prim", "camera_prims", "scene_lights",
            "scene_light_prims", "render_resolution",
            "frame_times", "add_camera", "new_scene", "add_distant", "orient_towards", "distant_intensity", "POINT_RADIUS_M",
            "DISTANT_ANGLE"]
@@ -247,25 +247,84 @@ def add_camera(stage, path: str, cameras: dict, clipping=(1e-3, 1e4)):
     return cam
 
 
+def btf_mesh_prims(stage, *, time=None, rendered_only: bool = True, unbound: str = "skip", where: str = "",
+                   warned: set | None = None) -> list[tuple]:
+    """[(Mesh prim, BTF material path)]: the one walk over a stage's meshes and the BTF material
+    each is drawn with (``render ASSET`` through :func:`bound_btf_meshes`, ``render --camera``
+    through :func:`usdbtf.usd.shots.scene_shots`), in traversal order, instance proxies included.
+
+    A mesh's material is the one bound to it (all purposes: all, full, preview; a BtfMaterialAPI
+    one first).  A mesh bound to another material (or to one whose asset a scene-shaped build left
+    out, so it composes no BTF) is skipped with a warning (once per material: ``warned`` holds
+    those already named, shared across frames).
+
+    time : the time code of the visibility test (None: the default time).
+    rendered_only : keep only what a final render shows at ``time`` (purpose default or render,
+        not invisible); False keeps every Mesh prim (``render ASSET``, as it always drew).
+    unbound : what a mesh bound to nothing takes: "skip" (nothing: it is not drawn), or "only"
+        (the stage's only BTF material, as ``usdbtf preview`` writes a mesh beside an asset; with
+        several, BTFError naming the prim).
+    where : the stage's name in messages (default: its root layer).
+    """
+    from pxr import Usd, UsdGeom, UsdShade
+
+    from .density import mesh_prims
+    from .material import btf_materials
+    from .plugin import API_SCHEMA
+
+    if unbound not in ("skip", "only"):
+        raise ValueError(f"unbound must be 'skip' or 'only', got {unbound!r}")
+    where = where or stage.GetRootLayer().identifier
+    warned = set() if warned is None else warned
+    code = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
+    only = btf_materials(stage) if unbound == "only" else []
+    out = []
+    for prim in mesh_prims(stage):
+        if rendered_only:
+            img = UsdGeom.Imageable(prim)
+            if img.ComputePurpose() not in (UsdGeom.Tokens.default_, UsdGeom.Tokens.render):
+                continue
+            if img.ComputeVisibility(code) == UsdGeom.Tokens.invisible:
+                continue
+        api = UsdShade.MaterialBindingAPI(prim)
+        material = other = None
+        for purpose in (UsdShade.Tokens.allPurpose, UsdShade.Tokens.full, UsdShade.Tokens.preview):
+            bound, _ = api.ComputeBoundMaterial(purpose)
+            if bound and bound.GetPrim().HasAPI(API_SCHEMA):
+                material = str(bound.GetPath())
+                break
+            other = other or (str(bound.GetPath()) if bound else None)
+        if material is None and other is not None:
+            if other not in warned:
+                log.warning(f"{where}: {prim.GetPath()} is bound to {other}, which is not a BTF material (here): "
+                            "not rendered")
+            warned.add(other)
+            continue
+        if material is None:
+            if unbound == "skip":
+                continue
+            if len(only) != 1:
+                raise BTFError(f"{where}: {prim.GetPath()} has no material bound (and the stage has {len(only)} "
+                               "BTF materials, so none stands in)")
+            material = str(only[0].GetPath())
+        out.append((prim, material))
+    return out
+
+
 def bound_btf_meshes(stage, *, k: int | None = None) -> list[tuple]:
     """[(CompressedBTF, Mesh)] for every Mesh prim of ``stage`` bound to a BTF material
-    (instance proxies included), each mesh in world space (metres): what
-    :func:`usdbtf.render.render_scene` draws.  Meshes of one material share one CompressedBTF."""
-    from pxr import UsdShade
-
+    (:func:`btf_mesh_prims`, every purpose and visibility), each mesh in world space (metres):
+    what ``usdbtf render ASSET`` draws (:func:`usdbtf.render.render_scene`).  Meshes of one
+    material share one CompressedBTF."""
     from ..mesh import load_prim
-    from .density import mesh_prims
-    from .material import API_SCHEMA, read_btf
+    from .material import read_btf
 
     materials, parts = {}, []
-    for prim in mesh_prims(stage):
-        material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
-        if not material or not material.GetPrim().HasAPI(API_SCHEMA):
-            continue
-        key = str(material.GetPath())
-        if key not in materials:
-            materials[key] = read_btf(material.GetPrim(), k=k)
-        parts.append((materials[key], load_prim(prim)))
+    # Every Mesh prim, as render ASSET always drew (render --camera keeps what a final render shows).
+    for prim, material in btf_mesh_prims(stage, rendered_only=False):
+        if material not in materials:
+            materials[material] = read_btf(stage.GetPrimAtPath(material), k=k)
+        parts.append((materials[material], load_prim(prim)))
     return parts
 
 

@@ -18,7 +18,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import BTFError, UsageError
+from ..errors import UsageError
 
 log = logging.getLogger(__name__)
 
@@ -64,39 +64,6 @@ def frame_path(pattern: Path, frame: int | None) -> Path:
     return pattern.with_name(name[:run.start()] + number + name[run.end():])
 
 
-def _rendered_meshes(stage, time):
-    """Mesh prims a final render shows at ``time`` (purpose default/render, visible)."""
-    from pxr import Usd, UsdGeom
-
-    code = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
-    for prim in stage.Traverse(Usd.TraverseInstanceProxies()):    # instanced meshes render too
-        if not prim.IsA(UsdGeom.Mesh):
-            continue
-        img = UsdGeom.Imageable(prim)
-        if img.ComputePurpose() not in (UsdGeom.Tokens.default_, UsdGeom.Tokens.render):
-            continue
-        if img.ComputeVisibility(code) == UsdGeom.Tokens.invisible:
-            continue
-        yield prim
-
-
-def _bound_material(prim) -> tuple[str | None, bool]:
-    """(the path of the material bound to ``prim`` (any purpose; a BtfMaterialAPI one first),
-    whether it is a BTF material); (None, False) when none is bound."""
-    from pxr import UsdShade
-
-    from .plugin import API_SCHEMA
-
-    api = UsdShade.MaterialBindingAPI(prim)
-    other = None
-    for purpose in (UsdShade.Tokens.allPurpose, UsdShade.Tokens.full, UsdShade.Tokens.preview):
-        material, _ = api.ComputeBoundMaterial(purpose)
-        if material and material.GetPrim().HasAPI(API_SCHEMA):
-            return str(material.GetPath()), True
-        other = other or (str(material.GetPath()) if material else None)
-    return other, False
-
-
 def scene_shots(path, camera_path: str, width: int | None, frames: list | None, *, k: int | None = None):
     """(materials {material path: CompressedBTF}, [:class:`Shot`] per frame of ``frames``
     (None: the default time)) of the stage at ``path`` seen from the UsdGeom.Camera
@@ -105,9 +72,8 @@ def scene_shots(path, camera_path: str, width: int | None, frames: list | None, 
     from pxr import UsdGeom
 
     from ..mesh import load_prim
-    from .material import btf_materials
     from .read import load_btf, open_stage
-    from .scene import camera_prim, render_resolution, scene_camera, scene_lights
+    from .scene import btf_mesh_prims, camera_prim, render_resolution, scene_camera, scene_lights
 
     stage = open_stage(path)
     meters = float(UsdGeom.GetStageMetersPerUnit(stage))
@@ -115,28 +81,12 @@ def scene_shots(path, camera_path: str, width: int | None, frames: list | None, 
     if width is None:
         resolution = render_resolution(stage)
         width = resolution[0] if resolution else 512
-    only = btf_materials(stage)
-    fallback = str(only[0].GetPath()) if len(only) == 1 else None
     materials: dict = {}
-    skipped: set = set()
+    warned: set = set()
     shots = []
     for time in (frames if frames is not None else [None]):
         parts = []
-        for mesh_prim in _rendered_meshes(stage, time):
-            material, is_btf = _bound_material(mesh_prim)
-            if not is_btf:
-                if material is None and fallback is not None:
-                    material = fallback
-                elif material is None:
-                    raise BTFError(f"{path}: {mesh_prim.GetPath()} has no material bound (and the stage has "
-                                   f"{len(only)} BTF materials, so none stands in)")
-                else:
-                    # Not a BTF material (or one a scene-shaped build left out: its asset is not built).
-                    if material not in skipped:
-                        log.warning(f"{path}: {mesh_prim.GetPath()} is bound to {material}, which is not a BTF "
-                                    "material (here): not rendered")
-                    skipped.add(material)
-                    continue
+        for mesh_prim, material in btf_mesh_prims(stage, time=time, unbound="only", where=str(path), warned=warned):
             if material not in materials:
                 materials[material] = load_btf(stage, material=material, k=k)
             parts.append((material, load_prim(mesh_prim, time)))
