@@ -202,7 +202,7 @@ def test_codec_png(capsys, src, tmp_path):
 
 def test_max_bytes(capsys, src, tmp_path):
     out = tmp_path / "mb"
-    ok(capsys, "compress", src, "-o", out, "--max-bytes", "9000", "-q")
+    ok(capsys, "compress", src, "-o", out, "--max-bytes", "9000", "--budget-for", "folder", "-q")
     c = read_compressed(out)
     payload = sum(p.stat().st_size for p in out.rglob("*.jxl"))
     assert c.info["bytes"]["payload"] == payload
