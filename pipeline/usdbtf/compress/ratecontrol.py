@@ -199,15 +199,15 @@ def rate_control(f: Factorisation, options: CompressOptions, held: HeldOut,
     cbtf : the encoded result (:func:`.encode.encode`).
     choice : what was chosen, for the metadata ("mode", "k", "step", "bytes", ...).
     """
+    asset = options.budget_for == "asset" and options.budgeted
+    if asset and options.asset_overhead is None:
+        raise BTFError("a budget of the packaged asset needs what packaging adds (options.asset_overhead: "
+                       "usd.package.asset_overhead, as `usdbtf compress` passes); or budget the folder")
     if options.quantiser != "uniform":
         return _by_k_only(f, options, held)
     if f.step is not None:
         return _plain_k(f, options)
     table = ratedist.rd_table(f.coefficients, f.basis, f.total_energy, seed=options.seed)
-    asset = options.budget_for == "asset"
-    if asset and options.asset_overhead is None:
-        raise BTFError("a budget of the packaged asset needs what packaging adds (options.asset_overhead: "
-                       "usd.package.asset_overhead, as `usdbtf compress` passes); or budget the folder")
     if options.max_bytes is not None:
         if asset and cross_layout(f.btf.sampling) is not None:
             return _asset_max_bytes(f, options, table)
@@ -421,8 +421,9 @@ def _by_k_only(f: Factorisation, options: CompressOptions, held: HeldOut) -> tup
     k = min(options.target_k, f.k)
     cbtf = encode(quantise(f, k, 0.0, options))
     choice = {"k": k}
-    asset = options.budget_for == "asset"
-    choice["budget_for"] = options.budget_for
+    asset = options.budget_for == "asset" and options.budgeted
+    if options.budgeted:
+        choice["budget_for"] = options.budget_for
     if options.max_bytes is not None and asset:
         k = _by_k_only_asset(cbtf, options)
     elif options.max_bytes is not None:
