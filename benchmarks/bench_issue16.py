@@ -142,7 +142,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     presets = preset_list(args.presets, tuning_only=False)
     header("issue 16 in the product: usdbtf compress (defaults) vs the paper's method at the paper's bytes",
-           paper_budget_inputs(presets, args.stride))
+           [line.replace("128x128", f"{args.size}x{args.size}") for line in paper_budget_inputs(presets, args.stride)])
     PRODUCT.mkdir(parents=True, exist_ok=True)
     results = {}
     for preset in presets:
