@@ -7,7 +7,12 @@ Per preset (tuning presets first, then the held-out presets no tuning run used):
 1. the paper's method as the paper ran it, on the 8-bit values (``research/methods.paper_method``,
    cached per dataset under ``benchmarks/out/research/paper``): its stored bytes are the budget;
 2. ``usdbtf compress IN -o OUT --max-bytes <budget>`` with every other option at its default
-   (``--domain auto``: the working-domain curve chosen per material), as a subprocess, timed;
+   (``--domain auto``: the working-domain curve chosen per material; since issue 39 the budget
+   counts the packaged asset's full lod, ``--budget-for asset``), as a subprocess, timed; and the
+   same with ``--budget-for folder`` (the compressed folder's textures: the figures before
+   issue 39); each folder then packaged (``usdbtf package``), its bytes the files the full lod
+   loads (package's summary) and its error computed from the asset's own files
+   (``usdbtf.usd.read.load_btf``), beside the folder's bytes and error;
 3. optionally ``--domain linear`` (the default before issue 16) and ``--solver paper`` (the
    product's paper solver, k = 150, on the input's encoding curve) under no budget;
 
@@ -19,7 +24,7 @@ are predicted the way the renderer does (4 nearest stored directions, rows blend
 working domain, the inverse curve, the foreshortening after it).  Usage::
 
     .venv/bin/python benchmarks/bench_issue16.py [--presets a,b] [--stride 1] [--linear] [--paper-solver]
-        [--heldout-directions]
+        [--heldout-directions] [--size 128]
 """
 from __future__ import annotations
 
@@ -47,16 +52,18 @@ class Product:
     """A ``usdbtf compress`` folder as the research evaluation reads it: ``recon_rows(rows)``
     -> linear Rec.709 images, through the folder's working-domain inverse curve (in ACEScg)."""
 
-    def __init__(self, folder: Path, data):
+    def __init__(self, folder, data, bytes_=None):
+        """folder: a compressed folder, or a CompressedBTF (an asset's, ``load_btf``) whose
+        ``bytes_`` ({"payload", "basis"}) are given."""
         from usdbtf.compress import read_compressed
         from usdbtf.compress.format import working_coefficients
 
-        self.cbtf = read_compressed(folder)
+        self.cbtf = read_compressed(folder) if isinstance(folder, Path) else folder
         c = self.cbtf
         self.basis = c.basis_values()
         self.coeff = working_coefficients(c).reshape(c.k, -1)
         self.to_709 = np.linalg.inv(data.to_aces.astype(np.float64)).astype(np.float32)
-        self.bytes = dict(c.info["bytes"])
+        self.bytes = dict(c.info["bytes"]) if bytes_ is None else dict(bytes_)
         self.dom = type("NoGamma", (), {"gamma": None, "name": c.domain.name})()   # gain after the curve
         self.k = c.k
 
@@ -84,6 +91,31 @@ def compress_cli(folder: Path, out: Path, *args) -> float:
     return secs
 
 
+def package_cli(folder: Path) -> tuple[dict, Path]:
+    """``usdbtf package folder`` (a 5 cm swatch, reused when written): (its --json summary, the root layer)."""
+    root = folder.parent / f"{folder.name}-asset" / "m.usda"
+    record = root.parent.parent / f"{folder.name}-asset.json"
+    if not record.is_file() or not root.is_file():
+        t = time.perf_counter()
+        out = subprocess.run([str(REPO / ".venv/bin/usdbtf"), "package", str(folder), "-o", str(root), "--force",
+                              "--physical-size", "0.05", "0.05", "--json", "-q"], check=True, capture_output=True,
+                             text=True).stdout
+        summary = json.loads(out)
+        summary["seconds"] = time.perf_counter() - t
+        record.write_text(json.dumps(summary, default=str))
+    return json.loads(record.read_text()), root
+
+
+def asset_product(folder: Path, data) -> tuple["Product", dict]:
+    """The packaged asset of ``folder`` as the evaluation reads it: its codes from the asset's
+    own files (``load_btf``), its bytes the files its full lod loads."""
+    from usdbtf.usd.read import load_btf
+
+    summary, root = package_cli(folder)
+    full = int(summary["bytes"]["full"])
+    return Product(load_btf(root), data, {"payload": full, "basis": 0}), summary
+
+
 def directions(data, stride: int) -> dict:
     """Held-out-direction errors of the paper and the product default (module docstring)."""
     split = direction_split(data)
@@ -104,15 +136,18 @@ def main(argv=None) -> int:
     p.add_argument("--linear", action="store_true", help="also --domain linear (the default before issue 16)")
     p.add_argument("--paper-solver", action="store_true", help="also --solver paper (no budget)")
     p.add_argument("--heldout-directions", action="store_true")
+    p.add_argument("--size", type=int, default=128, help="texels per side of the synthetic data (paper: 128)")
+    p.add_argument("--no-folder-budget", action="store_true",
+                   help="skip the --budget-for folder run (the compressed-folder figures before issue 39)")
     args = p.parse_args(argv)
     presets = preset_list(args.presets, tuning_only=False)
     header("issue 16 in the product: usdbtf compress (defaults) vs the paper's method at the paper's bytes",
-           paper_budget_inputs(presets, args.stride))
+           [line.replace("128x128", f"{args.size}x{args.size}") for line in paper_budget_inputs(presets, args.stride)])
     PRODUCT.mkdir(parents=True, exist_ok=True)
     results = {}
     for preset in presets:
         say(f"## {preset}{' (held out)' if preset in HELDOUT_PRESETS else ''}")
-        data = load(preset)
+        data = load(preset, size=args.size)
         folder = DATA / f"{preset}-paper-{data.size}-seed0"
         sel = stride_rows(data, args.stride)
         r = results[preset] = {}
@@ -120,14 +155,21 @@ def main(argv=None) -> int:
         budget = paper.bytes["payload"]
         runs = [("paper", paper, None)]
         variants = [("default", ["--max-bytes", budget])]
+        if not args.no_folder_budget:
+            variants.append(("folder budget", ["--max-bytes", budget, "--budget-for", "folder"]))
         if args.linear:
             variants.append(("linear", ["--max-bytes", budget, "--domain", "linear"]))
         if args.paper_solver:
             variants.append(("paper solver", ["--solver", "paper"]))
         for name, extra in variants:
-            out = PRODUCT / f"{preset}-{name.replace(' ', '_')}-{budget}"
+            # "default" budgets the asset since issue 39: a folder of its own (not an older run's)
+            tag = "asset_budget" if name == "default" else name.replace(' ', '_')
+            out = PRODUCT / f"{preset}-{args.size}-{tag}-{budget}"
             secs = compress_cli(folder, out, *extra)
             runs.append((name, Product(out, data), secs))
+            if name in ("default", "folder budget"):
+                product, summary = asset_product(out, data)
+                runs.append((f"{name} asset", product, summary["seconds"]))
         for name, f, secs in runs:
             e = evaluate(data, f.recon, sel)
             r[name] = {"k": f.k, "bytes": f.bytes["payload"], "basis_bytes": f.bytes["basis"],
@@ -142,20 +184,31 @@ def main(argv=None) -> int:
             say("  held-out directions (% enc / % lin): " + ", ".join(
                 f"{k} {v['encoded']:.2f} / {v['linear']:.2f}" for k, v in r["directions"].items()) + f" ({t.s:.0f} s)")
         (PRODUCT / "results.json").write_text(json.dumps(results, indent=1, default=float))
-    say("\n| preset | paper bytes | paper % enc / lin | default domain | k | bytes (basis) | default % enc / lin | "
-        "**ratio enc / lin** | compress s | held-out dirs % enc / lin: floor; paper; default |")
-    say("|" + "---|" * 10)
+    say("\nbudget = the paper's bytes B; 'asset' = the packaged asset: bytes = every file its full lod loads, "
+        "error from the asset's own files; 'folder' = the compressed folder's textures and codes")
+    say("\n| preset | paper bytes B | paper % enc / lin | compress budgets | k | folder bytes | asset bytes (x B) | "
+        "folder % enc / lin | asset % enc / lin | **asset ratio enc / lin** | compress s |")
+    say("|" + "---|" * 11)
     for group in (TUNING_PRESETS, HELDOUT_PRESETS):
         for preset in [x for x in presets if x in group]:
             r = results[preset]
-            pa, de = r["paper"], r["default"]
-            dirs = r.get("directions")
-            dtxt = "; ".join(f"{dirs[k]['encoded']:.2f} / {dirs[k]['linear']:.2f}"
-                             for k in ("floor", "paper", "product")) if dirs else ""
+            pa = r["paper"]
             name = ("**held out:** " if preset in HELDOUT_PRESETS else "") + preset
-            say(f"| {name} | {pa['bytes']:,} | {pa['encoded']:.2f} / {pa['linear']:.2f} | {de['domain']} | {de['k']} | "
-                f"{de['bytes']:,} ({de['basis_bytes']:,}) | {de['encoded']:.2f} / {de['linear']:.2f} | "
-                f"**{de['ratio'][0]:.3f} / {de['ratio'][1]:.3f}** | {de['seconds']:.0f} | {dtxt} |")
+            for variant, label in (("default", "asset (default)"), ("folder budget", "folder (before issue 39)")):
+                if variant not in r:
+                    continue
+                de, asset = r[variant], r.get(f"{variant} asset")
+                atxt = (f"{asset['bytes']:,} ({asset['bytes'] / pa['bytes']:.3f})", f"{asset['encoded']:.2f} / "
+                        f"{asset['linear']:.2f}", f"**{asset['ratio'][0]:.3f} / {asset['ratio'][1]:.3f}**") \
+                    if asset else ("-", "-", "-")
+                say(f"| {name} | {pa['bytes']:,} | {pa['encoded']:.2f} / {pa['linear']:.2f} | {label} | {de['k']} | "
+                    f"{de['bytes']:,} | {atxt[0]} | {de['encoded']:.2f} / {de['linear']:.2f} | {atxt[1]} | {atxt[2]} | "
+                    f"{de['seconds']:.0f} |")
+            dirs = r.get("directions")
+            if dirs:
+                say(f"| {name} | held-out directions % enc / lin: " + "; ".join(
+                    f"{k} {dirs[k]['encoded']:.2f} / {dirs[k]['linear']:.2f}" for k in ("floor", "paper", "product"))
+                    + " |" + " |" * 9)
     say(f"\nfinished {time.strftime('%Y-%m-%d %H:%M:%S')}; results: {PRODUCT / 'results.json'}")
     return 0
 

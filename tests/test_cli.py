@@ -202,7 +202,7 @@ def test_codec_png(capsys, src, tmp_path):
 
 def test_max_bytes(capsys, src, tmp_path):
     out = tmp_path / "mb"
-    ok(capsys, "compress", src, "-o", out, "--max-bytes", "9000", "-q")
+    ok(capsys, "compress", src, "-o", out, "--max-bytes", "9000", "--budget-for", "folder", "-q")
     c = read_compressed(out)
     payload = sum(p.stat().st_size for p in out.rglob("*.jxl"))
     assert c.info["bytes"]["payload"] == payload
@@ -216,6 +216,11 @@ def test_target_error(capsys, src, tmp_path):
     full = percent(read_manifest(src), lambda sel: reconstruct(c, sel))["linear"]["percent"]
     assert full <= 4 * 1.1
     assert c.k < 24
+    # Issue 39: the bytes --target-error reports are the packaged asset's full lod (the CLI's
+    # default --budget-for asset), the folder's beside them.
+    choice = c.info["choice"]
+    assert choice["budget_for"] == "asset" and choice["folder_bytes"] == c.info["bytes"]["payload"]
+    assert choice["bytes"] > choice["folder_bytes"]
 
 
 def test_same_seed_same_output_other_seed_differs(capsys, src, tmp_path):

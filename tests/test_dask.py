@@ -160,7 +160,8 @@ def test_cli_local_cluster_byte_identical_with_progress(manifest, in_process, tm
     """``usdbtf compress --dask local:2`` (its own LocalCluster, torn down after): the same
     folder as the in-process run; stderr shows the cluster and a progress bar."""
     kw, _ = in_process["max-bytes"]
-    argv = [sys.executable, "-m", "usdbtf.cli", "compress", str(manifest), "--max-bytes", str(kw["max_bytes"])]
+    argv = [sys.executable, "-m", "usdbtf.cli", "compress", str(manifest), "--max-bytes", str(kw["max_bytes"]),
+            "--budget-for", "folder"]
     ref = subprocess.run(argv + ["-o", str(tmp_path / "ref"), "-q"], capture_output=True, text=True)
     assert ref.returncode == 0, ref.stderr
     # --progress: stderr is a pipe here, where bars are drawn only when asked.

@@ -70,3 +70,22 @@ def test_probe_matches_the_asset_pages(made):
     basis = packs.shipped_basis_bytes(cbtf)
     assert 0 < packs.shipped_basis_bytes(cbtf, 4) < basis < tables
     assert basis == packs.shipped_basis_bytes(cbtf, K)
+
+
+def test_shipped_packs_follow_the_assets_page_breaks(made):
+    """``ShippedPacks`` (what rate control fits k on under a budget of the asset): the packs of
+    the first k layers as the asset with its default lods ships them.  With every code 8-bit no
+    page break changes a storage type, so it equals the per-pack probe at every k, partial groups
+    included; its lods are the ones package writes (usd.lod re-uses them)."""
+    compressed, gpu = made
+    cbtf = read_compressed(compressed)
+    assert {st.pixels.dtype for st in cbtf.coefficients} == {np.dtype(np.uint8)}
+    shipped = packs.ShippedPacks(cbtf)
+    for k in range(1, K + 1):
+        assert shipped(k) == sum(packs.shipped_pack_bytes(cbtf, k)), k
+    pages = sum(p.stat().st_size for p in gpu.glob("page*.png"))
+    assert abs(shipped(K) - pages) <= 0.05 * pages
+    from usdbtf.gpu import tables
+    from usdbtf.usd import lod
+    assert lod.default_lods is packs.default_lods and tables.page_breaks is packs.page_breaks
+    assert packs.default_lods(12) == [6] and packs.page_breaks(12, [6]) == [6]

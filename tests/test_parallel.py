@@ -127,7 +127,7 @@ def compress_on(cpus: set, src: Path, out: Path, *options) -> str:
 
 
 @pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="one CPU: nothing to compare")
-@pytest.mark.parametrize("options", [["--k", "48"], ["--max-bytes", "40000"]], ids=["k", "max-bytes"])
+@pytest.mark.parametrize("options", [["--k", "48"], ["--max-bytes", "40000", "--budget-for", "folder"]], ids=["k", "max-bytes"])
 def test_compress_on_one_cpu_writes_the_bytes_of_two(ubo81_btf, tmp_path, options):
     """The CLI confined to one CPU (as ``taskset -c 0`` would) and on two: the same folder
     (before the fix, ``--k 48`` differed in the basis, two coefficient textures and the metadata)."""

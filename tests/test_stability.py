@@ -585,7 +585,7 @@ def test_chunk_sizes_do_not_change_output(tmp_path, fixed_exr_dates, codec, smal
         {"one": [], "two": [], "all": []}
 
 
-@pytest.mark.parametrize("options", [[], ["--max-bytes", "40000"], ["--solver", "paper", "--k", "12"]],
+@pytest.mark.parametrize("options", [[], ["--max-bytes", "40000", "--budget-for", "folder"], ["--solver", "paper", "--k", "12"]],
                          ids=["plain", "max-bytes", "paper"])
 def test_output_does_not_depend_on_blas_threads(small_png, tmp_path, options):
     """compress runs BLAS on one thread and parallelises by itself (usdbtf.compress.parallel):

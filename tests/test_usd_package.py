@@ -611,22 +611,52 @@ def test_usdz_refuses_tiff_textures(compressed, tmp_path, capsys):
     assert not (tmp_path / "a.usda").exists()
 
 
-def test_package_reports_the_assets_bytes_against_the_budget(src, tmp_path, capsys):
-    """``package`` reports the bytes every ``lod`` loads (as inspect counts them) and the
-    ``--max-bytes`` budget compress recorded: the asset's bytes, not the compressed folder's."""
+def test_max_bytes_budgets_the_packaged_asset(src, tmp_path, capsys):
+    """Issue 39: ``compress --max-bytes B`` (the CLI budgets the asset by default) then
+    ``package``: the files the full lod loads (as ``inspect`` lists them) total within
+    [0.97 B, 1.01 B]; each lower lod loads fewer (a prefix of the pages beside the same tables,
+    maps and layers); compress recorded what it budgeted and the asset's bytes; the shipped
+    8-bit packs hold exactly the folder's codes, so the folder's error is the asset's.  A folder
+    budgeted for itself (``--budget-for folder``): package says so in one warning line."""
     import json
 
+    budget = 150_000
     folder = tmp_path / "c"
-    ok(capsys, "compress", src, "-o", folder, "--max-bytes", "30000", "-q")
+    ok(capsys, "compress", src, "-o", folder, "--max-bytes", str(budget), "--codec", "png", "-q")
     out = tmp_path / "a" / "pebbles.usda"
     summary = json.loads(ok(capsys, "package", folder, "-o", out, "--json", "-q"))
-    assert summary["max_bytes"] == 30000
+    assert summary["max_bytes"] == budget
     info = json.loads(ok(capsys, "inspect", out, "--json"))
-    totals = {lv["name"]: lv["total"] for lv in info["materials"][0]["lod_files"]}
-    assert summary["bytes"] == totals and totals["full"] > max(v for n, v in totals.items() if n != "full")
+    lods = info["materials"][0]["lod_files"]
+    totals = {lv["name"]: sum(f["bytes"] for f in lv["files"]) for lv in lods}
+    assert summary["bytes"] == totals
+    full = totals["full"]
+    assert 0.97 * budget <= full <= 1.01 * budget, (full, budget)
+    assert len(totals) > 1 and all(n < full for name, n in totals.items() if name != "full")
+    cbtf = read_compressed(folder)
+    assert cbtf.info["provenance"]["options"]["budget_for"] == "asset"
+    choice = cbtf.info["choice"]
+    assert choice["budget_for"] == "asset" and abs(choice["bytes"] - full) <= 0.01 * budget
+    assert choice["folder_bytes"] == cbtf.info["bytes"]["payload"] < full
+    # The asset ships the folder's codes exactly: every coefficient layer and basis vector.
+    shipped = load_btf(out)
+    assert shipped.k == cbtf.k
+    assert {st.pixels.dtype for st in cbtf.coefficients} == {np.dtype(np.uint8)}
+    for got, want in zip(shipped.coefficients, cbtf.coefficients):
+        np.testing.assert_array_equal(got.pixels, want.pixels)
+    np.testing.assert_array_equal(shipped.basis.pixels, cbtf.basis.pixels)
     code, _, err = run(capsys, "package", folder, "-o", out, "--force")
-    assert code == 0 and f"the asset's bytes (every file the full lod loads): {totals['full']:,}" in err
-    assert f"x the --max-bytes budget of 30,000" in err
+    assert code == 0 and f"the asset's bytes (every file the full lod loads): {full:,}" in err
+    assert f"{full / budget:.3f} of the --max-bytes budget of {budget:,}" in err
+    assert "--budget-for asset" not in err
+
+    old = tmp_path / "f"
+    ok(capsys, "compress", src, "-o", old, "--max-bytes", "30000", "--budget-for", "folder", "--codec", "png",
+       "--k", "8", "-q")
+    assert read_compressed(old).info["choice"]["budget_for"] == "folder"
+    code, _, err = run(capsys, "package", old, "-o", tmp_path / "b" / "f.usda")
+    assert code == 0 and [line for line in err.splitlines() if "--budget-for asset" in line] == [
+        next(line for line in err.splitlines() if "budgeted the compressed folder's textures" in line)]
 
 
 def test_cross_sampling_stores_each_direction_once(asset, compressed):

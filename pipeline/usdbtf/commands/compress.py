@@ -35,7 +35,14 @@ def run(args) -> int:
                           memory_budget=args.memory_budget * 1e9, expand_factors=args.expand_factors,
                           factor_rows=args.factor_rows, dask=args.dask, progress=not args.quiet,
                           domain=args.domain, error_domain=args.error_domain, coverage=coverage,
-                          max_texels=args.max_texels, effort=args.effort)
+                          max_texels=args.max_texels, effort=args.effort, budget_for=args.budget_for)
+    if opts.budget_for == "asset" and opts.budgeted:
+        # The bytes a budget counts are the packaged asset's: what packaging adds beside the
+        # coefficient pages and basis codes is measured by packaging's own code (compress
+        # cannot import usd: layers, docs/architecture.md).
+        from ..usd.package import asset_overhead
+
+        opts.asset_overhead = asset_overhead
     extra = {key: v for key, v in btf.metadata.items() if not key.startswith("_")}
     opts.extra = {"source_metadata": extra} if extra else {}
     result = compress(btf, opts)

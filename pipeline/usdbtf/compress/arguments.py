@@ -7,7 +7,7 @@ from pathlib import Path
 
 from ..argtypes import SEED, WORKERS, add_outside_paths_flag, float_in, int_in
 from ..cluster import ADDRESS_HELP, parse_address
-from .options import CODEC_NAMES, DEFAULT_CODEC, EFFORTS, ERROR_DOMAINS, SOLVERS
+from .options import BUDGET_FOR, CODEC_NAMES, DEFAULT_CODEC, EFFORTS, ERROR_DOMAINS, SOLVERS
 
 __all__ = ["SCENE_OPTIONS", "add_arguments"]
 
@@ -35,7 +35,12 @@ def add_arguments(p) -> None:
                    help="what --target-error is measured on: encoded (default: the values in the input's files, "
                         "e.g. the 8-bit sRGB codes -- what a user comparing images sees; for float files the same "
                         "as their linear values) or linear (scene-linear working space)")
-    p.add_argument("--max-bytes", type=int_in(1), metavar="B", help="byte budget for basis + coefficient textures")
+    p.add_argument("--max-bytes", type=int_in(1), metavar="B",
+                   help="byte budget: every file the packaged asset's full lod loads (see --budget-for)")
+    p.add_argument("--budget-for", choices=BUDGET_FOR, default="asset",
+                   help="what --max-bytes and the bytes --target-error reports count: asset (default: the files "
+                        "`usdbtf package` writes that the full lod loads -- coefficient pages, tables, fallback "
+                        "maps, thumbnail, layers) or folder (the compressed folder's basis + coefficient textures)")
     p.add_argument("--codec", choices=sorted(CODEC_NAMES), help=f"texture storage (default {DEFAULT_CODEC['rsvd']}; "
                    f"paper solver: {DEFAULT_CODEC['paper']})")
     p.add_argument("--effort", choices=EFFORTS, default="auto",

@@ -18,6 +18,9 @@ CODEC_NAMES = ("jxlp", "jxl", "png", "exr", "jpeg")
 EFFORTS = ("auto", "quick", "full")
 #: What ``--target-error`` is measured on: the input file's values, or scene-linear.
 ERROR_DOMAINS = ("encoded", "linear")
+#: What a byte budget (``--max-bytes``) and the bytes ``--target-error`` reports count (issue 39):
+#: the packaged asset's full lod (default) or the compressed folder's textures.
+BUDGET_FOR = ("asset", "folder")
 #: The codec each solver stores with when none is asked for.
 DEFAULT_CODEC = {"rsvd": "jxlp", "paper": "jpeg"}
 #: Basis vectors kept for a plain run (the paper's 150).
@@ -66,6 +69,12 @@ class CompressOptions:
     max_texels: int | None = None         # box-filter so the larger side is at most this (coverage.py)
     effort: str = "auto"                  # entropy-coder effort: auto (quick for a plain k, full when bytes are
                                           # asked for), quick or full (see quick_encode)
+    budget_for: str = "folder"            # what --max-bytes / --target-error's bytes count: "asset" (every file
+                                          # the packaged asset's full lod loads) or "folder" (the compressed
+                                          # folder's basis + coefficient textures; before issue 39)
+    asset_overhead: object = None         # budget_for "asset": callable(CompressedBTF) -> dict, what packaging
+                                          # adds beside the coefficient pages and basis codes (the CLI passes
+                                          # usd.package.asset_overhead; without it ratecontrol estimates)
     extra: dict = field(default_factory=dict)
 
     def validate(self):
@@ -98,6 +107,8 @@ class CompressOptions:
             raise UsageError("--max-texels with --dask: the box filter runs in this process; filter without --dask")
         if self.effort not in EFFORTS:
             raise BTFError(f"--effort must be one of {', '.join(EFFORTS)}, got {self.effort!r}")
+        if self.budget_for not in BUDGET_FOR:
+            raise BTFError(f"--budget-for must be one of {', '.join(BUDGET_FOR)}, got {self.budget_for!r}")
         if self.error_domain not in ERROR_DOMAINS:
             raise BTFError(f"--error-domain must be one of {', '.join(ERROR_DOMAINS)}, got {self.error_domain!r}")
 
@@ -150,11 +161,14 @@ class CompressOptions:
         for key, default in _RECORDED_WHEN_SET.items():
             if out[key] == default:
                 del out[key]
+        if not self.budgeted:
+            del out["budget_for"]             # only a budget or an error target counts bytes
         return out
 
 
 #: Options that do not change a bit of the output (see :mod:`.projection`).
-_NOT_RECORDED = ("extra", "workers", "memory_budget", "chunk_bytes", "spill", "dask", "progress", "coverage")
+_NOT_RECORDED = ("extra", "workers", "memory_budget", "chunk_bytes", "spill", "dask", "progress", "coverage",
+                 "asset_overhead")
 #: Options recorded only when set, with their defaults: those that steer factorised inputs,
 #: and the texture side a scene-shaped build asks for.
 _RECORDED_WHEN_SET = {"expand_factors": False, "factor_rows": None, "max_texels": None}

@@ -23,7 +23,7 @@ import numpy as np
 from ..errors import BTFError
 
 __all__ = ["MAX_CODE", "pack_count", "coefficient_packs", "shipped_pack_bytes", "shipped_basis_bytes",
-           "basis_codes_group_major", "pack_bytes_by_k"]
+           "basis_codes_group_major", "pack_bytes_by_k", "default_lods", "page_breaks", "ShippedPacks"]
 
 #: Largest code of each storage type: what a GPU's normalised read divides by.
 MAX_CODE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0, np.dtype(np.float16): 1.0}
@@ -36,6 +36,41 @@ def pack_count(k: int) -> int:
     return 3 * -(-k // 4)
 
 
+def default_lods(k: int) -> list[int]:
+    """Levels of detail for ``k`` vectors: k, then halvings down to no fewer than 4 (what
+    ``package`` writes unless told otherwise; ``usd.lod`` names them)."""
+    levels, n = [], k // 2
+    while n >= 4 and len(levels) < 3:
+        levels.append(n)
+        n //= 2
+    return levels
+
+
+def page_breaks(k: int, lods=()) -> list[int]:
+    """Pack indices where a page must begin: where each level of detail in ``lods`` (basis
+    counts) ends, so that a level's packs fill whole pages."""
+    return sorted({pack_count(n) for n in lods if 0 < n < k})
+
+
+def _range_dtype(layers, first: int) -> np.dtype:
+    """The storage type of packs holding ``layers`` (Stored, the first being layer ``first``):
+    the widest of their codes; BTFError for types that cannot share a texture."""
+    dtypes = {np.dtype(st.pixels.dtype) for st in layers}
+    dtype = np.dtype(np.float16) if np.dtype(np.float16) in dtypes else \
+        np.dtype(np.uint16) if np.dtype(np.uint16) in dtypes else np.dtype(np.uint8)
+    if not dtypes <= set(MAX_CODE) or (np.dtype(np.float16) in dtypes and len(dtypes) > 1):
+        raise BTFError(f"coefficient textures {first}..{first + len(layers) - 1}: cannot pack storage "
+                       f"types {sorted(str(d) for d in dtypes)} into one texture")
+    return dtype
+
+
+def _ranges(k: int, breaks: list[int]) -> list[tuple[int, int]]:
+    """(first group, end group) of each run of packs that shares one storage type."""
+    groups = -(-k // 4)
+    bounds = sorted({0, groups, *(b // 3 for b in breaks)})
+    return list(zip(bounds, bounds[1:]))
+
+
 def coefficient_packs(cbtf, k: int, breaks: list[int]) -> tuple[list, np.ndarray, np.ndarray]:
     """Coefficient packs of the first ``k`` layers of ``cbtf`` (a CompressedBTF), a list of
     (H, W, 4) arrays, plus per-pack (scale, bias), each (P, 4), for normalised GPU reads.  The
@@ -43,17 +78,9 @@ def coefficient_packs(cbtf, k: int, breaks: list[int]) -> tuple[list, np.ndarray
     type, the widest of their codes (uint8 codes in a uint16 pack keep their values: the
     scale follows the type), so storage types never split a level's pages.  Layers past
     ``k`` in a group's last pack are 0."""
-    groups = -(-k // 4)
-    bounds = sorted({0, groups, *(b // 3 for b in breaks)})
     packs, scales, biases = [], [], []
-    for start, end in zip(bounds, bounds[1:]):
-        layers = cbtf.coefficients[4 * start:min(4 * end, k)]
-        dtypes = {np.dtype(st.pixels.dtype) for st in layers}
-        dtype = np.dtype(np.float16) if np.dtype(np.float16) in dtypes else \
-            np.dtype(np.uint16) if np.dtype(np.uint16) in dtypes else np.dtype(np.uint8)
-        if not dtypes <= set(MAX_CODE) or (np.dtype(np.float16) in dtypes and len(dtypes) > 1):
-            raise BTFError(f"coefficient textures {4 * start}..{4 * start + len(layers) - 1}: cannot pack storage "
-                           f"types {sorted(str(d) for d in dtypes)} into one texture")
+    for start, end in _ranges(k, breaks):
+        dtype = _range_dtype(cbtf.coefficients[4 * start:min(4 * end, k)], 4 * start)
         for g in range(start, end):
             for c in range(3):
                 pix = np.zeros((cbtf.height, cbtf.width, 4), dtype)
@@ -101,6 +128,38 @@ def pack_bytes_by_k(per_pack, k: int) -> np.ndarray:
         raise ValueError(f"{len(per_pack)} packs measured; the first {k} layers need {pack_count(k)}")
     totals = np.cumsum(per_pack)
     return totals[np.array([pack_count(n) for n in range(1, k + 1)], np.int64) - 1]
+
+
+class ShippedPacks:
+    """Shipped bytes of the coefficient packs of ``cbtf``'s first k layers, for any k, as the
+    asset with its default levels of detail ships them: each run of packs between the page
+    breaks of :func:`default_lods` (k) in the widest storage type of its codes (a 16-bit first
+    level makes PNG pages EXR ones, so the bytes of a pack depend on k), a partial last group
+    with its missing layers zero.  Each distinct pack (group, channel, type, layers) is
+    encoded once (:func:`_encode_pack`) and remembered: calling it for many k costs the packs
+    that change."""
+
+    def __init__(self, cbtf):
+        self.cbtf = cbtf
+        self._bytes: dict = {}
+
+    def __call__(self, k: int) -> int:
+        cbtf = self.cbtf
+        k = min(k, cbtf.k)
+        total = 0
+        for start, end in _ranges(k, page_breaks(k, default_lods(k))):
+            dtype = _range_dtype(cbtf.coefficients[4 * start:min(4 * end, k)], 4 * start)
+            for g in range(start, end):
+                n = min(4, k - 4 * g)
+                for c in range(3):
+                    key = (g, c, dtype.str, n)
+                    if key not in self._bytes:
+                        pix = np.zeros((cbtf.height, cbtf.width, 4), dtype)
+                        for j in range(n):
+                            pix[:, :, j] = cbtf.coefficients[4 * g + j].pixels[:, :, c]
+                        self._bytes[key] = len(_encode_pack(pix))
+                    total += self._bytes[key]
+        return total
 
 
 def basis_codes_group_major(cbtf, k: int) -> np.ndarray:

@@ -5,7 +5,13 @@ Four cases, one function each, all returning an encoded :class:`CompressedBTF` (
 
 * a plain k with the uniform quantiser: the step was chosen on the sampled texels before
   the projection (:func:`step_for_k`); encode once;
-* ``--max-bytes``: (k, step) from the rate-distortion table (:mod:`.ratedist`), its entropy
+* ``--max-bytes`` of the packaged asset (``budget_for="asset"``, the CLI's default, issue 39):
+  (k, step) from the rate-distortion table calibrated on the shipped-bytes probes
+  (:mod:`.packs`: RGBA PNG packs, the basis codes as tables.exr holds them), with what
+  packaging adds beside them measured by packaging a near choice for real
+  (``options.asset_overhead``); then k fitted on the packs' and basis's measured bytes
+  (:func:`_asset_max_bytes`);
+* ``--max-bytes`` of the compressed folder (``budget_for="folder"``): (k, step) from the rate-distortion table (:mod:`.ratedist`), its entropy
   model calibrated on probe encodes (a dozen coefficient textures, half the basis); the k
   coefficient textures encoded once, the basis once for the components their measured bytes
   leave room for, then trailing components dropped while over budget;
@@ -30,7 +36,8 @@ from .codecs import get_codec
 from .decorrelate import planes_in_use
 from .encode import encode, encode_coefficients, encode_first, truncate_encoded
 from .evaluate import HeldOut, held_out_error
-from .format import CompressedBTF, encode_basis, encode_files
+from .format import CompressedBTF, cross_layout, encode_basis, encode_files, truncate
+from .packs import ShippedPacks, shipped_basis_bytes, shipped_pack_bytes
 from .options import CompressOptions
 from .quantise import Factorisation, quantise
 
@@ -192,15 +199,26 @@ def rate_control(f: Factorisation, options: CompressOptions, held: HeldOut,
     cbtf : the encoded result (:func:`.encode.encode`).
     choice : what was chosen, for the metadata ("mode", "k", "step", "bytes", ...).
     """
+    asset = options.budget_for == "asset" and options.budgeted
+    if asset and options.asset_overhead is None:
+        raise BTFError("a budget of the packaged asset needs what packaging adds (options.asset_overhead: "
+                       "usd.package.asset_overhead, as `usdbtf compress` passes); or budget the folder")
     if options.quantiser != "uniform":
         return _by_k_only(f, options, held)
     if f.step is not None:
         return _plain_k(f, options)
     table = ratedist.rd_table(f.coefficients, f.basis, f.total_energy, seed=options.seed)
     if options.max_bytes is not None:
-        return _max_bytes(f, options, table)
+        if asset and cross_layout(f.btf.sampling) is not None:
+            return _asset_max_bytes(f, options, table)
+        if asset:
+            return _files_asset_max_bytes(f, options, table)
+        return _with_budget_for(*_max_bytes(f, options, table), "folder")
     restricted = k_fit is not None and tuple(f.planes) != (k_fit,) * 3
-    return _target_error(f, options, table, held, restricted)
+    cbtf, choice = _target_error(f, options, table, held, restricted)
+    if asset:
+        choice = _asset_bytes_of(cbtf, choice, options)
+    return cbtf, _with_budget_for(cbtf, choice, options.budget_for)[1]
 
 
 def _plain_k(f: Factorisation, options: CompressOptions) -> tuple[CompressedBTF, dict]:
@@ -403,7 +421,12 @@ def _by_k_only(f: Factorisation, options: CompressOptions, held: HeldOut) -> tup
     k = min(options.target_k, f.k)
     cbtf = encode(quantise(f, k, 0.0, options))
     choice = {"k": k}
-    if options.max_bytes is not None:
+    asset = options.budget_for == "asset" and options.budgeted
+    if options.budgeted:
+        choice["budget_for"] = options.budget_for
+    if options.max_bytes is not None and asset:
+        k = _by_k_only_asset(cbtf, options)
+    elif options.max_bytes is not None:
         # Min-max storage does not depend on k: dropping trailing components is exact here.
         sizes = cbtf.info["bytes"]
         k = _fit_k_to_budget(sizes, k, options.max_bytes, margin=1.0)
@@ -422,4 +445,206 @@ def _by_k_only(f: Factorisation, options: CompressOptions, held: HeldOut) -> tup
     if k != cbtf.k:
         cbtf = truncate_encoded(cbtf, k)
         choice["k"] = k
+    if asset:
+        choice = _asset_bytes_of(cbtf, choice, options)
     return cbtf, choice
+
+
+def _by_k_only_asset(cbtf: CompressedBTF, options: CompressOptions) -> int:
+    """Components of an encoded ``cbtf`` (a quantiser without a step: its codes do not depend
+    on k) whose packaged asset fits ``--max-bytes``: packaged once at all k to measure what
+    packaging adds, then k fitted on the measured packs and basis codes (:func:`_asset_fit`),
+    or on the folder's files where the sampling has no GPU preview."""
+    budget = options.max_bytes
+    measured = _packaged(cbtf, options)
+    if measured["paged"]:
+        packs = ShippedPacks(cbtf)
+        ratio = measured["pages"] / max(packs(cbtf.k), 1)
+        rest = measured["overhead"] - shipped_basis_bytes(cbtf)
+        k, _ = _asset_fit(cbtf, packs, ratio, rest, _ASSET_AIM * budget)
+    else:
+        k = _fit_k_to_budget(cbtf.info["bytes"], cbtf.k, budget - measured["overhead"], margin=1.0)
+    if k == 0:
+        raise BTFError(f"cannot meet --max-bytes {budget}: one basis vector and what packaging adds "
+                       f"({measured['overhead']:,} bytes) do not fit")
+    return k
+
+
+# --- Budgets of the packaged asset (issue 39) ------------------------------------------------
+
+def _with_budget_for(cbtf: CompressedBTF, choice: dict, budget_for: str) -> tuple[CompressedBTF, dict]:
+    """``choice`` recording what its bytes count ("asset" or "folder")."""
+    return cbtf, dict(choice, budget_for=budget_for)
+
+
+#: The asset budget aims the full lod's files at this fraction of ``--max-bytes``: what the
+#: probes do not see exactly (the pages' one PNG stream per page against one per pack, calibrated
+#: once; the basis block inside tables.exr beside its other blocks; one page more or less in
+#: the layers) is left this much room; each choice is then packaged and checked.
+_ASSET_AIM = 0.997
+#: Bytes the asset's layers hold that the in-memory choice packaged by rate control lacks: the
+#: folder's provenance (options, source path) and its measured error curve (a placeholder in
+#: the probe).  Measured: real package - rate control's packaging = 1.4 KB (pebbles 32², small
+#: sampling), 2.1 KB (metal_flakes) and 3.3 KB (velvet, paper sampling 32²).
+_RECORD_ALLOWANCE = 4096
+#: Share of the budget assumed for what packaging adds, before it is measured: only the first,
+#: near choice that is packaged to measure it depends on it.
+_OVERHEAD_GUESS = 0.1
+#: Shipped pack bytes / entropy-model coefficient bytes before a probe (PNG packs measured
+#: 1.18-1.34x the JPEG XL textures, whose factor is ~1).
+_PACK_FACTOR_PRIOR = 1.3
+
+
+def _asset_max_bytes(f: Factorisation, options: CompressOptions, table) -> tuple[CompressedBTF, dict]:
+    """``--max-bytes`` of every file the packaged asset's full lod loads (GPU pages).
+
+    1. The rate-distortion model calibrated on the shipped-bytes probes (:mod:`.packs`): the
+       RGBA PNG packs of up to three groups of four coefficients, the basis codes of every
+       other vector as ``tables.exr`` holds them.
+    2. What packaging adds beside pages and basis codes (fallback maps, thumbnail, the tables'
+       other blocks, MaterialX, layers), measured by packaging that choice for real
+       (``options.asset_overhead``), and the pages' bytes per probe byte (one PNG stream per
+       page against one per pack).
+    3. The model's choice for the bytes left; k then fitted on the measured bytes of every pack
+       and of the basis codes (a partial group of four measured as shipped, zero layers and all).
+    4. That choice packaged (its codes, no codec encode) and what packaging adds corrected by
+       the difference; k refitted (at most three packagings), the largest k within the budget kept.
+    """
+    budget = options.max_bytes
+    k_cap = min(f.k, options.k or f.k)
+    limit = budget - _RECORD_ALLOWANCE            # for what rate control's packaging measures
+    aim = min(_ASSET_AIM * budget, limit)
+    k, step = ratedist.choose_for_bytes(table, (1 - _OVERHEAD_GUESS) * aim, _PACK_FACTOR_PRIOR, _BASIS_FACTOR_PRIOR)
+    k = min(k, k_cap)
+    fc = _pack_factor(table, f, k, step, options)
+    fb = _shipped_basis_factor(table, f, k, step, options)
+    k, step = ratedist.choose_for_bytes(table, (1 - _OVERHEAD_GUESS) * aim, fc, fb)
+    near = quantise(f, min(k, k_cap), step, options)
+    measured = _packaged(near, options)
+    ratio = measured["pages"] / max(ShippedPacks(near)(near.k), 1)
+    rest = measured["overhead"] - shipped_basis_bytes(near)
+    log.info(f"  asset: packaging k = {near.k} adds {rest:,} bytes beside the pages and basis codes "
+             f"(pages {ratio:.4f}x the per-pack probe); pack factor {fc:.3f}, basis factor {fb:.3f}")
+    if aim <= 0 or rest >= aim:
+        raise BTFError(f"cannot meet --max-bytes {budget}: packaging alone adds {rest:,} bytes (fallback maps, "
+                       f"thumbnail, tables, layers); raise the budget or pass --budget-for folder")
+    k, step = ratedist.choose_for_bytes(table, aim - rest, fc * ratio, fb)
+    model = _modelled(table, min(k, k_cap), step, fc * ratio, fb)
+    # Fit k on the measured packs and basis codes, package that choice (its codes: no codec
+    # encode), and correct what packaging adds by what it measured: what the probes miss
+    # (pages as one stream per page, the basis block among the tables, the layers' page lists)
+    # changes little with k, so a second fit lands within a coefficient of the aim.
+    best, tried = None, set()
+    for attempt in range(1, 4):
+        k, predicted = _asset_fit_planned(f, options, step, min(k, k_cap), k_cap, ratio, rest, aim)
+        if k in tried:
+            break
+        tried.add(k)
+        full = _packaged(quantise(f, k, step, options), options)["full"]
+        log.info(f"  asset try {attempt}: k = {k}, step = {step:.4g}: predicted {predicted:,.0f} bytes, "
+                 f"packaged {full:,} ({full / budget:.4f} of the budget)")
+        if full <= limit and (best is None or k > best[0]):
+            best = (k, full, predicted)
+        rest += full - predicted
+        if best is not None and best[0] == k and full >= 0.99 * limit:
+            break
+    if best is None:
+        raise BTFError(f"cannot meet --max-bytes {budget}: the asset came out at {full:,} bytes at k = {k}")
+    k, full, predicted = best
+    cbtf = encode(quantise(f, k, step, options))
+    if k >= f.k:
+        log.warning(f"  --max-bytes: the choice (k = {k}) reached the {f.k} components projected")
+    prediction = _prediction(model, full)
+    return cbtf, {"mode": "max_bytes", "budget_for": "asset", "k": k, "step": step, "bytes": full,
+                  "folder_bytes": cbtf.info["bytes"]["payload"],
+                  "asset": {"overhead": int(rest), "pages_per_probe": ratio, "predicted": float(predicted),
+                            "overhead_measured_at_k": near.k},
+                  "codec_factor": {"packs": fc, "basis": fb}, "model": prediction}
+
+
+def _packaged(cbtf: CompressedBTF, options: CompressOptions) -> dict:
+    """``options.asset_overhead`` of ``cbtf`` with the metadata compress will record for it
+    (``options.extra``: the source's physical size and white level, which the layers hold)."""
+    return options.asset_overhead(dataclasses.replace(cbtf, info={**options.extra, **cbtf.info}))
+
+
+def _asset_fit_planned(f: Factorisation, options: CompressOptions, step: float, k: int, k_cap: int,
+                       ratio: float, rest: float, aim: float) -> tuple[int, float]:
+    """(k, predicted asset bytes): the most components whose measured packs (times ``ratio``),
+    basis codes and ``rest`` fit ``aim``, from quantising a margin past the model's ``k``
+    (widened while the fit reaches it)."""
+    k_plan = min(k_cap, int(np.ceil(1.1 * k)) + 8)
+    while True:
+        q = quantise(f, k_plan, step, options)
+        fit, total = _asset_fit(q, ShippedPacks(q), ratio, rest, aim)
+        if fit < k_plan or k_plan >= k_cap:
+            break
+        k_plan = min(k_cap, int(np.ceil(1.3 * k_plan)) + 8)
+    if fit == 0:
+        raise BTFError(f"cannot meet --max-bytes {options.max_bytes}: even one basis vector does not fit beside "
+                       f"the {rest:,.0f} bytes packaging adds")
+    return fit, total
+
+
+def _asset_fit(q: CompressedBTF, packs: ShippedPacks, ratio: float, rest: float, aim: float) -> tuple[int, float]:
+    """The largest k <= q.k with ``rest + ratio * packs(k) + basis(k) <= aim`` (0 when none) and
+    that total: packs(k) the packs of the first k layers as the asset ships them
+    (:class:`.packs.ShippedPacks`), basis(k) the first k vectors' codes as tables.exr holds
+    them (:func:`.packs.shipped_basis_bytes`).  Bisection: both grow with k."""
+    memo = {}
+
+    def total(k: int) -> float:
+        if k not in memo:
+            memo[k] = rest + ratio * packs(k) + shipped_basis_bytes(q, k)
+        return memo[k]
+
+    if total(q.k) <= aim:
+        return q.k, total(q.k)
+    lo, hi = 0, q.k
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (mid, hi) if total(mid) <= aim else (lo, mid)
+    return lo, (total(lo) if lo else 0.0)
+
+
+def _pack_factor(table, f: Factorisation, k: int, step: float, options: CompressOptions) -> float:
+    """Shipped pack bytes (:func:`.packs.shipped_pack_bytes`) / entropy-model bytes of the
+    coefficient textures, from the packs of up to three groups of four spread over the first k."""
+    j = table.column(step)
+    groups = np.unique(np.linspace(0, max((k - 1) // 4, 0), 3).round().astype(int))
+    comps = np.array([c for g in groups for c in range(4 * g, 4 * g + 4) if c < k])
+    packs = shipped_pack_bytes(quantise(_part(f, comps), len(comps), step, options))
+    overhead = len(comps) * ratedist.FILE_OVERHEAD_BYTES  # the model adds it unscaled
+    return float(max(sum(packs) - overhead, 1.0) / max(float(table.coeff_bytes[comps, j].sum()), 1.0))
+
+
+def _shipped_basis_factor(table, f: Factorisation, k: int, step: float, options: CompressOptions) -> float:
+    """Shipped bytes of the basis codes (:func:`.packs.shipped_basis_bytes`) / entropy-model
+    bytes of the basis, from every :data:`_BASIS_PROBE_STRIDE`-th of the first k vectors."""
+    j = table.column(step)
+    vectors = np.arange(0, k, _BASIS_PROBE_STRIDE)
+    shipped = shipped_basis_bytes(quantise(_part(f, vectors), len(vectors), step, options))
+    return float(shipped / max(float(table.basis_bytes[vectors, j].sum()), 1.0))
+
+
+def _files_asset_max_bytes(f: Factorisation, options: CompressOptions, table) -> tuple[CompressedBTF, dict]:
+    """``--max-bytes`` of the asset where the sampling has no GPU preview: the asset then ships
+    the folder's own basis and coefficient files beside what packaging adds, so the folder's
+    rate control runs on the budget less that, measured by packaging a near choice."""
+    budget = options.max_bytes
+    k, step = ratedist.choose_for_bytes(table, (1 - _OVERHEAD_GUESS) * budget, 1.0, _BASIS_FACTOR_PRIOR)
+    measured = _packaged(encode(quantise(f, min(k, f.k, options.k or f.k), step, options)), options)
+    rest = measured["overhead"]
+    if rest >= budget:
+        raise BTFError(f"cannot meet --max-bytes {budget}: packaging alone adds {rest:,} bytes")
+    cbtf, choice = _max_bytes(f, dataclasses.replace(options, max_bytes=int(budget - rest)), table)
+    return cbtf, dict(choice, budget_for="asset", bytes=choice["bytes"] + rest, folder_bytes=choice["bytes"],
+                      asset={"overhead": rest, "overhead_measured_at_k": measured["k"]})
+
+
+def _asset_bytes_of(cbtf: CompressedBTF, choice: dict, options: CompressOptions) -> dict:
+    """``choice`` with "bytes" the packaged asset's full lod (``cbtf`` packaged for real) and
+    "folder_bytes" the compressed folder's textures."""
+    full = _packaged(cbtf, options)["full"]
+    log.info(f"  asset: packaged, the full lod loads {full:,} bytes (folder {cbtf.info['bytes']['payload']:,})")
+    return dict(choice, bytes=full, folder_bytes=cbtf.info["bytes"]["payload"])

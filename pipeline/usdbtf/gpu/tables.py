@@ -41,7 +41,7 @@ import numpy as np
 
 from ..compress.format import CompressedBTF, cross_layout
 from ..compress.packs import (MAX_CODE as _MAX_CODE, TABLE_WIDTH, basis_codes_group_major,
-                              coefficient_packs as _pack, pack_count)
+                              coefficient_packs as _pack, pack_count, page_breaks)
 from ..errors import BTFError
 
 __all__ = ["MAX_PAGES", "PAGE_SIZE", "TABLE_WIDTH", "GpuLayout", "gpu_layout", "pack_count", "page_breaks",
@@ -82,12 +82,6 @@ class GpuLayout:
     def pages_for(self, k: int) -> int:
         """How many pages (from the first) hold the packs of the first ``k`` basis vectors."""
         return sum(1 for first in self.first_packs if first < pack_count(min(k, self.k)))
-
-
-def page_breaks(k: int, lods=()) -> list[int]:
-    """Pack indices where a page must begin: where each level of detail in ``lods`` (basis
-    counts) ends, so that a level's packs fill whole pages."""
-    return sorted({pack_count(n) for n in lods if 0 < n < k})
 
 
 class _Texels:

@@ -23,18 +23,10 @@ from __future__ import annotations
 
 __all__ = ["LOD_VARIANT_SET", "FULL_LOD", "default_lods", "lod_name", "author_lod_variants"]
 
+from ..compress.packs import default_lods  # noqa: F401  (where rate control counts the asset's pages too)
 from .material import LOD_VARIANT_SET
 
 FULL_LOD = "full"
-
-
-def default_lods(k: int) -> list[int]:
-    """Levels of detail for ``k`` vectors: k, then halvings down to no fewer than 4."""
-    levels, n = [], k // 2
-    while n >= 4 and len(levels) < 3:
-        levels.append(n)
-        n //= 2
-    return levels
 
 
 def lod_name(n: int) -> str:

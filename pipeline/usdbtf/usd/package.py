@@ -239,6 +239,13 @@ def budget_of(cbtf: CompressedBTF) -> int | None:
     return int(value) if isinstance(value, (int, float)) and value > 0 else None
 
 
+def budget_for_of(cbtf: CompressedBTF) -> str:
+    """What ``cbtf``'s recorded budget counted: "asset" or "folder" (``compress --budget-for``;
+    a folder from before issue 39, which records none, budgeted the folder)."""
+    options = (cbtf.info.get("provenance") or {}).get("options") or {}
+    return str(options.get("budget_for") or "folder")
+
+
 def shipped_bytes(root) -> dict:
     """{lod name: bytes of every file that ``lod`` loads} of the written asset ``root``
     (:func:`usdbtf.usd.inspect.lod_files`: its layers, thumbnail, the BTF's textures and
@@ -248,6 +255,49 @@ def shipped_bytes(root) -> dict:
 
     stage = open_stage(root)
     return {lv["name"] or FULL_LOD: lv["total"] for lv in lod_files(stage, find_material(stage))}
+
+
+def asset_overhead(cbtf: CompressedBTF) -> dict:
+    """What packaging ``cbtf`` ships beside its coefficients and basis codes: the bytes a
+    ``--max-bytes`` budget of the asset (``compress --budget-for asset``, issue 39) must keep
+    for them, measured by packaging ``cbtf`` for real (this module's :func:`package` and
+    :func:`write_package` into a temporary folder, no validation) and counting what its full
+    ``lod`` loads (:func:`shipped_bytes`).
+
+    ``cbtf`` : a quantised (or encoded) compressed BTF near the budget's choice; without a
+    recorded physical size a 1 m swatch is packaged (the size changes no texture).
+
+    Returns
+    -------
+    dict : "full" (bytes the full lod loads), "pages" (bytes of its coefficient files: GPU pages,
+    or coefficient files and basis image when the sampling has no GPU preview), "paged" (GPU
+    pages were written), "overhead" (full - pages: tables, fallback maps, thumbnail, MaterialX,
+    layers; with pages the tables' basis block is still in it), "k".
+    """
+    import tempfile
+
+    from ..compress.curve import curve_ks
+
+    size = physical_size_of(cbtf) or (1.0, 1.0)
+    if not cbtf.curve:
+        # The error curve compress writes after rate control: its 48 points are in the layers.
+        ks = curve_ks(cbtf.k)
+        cbtf = replace(cbtf, curve={"k": [int(k) for k in ks], "percent": [float(30.0 / np.sqrt(k)) for k in ks]})
+    quiet = logging.getLogger("usdbtf")
+    level = quiet.level
+    quiet.setLevel(max(level, logging.WARNING))      # the probe's own "packaged ..." lines are noise here
+    try:
+        result = package(cbtf, PackageOptions(physical_size=size, validate=False))
+        with tempfile.TemporaryDirectory(prefix="usdbtf-overhead-") as tmp:
+            summary = write_package(result, Path(tmp) / "probe.usda")
+            full = int(summary["bytes"][FULL_LOD])
+            paged = result.gpu is not None
+            names = set(result.coefficients) | (set() if paged else {result.basis})
+            folder = Path(summary["textures"])
+            pages = int(sum((folder / n).stat().st_size for n in names))
+    finally:
+        quiet.setLevel(level)
+    return {"full": full, "pages": pages, "paged": paged, "overhead": full - pages, "k": cbtf.k}
 
 
 def check_root_layer(out) -> None:
@@ -517,9 +567,12 @@ def write_package(result: PackageResult, out) -> dict:
     shipped = shipped_bytes(out)
     budget = budget_of(cbtf)
     log.info(f"the asset's bytes (every file the full lod loads): {shipped[FULL_LOD]:,}"
-             + ("" if budget is None else f", {shipped[FULL_LOD] / budget:.2f}x the --max-bytes budget of {budget:,} "
-                                          f"compress was given (which counts the compressed folder's textures)")
+             + ("" if budget is None else f", {shipped[FULL_LOD] / budget:.3f} of the --max-bytes budget of {budget:,}")
              + "".join(f"; {name} {n:,}" for name, n in shipped.items() if name != FULL_LOD))
+    if budget is not None and budget_for_of(cbtf) != "asset":
+        log.warning(f"{result.input_name}: its --max-bytes {budget:,} budgeted the compressed folder's textures, "
+                    f"not this asset ({shipped[FULL_LOD] / budget:.2f}x it); compress with --budget-for asset "
+                    f"to budget what is shipped")
     summary = {"root": out, "payload": out.parent / names.payload, "textures": out.parent / names.textures,
                "k": cbtf.k, "lods": [[FULL_LOD, cbtf.k]] + [[lod.lod_name(n), n] for n in result.levels],
                "texture_format": options.texture_format, "validated": options.validate,

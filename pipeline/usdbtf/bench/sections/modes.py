@@ -69,8 +69,8 @@ class Mode(Method):
 
 def modes(paper_bytes: int, paper_percent: float) -> list:
     """The modes a user asks for, the byte and error requests at the paper's values."""
-    asked = [("--k", "150"), ("--k", "150", "--effort", "full"), ("--max-bytes", str(int(paper_bytes))),
-             ("--target-error", f"{paper_percent:.4g}", "--error-domain", "linear")]
+    asked = [("--k", "150"), ("--k", "150", "--effort", "full"), ("--max-bytes", str(int(paper_bytes)), "--budget-for", "folder"),
+             ("--target-error", f"{paper_percent:.4g}", "--error-domain", "linear", "--budget-for", "folder")]
     return [Mode("rsvd", "jxlp", n, args) for n, args in enumerate(asked)]
 
 
