@@ -270,7 +270,7 @@ class _Frame:
                 self._memo[key] = make(values.flat[0])
             return self._memo[key]
         distinct, index = np.unique(values, return_inverse=True)
-        if len(distinct) > 8:                  # continuous values (evaluating a fit): per texel, no memo
+        if len(distinct) > 16:                 # continuous values (evaluating a fit): per texel, no memo
             return make(values)
         parts = [self._per_value(kind, u, make) for u in distinct]
         if isinstance(parts[0], tuple):
@@ -352,6 +352,11 @@ class _Frame:
         return single, multi, fujii_avg_albedo(np.asarray(sigma, self.dtype))
 
     def _diffuse(self, sigma):
+        if np.ndim(sigma) == 0 and sigma == 0:
+            # Lambert: A = 1, B = 0, so both directional albedos and E_avg are exactly 1 and
+            # the multiple scattering is eps * eps / eps (the formula below, without its work).
+            eps = np.float32(M_FLOAT_EPS)
+            return self.nl / np.pi, (eps * eps / eps) * self.nl / np.pi
         s = self.lv - self.nl * self.nv
         stinv = np.where(s > 0.0, s / np.maximum(self.nl, self.nv), s)
         a = 1.0 / (1.0 + _FUJII_1 * sigma)
@@ -385,10 +390,15 @@ def evaluate_openpbr(params: dict, view: np.ndarray, light: np.ndarray, dtype=np
     t = len(params["normal"])
     get = lambda name, default: np.asarray(params.get(name, np.full(t, default)), dtype)  # noqa: E731
     fr = _Frame(params["normal"], view, light, dtype)
-    rotation = get("specular_rotation", 0.0)
     aniso = get("specular_anisotropy", 0.0)
+    # Isotropic everywhere: D needs no tangent (the same lobe, fewer operations).
+    rotation = get("specular_rotation", 0.0) if np.any(aniso != 0) else None
     spec, t_spec = fr.specular(get("specular_roughness", 0.3), aniso, rotation, get("specular_weight", 1.0))
-    fuzz, t_fuzz = fr.fuzz(get("fuzz_roughness", 0.5), get("fuzz_weight", 0.0))
+    fuzz_weight = get("fuzz_weight", 0.0)
+    if np.any(fuzz_weight != 0):
+        fuzz, t_fuzz = fr.fuzz(get("fuzz_roughness", 0.5), fuzz_weight)
+    else:                                       # weight 0: the lobe is 0, its throughput 1
+        fuzz, t_fuzz = np.float32(0.0), np.float32(1.0)
     single, multi, avg = fr.diffuse(get("base_diffuse_roughness", 0.0))
     base = np.maximum(np.asarray(params["base_color"], dtype), 0.0)
     out = np.empty((len(view), t, 3), dtype)
@@ -591,7 +601,9 @@ def _start(roughness: np.ndarray, f0: np.ndarray) -> _State:
     t = len(roughness)
     full = lambda value: np.full(t, value, np.float32)  # noqa: E731
     f0_ior = float(_sq((SPECULAR_IOR - 1.0) / (SPECULAR_IOR + 1.0)))
-    weight = np.clip(np.max(f0, axis=1) / f0_ior, MIN_SPECULAR_WEIGHT, SPECULAR_WEIGHTS[-1]).astype(np.float32)
+    # Snapped to half-octave steps: a few distinct weights share their Fresnel terms (_Frame._per_value).
+    weight = np.clip(np.max(f0, axis=1) / f0_ior, MIN_SPECULAR_WEIGHT, SPECULAR_WEIGHTS[-1])
+    weight = np.minimum(2.0 ** (np.round(2.0 * np.log2(weight)) / 2.0), SPECULAR_WEIGHTS[-1]).astype(np.float32)
     return _State(weight, np.asarray(roughness, np.float32).copy(), full(0.0), full(0.0), full(0.0), full(0.5),
                   full(0.0), np.zeros((t, 3, 3), np.float32), np.full(t, np.inf))
 
