@@ -370,6 +370,8 @@ class _Frame:
 
 def _gather(parts, index, t):
     """(S, T) from per-value arrays ``parts`` ((S, T) or (S, 1) each): texel j from parts[index[j]]."""
+    if all(p.shape[1] == 1 for p in parts):                 # one column a value: one take
+        return np.concatenate(parts, axis=1)[:, index]
     cols = [np.broadcast_to(p, (p.shape[0], t)) for p in parts]
     out = np.empty(cols[0].shape, np.result_type(*cols))
     for i, col in enumerate(cols):
