@@ -85,9 +85,9 @@ MIN_SPECULAR_WEIGHT = 0.25
 ANISOTROPY_PROBE = np.float32(0.7)
 ANISOTROPY_GRID = np.array([0.4, 0.9], np.float32)
 ROTATION_GRID = np.radians(np.array([0.0, 45.0, 90.0, 135.0])).astype(np.float32)
-FUZZ_WEIGHTS = np.array([0.5, 1.0], np.float32)
+FUZZ_WEIGHTS = np.array([0.3, 0.6, 1.0], np.float32)
 FUZZ_ROUGHNESS_GRID = np.array([0.3, 0.6, 1.0], np.float32)
-DIFFUSE_ROUGHNESS_GRID = np.array([1.0], np.float32)
+DIFFUSE_ROUGHNESS_GRID = np.array([0.5, 1.0], np.float32)
 ROUGHNESS_STEPS = (0.85, 1.2)
 #: Fit samples (:func:`usdbtf.svbrdf.fit_samples`, half near the mirror configuration) and
 #: held-out samples the OpenPBR fit uses: half the UsdPreviewSurface fit's, whose result it
