@@ -227,6 +227,31 @@ def test_fit_recovers_fuzz_and_anisotropy_and_beats_the_preview_surface():
     assert err["openpbr"] < 0.5 * err["preview"], err
 
 
+def test_box_least_squares_is_the_exact_box_optimum():
+    """The colours' solve (closed form, the active-set enumeration only where the free
+    optimum leaves [0, 1]^m): on random problems of 1-3 unknowns, some with the optimum
+    inside the box, some on its faces and corners, some rank-deficient, its answer is in the
+    box and no point of a dense grid of the box has a lower residual."""
+    from usdbtf.openpbr import _box_lsq
+
+    rng = np.random.default_rng(3)
+    for m in (1, 2, 3):
+        p = 40
+        a = rng.normal(size=(p, 12, m))
+        a[:4, :, -1] = a[:4, :, 0]                             # rank-deficient Grams
+        x_true = rng.uniform(-0.6, 1.6, (p, m))
+        x_true[4:14] = rng.uniform(0.1, 0.9, (10, m))          # optima inside the box
+        y = np.einsum("psm,pm->ps", a, x_true) + 0.05 * rng.normal(size=(p, 12))
+        gram, rhs, yy = np.einsum("psi,psj->pij", a, a), np.einsum("psi,ps->pi", a, y), (y * y).sum(axis=1)
+        x, r = _box_lsq(gram, rhs, yy)
+        assert np.all((x >= 0.0) & (x <= 1.0))
+        np.testing.assert_allclose(r, ((y - np.einsum("psm,pm->ps", a, x)) ** 2).sum(axis=1), rtol=1e-6, atol=1e-9)
+        axes = np.meshgrid(*[np.linspace(0.0, 1.0, 41)] * m, indexing="ij")
+        grid = np.stack([g.ravel() for g in axes], axis=1)                       # (G, m)
+        grid_r = ((y[:, None, :] - np.einsum("psm,gm->pgs", a, grid)) ** 2).sum(axis=2).min(axis=1)
+        assert np.all(r <= grid_r + 1e-9), (m, (r - grid_r).max())
+
+
 def test_maps_round_trip_through_their_files():
     """encode_maps / decode_maps: what a renderer reads back is the fit to the files' precision."""
     from usdbtf.openpbr import OpenPbrMaps

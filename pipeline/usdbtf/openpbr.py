@@ -30,23 +30,30 @@ anisotropy's direction is the tangent ``(cos phi, sin phi, 0)`` (``phi`` in [0, 
 image right towards image up), projected onto the texel's normal as MaterialX does.
 
 :func:`fit_openpbr` fits the maps per texel, streamed over texel blocks like
-:func:`usdbtf.svbrdf.fit_svbrdf` and on the same samples, keeping its normals (the two
-fallbacks share one normal map).  The model is linear in the three colours (base,
-specular tint, fuzz) once the other inputs are fixed, so every candidate of those is a
-box-constrained least squares per channel (three unknowns in [0, 1]) from sums over the
-samples; the other inputs are searched per texel, a stage at a time:
+:func:`usdbtf.svbrdf.fit_svbrdf`, starting from that fit's result (the two fallbacks share
+its normal map, or a fraction of its tilt).  The model is linear in the three colours
+(base, specular tint, fuzz) once the other inputs are fixed, so every candidate of those is
+a box-constrained least squares per channel (three unknowns in [0, 1], solved in closed
+form) from sums over :data:`FIT_SAMPLES` samples; the other inputs are searched per texel,
+a stage at a time, so that the fit costs about what the UsdPreviewSurface fit costs:
 
-1. specular roughness x specular weight (F0 0.04, 0.2 or ~1), no fuzz, Lambert base: the
-   family of the UsdPreviewSurface fit;
-2. anisotropy (0.4, 0.7, 0.9) x direction (0, 45, 90, 135 degrees) x roughness around stage 1's;
-3. fuzz weight x fuzz roughness;
-4. base diffuse roughness (0.5, 1);
-5. specular roughness again, one grid step either side.
+1. the UsdPreviewSurface fit's lobes (its roughness, ``specular_weight`` from its F0, a
+   Lambert base), with the flat normal and with :data:`NORMAL_TILTS` fractions of its
+   normal map's tilt, each texel keeping the normal that predicts :data:`HELD_OUT_SAMPLES`
+   held-out samples (:func:`usdbtf.svbrdf.validation_samples`) best;
+2. specular weight (:data:`SPECULAR_WEIGHTS`);
+3. anisotropy: its direction (0, 45, 90, 135 degrees) at 0.7, then its amount along the
+   best direction, each at the roughness that keeps the lobe's mean alpha;
+4. fuzz weight x fuzz roughness;
+5. base diffuse roughness;
+6. specular roughness, one step either side.
 
-Each stage keeps a candidate only where it lowers the fit samples' residual.  Last, every
-texel keeps stage 1's parameters unless the final ones predict the held-out samples
-(:func:`usdbtf.svbrdf.validation_samples`) better: a richer lobe that fits the fit samples
-must not flash elsewhere.
+Stages 2-6 keep a candidate only where it lowers the fit samples' residual.  The final
+colours are also refitted towards the least absolute error (:data:`L1_ITERATIONS`
+reweighted passes; the benchmark's metric), kept where that predicts the held-out samples
+better.  Last, every texel keeps stage 1's parameters unless the final ones predict the
+held-out samples better:
+a richer lobe that fits the fit samples must not flash elsewhere.
 """
 from __future__ import annotations
 
@@ -60,26 +67,37 @@ from .compress.format import CompressedBTF
 from .numeric import single_blas_thread
 from .progress import track
 from .sampling import to_vectors
-from .svbrdf import (SvbrdfMaps, VALIDATION_SAMPLES, fit_samples, fit_svbrdf, validation_samples,
-                     _reconstruct)
+from .svbrdf import SvbrdfMaps, fit_samples, fit_svbrdf, validation_samples, _reconstruct
 
 __all__ = ["OpenPbrMaps", "evaluate_openpbr", "evaluate", "fit_openpbr", "SPECULAR_IOR",
-           "SPECULAR_ROUGHNESS_GRID", "SPECULAR_WEIGHTS", "FUZZ_WEIGHTS", "FUZZ_ROUGHNESS_GRID"]
+           "SPECULAR_WEIGHTS", "FUZZ_WEIGHTS", "FUZZ_ROUGHNESS_GRID", "FIT_SAMPLES", "HELD_OUT_SAMPLES"]
 
 log = logging.getLogger(__name__)
 
 M_FLOAT_EPS = 1e-8                     # MaterialX's M_FLOAT_EPS (mx_microfacet.glsl)
 #: The dielectric IOR the fit authors (the definition's default); ``specular_weight`` scales its F0.
 SPECULAR_IOR = 1.5
-SPECULAR_ROUGHNESS_GRID = np.array([0.12, 0.16, 0.2, 0.25, 0.3, 0.36, 0.43, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0],
-                                   np.float32)
-#: specular_weight candidates: F0 = 0.04 w (clamped at 0.99999): 0.04, 0.08, 0.2, ~1.
-SPECULAR_WEIGHTS = np.array([1.0, 2.0, 5.0, 25.0], np.float32)
-ANISOTROPY_GRID = np.array([0.4, 0.7, 0.9], np.float32)
+#: specular_weight candidates (F0 = 0.04 w, clamped at 0.99999): 0.04, 0.2, ~1; the search
+#: starts from the UsdPreviewSurface fit's F0, down to :data:`MIN_SPECULAR_WEIGHT`.
+SPECULAR_WEIGHTS = np.array([1.0, 5.0, 25.0], np.float32)
+MIN_SPECULAR_WEIGHT = 0.25
+#: The anisotropy at which the direction is searched, then the amounts tried along it.
+ANISOTROPY_PROBE = np.float32(0.7)
+ANISOTROPY_GRID = np.array([0.4, 0.9], np.float32)
 ROTATION_GRID = np.radians(np.array([0.0, 45.0, 90.0, 135.0])).astype(np.float32)
 FUZZ_WEIGHTS = np.array([0.3, 0.6, 1.0], np.float32)
-FUZZ_ROUGHNESS_GRID = np.array([0.2, 0.35, 0.5, 0.7, 1.0], np.float32)
+FUZZ_ROUGHNESS_GRID = np.array([0.3, 0.6, 1.0], np.float32)
 DIFFUSE_ROUGHNESS_GRID = np.array([0.5, 1.0], np.float32)
+ROUGHNESS_STEPS = (0.85, 1.2)
+#: Fit samples (:func:`usdbtf.svbrdf.fit_samples`, half near the mirror configuration) and
+#: held-out samples the OpenPBR fit uses: half the UsdPreviewSurface fit's, whose result it
+#: starts from, so that the two fits cost about the same.
+FIT_SAMPLES = 768
+#: Fractions of the UsdPreviewSurface normal map's tilt tried (normalised blends with the flat normal).
+NORMAL_TILTS = (0.2, 0.4, 0.6, 0.8, 1.0)
+HELD_OUT_SAMPLES = 512
+#: Reweighted least-squares passes of the final colours towards the least absolute error.
+L1_ITERATIONS = 2
 _FUJII_1 = 0.5 - 2.0 / (3.0 * np.pi)
 _FUJII_2 = 2.0 / 3.0 - 28.0 / (15.0 * np.pi)
 
@@ -252,7 +270,7 @@ class _Frame:
                 self._memo[key] = make(values.flat[0])
             return self._memo[key]
         distinct, index = np.unique(values, return_inverse=True)
-        if len(distinct) > 8:                  # continuous values (evaluating a fit): per texel, no memo
+        if len(distinct) > 16:                 # continuous values (evaluating a fit): per texel, no memo
             return make(values)
         parts = [self._per_value(kind, u, make) for u in distinct]
         if isinstance(parts[0], tuple):
@@ -334,6 +352,11 @@ class _Frame:
         return single, multi, fujii_avg_albedo(np.asarray(sigma, self.dtype))
 
     def _diffuse(self, sigma):
+        if np.ndim(sigma) == 0 and sigma == 0:
+            # Lambert: A = 1, B = 0, so both directional albedos and E_avg are exactly 1 and
+            # the multiple scattering is eps * eps / eps (the formula below, without its work).
+            eps = np.float32(M_FLOAT_EPS)
+            return self.nl / np.pi, (eps * eps / eps) * self.nl / np.pi
         s = self.lv - self.nl * self.nv
         stinv = np.where(s > 0.0, s / np.maximum(self.nl, self.nv), s)
         a = 1.0 / (1.0 + _FUJII_1 * sigma)
@@ -347,6 +370,8 @@ class _Frame:
 
 def _gather(parts, index, t):
     """(S, T) from per-value arrays ``parts`` ((S, T) or (S, 1) each): texel j from parts[index[j]]."""
+    if all(p.shape[1] == 1 for p in parts):                 # one column a value: one take
+        return np.concatenate(parts, axis=1)[:, index]
     cols = [np.broadcast_to(p, (p.shape[0], t)) for p in parts]
     out = np.empty(cols[0].shape, np.result_type(*cols))
     for i, col in enumerate(cols):
@@ -367,10 +392,15 @@ def evaluate_openpbr(params: dict, view: np.ndarray, light: np.ndarray, dtype=np
     t = len(params["normal"])
     get = lambda name, default: np.asarray(params.get(name, np.full(t, default)), dtype)  # noqa: E731
     fr = _Frame(params["normal"], view, light, dtype)
-    rotation = get("specular_rotation", 0.0)
     aniso = get("specular_anisotropy", 0.0)
+    # Isotropic everywhere: D needs no tangent (the same lobe, fewer operations).
+    rotation = get("specular_rotation", 0.0) if np.any(aniso != 0) else None
     spec, t_spec = fr.specular(get("specular_roughness", 0.3), aniso, rotation, get("specular_weight", 1.0))
-    fuzz, t_fuzz = fr.fuzz(get("fuzz_roughness", 0.5), get("fuzz_weight", 0.0))
+    fuzz_weight = get("fuzz_weight", 0.0)
+    if np.any(fuzz_weight != 0):
+        fuzz, t_fuzz = fr.fuzz(get("fuzz_roughness", 0.5), fuzz_weight)
+    else:                                       # weight 0: the lobe is 0, its throughput 1
+        fuzz, t_fuzz = np.float32(0.0), np.float32(1.0)
     single, multi, avg = fr.diffuse(get("base_diffuse_roughness", 0.0))
     base = np.maximum(np.asarray(params["base_color"], dtype), 0.0)
     out = np.empty((len(view), t, 3), dtype)
@@ -391,32 +421,75 @@ def evaluate(maps: OpenPbrMaps, view_deg: np.ndarray, light_deg: np.ndarray, tex
 
 
 # ------------------------------------------------------------------ the fit
+def _solve_small(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(x (P, k), ok (P,)): ``a x = b`` for symmetric ``a`` (P, k, k), ``b`` (P, k), k <= 3,
+    in closed form (adjugate over determinant: one pass of array arithmetic where a batched
+    LAPACK solve of thousands of 3x3 systems costs a call each); ``ok`` False where ``a``
+    is singular to working precision (x is 0 there)."""
+    k = b.shape[1]
+    if k == 1:
+        det = a[:, 0, 0]
+        adj = [[np.ones_like(det)]]
+    elif k == 2:
+        det = a[:, 0, 0] * a[:, 1, 1] - a[:, 0, 1] * a[:, 1, 0]
+        adj = [[a[:, 1, 1], -a[:, 0, 1]], [-a[:, 1, 0], a[:, 0, 0]]]
+    else:
+        c = lambda i, j: a[:, i, j]  # noqa: E731
+        adj = [[c(1, 1) * c(2, 2) - c(1, 2) * c(2, 1), c(0, 2) * c(2, 1) - c(0, 1) * c(2, 2),
+                c(0, 1) * c(1, 2) - c(0, 2) * c(1, 1)],
+               [c(1, 2) * c(2, 0) - c(1, 0) * c(2, 2), c(0, 0) * c(2, 2) - c(0, 2) * c(2, 0),
+                c(0, 2) * c(1, 0) - c(0, 0) * c(1, 2)],
+               [c(1, 0) * c(2, 1) - c(1, 1) * c(2, 0), c(0, 1) * c(2, 0) - c(0, 0) * c(2, 1),
+                c(0, 0) * c(1, 1) - c(0, 1) * c(1, 0)]]
+        det = c(0, 0) * adj[0][0] + c(0, 1) * adj[1][0] + c(0, 2) * adj[2][0]
+    scale = np.prod(np.abs(np.diagonal(a, axis1=1, axis2=2)), axis=1)
+    ok = np.abs(det) > 1e-12 * scale + 1e-300
+    inv_det = 1.0 / np.where(ok, det, 1.0)
+    x = np.stack([sum(adj[i][j] * b[:, j] for j in range(k)) * inv_det for i in range(k)], axis=1)
+    return np.where(ok[:, None], x, 0.0), ok
+
+
 def _box_lsq(gram: np.ndarray, rhs: np.ndarray, yy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Least squares with every unknown in [0, 1], from normal equations: ``gram`` (P, m, m),
     ``rhs`` (P, m), ``yy`` (P,) the sum of squares of the data.  Returns (x (P, m), residual
-    (P,)).  Exact: every assignment of each unknown to free / 0 / 1 is solved and the best
-    feasible one kept (the optimum of a convex QP is one of them); m <= 3."""
+    (P,)).  Exact: where the unconstrained optimum is inside the box it is the answer (the
+    problem is convex); elsewhere every assignment of each unknown to free / 0 / 1 is solved
+    and the best feasible one kept (the optimum of a convex QP is one of them); m <= 3."""
     p, m = rhs.shape
-    best_x, best_r = np.zeros((p, m), gram.dtype), yy.copy()                  # x = 0 is always feasible
-    ridge = np.eye(m, dtype=gram.dtype) * (1e-9 * (np.trace(gram, axis1=1, axis2=2)[:, None, None] / m + 1e-30))
-    for code in range(3 ** m):
+    ridge = 1e-9 * (np.trace(gram, axis1=1, axis2=2) / m + 1e-30)
+    diag = np.arange(m)
+    reg = gram.copy()
+    reg[:, diag, diag] += ridge[:, None]
+
+    def residual(g, b, y, x):
+        return y - 2.0 * np.einsum("pi,pi->p", b, x) + np.einsum("pi,pij,pj->p", x, g, x)
+
+    x, ok = _solve_small(reg, rhs)
+    inside = ok & np.all((x >= 0.0) & (x <= 1.0), axis=1)
+    best_x = np.where(inside[:, None], x, 0.0)                              # x = 0 is always feasible
+    best_r = np.where(inside, residual(gram, rhs, yy, best_x), yy)
+    todo = np.flatnonzero(~inside)
+    if not len(todo):
+        return best_x, best_r
+    g, gr, b, y = gram[todo], reg[todo], rhs[todo], yy[todo]
+    sub_x, sub_r = best_x[todo], best_r[todo]
+    for code in range(1, 3 ** m):                                           # code 0 (all free) done above
         state = [(code // 3 ** j) % 3 for j in range(m)]                   # 0 free, 1 at 0, 2 at 1
         free = [j for j in range(m) if state[j] == 0]
-        x = np.zeros((p, m), gram.dtype)
-        for j in range(m):
-            if state[j] == 2:
-                x[:, j] = 1.0
+        fixed = [j for j in range(m) if state[j] != 0]
+        xc = np.zeros((len(todo), m), gram.dtype)
+        xc[:, [j for j in fixed if state[j] == 2]] = 1.0
         if free:
-            fixed = [j for j in range(m) if state[j] != 0]
-            b = rhs[:, free] - (np.einsum("pij,pj->pi", gram[:, free][:, :, fixed], x[:, fixed]) if fixed else 0.0)
-            a = gram[:, free][:, :, free] + ridge[:, :len(free), :len(free)]
-            x[:, free] = np.linalg.solve(a, b[..., None])[..., 0]
-            ok = np.all((x[:, free] >= 0.0) & (x[:, free] <= 1.0), axis=1)
+            bf = b[:, free] - np.einsum("pij,pj->pi", g[:, free][:, :, fixed], xc[:, fixed])
+            xf, okc = _solve_small(gr[:, free][:, :, free], bf)
+            xc[:, free] = xf
+            okc &= np.all((xf >= 0.0) & (xf <= 1.0), axis=1)
         else:
-            ok = np.ones(p, bool)
-        r = yy - 2.0 * np.einsum("pi,pi->p", rhs, x) + np.einsum("pi,pij,pj->p", x, gram, x)
-        better = ok & (r < best_r)
-        best_x[better], best_r[better] = x[better], r[better]
+            okc = np.ones(len(todo), bool)
+        r = residual(g, b, y, xc)
+        better = okc & (r < sub_r)
+        sub_x[better], sub_r[better] = xc[better], r[better]
+    best_x[todo], best_r[todo] = sub_x, sub_r
     return best_x, best_r
 
 
@@ -439,25 +512,45 @@ class _Fit:
         self.yy = np.einsum("cst,cst->tc", y, y).astype(np.float64)          # (T, 3)
         self.t = y.shape[2]
 
-    def solve(self, spec, t_spec, fuzz, t_fuzz, diffuse):
-        """(colours (T, 3 channels, 3 lobes: base, specular, fuzz), residual (T,)) of the box
-        least squares for the given lobe features: ``spec``, ``t_spec``, ``fuzz``, ``t_fuzz``
-        (S, T) (fuzz None: no fuzz), ``diffuse`` (S, T) or (3, S, T) (per channel)."""
+    @staticmethod
+    def features(spec, t_spec, fuzz, t_fuzz, diffuse) -> list:
+        """The colours' features [base, specular(, fuzz)], each (S, T) or (3, S, T)."""
         xb = (t_spec * diffuse) if t_fuzz is None else (t_fuzz * t_spec * diffuse)
         xs = spec if t_fuzz is None else t_fuzz * spec
-        feats = [xb, xs] + ([fuzz] if fuzz is not None else [])
+        return [xb, xs] + ([fuzz] if fuzz is not None else [])
+
+    def solve(self, spec, t_spec, fuzz, t_fuzz, diffuse, weights=None):
+        """(colours (T, 3 channels, 3 lobes: base, specular, fuzz), residual (T,)) of the box
+        least squares for the given lobe features: ``spec``, ``t_spec``, ``fuzz``, ``t_fuzz``
+        (S, T) (fuzz None: no fuzz), ``diffuse`` (S, T) or (3, S, T) (per channel);
+        ``weights`` (3, S, T): per-sample weights of the squares (None: 1)."""
+        feats = self.features(spec, t_spec, fuzz, t_fuzz, diffuse)
         m = len(feats)
+        y, yy = self.y, self.yy
+        if weights is not None:
+            y = weights * self.y
+            yy = np.einsum("cst,cst->tc", y, self.y).astype(np.float64)
         gram = np.empty((self.t, 3, m, m))
         rhs = np.empty((self.t, 3, m))
         for i, fi in enumerate(feats):
-            rhs[:, :, i] = (_sum(fi, self.y) if fi.ndim == 3 else _sum(fi[None], self.y)).T
+            rhs[:, :, i] = (_sum(fi, y) if fi.ndim == 3 else _sum(fi[None], y)).T
             for j in range(i, m):
-                g = _sum(fi, feats[j])
+                if weights is None:
+                    g = _sum(fi, feats[j])
+                else:
+                    g = _sum(np.broadcast_to(fi * feats[j], weights.shape), weights)
                 gram[:, :, i, j] = gram[:, :, j, i] = g.T if g.ndim == 2 else g[:, None]
-        x, r = _box_lsq(gram.reshape(-1, m, m), rhs.reshape(-1, m), self.yy.reshape(-1))
+        x, r = _box_lsq(gram.reshape(-1, m, m), rhs.reshape(-1, m), yy.reshape(-1))
         out = np.zeros((self.t, 3, 3), np.float32)
         out[:, :, :m] = x.reshape(self.t, 3, m)
         return out, r.reshape(self.t, 3).sum(axis=1)
+
+    def predict(self, feats, colours) -> np.ndarray:
+        """(3, S, T) the model at ``colours`` (T, 3, 3) for :meth:`features` ``feats``."""
+        out = np.zeros_like(self.y)
+        for k, f in enumerate(feats):
+            out += colours[:, :, k].T[:, None, :] * f
+        return out
 
 
 def _diffuse_features(fr: _Frame, sigma, base):
@@ -503,79 +596,113 @@ def _copy(state: _State) -> _State:
     return _State(**{k: np.array(v) for k, v in vars(state).items()})
 
 
-def _fit_stage1(y, n, v, l) -> _State:
-    """Stage 1 for normals ``n`` (T, 3): specular roughness x specular weight, Lambert base, no fuzz."""
-    fr = _Frame(n, v, l)
-    fit = _Fit(y, fr)
-    t = y.shape[2]
+def _start(roughness: np.ndarray, f0: np.ndarray) -> _State:
+    """The UsdPreviewSurface fit's lobes as OpenPBR inputs: its roughness (GGX alpha =
+    roughness^2 in both), ``specular_weight`` from its largest F0 channel (F0 = 0.04 w at
+    IOR 1.5), Lambert base, no anisotropy, no fuzz; colours to be solved."""
+    t = len(roughness)
     full = lambda value: np.full(t, value, np.float32)  # noqa: E731
-    lambert = _diffuse_features(fr, 0.0, None)
-    best = _State(full(1.0), full(1.0), full(0.0), full(0.0), full(0.0), full(0.5), full(0.0),
-                  np.zeros((t, 3, 3), np.float32), np.full(t, np.inf))
-    for r in SPECULAR_ROUGHNESS_GRID:
-        shape = fr.specular_shape(r, 0.0, None)
-        for w in SPECULAR_WEIGHTS:
-            spec, t_spec = fr.specular_at(shape, w)
-            colours, res = fit.solve(spec, t_spec, None, None, lambert)
-            better = res < best.residual
-            best.spec_weight[better], best.roughness[better] = w, r
-            best.colours[better], best.residual[better] = colours[better], res[better]
-    return best
+    f0_ior = float(_sq((SPECULAR_IOR - 1.0) / (SPECULAR_IOR + 1.0)))
+    # Snapped to half-octave steps: a few distinct weights share their Fresnel terms (_Frame._per_value).
+    weight = np.clip(np.max(f0, axis=1) / f0_ior, MIN_SPECULAR_WEIGHT, SPECULAR_WEIGHTS[-1])
+    weight = np.minimum(2.0 ** (np.round(2.0 * np.log2(weight)) / 2.0), SPECULAR_WEIGHTS[-1]).astype(np.float32)
+    return _State(weight, np.asarray(roughness, np.float32).copy(), full(0.0), full(0.0), full(0.0), full(0.5),
+                  full(0.0), np.zeros((t, 3, 3), np.float32), np.full(t, np.inf))
 
 
-def _fit_stages(y, n, v, l, start: _State) -> _State:
-    """Stages 2-5 from ``start`` (module docstring), each keeping what lowers the residual."""
-    fr = _Frame(n, v, l)
-    fit = _Fit(y, fr)
-    best = _copy(start)
+class _Search:
+    """Per-texel coordinate search over the nonlinear inputs from a start state, for one
+    block and one set of normals: :meth:`consider` tries one change for every texel and
+    keeps it where the fit samples' residual drops.  The best state's lobes are kept up to
+    date, so that a candidate recomputes only the lobe it changes."""
 
-    def spec_of(st):
+    _LOBE = {"spec_weight": "spec", "roughness": "spec", "anisotropy": "spec", "rotation": "spec",
+             "fuzz_weight": "fuzz", "fuzz_roughness": "fuzz", "sigma": "diffuse"}
+
+    def __init__(self, y, n, v, l, start: _State):
+        self.fr = _Frame(n, v, l)
+        self.fit = _Fit(y, self.fr)
+        self.best = _copy(start)
+        self.lobes = {"spec": self._spec(self.best), "fuzz": self._fuzz(self.best)}
+        self.best.colours, self.best.residual = self.fit.solve(
+            *self.lobes["spec"], *self.lobes["fuzz"], _diffuse_features(self.fr, self.best.sigma, None))
+
+    def _spec(self, st):
         rotation = st.rotation if np.any(st.anisotropy > 0) else None
-        return fr.specular(st.roughness, st.anisotropy, rotation, st.spec_weight)
+        return self.fr.specular(st.roughness, st.anisotropy, rotation, st.spec_weight)
 
-    def fuzz_of(st):
-        return fr.fuzz(st.fuzz_roughness, st.fuzz_weight) if np.any(st.fuzz_weight > 0) else (None, None)
+    def _fuzz(self, st):
+        return self.fr.fuzz(st.fuzz_roughness, st.fuzz_weight) if np.any(st.fuzz_weight > 0) else (None, None)
 
-    # The best state's lobes, kept up to date: a candidate recomputes only the lobe it changes.
-    lobes = {"spec": spec_of(best), "fuzz": fuzz_of(best)}
-    changes_lobe = {"spec_weight": "spec", "roughness": "spec", "anisotropy": "spec", "rotation": "spec",
-                    "fuzz_weight": "fuzz", "fuzz_roughness": "fuzz", "sigma": "diffuse"}
-
-    def consider(**changes):
+    def consider(self, **changes) -> None:
+        best = self.best
         cand = _copy(best)
         for k, value in changes.items():
             getattr(cand, k)[:] = value
-        changed = {changes_lobe[k] for k in changes}
-        spec = spec_of(cand) if "spec" in changed else lobes["spec"]
-        fuzz = fuzz_of(cand) if "fuzz" in changed else lobes["fuzz"]
-        diffuse = _diffuse_features(fr, cand.sigma, best.colours[:, :, 0])
-        cand.colours, cand.residual = fit.solve(*spec, *fuzz, diffuse)
+        changed = {self._LOBE[k] for k in changes}
+        spec = self._spec(cand) if "spec" in changed else self.lobes["spec"]
+        fuzz = self._fuzz(cand) if "fuzz" in changed else self.lobes["fuzz"]
+        diffuse = _diffuse_features(self.fr, cand.sigma, best.colours[:, :, 0])
+        cand.colours, cand.residual = self.fit.solve(*spec, *fuzz, diffuse)
         better = cand.residual < best.residual
         best.take(cand, better)
         for lobe, new in (("spec", spec), ("fuzz", fuzz)):
             if lobe in changed:
-                old = lobes[lobe]
+                old = self.lobes[lobe]
                 if old[0] is None:
                     old = tuple(np.zeros_like(x) if i == 0 else np.ones_like(x) for i, x in enumerate(new))
-                lobes[lobe] = tuple(np.where(better, n_, o_) for n_, o_ in zip(new, old))
+                self.lobes[lobe] = tuple(np.where(better, n_, o_) for n_, o_ in zip(new, old))
 
-    # 2. anisotropy x direction x roughness around stage 1's.
+
+    def refit_l1(self, iterations: int = L1_ITERATIONS) -> _State:
+        """The best state with its colours refitted to the least absolute error over the fit
+        samples (the paper's metric; iteratively reweighted least squares, weights
+        1 / max(|residual|, 2 % of the texel's mean value))."""
+        st = _copy(self.best)
+        diffuse = _diffuse_features(self.fr, st.sigma, st.colours[:, :, 0])
+        lobes = (*self.lobes["spec"], *self.lobes["fuzz"], diffuse)
+        feats = self.fit.features(*lobes)
+        floor = np.float32(0.02) * np.abs(self.fit.y).mean(axis=1, keepdims=True) + np.float32(1e-6)
+        for _ in range(iterations):
+            r = np.abs(self.fit.y - self.fit.predict(feats, st.colours))
+            st.colours, _res = self.fit.solve(*lobes, weights=1.0 / np.maximum(r, floor))
+        return st
+
+
+def _anisotropic_roughness(roughness, anisotropy):
+    """The roughness whose anisotropic lobe at ``anisotropy`` has the isotropic lobe's mean
+    alpha (sqrt(alpha_x alpha_y) = roughness^2): the anisotropy stage changes the lobe's
+    shape, not its width."""
+    inv = 1.0 - anisotropy
+    mean = math.sqrt(inv * 2.0 / (inv * inv + 1.0))                       # sqrt(ax ay) / r^2
+    return np.clip(roughness / math.sqrt(mean), 0.05, 1.0)
+
+
+def _fit_stages(search: _Search) -> _State:
+    """Stages 2-6 (module docstring) on ``search``, each keeping what lowers the residual."""
+    best = search.best
+    # 2. specular weight (the Fresnel's shape; the tint solves its height).
+    for w in SPECULAR_WEIGHTS:
+        search.consider(spec_weight=w)
+    # 3. anisotropy: its direction at a middle value, then its amount along the best direction.
     r1 = best.roughness.copy()
+    for phi in ROTATION_GRID:
+        search.consider(anisotropy=ANISOTROPY_PROBE, rotation=phi,
+                        roughness=_anisotropic_roughness(r1, float(ANISOTROPY_PROBE)))
+    rotation = best.rotation.copy()
     for a in ANISOTROPY_GRID:
-        for phi in ROTATION_GRID:
-            for scale in (0.85, 1.0, 1.2):
-                consider(anisotropy=a, rotation=phi, roughness=np.clip(r1 * scale, 0.05, 1.0))
-    # 3. fuzz.
+        search.consider(anisotropy=a, rotation=rotation, roughness=_anisotropic_roughness(r1, float(a)))
+    # 4. fuzz.
     for fw in FUZZ_WEIGHTS:
         for fr_ in FUZZ_ROUGHNESS_GRID:
-            consider(fuzz_weight=fw, fuzz_roughness=fr_)
-    # 4. base diffuse roughness.
+            search.consider(fuzz_weight=fw, fuzz_roughness=fr_)
+    # 5. base diffuse roughness.
     for sigma in DIFFUSE_ROUGHNESS_GRID:
-        consider(sigma=sigma)
-    # 5. specular roughness, one step either side.
+        search.consider(sigma=sigma)
+    # 6. specular roughness, one step either side.
     r2 = best.roughness.copy()
-    for scale in (0.85, 1.2):
-        consider(roughness=np.clip(r2 * scale, 0.05, 1.0))
+    for scale in ROUGHNESS_STEPS:
+        search.consider(roughness=np.clip(r2 * scale, 0.05, 1.0))
     return best
 
 
@@ -593,17 +720,21 @@ def _chunk_texels(n_samples: int, chunk_bytes: float) -> int:
 
 @single_blas_thread
 def fit_openpbr(cbtf: CompressedBTF, *, svbrdf: SvbrdfMaps | None = None, white_level: float = 1.0,
-                max_samples: int = 1536, chunk_bytes: float = 64e6) -> OpenPbrMaps:
+                max_samples: int = FIT_SAMPLES, held_out: int = HELD_OUT_SAMPLES,
+                chunk_bytes: float = 64e6) -> OpenPbrMaps:
     """Fit per-texel ``open_pbr_surface`` inputs to ``cbtf``'s reconstruction over its
-    measured samples (module docstring), streamed over blocks of texels.  ``svbrdf``: the
-    UsdPreviewSurface fit of the same BTF, whose normal map is kept (fitted here when None)."""
+    measured samples (module docstring), streamed over blocks of texels, starting from
+    ``svbrdf``: the UsdPreviewSurface fit of the same BTF (fitted here when None), whose
+    roughness and F0 start the search and whose normal map is kept where it helps."""
     if not white_level > 0:
         raise ValueError(f"white_level must be positive, got {white_level}")
     if svbrdf is None:
-        svbrdf = fit_svbrdf(cbtf, white_level=white_level, max_samples=max_samples, chunk_bytes=chunk_bytes)
+        svbrdf = fit_svbrdf(cbtf, white_level=white_level)
     normals = svbrdf.normal.reshape(-1, 3).astype(np.float32)
+    ups_rough = svbrdf.roughness.reshape(-1).astype(np.float32)
+    ups_f0 = svbrdf.specular.reshape(-1, 3).astype(np.float32)
     fit = fit_samples(cbtf, max_samples)
-    val = validation_samples(cbtf, fit, VALIDATION_SAMPLES)
+    val = validation_samples(cbtf, fit, held_out)
     v, l = to_vectors(cbtf.sampling.view[fit]), to_vectors(cbtf.sampling.light[fit])
     vv, vl = to_vectors(cbtf.sampling.view[val]), to_vectors(cbtf.sampling.light[val])
     basis = cbtf.basis_values()
@@ -621,28 +752,39 @@ def fit_openpbr(cbtf: CompressedBTF, *, svbrdf: SvbrdfMaps | None = None, white_
         n_map = normals[block]
         y = np.ascontiguousarray((_reconstruct(cbtf, fit_rows, block) * scale).transpose(2, 0, 1))
         yv = np.ascontiguousarray((_reconstruct(cbtf, val_rows, block) * scale).transpose(2, 0, 1))
+        start = _start(ups_rough[block], ups_f0[block])
         # The normal map only where OpenPBR predicts the held-out samples better with it: a
         # normal tilted away from the view is flipped by MaterialX (mx_forward_facing_normal),
         # which UsdPreviewSurface's fit, where the map was chosen, does not do.
         n = np.broadcast_to(flat, n_map.shape).copy()
-        stage1 = _fit_stage1(y, n, v, l)
+        stage1 = _Search(y, n, v, l, start).best
         held = _held_out_residual(yv, stage1.params(n), vv, vl)
         tilt = n_map[:, 2] < 0.999999
         if np.any(tilt):
-            # The map's tilt, and half of it: a normal tilted towards grazing views flips
-            # sooner than the measured surface darkens.
-            half = n_map + flat
-            half /= np.linalg.norm(half, axis=1, keepdims=True)
-            for cand_n in (half, n_map):
-                cand = _fit_stage1(y, cand_n, v, l)
+            # The map's tilt, and fractions of it: a normal tilted towards grazing views
+            # flips sooner than the measured surface darkens.
+            for frac in NORMAL_TILTS:
+                cand_n = flat * np.float32(1.0 - frac) + n_map * np.float32(frac)
+                cand_n /= np.linalg.norm(cand_n, axis=1, keepdims=True)
+                cand = _Search(y, cand_n, v, l, start).best
                 cand_held = _held_out_residual(yv, cand.params(cand_n), vv, vl)
                 use = tilt & (cand_held < held)
                 stage1.take(cand, use)
                 n[use], held[use] = cand_n[use], cand_held[use]
             tilted += int(np.count_nonzero(n[:, 2] < 0.999999))
-        final = _fit_stages(y, n, v, l, stage1)
+        search = _Search(y, n, v, l, stage1)
+        final = _fit_stages(search)
         p1, pf = stage1.params(n), final.params(n)
-        richer = _held_out_residual(yv, pf, vv, vl) < held
+        held_f = _held_out_residual(yv, pf, vv, vl)
+        if L1_ITERATIONS:
+            l1 = search.refit_l1()
+            pl1 = l1.params(n)
+            held_l1 = _held_out_residual(yv, pl1, vv, vl)
+            use = held_l1 < held_f
+            for name in pf:
+                pf[name] = np.where(use[:, None] if np.ndim(pf[name]) == 2 else use, pl1[name], pf[name])
+            held_f = np.minimum(held_f, held_l1)
+        richer = held_f < held
         kept += int(np.count_nonzero(richer))
         out_normal[block] = n
         for name in out:
