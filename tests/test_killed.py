@@ -126,8 +126,7 @@ RUNS = [
     ("package-quilt", "SIGTERM", "mid"), ("package-quilt", "SIGKILL", "writing"),
     ("build", "SIGTERM", "mid"), ("build", "SIGKILL", "mid"), ("build", "SIGKILL", "writing"),
     ("render-frames", "SIGTERM", "mid"), ("render-frames", "SIGKILL", "writing"),
-    pytest.param("compress-dask", "SIGTERM", "mid", marks=pytest.mark.xfail(
-        reason="issue 44: a LocalCluster stopped while it starts closes gracefully, in more than 5 s")),
+    ("compress-dask", "SIGTERM", "mid"),
     ("compress-dask", "SIGKILL", "writing"),
 ]
 
@@ -318,3 +317,85 @@ def test_a_killed_run_stops_and_the_next_one_succeeds(inputs, clean, tmp_path, n
     _run(case.argv(inputs), home, case.timeout)
     assert _outputs(home, case) == want
     assert _leftovers(home) == []
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def remote_worker():
+    """A real ``dask scheduler`` and one ``dask worker`` (one thread), each its own process."""
+    from distributed import Client
+
+    bindir = Path(sys.executable).parent
+    address = f"tcp://127.0.0.1:{_free_port()}"
+    common = dict(env=_env(), stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                  start_new_session=True)
+    procs = [subprocess.Popen([str(bindir / "dask"), "scheduler", "--host", "127.0.0.1", "--port",
+                               address.rsplit(":", 1)[1], "--no-dashboard"], **common)]
+    try:
+        procs.append(subprocess.Popen([str(bindir / "dask"), "worker", address, "--nthreads", "1", "--nworkers", "1",
+                                       "--host", "127.0.0.1", "--no-dashboard", "--no-nanny"], **common))
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                with Client(address, timeout=5) as client:
+                    client.wait_for_workers(1, timeout=max(1.0, deadline - time.monotonic()))
+                break
+            except OSError:
+                assert time.monotonic() < deadline, "no Dask scheduler and worker within 60 s"
+                time.sleep(0.3)
+        yield address, procs[1]
+    finally:
+        for p in reversed(procs):
+            p.kill()
+            p.wait()
+
+
+#: A client that runs one usdbtf command as a task (what ``build --dask``'s steps do) and waits.
+_CLIENT = """import sys
+from usdbtf.cluster import environment, run_command
+status, err = run_command({"scheduler": sys.argv[1], "environment": environment()}, sys.argv[2:], "compress C")
+sys.exit(status)
+"""
+
+
+def test_a_killed_remote_client_stops_its_task_on_the_worker(inputs, clean, remote_worker, tmp_path):
+    """``--dask tcp://``: a client killed (SIGKILL: it cleans nothing) while its task's usdbtf
+    command runs on a remote worker: the scheduler cancels the task, the worker stops the
+    command (SIGTERM: it removes its staging folder and lock), nothing is written after, and
+    the worker stays up for the next client, whose run gives the undisturbed bytes."""
+    address, worker = remote_worker
+    want, _ = clean(CASES["compress-folder"])
+    home = tmp_path / "home"
+    home.mkdir()
+    argv = ["compress", inputs / "src", "-o", home / "C", "--k", 4, "--codec", "png", "--force"]
+    client = subprocess.Popen([sys.executable, "-c", _CLIENT, address, *map(str, argv)], env=_env(),
+                              stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                              start_new_session=True)
+    deadline = time.monotonic() + 120
+    # Killed once the command runs on the worker: it has seconds of work left, so an output
+    # that appears was written after the kill.
+    while not (steps := [c for c in psutil.Process(worker.pid).children(recursive=True)
+                         if "usdbtf.cli" in _cmdline(c)]):
+        assert client.poll() is None, client.stderr.read()
+        assert time.monotonic() < deadline, "the command did not start on the worker within 120 s"
+        time.sleep(0.002)
+    client.kill()
+    killed = time.monotonic()
+    client.wait()
+    gone, alive = psutil.wait_procs(steps, timeout=GONE_WITHIN)
+    assert not alive, f"the command still runs {time.monotonic() - killed:.1f} s after its client was killed"
+    assert _leftovers(home) == []
+    after = snapshot(home)
+    time.sleep(QUIET_FOR)
+    assert snapshot(home) == after, "something was written after the client was killed"
+    assert snapshot(home) == {".": "<dir>"}, "the stopped command wrote"
+    assert worker.poll() is None
+    _run(argv, home)        # the next run (here, not on the cluster) gives the undisturbed bytes
+    assert _outputs(home, CASES["compress-folder"]) == want

@@ -33,7 +33,7 @@ import signal
 import sys
 
 __all__ = ["PARENT_ENV", "die_with_parent", "adopt_parent_from_environment", "child_environment",
-           "guarded_module_argv", "running", "forked_pool", "stop_pool"]
+           "guarded_module_argv", "running", "forked_pool", "stop_pool", "dask_setup"]
 
 #: The environment variable through which a parent names itself to a program it starts.
 PARENT_ENV = "USDBTF_PARENT_PID"
@@ -177,3 +177,11 @@ def stop_pool(pool) -> None:
     for proc in processes:
         with contextlib.suppress(Exception):
             proc.join(1.0)
+
+
+def dask_setup(worker) -> None:
+    """A Dask preload hook (``preload=["usdbtf.lifetime"]``): a worker of a local cluster
+    (:func:`usdbtf.cluster.session`) dies by SIGKILL with the process that started it, named
+    by :data:`PARENT_ENV` (the nanny's ``env``).  Dask's own pipe to the parent ends it too,
+    but only when its watching thread gets the GIL."""
+    adopt_parent_from_environment(signal.SIGKILL)
