@@ -399,3 +399,28 @@ def test_a_killed_remote_client_stops_its_task_on_the_worker(inputs, clean, remo
     assert worker.poll() is None
     _run(argv, home)        # the next run (here, not on the cluster) gives the undisturbed bytes
     assert _outputs(home, CASES["compress-folder"]) == want
+
+
+#: A process that takes a frame through a rig's camera command (a program that is not usdbtf)
+#: which takes a minute.
+_GRABBER = """import sys
+from usdbtf.rig.camera import CommandCamera
+CommandCamera(sys.executable + " -c 'import time; time.sleep(60)' {out}", sys.argv[1]).grab("t", 0)
+"""
+
+
+@pytest.mark.parametrize("sig", ["SIGKILL", "SIGTERM"])
+def test_a_program_usdbtf_starts_dies_with_it(tmp_path, sig):
+    """A program that is not usdbtf (here a rig's camera command; Storm and Cycles renders,
+    glslang and ffmpeg are started the same way, usdbtf.lifetime.dying_with_parent) dies with
+    the process that started it, whichever way that one ends."""
+    proc = subprocess.Popen([sys.executable, "-c", _GRABBER, str(tmp_path)], env=_env(), stdin=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+    deadline = time.monotonic() + 60
+    while not (programs := [c for c in _children(proc) if "time.sleep(60)" in " ".join(_cmdline(c))]):
+        assert proc.poll() is None and time.monotonic() < deadline, "the camera command did not start"
+        time.sleep(0.01)
+    os.kill(proc.pid, getattr(signal, sig))
+    proc.wait(GONE_WITHIN)
+    _, alive = psutil.wait_procs(programs, timeout=GONE_WITHIN)
+    assert not alive, f"the camera command outlived its parent ({sig})"
