@@ -39,7 +39,7 @@ from .lifetime import PARENT_ENV
 log = logging.getLogger(__name__)
 
 __all__ = ["ClusterAddress", "parse_address", "session", "environment", "require_environment", "environ_kept",
-           "command_info", "run_command", "CONNECT_TIMEOUT",
+           "command_info", "run_command", "polled", "CONNECT_TIMEOUT",
            "MAX_LOCAL_WORKERS", "ADDRESS_HELP"]
 
 #: Seconds to reach a scheduler (and for it to have a worker) before giving up.
@@ -193,27 +193,23 @@ def session(address, *, timeout: float = CONNECT_TIMEOUT):
         if addr.local:
             stop = _LocalStop()
             stack.enter_context(stop.on_error())        # last out: a cluster stopped while it starts
-            with environ_kept():
-                # Each worker dies with this process (usdbtf.lifetime: PARENT_ENV, read by dask_setup).
-                cluster = LocalCluster(n_workers=addr.workers, threads_per_worker=1, processes=True,
-                                       dashboard_address=":0", silence_logs=logging.ERROR,
-                                       env={PARENT_ENV: str(os.getpid())}, preload=["usdbtf.lifetime"])
+            cluster = polled(_new_local_cluster, LocalCluster, addr.workers)
             stack.push(lambda kind, exc, tb: cluster.close() if kind is None else None)
-            client = stack.enter_context(Client(cluster, timeout=timeout))
+            client = stack.enter_context(polled(Client, cluster, timeout=timeout))
             stack.enter_context(stop.on_error())        # first out: workers killed before the client closes
         else:
             try:
-                client = stack.enter_context(Client(str(addr), timeout=timeout))
+                client = stack.enter_context(polled(Client, str(addr), timeout=timeout))
             except (OSError, TimeoutError) as exc:
                 raise IOFailure(f"--dask {addr}: no Dask scheduler answered within {timeout:g} s "
                                 f"({' '.join(str(exc).split())[:160]})") from None
         try:
-            client.wait_for_workers(1, timeout=timeout)
+            polled(client.wait_for_workers, 1, timeout=timeout)
         except (OSError, TimeoutError):
             raise IOFailure(f"--dask {addr}: the scheduler has no worker (waited {timeout:g} s); start "
                             f"`dask worker {addr}` on the machines that should work") from None
         mine = environment()
-        for worker, theirs in sorted(client.run(_worker_environment).items()):
+        for worker, theirs in sorted(polled(client.run, _worker_environment).items()):
             if theirs != mine:
                 raise BTFError(f"--dask {addr}: worker {worker} differs from this process: "
                                f"{_differences(theirs, mine)}; {_advice(theirs, mine)}")
@@ -223,6 +219,51 @@ def session(address, *, timeout: float = CONNECT_TIMEOUT):
         link = client.dashboard_link if _has_dashboard(client) else "none (install bokeh for one)"
         log.info(f"dask: {addr}: {n} worker(s), {threads} thread(s); dashboard {link}")
         yield client
+
+
+def _new_local_cluster(local_cluster, workers: int):
+    """A LocalCluster of ``workers`` single-threaded worker processes, each dying with this
+    process (usdbtf.lifetime: the nannies give it PARENT_ENV, read by :func:`usdbtf.lifetime.dask_setup`)."""
+    with environ_kept():
+        return local_cluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                             silence_logs=logging.ERROR, env={PARENT_ENV: str(os.getpid())},
+                             preload=["usdbtf.lifetime"])
+
+
+#: Seconds between the main thread's looks at a signal while it waits for Dask (:func:`polled`).
+POLL = 0.1
+
+
+def polled(fn, *args, **kwargs):
+    """``fn(*args, **kwargs)``, called in a helper thread while the main thread waits for it in
+    steps of :data:`POLL` seconds.
+
+    Why: CPython runs signal handlers (a command's SIGTERM and SIGINT, :mod:`usdbtf.cli`) in
+    the main thread only, when it next runs Python code, while the kernel hands a process's
+    signal to any of its threads.  Dask's blocking calls wait 10 s at a time, so a SIGTERM
+    that lands on one of Dask's threads would wait up to 10 s; here it waits :data:`POLL`.
+    Elsewhere than the main thread ``fn`` is simply called.  Stopped by a signal, the main
+    thread goes on (the exception) and leaves the helper thread to end with the process.
+    """
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return fn(*args, **kwargs)
+    box: dict = {}
+
+    def run():
+        try:
+            box["value"] = fn(*args, **kwargs)
+        except BaseException as exc:     # noqa: BLE001 - handed to the caller
+            box["error"] = exc
+
+    helper = threading.Thread(target=run, name=f"usdbtf-{getattr(fn, '__name__', 'dask')}", daemon=True)
+    helper.start()
+    while helper.is_alive():
+        helper.join(POLL)
+    if "error" in box:
+        raise box.pop("error")
+    return box["value"]
 
 
 class _LocalStop:
