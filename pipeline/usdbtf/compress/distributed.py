@@ -78,13 +78,17 @@ class _Job:
 
 
 def _result(future):
-    """``future.result()``, waited for in steps of :data:`usdbtf.cluster.POLL` seconds: between
-    them the main thread runs a pending signal's handler (see :func:`usdbtf.cluster.polled`)."""
-    while True:
-        try:
-            return future.result(timeout=POLL)
-        except TimeoutError:
-            continue
+    """``future.result()`` once it is done, waited for in steps of :data:`usdbtf.cluster.POLL`
+    seconds: between them the main thread runs a pending signal's handler (see
+    :func:`usdbtf.cluster.polled`).  (Not ``result(timeout=...)``: Dask's timed wait can lose
+    a result that arrives as it times out.)"""
+    import threading
+
+    done = threading.Event()
+    future.add_done_callback(lambda _: done.set())
+    while not done.wait(POLL):
+        pass
+    return future.result()
 
 
 def _worker_name() -> str:
