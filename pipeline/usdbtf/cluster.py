@@ -26,21 +26,26 @@ import functools
 import hashlib
 import ipaddress
 import logging
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
 
 from . import numeric
+from .atomic import raise_if_interrupted
 from .errors import BTFError, IOFailure
+from .lifetime import PARENT_ENV
 
 log = logging.getLogger(__name__)
 
 __all__ = ["ClusterAddress", "parse_address", "session", "environment", "require_environment", "environ_kept",
-           "command_info", "run_command", "CONNECT_TIMEOUT",
+           "command_info", "run_command", "polled", "CONNECT_TIMEOUT",
            "MAX_LOCAL_WORKERS", "ADDRESS_HELP"]
 
 #: Seconds to reach a scheduler (and for it to have a worker) before giving up.
 CONNECT_TIMEOUT = 5.0
+#: Seconds a stopped local cluster gets for its workers to die and for its close.
+STOP_TIMEOUT = 1.0
 #: Largest N of ``local:N``.
 MAX_LOCAL_WORKERS = 256
 ADDRESS_HELP = ("run on a Dask cluster: tcp://HOST:PORT or tls://HOST:PORT (a running dask scheduler; workers "
@@ -186,24 +191,25 @@ def session(address, *, timeout: float = CONNECT_TIMEOUT):
         from distributed import Client, LocalCluster
 
         if addr.local:
-            with environ_kept():
-                cluster = stack.enter_context(LocalCluster(
-                    n_workers=addr.workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                    silence_logs=logging.ERROR))
-            client = stack.enter_context(Client(cluster, timeout=timeout))
+            stop = _LocalStop()
+            stack.enter_context(stop.on_error())        # last out: a cluster stopped while it starts
+            cluster = polled(_new_local_cluster, LocalCluster, addr.workers)
+            stack.push(lambda kind, exc, tb: cluster.close() if kind is None else None)
+            client = stack.enter_context(polled(Client, cluster, timeout=timeout))
+            stack.enter_context(stop.on_error())        # first out: workers killed before the client closes
         else:
             try:
-                client = stack.enter_context(Client(str(addr), timeout=timeout))
+                client = stack.enter_context(polled(Client, str(addr), timeout=timeout))
             except (OSError, TimeoutError) as exc:
                 raise IOFailure(f"--dask {addr}: no Dask scheduler answered within {timeout:g} s "
                                 f"({' '.join(str(exc).split())[:160]})") from None
         try:
-            client.wait_for_workers(1, timeout=timeout)
+            polled(client.wait_for_workers, 1, timeout=timeout)
         except (OSError, TimeoutError):
             raise IOFailure(f"--dask {addr}: the scheduler has no worker (waited {timeout:g} s); start "
                             f"`dask worker {addr}` on the machines that should work") from None
         mine = environment()
-        for worker, theirs in sorted(client.run(_worker_environment).items()):
+        for worker, theirs in sorted(polled(client.run, _worker_environment).items()):
             if theirs != mine:
                 raise BTFError(f"--dask {addr}: worker {worker} differs from this process: "
                                f"{_differences(theirs, mine)}; {_advice(theirs, mine)}")
@@ -213,6 +219,132 @@ def session(address, *, timeout: float = CONNECT_TIMEOUT):
         link = client.dashboard_link if _has_dashboard(client) else "none (install bokeh for one)"
         log.info(f"dask: {addr}: {n} worker(s), {threads} thread(s); dashboard {link}")
         yield client
+
+
+def _new_local_cluster(local_cluster, workers: int):
+    """A LocalCluster of ``workers`` single-threaded worker processes, each dying with this
+    process (usdbtf.lifetime: the nannies give it PARENT_ENV, read by :func:`usdbtf.lifetime.dask_setup`)."""
+    with environ_kept():
+        return local_cluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                             silence_logs=logging.ERROR, env={PARENT_ENV: str(os.getpid())},
+                             preload=["usdbtf.lifetime"])
+
+
+#: Seconds between the main thread's looks at a signal while it waits for Dask (:func:`polled`).
+POLL = 0.1
+
+
+def polled(fn, *args, **kwargs):
+    """``fn(*args, **kwargs)``, called in a helper thread while the main thread waits for it in
+    steps of :data:`POLL` seconds.
+
+    Why: CPython runs signal handlers (a command's SIGTERM and SIGINT, :mod:`usdbtf.cli`) in
+    the main thread only, when it next runs Python code, while the kernel hands a process's
+    signal to any of its threads.  Dask's blocking calls wait 10 s at a time, so a SIGTERM
+    that lands on one of Dask's threads would wait up to 10 s; here it waits :data:`POLL`.
+    Elsewhere than the main thread ``fn`` is simply called.  Stopped by a signal, the main
+    thread goes on (the exception) and leaves the helper thread to end with the process.
+    """
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return fn(*args, **kwargs)
+    box: dict = {}
+
+    def run():
+        try:
+            box["value"] = fn(*args, **kwargs)
+        except BaseException as exc:     # noqa: BLE001 - handed to the caller
+            box["error"] = exc
+
+    helper = threading.Thread(target=run, name=f"usdbtf-{getattr(fn, '__name__', 'dask')}", daemon=True)
+    helper.start()
+    while helper.is_alive():
+        helper.join(POLL)
+    if "error" in box:
+        raise box.pop("error")
+    return box["value"]
+
+
+class _LocalStop:
+    """Stops a local cluster at once when its session ends by an exception (SIGTERM and SIGINT
+    are exceptions in a command): a farm's stop must be over in seconds, while the cluster's
+    own close is graceful (workers finish, nannies wait) and, for a cluster stopped while it
+    starts, is left to an ``atexit`` hook of Dask's that waits up to 10 s and then fails.
+
+    So: the processes this one started since the session began (the workers: found by a
+    walk of this process's descendants) are killed, nannies
+    are told not to restart them, and each cluster started meanwhile is closed with a
+    :data:`STOP_TIMEOUT` (its errors ignored: a half-started cluster cannot close cleanly)."""
+
+    def __init__(self):
+        import psutil      # a dependency of distributed
+
+        self.me = psutil.Process()
+        self.before = {(p.pid, _started(p)) for p in self.me.children(recursive=True)}
+        self.clusters_before = set(_cluster_instances())
+
+    @contextlib.contextmanager
+    def on_error(self):
+        try:
+            yield
+        except BaseException:
+            self.stop()
+            # A signal whose exception Python dropped (usdbtf.atomic.interrupt: one that arrives
+            # while Dask forks) leaves Dask failing in its stead: the signal is what stopped it.
+            raise_if_interrupted()
+            raise
+
+    def stop(self) -> None:
+        import psutil
+
+        clusters = [c for c in _cluster_instances() if c not in self.clusters_before]
+        for cluster in clusters:
+            cluster.shutdown_on_close = False       # no graceful close at exit: it is done here
+            for nanny in list(getattr(cluster, "workers", {}).values()):
+                with contextlib.suppress(Exception):
+                    nanny.close_gracefully("usdbtf: stopped")    # a killed worker is not restarted
+        self._kill_started()
+        for cluster in clusters:
+            with contextlib.suppress(Exception):
+                cluster.close(timeout=STOP_TIMEOUT)
+        # Again: a nanny that was starting its worker (a cluster stopped while it starts) may
+        # have spawned it meanwhile.
+        self._kill_started()
+
+    def _kill_started(self) -> None:
+        import psutil
+
+        # Not Python's resource tracker: shared by all of this process's spawned children, it ends
+        # by itself when they and this process have exited (killed, it is started again, and complains).
+        procs = [p for p in self.me.children(recursive=True)
+                 if (p.pid, _started(p)) not in self.before and not _resource_tracker(p)]
+        for proc in procs:
+            with contextlib.suppress(psutil.Error):
+                proc.kill()
+        psutil.wait_procs(procs, timeout=STOP_TIMEOUT)
+
+
+def _started(proc) -> float:
+    try:
+        return proc.create_time()
+    except Exception:        # noqa: BLE001 - gone already
+        return 0.0
+
+
+def _resource_tracker(proc) -> bool:
+    try:
+        return any("resource_tracker" in word for word in proc.cmdline())
+    except Exception:        # noqa: BLE001 - gone already
+        return False
+
+
+def _cluster_instances() -> list:
+    """Dask's live clusters of this process (``SpecCluster._instances``, a weak set: there is
+    no public list, and a cluster stopped inside its constructor is reachable only there)."""
+    from distributed.deploy.spec import SpecCluster
+
+    return list(getattr(SpecCluster, "_instances", ()))
 
 
 @contextlib.contextmanager
@@ -309,6 +441,7 @@ def _command_task(argv: list, expected: dict) -> tuple[int, str]:
     import os
     import subprocess
     import sys
+    import threading
 
     from .lifetime import child_environment
 
@@ -322,7 +455,39 @@ def _command_task(argv: list, expected: dict) -> tuple[int, str]:
     env = dict(os.environ)
     pipeline = str(Path(__file__).resolve().parents[1])
     env["PYTHONPATH"] = pipeline + os.pathsep + env.get("PYTHONPATH", "")
-    # The command dies with this worker (usdbtf.lifetime).
-    res = subprocess.run([sys.executable, "-m", "usdbtf.cli", *argv], stdin=subprocess.DEVNULL, capture_output=True,
-                         text=True, env=child_environment(env))
-    return res.returncode, res.stderr
+    if _task_cancelled():
+        return 130, f"usdbtf {argv[0]}: interrupted\n"
+    # The command dies with this worker (usdbtf.lifetime); and it is stopped (SIGTERM: it removes
+    # its staging folder and lock, publishes nothing) once its client is gone or cancelled it.
+    with subprocess.Popen([sys.executable, "-m", "usdbtf.cli", *argv], stdin=subprocess.DEVNULL,
+                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                          env=child_environment(env)) as proc:
+        errors: list = []
+        reader = threading.Thread(target=lambda: errors.append(proc.stderr.read()), daemon=True)
+        reader.start()
+        while True:
+            try:
+                proc.wait(CANCEL_POLL)
+                break
+            except subprocess.TimeoutExpired:
+                if _task_cancelled():
+                    proc.terminate()
+        reader.join()
+    return proc.returncode, "".join(errors)
+
+
+#: Seconds between a command task's checks that its client still wants it.
+CANCEL_POLL = 0.1
+
+
+def _task_cancelled() -> bool:
+    """In a Dask task: its client cancelled it or is gone (the scheduler then releases the
+    client's tasks, and the worker marks the running one cancelled)."""
+    try:
+        from distributed import get_worker
+        from distributed.worker import thread_state
+
+        task = get_worker().state.tasks.get(thread_state.key)
+    except (ImportError, ValueError, AttributeError):     # not in a task
+        return False
+    return task is None or task.state in ("cancelled", "released", "forgotten")

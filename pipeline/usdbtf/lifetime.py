@@ -14,6 +14,9 @@ work nobody waits for.  So:
 * **A pool that ends by an exception** (SIGTERM and SIGINT are exceptions in a command,
   :mod:`usdbtf.cli`) kills its workers at once (:func:`forked_pool`, :func:`stop_pool`)
   instead of waiting for the items they run: a stopped command stops now.
+* **Other programs** (a Storm or Cycles frame render in a bpy Python, glslang, a rig's
+  camera command, a benchmark's ffmpeg): :func:`dying_with_parent` sets the same kernel
+  signal between the fork and the exec.
 * **Programs started by usdbtf** (``build``'s SCons and the ``usdbtf`` steps it runs, a Dask
   worker's command): the parent puts its pid in :data:`PARENT_ENV`; the child calls
   :func:`adopt_parent_from_environment` first thing, which sets the same kernel signal (here
@@ -33,7 +36,7 @@ import signal
 import sys
 
 __all__ = ["PARENT_ENV", "die_with_parent", "adopt_parent_from_environment", "child_environment",
-           "guarded_module_argv", "running", "forked_pool", "stop_pool"]
+           "guarded_module_argv", "dying_with_parent", "running", "forked_pool", "stop_pool", "dask_setup"]
 
 #: The environment variable through which a parent names itself to a program it starts.
 PARENT_ENV = "USDBTF_PARENT_PID"
@@ -82,6 +85,23 @@ def _after_fork_in_child() -> None:
 
 
 os.register_at_fork(before=_before_fork, after_in_child=_after_fork_in_child)
+
+
+def dying_with_parent(sig: int = signal.SIGKILL) -> dict:
+    """Keyword arguments for :mod:`subprocess` (``preexec_fn``): the program it starts gets
+    ``sig`` from the kernel when this process dies, or at once if it died before the exec.
+
+    For programs that are not usdbtf and read no :data:`PARENT_ENV` (a Storm or Cycles frame
+    render in a bpy Python, glslang, a rig's camera command, ffmpeg).  The kernel keeps the
+    setting across the exec (not for a set-user-ID program).  Call it in the thread that
+    waits for the program (``subprocess.run``): the signal comes when that thread ends."""
+    parent = os.getpid()
+    _prctl()        # loaded here: the child only calls it
+
+    def in_child() -> None:
+        die_with_parent(parent, sig)
+
+    return {"preexec_fn": in_child}
 
 
 def child_environment(env: dict | None = None) -> dict:
@@ -177,3 +197,11 @@ def stop_pool(pool) -> None:
     for proc in processes:
         with contextlib.suppress(Exception):
             proc.join(1.0)
+
+
+def dask_setup(worker) -> None:
+    """A Dask preload hook (``preload=["usdbtf.lifetime"]``): a worker of a local cluster
+    (:func:`usdbtf.cluster.session`) dies by SIGKILL with the process that started it, named
+    by :data:`PARENT_ENV` (the nanny's ``env``).  Dask's own pipe to the parent ends it too,
+    but only when its watching thread gets the GIL."""
+    adopt_parent_from_environment(signal.SIGKILL)

@@ -34,6 +34,7 @@ import numpy as np
 from .. import jsontext
 from ..atomic import atomic_dir
 from ..errors import BTFError
+from ..lifetime import dying_with_parent
 from ..outputs import BENCH_BASELINE, MANIFEST
 
 __all__ = ["ffmpeg_x265", "encode_jpeg", "encode_pca_view", "encode_video", "decode_video", "read_record",
@@ -53,7 +54,8 @@ def ffmpeg_x265() -> tuple[str | None, str]:
     if exe is None:
         return None, "ffmpeg not found on PATH (Debian: apt-get install ffmpeg)"
     try:
-        enc = subprocess.run([exe, "-hide_banner", "-encoders"], capture_output=True, text=True, timeout=30).stdout
+        enc = subprocess.run([exe, "-hide_banner", "-encoders"], capture_output=True, text=True, timeout=30,
+                             **dying_with_parent()).stdout
     except (OSError, subprocess.SubprocessError) as exc:
         return None, f"{exe} does not run ({exc})"
     if "libx265" not in enc:
@@ -162,7 +164,8 @@ def encode_video(btf, out: Path, crf: int = 28, preset: str = "medium") -> Path:
            "-c:v", "libx265", "-preset", preset, "-crf", str(crf), "-pix_fmt", "yuv444p",
            "-x265-params", "log-level=error", "-tag:v", "hvc1"]
     with atomic_dir(out, kind=BENCH_BASELINE) as tmp:
-        proc = subprocess.Popen([*cmd, str(tmp / VIDEO_FILE)], stdin=subprocess.PIPE, stderr=subprocess.PIPE)
+        proc = subprocess.Popen([*cmd, str(tmp / VIDEO_FILE)], stdin=subprocess.PIPE, stderr=subprocess.PIPE,
+                                **dying_with_parent())
         try:
             for start in range(0, btf.n_samples, 64):
                 block = btf.read_encoded(slice(start, min(start + 64, btf.n_samples)))
@@ -190,7 +193,7 @@ def decode_video(folder: Path, keep) -> dict:
     cmd = [exe, "-hide_banner", "-v", "error", "-i", str(Path(folder) / VIDEO_FILE), "-f", "rawvideo",
            "-pix_fmt", "rgb24", "-fps_mode", "passthrough", "-"]
     out, count = {}, 0
-    with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL) as proc:
+    with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, **dying_with_parent()) as proc:
         while True:
             buf = proc.stdout.read(frame_bytes)
             if len(buf) < frame_bytes:

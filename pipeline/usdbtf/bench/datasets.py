@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import time
 from pathlib import Path
 
@@ -27,6 +28,7 @@ import numpy as np
 from .. import jsontext
 from ..atomic import atomic_dir
 from ..compress.format import cross_layout
+from ..lifetime import dying_with_parent
 from ..model import FileBTF
 from ..sampling import Sampling, preset as sampling_preset
 
@@ -169,7 +171,7 @@ def compressed(cli: list, source: Path, out: Path, k: int):
     out = Path(out)
     if not (out / "btf-compressed.json").is_file():
         res = subprocess.run([*cli, "compress", str(source), "-o", str(out), "--k", str(k), "-q"],
-                             capture_output=True, text=True)
+                             capture_output=True, text=True, **dying_with_parent(signal.SIGTERM))
         if res.returncode != 0:
             raise BTFError(f"usdbtf compress {source} failed: {' '.join(res.stderr.split())[-500:]}")
     return read_compressed(out)

@@ -11,6 +11,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from ..lifetime import dying_with_parent
 from .measure import REPO, fmt_bytes
 
 __all__ = ["machine_info", "format_machine"]
@@ -152,7 +153,8 @@ def _git() -> dict:
 
     def git(*a):
         try:
-            r = subprocess.run(["git", *a], cwd=REPO, capture_output=True, text=True, timeout=10)
+            r = subprocess.run(["git", *a], cwd=REPO, capture_output=True, text=True, timeout=10,
+                               **dying_with_parent())
             return r.stdout.strip() if r.returncode == 0 else None
         except (OSError, subprocess.SubprocessError):
             return None

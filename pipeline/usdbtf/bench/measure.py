@@ -31,6 +31,7 @@ import threading
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from ..lifetime import dying_with_parent
 
 __all__ = ["REPO", "default_out", "median", "time_call", "cpu_seconds", "run_measured", "run_repeated",
            "run_repeated_apart", "failure_reason", "RunResult", "cli_command", "warm_page_cache", "timestamp",
@@ -210,12 +211,12 @@ class RunResult:
 # from a big benchmark process (e.g. one holding a 2 GB GEMM operand) would report at least the
 # benchmark's own peak.  This wrapper (python -I -S, ~10 MB) spawns the command instead, so the
 # floor is the wrapper's size; it times the command and reports wait4's rusage.
-_WRAPPER = r"""
+_WRAPPER = r"""  # USDBTF_PARENT_PID: usdbtf.lifetime.PARENT_ENV
 import os, sys, time
 out, cmd = sys.argv[1], sys.argv[2:]
 t = time.perf_counter()
 try:
-    pid = os.posix_spawnp(cmd[0], cmd, os.environ)
+    pid = os.posix_spawnp(cmd[0], cmd, dict(os.environ, USDBTF_PARENT_PID=str(os.getpid())))
 except OSError as exc:
     sys.stderr.write(f"cannot run {cmd[0]}: {exc}\n")
     sys.exit(127)
@@ -246,8 +247,10 @@ def run_measured(cmd, *, cwd=None, env=None, pss_interval: float = 0.2) -> RunRe
     with tempfile.TemporaryFile() as out, tempfile.TemporaryFile() as err, \
             tempfile.NamedTemporaryFile("r", suffix=".rusage") as res:
         t0 = time.perf_counter()
+        # The wrapper dies with this process, and a usdbtf command it runs with the wrapper
+        # (usdbtf.lifetime: the wrapper names itself in PARENT_ENV).
         proc = subprocess.Popen([sys.executable, "-I", "-S", "-c", _WRAPPER, res.name, *cmd], cwd=cwd, env=env,
-                                stdout=out, stderr=err, stdin=subprocess.DEVNULL)
+                                stdout=out, stderr=err, stdin=subprocess.DEVNULL, **dying_with_parent())
         sampler = _TreeSampler(proc.pid, pss_interval) if pss_interval > 0 else None
         if sampler is not None:
             sampler.start()

@@ -29,7 +29,7 @@ from collections import deque
 
 import numpy as np
 
-from ..cluster import environment, require_environment, session
+from ..cluster import POLL, environment, require_environment, session
 from ..errors import IOFailure, UsageError
 from ..manifest import outside_paths_allowed, outside_paths_are_allowed
 from ..model import ArrayBTF, BTF, FileBTF
@@ -75,6 +75,20 @@ class _Job:
         """Stored values of samples a..b (n, h, W, 3), manifest confinement as on the client."""
         with outside_paths_allowed(self.outside):
             return self.btf.read_encoded(slice(a, b), rows=rows)
+
+
+def _result(future):
+    """``future.result()`` once it is done, waited for in steps of :data:`usdbtf.cluster.POLL`
+    seconds: between them the main thread runs a pending signal's handler (see
+    :func:`usdbtf.cluster.polled`).  (Not ``result(timeout=...)``: Dask's timed wait can lose
+    a result that arrives as it times out.)"""
+    import threading
+
+    done = threading.Event()
+    future.add_done_callback(lambda _: done.set())
+    while not done.wait(POLL):
+        pass
+    return future.result()
 
 
 def _worker_name() -> str:
@@ -193,7 +207,7 @@ class DaskSource(_KeptSource):
 
         for n, future in enumerate(futures):
             try:
-                result = future.result()
+                result = _result(future)
             except KilledWorker as exc:
                 raise IOFailure(f"Dask: the workers running task {exc.task} died, again and again (out of memory? "
                                 "see the workers' logs)") from None

@@ -18,6 +18,7 @@ import tempfile
 from pathlib import Path
 
 from ..errors import BTFError
+from ..lifetime import dying_with_parent
 
 __all__ = ["glslang_path", "compile_glsl", "glslfx_sections", "storm_translation_unit"]
 
@@ -38,7 +39,7 @@ def compile_glsl(source: str, stage: str, name: str = "shader") -> None:
     with tempfile.TemporaryDirectory(prefix="usdbtf-glslang-") as tmp:
         path = Path(tmp) / f"{name}{_EXT[stage]}"
         path.write_text(source)
-        run = subprocess.run([exe, str(path)], capture_output=True, text=True, timeout=120)
+        run = subprocess.run([exe, str(path)], capture_output=True, text=True, timeout=120, **dying_with_parent())
     if run.returncode != 0:
         lines = [ln for ln in (run.stdout + run.stderr).splitlines() if "ERROR" in ln] or [run.stdout + run.stderr]
         raise BTFError(f"{name}: GLSL does not compile: " + " | ".join(ln.strip() for ln in lines[:8]))

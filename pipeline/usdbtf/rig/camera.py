@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import os
 import shlex
+import signal
 import subprocess
 from pathlib import Path
 
@@ -26,6 +27,7 @@ import numpy as np
 from .. import color
 from ..errors import BTFError
 from ..imageio import read_image
+from ..lifetime import dying_with_parent
 
 __all__ = ["OpenCVCamera", "CommandCamera", "DEFAULT_SPACE"]
 
@@ -101,7 +103,9 @@ class CommandCamera:
             out.unlink()
         argv = [w.format(out=out, tag=tag, frame=frame) for w in self.argv]
         try:
-            done = subprocess.run(argv, capture_output=True, timeout=self.timeout)
+            # SIGTERM when this process dies: the rig's program may want to release its camera.
+            done = subprocess.run(argv, capture_output=True, timeout=self.timeout,
+                                  **dying_with_parent(signal.SIGTERM))
         except FileNotFoundError:
             raise BTFError(f"camera command {argv[0]!r} not found") from None
         except subprocess.TimeoutExpired:

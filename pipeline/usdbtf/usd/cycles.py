@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import BTFError
+from ..lifetime import dying_with_parent
 from ..plugin_folder import plugin_dir
 
 __all__ = ["BLENDER_VERSION", "CyclesFrame", "CyclesFrames", "cycles_python", "render_frames", "srgb8", "common_gain"]
@@ -92,7 +93,8 @@ def render_frames(python: Path, frames: list[CyclesFrame], *, timeout: float = 3
         cmd = [str(python), str(FRAME_SCRIPT), str(jobs), str(plugin_dir() / "blender")]
         try:
             proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout,
-                                  env={"PATH": os.environ.get("PATH", "/usr/bin:/bin")})
+                                  env={"PATH": os.environ.get("PATH", "/usr/bin:/bin")},
+                                  **dying_with_parent())     # Blender dies with this process
         except (OSError, subprocess.TimeoutExpired) as exc:
             raise BTFError(f"{python}: cannot run Cycles ({exc})") from None
         if proc.returncode in _CANNOT:

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import BTFError
+from ..lifetime import dying_with_parent
 from ..plugin_folder import plugin_dir
 
 __all__ = ["STORM_ENVIRONMENTS", "StormFrames", "storm_pythons", "storm_environment", "render_frames",
@@ -93,8 +94,9 @@ def render_frames(python: Path, frames: list[tuple[Path, Path]], camera: str, si
         cmd += [str(scene), str(output)]
     cmd += ["--camera", camera, "--size", f"{size[0]}x{size[1]}"] + ([] if camera_light else ["--no-camera-light"])
     try:
+        # The render dies with this process (usdbtf.lifetime).
         proc = subprocess.run(cmd, capture_output=True, text=True, env=storm_environment() if env is None else env,
-                              timeout=timeout)
+                              timeout=timeout, **dying_with_parent())
     except (OSError, subprocess.TimeoutExpired) as exc:
         raise BTFError(f"{python}: cannot run Storm ({exc})") from None
     if proc.returncode in _CANNOT:
