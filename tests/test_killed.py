@@ -435,3 +435,23 @@ def test_a_program_usdbtf_starts_dies_with_it(tmp_path, sig):
     proc.wait(GONE_WITHIN)
     _, alive = psutil.wait_procs(programs, timeout=GONE_WITHIN)
     assert not alive, f"the camera command outlived its parent ({sig})"
+
+
+def test_a_stop_that_surfaces_as_a_librarys_error_is_still_a_stop():
+    """A SIGTERM that lands inside a library's clean-up can come out as that library's error
+    (concurrent.futures: "cannot join thread before it is started" when the signal interrupts
+    the start of its manager thread); the command still ends as terminated (143), not as an
+    internal error (1)."""
+    from usdbtf import cli
+
+    with pytest.raises(cli.Terminated):
+        with cli._signals_raise():
+            try:
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(1)
+            except cli.Terminated:
+                pass                   # swallowed where it landed ...
+            raise RuntimeError("cannot join thread before it is started")   # ... and replaced
+    # Outside a command nothing is remembered.
+    with cli._signals_raise():
+        pass

@@ -196,6 +196,14 @@ def _signals_raise():
     old = {signal.SIGTERM: signal.signal(signal.SIGTERM, on_term), signal.SIGINT: signal.signal(signal.SIGINT, on_int)}
     try:
         yield
+    except Exception:
+        # A signal that lands inside a library's clean-up can surface as that library's error
+        # instead (a ProcessPoolExecutor interrupted while starting its manager thread raises
+        # "cannot join thread before it is started" from shutdown): the stop is still a stop.
+        from .atomic import raise_if_interrupted
+
+        raise_if_interrupted()
+        raise
     finally:
         for sig, handler in old.items():
             signal.signal(sig, handler)
