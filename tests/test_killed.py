@@ -455,3 +455,19 @@ def test_a_stop_that_surfaces_as_a_librarys_error_is_still_a_stop():
     # Outside a command nothing is remembered.
     with cli._signals_raise():
         pass
+
+
+def test_a_stale_lock_beside_an_unchanged_build_file_is_cleaned(tmp_path):
+    """A build killed (SIGKILL) just after it swapped its SConstruct in leaves the lock file
+    beside it; the next build finds the text unchanged and writes nothing, yet still cleans the
+    lock and any staging folder the killed run left there."""
+    from usdbtf.atomic import LOCK_TAG, TMP_TAG
+    from usdbtf.usd.build import _write_if_changed
+
+    path = tmp_path / "SConstruct"
+    path.write_text("text\n")
+    (tmp_path / f".SConstruct{LOCK_TAG}").write_text("")          # its holder is gone
+    (tmp_path / f".SConstruct{TMP_TAG}dead").mkdir()
+    _write_if_changed(path, "text\n")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["SConstruct"]
+    assert path.read_text() == "text\n"

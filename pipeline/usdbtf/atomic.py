@@ -57,8 +57,8 @@ from . import lifetime, outputs
 from .errors import BTFError, IOFailure, OutputRefused, os_error_message
 
 __all__ = ["Policy", "output_policy", "current_policy", "check_output", "claim", "atomic_dir", "atomic_file",
-           "atomic_group", "scratch_dir", "umask", "interrupt", "raise_if_interrupted", "interruption_forgotten",
-           "related", "TMP_TAG", "LOCK_TAG"]
+           "atomic_group", "scratch_dir", "tidy_owned", "umask", "interrupt", "raise_if_interrupted",
+           "interruption_forgotten", "related", "TMP_TAG", "LOCK_TAG"]
 
 log = logging.getLogger(__name__)
 TMP_TAG = ".usdbtf-tmp-"
@@ -607,6 +607,16 @@ def atomic_file(target, *, kind: str | None = None, owner_checked: bool = False)
             claim(target, folder=False, kind=outputs.OWNED):
         with _staged(_real(target).parent, [target.name], target.parent) as new:
             yield new / target.name
+
+
+def tidy_owned(target) -> None:
+    """Take and release the lock of ``target`` (a file the caller owns, left as it is), so
+    that what a killed run left beside it (its lock file, a staging folder) is cleaned even
+    when nothing needs writing (``build``'s unchanged SConstruct after a SIGKILL)."""
+    target = Path(target)
+    with output_policy(force=True, inputs=current_policy().inputs), \
+            claim(target, folder=False, kind=outputs.OWNED):
+        pass
 
 
 @contextlib.contextmanager

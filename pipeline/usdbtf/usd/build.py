@@ -62,7 +62,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .. import numeric
-from ..atomic import atomic_file, related
+from ..atomic import atomic_file, related, tidy_owned
 from ..compress.format import METADATA as COMPRESSED_METADATA
 from ..errors import BTFError, OutputRefused, error_for_status
 from ..lifetime import child_environment, guarded_module_argv
@@ -771,6 +771,8 @@ def _write_if_changed(path: Path, text: str) -> None:
     if not path.is_file() or path.read_text() != text:
         with atomic_file(path, owner_checked=True) as tmp:
             tmp.write_text(text)
+    else:
+        tidy_owned(path)         # a run killed after its swap left the lock: clean it all the same
 
 
 def _open_scene(scene: Path):
