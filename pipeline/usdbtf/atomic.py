@@ -609,13 +609,15 @@ def atomic_file(target, *, kind: str | None = None, owner_checked: bool = False)
             yield new / target.name
 
 
-def tidy_owned(target) -> None:
+def tidy_owned(target, *, kind: str | None = None) -> None:
     """Take and release the lock of ``target`` (a file the caller owns, left as it is), so
     that what a killed run left beside it (its lock file, a staging folder) is cleaned even
-    when nothing needs writing (``build``'s unchanged SConstruct after a SIGKILL)."""
+    when nothing needs writing (``build``'s unchanged SConstruct or built stage after a
+    SIGKILL).  ``kind``: the output kind ``target`` is (default: a file inside an output the
+    caller owns)."""
     target = Path(target)
     with output_policy(force=True, inputs=current_policy().inputs), \
-            claim(target, folder=False, kind=outputs.OWNED):
+            claim(target, folder=False, kind=kind or outputs.OWNED):
         pass
 
 

@@ -696,6 +696,8 @@ def _write_stage(scene: Path, out: Path, text: str, work: Path, force: bool) -> 
                 layer.ImportFromString(text)
                 if not layer.Export(str(tmp)):
                     raise BTFError(f"{out}: the built stage could not be written as {out.suffix}")
+    else:       # unchanged: still clean what a run killed after its swap left beside it
+        tidy_owned(out, kind=BUILT_STAGE)
     _write_if_changed(work / STAGE_RECORD, json.dumps({"built_stage": os.path.relpath(out, work)}, indent=1) + "\n")
 
 
