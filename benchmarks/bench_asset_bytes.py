@@ -135,7 +135,7 @@ def candidates(folder: Path) -> dict:
     """Bytes of the candidate layouts from the codes of compressed folder ``folder``."""
     from usdbtf.compress.format import read_compressed
     from usdbtf.gpu.tables import gpu_layout, page_breaks
-    from usdbtf.usd.lod import default_lods
+    from usdbtf.usd.asset.lod import default_lods
 
     cbtf = read_compressed(folder)
     k = cbtf.k

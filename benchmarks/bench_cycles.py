@@ -35,10 +35,10 @@ from usdbtf.render.output import srgb_encoded
 from usdbtf.decompress import DecompressOptions, decompress
 from usdbtf.gpu.headless import psnr
 from usdbtf.render.scene import Light
-from usdbtf.usd import cycles, hydra
+from usdbtf.usd.preview import cycles, hydra
 from usdbtf.usd.read import load_btf
-from usdbtf.usd.scene import write_scene
-from usdbtf.usd.storm import read_rgba
+from usdbtf.usd.scenes.scene import write_scene
+from usdbtf.usd.asset.storm import read_rgba
 
 #: Measured light directions of the UBO2003 sampling (theta, phi degrees).
 LIGHTS = [(15.0, 60.0), (30.0, 0.0), (45.0, 180.0), (60.0, 120.0), (75.0, 240.0)]

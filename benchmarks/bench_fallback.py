@@ -5,11 +5,11 @@ For each preset: the synthetic BTF (``usdbtf synth``, cached), compressed (``usd
 --k K --codec png``, cached), then
 
 fitted   ``usdbtf.svbrdf.fit_svbrdf`` on the compressed BTF (timed, in this process), written
-         and read back exactly as the asset ships it (``usd.fallback.encode_maps`` /
+         and read back exactly as the asset ships it (``usd.asset.fallback.encode_maps`` /
          ``decode_maps``: 8-bit sRGB colour maps, 8-bit roughness and normal maps): the
          UsdPreviewSurface on ``outputs:surface``;
 openpbr  ``usdbtf.openpbr.fit_openpbr`` (timed; it starts from the fitted UsdPreviewSurface's
-         normals), written and read back as shipped (``usd.openpbr.encode_maps`` /
+         normals), written and read back as shipped (``usd.asset.openpbr.encode_maps`` /
          ``decode_maps``): the OpenPBR Surface on ``outputs:mtlx:surface``, evaluated with
          ``openpbr.evaluate`` (MaterialX's open_pbr_surface, checked against MaterialX's
          generated GLSL by tests/test_openpbr.py);
@@ -60,8 +60,8 @@ def shipped_fallbacks(cbtf, white: float, ablation: bool = False) -> tuple[dict,
     """({"fitted": maps, "openpbr": maps, "flat": maps, ablations...} as a renderer reads them
     from the asset, seconds of the UsdPreviewSurface fit, seconds of the OpenPBR fit)."""
     from usdbtf import openpbr, svbrdf
-    from usdbtf.usd import openpbr as usd_openpbr
-    from usdbtf.usd.fallback import decode_maps, encode_maps
+    from usdbtf.usd.asset import openpbr as usd_openpbr
+    from usdbtf.usd.asset.fallback import decode_maps, encode_maps
 
     t = time.perf_counter()
     fitted = svbrdf.fit_svbrdf(cbtf, white_level=white)

@@ -57,13 +57,13 @@ from common import OUT, cli_command, format_machine, machine_info, median, run_m
 
 TARGET_RATIO, TARGET_RSS = 2.0, 1.5e9
 #: The steps a child times: (module, attribute, label); module "TextureSet" is the class.
-STEPS = (("usdbtf.usd.package", "read_input", "read"), ("usdbtf.quilt.texels", "quilt_texels", "source texels"),
-         ("usdbtf.svbrdf", "fit_svbrdf", "fallback fit"), ("usdbtf.usd.fallback", "add_maps", "fallback maps"),
-         ("usdbtf.usd.storm", "add_gpu_textures", "GPU tables+pages"),
-         ("usdbtf.usd.thumbnail", "thumbnail_png", "thumbnail"),
-         ("usdbtf.usd.textures:TextureSet", "write", "texture folder"),
-         ("usdbtf.usd.package", "_check_published", "validation"))
-#: Writer settings of the atlas-sized textures ``package`` encodes, by folder (see usd.storm, usd.fallback).
+STEPS = (("usdbtf.usd.asset.package", "read_input", "read"), ("usdbtf.quilt.texels", "quilt_texels", "source texels"),
+         ("usdbtf.svbrdf", "fit_svbrdf", "fallback fit"), ("usdbtf.usd.asset.fallback", "add_maps", "fallback maps"),
+         ("usdbtf.usd.asset.storm", "add_gpu_textures", "GPU tables+pages"),
+         ("usdbtf.usd.asset.thumbnail", "thumbnail_png", "thumbnail"),
+         ("usdbtf.usd.asset.textures:TextureSet", "write", "texture folder"),
+         ("usdbtf.usd.asset.package", "_check_published", "validation"))
+#: Writer settings of the atlas-sized textures ``package`` encodes, by folder (see usd.asset.storm, usd.asset.fallback).
 ENCODE = {"gpu": {"png:compressionLevel": 6, "oiio:UnassociatedAlpha": 1}, "fallback": {"png:compressionLevel": 9}}
 
 
@@ -109,7 +109,7 @@ def child_write(textures: str, width: int, height: int, scratch: str, out_json: 
     import OpenImageIO as oiio
 
     from usdbtf.imageio import encode_image, write_encoded
-    from usdbtf.usd.textures import encode_in_workers
+    from usdbtf.usd.asset.textures import encode_in_workers
 
     jobs = []
     for path in sorted(Path(textures).rglob("*.png")):
@@ -117,7 +117,7 @@ def child_write(textures: str, width: int, height: int, scratch: str, out_json: 
         spec = inp.spec()
         inp.close()
         folder = path.relative_to(textures).parts[0]
-        # Atlas-sized files, and the GPU pages: tiles of atlas-sized packs (usd.storm).
+        # Atlas-sized files, and the GPU pages: tiles of atlas-sized packs (usd.asset.storm).
         tiles = spec.width % width == 0 and spec.height % height == 0 and folder == "gpu"
         if (spec.width, spec.height) != (width, height) and not tiles:
             continue

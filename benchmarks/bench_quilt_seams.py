@@ -100,7 +100,7 @@ def main() -> int:
     from usdbtf.quilt.features import image_features
     from usdbtf.quilt.seams import natural_neighbour_error, seam_error_all_samples
     from usdbtf.unwrap import read_unwrap
-    from usdbtf.usd.build import build
+    from usdbtf.usd.scenes.build import build
     from usdbtf.usdstage import usd_warnings_silenced
 
     block = default_block(args.size, args.size)

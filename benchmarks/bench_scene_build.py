@@ -74,7 +74,7 @@ def write_scene(root: Path, size: int, width: int = 480, height: int = 270) -> P
 
     from usdbtf.camera import parse_camera
     from usdbtf.cli import main
-    from usdbtf.usd.scene import add_camera, add_distant
+    from usdbtf.usd.scenes.scene import add_camera, add_distant
 
     stage = Usd.Stage.CreateNew(str(root / "scene.usda"))
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)
@@ -147,7 +147,7 @@ def main() -> int:
     args = p.parse_args()
     from pxr import Gf, Usd, UsdGeom
 
-    from usdbtf.usd.build import build
+    from usdbtf.usd.scenes.build import build
     from usdbtf.usd.density import binding_densities
 
     from usdbtf.usdstage import usd_warnings_silenced

@@ -5,14 +5,14 @@ For each preset: ``usdbtf synth PRESET --sampling SAMPLING --size SIZE`` (seed 5
 ``compress --k K --codec png``, ``package --physical-size 0.05 0.05``; then per USD version
 (the ``.venv-storm-*`` environments) one Storm process draws, for each of ``--lights``
 measured light directions at the pole view, orthographically from the pole, one texel a
-pixel, under one ``UsdLux.DistantLight`` of irradiance 1 (``usd.hydra.swatch_scene``):
+pixel, under one ``UsdLux.DistantLight`` of irradiance 1 (``usd.preview.hydra.swatch_scene``):
 
 btf       the asset as packaged (the BTF shader, this convention: radiance = value x E / (pi W));
 fallback  the same asset with ``outputs:glslfx:surface`` blocked: the UsdPreviewSurface fallback;
 legacy    the BTF shader with ``inputs:exposure = pi W``: exactly the shader before this convention
           (irradiance 1 = the capture light), the baseline, measured in the same run.
 
-Reported: the BTF's gain against the decompressed samples (``usd.cycles.common_gain``: one
+Reported: the BTF's gain against the decompressed samples (``usd.preview.cycles.common_gain``: one
 least-squares gain per light, their mean; the convention says pi W) and its mean |difference|
 in 8-bit sRGB steps after that gain; per light the fallback's mean brightness over the BTF's
 (``fallback.mean() / btf.mean()``, linear RGB, no gain) now and before (over ``legacy``).  To
@@ -98,7 +98,7 @@ def fit_model_ratios(asset: Path, cbtf, samples: list[int]) -> list[float]:
     from usdbtf import svbrdf
     from usdbtf.compress import reconstruct
     from usdbtf.imageio import read_image
-    from usdbtf.usd.fallback import FALLBACK_DIR, MAP_FILES, decode_maps
+    from usdbtf.usd.asset.fallback import FALLBACK_DIR, MAP_FILES, decode_maps
 
     folder = asset.with_name(f"{asset.stem}_textures") / FALLBACK_DIR
     pixels = {name: read_image(folder / MAP_FILES[name][0])[0] for name in MAP_FILES}
@@ -110,8 +110,8 @@ def fit_model_ratios(asset: Path, cbtf, samples: list[int]) -> list[float]:
 
 def cycles_ratios(asset: Path, lights, work: Path) -> list[float]:
     """Per light: Blender's Principled BSDF from the fallback over the add-on's OSL BTF (Cycles)."""
-    from usdbtf.usd import cycles
-    from usdbtf.usd.hydra import storm_pythons
+    from usdbtf.usd.preview import cycles
+    from usdbtf.usd.preview.hydra import storm_pythons
 
     def towards(light):
         theta, phi = (math.radians(a) for a in light)
@@ -130,7 +130,7 @@ def storm_checker(asset: Path, python: Path, work: Path) -> dict:
     import OpenImageIO as oiio
     from pxr import Gf, Usd, UsdShade
 
-    from usdbtf.usd import hydra
+    from usdbtf.usd.preview import hydra
     from usdbtf.usd.material import btf_materials
 
     copy = work / "checker"
@@ -172,8 +172,8 @@ def storm_minimal_checker(python: Path, work: Path, n: int = 32) -> dict:
     import OpenImageIO as oiio
     from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
 
-    from usdbtf.usd import hydra
-    from usdbtf.usd.scene import add_distant
+    from usdbtf.usd.preview import hydra
+    from usdbtf.usd.scenes.scene import add_distant
 
     folder = work / "minimal"
     folder.mkdir()
@@ -230,7 +230,7 @@ def legacy_exposure(scene: Path, value: float) -> None:
     from pxr import Usd
 
     from usdbtf.usd.material import btf_materials
-    from usdbtf.usd.storm import storm_shader
+    from usdbtf.usd.asset.storm import storm_shader
 
     stage = Usd.Stage.Open(str(scene))
     for material in btf_materials(stage):
@@ -242,8 +242,8 @@ def measure(asset: Path, python: Path, work: Path, count: int) -> dict:
     from usdbtf.color import processor
     from usdbtf.decompress import DecompressOptions, decompress
     from usdbtf.photometry import capture_irradiance, white_level_of
-    from usdbtf.usd import hydra
-    from usdbtf.usd.cycles import common_gain
+    from usdbtf.usd.preview import hydra
+    from usdbtf.usd.preview.cycles import common_gain
     from usdbtf.usd.read import load_btf
 
     cbtf = load_btf(asset)
@@ -288,7 +288,7 @@ def measure(asset: Path, python: Path, work: Path, count: int) -> dict:
 
 
 def main(argv=None) -> int:
-    from usdbtf.usd import hydra
+    from usdbtf.usd.preview import hydra
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--presets", nargs="+", default=["satin_weave", "pebbles", "velvet"])

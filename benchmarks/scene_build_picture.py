@@ -47,7 +47,7 @@ def main() -> int:
     p.add_argument("-o", "--output", type=Path, default=HERE.parent / "docs" / "scene_build_scene.png")
     args = p.parse_args()
     from usdbtf.imageio import write_image
-    from usdbtf.usd.build import build
+    from usdbtf.usd.scenes.build import build
     from usdbtf.usdstage import usd_warnings_silenced
 
     with tempfile.TemporaryDirectory(prefix="scene_build_picture_") as tmp:

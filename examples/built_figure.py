@@ -14,10 +14,10 @@ reports (``built_scene``: the knot quilted at the material's measured 1280 texel
 ``/World/Cam``:
 
 storm   Hydra Storm from a bpy wheel's USD (``--usd`` 25.08 or 25.02), headless EGL, the stage's
-        own DistantLight (:func:`usdbtf.usd.hydra.render_frames`);
+        own DistantLight (:func:`usdbtf.usd.preview.hydra.render_frames`);
 cycles  Blender 5.0.1's Cycles (CPU, OSL) through the usdbtf add-on, which imports the built
         stage with Blender's USD importer; the add-on's sun has the DistantLight's direction and
-        irradiance (:func:`usdbtf.usd.cycles.render_frames`; its OSL BTF answers one sun).
+        irradiance (:func:`usdbtf.usd.preview.cycles.render_frames`; its OSL BTF answers one sun).
 
 The frame (over grey) gets a legend: renderer and USD version, material, size, the texel density
 measured on the built mesh (:func:`usdbtf.usd.density.binding_densities`) and the light.  A first
@@ -100,7 +100,7 @@ def _scene_text(width: int, height: int) -> str:
     from pxr import Sdf, Usd, UsdGeom, UsdShade, Vt
 
     from usdbtf.camera import parse_camera
-    from usdbtf.usd.scene import add_camera, add_distant
+    from usdbtf.usd.scenes.scene import add_camera, add_distant
 
     stage = Usd.Stage.CreateInMemory()
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)
@@ -168,7 +168,7 @@ def measured_density(built: Path) -> dict:
 
 
 def render_storm(built: Path, out: Path, size: tuple[int, int], usd: str) -> tuple[np.ndarray, str]:
-    from usdbtf.usd import cycles, hydra
+    from usdbtf.usd.preview import cycles, hydra
 
     pythons = hydra.storm_pythons()
     if usd not in pythons:
@@ -187,7 +187,7 @@ def render_cycles(asset: Path, out: Path, size: tuple[int, int]) -> tuple[np.nda
     material it meets, there the user's swatch, and the stage has no lod variant set on its
     default prim.)  The add-on's sun has the stage's DistantLight's direction and irradiance."""
     from usdbtf.camera import parse_camera
-    from usdbtf.usd import cycles
+    from usdbtf.usd.preview import cycles
 
     python = cycles.cycles_python()
     if python is None:

@@ -22,7 +22,7 @@ from usdbtf.gpu.headless import HeadlessRenderer, psnr, uv_sphere
 from usdbtf.imageio import write_image
 from usdbtf.render import RenderOptions, Renderer, parse_light, to_display
 from usdbtf.usd.read import load_btf
-from usdbtf.usd.storm import layout_from_asset
+from usdbtf.usd.asset.storm import layout_from_asset
 
 
 def _tile(image: np.ndarray, working_space: str, title: str, size: int) -> np.ndarray:

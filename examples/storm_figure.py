@@ -7,7 +7,7 @@
 
 ASSET is a packaged asset on a curved unwrapped mesh (``usdbtf unwrap`` then ``usdbtf package
 --mesh``).  One stage references it with a UsdGeom camera, a DistantLight and a SphereLight
-(:func:`usdbtf.usd.scene.write_scene`); Storm renders it through ``UsdAppUtils.FrameRecorder``
+(:func:`usdbtf.usd.scenes.scene.write_scene`); Storm renders it through ``UsdAppUtils.FrameRecorder``
 in a storm environment (``scripts/bootstrap.sh``), ``usdbtf render SCENE --camera /World/Camera``
 renders the same stage on the CPU.  Columns: Storm, the CPU renderer (bilinear, no shadows),
 |difference| x 10; the title gives the PSNR (sRGB, where both have full coverage).
@@ -30,10 +30,10 @@ from usdbtf.render.output import srgb_encoded
 from usdbtf.gpu.headless import psnr
 from usdbtf.imageio import write_image
 from usdbtf.render import parse_light
-from usdbtf.usd import hydra
+from usdbtf.usd.preview import hydra
 from usdbtf.usd.read import load_btf
-from usdbtf.usd.scene import write_scene
-from usdbtf.usd.storm import read_rgba
+from usdbtf.usd.scenes.scene import write_scene
+from usdbtf.usd.asset.storm import read_rgba
 
 
 def figure(asset: Path, version: str, size: int) -> np.ndarray:

@@ -5,12 +5,12 @@ from __future__ import annotations
 from pathlib import Path
 
 from usdbtf.cli import main
-from usdbtf.usd.build import build
+from usdbtf.usd.scenes.build import build
 
 
 def build_scene(root: Path, text: str, **options):
     """Write the scene ``text`` in ``root`` beside the two synthetic captures it names, build it
-    once (``options``: :func:`usdbtf.usd.build.build`'s, e.g. ``jobs``).  Returns (scene path, the
+    once (``options``: :func:`usdbtf.usd.scenes.build.build`'s, e.g. ``jobs``).  Returns (scene path, the
     build's report, the scene's bytes before the build)."""
     for preset, name in (("pebbles", "pebbles"), ("fuzzy_moss", "moss")):
         assert main(["synth", preset, "-o", str(root / "captures" / name), "--sampling", "tiny", "--size", "16",

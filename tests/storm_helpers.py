@@ -12,7 +12,7 @@ def against_cpu_render(image, scene, camera: str, size: int, tmp_path) -> tuple[
     geometry coverage; that mask (H, W) bool; the CPU frame (H, W, 4) float64)."""
     from usdbtf.render.output import srgb_encoded
     from usdbtf.gpu.headless import psnr
-    from usdbtf.usd.storm import read_rgba
+    from usdbtf.usd.asset.storm import read_rgba
 
     cpu_out = tmp_path / "cpu.exr"
     assert main(["render", str(scene), "--camera", camera, "--size", str(size), str(size), "--no-shadows",
@@ -32,7 +32,7 @@ def write_lambertian_asset(out, white_level: float = 0.8, grey: float = 0.35):
     from usdbtf.compress import CompressOptions, compress
     from usdbtf.model import ArrayBTF
     from usdbtf.sampling import preset, to_vectors
-    from usdbtf.usd import package as pkg
+    from usdbtf.usd.asset import package as pkg
 
     sampling = preset("small")
     albedo = np.full((16, 16, 3), grey, np.float32)
@@ -57,13 +57,13 @@ def pole_lights(cbtf, count: int) -> list[tuple[int, tuple]]:
 
 def shipped_openpbr_maps(asset):
     """The OpenPBR maps of a packaged ``asset`` as its files hold them and a renderer reads them
-    (usd.openpbr.decode_maps of the written PNGs), in the BTF's working space, with its white level."""
+    (usd.asset.openpbr.decode_maps of the written PNGs), in the BTF's working space, with its white level."""
     from pathlib import Path
 
     from usdbtf.imageio import read_image
     from usdbtf.photometry import white_level_of
-    from usdbtf.usd.fallback import FALLBACK_DIR
-    from usdbtf.usd.openpbr import MAP_FILES, decode_maps
+    from usdbtf.usd.asset.fallback import FALLBACK_DIR
+    from usdbtf.usd.asset.openpbr import MAP_FILES, decode_maps
     from usdbtf.usd.read import load_btf
 
     asset = Path(asset)

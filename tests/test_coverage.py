@@ -225,7 +225,7 @@ def test_glsl_path_matches_the_cpu_renderer_on_a_partial_asset(partial_asset):
     pytest.importorskip("moderngl", reason="moderngl not installed (pip install -e '.[test]')")
     from usdbtf.errors import BTFError
     from usdbtf.gpu.headless import HeadlessRenderer, create_context, psnr
-    from usdbtf.usd import storm
+    from usdbtf.usd.asset import storm
 
     try:
         ctx = create_context()
@@ -254,7 +254,7 @@ def _scene(asset, out, view, light, distance=10.0, fov=1.0, size=32):
     from usdbtf.mesh import load_prim
     from usdbtf.render import Light
     from usdbtf.usd.read import open_stage
-    from usdbtf.usd.scene import write_scene
+    from usdbtf.usd.scenes.scene import write_scene
     from pxr import UsdGeom
 
     stage = open_stage(asset)
@@ -271,7 +271,7 @@ def _scene(asset, out, view, light, distance=10.0, fov=1.0, size=32):
 
 
 def test_validate_warns_when_the_scene_asks_for_directions_outside_the_coverage(partial_asset, tmp_path, capsys):
-    from usdbtf.usd.reach import coverage_warnings
+    from usdbtf.usd.scenes.reach import coverage_warnings
     from usdbtf.usd.read import open_stage
 
     # Inside: the view (15, 30) lies in the full set's triangle pole, (30, 0), (30, 60), all
@@ -294,7 +294,7 @@ def test_validate_warns_when_the_scene_asks_for_directions_outside_the_coverage(
 def test_validate_samples_the_frames_of_a_moving_camera(partial_asset, tmp_path):
     from pxr import Usd, UsdGeom
 
-    from usdbtf.usd.reach import coverage_warnings, sample_times
+    from usdbtf.usd.scenes.reach import coverage_warnings, sample_times
     from usdbtf.usd.read import open_stage
 
     moving, outside = tmp_path / "moving.usda", tmp_path / "outside.usda"
@@ -321,7 +321,7 @@ def test_storm_renders_a_partial_asset_as_the_cpu_renderer_does(partial_asset, t
     whose camera and light lie outside the coverage: the same fallback as `usdbtf render`."""
     from storm_helpers import against_cpu_render
     from usdbtf.errors import BTFError
-    from usdbtf.usd import hydra
+    from usdbtf.usd.preview import hydra
 
     pythons = hydra.storm_pythons()
     if not pythons:
@@ -378,7 +378,7 @@ def test_coverage_for_directions_never_warns_for_them():
     from usdbtf.render.hemisphere import directions_to_vectors
     from usdbtf.sampling import preset
     from usdbtf.compress.coverage import unique_directions
-    from usdbtf.usd.reach import CoverageCheck, coverage_for
+    from usdbtf.usd.scenes.reach import CoverageCheck, coverage_for
 
     sampling = preset("ubo81")
     views, lights = unique_directions(sampling.view)[0], unique_directions(sampling.light)[0]

@@ -3,7 +3,7 @@
 The ``bpy`` 5.0.1 wheel (Blender as a Python module: Cycles with Open Shading Language on the
 CPU) lives in ``.venv-storm-5.0`` (``scripts/bootstrap.sh``, shared with the Storm checks).
 Each test renders in a subprocess of that Python through the add-on in ``plugin/blender/usdbtf``
-(``usdbtf.usd.cycles``): Blender's USD importer brings the asset, the add-on replaces its
+(``usdbtf.usd.preview.cycles``): Blender's USD importer brings the asset, the add-on replaces its
 material with the OSL network, Cycles renders one sample per pixel at the pixel centre (the
 BTF is emission under the one sun: nothing is noisy).
 
@@ -28,7 +28,7 @@ import pytest
 import usdbtf  # noqa: F401  (registers the schema plugin first)
 from usdbtf.cli import main
 from usdbtf.photometry import capture_irradiance, white_level_of
-from usdbtf.usd import cycles
+from usdbtf.usd.preview import cycles
 
 PYTHON = cycles.cycles_python()
 MAX_STEPS = 2.0          # mean |difference|, 8-bit sRGB steps
@@ -151,8 +151,8 @@ def test_cycles_matches_usdbtf_render_on_a_curved_mesh(sphere_asset, tmp_path):
     from usdbtf.render.output import srgb_encoded
     from usdbtf.gpu.headless import psnr
     from usdbtf.render.scene import Light
-    from usdbtf.usd.scene import write_scene
-    from usdbtf.usd.storm import read_rgba
+    from usdbtf.usd.scenes.scene import write_scene
+    from usdbtf.usd.asset.storm import read_rgba
 
     size = 64
     camera = Camera(np.array([0.05, 0.06, 0.15]), np.zeros(3), np.array([0.0, 1.0, 0.0]), 35.0, size, size)

@@ -224,7 +224,7 @@ def test_cli_refuses_junk_address_as_usage(capsys, manifest, tmp_path):
 
 
 def test_scene_options_may_not_name_a_cluster():
-    from usdbtf.usd.build import parse_options
+    from usdbtf.usd.scenes.build import parse_options
 
     with pytest.raises(BTFError, match="--dask is not allowed in a scene"):
         parse_options("--k 8 --dask local:2", "scene.usda: /M: btf:build:options")

@@ -23,9 +23,9 @@ from usdbtf.cli import main
 from usdbtf.errors import BTFError
 from usdbtf.gpu import glslang, shaders
 from usdbtf.gpu.tables import gpu_layout, pack_count
-from usdbtf.usd import storm
+from usdbtf.usd.asset import storm
 from usdbtf.usd.read import load_btf, open_stage
-from usdbtf.usd.validate import validation_issues
+from usdbtf.usd.asset.validate import validation_issues
 
 PSNR_MIN = 40.0
 needs_glslang = pytest.mark.skipif(glslang.glslang_path() is None,

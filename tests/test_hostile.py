@@ -203,7 +203,7 @@ def test_hostile_file_names_in_a_scene_build_and_run_nothing(tmp_path, data):
     asset = folder / "out $(touch CANARY) ${SOURCE}" / "a.usda"
     assert asset.is_file()
     assert not list(folder.rglob("CANARY")) and not Path("CANARY").exists()
-    from usdbtf.usd.build import build
+    from usdbtf.usd.scenes.build import build
     assert build(scene)["ran"] == []                     # content signatures still work
 
 
@@ -676,7 +676,7 @@ def test_write_image_refuses_non_finite_pixels(tmp_path):
 
 def test_package_refuses_layers_with_non_finite_numbers(tmp_path):
     from pxr import Sdf, Usd, UsdGeom
-    from usdbtf.usd.finite import non_finite_values
+    from usdbtf.usd.asset.finite import non_finite_values
     path = tmp_path / "l.usda"
     stage = Usd.Stage.CreateNew(str(path))
     mesh = UsdGeom.Mesh.Define(stage, "/m")

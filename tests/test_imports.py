@@ -134,6 +134,47 @@ def test_no_import_cycle_between_subpackages():
     assert_acyclic(packages, "import cycle between subpackages")
 
 
+#: The layers inside ``usd/`` (docs/architecture.md): each imports only from its own layer or a
+#: lower one.  ``usd`` itself is the schema core (plugin, genschema, material, read, density).
+USD_LAYERS = ["usdbtf.usd", "usdbtf.usd.asset", "usdbtf.usd.scenes", "usdbtf.usd.preview"]
+
+
+def usd_layer(module: str) -> int | None:
+    """Index in :data:`USD_LAYERS` of a module under ``usdbtf.usd`` (None: outside it)."""
+    for i in reversed(range(len(USD_LAYERS))):
+        if module == USD_LAYERS[i] or module.startswith(USD_LAYERS[i] + "."):
+            return i
+    return None
+
+
+def upward_usd_imports(graph: dict[str, set[str]]) -> list[str]:
+    """``a -> b`` for every import inside ``usd/`` from a lower layer to a higher one."""
+    out = []
+    for a, targets in sorted(graph.items()):
+        la = usd_layer(a)
+        out += [f"{a} -> {b}" for b in sorted(targets)
+                if la is not None and usd_layer(b) is not None and usd_layer(b) > la]
+    return out
+
+
+def test_usd_is_split_by_concern_and_imports_only_downward():
+    graph = import_graph(PACKAGE)
+    layers = {usd_layer(m) for m in graph} - {None}
+    assert layers == {0, 1, 2, 3}                                     # every layer has modules
+    assert {"usdbtf.usd.asset.package", "usdbtf.usd.scenes.build", "usdbtf.usd.preview.hydra",
+            "usdbtf.usd.material"} <= set(graph)
+    # the scan sees imports across the layers (build packages assets, hydra writes scenes)
+    assert "usdbtf.usd.asset.package" in graph["usdbtf.usd.scenes.build"]
+    assert "usdbtf.usd.scenes.scene" in graph["usdbtf.usd.preview.hydra"]
+    assert upward_usd_imports(graph) == []          # so no cycle between the layers either
+
+
+def test_the_usd_layer_check_finds_an_upward_import():
+    graph = {"usdbtf.usd.asset.package": {"usdbtf.usd.scenes.plan", "usdbtf.usd.material"},
+             "usdbtf.usd.material": set(), "usdbtf.usd.scenes.plan": set()}
+    assert upward_usd_imports(graph) == ["usdbtf.usd.asset.package -> usdbtf.usd.scenes.plan"]
+
+
 def _package(root: Path, files: dict[str, str]) -> Path:
     """A throw-away package ``demo`` under ``root`` made of ``files`` (path -> source)."""
     for rel, text in files.items():

@@ -255,7 +255,7 @@ def test_box_least_squares_is_the_exact_box_optimum():
 def test_maps_round_trip_through_their_files():
     """encode_maps / decode_maps: what a renderer reads back is the fit to the files' precision."""
     from usdbtf.openpbr import OpenPbrMaps
-    from usdbtf.usd import openpbr as usd_openpbr
+    from usdbtf.usd.asset import openpbr as usd_openpbr
 
     rng = np.random.default_rng(1)
     h, w = 3, 5
@@ -297,8 +297,8 @@ def test_package_authors_the_openpbr_network_beside_the_preview_surface(packaged
     from pxr import Usd, UsdShade
 
     from usdbtf.imageio import read_image
-    from usdbtf.usd.inspect import summary
-    from usdbtf.usd.openpbr import MAP_FILES, SHADER_ID, materialx_document
+    from usdbtf.usd.asset.inspect import summary
+    from usdbtf.usd.asset.openpbr import MAP_FILES, SHADER_ID, materialx_document
 
     stage = Usd.Stage.Open(str(packaged))
     material = UsdShade.Material(stage.GetPrimAtPath("/satin/mtl/BtfMaterial"))
@@ -331,7 +331,7 @@ def test_openpbr_asset_passes_every_validator_in_a_usd_with_materialx(packaged):
     import subprocess
     import sys
 
-    from usdbtf.usd.hydra import storm_pythons, storm_environment
+    from usdbtf.usd.preview.hydra import storm_pythons, storm_environment
 
     python = storm_pythons().get("25.08")
     if python is None:
@@ -375,8 +375,8 @@ def test_openpbr_network_renders_in_storms_materialx_path(packaged, tmp_path):
     from pxr import Sdf, Usd, UsdShade
 
     from usdbtf.errors import BTFError
-    from usdbtf.usd import hydra
-    from usdbtf.usd.cycles import srgb8
+    from usdbtf.usd.preview import hydra
+    from usdbtf.usd.preview.cycles import srgb8
     from storm_helpers import openpbr_frame, pole_lights, shipped_openpbr_maps
 
     python = hydra.storm_pythons().get("25.08")
@@ -474,7 +474,7 @@ def test_principled_inputs_reproduce_open_pbr_parameters():
 def _document_from_usd(material):
     """A MaterialX document of the OpenPBR network as ``material`` (UsdShade.Material) holds it:
     every shader its ``outputs:mtlx:surface`` reaches, with the authored values, colour spaces
-    and connections (so MaterialX validates what is written, not what usd.openpbr.network says)."""
+    and connections (so MaterialX validates what is written, not what usd.asset.openpbr.network says)."""
     import MaterialX as mx
     from pxr import Sdf, UsdShade
 
@@ -524,16 +524,16 @@ def _document_from_usd(material):
 
 def test_openpbr_network_as_authored_validates_at_every_lod(packaged):
     """Issue 40: MaterialX's document validation of the network the asset holds (read back from
-    USD, not rebuilt from usd.openpbr.network) under every ``lod`` selection and as authored:
-    valid, the same nodes and node definitions as usd.openpbr.network, colour maps srgb_texture,
+    USD, not rebuilt from usd.asset.openpbr.network) under every ``lod`` selection and as authored:
+    valid, the same nodes and node definitions as usd.asset.openpbr.network, colour maps srgb_texture,
     data maps raw.  The control: a wrong input type on the authored surface fails validation."""
     pytest.importorskip("MaterialX", reason="materialx not installed (pip install -e '.[test]')")
     import usdbtf  # noqa: F401
     from pxr import Usd, UsdShade
 
-    from usdbtf.usd.openpbr import network
+    from usdbtf.usd.asset.openpbr import network
 
-    from usdbtf.usd.openpbr import MAP_FILES
+    from usdbtf.usd.asset.openpbr import MAP_FILES
 
     expected = sorted(nodedef for _, nodedef, _ in network({k: "x" for k in MAP_FILES}))
     stage = Usd.Stage.Open(str(packaged))

@@ -19,7 +19,7 @@ import pytest
 
 from usdbtf.gpu import osl, shaders
 from usdbtf.gpu.glsl_to_osl import TranslationError, translate
-from usdbtf.usd import cycles
+from usdbtf.usd.preview import cycles
 
 
 @pytest.mark.parametrize("glsl, expected", [
@@ -78,7 +78,7 @@ def _genosl(tmp_path) -> str:
     from MaterialX import PyMaterialXGenShader as mx_gen
 
     from usdbtf.gpu.materialx import load_document, materialx_dir
-    from usdbtf.usd.storm import materialx_document
+    from usdbtf.usd.asset.storm import materialx_document
 
     document = tmp_path / "btf.mtlx"
     document.write_text(materialx_document("tables.exr", ["page00.png", "page01.png"], 8))

@@ -76,7 +76,7 @@ def test_shipped_packs_follow_the_assets_page_breaks(made):
     """``ShippedPacks`` (what rate control fits k on under a budget of the asset): the packs of
     the first k layers as the asset with its default lods ships them.  With every code 8-bit no
     page break changes a storage type, so it equals the per-pack probe at every k, partial groups
-    included; its lods are the ones package writes (usd.lod re-uses them)."""
+    included; its lods are the ones package writes (usd.asset.lod re-uses them)."""
     compressed, gpu = made
     cbtf = read_compressed(compressed)
     assert {st.pixels.dtype for st in cbtf.coefficients} == {np.dtype(np.uint8)}
@@ -86,6 +86,6 @@ def test_shipped_packs_follow_the_assets_page_breaks(made):
     pages = sum(p.stat().st_size for p in gpu.glob("page*.png"))
     assert abs(shipped(K) - pages) <= 0.05 * pages
     from usdbtf.gpu import tables
-    from usdbtf.usd import lod
+    from usdbtf.usd.asset import lod
     assert lod.default_lods is packs.default_lods and tables.page_breaks is packs.page_breaks
     assert packs.default_lods(12) == [6] and packs.page_breaks(12, [6]) == [6]

@@ -67,11 +67,11 @@ def test_package_records_the_convention(lambertian, tmp_path):
     """The asset authors btf:photometry and btf:whiteLevel and the Storm shader's whiteLevel;
     read back, the CPU renderer on the asset follows W; without the attributes (an old asset)
     the values read relative to W = 1; an unknown token is refused."""
-    from usdbtf.usd import package as pkg
-    from usdbtf.usd.inspect import describe
+    from usdbtf.usd.asset import package as pkg
+    from usdbtf.usd.asset.inspect import describe
     from usdbtf.usd.material import btf_materials
     from usdbtf.usd.read import load_btf
-    from usdbtf.usd.storm import storm_shader
+    from usdbtf.usd.asset.storm import storm_shader
 
     cbtf, cos_l, sampling = lambertian
     asset = tmp_path / "a" / "white.usda"

@@ -18,7 +18,7 @@ from usdbtf.quilt import POSITION_MAP, QuiltOptions, quilt, write_quilt
 from usdbtf.quilt.texels import distinct_texels, quilt_texels
 from usdbtf.render.texture import CoefficientTexture
 from usdbtf.svbrdf import fit_svbrdf
-from usdbtf.usd.package import PackageOptions, package
+from usdbtf.usd.asset.package import PackageOptions, package
 
 MAPS = ("diffuse", "specular", "roughness", "normal")
 

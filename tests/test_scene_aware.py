@@ -17,7 +17,7 @@ from usdbtf.bench.scenes import Quad, Shot, write_scene
 from usdbtf.cli import main
 from usdbtf.commands.build import source_facts
 from usdbtf.render.hemisphere import Triangulation
-from usdbtf.usd.build import build, plan, steps
+from usdbtf.usd.scenes.build import build, plan, steps
 
 LIGHT = np.array([0.3, 0.5, 1.0]) / np.linalg.norm([0.3, 0.5, 1.0])
 
@@ -146,13 +146,13 @@ def _check_frames(scene: Path, folder: Path, capsys) -> None:
 
 def _check_mesh_walks(scene: Path) -> None:
     """The one walk over a stage's BTF meshes (issue 41) gives both callers the prims they took
-    before: ``render ASSET`` (:func:`usdbtf.usd.scene.bound_btf_meshes`) every bound mesh, the
-    invisible and the proxy one included; ``render --camera`` (:func:`usdbtf.usd.shots.scene_shots`)
+    before: ``render ASSET`` (:func:`usdbtf.usd.scenes.scene.bound_btf_meshes`) every bound mesh, the
+    invisible and the proxy one included; ``render --camera`` (:func:`usdbtf.usd.scenes.shots.scene_shots`)
     only what a final render shows at each frame."""
     from pxr import Usd
 
-    from usdbtf.usd.scene import bound_btf_meshes
-    from usdbtf.usd.shots import scene_shots
+    from usdbtf.usd.scenes.scene import bound_btf_meshes
+    from usdbtf.usd.scenes.shots import scene_shots
 
     parts = bound_btf_meshes(Usd.Stage.Open(str(scene)))
     assert [m.name for _, m in parts] == ["Floor", "Tile", "Ghost", "Stand_in"]

@@ -90,7 +90,7 @@ def test_board_stage(tmp_path, capsys):
 def test_package_stage(small, tmp_path, capsys):
     """package() writes nothing; write_package writes what the command writes; asset_layers
     authors the same layers in memory."""
-    from usdbtf.usd.package import PackageOptions, asset_layers, package, read_input, write_package
+    from usdbtf.usd.asset.package import PackageOptions, asset_layers, package, read_input, write_package
 
     before = sorted(p.name for p in tmp_path.iterdir())
     result = package(small / "c", PackageOptions(lods=[3], payload_format="usda"))
@@ -145,7 +145,7 @@ def test_tiled_textures_are_reproducible(tmp_path, fmt):
     import time
 
     from usdbtf.imageio import encode_image
-    from usdbtf.usd.textures import TextureSet
+    from usdbtf.usd.asset.textures import TextureSet
 
     pixels = (np.arange(64 * 48 * 3) % 251).astype(np.uint8).reshape(48, 64, 3)
     made = []

@@ -35,8 +35,8 @@ import usdbtf  # noqa: F401  (registers the schema plugin first)
 from usdbtf.cli import main
 from usdbtf.errors import BTFError
 from usdbtf.photometry import capture_irradiance, white_level_of
-from usdbtf.usd import hydra
-from usdbtf.usd.cycles import common_gain, srgb8
+from usdbtf.usd.preview import hydra
+from usdbtf.usd.preview.cycles import common_gain, srgb8
 from storm_helpers import against_cpu_render, pole_lights, write_lambertian_asset
 
 PYTHONS = hydra.storm_pythons()
@@ -193,7 +193,7 @@ def test_storm_matches_usdbtf_render_of_the_same_stage_on_a_curved_mesh(version,
     from usdbtf.render.output import srgb_encoded
     from usdbtf.gpu.headless import psnr
     from usdbtf.render.scene import Light
-    from usdbtf.usd.scene import write_scene
+    from usdbtf.usd.scenes.scene import write_scene
 
     scene = tmp_path / "scene.usda"
     camera = Camera(np.array([0.05, 0.06, 0.15]), np.zeros(3), np.array([0.0, 1.0, 0.0]), 35.0, 96, 96)
@@ -221,7 +221,7 @@ def test_materialx_node_renders_through_storms_materialx_path(assets, tmp_path):
 
     from usdbtf.decompress import DecompressOptions, decompress
     from usdbtf.usd.read import load_btf
-    from usdbtf.usd.storm import author_materialx_preview, layout_from_asset
+    from usdbtf.usd.asset.storm import author_materialx_preview, layout_from_asset
 
     asset = assets[64]
     cbtf = load_btf(asset)
@@ -276,7 +276,7 @@ def test_btf_and_its_fallback_agree_on_white(version, lambertian_asset, tmp_path
     from usdbtf.decompress import DecompressOptions, decompress
     from usdbtf.usd.material import btf_materials
     from usdbtf.usd.read import load_btf
-    from usdbtf.usd.storm import storm_shader
+    from usdbtf.usd.asset.storm import storm_shader
 
     cbtf = load_btf(lambertian_asset)
     assert white_level_of(cbtf.info) == pytest.approx(WHITE_LEVEL)

@@ -11,9 +11,9 @@ import usdbtf  # noqa: F401
 from cli_helpers import bad_input, ok, run
 from usdbtf.cli import main
 from usdbtf.compress import read_compressed, reconstruct
-from usdbtf.usd.build import build, plan
+from usdbtf.usd.scenes.build import build, plan
 from usdbtf.usd.read import load_btf
-from usdbtf.usd.validate import validation_issues
+from usdbtf.usd.asset.validate import validation_issues
 
 SCENE = '''#usda 1.0
 (

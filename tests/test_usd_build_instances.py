@@ -8,7 +8,7 @@ import pytest
 
 import usdbtf  # noqa: F401
 from scene_build_data import build_scene, open_stage
-from usdbtf.usd.binding import BINDINGS_SCOPE, INSTANCE_CLASS
+from usdbtf.usd.scenes.binding import BINDINGS_SCOPE, INSTANCE_CLASS
 from usdbtf.usd.density import binding_densities
 
 # A 0.1 x 0.05 x 0.075 m box without texture coordinates (six quads).

@@ -10,7 +10,7 @@ import pytest
 import usdbtf  # noqa: F401
 from cli_helpers import bad_input, bad_usage, ok, refused, run
 from scene_build_data import build_scene, open_stage
-from usdbtf.usd.build import build
+from usdbtf.usd.scenes.build import build
 from usdbtf.usd.density import binding_densities
 
 BOX = '''
@@ -189,7 +189,7 @@ def test_render_draws_every_bound_mesh_with_its_own_material(built, capsys):
 
     from usdbtf.camera import parse_camera
     from usdbtf.render import RenderOptions, parse_light, render, render_scene
-    from usdbtf.usd.scene import bound_btf_meshes
+    from usdbtf.usd.scenes.scene import bound_btf_meshes
 
     scene, report, _ = built
     out = scene.parent / "built_frame.exr"

@@ -23,10 +23,10 @@ from usdbtf.compress.metrics import ErrorSums
 from usdbtf.imageio import read_image
 from usdbtf.model import ArrayBTF
 from usdbtf.sampling import preset, to_vectors
-from usdbtf.usd import fallback
-from usdbtf.usd import package as pkg
+from usdbtf.usd.asset import fallback
+from usdbtf.usd.asset import package as pkg
 from usdbtf.usd.read import load_btf, sample_image
-from usdbtf.usd.validate import validate_layer, validation_issues
+from usdbtf.usd.asset.validate import validate_layer, validation_issues
 
 OIIOTOOL = Path(__import__("sys").executable).parent / "oiiotool"
 
@@ -358,7 +358,7 @@ def test_asset_holds_each_coefficient_once(asset, compressed):
             storm_files[prim.GetName()] = UsdShade.Shader(prim).GetInput("file").Get().path
     assert material.GetAttribute("btf:basis").Get().path == storm_files["StormTables"]
     assert pages == [storm_files[f"StormPage{i:02d}"] for i in range(len(pages))]
-    from usdbtf.usd.storm import layout_from_asset
+    from usdbtf.usd.asset.storm import layout_from_asset
 
     layout, _, _ = layout_from_asset(asset)
     flat = layout.tables.reshape(-1, 4)
@@ -376,7 +376,7 @@ def test_old_files_layout_assets_keep_reading(compressed, tmp_path, monkeypatch)
     """An asset of schema version 1 (one file per coefficient, a basis image: no
     btf:coefficientLayout) reads back as before, bit for bit; so does the files layout a
     sampling the preview cannot draw gets."""
-    from usdbtf.usd import storm
+    from usdbtf.usd.asset import storm
 
     monkeypatch.setattr(storm, "add_gpu_textures", lambda *a, **k: None)
     out = tmp_path / "old" / "pebbles.usda"
@@ -514,7 +514,7 @@ def test_a_page_that_no_longer_holds_the_codes_is_refused(asset, tmp_path, capsy
     bad_input(capsys, "decompress", copy / "pebbles.usda", "-o", tmp_path / "d", names="does not hold coefficient pack")
     assert not (tmp_path / "d").exists()
     if page.suffix == ".png":       # the same size, but values between 8-bit codes: not codes
-        from usdbtf.usd.storm import read_rgba
+        from usdbtf.usd.asset.storm import read_rgba
 
         original = read_rgba(asset.with_name("pebbles_textures") / "gpu" / page.name)
         page.unlink()
@@ -593,7 +593,7 @@ def test_texture_formats_are_tiled_mipmapped_and_bit_exact(compressed, tmp_path,
     assert np.array_equal(reconstruct(load_btf(out, lod="k6")), reconstruct(read_compressed(compressed), k=6))
     assert validate_layer(out) == []
     # The GPU pages hold what the sampler read from the PNG pages.
-    from usdbtf.usd import storm
+    from usdbtf.usd.asset import storm
 
     layout, _, _ = storm.layout_from_asset(out)
     png_layout, _, _ = storm.layout_from_asset(pkg.write_package(pkg.package(compressed, pkg.PackageOptions(

@@ -14,7 +14,7 @@ The policy (one set of rules for every command):
   input or lies inside one, the working directory (or a folder containing it), a file
   where a folder goes or a folder where a file goes, a symbolic link, or anything
   :func:`~usdbtf.outputs.identify` does not recognise as the same kind.  (``build``
-  protects the scene and its layers itself: :mod:`usdbtf.usd.build`.)
+  protects the scene and its layers itself: :mod:`usdbtf.usd.scenes.build`.)
 * Write beside, then swap.  New content is written in a staging folder
   ``.<name>.usdbtf-tmp-<pid>-<random>/new/<name>`` beside the output.  When it is
   complete a ``READY`` file listing the names is written, then each old output is moved

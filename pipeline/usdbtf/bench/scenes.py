@@ -68,7 +68,7 @@ def _author(path: Path, materials, quads, shots, light_towards, resolution, fram
     from pxr import Gf, Sdf, Usd, UsdGeom, UsdRender, UsdShade, Vt
 
     from ..camera import Camera
-    from ..usd.scene import add_camera, add_distant
+    from ..usd.scenes.scene import add_camera, add_distant
 
     stage = Usd.Stage.CreateNew(str(path))
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)

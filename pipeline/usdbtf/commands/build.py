@@ -37,17 +37,17 @@ def add_parser(sub) -> None:
 
 
 def outputs(args):
-    """None declared here: the scene names them, and :func:`usdbtf.usd.build.build` checks them
+    """None declared here: the scene names them, and :func:`usdbtf.usd.scenes.build.build` checks them
     (``--force`` is still offered: it lets a build replace outputs it did not write before)."""
     return []
 
 
 def source_facts(path: Path):
-    """:class:`usdbtf.usd.plan.MaterialFacts` of a recipe's source (a compressed folder or any
+    """:class:`usdbtf.usd.scenes.plan.MaterialFacts` of a recipe's source (a compressed folder or any
     BTF input :func:`usdbtf.io.open_btf` reads)."""
     from ..compress.format import METADATA, read_compressed
     from ..io import open_btf
-    from ..usd.plan import MaterialFacts
+    from ..usd.scenes.plan import MaterialFacts
 
     if (Path(path) / METADATA).is_file():
         return MaterialFacts.of(read_compressed(path), compressed=True)
@@ -55,7 +55,7 @@ def source_facts(path: Path):
 
 
 def run(args) -> int:
-    from ..usd.build import build, plan
+    from ..usd.scenes.build import build, plan
 
     shape = {} if args.full else {"source_facts": source_facts, "target_error": args.target_error}
     if args.dry_run:
@@ -118,7 +118,7 @@ def _log_table(report: dict, costs: dict | None) -> None:
 def _print_report(scene, recipes, report: dict, *, dry_run: bool) -> int:
     """``--json``: {"scene", "dry_run", "shaped", "recipes": [{material, source, options, shape,
     asset, compressed}], "bound": {material: [prims]}, "without_recipe": [materials],
-    "needs": {material: what the scene needs of it (:meth:`usdbtf.usd.plan.Need.report`)},
+    "needs": {material: what the scene needs of it (:meth:`usdbtf.usd.scenes.plan.Need.report`)},
     "skipped": [materials not built], "stand_ins": [materials the scene never shows, built as
     one-direction stand-ins so that its references resolve], "bindings": [{material, prims, asset}] (the bound
     meshes' unwrap/quilt/package chains), "ran": [commands], "costs": {material: {bytes,

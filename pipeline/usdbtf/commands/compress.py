@@ -40,7 +40,7 @@ def run(args) -> int:
         # The bytes a budget counts are the packaged asset's: what packaging adds beside the
         # coefficient pages and basis codes is measured by packaging's own code (compress
         # cannot import usd: layers, docs/architecture.md).
-        from ..usd.package import asset_overhead
+        from ..usd.asset.package import asset_overhead
 
         opts.asset_overhead = asset_overhead
     extra = {key: v for key, v in btf.metadata.items() if not key.startswith("_")}

@@ -21,13 +21,13 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     from ..errors import BTFError
-    from ..usd.build import superseding_stage
+    from ..usd.scenes.build import superseding_stage
     from ..usd.density import density_problems
-    from ..usd.finite import non_finite_in_stage
-    from ..usd.inspect import describe, summary
-    from ..usd.reach import coverage_warnings
+    from ..usd.asset.finite import non_finite_in_stage
+    from ..usd.asset.inspect import describe, summary
+    from ..usd.scenes.reach import coverage_warnings
     from ..usd.read import open_stage
-    from ..usd.validate import validation_by_lod
+    from ..usd.asset.validate import validation_by_lod
 
     info = summary(args.asset)
     errors = []

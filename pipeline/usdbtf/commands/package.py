@@ -9,7 +9,7 @@ ORDER = 60
 
 
 def add_parser(sub) -> None:
-    from ..usd.formats import PAYLOAD_FORMATS, TEXTURE_FORMATS
+    from ..usd.asset.formats import PAYLOAD_FORMATS, TEXTURE_FORMATS
 
     p = sub.add_parser("package", help="a compressed BTF as a USD asset (.usda/.usdc, optional .usdz)")
     p.add_argument("input", type=Path, help="compressed BTF folder")
@@ -40,14 +40,14 @@ def add_parser(sub) -> None:
 
 
 def outputs(args):
-    from ..usd.package import asset_pieces
+    from ..usd.asset.package import asset_pieces
     pieces = asset_pieces(args.output, usdz=args.usdz, usdz_ar=args.usdz_ar, payload_format=args.payload_format)
     return [(args.output.parent / name, kind) for name, _, kind in pieces]
 
 
 def run(args) -> int:
     from ..errors import UsageError
-    from ..usd.package import PackageOptions, check_root_layer, package, write_package
+    from ..usd.asset.package import PackageOptions, check_root_layer, package, write_package
 
     lods = None
     if args.lod is not None:

@@ -3,8 +3,8 @@
 ``--renderer gl`` (the fast check): reads the GPU textures the packaged asset's Storm network
 names and draws them with the shared GLSL (Mesa llvmpipe through EGL, no display needed).
 ``--renderer storm``: the real thing, Hydra Storm through ``UsdAppUtils.FrameRecorder`` in a
-storm environment (:mod:`usdbtf.usd.hydra`), on a stage that references the asset with the
-same camera and lights (:func:`usdbtf.usd.scene.write_scene`; the swatch: seen from the pole,
+storm environment (:mod:`usdbtf.usd.preview.hydra`), on a stage that references the asset with the
+same camera and lights (:func:`usdbtf.usd.scenes.scene.write_scene`; the swatch: seen from the pole,
 one pixel per texel).  Either writes the image like ``usdbtf render`` does; ``--compare``
 also renders the CPU reference and prints the PSNR (linear and sRGB, where both have
 geometry).
@@ -18,7 +18,7 @@ from .render import add_scene_arguments, render_outputs
 
 log = logging.getLogger(__name__)
 ORDER = 82
-#: USD builds --renderer storm can use (usdbtf.usd.hydra.STORM_ENVIRONMENTS; no heavy import here).
+#: USD builds --renderer storm can use (usdbtf.usd.preview.hydra.STORM_ENVIRONMENTS; no heavy import here).
 STORM_VERSIONS = ("25.02", "25.08")
 
 
@@ -43,7 +43,7 @@ outputs = render_outputs
 
 def _storm_python(version: str | None):
     from ..errors import BTFError
-    from ..usd.hydra import STORM_ENVIRONMENTS, storm_pythons
+    from ..usd.preview.hydra import STORM_ENVIRONMENTS, storm_pythons
 
     found = storm_pythons()
     version = version or (max(found) if found else None)
@@ -59,8 +59,8 @@ def _storm(args, camera, lights, view, light):
     import tempfile
 
     from ..errors import BTFError, UsageError
-    from ..usd import hydra
-    from ..usd.scene import write_scene
+    from ..usd.preview import hydra
+    from ..usd.scenes.scene import write_scene
 
     version, python = _storm_python(args.usd)
     with tempfile.TemporaryDirectory(prefix="usdbtf-storm-") as tmp:
@@ -88,7 +88,7 @@ def run(args) -> int:
     from ..render import RenderOptions, Renderer, RenderResult, write_render
     from ..render.output import srgb_encoded
     from ..usd.read import load_btf
-    from ..usd.storm import layout_from_asset
+    from ..usd.asset.storm import layout_from_asset
     from .render import _angles, check_frame_args, scene_mesh, scene_view
 
     W, H = args.size

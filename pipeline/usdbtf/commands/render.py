@@ -62,7 +62,7 @@ def render_outputs(args):
 
     frames = getattr(args, "frames", None)
     if frames:
-        from ..usd.shots import frame_path, parse_frames
+        from ..usd.scenes.shots import frame_path, parse_frames
 
         exrs = [frame_path(args.output, f) for f in parse_frames(frames)]
         if args.png is not None:
@@ -125,7 +125,7 @@ def scene_parts(asset: Path, mesh: Path | None):
     if mesh is not None or asset.suffix.lower() not in USD_SUFFIXES:
         return None
     from ..usd.read import open_stage
-    from ..usd.scene import bound_btf_meshes
+    from ..usd.scenes.scene import bound_btf_meshes
 
     parts = bound_btf_meshes(open_stage(asset))
     return parts if len({id(cbtf) for cbtf, _ in parts}) > 1 else None
@@ -157,7 +157,7 @@ def scene_view(args):
     if args.camera and args.camera.startswith("/"):
         if args.asset.suffix.lower() not in USD_SUFFIXES:
             raise UsageError(f"--camera {args.camera}: a camera prim needs a USD scene as the input")
-        from ..usd.scene import read_scene
+        from ..usd.scenes.scene import read_scene
 
         camera, scene_lights = read_scene(args.asset, args.camera, W)
         lights += scene_lights
@@ -191,7 +191,7 @@ def _render_scene(args, opts, t0: float) -> int:
     from ..color import WORKING_SPACE
     from ..errors import BTFError, UsageError
     from ..render import Renderer, RenderResult, parse_light, render_parts, write_render
-    from ..usd.shots import check_pattern, frame_path, parse_frames, scene_shots
+    from ..usd.scenes.shots import check_pattern, frame_path, parse_frames, scene_shots
     from ..resources import require_memory
     from ..usdstage import USD_SUFFIXES
 

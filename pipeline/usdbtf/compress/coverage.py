@@ -106,7 +106,7 @@ def coverage_record(btf: BTF, views: np.ndarray, lights: np.ndarray, factor: int
     and light directions and its samples), ``input_view_directions``,
     ``input_light_directions`` (those directions, degrees [theta, phi]: what a full asset
     would interpolate over, so a reader can tell a direction the partial one renders exactly
-    from one it does not, :mod:`usdbtf.usd.reach`), ``input_size`` [W, H] (texels), ``views``
+    from one it does not, :mod:`usdbtf.usd.scenes.reach`), ``input_size`` [W, H] (texels), ``views``
     and ``lights`` (the kept directions, in the input's order), ``resolution_factor`` (f: the
     stored textures are ceil(W / f) x ceil(H / f))."""
     all_views, all_lights = unique_directions(btf.sampling.view)[0], unique_directions(btf.sampling.light)[0]

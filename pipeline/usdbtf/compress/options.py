@@ -74,7 +74,7 @@ class CompressOptions:
                                           # folder's basis + coefficient textures; before issue 39)
     asset_overhead: object = None         # budget_for "asset": callable(CompressedBTF) -> dict, what packaging
                                           # adds beside the coefficient pages and basis codes (the CLI passes
-                                          # usd.package.asset_overhead; without it ratecontrol estimates)
+                                          # usd.asset.package.asset_overhead; without it ratecontrol estimates)
     extra: dict = field(default_factory=dict)
 
     def validate(self):

@@ -3,7 +3,7 @@
 A pack ``p = 3 g + c`` is an (H, W, 4) tile holding colour channel ``c`` of coefficient
 layers ``4g .. 4g+3`` as their stored integer codes (uint8/uint16) or halves; the GPU
 pages of the packaged asset (``usdbtf.gpu.tables``, which lays these packs out as tiles of
-atlas pages, and ``usdbtf.usd.storm.add_gpu_textures``, which encodes the pages) are these
+atlas pages, and ``usdbtf.usd.asset.storm.add_gpu_textures``, which encodes the pages) are these
 packs and nothing else.  This module sits in ``compress`` so that rate control can measure
 the bytes it ships without importing ``gpu`` (layers: docs/architecture.md).
 
@@ -38,7 +38,7 @@ def pack_count(k: int) -> int:
 
 def default_lods(k: int) -> list[int]:
     """Levels of detail for ``k`` vectors: k, then halvings down to no fewer than 4 (what
-    ``package`` writes unless told otherwise; ``usd.lod`` names them)."""
+    ``package`` writes unless told otherwise; ``usd.asset.lod`` names them)."""
     levels, n = [], k // 2
     while n >= 4 and len(levels) < 3:
         levels.append(n)
@@ -95,7 +95,7 @@ def coefficient_packs(cbtf, k: int, breaks: list[int]) -> tuple[list, np.ndarray
 
 
 def _encode_pack(pixels: np.ndarray) -> bytes:
-    """One pack (H, W, 4) encoded as the asset encodes a page of it (usd.storm.add_gpu_textures)."""
+    """One pack (H, W, 4) encoded as the asset encodes a page of it (usd.asset.storm.add_gpu_textures)."""
     from ..imageio import encode_image
 
     if pixels.dtype != np.uint8:

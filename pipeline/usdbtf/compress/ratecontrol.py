@@ -202,7 +202,7 @@ def rate_control(f: Factorisation, options: CompressOptions, held: HeldOut,
     asset = options.budget_for == "asset" and options.budgeted
     if asset and options.asset_overhead is None:
         raise BTFError("a budget of the packaged asset needs what packaging adds (options.asset_overhead: "
-                       "usd.package.asset_overhead, as `usdbtf compress` passes); or budget the folder")
+                       "usd.asset.package.asset_overhead, as `usdbtf compress` passes); or budget the folder")
     if options.quantiser != "uniform":
         return _by_k_only(f, options, held)
     if f.step is not None:

@@ -13,7 +13,7 @@ without a GPU); the frame is drawn the way ``usdrecord`` draws it,
 ``UsdAppUtils.FrameRecorder`` with ``HdStormRendererPlugin``, no colour correction (the
 file holds linear values); several frames share one process and context.  USD's own
 warnings and shader compile errors go to stderr, which the caller reads
-(:mod:`usdbtf.usd.hydra`).  A surfaceless context reports GL
+(:mod:`usdbtf.usd.preview.hydra`).  A surfaceless context reports GL
 errors when Storm presents the frame; the frame is still written.
 
 Exit status: 0 written, 3 no imaging-capable pxr, 4 no EGL context, 5 nothing written.

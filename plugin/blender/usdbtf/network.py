@@ -65,11 +65,11 @@ FRAME_ATTRIBUTES = ("tangents", "bitangents")
 SURFACE_BTF = "BTF"
 SURFACE_PRINCIPLED = "PRINCIPLED"
 PRINCIPLED_NODE = "usdbtf Principled (fitted OpenPBR)"
-#: OpenPBR map -> the image node of the asset's network (usdbtf.usd.openpbr: "OpenPbr<Map>Image").
+#: OpenPBR map -> the image node of the asset's network (usdbtf.usd.asset.openpbr: "OpenPbr<Map>Image").
 OPENPBR_MAPS = ("base", "specular", "fuzz", "params", "lobes", "tangent", "normal")
 #: Colour maps (sRGB files); the rest are data.
 _OPENPBR_COLOURS = ("base", "specular", "fuzz")
-#: lobes.b x this = specular_weight (usdbtf.usd.openpbr.SPECULAR_WEIGHT_SCALE).
+#: lobes.b x this = specular_weight (usdbtf.usd.asset.openpbr.SPECULAR_WEIGHT_SCALE).
 SPECULAR_WEIGHT_SCALE = 25.0
 
 

@@ -31,7 +31,7 @@ import numpy as np
 
 #: F0 of the fit's IOR 1.5, which specular_weight scales.
 F0_IOR_15 = 0.04
-#: lobes.b x this = specular_weight (usdbtf.usd.openpbr.SPECULAR_WEIGHT_SCALE).
+#: lobes.b x this = specular_weight (usdbtf.usd.asset.openpbr.SPECULAR_WEIGHT_SCALE).
 SPECULAR_WEIGHT_SCALE = 25.0
 #: MaterialX's rational fit of GGX's directional albedo (mx_ggx_dir_albedo_analytic).
 _GGX = [[0.1003, 0.9345, 1.0, 1.0], [-0.6303, -2.323, -1.765, 0.2281], [9.748, 2.229, 8.263, 15.94],

@@ -1,7 +1,7 @@
 """A USD stage's camera and lights as the CPU renderer's, and the other way round.
 
 So the CPU reference (``usdbtf render SCENE.usda --camera PRIM``) and Storm
-(``usdbtf preview --renderer storm``, :mod:`usdbtf.usd.hydra`) render the same stage.  The
+(``usdbtf preview --renderer storm``, :mod:`usdbtf.usd.preview.hydra`) render the same stage.  The
 light convention is the one Storm applies (measured in Storm 25.02 and 25.08 on a
 Lambertian ``UsdPreviewSurface`` and on the BTF shader, ``tests/test_storm.py``), expressed
 as the CPU renderer's irradiance (:mod:`usdbtf.render.scene`; what a BTF returns under it is
@@ -31,9 +31,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Camera
-from ..errors import BTFError
-from ..render.scene import Light
+from ...camera import Camera
+from ...errors import BTFError
+from ...render.scene import Light
 
 log = logging.getLogger(__name__)
 
@@ -133,7 +133,7 @@ def read_scene(path, camera_path: str, width: int, time=None) -> tuple[Camera, l
     (module docstring; possibly none)."""
     from pxr import UsdGeom
 
-    from ..usdstage import open_usd
+    from ...usdstage import open_usd
 
     stage = open_usd(path)
     meters = float(UsdGeom.GetStageMetersPerUnit(stage))
@@ -153,8 +153,8 @@ def camera_prim(stage, camera_path: str, where):
 
 def camera_prims(stage) -> list:
     """Every UsdGeom.Camera prim of the composed ``stage`` (default predicate, traversal order):
-    the cameras a scene plan (:mod:`usdbtf.usd.plan`) and the coverage check
-    (:mod:`usdbtf.usd.reach`) look through."""
+    the cameras a scene plan (:mod:`usdbtf.usd.scenes.plan`) and the coverage check
+    (:mod:`usdbtf.usd.scenes.reach`) look through."""
     from pxr import UsdGeom
 
     return [prim for prim in stage.Traverse() if prim.IsA(UsdGeom.Camera)]
@@ -251,7 +251,7 @@ def btf_mesh_prims(stage, *, time=None, rendered_only: bool = True, unbound: str
                    warned: set | None = None) -> list[tuple]:
     """[(Mesh prim, BTF material path)]: the one walk over a stage's meshes and the BTF material
     each is drawn with (``render ASSET`` through :func:`bound_btf_meshes`, ``render --camera``
-    through :func:`usdbtf.usd.shots.scene_shots`), in traversal order, instance proxies included.
+    through :func:`usdbtf.usd.scenes.shots.scene_shots`), in traversal order, instance proxies included.
 
     A mesh's material is the one bound to it (all purposes: all, full, preview; a BtfMaterialAPI
     one first).  A mesh bound to another material (or to one whose asset a scene-shaped build left
@@ -268,9 +268,9 @@ def btf_mesh_prims(stage, *, time=None, rendered_only: bool = True, unbound: str
     """
     from pxr import Usd, UsdGeom, UsdShade
 
-    from .density import mesh_prims
-    from .material import btf_materials
-    from .plugin import API_SCHEMA
+    from ..density import mesh_prims
+    from ..material import btf_materials
+    from ..plugin import API_SCHEMA
 
     if unbound not in ("skip", "only"):
         raise ValueError(f"unbound must be 'skip' or 'only', got {unbound!r}")
@@ -316,8 +316,8 @@ def bound_btf_meshes(stage, *, k: int | None = None) -> list[tuple]:
     (:func:`btf_mesh_prims`, every purpose and visibility), each mesh in world space (metres):
     what ``usdbtf render ASSET`` draws (:func:`usdbtf.render.render_scene`).  Meshes of one
     material share one CompressedBTF."""
-    from ..mesh import load_prim
-    from .material import read_btf
+    from ...mesh import load_prim
+    from ..material import read_btf
 
     materials, parts = {}, []
     # Every Mesh prim, as render ASSET always drew (render --camera keeps what a final render shows).

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .plugin import SHADER_ID, environment_hint
+from ..plugin import SHADER_ID, environment_hint
 
 _SEVERITY_NAMES = ("Error", "Warn", "Info")
 
@@ -25,7 +25,7 @@ def stage_issues(stage, *, severities=("Error",), name: str = "") -> list[str]:
     registered validator reports for an open stage (as composed now: its variant selections)."""
     from pxr import UsdValidation
 
-    from ..usdstage import usd_warnings_silenced
+    from ...usdstage import usd_warnings_silenced
 
     with usd_warnings_silenced():   # what USD would print, the validators report below
         validators = UsdValidation.ValidationRegistry().GetOrLoadAllValidators()
@@ -57,14 +57,14 @@ def _sdr_knows_materialx() -> bool:
 def validation_issues(path, *, severities=("Error",), lod: str | None = None) -> list[str]:
     """:func:`stage_issues` for the stage rooted at ``path`` (payloads loaded; ``lod``
     selects that variant of every ``lod`` variant set)."""
-    from .read import open_stage
+    from ..read import open_stage
 
     return stage_issues(open_stage(path, lod=lod), severities=severities, name=Path(str(path)).name)
 
 
 def lod_selections(stage) -> list[str]:
     """Every variant name of every ``lod`` variant set on ``stage`` (first-seen order)."""
-    from .material import LOD_VARIANT_SET
+    from ..material import LOD_VARIANT_SET
 
     names: list[str] = []
     for prim in stage.Traverse():
@@ -76,7 +76,7 @@ def lod_selections(stage) -> list[str]:
 
 def validation_by_lod(path, *, severities=("Error",)) -> dict[str, list[str]]:
     """{selection: issues} for the stage as authored ("" key) and for every ``lod`` selection."""
-    from .read import open_stage
+    from ..read import open_stage
 
     stage = open_stage(path)
     name = Path(str(path)).name

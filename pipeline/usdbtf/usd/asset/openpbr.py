@@ -3,7 +3,7 @@
 Renderers with MaterialX (Karma, Arnold, RenderMan, V-Ray, Storm's MaterialX path) render
 the Material's ``outputs:mtlx:surface``: an ``ND_open_pbr_surface_surfaceshader`` whose
 inputs come from textures fitted to the BTF by :func:`usdbtf.openpbr.fit_openpbr`.  The
-UsdPreviewSurface on ``outputs:surface`` (:mod:`usdbtf.usd.fallback`) stays for renderers
+UsdPreviewSurface on ``outputs:surface`` (:mod:`usdbtf.usd.asset.fallback`) stays for renderers
 and viewers without MaterialX::
 
     <stem>_textures/fallback/openpbr_base.png      base_color       8-bit sRGB (Rec.709), colour
@@ -31,8 +31,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..color import processor
-from ..openpbr import OpenPbrMaps
+from ...color import processor
+from ...openpbr import OpenPbrMaps
 from .fallback import COLOUR_ENCODING, FALLBACK_DIR, add_map_pngs
 
 __all__ = ["FIT_ERROR_KEY", "fit_errors", "MAP_FILES", "SPECULAR_WEIGHT_SCALE", "MTLX_COLOUR_SPACE", "encode_maps", "decode_maps", "add_maps",
@@ -59,7 +59,7 @@ def _unorm(values: np.ndarray, top: int) -> np.ndarray:
 def encode_maps(maps: OpenPbrMaps, ocio_config: str | None = None) -> dict[str, np.ndarray]:
     """{map: (H, W, 3) pixels as written} (uint8, or uint16 for ``params`` and ``lobes``).
     Raises BTFError rather than write a non-finite fit."""
-    from ..errors import BTFError
+    from ...errors import BTFError
 
     for name in (*OpenPbrMaps.COLOURS, *OpenPbrMaps.SCALARS, "normal"):
         if not np.isfinite(getattr(maps, name)).all():
@@ -99,7 +99,7 @@ def decode_maps(pixels: dict[str, np.ndarray], working_space: str, *, ocio_confi
 def add_maps(maps: OpenPbrMaps, textures, ocio_config: str | None = None, texels=None) -> dict:
     """Encode the maps as PNG files (in memory) into ``textures`` (a textures.TextureSet,
     under FALLBACK_DIR); {map: its name in ``textures``}.  ``texels``: as
-    :func:`usdbtf.usd.fallback.add_maps` (maps of a quilt's source texels, gathered per pixel)."""
+    :func:`usdbtf.usd.asset.fallback.add_maps` (maps of a quilt's source texels, gathered per pixel)."""
     return add_map_pngs(encode_maps(maps, ocio_config), MAP_FILES, textures, texels, "OpenPBR maps")
 
 
@@ -238,9 +238,9 @@ def fit_errors(cbtf, preview, openpbr: OpenPbrMaps, *, samples: int = 256, texel
     decoded as the files hold them), against ``cbtf``'s reconstruction at ``samples`` measured
     samples the fits did not use (:func:`usdbtf.svbrdf.validation_samples`), in the working
     space: 100 sum|BTF - fallback| / sum(BTF), the paper's metric."""
-    from .. import openpbr as model
-    from .. import svbrdf
-    from ..svbrdf import _reconstruct
+    from ... import openpbr as model
+    from ... import svbrdf
+    from ...svbrdf import _reconstruct
     from .fallback import decode_maps as decode_preview
     from .fallback import encode_maps as encode_preview
 

@@ -7,11 +7,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..compress.coverage import coverage_summary, coverage_text
-from .material import LOD_VARIANT_SET, NS, btf_materials, read_coverage, read_directions
-from ..usdstage import resolve_usd
-from .density import binding_densities
-from .read import find_material, open_stage
+from ...compress.coverage import coverage_summary, coverage_text
+from ..material import LOD_VARIANT_SET, NS, btf_materials, read_coverage, read_directions
+from ...usdstage import resolve_usd
+from ..density import binding_densities
+from ..read import find_material, open_stage
 
 
 def asset_bytes(asset) -> int:
@@ -154,7 +154,7 @@ _FALLBACK_NAMES = {"UsdPreviewSurface": "UsdPreviewSurface", "ND_open_pbr_surfac
 def fallback_summary(prim) -> list[dict]:
     """The material's fallback surfaces: [{"output", "shader", "fit_error_percent"}] for each
     surface output whose source is a UsdPreviewSurface or an OpenPBR Surface (the error
-    recorded when packaging, :data:`usdbtf.usd.openpbr.FIT_ERROR_KEY`, or None)."""
+    recorded when packaging, :data:`usdbtf.usd.asset.openpbr.FIT_ERROR_KEY`, or None)."""
     from pxr import UsdShade
 
     from .openpbr import FIT_ERROR_KEY

@@ -2,7 +2,7 @@
 
 usd-core has no Blender.  ``scripts/bootstrap.sh`` installs the ``bpy`` 5.0.1 wheel (Blender
 as a Python module, Cycles with Open Shading Language on the CPU) into ``.venv-storm-5.0``,
-the environment the Storm checks use (:mod:`usdbtf.usd.hydra`).  :func:`render_frames` runs
+the environment the Storm checks use (:mod:`usdbtf.usd.preview.hydra`).  :func:`render_frames` runs
 ``usdbtf/gpu/cycles_frame.py`` with that Python in a subprocess whose environment is only
 ``PATH``: the script loads the add-on from ``plugin/blender/usdbtf``, which imports the asset
 with Blender's USD importer and gives it the OSL network, and renders each frame to EXR.
@@ -24,15 +24,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import BTFError
-from ..lifetime import dying_with_parent
-from ..plugin_folder import plugin_dir
+from ...errors import BTFError
+from ...lifetime import dying_with_parent
+from ...plugin_folder import plugin_dir
 
 __all__ = ["BLENDER_VERSION", "CyclesFrame", "CyclesFrames", "cycles_python", "render_frames", "srgb8", "common_gain"]
 
 #: The bpy wheel whose Cycles the add-on is checked in (hydra.STORM_ENVIRONMENTS' 25.08 entry).
 BLENDER_VERSION = "5.0.1"
-FRAME_SCRIPT = Path(__file__).resolve().parent.parent / "gpu" / "cycles_frame.py"
+FRAME_SCRIPT = Path(__file__).resolve().parents[2] / "gpu" / "cycles_frame.py"
 _CANNOT = {3: "no bpy"}
 
 
@@ -85,7 +85,7 @@ def cycles_python(root: Path | None = None) -> Path | None:
 def render_frames(python: Path, frames: list[CyclesFrame], *, timeout: float = 300.0) -> CyclesFrames:
     """Render ``frames`` in one Blender process of ``python``.  BTFError when it cannot run
     or writes no frame (its last stderr lines say why)."""
-    from .storm import read_rgba
+    from ..asset.storm import read_rgba
 
     with tempfile.TemporaryDirectory(prefix="usdbtf-cycles-") as work:
         jobs, report = Path(work) / "jobs.json", Path(work) / "report.json"
@@ -109,7 +109,7 @@ def render_frames(python: Path, frames: list[CyclesFrame], *, timeout: float = 3
 
 def srgb8(linear: np.ndarray) -> np.ndarray:
     """Linear values -> 8-bit sRGB steps (float, 0..255), clipped to [0, 1] first."""
-    from ..render.output import srgb_encoded
+    from ...render.output import srgb_encoded
 
     return 255.0 * srgb_encoded(linear)
 

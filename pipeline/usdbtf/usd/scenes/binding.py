@@ -37,7 +37,7 @@ Not covered: meshes of an instance nested inside another instance's prototype (t
 instance's class cannot reach into the inner one), non-``Mesh`` gprims, and a binding
 overruled by an ancestor's ``strongerThanDescendants`` binding.
 
-Scene data never becomes code: paths and argument lists only (see :mod:`usdbtf.usd.build`).
+Scene data never becomes code: paths and argument lists only (see :mod:`usdbtf.usd.scenes.build`).
 """
 from __future__ import annotations
 
@@ -144,8 +144,8 @@ def _extract(prim, placement: np.ndarray) -> str:
 def _mapping(prim, material_prim) -> str:
     """``btf:build:mapping`` of the mesh prim, else of its material, else "atlas"; BTFError
     naming the prim for anything but :data:`MAPPINGS`."""
-    from ..errors import BTFError
-    from .material import NS
+    from ...errors import BTFError
+    from ..material import NS
 
     for owner in (prim, material_prim):
         attr = owner.GetAttribute(NS + "build:mapping")
@@ -300,10 +300,10 @@ def _override_tiled(stage, scene_stage, path: str, chain: Binding, material: str
     scale measured from the mesh's world and UV areas), and bind it to ``material``."""
     from pxr import Usd, UsdGeom, Vt
 
-    from ..errors import BTFError
-    from ..mesh import load_prim
-    from .density import uv_area
-    from .material import NS
+    from ...errors import BTFError
+    from ...mesh import load_prim
+    from ..density import uv_area
+    from ..material import NS
 
     prim = scene_stage.GetPrimAtPath(path)
     mesh = load_prim(prim)
@@ -333,7 +333,7 @@ def built_scene_text(scene: Path, scene_stage, chains: list[Binding], where: Pat
 
     from pxr import Sdf, Usd, UsdGeom, UsdShade
 
-    from ..outputs import BUILT_STAGE, usd_marker
+    from ...outputs import BUILT_STAGE, usd_marker
 
     layer = Sdf.Layer.CreateAnonymous(".usda")
     root = scene_stage.GetRootLayer().pseudoRoot
@@ -400,7 +400,7 @@ def binding_targets(stage, materials) -> dict:
     purposes (all, preview, full) under which each Mesh prim resolves to one of them."""
     from pxr import UsdShade
 
-    from .density import mesh_prims
+    from ..density import mesh_prims
 
     wanted = set(materials)
     out: dict[str, dict[str, list[str]]] = {}

@@ -1,7 +1,7 @@
 """The real-time BTF preview inside a packaged Material: Storm shader, GPU textures, MaterialX.
 
-:func:`add_gpu_textures` (``usd.package.package``: the files, in memory) and
-:func:`author_gpu_preview` (``usd.package.write_package``: the network in the payload) add,
+:func:`add_gpu_textures` (``usd.asset.package.package``: the files, in memory) and
+:func:`author_gpu_preview` (``usd.asset.package.write_package``: the network in the payload) add,
 next to the UsdPreviewSurface fallback::
 
     mtl/BtfMaterial                  outputs:glslfx:surface -> StormSurface.outputs:surface
@@ -32,7 +32,7 @@ an unresolvable one fails MissingReferenceValidator, and usd-core has no Sdr par
 outright.  UsdPreviewSurface solves the same problem the same way: the asset names the
 shader, the plugin ships its definition (sourceAsset + glslfx).
 
-Levels of detail (:mod:`usdbtf.usd.lod`): the Material's ``lod`` variant ``k<n>``, in the
+Levels of detail (:mod:`usdbtf.usd.asset.lod`): the Material's ``lod`` variant ``k<n>``, in the
 root layer, sets ``basisCount`` and blocks the connections of the pages beyond those
 holding its packs (pages end where levels end), so Storm loads only those textures; the
 payload holds the full set.
@@ -42,12 +42,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..compress.format import CompressedBTF
-from ..errors import BTFError
-from ..gpu import shaders
-from ..gpu.tables import MAX_PAGES, gpu_layout
-from ..imageio import read_rgba
-from ..photometry import white_level_of
+from ...compress.format import CompressedBTF
+from ...errors import BTFError
+from ...gpu import shaders
+from ...gpu.tables import MAX_PAGES, gpu_layout
+from ...imageio import read_rgba
+from ...photometry import white_level_of
 
 __all__ = ["plugin_dir_resources", "GPU_DIR", "STORM_SURFACE", "GpuTextures", "add_gpu_textures",
            "author_gpu_preview", "author_materialx_preview", "materialx_document", "storm_shader", "layout_from_asset", "read_rgba"]
@@ -61,7 +61,7 @@ _RENDER_CONTEXT = "glslfx"
 
 def plugin_dir_resources() -> Path:
     """``plugin/usdBtf/resources``: sdr/, shaders/, materialx/."""
-    from .plugin import resources_dir
+    from ..plugin import resources_dir
 
     return resources_dir()
 
@@ -80,7 +80,7 @@ class GpuTextures:
 
 def add_gpu_textures(cbtf: CompressedBTF, textures, lods=(), *, texels=None) -> GpuTextures | None:
     """Encode tables.exr, the coefficient pages and the MaterialX document (in memory) into
-    ``textures`` (a :class:`~usdbtf.usd.textures.TextureSet`, under ``gpu/``), pages ending
+    ``textures`` (a :class:`~usdbtf.usd.asset.textures.TextureSet`, under ``gpu/``), pages ending
     where the levels of detail ``lods`` (basis counts) end; None (nothing added) for a BTF
     whose sampling is not every light at every view, which the preview cannot interpolate.
     ``texels`` (a :class:`usdbtf.quilt.texels.QuiltTexels` of ``cbtf``): the packs are made
@@ -88,9 +88,9 @@ def add_gpu_textures(cbtf: CompressedBTF, textures, lods=(), *, texels=None) -> 
     the whole quilt-sized set of packs in memory)."""
     import numpy as np
 
-    from ..compress.format import cross_layout
-    from ..imageio import encode_image
-    from ..render.core import default_wrap
+    from ...compress.format import cross_layout
+    from ...imageio import encode_image
+    from ...render.core import default_wrap
     from .textures import encode_in_workers
 
     if cross_layout(cbtf.sampling) is None:
@@ -164,11 +164,11 @@ def author_gpu_preview(stage, material, tables, pages: list, k: int, wrap: str,
                        first_packs: list, white_level: float = 1.0) -> tuple[str, list, int]:
     """Author the Storm shader network in ``material`` (a UsdShade.Material on ``stage``, whose
     layer sits next to the texture folder) on the GPU textures ``tables`` and ``pages``
-    (:class:`~usdbtf.usd.textures.Texture`\\ s of :func:`add_gpu_textures`' files; the tables
+    (:class:`~usdbtf.usd.asset.textures.Texture`\\ s of :func:`add_gpu_textures`' files; the tables
     hold ``k`` basis vectors; ``wrap`` for the page nodes, which the shader reads texel by
     texel; ``first_packs``: the first pack of each page; ``white_level``: the BTF's W,
     :mod:`usdbtf.photometry`).  Returns (the shader's name under the
-    material, ``first_packs``, k) for the ``lod`` variants (:mod:`usdbtf.usd.lod`)."""
+    material, ``first_packs``, k) for the ``lod`` variants (:mod:`usdbtf.usd.asset.lod`)."""
     from pxr import Sdf, UsdShade
 
     from .fallback import st_reader
@@ -177,7 +177,7 @@ def author_gpu_preview(stage, material, tables, pages: list, k: int, wrap: str,
     reader = st_reader(stage, mpath)
 
     # The full set of connections, as local opinions: the lod variants live in the root
-    # layer, whose opinions are stronger than the payload's (usdbtf.usd.lod).
+    # layer, whose opinions are stronger than the payload's (usdbtf.usd.asset.lod).
     surface = UsdShade.Shader.Define(stage, mpath.AppendChild(STORM_SURFACE))
     surface.CreateIdAttr(shaders.SHADER_ID)
     data_inputs = [surface.CreateInput("basisCount", Sdf.ValueTypeNames.Int),
@@ -250,9 +250,9 @@ def layout_from_asset(asset, *, lod: str | None = None):
     import numpy as np
     from pxr import UsdShade
 
-    from ..gpu.tables import GpuLayout
-    from .material import btf_materials
-    from .read import open_stage
+    from ...gpu.tables import GpuLayout
+    from ..material import btf_materials
+    from ..read import open_stage
 
     stage = open_stage(asset, lod=lod)
     materials = btf_materials(stage)

@@ -9,7 +9,7 @@ material, and says for each material (a :class:`Need`):
   default or render (``proxy`` and ``guide`` prims are not in a final render), visible at
   that frame, and with some triangle inside some camera's frustum (between its clipping
   planes) and facing it.  (Inactive prims are not composed, so their bindings never reach
-  the plan: ``usd.build.plan`` never sees those materials.)
+  the plan: ``usd.scenes.build.plan`` never sees those materials.)
 * **screen density**: the most screen pixels one texel covers, over cameras x frames x
   visible surface points (``focal_px / depth / texels_per_metre``, head-on: foreshortening
   only shrinks it, so this is an upper bound).  The texel size is the larger of the
@@ -60,7 +60,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import BTFError
+from ...errors import BTFError
 
 log = logging.getLogger(__name__)
 
@@ -97,7 +97,7 @@ class MaterialFacts:
     def of(cls, source, compressed: bool = False) -> "MaterialFacts":
         """The facts of an opened source: a :class:`usdbtf.model.BTF` or (``compressed``) a
         :class:`usdbtf.compress.format.CompressedBTF`."""
-        from ..compress.format import cross_layout
+        from ...compress.format import cross_layout
 
         sampling = source.sampling
         layout = cross_layout(sampling)
@@ -284,8 +284,8 @@ def _surface_samples(surface, shot: _Shot):
     """(triangle (n,), barycentrics (n, 3)) of the samples of one mesh seen by one camera:
     its covered pixel centres (own z-buffer) and the corners of its front-facing triangles
     inside the frustum (module docstring)."""
-    from ..raster import rasterize
-    from ..render.core import front_facing, perspective_weights
+    from ...raster import rasterize
+    from ...render.core import front_facing, perspective_weights
 
     cam = shot.camera
     keep = front_facing(surface, cam.eye) & _in_frustum(surface.points, shot)
@@ -324,7 +324,7 @@ class _Accumulator:
     """One material's needs, gathered sample batch by sample batch."""
 
     def __init__(self, need: Need):
-        from ..render.hemisphere import Triangulation
+        from ...render.hemisphere import Triangulation
 
         self.need = need
         # A material built whole needs no directions (its sampling may not even be V x L).
@@ -336,8 +336,8 @@ class _Accumulator:
         self.frames: set = set()
 
     def add(self, surface, tri, b, shot: _Shot, lights, texels_per_metre: float | None, time) -> None:
-        from ..camera import unit
-        from ..render.core import point_frames
+        from ...camera import unit
+        from ...render.core import point_frames
 
         p = np.einsum("nk,nkd->nd", b, surface.points[tri])
         normal, tangent, bitangent = point_frames(b, surface, tri)
@@ -398,10 +398,10 @@ def analyse(stage, materials: dict, facts: dict, *, target_error: float | None =
     (None: each material's ``btf:build:targetError``, else none).  Pure: reads the stage only."""
     from pxr import Usd, UsdGeom
 
-    from ..mesh import load_prim
-    from ..progress import track
-    from .density import mesh_density
-    from .material import NS
+    from ...mesh import load_prim
+    from ...progress import track
+    from ..density import mesh_density
+    from ..material import NS
     from .scene import frame_times, render_resolution, scene_lights
 
     meters = float(UsdGeom.GetStageMetersPerUnit(stage))

@@ -11,7 +11,7 @@ ARKitRootLayerChecker):
   (``UsdUtils.CreateNewUsdzPackage``; file extension, byte alignment, compression checkers);
 * ``/<root>`` (Xform, kind component, defaultPrim; metersPerUnit, upAxis; ``extentsHint``, the
   mesh's bounds, which AR viewers and asset browsers frame by) with the mesh and
-  ``mtl/BtfMaterial``: the fitted fallback (usd.fallback) in the metallic workflow at
+  ``mtl/BtfMaterial``: the fitted fallback (usd.asset.fallback) in the metallic workflow at
   metallic 0 (AR renderers ignore UsdPreviewSurface's specular workflow): diffuse colour,
   roughness and the normal map (8-bit, raw, scale 2 bias -1: the normal-map checker);
   only UsdPreviewSurface, UsdUVTexture and UsdPrimvarReader_float2 shaders by ``info:id``
@@ -32,7 +32,7 @@ AR_MAPS = ("diffuse", "roughness", "normal")
 def ar_textures(maps, ocio_config: str | None = None, texels=None):
     """The AR package's PNG textures of the fitted ``maps`` (svbrdf.SvbrdfMaps), encoded in
     memory: (textures.TextureSet, {map: name in it}).  ``texels``: ``maps`` are a quilt's
-    source texels' (:func:`usdbtf.usd.fallback.add_maps`)."""
+    source texels' (:func:`usdbtf.usd.asset.fallback.add_maps`)."""
     from . import fallback
     from .textures import TextureSet
 
@@ -47,7 +47,7 @@ def write_ar_usdz(staging: Path, stem: str, root: str, mesh, textures, names: di
     import numpy as np
     from pxr import Kind, Sdf, Usd, UsdGeom, UsdShade, Vt
 
-    from ..mesh.author import author_mesh
+    from ...mesh.author import author_mesh
     from . import fallback
     from .layers import MATERIAL, make_usdz, stage_metadata, usd_write, valid_name
 

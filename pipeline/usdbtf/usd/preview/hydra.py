@@ -14,7 +14,7 @@ does not compile, a node Sdr does not know.
 orthographic camera looking down the swatch's normal (one pixel per texel) and one
 ``UsdLux.DistantLight`` from a given direction, by default of irradiance ``pi * W`` -- the
 capture light, which reproduces the measured values (:mod:`usdbtf.photometry`,
-:func:`usdbtf.usd.scene.distant_intensity`).
+:func:`usdbtf.usd.scenes.scene.distant_intensity`).
 """
 from __future__ import annotations
 
@@ -27,16 +27,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import BTFError
-from ..lifetime import dying_with_parent
-from ..plugin_folder import plugin_dir
+from ...errors import BTFError
+from ...lifetime import dying_with_parent
+from ...plugin_folder import plugin_dir
 
 __all__ = ["STORM_ENVIRONMENTS", "StormFrames", "storm_pythons", "storm_environment", "render_frames",
            "shader_problems", "swatch_scene", "LIGHT_KINDS"]
 
 #: USD version -> (the bpy wheel that carries it, its virtual environment under the project root).
 STORM_ENVIRONMENTS = {"25.02": ("bpy==4.5.15", ".venv-storm-4.5"), "25.08": ("bpy==5.0.1", ".venv-storm-5.0")}
-FRAME_SCRIPT = Path(__file__).resolve().parent.parent / "gpu" / "storm_frame.py"
+FRAME_SCRIPT = Path(__file__).resolve().parents[2] / "gpu" / "storm_frame.py"
 #: Exit statuses of storm_frame.py that mean "this machine cannot", not "the asset is broken".
 _CANNOT = {3: "no imaging-capable pxr", 4: "no EGL OpenGL context"}
 #: stderr lines that mean the Storm preview is broken (compile errors, unknown nodes).
@@ -73,7 +73,7 @@ def shader_problems(stderr: str) -> list[str]:
 
 def storm_environment() -> dict[str, str]:
     """PATH and nothing else but what ``usdbtf env`` prints."""
-    from .plugin import apply_environment
+    from ..plugin import apply_environment
 
     env = {"PATH": os.environ.get("PATH", "/usr/bin:/bin")}
     apply_environment(env)
@@ -87,7 +87,7 @@ def render_frames(python: Path, frames: list[tuple[Path, Path]], camera: str, si
     ``camera``, ``size`` = (width, height) pixels.  BTFError when this machine cannot (no
     imaging build, no EGL) or Storm wrote no frame.  ``env``: the process's environment
     (default :func:`storm_environment`)."""
-    from .storm import read_rgba
+    from ..asset.storm import read_rgba
 
     cmd = [str(python), str(FRAME_SCRIPT)]
     for scene, output in frames:
@@ -135,9 +135,9 @@ def swatch_scene(asset: Path, out: Path, light_deg, *, lod: str | None = None, k
     (camera prim path, (width, height) = the texture's texels)."""
     from pxr import Gf, Usd, UsdGeom, UsdLux
 
-    from ..photometry import capture_irradiance, white_level_of
-    from .read import load_btf
-    from .scene import add_distant, new_scene, orient_towards
+    from ...photometry import capture_irradiance, white_level_of
+    from ..read import load_btf
+    from ..scenes.scene import add_distant, new_scene, orient_towards
 
     cbtf = load_btf(asset, lod=lod)
     stage, ref = new_scene(asset, out, lod)
@@ -172,7 +172,7 @@ def swatch_scene(asset: Path, out: Path, light_deg, *, lod: str | None = None, k
     if fallback:
         from pxr import UsdShade
 
-        from .material import btf_materials
+        from ..material import btf_materials
 
         if fallback not in (True, "openpbr", "preview"):
             raise BTFError(f"fallback {fallback!r}: choose True, 'openpbr' or 'preview'")

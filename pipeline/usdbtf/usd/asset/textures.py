@@ -32,12 +32,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..compress.codecs import codec_map, get_codec
-from ..compress.format import CompressedBTF, basis_file, coefficient_file, encoded_textures
-from ..compress.parallel import cpu_count, iter_processes
-from ..errors import BTFError
-from ..imageio import decode_image, encode_image, native_stderr_captured, oiio_error, write_encoded
-from ..progress import track
+from ...compress.codecs import codec_map, get_codec
+from ...compress.format import CompressedBTF, basis_file, coefficient_file, encoded_textures
+from ...compress.parallel import cpu_count, iter_processes
+from ...errors import BTFError
+from ...imageio import decode_image, encode_image, native_stderr_captured, oiio_error, write_encoded
+from ...progress import track
 from .formats import TEXTURE_FORMATS
 
 __all__ = ["DATA", "PORTABLE", "TEXTURE_FORMATS", "USDZ_FORMATS", "Texture", "TextureSet", "png_as_data",
@@ -123,7 +123,7 @@ def _threads_in_order(fn, items):
 
 def package_textures(cbtf: CompressedBTF, textures: "TextureSet") -> tuple[str, list[str]]:
     """Add the basis and the k coefficient textures of ``cbtf`` to ``textures`` (as BTF codes):
-    the bytes its folder holds (``cbtf.encoded``, e.g. as :func:`usdbtf.usd.package.read_input`
+    the bytes its folder holds (``cbtf.encoded``, e.g. as :func:`usdbtf.usd.asset.package.read_input`
     or ``compress`` made them), portable (:func:`portable_bytes`), else encoded now from the
     stored codes (lossless codecs only: re-encoding decoded JPEG codes would change them).
     Returns the names (in ``textures``) of the basis and of the coefficient textures."""
@@ -272,7 +272,7 @@ def _exr_values(buf, kind: str, src: Path):
         out.set_pixels(oiio.ROI(), np.asarray(pixels, np.float32))
         return out, DATA
     if kind == "srgb":
-        from ..color import processor
+        from ...color import processor
 
         rgb = np.asarray(buf.get_pixels(oiio.FLOAT), np.float32)
         lin = processor("sRGB Encoded Rec.709 (sRGB)", "Linear Rec.709 (sRGB)").apply(rgb[..., :3].copy())

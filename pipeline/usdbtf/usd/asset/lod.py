@@ -23,8 +23,8 @@ from __future__ import annotations
 
 __all__ = ["LOD_VARIANT_SET", "FULL_LOD", "default_lods", "lod_name", "author_lod_variants"]
 
-from ..compress.packs import default_lods  # noqa: F401  (where rate control counts the asset's pages too)
-from .material import LOD_VARIANT_SET
+from ...compress.packs import default_lods  # noqa: F401  (where rate control counts the asset's pages too)
+from ..material import LOD_VARIANT_SET
 
 FULL_LOD = "full"
 
@@ -45,9 +45,9 @@ def author_lod_variants(stage, root_path: str, material_path: str, levels: list[
     """
     from pxr import Sdf
 
-    from ..gpu.shaders import page_name
-    from ..gpu.tables import pack_count
-    from .material import NS
+    from ...gpu.shaders import page_name
+    from ...gpu.tables import pack_count
+    from ..material import NS
 
     names = [FULL_LOD] + [lod_name(n) for n in levels]
     material = stage.OverridePrim(material_path)

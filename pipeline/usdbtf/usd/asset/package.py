@@ -13,18 +13,18 @@ map (:mod:`usdbtf.quilt.texels`): the same files as texel by texel.  Files writt
     out/pebbles.usda             root layer: /pebbles (Xform, kind component, defaultPrim),
                                  metersPerUnit 1, upAxis Y, assetInfo, extentsHint, the
                                  thumbnail (UsdMedia.AssetPreviewsAPI), the ``lod`` variant
-                                 sets (usd.lod), and a payload arc to:
+                                 sets (usd.asset.lod), and a payload arc to:
     out/pebbles_payload.usdc     the heavy part (``--payload-format usdc``, the default, or
                                  usda): geo/ (swatch quad at physical size, or the given mesh)
                                  and mtl/BtfMaterial (BtfMaterialAPI, the fitted
                                  UsdPreviewSurface fallback, the Storm preview), bound
-    out/pebbles_textures/        gpu/ (usd.storm: the tables and coefficient pages, the asset's
+    out/pebbles_textures/        gpu/ (usd.asset.storm: the tables and coefficient pages, the asset's
                                  one copy of the BTF, which btf:basis and btf:coefficients
-                                 name), fallback/ (usd.fallback), thumbnail.png; for a
+                                 name), fallback/ (usd.asset.fallback), thumbnail.png; for a
                                  sampling the preview cannot draw, basis and coeff/c000 ...
                                  instead of gpu/
     out/pebbles.usdz             with --usdz: the same, packaged (variants and payload kept)
-    out/pebbles_ar.usdz          with --usdz-ar: one usdc layer for AR viewers (usd.arkit)
+    out/pebbles_ar.usdz          with --usdz-ar: one usdc layer for AR viewers (usd.asset.arkit)
 
 Why the layers are authored by ``write_package`` and not held as anonymous layers: the names
 in them (the root prim, ``<stem>_textures``, the relative provenance) follow ``out``, and
@@ -38,7 +38,7 @@ Storm, the MaterialX node, the OSL shader and ``load_btf`` alike (usd.material).
 are re-encoded losslessly into formats every USD consumer reads (the pages: 8-bit PNG, 16-bit
 codes and halves as OpenEXR; the files layout: JPEG XL and TIFF become PNG holding the same
 integer codes; PNG, JPEG and EXR are copied), or into
-tiled, mip-mapped files with ``--texture-format`` (usd.textures; those are made from the
+tiled, mip-mapped files with ``--texture-format`` (usd.asset.textures; those are made from the
 in-memory bytes while staging, as OIIO's maketx writes only files); a reconstruction from
 the asset equals one from the compressed folder bit for bit.  Every asset path is relative,
 and so is the provenance (the source's path relative to the asset).  Everything is written
@@ -47,7 +47,7 @@ UsdValidation validator on every ``lod`` selection, and only then moved into pla
 :func:`usdbtf.atomic.atomic_group` (:func:`asset_pieces`: textures, payload, usdz files,
 root layer last): a failure leaves the previous asset byte-identical, and a run killed
 while moving the pieces in is finished by the next one.  Every layer carries
-``customLayerData = {"usdbtf": {"output": "usdbtf-asset"}, ...}`` (usd.layers), so
+``customLayerData = {"usdbtf": {"output": "usdbtf-asset"}, ...}`` (usd.asset.layers), so
 ``--force`` recognises a previous asset (and replaces nothing else).
 """
 from __future__ import annotations
@@ -61,27 +61,27 @@ from pathlib import Path
 
 import numpy as np
 
-from ..atomic import atomic_group
-from ..compress.codecs import get_codec
-from ..compress.format import METADATA, CompressedBTF, EncodedTextures, basis_file, coefficient_file, read_compressed
-from ..errors import BTFError, UsageError
-from ..mesh import Mesh, load_mesh
-from ..mesh.author import author_mesh
-from ..outputs import ASSET, ASSET_TEXTURES
-from ..render.core import default_wrap
-from ..svbrdf import SvbrdfMaps
+from ...atomic import atomic_group
+from ...compress.codecs import get_codec
+from ...compress.format import METADATA, CompressedBTF, EncodedTextures, basis_file, coefficient_file, read_compressed
+from ...errors import BTFError, UsageError
+from ...mesh import Mesh, load_mesh
+from ...mesh.author import author_mesh
+from ...outputs import ASSET, ASSET_TEXTURES
+from ...render.core import default_wrap
+from ...svbrdf import SvbrdfMaps
 from . import fallback, lod, storm, thumbnail
 from . import openpbr as openpbr_fallback
 from .arkit import AR_SUFFIX
 from .finite import non_finite_in_stage, non_finite_values
 from .layers import MATERIAL, make_usdz, stage_metadata, usd_write, valid_name
 from .lod import FULL_LOD, default_lods
-from .material import FILES, GPU_PAGES, LOD_VARIANT_SET, author_btf
+from ..material import FILES, GPU_PAGES, LOD_VARIANT_SET, author_btf
 from .textures import TEXTURE_FORMATS, USDZ_FORMATS, TextureSet, package_textures
 from .validate import validate_layer
 from .formats import PAYLOAD_FORMATS
-from ..numeric import single_blas_thread
-from ..photometry import white_level_of
+from ...numeric import single_blas_thread
+from ...photometry import white_level_of
 
 __all__ = ["PackageOptions", "PackageResult", "package", "write_package", "asset_layers", "read_input",
            "asset_pieces", "check_root_layer", "make_usdz", "default_lods", "LOD_VARIANT_SET", "FULL_LOD",
@@ -98,11 +98,11 @@ class PackageOptions:
 
     mesh : mesh with texture coordinates (OBJ/PLY/STL/GLB/USD); None for a swatch quad.
     usdz / usdz_ar : also write ``<stem>.usdz`` (everything, variants and payload kept) /
-        ``<stem>_ar.usdz`` (one usdc layer for AR viewers, usd.arkit).
+        ``<stem>_ar.usdz`` (one usdc layer for AR viewers, usd.asset.arkit).
     lods : basis counts of the ``lod`` variants besides "full" (default :func:`default_lods`).
     physical_size : (width, height) in metres; default the source's ``physical_size_m``.
     payload_format : "usdc" (default) or "usda".
-    texture_format : "png" (default), "tx" or "exr" (usd.textures).
+    texture_format : "png" (default), "tx" or "exr" (usd.asset.textures).
     asset_name : assetInfo name (default the file stem); asset_version : assetInfo version
         (none unless given); creator : assetInfo and layer metadata (none unless given).
     thumbnail : render and declare a thumbnail (UsdMedia.AssetPreviewsAPI).
@@ -146,15 +146,15 @@ class PackageResult:
     (the swatch quad or the loaded mesh, in metres); physical_size : (w, h) metres; levels :
     the ``lod`` basis counts below k (descending); curve : [(k, percent)] error curve;
     source : the provenance source as recorded (made relative to the asset when written).
-    textures : the ``<stem>_textures`` folder's files (:class:`~usdbtf.usd.textures.TextureSet`):
+    textures : the ``<stem>_textures`` folder's files (:class:`~usdbtf.usd.asset.textures.TextureSet`):
     ``basis``, ``coefficients`` (names of the BTF's textures), ``fallback`` ({map: name}),
-    ``gpu`` (:class:`~usdbtf.usd.storm.GpuTextures`, or None without a Storm preview),
+    ``gpu`` (:class:`~usdbtf.usd.asset.storm.GpuTextures`, or None without a Storm preview),
     ``thumbnail`` (its name, or None).  maps : the fitted fallback (svbrdf.SvbrdfMaps).
     ar : (TextureSet, {map: name}) of the AR package with ``usdz_ar``, else None.
     input_name : what was packaged, for messages (the folder, or "compressed BTF").
     openpbr : the OpenPBR fallback's maps ({map: name}); openpbr_maps : its fit
     (usdbtf.openpbr.OpenPbrMaps, of a quilt's source texels); fit_errors : {fallback: percent}
-    (:func:`usdbtf.usd.openpbr.fit_errors`).
+    (:func:`usdbtf.usd.asset.openpbr.fit_errors`).
     """
 
     compressed: CompressedBTF
@@ -248,10 +248,10 @@ def budget_for_of(cbtf: CompressedBTF) -> str:
 
 def shipped_bytes(root) -> dict:
     """{lod name: bytes of every file that ``lod`` loads} of the written asset ``root``
-    (:func:`usdbtf.usd.inspect.lod_files`: its layers, thumbnail, the BTF's textures and
+    (:func:`usdbtf.usd.asset.inspect.lod_files`: its layers, thumbnail, the BTF's textures and
     what its shader networks read), largest first."""
     from .inspect import lod_files
-    from .read import find_material, open_stage
+    from ..read import find_material, open_stage
 
     stage = open_stage(root)
     return {lv["name"] or FULL_LOD: lv["total"] for lv in lod_files(stage, find_material(stage))}
@@ -276,7 +276,7 @@ def asset_overhead(cbtf: CompressedBTF) -> dict:
     """
     import tempfile
 
-    from ..compress.curve import curve_ks
+    from ...compress.curve import curve_ks
 
     size = physical_size_of(cbtf) or (1.0, 1.0)
     if not cbtf.curve:
@@ -335,8 +335,8 @@ def package(compressed, options: PackageOptions | None = None) -> PackageResult:
     curve = list(zip(cbtf.curve["k"], cbtf.curve["percent"])) if cbtf.curve else []
     source = str((cbtf.info.get("provenance") or {}).get("source") or cbtf.source.get("path") or "")
 
-    from ..quilt.texels import quilt_texels
-    from ..svbrdf import fit_svbrdf
+    from ...quilt.texels import quilt_texels
+    from ...svbrdf import fit_svbrdf
 
     textures = TextureSet(options.texture_format)
     # Per-texel work (the fallback fit, the GPU packs, the thumbnail's texture) on a quilt
@@ -373,7 +373,7 @@ def package(compressed, options: PackageOptions | None = None) -> PackageResult:
 def _openpbr_fallback(cbtf: CompressedBTF, preview: SvbrdfMaps, white: float, textures: TextureSet, texels):
     """The OpenPBR fallback of ``cbtf`` (a quilt's source texels when ``texels``): (its fit,
     its maps added to ``textures``, both fallbacks' errors)."""
-    from ..openpbr import fit_openpbr
+    from ...openpbr import fit_openpbr
 
     fitted = fit_openpbr(cbtf, svbrdf=preview, white_level=white)
     added = openpbr_fallback.add_maps(fitted, textures, cbtf.ocio_config, texels=texels)
@@ -408,7 +408,7 @@ def _stage_metadata(layer, names: _Names, options: PackageOptions, what: str) ->
 def _author_payload(stage, result: PackageResult, names: _Names, provenance: str) -> tuple[list, tuple | None]:
     """The payload layer's content on ``stage`` (its root layer): the geometry and the bound
     BTF material with its fallback and Storm preview.  Returns (the coefficient asset paths,
-    the Storm tuple for :func:`usdbtf.usd.lod.author_lod_variants`)."""
+    the Storm tuple for :func:`usdbtf.usd.asset.lod.author_lod_variants`)."""
     from pxr import Kind, Usd, UsdGeom, UsdShade
 
     cbtf, textures = result.compressed, result.textures

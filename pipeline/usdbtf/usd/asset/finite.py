@@ -38,7 +38,7 @@ def non_finite_values(layer_path) -> list[str]:
 def non_finite_in_stage(path) -> list[str]:
     """"<layer>: <attribute path>" for every non-finite value in any layer the stage at
     ``path`` uses (payloads loaded, usdz packages included)."""
-    from ..usdstage import open_usd, usd_warnings_silenced
+    from ...usdstage import open_usd, usd_warnings_silenced
 
     with usd_warnings_silenced():
         stage = open_usd(path, composition_errors=False)

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..compress.format import CompressedBTF
-from ..mesh import Mesh
+from ...compress.format import CompressedBTF
+from ...mesh import Mesh
 
 __all__ = ["THUMBNAIL_SIZE", "THUMBNAIL_FILE", "render_thumbnail", "thumbnail_png", "declare_thumbnail"]
 
@@ -30,9 +30,9 @@ def render_thumbnail(cbtf: CompressedBTF, mesh: Mesh, size: int = THUMBNAIL_SIZE
     own frames, or frames from ``st``) wearing ``cbtf``.  ``texels``: ``cbtf`` as its source
     texels (a :class:`usdbtf.quilt.texels.QuiltTexels`), which the renderer gathers (the same
     image, without holding the quilt's texel-major texture)."""
-    from ..camera import auto_camera
-    from ..photometry import capture_irradiance, white_level_of
-    from ..render import Light, RenderOptions, Renderer, to_display
+    from ...camera import auto_camera
+    from ...photometry import capture_irradiance, white_level_of
+    from ...render import Light, RenderOptions, Renderer, to_display
 
     camera = auto_camera(mesh.corner(), size, size)
     light = np.asarray(LIGHT_DIRECTION, np.float64)
@@ -45,8 +45,8 @@ def render_thumbnail(cbtf: CompressedBTF, mesh: Mesh, size: int = THUMBNAIL_SIZE
 def thumbnail_png(cbtf: CompressedBTF, mesh: Mesh, size: int = THUMBNAIL_SIZE, texels=None) -> bytes:
     """The thumbnail rendered (:func:`render_thumbnail`) and encoded as a PNG file's bytes, in
     memory (sRGB display encoding, tagged as such)."""
-    from ..imageio import encode_image
-    from ..render.output import display_processor
+    from ...imageio import encode_image
+    from ...render.output import display_processor
 
     pixels = render_thumbnail(cbtf, mesh, size, texels)
     _, display, _ = display_processor(cbtf.working_space, None, None, cbtf.ocio_config)

@@ -18,7 +18,7 @@ excluded, as USD composes them), computes the material bound to every imageable 
 looked at again.  :func:`build` writes an SConstruct for those steps (compress, when the
 source is not already compressed, then package) and runs SCons with content signatures,
 so a second build with unchanged inputs runs nothing.  Every ``Mesh`` prim bound to a recipe's
-material also gets an unwrap, quilt and package step (:mod:`usdbtf.usd.binding`), and the
+material also gets an unwrap, quilt and package step (:mod:`usdbtf.usd.scenes.binding`), and the
 built stage composes the results over the user's scene: ``SCENE.built.usda`` beside the scene
 (``usdbtf build -o PATH``: elsewhere), a visible file next to the one the user opens, since it is
 the product; the build folder ``.usdbtf-build/SCENE/`` keeps only intermediates and the record
@@ -61,12 +61,12 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from .. import numeric
-from ..atomic import atomic_file, related, tidy_owned
-from ..compress.format import METADATA as COMPRESSED_METADATA
-from ..errors import BTFError, OutputRefused, error_for_status
-from ..lifetime import child_environment, guarded_module_argv
-from .material import NS
+from ... import numeric
+from ...atomic import atomic_file, related, tidy_owned
+from ...compress.format import METADATA as COMPRESSED_METADATA
+from ...errors import BTFError, OutputRefused, error_for_status
+from ...lifetime import child_environment, guarded_module_argv
+from ..material import NS
 
 log = logging.getLogger(__name__)
 
@@ -92,7 +92,7 @@ STAGE_SUFFIXES = (".usda", ".usdc", ".usd")
 class Recipe:
     """What to build for one bound BTF material (absolute paths; ``options`` is the
     checked, canonical compress argument list; ``shape`` the compress arguments the scene's
-    needs add (:mod:`usdbtf.usd.plan`: ``--coverage``, ``--max-texels``, ``--target-error``),
+    needs add (:mod:`usdbtf.usd.scenes.plan`: ``--coverage``, ``--max-texels``, ``--target-error``),
     ``requirements`` those needs as canonical JSON, part of the compress step's signature;
     ``stand_in``: the scene never shows it, so it is built as a one-direction stand-in that
     keeps the scene's reference valid, and its meshes get no atlas or quilt)."""
@@ -114,7 +114,7 @@ class Recipe:
 
     def outputs(self) -> list[Path]:
         """Every path this recipe writes (the intermediate compressed folder, the asset's pieces)."""
-        from .package import asset_pieces
+        from ..asset.package import asset_pieces
 
         pieces = [self.asset.parent / name for name, _, _ in asset_pieces(self.asset)]
         return ([self.compressed] if self.compressed != self.source else []) + pieces
@@ -135,7 +135,7 @@ def parse_options(text, where: str) -> tuple[str, ...]:
     Split like a shell would (quotes, no expansion), parsed by the compress command's
     parser, restricted to :data:`~usdbtf.compress.arguments.SCENE_OPTIONS`, and rebuilt
     from the typed values, so nothing of the original text reaches a command line."""
-    from ..compress.arguments import SCENE_OPTIONS, add_arguments
+    from ...compress.arguments import SCENE_OPTIONS, add_arguments
 
     if text is None:
         return ()
@@ -224,15 +224,15 @@ def plan(scene, *, source_facts=None, target_error: float | None = None) -> tupl
     The report lists ``bound`` materials with the prims bound to them and
     ``without_recipe`` (bound materials that have nothing to build).
 
-    source_facts : a callable, source path -> :class:`usdbtf.usd.plan.MaterialFacts`: shape the
-        build by the scene (:mod:`usdbtf.usd.plan`): materials the scene never shows are left
+    source_facts : a callable, source path -> :class:`usdbtf.usd.scenes.plan.MaterialFacts`: shape the
+        build by the scene (:mod:`usdbtf.usd.scenes.plan`): materials the scene never shows are left
         out (``report["skipped"]``; one whose source has measured directions is built as a
         one-direction, k = 1 stand-in instead, ``report["stand_ins"]``, so that the scene's
         reference to its asset resolves), the others compress only what the scene needs
         (``report["needs"]``: {material: Need}).  None: everything bound, in full (``--full``).
     target_error : the screen-space percent error target (shaped builds)."""
-    from ..usdstage import composition_cycle, composition_error_text, open_usd, usd_warnings_silenced
-    from .package import ROOT_FORMATS
+    from ...usdstage import composition_cycle, composition_error_text, open_usd, usd_warnings_silenced
+    from ..asset.package import ROOT_FORMATS
 
     scene = Path(scene)
     # Composition errors are expected before the first build: the materials reference
@@ -382,7 +382,7 @@ def superseding_stage(scene) -> Path | None:
     """The built stage that supersedes the user's ``scene`` (a local file): the one its last
     build recorded (:data:`STAGE_RECORD` in its build folder), when it is still there and still
     a usdbtf built stage; None otherwise (never built, or a stage or path the resolver names)."""
-    from ..outputs import BUILT_STAGE, is_kind
+    from ...outputs import BUILT_STAGE, is_kind
 
     try:
         scene = Path(scene)
@@ -410,7 +410,7 @@ def steps(recipes: list[Recipe], dask: dict | None = None, chains: list | None =
     """The data the SConstruct builds from: one compress (when needed) and one package step
     per recipe, each with its targets, sources and ``usdbtf`` argument list, then the
     unwrap, quilt and package ``commands`` of every bound mesh's chain
-    (:mod:`usdbtf.usd.binding`); with ``dask`` (:func:`_cluster_info`) the steps run as tasks
+    (:mod:`usdbtf.usd.scenes.binding`); with ``dask`` (:func:`_cluster_info`) the steps run as tasks
     on that cluster."""
     from .binding import binding_steps
 
@@ -578,7 +578,7 @@ def build(scene, *, force: bool = False, dask=None, source_facts=None, target_er
         if jobs is None:
             jobs = default_jobs()
         if dask is not None:
-            from ..cluster import command_info, session
+            from ...cluster import command_info, session
 
             dask_info, jobs = command_info(stack.enter_context(session(dask)))
         for name, text in (("SConstruct", sconstruct()),
@@ -596,7 +596,7 @@ def build(scene, *, force: bool = False, dask=None, source_facts=None, target_er
         (work / _TIMES).unlink(missing_ok=True)
         missing = [p for r in recipes for p in {r.compressed, r.asset.parent} if not os.path.lexists(p)]
         env = dict(os.environ)
-        pipeline = str(Path(__file__).resolve().parents[2])
+        pipeline = str(Path(__file__).resolve().parents[3])
         env["PYTHONPATH"] = pipeline + os.pathsep + env.get("PYTHONPATH", "")
         # SCons, and the usdbtf steps it runs, die with this process (usdbtf.lifetime); stopped
         # (SIGTERM, Ctrl-C), this process kills SCons and its steps remove their own staging.
@@ -654,9 +654,9 @@ def _check_stage_output(scene: Path, out: Path, recipes: list[Recipe], report: d
     """Refuse a built stage path that is a layer of the scene, a recipe's source or output, or in
     the build folder, and an existing file there that this scene's last build did not write
     (unless ``force``, and then only a usdbtf built stage); see the module docstring."""
-    from ..atomic import check_output, current_policy, output_policy
-    from ..errors import UsageError
-    from ..outputs import BUILT_STAGE
+    from ...atomic import check_output, current_policy, output_policy
+    from ...errors import UsageError
+    from ...outputs import BUILT_STAGE
 
     if out.suffix.lower() not in STAGE_SUFFIXES:
         raise UsageError(f"{out}: the built stage is a USD layer; name it *.usda, *.usdc or *.usd")
@@ -681,8 +681,8 @@ def _check_stage_output(scene: Path, out: Path, recipes: list[Recipe], report: d
 def _write_stage(scene: Path, out: Path, text: str, work: Path, force: bool) -> None:
     """Write the built stage ``out`` (usda ``text``; exported as crate for .usdc/.usd) atomically,
     unless it already holds it, and record it in the build folder (:data:`STAGE_RECORD`)."""
-    from ..atomic import current_policy, output_policy
-    from ..outputs import BUILT_STAGE
+    from ...atomic import current_policy, output_policy
+    from ...outputs import BUILT_STAGE
 
     if not (out.suffix == ".usda" and out.is_file() and _read_text(out) == text):
         with output_policy(force=force or _owns_stage(work, out), inputs=(*current_policy().inputs, scene)), \
@@ -778,7 +778,7 @@ def _write_if_changed(path: Path, text: str) -> None:
 
 
 def _open_scene(scene: Path):
-    from ..usdstage import open_usd, usd_warnings_silenced
+    from ...usdstage import open_usd, usd_warnings_silenced
 
     with usd_warnings_silenced():
         return open_usd(scene, composition_errors=False)

@@ -6,9 +6,9 @@ import contextlib
 import os
 from pathlib import Path
 
-from .. import __version__
-from ..errors import BTFError
-from ..outputs import usd_marker
+from ... import __version__
+from ...errors import BTFError
+from ...outputs import usd_marker
 
 __all__ = ["MATERIAL", "FIXED_MTIME", "stage_metadata", "usd_write", "make_usdz", "valid_name"]
 
@@ -49,8 +49,8 @@ def usd_write(path: Path):
     problem (disk full, permission) is an IOFailure, anything else bad data."""
     from pxr import Tf
 
-    from ..errors import OS_ERROR_WORDS, IOFailure
-    from ..usdstage import tf_message
+    from ...errors import OS_ERROR_WORDS, IOFailure
+    from ...usdstage import tf_message
 
     try:
         yield

@@ -4,7 +4,7 @@ material bound to it, frame by frame (issue 26).
 ``usdbtf render SCENE.usda --camera PRIM [--frames A:B]`` renders these with the CPU
 renderer (:func:`usdbtf.render.render_parts`: one z-buffer, every mesh its own material,
 shadows from every mesh); Storm renders the same stage itself.  What counts as rendered is
-what :mod:`usdbtf.usd.plan` analyses: ``Mesh`` prims of purpose default or render, visible at
+what :mod:`usdbtf.usd.scenes.plan` analyses: ``Mesh`` prims of purpose default or render, visible at
 the frame.  Each one's material is its bound material (all purposes) when that is a
 BtfMaterialAPI material; a mesh bound to another material (or to one whose asset a
 scene-shaped build left out, so it composes no BTF) is not rendered, with a warning; a mesh
@@ -18,7 +18,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import UsageError
+from ...errors import UsageError
 
 log = logging.getLogger(__name__)
 
@@ -71,8 +71,8 @@ def scene_shots(path, camera_path: str, width: int | None, frames: list | None, 
     width, else 512), the height from the camera's apertures."""
     from pxr import UsdGeom
 
-    from ..mesh import load_prim
-    from .read import load_btf, open_stage
+    from ...mesh import load_prim
+    from ..read import load_btf, open_stage
     from .scene import btf_mesh_prims, camera_prim, render_resolution, scene_camera, scene_lights
 
     stage = open_stage(path)

@@ -22,9 +22,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..color import processor
-from ..imageio import encode_image
-from ..svbrdf import SvbrdfMaps
+from ...color import processor
+from ...imageio import encode_image
+from ...svbrdf import SvbrdfMaps
 
 __all__ = ["COLOUR_ENCODING", "FALLBACK_DIR", "MAP_FILES", "encode_maps", "decode_maps", "add_maps", "add_map_pngs",
            "author_fallback", "uv_texture", "st_reader"]
@@ -45,7 +45,7 @@ def _to_uint8(values: np.ndarray) -> np.ndarray:
 def encode_maps(maps: SvbrdfMaps, ocio_config: str | None = None) -> dict[str, np.ndarray]:
     """{map: (H, W, C) uint8 pixels as written}: colour maps sRGB-encoded Rec.709, roughness
     grey, normals ``n * 0.5 + 0.5``.  Raises BTFError rather than write a non-finite fit."""
-    from ..errors import BTFError
+    from ...errors import BTFError
 
     for name in ("diffuse", "specular", "roughness", "normal"):
         if not np.isfinite(getattr(maps, name)).all():
@@ -61,7 +61,7 @@ def decode_maps(pixels: dict[str, np.ndarray], working_space: str, *, ocio_confi
                 white_level: float = 1.0) -> SvbrdfMaps:
     """The maps a renderer reads from :func:`encode_maps`'s pixels (UsdUVTexture's decode,
     then the shader's inputs), back in ``working_space`` for comparison with the BTF."""
-    from ..svbrdf import MIN_ROUGHNESS
+    from ...svbrdf import MIN_ROUGHNESS
 
     from_file = processor(COLOUR_ENCODING, working_space, ocio_config)
     unit = {name: np.asarray(px, np.float32) / 255.0 for name, px in pixels.items()}

@@ -12,7 +12,7 @@ What is sampled, to stay cheap: up to :data:`POINTS` triangles of every Mesh bou
 partial BTF material (an even stride, their centroids and mean frames, the mesh at its
 default time), every UsdGeom.Camera at up to :data:`FRAMES` frames evenly spread over the
 stage's time range, every UsdLux light (Distant: its direction; Sphere, Disk, Rect: its
-centre; as the renderers read them, :func:`usdbtf.usd.scene.scene_light_prims`: Dome and
+centre; as the renderers read them, :func:`usdbtf.usd.scenes.scene.scene_light_prims`: Dome and
 the other kinds add no directional light) at the same frames.  A point counts for a camera
 when it is inside the camera's frustum and faces it; a light counts where it is above the
 point's horizon.  Occlusion is not traced: a hidden surface may warn.
@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .material import read_coverage
+from ..material import read_coverage
 
 __all__ = ["coverage_warnings", "coverage_for", "CoverageCheck", "sample_times", "POINTS", "FRAMES", "WEIGHT_EPS"]
 
@@ -48,9 +48,9 @@ def sample_times(stage) -> list:
 def _surface_samples(prim):
     """(points (n, 3) metres, frames (n, 3, 3) rows tangent, bitangent, normal) of up to
     :data:`POINTS` triangles of a Mesh prim; None without texture coordinates."""
-    from ..errors import BTFError
-    from ..mesh import load_prim
-    from ..render.core import point_frames
+    from ...errors import BTFError
+    from ...mesh import load_prim
+    from ...render.core import point_frames
 
     try:
         surface = load_prim(prim).corner_frames()
@@ -79,7 +79,7 @@ def _cameras(stage, times, meters: float) -> list:
 
 def _lights(stage, times) -> list:
     """[(light path, frame label, :class:`usdbtf.render.Light`)] per light and time: the lights
-    the renderers honour, as they read them (:func:`usdbtf.usd.scene.scene_light_prims`)."""
+    the renderers honour, as they read them (:func:`usdbtf.usd.scenes.scene.scene_light_prims`)."""
     from .scene import scene_light_prims
 
     return [(path, _label(t), light) for t in times
@@ -95,8 +95,8 @@ class CoverageCheck:
     set's triangulation), and whether the kept ones suffice."""
 
     def __init__(self, full: list, kept: list):
-        from ..render.hemisphere import Triangulation
-        from ..sampling import match_directions
+        from ...render.hemisphere import Triangulation
+        from ...sampling import match_directions
 
         full = np.asarray(full, np.float64).reshape(-1, 2)
         self.tri = Triangulation.from_directions(full, "input directions")
@@ -125,8 +125,8 @@ def coverage_for(input_views, input_lights, view_vectors, light_vectors):
     usdbtf.sampling.Coverage, or None when no view or no light is asked for.  What
     :func:`coverage_warnings` checks against, so directions it was made from never warn.
     """
-    from ..render.hemisphere import Triangulation
-    from ..sampling import Coverage
+    from ...render.hemisphere import Triangulation
+    from ...sampling import Coverage
 
     views, lights = (np.asarray(d, np.float64).reshape(-1, 2) for d in (input_views, input_lights))
     if not len(view_vectors) or not len(light_vectors):
