@@ -462,7 +462,7 @@ def test_a_stale_lock_beside_an_unchanged_build_file_is_cleaned(tmp_path):
     beside it; the next build finds the text unchanged and writes nothing, yet still cleans the
     lock and any staging folder the killed run left there."""
     from usdbtf.atomic import LOCK_TAG, TMP_TAG
-    from usdbtf.usd.build import _write_if_changed
+    from usdbtf.usd.scenes.build import _write_if_changed
 
     path = tmp_path / "SConstruct"
     path.write_text("text\n")
