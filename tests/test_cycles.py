@@ -2,10 +2,10 @@
 
 The ``bpy`` 5.0.1 wheel (Blender as a Python module: Cycles with Open Shading Language on the
 CPU) lives in ``.venv-storm-5.0`` (``scripts/bootstrap.sh``, shared with the Storm checks).
-Each test renders in a subprocess of that Python through the add-on in ``plugin/blender/usdbtf``
-(``usdbtf.usd.preview.cycles``): Blender's USD importer brings the asset, the add-on replaces its
-material with the OSL network, Cycles renders one sample per pixel at the pixel centre (the
-BTF is emission under the one sun: nothing is noisy).
+Each test renders in a subprocess of that Python (the swatch tests share one) through the
+add-on in ``plugin/blender/usdbtf`` (``usdbtf.usd.cycles``): Blender's USD importer brings
+the asset, the add-on replaces its material with the OSL network, Cycles renders one sample
+per pixel at the pixel centre (the BTF is emission under the one sun: nothing is noisy).
 
 * the swatch seen orthographically from the pole, one pixel per texel, one sun from a
   measured direction: after one gain common to the light directions it is the decompressed
@@ -59,7 +59,8 @@ def asset(tmp_path_factory) -> Path:
                  "5", "-q"]) == 0
     assert main(["compress", str(work / "src"), "-o", str(work / "c"), "--k", "32", "--codec", "png", "-q"]) == 0
     out = work / "a" / "satin.usda"
-    assert main(["package", str(work / "c"), "-o", str(out), "-q"]) == 0
+    # No thumbnail: nothing here looks at it (Blender's importer and the add-on do not read it).
+    assert main(["package", str(work / "c"), "-o", str(out), "--no-thumbnail", "-q"]) == 0
     return out
 
 
@@ -73,20 +74,60 @@ def measured(cbtf, want) -> tuple[int, tuple]:
     return j, tuple(float(a) for a in lights[j])
 
 
+def _lod_frames(asset: Path, lod, work: Path) -> list:
+    """The swatch frames of ``test_cycles_reproduces_the_decompressed_sample`` at ``lod``: one
+    per measured light nearest each of LIGHTS, pole view, 16 x 16 pixels."""
+    from usdbtf.usd.read import load_btf
+
+    cbtf = load_btf(asset, lod=lod)
+    return [cycles.CyclesFrame(asset, work / f"{lod or 'full'}_{i}.exr", towards(measured(cbtf, want)[1]),
+                               size=(16, 16), lod=lod) for i, want in enumerate(LIGHTS)]
+
+
+def _principled_frames(asset: Path, work: Path) -> list:
+    """The frames of ``test_principled_fallback_of_the_fitted_lobes``: the add-on's Principled
+    surface, then its OSL BTF, under 2 pole lights at the capture irradiance, one texel a pixel."""
+    from storm_helpers import pole_lights, shipped_openpbr_maps
+
+    maps, cbtf = shipped_openpbr_maps(asset)
+    irradiance = capture_irradiance(white_level_of(cbtf.info))
+    return [cycles.CyclesFrame(asset, work / f"{surface}_{s}.exr", towards(light), size=maps.shape[::-1],
+                               irradiance=irradiance, surface=surface)
+            for surface in ("PRINCIPLED", "BTF") for s, light in pole_lights(cbtf, 2)]
+
+
+@pytest.fixture(scope="module")
+def swatch_renders(asset, tmp_path_factory) -> dict:
+    """{name: CyclesFrames} of the swatch tests below (each lod's frames, the Principled
+    fallback's), rendered in ONE Blender process: starting bpy is most of such a small
+    render's time, and the frame script loads the asset afresh for each (lod, surface) -- as
+    separate processes did, the same frames."""
+    work = tmp_path_factory.mktemp("cycles_frames")
+    requests = {"full": _lod_frames(asset, None, work), "k8": _lod_frames(asset, "k8", work),
+                "principled": _principled_frames(asset, work)}
+    result = cycles.render_frames(bpy_python(), [f for frames in requests.values() for f in frames])
+    out, at = {}, 0
+    for name, frames in requests.items():
+        n = len(frames)
+        out[name] = cycles.CyclesFrames(result.images[at:at + n], result.seconds[at:at + n],
+                                        result.import_seconds[at:at + n], result.stderr)
+        at += n
+    return out
+
+
 @pytest.mark.parametrize("lod", [None, "k8"])
-def test_cycles_reproduces_the_decompressed_sample(asset, lod, tmp_path):
+def test_cycles_reproduces_the_decompressed_sample(asset, swatch_renders, lod):
     from usdbtf.decompress import DecompressOptions, decompress
     from usdbtf.usd.read import load_btf
 
     cbtf = load_btf(asset, lod=lod)
     assert cbtf.k == (8 if lod else 32)
     assert np.allclose(cbtf.sampling.view[0], 0.0)                    # view 0 is the pole
-    frames, references = [], []
-    for i, want in enumerate(LIGHTS):
-        index, light = measured(cbtf, want)
-        frames.append(cycles.CyclesFrame(asset, tmp_path / f"{i}.exr", towards(light), size=(16, 16), lod=lod))
+    references = []
+    for want in LIGHTS:
+        index, _ = measured(cbtf, want)
         references.append(decompress(cbtf, DecompressOptions(samples=str(index))).btf.read_samples([0])[0])
-    result = cycles.render_frames(bpy_python(), frames)
+    result = swatch_renders[lod or "full"]
     pairs = [(image[..., :3].astype(np.float64), ref) for image, ref in zip(result.images, references)]
     gain, gains, steps = cycles.common_gain(pairs)
     print(f"Cycles lod {lod or 'full'}: gains {np.round(gains, 5).tolist()}, mean |d| {np.round(steps, 4).tolist()} "
@@ -140,7 +181,8 @@ def sphere_asset(asset, tmp_path_factory) -> Path:
     compressed = asset.parent.parent / "c"
     assert main(["unwrap", str(obj), "-o", str(work / "uv"), "--btf", str(compressed), "-q"]) == 0
     out = work / "a" / "satin.usda"
-    assert main(["package", str(compressed), "-o", str(out), "--mesh", str(work / "uv" / "mesh.usda"), "-q"]) == 0
+    assert main(["package", str(compressed), "-o", str(out), "--mesh", str(work / "uv" / "mesh.usda"), "--no-thumbnail",
+                 "-q"]) == 0
     return out
 
 
@@ -221,7 +263,7 @@ def test_addon_zip_installs_as_an_extension_and_imports_an_asset(asset, tmp_path
     assert (tmp_path / "user" / "extensions" / "user_default" / "usdbtf" / "blender_manifest.toml").is_file()
 
 
-def test_principled_fallback_of_the_fitted_lobes(asset, tmp_path):
+def test_principled_fallback_of_the_fitted_lobes(asset, swatch_renders):
     """Issue 40 item 3: the add-on's second surface, a Principled BSDF on the asset's OpenPBR maps
     (network.build_principled, principled.py's conversions), under one sun of the capture
     irradiance pi W, pole view, one texel a pixel: it equals the fit's own model
@@ -234,12 +276,8 @@ def test_principled_fallback_of_the_fitted_lobes(asset, tmp_path):
     from storm_helpers import openpbr_frame, pole_lights, shipped_openpbr_maps
 
     maps, cbtf = shipped_openpbr_maps(asset)
-    lights = pole_lights(cbtf, 2)
-    irradiance = capture_irradiance(white_level_of(cbtf.info))
-    frames = [cycles.CyclesFrame(asset, tmp_path / f"{surface}_{s}.exr", towards(light), size=maps.shape[::-1],
-                                 irradiance=irradiance, surface=surface)
-              for surface in ("PRINCIPLED", "BTF") for s, light in lights]
-    result = cycles.render_frames(bpy_python(), frames)
+    lights = pole_lights(cbtf, 2)                    # the lights of _principled_frames, in its order
+    result = swatch_renders["principled"]
     for i, (s, light) in enumerate(lights):
         principled = result.images[i][..., :3].astype(np.float64)
         btf = result.images[len(lights) + i][..., :3].astype(np.float64)

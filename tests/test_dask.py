@@ -8,6 +8,7 @@ processes) serves the module; ``--dask local:2`` starts its own.
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import os
 import shutil
@@ -158,17 +159,29 @@ def test_killed_worker_is_retried_and_output_identical(manifest, scheduler, in_p
 
 def test_cli_local_cluster_byte_identical_with_progress(manifest, in_process, tmp_path):
     """``usdbtf compress --dask local:2`` (its own LocalCluster, torn down after): the same
-    folder as the in-process run; stderr shows the cluster and a progress bar."""
-    kw, _ = in_process["max-bytes"]
+    folder as the in-process run; stderr shows the cluster and a progress bar.
+
+    The reference is the module's in-process ``compress`` + ``write_compress`` folder (what
+    the CLI calls, with the same options) rather than a second CLI run of the same work: every
+    file byte for byte but the metadata record, which is equal once what only the CLI records
+    is set aside (the input as its command line names it, the source's own metadata, and so
+    the record's own size): nothing the cluster computes."""
+    kw, want = in_process["max-bytes"]
     argv = [sys.executable, "-m", "usdbtf.cli", "compress", str(manifest), "--max-bytes", str(kw["max_bytes"]),
-            "--budget-for", "folder"]
-    ref = subprocess.run(argv + ["-o", str(tmp_path / "ref"), "-q"], capture_output=True, text=True)
-    assert ref.returncode == 0, ref.stderr
+            "--budget-for", "folder"]     # the library's budget, as the in-process reference ran
     # --progress: stderr is a pipe here, where bars are drawn only when asked.
     proc = subprocess.run(argv + ["-o", str(tmp_path / "d"), "--dask", "local:2", "--progress"],
                           capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
-    assert folder_files(tmp_path / "d") == folder_files(tmp_path / "ref")
+    got, record = folder_files(tmp_path / "d"), "btf-compressed.json"
+    assert record in got and {n: b for n, b in got.items() if n != record} == {n: b for n, b in want.items()
+                                                                               if n != record}
+    cli, api = json.loads(got[record]), json.loads(want[record])
+    assert cli["source"].pop("path") == cli["provenance"].pop("source") == str(manifest)
+    assert api["source"].pop("path") == api["provenance"].pop("source") == ""
+    cli.pop("source_metadata", None)
+    cli["bytes"].pop("metadata"), api["bytes"].pop("metadata")
+    assert cli == api
     assert "dask: local:2: 2 worker(s)" in proc.stderr
     assert "dask pass 2/2 (projection) [" in proc.stderr and "100%" in proc.stderr
 

@@ -164,13 +164,14 @@ class DaskSource(_KeptSource):
     def __init__(self, btf: BTF, keep_texels: list, keep_rows, options):
         super().__init__(btf)
         self.progress = bool(getattr(options, "progress", False))
+        portable = _portable(btf)        # refuse an in-memory BTF before starting or joining a cluster
         self._session = session(options.dask)
         self.client = self._session.__enter__()
         try:
             n_workers = len(self.client.scheduler_info().get("workers", {}))
             self.in_flight = max(2, n_workers + 1)
             self.kind = f"dask, {n_workers} worker(s)"
-            self._job = self._held(_Job(_portable(btf), outside_paths_are_allowed(), environment()), "job")
+            self._job = self._held(_Job(portable, outside_paths_are_allowed(), environment()), "job")
             self._first_pass(keep_texels, keep_rows)
         except BaseException:
             self.close()
