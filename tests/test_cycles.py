@@ -3,7 +3,7 @@
 The ``bpy`` 5.0.1 wheel (Blender as a Python module: Cycles with Open Shading Language on the
 CPU) lives in ``.venv-storm-5.0`` (``scripts/bootstrap.sh``, shared with the Storm checks).
 Each test renders in a subprocess of that Python (the swatch tests share one) through the
-add-on in ``plugin/blender/usdbtf`` (``usdbtf.usd.cycles``): Blender's USD importer brings
+add-on in ``plugin/blender/usdbtf`` (``usdbtf.usd.preview.cycles``): Blender's USD importer brings
 the asset, the add-on replaces its material with the OSL network, Cycles renders one sample
 per pixel at the pixel centre (the BTF is emission under the one sun: nothing is noisy).
 
