@@ -11,7 +11,7 @@
 # --env: the working tree twice, each run with its own NAME=VALUE assignments added to the
 # environment (for example OPENBLAS_NUM_THREADS=1 against =4: no byte may differ).
 # Covered: board; synth (8-bit PNG and half EXR); compress with both solvers, every codec,
-# --k, --max-bytes, --target-error, in memory and streamed (--memory-budget 0); decompress;
+# --k, --max-bytes (of the folder and of the asset), --target-error, in memory and streamed (--memory-budget 0); decompress;
 # info and error reports; quilt (tileable and into an atlas); unwrap; package (+ usdz; a
 # mesh with a usda payload, asset metadata and --usdz-ar; tx and exr textures); render
 # (swatch and mesh).  Not covered: capture and rectify (they need a rig).  Prints each
@@ -117,11 +117,14 @@ pipeline() {
     stage compress-exr usdbtf compress raw -o c_exr --codec exr --k 12
     stage compress-rsvd-jpeg usdbtf compress raw -o c_rsvd_jpeg --codec jpeg --k 12
     stage compress-paper-png usdbtf compress raw -o c_paper_png --solver paper --codec png --k 8 --region 24
-    stage compress-max-bytes usdbtf compress raw -o c_max_bytes --max-bytes 15000
-    stage compress-paper-max-bytes usdbtf compress raw -o c_paper_max_bytes --solver paper --k 32 --max-bytes 40000
+    stage compress-max-bytes usdbtf compress raw -o c_max_bytes --max-bytes 15000 --budget-for folder
+    stage compress-asset-max-bytes usdbtf compress raw -o c_asset_max_bytes --max-bytes 260000
+    stage compress-paper-max-bytes usdbtf compress raw -o c_paper_max_bytes --solver paper --k 32 --max-bytes 40000 \
+        --budget-for folder
     stage compress-target usdbtf compress raw -o c_target --target-error 4
     stage compress-exr-target usdbtf compress raw -o c_exr_target --codec exr --target-error 10
-    stage compress-jpeg-max-bytes usdbtf compress raw -o c_jpeg_max_bytes --codec jpeg --k 12 --max-bytes 30000
+    stage compress-jpeg-max-bytes usdbtf compress raw -o c_jpeg_max_bytes --codec jpeg --k 12 --max-bytes 30000 \
+        --budget-for folder
     stage compress-paper-target usdbtf compress raw -o c_paper_target --solver paper --k 32 --target-error 13
     stage compress-streamed usdbtf compress raw -o c_streamed --k 32 --memory-budget 0
     stage compress-streamed-target usdbtf compress raw -o c_streamed_target --target-error 4 --memory-budget 0
