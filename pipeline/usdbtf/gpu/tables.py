@@ -35,7 +35,7 @@ read as 8 bits), with no sampler of their own.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -45,7 +45,7 @@ from ..compress.packs import (MAX_CODE as _MAX_CODE, TABLE_WIDTH, basis_codes_gr
 from ..errors import BTFError
 
 __all__ = ["MAX_PAGES", "PAGE_SIZE", "TABLE_WIDTH", "GpuLayout", "gpu_layout", "pack_count", "page_breaks",
-           "page_plan", "with_wrap", "HemisphereTable", "Pages", "PAGE_TEXELS", "unpack", "storage_dtype"]
+           "page_plan", "with_wrap", "HemisphereTable", "Pages", "PAGE_TEXELS", "unpack", "storage_dtype", "basis_bytes"]
 
 #: Atlas textures ("pages") of coefficient packs a material binds: with the tables, 16
 #: samplers, for every k.
@@ -72,12 +72,15 @@ def storage_dtype(max_code: float, where: str = "GPU tables") -> np.dtype:
 class GpuLayout:
     """tables : (R, TABLE_WIDTH, 4) float32.  pages : :class:`Pages`, (H, W, 4) arrays (uint8,
     uint16 or float16) built when read, the packs as tiles (module docstring).  k : basis vectors on the
-    GPU.  first_packs : the first pack of each page (ascending, first_packs[0] = 0)."""
+    GPU.  first_packs : the first pack of each page (ascending, first_packs[0] = 0).
+    lod_tables : {n: tables of the first n vectors} for each level of detail n < k the layout
+    was made for: the same blocks as ``tables`` with only their basis vectors and packs."""
 
     tables: np.ndarray
     pages: list
     k: int
     first_packs: list
+    lod_tables: dict = field(default_factory=dict)
 
     def pages_for(self, k: int) -> int:
         """How many pages (from the first) hold the packs of the first ``k`` basis vectors."""
@@ -252,7 +255,6 @@ def gpu_layout(cbtf: CompressedBTF, k: int | None = None, lods=(), wrap: str = "
         raise BTFError(f"wrap must be 'clamp' or 'repeat', got {wrap!r}")
     V, L = layout
     k = min(cbtf.k if k is None else k, cbtf.k)
-    groups = -(-k // 4)
     views = Triangulation.from_directions(cbtf.sampling.view[::L], "view directions")
     lights = Triangulation.from_directions(cbtf.sampling.light[:L], "light directions")
     breaks = page_breaks(k, lods)
@@ -266,14 +268,34 @@ def gpu_layout(cbtf: CompressedBTF, k: int | None = None, lods=(), wrap: str = "
         raise BTFError(f"k = {k} coefficient textures of {cbtf.width}x{cbtf.height} texels need {len(pages)} GPU "
                        f"pages; a material binds at most {MAX_PAGES} (use a smaller k or texture)")
 
+    directory[:, 3] = [_MAX_CODE[np.dtype(pages.dtype(page))] for page in directory[:, 0].astype(int)]
+    hemispheres = (HemisphereTable.from_triangulation(views), HemisphereTable.from_triangulation(lights))
+
+    def tables_for(n: int) -> np.ndarray:
+        return _tables(cbtf, n, (V, L), hemispheres, scales, biases, directory, wrap)
+
+    # A level of detail's own tables: the basis block and the packs' entries of its n vectors
+    # only, so a lower lod loads no basis vector it does not draw (issue 39).
+    return GpuLayout(tables_for(k), pages, k, first_packs,
+                     {n: tables_for(n) for n in sorted({int(n) for n in lods if 0 < n < k}, reverse=True)})
+
+
+def _tables(cbtf: CompressedBTF, k: int, cross: tuple[int, int], hemispheres: tuple, scales: np.ndarray,
+            biases: np.ndarray, directory: np.ndarray, wrap: str) -> np.ndarray:
+    """The tables texture (R, TABLE_WIDTH, 4) of the first ``k`` vectors: header, their basis
+    block, the view and light ``hemispheres`` (HemisphereTable), the de-quantisation
+    (``scales``, ``biases``: (P, 4) per pack) and ``directory`` (P, 4) rows of their packs
+    (the first ``pack_count(k)``), the colour matrix (module docstring)."""
+    V, L = cross
+    groups = -(-k // 4)
+    packs = pack_count(k)
     table = _Texels()
     basis_at = table.add(_basis_block(cbtf, k, groups))
-    view_at = HemisphereTable.from_triangulation(views).write(table)
-    light_at = HemisphereTable.from_triangulation(lights).write(table)
-    directory[:, 3] = [_MAX_CODE[np.dtype(pages.dtype(page))] for page in directory[:, 0].astype(int)]
-    dequant_at = table.add(np.stack([scales, biases], axis=1))
+    view_at = hemispheres[0].write(table)
+    light_at = hemispheres[1].write(table)
+    dequant_at = table.add(np.stack([scales[:packs], biases[:packs]], axis=1))
     matrix_at = table.add(np.c_[np.asarray(cbtf.color_matrix, np.float64), np.zeros(3)])
-    directory_at = table.add(directory)
+    directory_at = table.add(directory[:packs])
     image = table.image()
     flat = image.reshape(-1, 4)
     flat[0] = [TABLE_WIDTH, V, L, groups]
@@ -282,7 +304,7 @@ def gpu_layout(cbtf: CompressedBTF, k: int | None = None, lods=(), wrap: str = "
     flat[3] = [directory_at, cbtf.width, cbtf.height, 1.0 if wrap == "repeat" else 0.0]
     if table.size >= 2**24:
         raise BTFError(f"GPU tables need {table.size} texels; addresses must stay below 2^24 (float precision)")
-    return GpuLayout(image, pages, k, first_packs)
+    return image
 
 
 def _basis_block(cbtf: CompressedBTF, k: int, groups: int) -> np.ndarray:
@@ -301,6 +323,29 @@ def _basis_block(cbtf: CompressedBTF, k: int, groups: int) -> np.ndarray:
     head = np.array([[_MAX_CODE[dtype], S, groups, 0]], np.float32)
     dequant = np.stack([scale.reshape(groups, 4), bias.reshape(groups, 4)], axis=1).reshape(-1, 4)
     return np.concatenate([head, dequant, basis_codes_group_major(cbtf, k)])
+
+
+def basis_bytes(tables: np.ndarray, n: int | None = None) -> int:
+    """Bytes of the first ``n`` (default all) basis vectors' stored codes read from a tables
+    texture, encoded alone as the tables encode them: group-major, float32 OpenEXR zip in rows
+    of TABLE_WIDTH texels, vectors past ``n`` in its last group 0 (what
+    :func:`usdbtf.compress.packs.shipped_basis_bytes` measures on a compressed BTF).  What the
+    full lod spends on the basis of vectors ``n+1..k`` is ``basis_bytes(t) - basis_bytes(t, n)``
+    (a lower lod's share, :func:`usdbtf.usd.asset.lod.lod_share`).  Deterministic."""
+    from ..imageio import encode_image
+
+    flat = np.asarray(tables, np.float32).reshape(-1, 4)
+    groups, stored_k, basis_at = int(flat[0, 3]), int(flat[1, 0]), int(flat[1, 1])
+    n = stored_k if n is None else min(int(n), stored_k)
+    S, used = int(flat[basis_at, 1]), -(-n // 4)
+    at = basis_at + 1 + 2 * groups
+    block = flat[at:at + used * S].copy().reshape(used, S, 4)
+    block[used - 1, :, n - 4 * (used - 1):] = 0.0
+    rows = -(-used * S // TABLE_WIDTH)
+    image = np.zeros((rows * TABLE_WIDTH, 4), np.float32)
+    image[:used * S] = block.reshape(-1, 4)
+    return len(encode_image(image.reshape(rows, TABLE_WIDTH, 4), "exr", color_space="data",
+                            attributes={"compression": "zip"}))
 
 
 def _codes(values: np.ndarray, max_code: float, where: str, normalised: bool = True) -> np.ndarray:
@@ -383,4 +428,7 @@ def with_wrap(layout: GpuLayout, wrap: str) -> GpuLayout:
         raise BTFError(f"wrap must be 'clamp' or 'repeat', got {wrap!r}")
     tables = layout.tables.copy()
     tables.reshape(-1, 4)[3, 3] = 1.0 if wrap == "repeat" else 0.0
-    return GpuLayout(tables, layout.pages, layout.k, layout.first_packs)
+    lod_tables = {n: t.copy() for n, t in layout.lod_tables.items()}
+    for t in lod_tables.values():
+        t.reshape(-1, 4)[3, 3] = tables.reshape(-1, 4)[3, 3]
+    return GpuLayout(tables, layout.pages, layout.k, layout.first_packs, lod_tables)

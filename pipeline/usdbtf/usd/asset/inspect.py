@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...compress.coverage import coverage_summary, coverage_text
-from ..material import LOD_VARIANT_SET, NS, btf_materials, read_coverage, read_directions
+from ..material import GPU_PAGES, LOD_VARIANT_SET, NS, btf_materials, read_coverage, read_directions
 from ...usdstage import resolve_usd
 from ..density import binding_densities
 from ..read import find_material, open_stage
@@ -77,11 +77,13 @@ def loaded_files(stage, prim) -> list[tuple[str, int]]:
     return sorted((f, _resolved_size(f)) for f in files)
 
 
-def lod_files(stage, prim) -> list[dict]:
+def lod_files(stage, prim, budget: int | None = None, *, shares: bool = True) -> list[dict]:
     """Per ``lod`` variant of material ``prim`` (largest first; the composed selection alone
-    when it has none): {"name", "k", "files": [{"path", "bytes"}], "total"}, the files
+    when it has none): {"name", "k", "files": [{"path", "bytes"}], "total", "share"}, the files
     :func:`loaded_files` finds with that variant selected (session layer only).  Paths are
-    relative to the stage's root layer's folder where they are inside it."""
+    relative to the stage's root layer's folder where they are inside it.  "share": a lower
+    level's share of ``budget`` (default the full level's total; :func:`usdbtf.usd.asset.lod.lod_share`)
+    for an asset on GPU pages, the full level's is the budget; None otherwise."""
     import os
 
     base = os.path.dirname(stage.GetRootLayer().realPath or "")
@@ -93,11 +95,42 @@ def lod_files(stage, prim) -> list[dict]:
     def entry(name, p):
         files = loaded_files(stage, p)
         k = int(p.GetAttribute(NS + "basisCount").Get() or 0)
+        paged = str(p.GetAttribute(NS + "coefficientLayout").Get() or "files") == GPU_PAGES
         return {"name": name, "k": k, "files": [{"path": rel(f), "bytes": n} for f, n in files],
-                "total": int(sum(n for _, n in files))}
+                "total": int(sum(n for _, n in files)), "share": None,
+                "_pages": {a.resolvedPath for a in _as_list(p.GetAttribute(NS + "coefficients").Get())} if paged
+                else None, "_basis": p.GetAttribute(NS + "basis").Get(), "_sizes": dict(files)}
 
     out = _per_lod(stage, prim, entry)
-    return [entry(None, prim)] if out is None else sorted(out, key=lambda x: -x["k"])
+    out = [entry(None, prim)] if out is None else sorted(out, key=lambda x: -x["k"])
+    if shares:
+        _shares(out, budget)
+    for lv in out:
+        for key in ("_pages", "_basis", "_sizes"):
+            lv.pop(key)
+    return out
+
+
+def _shares(levels: list[dict], budget: int | None) -> None:
+    """Set each level's "share" (:func:`lod_files`) from the full (first) level's pages and
+    tables: what it spends on the vectors a level drops."""
+    from ...gpu.tables import basis_bytes
+    from ...imageio import read_rgba
+    from .lod import lod_share
+
+    full = levels[0]
+    if full["_pages"] is None or not full["_basis"] or not full["_basis"].resolvedPath or \
+            "[" in full["_basis"].resolvedPath:
+        return                      # files layout, or a .usdz member (no share reported)
+    budget = full["total"] if budget is None else int(budget)
+    full["share"] = budget
+    if len(levels) == 1:
+        return
+    tables = read_rgba(full["_basis"].resolvedPath)
+    basis_full = basis_bytes(tables)
+    for lv in levels[1:]:
+        dropped = sum(full["_sizes"].get(page, 0) for page in full["_pages"] - lv["_pages"])
+        lv["share"] = lod_share(budget, dropped, basis_full, basis_bytes(tables, lv["k"]))
 
 
 def _error_at(prim, k: int) -> float | None:
@@ -276,8 +309,13 @@ def describe(path, info: dict | None = None) -> str:
                 + (f", {lv['error_percent']:.2f} %" if lv["error_percent"] is not None else "") + ")"
                 for lv in m["lod"]))
         for lv in m.get("lod_files", []):
+            share = lv.get("share")
             lines.append(f"    loads        {lv['name'] or 'as composed'} (k = {lv['k']}): {len(lv['files'])} files, "
-                         f"{lv['total']} bytes")
+                         f"{lv['total']} bytes"
+                         + ("" if share is None or lv is m["lod_files"][0] else
+                            f"; {'within' if lv['total'] <= share else 'OVER'} its share {share} "
+                            f"({lv['total'] / share:.3f} of it: the full lod's bytes less what it spends on "
+                            f"the vectors this lod drops)"))
             lines += [f"                   {f['bytes']:>12}  {f['path']}" for f in lv["files"]]
     for b in info.get("bindings", []):
         on_mesh = b["mesh_texels_per_metre"]

@@ -253,8 +253,18 @@ def shipped_bytes(root) -> dict:
     from .inspect import lod_files
     from ..read import find_material, open_stage
 
+    return {lv["name"] or FULL_LOD: lv["total"] for lv in shipped_levels(root, shares=False)}
+
+
+def shipped_levels(root, budget: int | None = None, *, shares: bool = True) -> list[dict]:
+    """:func:`usdbtf.usd.asset.inspect.lod_files` of the written asset ``root``: per ``lod``, the
+    files it loads, their total and (with ``shares``) its share of ``budget`` (default the full
+    lod's bytes; else None)."""
+    from .inspect import lod_files
+    from ..read import find_material, open_stage
+
     stage = open_stage(root)
-    return {lv["name"] or FULL_LOD: lv["total"] for lv in lod_files(stage, find_material(stage))}
+    return lod_files(stage, find_material(stage), budget, shares=shares)
 
 
 def asset_overhead(cbtf: CompressedBTF) -> dict:
@@ -468,8 +478,10 @@ def _author_root(stage, result: PackageResult, names: _Names, root_name: str, co
     UsdGeom.ModelAPI.Apply(prim).SetExtentsHint(Vt.Vec3fArray.FromNumpy(result.mesh.bounds().astype(np.float32)))
     if result.thumbnail:
         thumbnail.declare_thumbnail(prim, f"./{names.textures}/{result.thumbnail}")
+    lod_tables = None if result.gpu is None else {
+        n: result.textures.texture(name, names.textures).path for n, name in result.gpu.lod_tables.items()}
     lod.author_lod_variants(stage, f"/{names.root}", f"/{names.root}/mtl/{MATERIAL}", result.levels, coefficients,
-                            gpu, paged=result.gpu is not None)
+                            gpu, paged=result.gpu is not None, tables=lod_tables)
 
 
 def _authored(path: Path, author):
@@ -564,11 +576,16 @@ def write_package(result: PackageResult, out) -> dict:
     extra = published[2:]
     log.info(f"packaged {result.input_name} (k = {cbtf.k}, LODs {[cbtf.k] + result.levels}) as {out}"
              + (f" and {', '.join(extra)}" if extra else ""))
-    shipped = shipped_bytes(out)
     budget = budget_of(cbtf)
+    # The shares re-encode basis blocks (about 2 s at paper scale): with the publish checks
+    # only, not in asset_overhead's probe, which skips them.
+    levels = shipped_levels(out, budget, shares=options.validate)
+    shipped = {lv["name"] or FULL_LOD: lv["total"] for lv in levels}
+    shares = {lv["name"] or FULL_LOD: lv["share"] for lv in levels}
     log.info(f"the asset's bytes (every file the full lod loads): {shipped[FULL_LOD]:,}"
              + ("" if budget is None else f", {shipped[FULL_LOD] / budget:.3f} of the --max-bytes budget of {budget:,}")
-             + "".join(f"; {name} {n:,}" for name, n in shipped.items() if name != FULL_LOD))
+             + "".join(f"; {name} {n:,}" + ("" if shares[name] is None else f" (share {shares[name]:,})")
+                       for name, n in shipped.items() if name != FULL_LOD))
     if budget is not None and budget_for_of(cbtf) != "asset":
         log.warning(f"{result.input_name}: its --max-bytes {budget:,} budgeted the compressed folder's textures, "
                     f"not this asset ({shipped[FULL_LOD] / budget:.2f}x it); compress with --budget-for asset "
@@ -576,7 +593,7 @@ def write_package(result: PackageResult, out) -> dict:
     summary = {"root": out, "payload": out.parent / names.payload, "textures": out.parent / names.textures,
                "k": cbtf.k, "lods": [[FULL_LOD, cbtf.k]] + [[lod.lod_name(n), n] for n in result.levels],
                "texture_format": options.texture_format, "validated": options.validate,
-               "bytes": shipped, "max_bytes": budget}
+               "bytes": shipped, "max_bytes": budget, "shares": shares}
     if options.usdz:
         summary["usdz"] = out.parent / f"{names.stem}.usdz"
     if options.usdz_ar:

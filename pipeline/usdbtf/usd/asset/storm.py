@@ -39,18 +39,18 @@ payload holds the full set.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from ...compress.format import CompressedBTF
 from ...errors import BTFError
 from ...gpu import shaders
-from ...gpu.tables import MAX_PAGES, gpu_layout
+from ...gpu.tables import MAX_PAGES, gpu_layout, pack_count
 from ...imageio import read_rgba
 from ...photometry import white_level_of
 
 __all__ = ["plugin_dir_resources", "GPU_DIR", "STORM_SURFACE", "GpuTextures", "add_gpu_textures",
-           "author_gpu_preview", "author_materialx_preview", "materialx_document", "storm_shader", "layout_from_asset", "read_rgba"]
+           "author_gpu_preview", "lod_tables_name", "lod_mtlx_name", "author_materialx_preview", "materialx_document", "storm_shader", "layout_from_asset", "read_rgba"]
 
 GPU_DIR = "gpu"
 STORM_SURFACE = "StormSurface"
@@ -70,12 +70,20 @@ def plugin_dir_resources() -> Path:
 @dataclass(frozen=True)
 class GpuTextures:
     """The Storm preview's files in a texture set: ``tables`` and ``pages`` (names), the basis
-    count ``k`` the tables hold, the first pack of each page (``first_packs``)."""
+    count ``k`` the tables hold, the first pack of each page (``first_packs``), and
+    ``lod_tables``: {n: name of the tables of the first n vectors} per lower level of detail
+    (:func:`lod_tables_name`; empty for a layout made without levels)."""
 
     tables: str
     pages: list
     k: int
     first_packs: list
+    lod_tables: dict = field(default_factory=dict)
+
+
+def lod_tables_name(n: int) -> str:
+    """File stem of the tables of a level of detail of ``n`` vectors (``tables_k<n>``)."""
+    return f"tables_k{n}"
 
 
 def add_gpu_textures(cbtf: CompressedBTF, textures, lods=(), *, texels=None) -> GpuTextures | None:
@@ -120,10 +128,24 @@ def add_gpu_textures(cbtf: CompressedBTF, textures, lods=(), *, texels=None) -> 
                                 forkable=all(layout.pages.dtype(p) == np.uint8 for p in pages_range))
     pages = [textures.add(f"{GPU_DIR}/{shaders.page_name(p)}{suffix}", data, kind)
              for p, (suffix, data, kind) in enumerate(encoded)]
-    document = materialx_document(Path(tables).name, [Path(name).name for name in pages], layout.k,
-                                  white_level_of(cbtf.info))
+    white = white_level_of(cbtf.info)
+    document = materialx_document(Path(tables).name, [Path(name).name for name in pages], layout.k, white)
     textures.add_file(f"{GPU_DIR}/{MTLX_FILE}", document.encode())
-    return GpuTextures(tables, pages, layout.k, layout.first_packs)
+    lod_tables = {}
+    for n, table in layout.lod_tables.items():
+        # Each lower level's own tables (its basis vectors and packs only), and its own
+        # MaterialX document on them and on its pages.
+        lod_tables[n] = textures.add(f"{GPU_DIR}/{lod_tables_name(n)}.exr", encode_image(
+            table, "exr", color_space="data", attributes={"compression": "zip"}), "float")
+        own = [Path(name).name for name, first in zip(pages, layout.first_packs) if first < pack_count(n)]
+        textures.add_file(f"{GPU_DIR}/{lod_mtlx_name(n)}",
+                          materialx_document(Path(lod_tables[n]).name, own, n, white).encode())
+    return GpuTextures(tables, pages, layout.k, layout.first_packs, lod_tables)
+
+
+def lod_mtlx_name(n: int) -> str:
+    """The MaterialX document of a level of detail of ``n`` vectors (``usdbtf_k<n>.mtlx``)."""
+    return f"{Path(MTLX_FILE).stem}_k{n}.mtlx"
 
 
 def materialx_document(tables: str, pages: list[str], k: int, white_level: float = 1.0) -> str:
