@@ -128,6 +128,11 @@ def test_materialx_definitions_and_packaged_document_validate(asset, tmp_path):
     mtlx.validate(doc)
     text = doc.read_text()
     assert 'name="basisCount" type="integer" value="12"' in text and "page01.png" in text
+    # The lower lod's own document: its tables and its one page (issue 39).
+    low = doc.with_name(storm.lod_mtlx_name(6))
+    mtlx.validate(low)
+    assert 'name="basisCount" type="integer" value="6"' in low.read_text()
+    assert 'value="tables_k6.exr"' in low.read_text() and "page01" not in low.read_text()
     bad = tmp_path / "bad.mtlx"                     # the control: a wrong input type is caught
     bad.write_text(text.replace('type="integer" value="12"', 'type="float" value="12.5"'))
     with pytest.raises(BTFError, match="invalid MaterialX"):
@@ -190,9 +195,13 @@ def test_pages_hold_the_stored_codes_and_lods_load_only_their_pages(asset):
         np.testing.assert_array_equal(pages[page][y0:y0 + cbtf.height, x0:x0 + cbtf.width], want)
     # k 12 with the level k6: a page ends at pack 6; each level loads only its pages.
     assert layout.first_packs == [0, 6]
+    # Issue 39: each level's own tables, holding its k basis vectors and its packs' entries.
     for lod, k, n_pages in ((None, 12, 2), ("full", 12, 2), ("k6", 6, 1)):
         layout, _, got_k = storm.layout_from_asset(asset, lod=lod)
         assert (got_k, len(layout.pages)) == (k, n_pages)
+        assert int(layout.tables.reshape(-1, 4)[1, 0]) == k and layout.first_packs == [0, 6][:n_pages]
+    np.testing.assert_array_equal(layout.tables, storm.read_rgba(gpu / "tables_k6.exr"))
+    np.testing.assert_array_equal(layout.tables, gpu_layout(cbtf, lods=[6]).lod_tables[6])
 
 
 @pytest.mark.parametrize("k, size, lods", [(300, 32, (150, 75, 37)), (300, 1024, (150, 75, 37)), (300, 2048, ()),

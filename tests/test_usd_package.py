@@ -314,14 +314,16 @@ def test_inspect_reports_k_bytes_directions_error(asset, capsys):
     assert "169 samples: 13 views" in out
     assert "% at k = 12" in out and "0 error(s)" in out
     gpu = asset.with_name("pebbles_textures") / "gpu"
-    on_disk = sum(p.stat().st_size for p in gpu.iterdir() if p.name.startswith(("tables", "page")))
+    on_disk = sum(p.stat().st_size for p in gpu.iterdir() if p.name.startswith(("tables.", "page")))
     assert f"bytes        {on_disk} " in out    # the BTF's one copy: the GPU tables and its pages
+    # (the full lod's: each lower lod's own tables, gpu/tables_k<n>.exr, are not counted)
 
 
 def test_inspect_lists_the_files_each_lod_loads(asset, capsys):
     """Every lod's file list is files on disk with their sizes, totals are their sums, the full
-    lod loads every file of the asset but the usdz and the MaterialX document (which no layer
-    names), and a lower lod loads a subset: fewer pages."""
+    lod loads every file of the asset but the usdz, the MaterialX documents (which no layer
+    names) and the lower lods' own tables; a lower lod loads fewer pages and its own tables
+    (issue 39) in place of the full ones, and inspect says it is within its share."""
     import json
 
     info = json.loads(ok(capsys, "inspect", asset, "--json"))
@@ -333,12 +335,18 @@ def test_inspect_lists_the_files_each_lod_loads(asset, capsys):
         assert lv["total"] == sum(sizes.values())
     full = {f["path"] for f in levels["full"]["files"]}
     shipped = {str(p.relative_to(asset.parent)) for p in asset.parent.rglob("*") if p.is_file()
-               and p.suffix not in (".usdz", ".mtlx")}
+               and p.suffix not in (".usdz", ".mtlx") and not p.name.startswith("tables_k")}
     assert full == shipped
     low = {f["path"] for f in levels["k6"]["files"]}
-    assert low < full and all("page" in Path(p).name for p in full - low)
+    assert low - full == {"pebbles_textures/gpu/tables_k6.exr"}
+    assert full - low - {"pebbles_textures/gpu/tables.exr"} and \
+        all("page" in Path(p).name for p in full - low - {"pebbles_textures/gpu/tables.exr"})
+    assert levels["full"]["share"] == levels["full"]["total"]
+    assert levels["k6"]["total"] <= levels["k6"]["share"] < levels["full"]["total"]
     out = ok(capsys, "inspect", asset)
-    assert f"loads        full (k = 12): {len(full)} files, {levels['full']['total']} bytes" in out
+    assert f"loads        full (k = 12): {len(full)} files, {levels['full']['total']} bytes\n" in out
+    assert f"loads        k6 (k = 6): {len(low)} files, {levels['k6']['total']} bytes; within its share " \
+           f"{levels['k6']['share']} " in out
 
 
 def test_asset_holds_each_coefficient_once(asset, compressed):
@@ -614,8 +622,10 @@ def test_usdz_refuses_tiff_textures(compressed, tmp_path, capsys):
 def test_max_bytes_budgets_the_packaged_asset(src, tmp_path, capsys):
     """Issue 39: ``compress --max-bytes B`` (the CLI budgets the asset by default) then
     ``package``: the files the full lod loads (as ``inspect`` lists them) total within
-    [0.97 B, 1.01 B]; each lower lod loads fewer (a prefix of the pages beside the same tables,
-    maps and layers); compress recorded what it budgeted and the asset's bytes; the shipped
+    [0.97 B, 1.01 B]; each lower lod loads a prefix of the pages and its own tables (its n basis
+    vectors only) beside the same maps and layers, within its share of B (usd.asset.lod: B less
+    what the full lod spends on the vectors it drops, recomputed here from the compressed
+    folder's codes); compress recorded what it budgeted and the asset's bytes; the shipped
     8-bit packs hold exactly the folder's codes, so the folder's error is the asset's.  A folder
     budgeted for itself (``--budget-for folder``): package says so in one warning line."""
     import json
@@ -633,6 +643,7 @@ def test_max_bytes_budgets_the_packaged_asset(src, tmp_path, capsys):
     full = totals["full"]
     assert 0.97 * budget <= full <= 1.01 * budget, (full, budget)
     assert len(totals) > 1 and all(n < full for name, n in totals.items() if name != "full")
+    _assert_lods_within_their_shares(out, lods, read_compressed(folder), budget, summary["shares"])
     cbtf = read_compressed(folder)
     assert cbtf.info["provenance"]["options"]["budget_for"] == "asset"
     choice = cbtf.info["choice"]
@@ -657,6 +668,35 @@ def test_max_bytes_budgets_the_packaged_asset(src, tmp_path, capsys):
     code, _, err = run(capsys, "package", old, "-o", tmp_path / "b" / "f.usda")
     assert code == 0 and [line for line in err.splitlines() if "--budget-for asset" in line] == [
         next(line for line in err.splitlines() if "budgeted the compressed folder's textures" in line)]
+
+
+def _assert_lods_within_their_shares(out: Path, lods: list, cbtf, budget: int, shares: dict) -> None:
+    """Issue 39: each lower lod of the asset ``out`` (``lods``: inspect's lod_files) loads its own
+    tables, holding exactly its first n basis vectors' codes, and no more than its share of
+    ``budget``, recomputed from the compressed BTF ``cbtf``'s codes; ``shares``: what package
+    reported, the same numbers."""
+    from usdbtf.compress.packs import basis_codes_group_major, shipped_basis_bytes
+    from usdbtf.usd.asset.lod import lod_share
+    from usdbtf.usd.asset.storm import read_rgba
+
+    full = lods[0]
+    sizes = {f["path"]: f["bytes"] for f in full["files"]}
+    assert full["name"] == "full" and shares["full"] == budget and full["total"] <= 1.01 * budget
+    for lv in lods[1:]:
+        n, own = lv["k"], {f["path"] for f in lv["files"]}
+        tables = f"pebbles_textures/gpu/tables_k{n}.exr"
+        assert tables in own and "pebbles_textures/gpu/tables.exr" not in own
+        flat = read_rgba(out.parent / tables).reshape(-1, 4)
+        groups, at = -(-n // 4), int(flat[1, 1])
+        assert int(flat[1, 0]) == n and int(flat[0, 3]) == groups         # its n vectors, its groups
+        codes = flat[at + 1 + 2 * groups:at + 1 + 2 * groups + groups * cbtf.n_samples]
+        np.testing.assert_array_equal(codes, basis_codes_group_major(cbtf, n))
+        dropped = sum(sizes[p] for p in set(sizes) - own if "/gpu/page" in p)
+        share = lod_share(budget, dropped, shipped_basis_bytes(cbtf), shipped_basis_bytes(cbtf, n))
+        assert shares[lv["name"]] == share
+        assert lv["total"] <= share, (lv["name"], lv["total"], share)
+        # What the lod loaded before its own tables (the full ones, every basis vector) is over it.
+        assert lv["total"] - (out.parent / tables).stat().st_size + sizes["pebbles_textures/gpu/tables.exr"] > share
 
 
 def test_cross_sampling_stores_each_direction_once(asset, compressed):

@@ -57,6 +57,8 @@ PAGE_SIZE = 16384
 #: every CPU (one 16384-texel page of a quilted sphere took 13 s to encode on one core).
 PAGE_TEXELS = 4096 * 4096
 _GRID = 32
+#: Rows of one OpenEXR zip chunk (ZIP_COMPRESSION: 16 scanlines compressed together).
+_ZIP_ROWS = 16
 _HEADER = 4
 
 
@@ -100,6 +102,12 @@ class _Texels:
         self.blocks.append(block)
         self.size += len(block)
         return address
+
+    def pad_to(self, offset: int, multiple: int) -> None:
+        """Zero texels until ``size + offset`` is a multiple of ``multiple``."""
+        gap = -(self.size + offset) % multiple
+        if gap:
+            self.add(np.zeros((gap, 4), np.float32))
 
     def image(self) -> np.ndarray:
         flat = np.concatenate(self.blocks)
@@ -290,12 +298,17 @@ def _tables(cbtf: CompressedBTF, k: int, cross: tuple[int, int], hemispheres: tu
     groups = -(-k // 4)
     packs = pack_count(k)
     table = _Texels()
-    basis_at = table.add(_basis_block(cbtf, k, groups))
     view_at = hemispheres[0].write(table)
     light_at = hemispheres[1].write(table)
     dequant_at = table.add(np.stack([scales[:packs], biases[:packs]], axis=1))
     matrix_at = table.add(np.c_[np.asarray(cbtf.color_matrix, np.float64), np.zeros(3)])
     directory_at = table.add(directory[:packs])
+    # The basis codes last, from the first row of an OpenEXR zip chunk: the file is then the
+    # other blocks' chunks plus the codes' chunks, each compressed alone, so the tables of a
+    # level of n vectors cost the codes of its n vectors (basis_bytes(t, n)) plus blocks no
+    # larger than the full tables' (its share, usdbtf.usd.asset.lod).
+    table.pad_to(-(1 + 2 * groups), _ZIP_ROWS * TABLE_WIDTH)
+    basis_at = table.add(_basis_block(cbtf, k, groups))
     image = table.image()
     flat = image.reshape(-1, 4)
     flat[0] = [TABLE_WIDTH, V, L, groups]
