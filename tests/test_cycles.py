@@ -237,7 +237,7 @@ bpy.context.view_layer.update()
 direction = tuple(round(x, 4) for x in node.inputs["lightDirection"].default_value)
 print("SUN", direction, node.inputs["lightIrradiance"].default_value, "WHITE", node.inputs["whiteLevel"].default_value)
 print("RESULT", material.usdbtf_lod, node.inputs["basisCount"].default_value, bpy.context.scene.cycles.shading_system,
-      node.inputs["tables"].default_value.endswith("tables.exr"), node.inputs["page01"].default_value == "")
+      node.inputs["tables"].default_value.endswith("gpu/tables_k4.exr"), node.inputs["page01"].default_value == "")
 """
 
 

@@ -113,7 +113,8 @@ def test_storm_reproduces_the_decompressed_sample(version, assets, tmp_path):
             camera, size = hydra.swatch_scene(asset, scene, light, lod=lod, irradiance=1.0)
             if lod:                       # what Storm is given: the lod's own tables
                 from pxr import Usd
-                tables = [p.GetAttribute("inputs:file").Get().path for p in Usd.Stage.Open(str(scene)).Traverse()
+                stage = Usd.Stage.Open(str(scene))
+                tables = [p.GetAttribute("inputs:file").Get().path for p in stage.Traverse()
                           if p.GetName() == "StormTables"]
                 assert tables and all(t.endswith(f"gpu/tables_{lod}.exr") for t in tables), tables
             frames.append((scene, scene.with_suffix(".exr")))

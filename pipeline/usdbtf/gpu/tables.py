@@ -9,7 +9,12 @@ that reads it); this module writes it.  Pure arrays in, arrays out:
   compressed basis itself and nothing else needs to, :func:`unpack`), a point-location table
   for the view and for the light hemisphere (the triangulations of :mod:`usdbtf.render.hemisphere`, so the GPU interpolates exactly as
   the CPU renderer does), the de-quantisation of every pack, the colour matrix and the
-  directory of the packs (which page, where);
+  directory of the packs (which page, where).  The blocks are found through the header, and
+  the basis codes come last, from the first row of an OpenEXR zip chunk (16 rows), so the
+  file costs the other blocks plus the codes compressed on their own.  A level of detail of
+  n < k vectors gets tables of its own (``GpuLayout.lod_tables``, issue 39): the same blocks
+  with only its n basis vectors and its packs' entries, so it loads no basis vector it does
+  not draw (the first n vectors' codes in group-major order are a prefix of the k vectors');
 * coefficient *packs*, 3 * ceil(k / 4) tiles (H, W, 4): pack ``p = 3 g + c`` holds colour
   channel ``c`` of basis vectors ``4g .. 4g+3`` as the stored integer codes (uint8/uint16)
   or halves, so a page written as PNG/EXR reproduces the compressed values exactly.  Energy
