@@ -10,11 +10,12 @@ on its stderr.
 
 The accuracy check: a held-out material (satin_weave, not the example's pebbles) on the
 UBO2003 sampling, packaged at k = 64 and at k = 300 (the largest ``compress --k`` allows),
-and the k = 64 asset at its lower lod k16 (its own tables and page, issue 39), its swatch seen orthographically from the pole, one pixel per texel, one DistantLight of
-irradiance 1 from a measured direction.  After one gain common to all light directions the
-frame equals the decompressed sample: mean |difference| <= 2 steps of 8-bit sRGB, and the
-per-light gains agree within 3 %; the gain is the photometric convention's pi W
-(usdbtf.photometry: radiance = value x irradiance / (pi W)) within 3 %.
+and the k = 64 asset at its lower lod k16 (its own tables and page, issue 39), its swatch
+seen orthographically from the pole, one pixel per texel, one DistantLight of irradiance 1
+from a measured direction.  After one gain common to all light directions the frame equals
+the decompressed sample: mean |difference| <= 2 steps of 8-bit sRGB, and the per-light gains
+agree within 3 %; the gain is the photometric convention's pi W (usdbtf.photometry:
+radiance = value x irradiance / (pi W)) within 3 %.
 
 The convention against UsdPreviewSurface (issue 40): a Lambertian BTF (white and grey, white
 level 0.8) and its fitted fallback, drawn by Storm under the same DistantLights, have the same

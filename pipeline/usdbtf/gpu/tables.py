@@ -50,7 +50,8 @@ from ..compress.packs import (MAX_CODE as _MAX_CODE, TABLE_WIDTH, basis_codes_gr
 from ..errors import BTFError
 
 __all__ = ["MAX_PAGES", "PAGE_SIZE", "TABLE_WIDTH", "GpuLayout", "gpu_layout", "pack_count", "page_breaks",
-           "page_plan", "with_wrap", "HemisphereTable", "Pages", "PAGE_TEXELS", "unpack", "storage_dtype", "basis_bytes"]
+           "page_plan", "with_wrap", "HemisphereTable", "Pages", "PAGE_TEXELS", "unpack", "storage_dtype",
+           "basis_bytes"]
 
 #: Atlas textures ("pages") of coefficient packs a material binds: with the tables, 16
 #: samplers, for every k.

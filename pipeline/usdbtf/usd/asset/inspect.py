@@ -83,7 +83,8 @@ def lod_files(stage, prim, budget: int | None = None, *, shares: bool = True) ->
     :func:`loaded_files` finds with that variant selected (session layer only).  Paths are
     relative to the stage's root layer's folder where they are inside it.  "share": a lower
     level's share of ``budget`` (default the full level's total; :func:`usdbtf.usd.asset.lod.lod_share`)
-    for an asset on GPU pages, the full level's is the budget; None otherwise."""
+    for an asset on GPU pages, the full level's is the budget; None otherwise, and without
+    ``shares`` (which re-encodes the full tables' basis block once per level)."""
     import os
 
     base = os.path.dirname(stage.GetRootLayer().realPath or "")

@@ -19,6 +19,9 @@ next to the UsdPreviewSurface fallback::
                                      codes exactly: with the tables, at most 16 samplers for
                                      any k (usdbtf.gpu.tables)
     <stem>_textures/gpu/usdbtf.mtlx  the same material as a MaterialX document (usdbtf_surface)
+    <stem>_textures/gpu/tables_k<n>.exr, usdbtf_k<n>.mtlx
+                                     per lower level of detail: its own tables (its n basis
+                                     vectors and its packs' entries only) and document
 
 Renderers pick by render context: Storm takes ``glslfx``, every other renderer the
 universal ``outputs:surface`` (UsdPreviewSurface).
@@ -33,9 +36,9 @@ outright.  UsdPreviewSurface solves the same problem the same way: the asset nam
 shader, the plugin ships its definition (sourceAsset + glslfx).
 
 Levels of detail (:mod:`usdbtf.usd.asset.lod`): the Material's ``lod`` variant ``k<n>``, in the
-root layer, sets ``basisCount`` and blocks the connections of the pages beyond those
-holding its packs (pages end where levels end), so Storm loads only those textures; the
-payload holds the full set.
+root layer, sets ``basisCount``, points the tables node at the level's own tables and
+blocks the connections of the pages beyond those holding its packs (pages end where levels
+end), so Storm loads only those textures; the payload holds the full set.
 """
 from __future__ import annotations
 
@@ -50,7 +53,8 @@ from ...imageio import read_rgba
 from ...photometry import white_level_of
 
 __all__ = ["plugin_dir_resources", "GPU_DIR", "STORM_SURFACE", "GpuTextures", "add_gpu_textures",
-           "author_gpu_preview", "lod_tables_name", "lod_mtlx_name", "author_materialx_preview", "materialx_document", "storm_shader", "layout_from_asset", "read_rgba"]
+           "author_gpu_preview", "lod_tables_name", "lod_mtlx_name", "author_materialx_preview",
+           "materialx_document", "storm_shader", "layout_from_asset", "read_rgba"]
 
 GPU_DIR = "gpu"
 STORM_SURFACE = "StormSurface"
