@@ -50,14 +50,13 @@ def towards(theta_phi) -> tuple:
 
 
 @pytest.fixture(scope="module")
-def asset(tmp_path_factory) -> Path:
+def asset(tmp_path_factory, synth_capture) -> Path:
     """A held-out material (satin_weave, UBO2003 sampling, 16 x 16 texels) at k = 32 with
     lods k4, k8 and k16."""
     bpy_python()
     work = tmp_path_factory.mktemp("cycles")
-    assert main(["synth", "satin_weave", "-o", str(work / "src"), "--sampling", "ubo81", "--size", "16", "--seed",
-                 "5", "-q"]) == 0
-    assert main(["compress", str(work / "src"), "-o", str(work / "c"), "--k", "32", "--codec", "png", "-q"]) == 0
+    src = synth_capture("satin_weave", "ubo81", 16, seed=5)      # test_storm's too: made once a session
+    assert main(["compress", str(src), "-o", str(work / "c"), "--k", "32", "--codec", "png", "-q"]) == 0
     out = work / "a" / "satin.usda"
     # No thumbnail: nothing here looks at it (Blender's importer and the add-on do not read it).
     assert main(["package", str(work / "c"), "-o", str(out), "--no-thumbnail", "-q"]) == 0

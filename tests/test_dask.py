@@ -1,7 +1,8 @@
 """Compression on a Dask cluster (issue 17): byte-identical to in-process, killed workers
 retried, unreachable schedulers and junk addresses refused in one line.
 
-The data spans several shards (2,160 samples: shards of 1,024) and two texel blocks (40^2),
+The data spans several shards (2,160 samples: shards of 1,024, so three partial sums whose
+order matters) and two texel blocks (33^2 = 1,089 texels: blocks of 1,024, the second short),
 so the distributed reduction has real work to order.  One 2-worker LocalCluster (worker
 processes) serves the module; ``--dask local:2`` starts its own.
 """
@@ -42,9 +43,10 @@ def folder_files(folder: Path) -> dict:
 
 @pytest.fixture(scope="module")
 def manifest(tmp_path_factory) -> Path:
-    """2,160 samples (45 views x 48 lights) of 40x40 pebbles, 8-bit sRGB PNG."""
+    """2,160 samples (45 views x 48 lights) of 33x33 pebbles, 8-bit sRGB PNG (the smallest
+    square of two texel blocks: every compress of the module does two thirds of a 40x40's work)."""
     s = cross(rings((0, 20, 40, 60), (1, 12, 16, 16)), rings((10, 30, 50, 70), (12, 12, 12, 12)))
-    imgs = synth.render_all(synth.make_material("pebbles", 40, 3), s)
+    imgs = synth.render_all(synth.make_material("pebbles", 33, 3), s)
     return write_manifest(tmp_path_factory.mktemp("dask") / "m", s, imgs, color_space=SRGB, bit_depth="uint8",
                           ext="png", array_space=LIN709)
 
@@ -115,7 +117,7 @@ def test_plan_spans_several_shards_and_blocks(manifest):
 
     plan = work_plan(read_manifest(manifest))
     assert len(plan.shards()) == 3 and plan.shards()[-1] == (2048, 2160)
-    assert plan.blocks() == [(0, 1024), (1024, 1600)]
+    assert plan.blocks() == [(0, 1024), (1024, 1089)]
 
 
 @pytest.mark.parametrize("name", ["k", "max-bytes", "paper"])
@@ -165,10 +167,12 @@ def test_cli_local_cluster_byte_identical_with_progress(manifest, in_process, tm
     the CLI calls, with the same options) rather than a second CLI run of the same work: every
     file byte for byte but the metadata record, which is equal once what only the CLI records
     is set aside (the input as its command line names it, the source's own metadata, and so
-    the record's own size): nothing the cluster computes."""
-    kw, want = in_process["max-bytes"]
-    argv = [sys.executable, "-m", "usdbtf.cli", "compress", str(manifest), "--max-bytes", str(kw["max_bytes"]),
-            "--budget-for", "folder"]     # the library's budget, as the in-process reference ran
+    the record's own size): nothing the cluster computes.
+
+    At ``--k`` (the same two cluster passes as a budget mode, without the client's rate-control
+    trials: ``--max-bytes`` on a cluster is test_two_workers_byte_identical_to_in_process's)."""
+    kw, want = in_process["k"]
+    argv = [sys.executable, "-m", "usdbtf.cli", "compress", str(manifest), "--k", str(kw["k"])]
     # --progress: stderr is a pipe here, where bars are drawn only when asked.
     proc = subprocess.run(argv + ["-o", str(tmp_path / "d"), "--dask", "local:2", "--progress"],
                           capture_output=True, text=True)

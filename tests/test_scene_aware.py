@@ -14,7 +14,6 @@ import pytest
 import usdbtf  # noqa: F401
 from cli_helpers import ok
 from usdbtf.bench.scenes import Quad, Shot, write_scene
-from usdbtf.cli import main
 from usdbtf.commands.build import source_facts
 from usdbtf.render.hemisphere import Triangulation
 from usdbtf.usd.scenes.build import build, plan, steps
@@ -23,10 +22,10 @@ LIGHT = np.array([0.3, 0.5, 1.0]) / np.linalg.norm([0.3, 0.5, 1.0])
 
 
 @pytest.fixture(scope="module")
-def captures(tmp_path_factory) -> Path:
+def captures(tmp_path_factory, synth_capture) -> Path:
     root = tmp_path_factory.mktemp("captures")
     for preset in ("pebbles", "fuzzy_moss", "ridged_fabric"):
-        assert main(["synth", preset, "-o", str(root / preset), "--sampling", "small", "--size", "32", "-q"]) == 0
+        synth_capture(preset, "small", 32, out=root / preset)
     return root
 
 

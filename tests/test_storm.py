@@ -65,14 +65,12 @@ def render(version: str, frames, camera, size, **kw) -> hydra.StormFrames:
 
 
 @pytest.fixture(scope="module")
-def assets(tmp_path_factory) -> dict[int, Path]:
+def assets(tmp_path_factory, synth_capture) -> dict[int, Path]:
     if not PYTHONS:
         pytest.skip("no Storm environment: scripts/bootstrap.sh could not install the bpy wheels "
                     "(CPython 3.11 and the network needed)")
     work = tmp_path_factory.mktemp("storm")
-    src = work / "src"
-    assert main(["synth", "satin_weave", "-o", str(src), "--sampling", "ubo81", "--size", "16", "--seed", "5",
-                 "-q"]) == 0
+    src = synth_capture("satin_weave", "ubo81", 16, seed=5)      # test_cycles's too: made once a session
     out = {}
     for k in (64, 300):
         assert main(["compress", str(src), "-o", str(work / f"c{k}"), "--k", str(k), "--codec", "png", "-q"]) == 0

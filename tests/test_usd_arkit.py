@@ -21,9 +21,9 @@ from usdbtf.imageio import read_image
 
 
 @pytest.fixture(scope="module")
-def asset(tmp_path_factory) -> Path:
+def asset(tmp_path_factory, synth_capture) -> Path:
     work = tmp_path_factory.mktemp("ar")
-    assert main(["synth", "ridged_fabric", "-o", str(work / "src"), "--sampling", "small", "--size", "32", "-q"]) == 0
+    synth_capture("ridged_fabric", "small", 32, out=work / "src")
     assert main(["compress", str(work / "src"), "-o", str(work / "c"), "--k", "8", "--codec", "png", "-q"]) == 0
     out = work / "a" / "fabric.usda"
     assert main(["package", str(work / "c"), "-o", str(out), "--usdz", "--usdz-ar", "--asset-version", "2",

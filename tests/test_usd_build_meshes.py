@@ -77,6 +77,25 @@ SCENE = HEADER + '''def Xform "World"
 '''
 
 
+#: The floor's tileable quilt side in this module, texels (the product's default is
+#: binding.TILE_SIZE = 256).  What these tests check of the "tile" mapping (st scaled so one tile
+#: spans the quilt's physical size, the density ratio 1, one shared quilt, the same bytes at -j 1
+#: and -j 2) holds at any side; at 64 the floor's quilt step takes a tenth of the time (it was the
+#: slowest step of both builds).
+TILE = 64
+
+
+@pytest.fixture(scope="module", autouse=True)
+def small_tile():
+    """binding.TILE_SIZE at :data:`TILE` for every build of the module (a rebuild with another
+    side would re-quilt the floor)."""
+    from usdbtf.usd.scenes import binding
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(binding, "TILE_SIZE", TILE)
+        yield
+
+
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
     """The scene built once: (scene path, the first build's report, the scene's bytes before)."""
@@ -159,13 +178,13 @@ def test_inspect_validate_flags_a_stretched_material_and_passes_the_built_scene(
 
 def test_tile_mapping_repeats_a_tileable_quilt_at_physical_scale(built):
     """``btf:build:mapping = "tile"``: the floor keeps its topology, its st is scaled so that one
-    tile of the 256-texel tileable quilt (0.8 m at 320 texels/m) spans 0.8 m of the 2 m floor."""
+    tile of the 64-texel tileable quilt (0.2 m at 320 texels/m) spans 0.2 m of the 2 m floor."""
     from pxr import UsdGeom
 
     scene, report, _ = built
     stage = open_stage(report["built_scene"])
     st = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/World/Floor")).GetPrimvar("st").Get()
-    assert max(p[0] for p in st) == pytest.approx(2.0 / 0.8, rel=1e-5)
+    assert TILE == 64 and max(p[0] for p in st) == pytest.approx(2.0 / 0.2, rel=1e-5)
     assert len(UsdGeom.Mesh(stage.GetPrimAtPath("/World/Floor")).GetFaceVertexCountsAttr().Get()) == 1
     floor = {e["prim"]: e for e in binding_densities(stage)}["/World/Floor"]
     assert floor["ratio"] == pytest.approx(1.0, abs=1e-4)

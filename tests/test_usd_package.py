@@ -37,10 +37,8 @@ def work(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def src(work) -> Path:
-    folder = work / "src"
-    assert main(["synth", "pebbles", "-o", str(folder), "--sampling", "small", "--size", "32", "-q"]) == 0
-    return folder
+def src(work, synth_capture) -> Path:
+    return synth_capture("pebbles", "small", 32, out=work / "src")
 
 
 @pytest.fixture(scope="module", params=["jxlp", "jxl", "exr", "jpeg"])
