@@ -8,7 +8,14 @@ measured light directions at the pole view, orthographically from the pole, one 
 pixel, under one ``UsdLux.DistantLight`` of irradiance 1 (``usd.preview.hydra.swatch_scene``):
 
 btf       the asset as packaged (the BTF shader, this convention: radiance = value x E / (pi W));
-fallback  the same asset with ``outputs:glslfx:surface`` blocked: the UsdPreviewSurface fallback;
+fallback  the same asset with ``outputs:glslfx:surface`` and ``outputs:mtlx:surface`` blocked: the
+          UsdPreviewSurface fallback (``swatch_scene(fallback="preview")``);
+nearest   the fallback with its maps sampled texel by texel (``swatch_scene(nearest=True)``:
+          ``minFilter``/``magFilter`` "nearest" on each ``UsdUVTexture``, which Storm honours):
+          at one texel a pixel Storm on llvmpipe otherwise low-passes the maps (``checker``
+          below), and the fallback's brightness is not linear in them (normals renormalised,
+          roughness and F0 inside products);
+openpbr   the same asset drawing only its OpenPBR network (``fallback="openpbr"``);
 legacy    the BTF shader with ``inputs:exposure = pi W``: exactly the shader before this convention
           (irradiance 1 = the capture light), the baseline, measured in the same run.
 
@@ -144,7 +151,7 @@ def storm_checker(asset: Path, python: Path, work: Path) -> dict:
     out.write_image(np.repeat(pixels, 3, axis=2))
     out.close()
     scene = copy / "scene.usda"
-    camera, size = hydra.swatch_scene(asset, scene, (0.0, 0.0), irradiance=1.0, fallback=True)
+    camera, size = hydra.swatch_scene(asset, scene, (0.0, 0.0), irradiance=1.0, fallback="preview")
     stage = Usd.Stage.Open(str(scene))
     for material in btf_materials(stage):
         surface = UsdShade.Shader(stage.GetPrimAtPath(material.GetPath().AppendChild("PreviewSurface")))
@@ -251,9 +258,12 @@ def measure(asset: Path, python: Path, work: Path, count: int) -> dict:
     lights = pole_lights(cbtf, count)
     frames, kinds = [], []
     for s, light in lights:
-        for kind in ("btf", "fallback", "legacy", "flat"):
+        for kind in ("btf", "fallback", "nearest", "openpbr", "legacy", "flat"):
             scene = work / f"{kind}_{s}.usda"
-            camera, size = hydra.swatch_scene(asset, scene, light, irradiance=1.0, fallback=kind in ("fallback", "flat"))
+            # "fallback" is the UsdPreviewSurface (Storm would otherwise draw the OpenPBR network).
+            pick = {"fallback": "preview", "nearest": "preview", "flat": "preview", "openpbr": "openpbr"}.get(kind, False)
+            camera, size = hydra.swatch_scene(asset, scene, light, irradiance=1.0, fallback=pick,
+                                              nearest=kind == "nearest")
             if kind == "legacy":
                 legacy_exposure(scene, capture_irradiance(white))
             if kind == "flat":
@@ -271,11 +281,16 @@ def measure(asset: Path, python: Path, work: Path, count: int) -> dict:
     # the working space compares like with like.
     to_working = processor("Linear Rec.709 (sRGB)", cbtf.working_space, cbtf.ocio_config)
     matched = {s: to_working.apply(images[(s, "fallback")].astype(np.float32)).astype(np.float64) for s, _ in lights}
+    matched_nearest = {s: to_working.apply(images[(s, "nearest")].astype(np.float32)).astype(np.float64)
+                       for s, _ in lights}
     samples = {s: decompress(cbtf, DecompressOptions(samples=str(s))).btf.read_samples([0])[0] for s, _ in lights}
     gain, gains, steps = common_gain([(images[(s, "btf")], samples[s]) for s, _ in lights])
     lgain, _, _ = common_gain([(images[(s, "legacy")], samples[s]) for s, _ in lights])
     rows = [{"sample": s, "light": light, "btf_gain": g, "btf_steps": d,
              "fallback_over_btf": float(images[(s, "fallback")].mean() / images[(s, "btf")].mean()),
+             "nearest_over_btf": float(images[(s, "nearest")].mean() / images[(s, "btf")].mean()),
+             "nearest_working_over_btf": float(matched_nearest[s].mean() / images[(s, "btf")].mean()),
+             "openpbr_over_btf": float(images[(s, "openpbr")].mean() / images[(s, "btf")].mean()),
              "fallback_over_legacy": float(images[(s, "fallback")].mean() / images[(s, "legacy")].mean()),
              "fallback_working_over_btf": float(matched[s].mean() / images[(s, "btf")].mean()),
              "flat_normal_over_btf": float(images[(s, "flat")].mean() / images[(s, "btf")].mean())}
@@ -306,9 +321,10 @@ def main(argv=None) -> int:
     say(f"inputs: synth --sampling {args.sampling} --size {args.size} --seed 5, compress --k {args.k} --codec png, "
         f"package --physical-size 0.05 0.05; {args.lights} pole-view lights, DistantLight irradiance 1")
     out = {"machine": info, "args": vars(args), "results": {}}
-    lines = ["| preset | USD | BTF gain vs samples (pi W = 3.1416) | before | BTF steps | Storm fallback / BTF | "
+    lines = ["| preset | USD | BTF gain vs samples (pi W = 3.1416) | before | BTF steps | Storm UsdPreviewSurface / BTF | "
+             "same, maps sampled nearest | nearest, in the working space | Storm OpenPBR / BTF | "
              "before (/ legacy BTF) | in the working space | normal map blocked | fit model / BTF | "
-             "Cycles Principled / OSL BTF | Storm checker |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "Cycles Principled / OSL BTF | Storm checker |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     with tempfile.TemporaryDirectory(prefix="usdbtf-bench-") as tmp:
         for preset in args.presets:
             asset = build(preset, Path(tmp) / preset, args.sampling, args.size, args.k)
@@ -325,7 +341,10 @@ def main(argv=None) -> int:
                 steps = [row["btf_steps"] for row in r["lights"]]
                 say(f"{preset} USD {version}: BTF gain {r['btf_gain']:.4f} (pi W = {r['convention_gain']:.4f}, "
                     f"{r['btf_gain'] / r['convention_gain']:.4f} of it), before {r['legacy_gain']:.4f}; "
-                    f"fallback/BTF {np.round(ratios, 3).tolist()}, in the working space "
+                    f"UsdPreviewSurface/BTF {np.round(ratios, 3).tolist()}, OpenPBR/BTF "
+                    f"{np.round([row['openpbr_over_btf'] for row in r['lights']], 3).tolist()}, UsdPreviewSurface sampled "
+                    f"nearest / BTF {np.round([row['nearest_over_btf'] for row in r['lights']], 3).tolist()} (in the working space "
+                    f"{np.round([row['nearest_working_over_btf'] for row in r['lights']], 3).tolist()}), in the working space "
                     f"{np.round([row['fallback_working_over_btf'] for row in r['lights']], 3).tolist()}, normal map blocked "
                     f"{np.round([row['flat_normal_over_btf'] for row in r['lights']], 3).tolist()}, before {np.round(before, 3).tolist()} "
                     f"({r['storm_seconds']:.1f} s Storm); fit model / BTF "
@@ -341,7 +360,7 @@ def main(argv=None) -> int:
 
                 cyc = f"{min(r['cycles']):.3f}-{max(r['cycles']):.3f}" if "cycles" in r else "-"
                 lines.append(f"| {preset} | {version} | {r['btf_gain']:.4f} | {r['legacy_gain']:.4f} | "
-                             f"{min(steps):.2f}-{max(steps):.2f} | {span('fallback_over_btf')} | "
+                             f"{min(steps):.2f}-{max(steps):.2f} | {span('fallback_over_btf')} | {span('nearest_over_btf')} | {span('nearest_working_over_btf')} | {span('openpbr_over_btf')} | "
                              f"{span('fallback_over_legacy')} | {span('fallback_working_over_btf')} | "
                              f"{span('flat_normal_over_btf')} | {span('model_over_btf')} | {cyc} | "
                              f"{r['checker']['x1']['middle_min']:.2f}..{r['checker']['x1']['middle_max']:.2f} "

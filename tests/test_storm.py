@@ -330,24 +330,54 @@ def test_btf_and_its_fallback_agree_on_white(version, lambertian_asset, tmp_path
 
 @pytest.mark.parametrize("version", sorted(hydra.STORM_ENVIRONMENTS))
 def test_fitted_fallback_brightness_on_a_held_out_material(version, assets, tmp_path):
-    """The satin_weave asset (k 64) and its fitted fallback under the same DistantLights, no
-    gain: within the fit's own error of the BTF, no factor pi between them (measured, USD 25.08:
-    fallback / BTF 1.05-1.34 on three presets, benchmarks/bench_storm_photometry.py; the causes
-    are the fit's bias on these lights and Storm's blurred sampling of the per-texel maps at one
-    texel a pixel -- RESULTS.md, issue 40)."""
+    """The satin_weave asset (k 64) and its fitted fallbacks under the same DistantLights, no
+    gain.  What Storm draws without the BTF shader (the OpenPBR network) is within the fits'
+    error of the BTF, no factor pi between them.  The UsdPreviewSurface with its maps sampled
+    texel by texel (``swatch_scene(nearest=True)``: Storm on llvmpipe otherwise low-passes them,
+    and the surface is not linear in its maps, issue 40) is the fit's own model of the shipped
+    maps within 2 % at every light (the convention, the maps' encoding and the model agree
+    with the renderer), and its mean over the lights is the BTF's within 5 % (the fit keeps the
+    near-normal views' brightness, ``svbrdf.pole_samples``)."""
+    from usdbtf import svbrdf
+    from usdbtf.color import processor
+    from usdbtf.imageio import read_image
+    from usdbtf.usd.asset.fallback import FALLBACK_DIR, MAP_FILES, decode_maps
     from usdbtf.usd.read import load_btf
 
     asset = assets[64]
-    lights = pole_lights(load_btf(asset), CONVENTION_LIGHTS)
+    cbtf = load_btf(asset)
+    white = white_level_of(cbtf.info)
+    lights = pole_lights(cbtf, CONVENTION_LIGHTS)
+    kinds = ("btf", "fallback", "nearest")
     frames = []
     for s, light in lights:
-        for kind in ("btf", "fallback"):
+        for kind in kinds:
             scene = tmp_path / f"{kind}_{s}.usda"
-            camera, size = hydra.swatch_scene(asset, scene, light, irradiance=1.0, fallback=kind == "fallback")
+            camera, size = hydra.swatch_scene(asset, scene, light, irradiance=1.0,
+                                              fallback={"btf": False, "fallback": True}.get(kind, "preview"),
+                                              nearest=kind == "nearest")
             frames.append((scene, scene.with_suffix(".exr")))
     result = render(version, frames, camera, size)
     assert result.problems == [], "\n".join(result.problems)
-    ratios = [float(result.images[i + 1][..., :3].mean() / result.images[i][..., :3].mean())
-              for i in range(0, len(frames), 2)]
-    print(f"USD {version} satin_weave k 64: fallback / BTF mean {np.round(ratios, 3).tolist()}")
-    assert all(0.75 <= r <= 1.4 for r in ratios), ratios         # the old convention: 0.35-0.45
+    images = [img[..., :3].astype(np.float64) for img in result.images]
+    folder = asset.with_name(f"{asset.stem}_textures") / FALLBACK_DIR
+    maps = decode_maps({name: read_image(folder / MAP_FILES[name][0])[0] for name in MAP_FILES},
+                       cbtf.working_space, ocio_config=cbtf.ocio_config, white_level=white)
+    samples = [s for s, _ in lights]
+    # Irradiance 1: radiance = value / (pi W) (usdbtf.photometry).
+    model = svbrdf.evaluate(maps, cbtf.sampling.view[samples], cbtf.sampling.light[samples]) / (math.pi * white)
+    # Storm shades the maps in linear Rec.709; the BTF shader returns working-space values.
+    to_working = processor("Linear Rec.709 (sRGB)", cbtf.working_space, cbtf.ocio_config)
+    drawn, nearest, vs_model = [], [], []
+    for i in range(len(lights)):
+        btf, fallback, near = images[len(kinds) * i: len(kinds) * (i + 1)]
+        near = to_working.apply(near.astype(np.float32)).astype(np.float64)
+        drawn.append(fallback.mean() / btf.mean())
+        nearest.append(near.mean() / btf.mean())
+        vs_model.append(near.mean() / float(model[i].mean()))
+    print(f"USD {version} satin_weave k 64: Storm's fallback (OpenPBR) / BTF {np.round(drawn, 3).tolist()}; "
+          f"UsdPreviewSurface sampled nearest / BTF {np.round(nearest, 3).tolist()} (mean {np.mean(nearest):.3f}), "
+          f"/ the fit's model {np.round(vs_model, 4).tolist()}")
+    assert all(0.75 <= r <= 1.4 for r in drawn), drawn              # the old convention: 0.35-0.45
+    assert all(abs(r - 1) <= 0.02 for r in vs_model), vs_model
+    assert abs(np.mean(nearest) - 1) <= 0.05, nearest

@@ -116,7 +116,8 @@ FAR = 10.0
 
 def swatch_scene(asset: Path, out: Path, light_deg, *, lod: str | None = None, kind: str = "distant",
                  intensity: float | None = None, distance: float = 1.0,
-                 irradiance: float | None = None, fallback: bool | str = False) -> tuple[str, tuple[int, int]]:
+                 irradiance: float | None = None, fallback: bool | str = False,
+                 nearest: bool = False) -> tuple[str, tuple[int, int]]:
     """Write ``out`` (.usda): ``asset`` (its ``lod`` selection) seen orthographically from the
     pole of its swatch (the quad in z = 0, tangent +x, bitangent +y), its extent filling the
     frame, lit from ``light_deg`` = (theta, phi) degrees in the swatch's frame by one light of
@@ -131,7 +132,10 @@ def swatch_scene(asset: Path, out: Path, light_deg, *, lod: str | None = None, k
     universal one), else the ``UsdPreviewSurface``; ``"openpbr"`` also blocks
     ``outputs:surface`` (only the MaterialX network can draw), ``"preview"`` also blocks
     ``outputs:mtlx:surface`` (the ``UsdPreviewSurface``, what renderers without MaterialX draw).
-    Returns
+    ``nearest``: every ``UsdUVTexture`` in the scene samples its texture texel by texel
+    (``inputs:minFilter`` and ``inputs:magFilter`` "nearest", sampler inputs Storm honours):
+    Storm on llvmpipe low-passes a texture even at one texel a pixel, and a fallback's
+    brightness is not linear in its maps (issue 40).  Returns
     (camera prim path, (width, height) = the texture's texels)."""
     from pxr import Gf, Usd, UsdGeom, UsdLux
 
@@ -182,6 +186,14 @@ def swatch_scene(asset: Path, out: Path, light_deg, *, lod: str | None = None, k
                 output = UsdShade.Material(material).GetSurfaceOutput(context)
                 if output:
                     output.GetAttr().SetConnections([])  # an explicit empty list blocks the asset's
+    if nearest:
+        from pxr import Sdf, UsdShade
+
+        for prim in stage.Traverse():
+            shader = UsdShade.Shader(prim)
+            if shader and shader.GetIdAttr().Get() == "UsdUVTexture":
+                for name in ("minFilter", "magFilter"):
+                    shader.CreateInput(name, Sdf.ValueTypeNames.Token).Set("nearest")
     stage.GetRootLayer().customLayerData = {"usdbtf": {"output": "storm-check-scene"}}
     stage.Save()
     return "/World/Camera", (cbtf.width, cbtf.height)
