@@ -3,8 +3,8 @@
 The layout is documented texel by texel at the top of ``glsl/btf_core.glsl`` (the shader
 that reads it); this module writes it.  Pure arrays in, arrays out:
 
-* ``tables`` (R, TABLE_WIDTH, 4) float32: a header, the basis (its stored integer codes or
-  halves, exactly, group-major: 4 basis vectors per texel, one group's S samples after the
+* ``tables`` (R, TABLE_WIDTH, 4) float32: a header, the basis (its stored integer codes plus
+  2^23, schema 3: one float exponent, so OpenEXR zip packs them 0.91x; or halves; exactly, group-major: 4 basis vectors per texel, one group's S samples after the
   other, with each vector's de-quantisation: the shader de-quantises, so the tables hold the
   compressed basis itself and nothing else needs to, :func:`unpack`), a point-location table
   for the view and for the light hemisphere (the triangulations of :mod:`usdbtf.render.hemisphere`, so the GPU interpolates exactly as
