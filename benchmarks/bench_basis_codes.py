@@ -62,9 +62,11 @@ def basis_rows(cbtf, views: int, lights: int) -> list[tuple[str, int]]:
     out = []
     for comp in ("zip", "zips", "piz"):
         out.append((f"float32 codes, EXR {comp}", _exr(_rows(stored).astype(np.float32), comp)))
-        out.append((f"float32 2^23 + code, EXR {comp}", _exr(_rows(stored + BASIS_CODE_OFFSET).astype(np.float32), comp)))
+        shifted = _rows(stored + BASIS_CODE_OFFSET).astype(np.float32)
+        out.append((f"float32 2^23 + code, EXR {comp}", _exr(shifted, comp)))
     two_d = stored.reshape(groups, views, lights, 4).reshape(groups * views, lights, 4)
-    out.append(("float32 2^23 + code, V x L images, EXR zip", _exr((two_d + BASIS_CODE_OFFSET).astype(np.float32), "zip")))
+    out.append(("float32 2^23 + code, V x L images, EXR zip",
+                _exr((two_d + BASIS_CODE_OFFSET).astype(np.float32), "zip")))
     if stored.max() <= 2048:
         for comp in ("zip", "piz"):
             out.append((f"half codes (own file), EXR {comp}", _exr(_rows(stored).astype(np.float16), comp)))
@@ -83,9 +85,10 @@ def main(argv=None) -> int:
     cbtf = read_compressed(args.folder)
     from usdbtf.compress.format import cross_layout
     views, lights = cross_layout(cbtf.sampling)
-    print(f"machine: {platform.node()} {platform.machine()} {os.cpu_count()} cpus, python {platform.python_version()}")
-    print(f"input: {args.folder}: {cbtf.width}x{cbtf.height}, k {cbtf.k}, {cbtf.n_samples} samples ({views} x {lights}),"
-          f" basis {cbtf.basis.pixels.dtype} codes {int(cbtf.basis.pixels.min())}..{int(cbtf.basis.pixels.max())}")
+    print(f"machine: {platform.node()} {platform.machine()} {os.cpu_count()} cpus, "
+          f"python {platform.python_version()}")
+    print(f"input: {args.folder}: {cbtf.width}x{cbtf.height}, k {cbtf.k}, "
+          f"{cbtf.n_samples} samples ({views} x {lights}), basis {cbtf.basis.pixels.dtype} codes {int(cbtf.basis.pixels.min())}..{int(cbtf.basis.pixels.max())}")
     print("\n| basis block candidate | bytes | vs float32 codes zip |\n|---|---:|---:|")
     rows = basis_rows(cbtf, views, lights)
     base = rows[0][1]

@@ -23,7 +23,8 @@ import numpy as np
 from ..errors import BTFError
 
 __all__ = ["MAX_CODE", "pack_count", "coefficient_packs", "shipped_pack_bytes", "shipped_basis_bytes",
-           "basis_codes_group_major", "BASIS_CODE_OFFSET", "basis_code_offset", "PNG_FILTERS", "encode_png_page", "pack_bytes_by_k", "default_lods", "page_breaks", "ShippedPacks"]
+           "basis_codes_group_major", "BASIS_CODE_OFFSET", "basis_code_offset", "PNG_FILTERS", "encode_png_page",
+           "pack_bytes_by_k", "default_lods", "page_breaks", "ShippedPacks"]
 
 #: Largest code of each storage type: what a GPU's normalised read divides by.
 MAX_CODE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0, np.dtype(np.float16): 1.0}
