@@ -89,3 +89,35 @@ def test_shipped_packs_follow_the_assets_page_breaks(made):
     from usdbtf.usd.asset import lod
     assert lod.default_lods is packs.default_lods and tables.page_breaks is packs.page_breaks
     assert packs.default_lods(12) == [6] and packs.page_breaks(12, [6]) == [6]
+
+
+def test_tables_basis_codes_carry_the_offset_and_older_tables_still_read(made):
+    """Schema 3 (issue 39): integer basis codes sit in the tables as 2^23 + code (one float
+    exponent, smaller OpenEXR zip); the block's first texel .w says so and ``unpack`` subtracts
+    it.  Tables written before (offset 0, the bare codes) read the same codes; any other offset
+    is refused in one line."""
+    from usdbtf.errors import BTFError
+    from usdbtf.gpu.tables import gpu_layout, unpack
+    from usdbtf.imageio import read_rgba
+
+    compressed, gpu = made
+    cbtf = read_compressed(compressed)
+    shipped = read_rgba(gpu / "tables.exr")
+    flat = shipped.reshape(-1, 4)
+    basis_at, groups = int(flat[1, 1]), int(flat[0, 3])
+    assert flat[basis_at, 3] == packs.BASIS_CODE_OFFSET == 2.0 ** 23
+    at = basis_at + 1 + 2 * groups
+    stored = flat[at:at + groups * cbtf.n_samples]
+    assert stored.min() >= 2.0 ** 23 and stored.max() < 2.0 ** 24       # exact in float32
+    pages = [read_rgba(p) for p in sorted(gpu.glob("page*.png"))]
+    basis, _ = unpack(shipped, pages)
+    np.testing.assert_array_equal(basis, cbtf.basis.pixels)
+    old = np.asarray(shipped, np.float32).copy()
+    old.reshape(-1, 4)[at:at + groups * cbtf.n_samples] -= np.float32(2.0 ** 23)
+    old.reshape(-1, 4)[basis_at, 3] = 0.0
+    np.testing.assert_array_equal(unpack(old, pages)[0], cbtf.basis.pixels)
+    old.reshape(-1, 4)[basis_at, 3] = 5.0
+    with pytest.raises(BTFError, match="basis code offset"):
+        unpack(old, pages)
+    # the layout in memory is what the file holds
+    np.testing.assert_array_equal(gpu_layout(cbtf).tables.reshape(-1, 4)[at:at + groups * cbtf.n_samples], stored)

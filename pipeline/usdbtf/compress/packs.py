@@ -23,7 +23,8 @@ import numpy as np
 from ..errors import BTFError
 
 __all__ = ["MAX_CODE", "pack_count", "coefficient_packs", "shipped_pack_bytes", "shipped_basis_bytes",
-           "basis_codes_group_major", "pack_bytes_by_k", "default_lods", "page_breaks", "ShippedPacks"]
+           "basis_codes_group_major", "BASIS_CODE_OFFSET", "basis_code_offset", "PNG_FILTERS", "encode_png_page",
+           "pack_bytes_by_k", "default_lods", "page_breaks", "ShippedPacks"]
 
 #: Largest code of each storage type: what a GPU's normalised read divides by.
 MAX_CODE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0, np.dtype(np.float16): 1.0}
@@ -94,6 +95,32 @@ def coefficient_packs(cbtf, k: int, breaks: list[int]) -> tuple[list, np.ndarray
     return packs, np.asarray(scales), np.asarray(biases)
 
 
+#: libpng's filter choices tried on every 8-bit page (OIIO "png:filter"): 0 = libpng's
+#: default (adaptive: per row the filter of least absolute sum), 8 = PNG_FILTER_NONE.  Smooth
+#: leading coefficients favour the filters, the noise-like later ones none (k 190 paper-scale
+#: packs at level 6: adaptive 1,990,351, none 1,937,117, the smaller per pack 1,914,031 bytes;
+#: level 9 1,950,121 at 6x the encode time; notes/issue39-codec-results.md).
+PNG_FILTERS = (0, 8)
+
+
+def encode_png_page(pixels: np.ndarray) -> bytes:
+    """An 8-bit RGBA page or pack (H, W, 4) as the asset's PNG: level 6, the smaller of the
+    :data:`PNG_FILTERS` encodings (the first on a tie; deterministic).  Alpha is the fourth
+    coefficient layer, not coverage: OIIO must not un-premultiply RGB by it (Storm's PNG
+    reader takes the file's values as they are)."""
+    from ..imageio import encode_image
+
+    best = None
+    for png_filter in PNG_FILTERS:
+        attributes = {"png:compressionLevel": 6, "oiio:UnassociatedAlpha": 1}
+        if png_filter:
+            attributes["png:filter"] = png_filter
+        data = encode_image(pixels, "png", color_space="data", attributes=attributes)
+        if best is None or len(data) < len(best):
+            best = data
+    return best
+
+
 def _encode_pack(pixels: np.ndarray) -> bytes:
     """One pack (H, W, 4) encoded as the asset encodes a page of it (usd.asset.storm.add_gpu_textures)."""
     from ..imageio import encode_image
@@ -102,8 +129,7 @@ def _encode_pack(pixels: np.ndarray) -> bytes:
         if pixels.dtype == np.uint16:
             pixels = (pixels.astype(np.float64) / 65535.0).astype(np.float32)
         return encode_image(pixels, "exr", color_space="data", attributes={"compression": "zip"})
-    return encode_image(pixels, "png", color_space="data",
-                        attributes={"png:compressionLevel": 6, "oiio:UnassociatedAlpha": 1})
+    return encode_png_page(pixels)
 
 
 def shipped_pack_bytes(cbtf, k: int | None = None) -> list[int]:
@@ -162,14 +188,31 @@ class ShippedPacks:
         return total
 
 
+#: Added to integer basis codes in the GPU tables (schema version 3, issue 39): 2^23 + code
+#: (code < 2^16) is exact in float32 with one exponent for every code, so the texel's bytes
+#: are the code's own (fixed point) and OpenEXR zip compresses them 8.8 % smaller than the
+#: bare codes, whose exponent follows their magnitude (k 190 paper-scale basis: 853,328
+#: against 935,306 bytes, notes/issue39-codec-results.md).  Readers subtract it (the basis
+#: block's first texel .w; 0 in older tables and for half codes, which are not integers).
+BASIS_CODE_OFFSET = 2.0 ** 23
+
+
+def basis_code_offset(dtype) -> float:
+    """What the GPU tables add to basis codes of storage type ``dtype``: BASIS_CODE_OFFSET for
+    integer codes, 0 for halves."""
+    return 0.0 if np.dtype(dtype) == np.float16 else BASIS_CODE_OFFSET
+
+
 def basis_codes_group_major(cbtf, k: int) -> np.ndarray:
     """The stored basis codes of the first ``k`` vectors, group-major as the GPU tables hold
-    them: (ceil(k/4) * S, 4) float32, row ``g S + s`` = vectors 4g..4g+3 of sample s (vectors
-    past k are 0).  Exact: integer codes below 2^24, or halves."""
+    them: (ceil(k/4) * S, 4) float32, row ``g S + s`` = vectors 4g..4g+3 of sample s, each
+    code plus :func:`basis_code_offset` (vectors past k are code 0 plus it).  Exact: integer
+    codes below 2^16 plus 2^23 are below 2^24; halves as they are."""
     S = cbtf.n_samples
     groups = -(-k // 4)
-    codes = np.zeros((S, groups * 4), np.float32)
-    codes[:, :k] = cbtf.basis.pixels[:, :k, 0]
+    offset = basis_code_offset(cbtf.basis.pixels.dtype)
+    codes = np.full((S, groups * 4), offset, np.float32)
+    codes[:, :k] = cbtf.basis.pixels[:, :k, 0].astype(np.float64) + offset
     return codes.reshape(S, groups, 4).transpose(1, 0, 2).reshape(-1, 4)
 
 

@@ -3,8 +3,8 @@
 The layout is documented texel by texel at the top of ``glsl/btf_core.glsl`` (the shader
 that reads it); this module writes it.  Pure arrays in, arrays out:
 
-* ``tables`` (R, TABLE_WIDTH, 4) float32: a header, the basis (its stored integer codes or
-  halves, exactly, group-major: 4 basis vectors per texel, one group's S samples after the
+* ``tables`` (R, TABLE_WIDTH, 4) float32: a header, the basis (its stored integer codes plus
+  2^23, schema 3: one float exponent, so OpenEXR zip packs them 0.91x; or halves; exactly, group-major: 4 basis vectors per texel, one group's S samples after the
   other, with each vector's de-quantisation: the shader de-quantises, so the tables hold the
   compressed basis itself and nothing else needs to, :func:`unpack`), a point-location table
   for the view and for the light hemisphere (the triangulations of :mod:`usdbtf.render.hemisphere`, so the GPU interpolates exactly as
@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..compress.format import CompressedBTF, cross_layout
-from ..compress.packs import (MAX_CODE as _MAX_CODE, TABLE_WIDTH, basis_codes_group_major,
+from ..compress.packs import (MAX_CODE as _MAX_CODE, TABLE_WIDTH, basis_code_offset, basis_codes_group_major,
                               coefficient_packs as _pack, pack_count, page_breaks)
 from ..errors import BTFError
 
@@ -327,10 +327,11 @@ def _tables(cbtf: CompressedBTF, k: int, cross: tuple[int, int], hemispheres: tu
 
 
 def _basis_block(cbtf: CompressedBTF, k: int, groups: int) -> np.ndarray:
-    """The tables' basis block (texels, 4): (largest code of its storage type, S, groups, 0),
-    then per group g the scale and the bias of vectors 4g..4g+3 (float32, as
-    ``CompressedBTF.basis_values`` rounds them), then the stored codes group-major (texel
-    1 + 2 groups + g S + s: vectors 4g..4g+3 of sample s; vectors past k are 0)."""
+    """The tables' basis block (texels, 4): (largest code of its storage type, S, groups,
+    offset), then per group g the scale and the bias of vectors 4g..4g+3 (float32, as
+    ``CompressedBTF.basis_values`` rounds them), then the stored codes plus ``offset``
+    (:func:`usdbtf.compress.packs.basis_code_offset`) group-major (texel 1 + 2 groups + g S + s:
+    vectors 4g..4g+3 of sample s; vectors past k are code 0)."""
     b = cbtf.basis
     S = cbtf.n_samples
     dtype = np.dtype(b.pixels.dtype)
@@ -339,7 +340,7 @@ def _basis_block(cbtf: CompressedBTF, k: int, groups: int) -> np.ndarray:
     scale = np.zeros(groups * 4, np.float32)
     bias = np.zeros(groups * 4, np.float32)
     scale[:k], bias[:k] = b.scale[:k], b.bias[:k]
-    head = np.array([[_MAX_CODE[dtype], S, groups, 0]], np.float32)
+    head = np.array([[_MAX_CODE[dtype], S, groups, basis_code_offset(dtype)]], np.float32)
     dequant = np.stack([scale.reshape(groups, 4), bias.reshape(groups, 4)], axis=1).reshape(-1, 4)
     return np.concatenate([head, dequant, basis_codes_group_major(cbtf, k)])
 
@@ -356,10 +357,10 @@ def basis_bytes(tables: np.ndarray, n: int | None = None) -> int:
     flat = np.asarray(tables, np.float32).reshape(-1, 4)
     groups, stored_k, basis_at = int(flat[0, 3]), int(flat[1, 0]), int(flat[1, 1])
     n = stored_k if n is None else min(int(n), stored_k)
-    S, used = int(flat[basis_at, 1]), -(-n // 4)
+    S, used, offset = int(flat[basis_at, 1]), -(-n // 4), flat[basis_at, 3]
     at = basis_at + 1 + 2 * groups
     block = flat[at:at + used * S].copy().reshape(used, S, 4)
-    block[used - 1, :, n - 4 * (used - 1):] = 0.0
+    block[used - 1, :, n - 4 * (used - 1):] = offset         # code 0
     rows = -(-used * S // TABLE_WIDTH)
     image = np.zeros((rows * TABLE_WIDTH, 4), np.float32)
     image[:used * S] = block.reshape(-1, 4)
@@ -417,10 +418,14 @@ def unpack(tables: np.ndarray, pages: list, k: int | None = None) -> tuple[np.nd
     basis_at, directory_at = int(flat[1, 1]), int(flat[3, 0])
     width, height = int(flat[3, 1]), int(flat[3, 2])
     max_code, S, block_groups = float(flat[basis_at, 0]), int(flat[basis_at, 1]), int(flat[basis_at, 2])
+    offset = float(flat[basis_at, 3])       # 2^23 for integer codes (schema 3), 0 before and for halves
     if block_groups != groups:
         raise BTFError("GPU tables: the basis block does not match the header (written by an older usdbtf?)")
+    if offset not in (0.0, basis_code_offset(storage_dtype(max_code, "GPU tables basis"))):
+        raise BTFError(f"GPU tables: basis code offset {offset!r} (written by a newer usdbtf?)")
     at = basis_at + 1 + 2 * groups
     codes = flat[at:at + groups * S].reshape(groups, S, 4).transpose(1, 0, 2).reshape(S, groups * 4)[:, :k]
+    codes = codes.astype(np.float64) - offset
     basis = _codes(codes, max_code, "GPU tables basis", normalised=False)
     coefficients = [np.empty((height, width, 3), np.uint8) for _ in range(k)]
     for g in range(-(-k // 4)):

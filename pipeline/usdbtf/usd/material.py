@@ -29,9 +29,10 @@ from ..errors import BTFError
 from ..sampling import Sampling
 from .plugin import API_SCHEMA, require_schema
 
-SCHEMA_VERSION = 2
-#: Versions :func:`read_btf` reads (1: the ``files`` layout only, before btf:coefficientLayout).
-READABLE_VERSIONS = (1, 2)
+SCHEMA_VERSION = 3
+#: Versions :func:`read_btf` reads (1: the ``files`` layout only, before btf:coefficientLayout;
+#: 3: the GPU tables' integer basis codes plus 2^23, usdbtf.compress.packs.BASIS_CODE_OFFSET).
+READABLE_VERSIONS = (1, 2, 3)
 #: btf:coefficientLayout values.
 FILES, GPU_PAGES = "files", "gpuPages"
 #: btf:basisLayout of the GPU tables.

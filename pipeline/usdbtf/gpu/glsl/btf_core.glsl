@@ -18,11 +18,14 @@
 //   texel 2        (dequantOffset, matrixOffset, curve, gamma)   working-domain curve:
 //                  0 linear, 1 power (inverse d^gamma), 2 sRGB (usdbtf.compress.domain)
 //   texel 3        (directoryOffset, tileWidth, tileHeight, repeat)   1 = wrap, 0 = clamp
-//   basis          basisOffset (maxCode, S, G, 0)   S = V * L samples; maxCode: the codes' storage
-//                  (255 uint8, 65535 uint16, 1 half; for readers of the one copy, usdbtf.gpu.tables.unpack)
+//   basis          basisOffset (maxCode, S, G, codeOffset)   S = V * L samples; maxCode: the codes'
+//                  storage (255 uint8, 65535 uint16, 1 half; for readers of the one copy,
+//                  usdbtf.gpu.tables.unpack); codeOffset: added to every code (2^23 for integer
+//                  codes: one float exponent, smaller files; 0 for halves and in older tables)
 //                  basisOffset + 1 + 2g = scale, + 2 + 2g = bias of vectors 4g..4g+3
 //                  basisOffset + 1 + 2G + g * S + view * L + light: the stored codes of vectors
-//                  4g..4g+3 at that sample (value = code * scale + bias, de-quantised here)
+//                  4g..4g+3 at that sample plus codeOffset (value = code * scale + bias, the
+//                  offset subtracted per texel, exactly, and de-quantised here)
 //   hemisphere h   h+0 (origin.x, origin.y, cell, grid)   h+1 (candidateTexels, triangles,
 //                  boundaryEdges, 0)   h+2 (gridOffset, triangleOffset, boundaryOffset, 0)
 //                  grid cell (x, y): candidateTexels texels of 4 triangle ids (-1 = none)
@@ -265,6 +268,9 @@ vec3 btfShadeLight(sampler2D btfTables, BTF_PAGE_PARAMS, ivec3 viewIndex, vec3 v
     int dequant = int(h2.x);
     int matrix = int(h2.y);
     int k = min(basisCount, int(h1.x));
+    // Subtracted from each fetched texel before blending: exact (both below 2^24), where
+    // subtracting the blended offset would cancel 2^23 against the code's fraction.
+    vec4 codeOffset = vec4(btfFetch(btfTables, basis).w);
     vec3 stored = vec3(0.0);
     for (int g = 0; 4 * g < k && g < groups; ++g) {
         // The blended codes, then de-quantised: the bias enters with the weights' sum.
@@ -274,7 +280,7 @@ vec3 btfShadeLight(sampler2D btfTables, BTF_PAGE_PARAMS, ivec3 viewIndex, vec3 v
             for (int b = 0; b < 3; ++b) {
                 float w = viewWeight[a] * lightWeight[b];
                 if (w != 0.0) {
-                    row += w * btfFetch(btfTables, codes + g * samples + viewIndex[a] * lights + lightIndex[b]);
+                    row += w * (btfFetch(btfTables, codes + g * samples + viewIndex[a] * lights + lightIndex[b]) - codeOffset);
                     weights += w;
                 }
             }

@@ -46,6 +46,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ...compress.format import CompressedBTF
+from ...compress.packs import encode_png_page
 from ...errors import BTFError
 from ...gpu import shaders
 from ...gpu.tables import MAX_PAGES, gpu_layout, pack_count
@@ -120,10 +121,8 @@ def add_gpu_textures(cbtf: CompressedBTF, textures, lods=(), *, texels=None) -> 
             if pixels.dtype == np.uint16:
                 pixels = (pixels.astype(np.float64) / 65535.0).astype(np.float32)
             return ".exr", encode_image(pixels, "exr", color_space="data", attributes={"compression": "zip"}), "float"
-        # Alpha is the fourth coefficient layer, not coverage: OIIO must not
-        # un-premultiply RGB by it (Storm's PNG reader takes the file's values as-is).
-        return ".png", encode_image(pixels, "png", color_space="data",
-                                    attributes={"png:compressionLevel": 6, "oiio:UnassociatedAlpha": 1}), "unorm"
+        # The smaller of the PNG filter choices, as rate control measures packs (packs.py).
+        return ".png", encode_png_page(pixels), "unorm"
 
     # Each worker builds its page and encodes it: a few atlas-sized pages in memory at once.
     # Forked workers only for 8-bit pages (PNG): the others are written as OpenEXR.
