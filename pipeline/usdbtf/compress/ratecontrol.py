@@ -567,8 +567,9 @@ def _packaged(cbtf: CompressedBTF, options: CompressOptions, fallback_fits: tupl
     """``options.asset_overhead`` of ``cbtf`` with the metadata compress will record for it
     (``options.extra``: the source's physical size and white level, which the layers hold).
     ``fallback_fits``: an earlier packaging's fallback fits, reused (issue 42: refitting them was
-    ~90 % of each packaging's time, and their maps' bytes barely move with k; measured: the
-    full lod differs by <0.1 % from packaging with fits of its own k, see the module notes)."""
+    ~90 % of each packaging's time, and their maps' bytes barely move with k: metal_flakes 64²,
+    paper sampling, --max-bytes 1e6: fits of k = 145 reused at k = 117 counted 100 bytes more
+    than fits of its own k (990,613 against 990,513), the same k and textures were chosen)."""
     kw = {} if fallback_fits is None else {"fallback_fits": fallback_fits}
     return options.asset_overhead(dataclasses.replace(cbtf, info={**options.extra, **cbtf.info}), **kw)
 
