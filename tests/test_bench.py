@@ -86,8 +86,15 @@ def test_smoke_modes_table_puts_every_mode_against_the_floor_and_the_paper(smoke
         assert r["status"] == "ok", label
         assert r["floor_s"] > 0 and abs(r["x_floor"] - r["wall_s"] / r["floor_s"]) < 1e-6 * r["x_floor"]
         assert abs(r["vs_paper"] - r["fit_percent"] / paper["fit_percent"]) < 1e-6
+        # Issue 42: each mode's own floor (decode + a GEMM as wide as its k + one encode of what it wrote).
+        assert r["encode_s"] > 0 and r["gemm_k_s"] > 0 and r["cpu_s"] > 0
+        assert r["own_floor_s"] > r["encode_s"] + r["gemm_k_s"]      # plus the decode pass
+        assert abs(r["x_own_floor"] - r["wall_s"] / r["own_floor_s"]) < 1e-6 * r["x_own_floor"]
     budget = next(r for m, r in rows.items() if "--max-bytes" in m)
     assert f"--max-bytes {int(paper['stored_bytes'])}" in budget["method"]
+    # The asset's budget (the default) where the paper's bytes hold what packaging adds; at this
+    # tiny sampling and size they do not, and the row budgets the folder, saying so.
+    assert budget["method"].endswith("--budget-for folder") and budget["asset_bytes"] is None
     assert budget["stored_bytes"] <= paper["stored_bytes"]
     # Quick entropy coding (the default for a plain k) stores the same values in more bytes.
     quick, full = (r for m, r in rows.items() if m.startswith("compress --k"))

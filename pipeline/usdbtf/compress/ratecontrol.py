@@ -521,6 +521,7 @@ def _asset_max_bytes(f: Factorisation, options: CompressOptions, table) -> tuple
     k, step = ratedist.choose_for_bytes(table, (1 - _OVERHEAD_GUESS) * aim, fc, fb)
     near = quantise(f, min(k, k_cap), step, options)
     measured = _packaged(near, options)
+    fits = measured.get("fallback_fits")   # the fallback fits, reused by the later packagings
     ratio = measured["pages"] / max(ShippedPacks(near)(near.k), 1)
     rest = measured["overhead"] - shipped_basis_bytes(near)
     log.info(f"  asset: packaging k = {near.k} adds {rest:,} bytes beside the pages and basis codes "
@@ -540,7 +541,7 @@ def _asset_max_bytes(f: Factorisation, options: CompressOptions, table) -> tuple
         if k in tried:
             break
         tried.add(k)
-        full = _packaged(quantise(f, k, step, options), options)["full"]
+        full = _packaged(quantise(f, k, step, options), options, fits)["full"]
         log.info(f"  asset try {attempt}: k = {k}, step = {step:.4g}: predicted {predicted:,.0f} bytes, "
                  f"packaged {full:,} ({full / budget:.4f} of the budget)")
         if full <= limit and (best is None or k > best[0]):
@@ -562,10 +563,15 @@ def _asset_max_bytes(f: Factorisation, options: CompressOptions, table) -> tuple
                   "codec_factor": {"packs": fc, "basis": fb}, "model": prediction}
 
 
-def _packaged(cbtf: CompressedBTF, options: CompressOptions) -> dict:
+def _packaged(cbtf: CompressedBTF, options: CompressOptions, fallback_fits: tuple | None = None) -> dict:
     """``options.asset_overhead`` of ``cbtf`` with the metadata compress will record for it
-    (``options.extra``: the source's physical size and white level, which the layers hold)."""
-    return options.asset_overhead(dataclasses.replace(cbtf, info={**options.extra, **cbtf.info}))
+    (``options.extra``: the source's physical size and white level, which the layers hold).
+    ``fallback_fits``: an earlier packaging's fallback fits, reused (issue 42: refitting them was
+    ~90 % of each packaging's time, and their maps' bytes barely move with k: metal_flakes 64²,
+    paper sampling, --max-bytes 1e6: fits of k = 145 reused at k = 117 counted 100 bytes more
+    than fits of its own k (990,613 against 990,513), the same k and textures were chosen)."""
+    kw = {} if fallback_fits is None else {"fallback_fits": fallback_fits}
+    return options.asset_overhead(dataclasses.replace(cbtf, info={**options.extra, **cbtf.info}), **kw)
 
 
 def _asset_fit_planned(f: Factorisation, options: CompressOptions, step: float, k: int, k_cap: int,

@@ -154,7 +154,8 @@ class PackageResult:
     input_name : what was packaged, for messages (the folder, or "compressed BTF").
     openpbr : the OpenPBR fallback's maps ({map: name}); openpbr_maps : its fit
     (usdbtf.openpbr.OpenPbrMaps, of a quilt's source texels); fit_errors : {fallback: percent}
-    (:func:`usdbtf.usd.asset.openpbr.fit_errors`).
+    (:func:`usdbtf.usd.asset.openpbr.fit_errors`); svbrdf_fit : the UsdPreviewSurface fit
+    (of a quilt's source texels; ``maps`` is it gathered onto the quilt).
     """
 
     compressed: CompressedBTF
@@ -176,6 +177,7 @@ class PackageResult:
     openpbr: dict | None = None
     openpbr_maps: object = None
     fit_errors: dict | None = None
+    svbrdf_fit: object = None
 
 
 def read_error_curve(folder: Path, cbtf: CompressedBTF) -> list[tuple[int, float]]:
@@ -267,7 +269,7 @@ def shipped_levels(root, budget: int | None = None, *, shares: bool = True) -> l
     return lod_files(stage, find_material(stage), budget, shares=shares)
 
 
-def asset_overhead(cbtf: CompressedBTF) -> dict:
+def asset_overhead(cbtf: CompressedBTF, fallback_fits: tuple | None = None) -> dict:
     """What packaging ``cbtf`` ships beside its coefficients and basis codes: the bytes a
     ``--max-bytes`` budget of the asset (``compress --budget-for asset``, issue 39) must keep
     for them, measured by packaging ``cbtf`` for real (this module's :func:`package` and
@@ -276,13 +278,18 @@ def asset_overhead(cbtf: CompressedBTF) -> dict:
 
     ``cbtf`` : a quantised (or encoded) compressed BTF near the budget's choice; without a
     recorded physical size a 1 m swatch is packaged (the size changes no texture).
+    ``fallback_fits`` : the "fallback_fits" of an earlier call on the same material (another
+    k): its fallback fits are reused instead of fitted again (:func:`package`'s ``fallback_fits``).  The
+    fits are most of a packaging's time (issue 42: 39 of 43 s, metal_flakes 64², paper
+    sampling) and their maps' bytes barely move with k, which is all this count needs.
 
     Returns
     -------
     dict : "full" (bytes the full lod loads), "pages" (bytes of its coefficient files: GPU pages,
     or coefficient files and basis image when the sampling has no GPU preview), "paged" (GPU
     pages were written), "overhead" (full - pages: tables, fallback maps, thumbnail, MaterialX,
-    layers; with pages the tables' basis block is still in it), "k".
+    layers; with pages the tables' basis block is still in it), "k", "fallback_fits" (the
+    fallback fits used, to pass to a later call).
     """
     import tempfile
 
@@ -297,7 +304,7 @@ def asset_overhead(cbtf: CompressedBTF) -> dict:
     level = quiet.level
     quiet.setLevel(max(level, logging.WARNING))      # the probe's own "packaged ..." lines are noise here
     try:
-        result = package(cbtf, PackageOptions(physical_size=size, validate=False))
+        result = package(cbtf, PackageOptions(physical_size=size, validate=False), fallback_fits=fallback_fits)
         with tempfile.TemporaryDirectory(prefix="usdbtf-overhead-") as tmp:
             summary = write_package(result, Path(tmp) / "probe.usda")
             full = int(summary["bytes"][FULL_LOD])
@@ -307,7 +314,8 @@ def asset_overhead(cbtf: CompressedBTF) -> dict:
             pages = int(sum((folder / n).stat().st_size for n in names))
     finally:
         quiet.setLevel(level)
-    return {"full": full, "pages": pages, "paged": paged, "overhead": full - pages, "k": cbtf.k}
+    return {"full": full, "pages": pages, "paged": paged, "overhead": full - pages, "k": cbtf.k,
+            "fallback_fits": (result.svbrdf_fit, result.openpbr_maps, result.fit_errors)}
 
 
 def check_root_layer(out) -> None:
@@ -318,11 +326,16 @@ def check_root_layer(out) -> None:
 
 
 @single_blas_thread
-def package(compressed, options: PackageOptions | None = None) -> PackageResult:
+def package(compressed, options: PackageOptions | None = None, *,
+            fallback_fits: tuple | None = None) -> PackageResult:
     """Package ``compressed`` -- a compressed BTF folder (read by :func:`read_input`) or a
     :class:`CompressedBTF` (its ``encoded`` bytes and ``curve`` are used when it has them, e.g.
     straight from ``compress``) -- in memory (module docstring); :func:`write_package` writes it.
-    UsageError for options that do not fit, BTFError for bad data."""
+    UsageError for options that do not fit, BTFError for bad data.
+
+    ``fallback_fits`` : (UsdPreviewSurface fit, OpenPBR fit, fit errors) of the same material's
+    texels to use instead of fitting them (compress's rate control packages several k of one
+    material only to count bytes: :func:`asset_overhead`); None fits them here."""
     options = options or PackageOptions()
     options.check()
     name = where = "compressed BTF"
@@ -359,10 +372,11 @@ def package(compressed, options: PackageOptions | None = None) -> PackageResult:
         basis, coefficients = gpu.tables, list(gpu.pages)
     else:
         basis, coefficients = package_textures(cbtf, textures)
-    fitted = fit_svbrdf(cbtf if texels is None else texels.compact, white_level=white)
+    reused = fallback_fits
+    fitted = fit_svbrdf(cbtf if texels is None else texels.compact, white_level=white) if reused is None else reused[0]
     maps_added = fallback.add_maps(fitted, textures, cbtf.ocio_config, texels=texels)
     op_fitted, op_added, errors = _openpbr_fallback(cbtf if texels is None else texels.compact, fitted, white,
-                                                    textures, texels)
+                                                    textures, texels, reused)
     thumb = None
     if options.thumbnail:
         thumb = textures.add_file(thumbnail.THUMBNAIL_FILE, thumbnail.thumbnail_png(cbtf, shape, texels=texels))
@@ -377,14 +391,18 @@ def package(compressed, options: PackageOptions | None = None) -> PackageResult:
 
         ar = ar_textures(fitted, cbtf.ocio_config, texels)
     return PackageResult(cbtf, options, shape, tuple(size), levels, curve, source, textures, basis, coefficients,
-                         maps_added, gpu, thumb, maps, ar, name, op_added, op_fitted, errors)
+                         maps_added, gpu, thumb, maps, ar, name, op_added, op_fitted, errors, fitted)
 
 
-def _openpbr_fallback(cbtf: CompressedBTF, preview: SvbrdfMaps, white: float, textures: TextureSet, texels):
+def _openpbr_fallback(cbtf: CompressedBTF, preview: SvbrdfMaps, white: float, textures: TextureSet, texels,
+                      reused: tuple | None = None):
     """The OpenPBR fallback of ``cbtf`` (a quilt's source texels when ``texels``): (its fit,
-    its maps added to ``textures``, both fallbacks' errors)."""
+    its maps added to ``textures``, both fallbacks' errors); ``reused`` (:func:`package`'s
+    ``fallback``) gives the fit and errors instead."""
     from ...openpbr import fit_openpbr
 
+    if reused is not None:
+        return reused[1], openpbr_fallback.add_maps(reused[1], textures, cbtf.ocio_config, texels=texels), reused[2]
     fitted = fit_openpbr(cbtf, svbrdf=preview, white_level=white)
     added = openpbr_fallback.add_maps(fitted, textures, cbtf.ocio_config, texels=texels)
     errors = openpbr_fallback.fit_errors(cbtf, preview, fitted)
