@@ -7,6 +7,13 @@ is one contiguous row and each channel's dot with the blended basis row runs ove
 memory (measured 2.3x faster than a (k, 3) layout); memory is ``H * W * k * 12`` bytes plus a
 third for mip levels (built on first use, 2 x 2 box filter).
 
+Only the levels a frame samples are built (issue 39): a level n >= 1 with no finer level held
+is made coefficient plane by plane from the stored codes (de-quantised and box-filtered n
+times per plane: the same float32 operations per texel as boxing the whole level 0, so the
+same values bit for bit), so a frame that samples levels 2.. never holds level 0's
+``H * W * k * 12`` bytes, and a lazily read asset (``read_btf(..., lazy=True)``) decodes its
+pages once per level built, one at a time.  Level 0 itself is built whole when a tap needs it.
+
 Texture coordinates follow USD: ``st`` in [0, 1], s to the right, t *up*; texel (row i,
 column j) of the image (row 0 at the top) is centred at ``s = (j + 0.5) / W``,
 ``t = 1 - (i + 0.5) / H``.
@@ -41,16 +48,17 @@ class CoefficientTexture:
         # it is linear, so that is exact, and it keeps this build to one pass over the data.
         matrix = np.asarray(cbtf.color_matrix, np.float32)
         self.matrix = None if np.array_equal(matrix, np.eye(3, dtype=np.float32)) else matrix
-        texels = _texel_major(cbtf, k)
         self.map = None if texel_map is None else np.asarray(texel_map)
+        self._cbtf = cbtf
+        self.levels = {}
         if self.map is None:
-            self.levels = {0: texels}
-            self._texels = None
+            self._texels = None                   # level 0 and the rest: built when first sampled
             self._shape = (cbtf.height, cbtf.width)
         else:
-            self.levels = {}
-            self._texels = texels.reshape(-1, 3, k)
+            self._texels = _texel_major(cbtf, k).reshape(-1, 3, k)
             self._shape = self.map.shape
+        #: Levels in the order they were built, and how ("level 0", "planes", "box", "gathered").
+        self.built: list[tuple[int, str]] = []
         self._lock = threading.Lock()             # shading threads may ask for a new mip level at once
 
     @property
@@ -79,7 +87,15 @@ class CoefficientTexture:
 
     def _build_level(self, n: int) -> np.ndarray:
         below = [m for m in self.levels if m < n]
+        if not below and self.map is None:
+            self.built.append((n, "level 0" if n == 0 else "planes"))
+            level = _texel_major(self._cbtf, self.k) if n == 0 else _plane_level(self._cbtf, self.k, n)
+            release = getattr(self._cbtf.coefficients, "release", None)
+            if release is not None:                  # a lazily read asset: its pages are not kept
+                release()
+            return level
         if not below:                  # gathered level 0: stream it a band at a time, a band per thread
+            self.built.append((n, "gathered"))
             h, w = self.level_shape(n)
             out = np.empty((h, w, 3, self.k), np.float32)
             band = max(1, 32 >> n)
@@ -92,6 +108,7 @@ class CoefficientTexture:
         m = max(below)
         while m < n:
             self.levels[m + 1] = _box(self.levels[m])
+            self.built.append((m + 1, "box"))
             m += 1
         return self.levels[n]
 
@@ -165,16 +182,39 @@ class CoefficientTexture:
         return out
 
 
+def _plane_level(cbtf: CompressedBTF, k: int, n: int) -> np.ndarray:
+    """Mip level ``n`` (H_n, W_n, 3, k) float32 of ``cbtf``'s first ``k`` coefficients, made
+    one coefficient plane at a time: each (H, W) plane de-quantised as :func:`_texel_major`
+    does (code x float32 scale + float32 bias, in float32) and box-filtered ``n`` times
+    (:func:`_box`), the same operations per texel as boxing the texel-major level 0, so the
+    same values.  Holds one coefficient's codes and one plane at a time (plus the level)."""
+    h, w = cbtf.height, cbtf.width
+    for _ in range(n):
+        h, w = -(-h // 2), -(-w // 2)
+    out = np.empty((h, w, 3, k), np.float32)
+    for i in range(k):
+        st = cbtf.coefficients[i]           # a lazily read asset: read here, dropped after
+        scale, bias = st.scale.astype(np.float32), st.bias.astype(np.float32)
+        for c in range(3):
+            plane = np.multiply(st.pixels[:, :, c], scale[c:c + 1], dtype=np.float32)
+            plane += bias[c:c + 1]
+            for _ in range(n):
+                plane = _box(plane)
+            out[:, :, c, i] = plane
+    return out
+
+
 def _texel_major(cbtf: CompressedBTF, k: int) -> np.ndarray:
     """(H, W, 3, k) float32 de-quantised coefficients of ``cbtf``, texel-major."""
     H, W = cbtf.height, cbtf.width
+    coefficients = list(cbtf.coefficients[:k])               # a lazy asset's: read once, not per block
     level = np.empty((H, W, 3, k), np.float32)
     rows = max(1, min(H, (1 << 22) // (W * 3 * k)))          # row blocks of ~16 MB
     block = np.empty((k, rows * W * 3), np.float32)           # reused: no fresh pages per block
     for y0 in range(0, H, rows):
         y1 = min(H, y0 + rows)
         n = (y1 - y0) * W * 3
-        for i, st in enumerate(cbtf.coefficients[:k]):        # exactly Stored.values(), on these rows
+        for i, st in enumerate(coefficients):                 # exactly Stored.values(), on these rows
             out = block[i, :n].reshape(y1 - y0, W, 3)
             np.multiply(st.pixels[y0:y1], st.scale.astype(np.float32), out=out, casting="unsafe")
             out += st.bias.astype(np.float32)
