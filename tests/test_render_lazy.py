@@ -76,3 +76,20 @@ def test_render_builds_only_the_sampled_levels_and_the_picture_is_unchanged(asse
     whole = Renderer(load_btf(asset), opts)
     whole.texture.levels[0] = _texel_major(whole.cbtf, whole.texture.k)
     assert np.array_equal(image, whole.render(mesh, camera, lights))
+
+
+def test_close_up_reads_level_0_as_codes_and_the_picture_is_unchanged(asset):
+    """Magnified (a texel over several pixels): level 0 held as codes, taps de-quantised."""
+    points, faces, uv = plane_with_uv(0.05, 4)
+    mesh = Mesh(points, faces, uv=uv)
+    camera = Camera(np.array([0.0, 0.0, 0.03]), np.zeros(3), np.array([0.0, 1.0, 0.0]), 30.0, 64, 48)
+    lights = [Light("point", np.array([0.01, 0.02, 0.05]), 0.01)]
+    for filt in ("mip", "bilinear"):
+        opts = RenderOptions(threads=2, chunk=1024, filter=filt)
+        lazy = Renderer(load_btf(asset, lazy=True), opts)
+        image = lazy.render(mesh, camera, lights)
+        assert (image[..., 3] > 0).all()
+        assert lazy.texture.built[0] == (0, "codes") and 0 not in lazy.texture.levels
+        whole = Renderer(load_btf(asset), opts)
+        whole.texture.levels[0] = _texel_major(whole.cbtf, whole.texture.k)
+        assert np.array_equal(image, whole.render(mesh, camera, lights))
