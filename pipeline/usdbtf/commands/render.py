@@ -248,7 +248,7 @@ def run(args) -> int:
         if len(args.light) != 1:
             raise UsageError("--swatch needs exactly one --light THETA,PHI")
         view, light = _angles(args.view, "view"), _angles(args.light[0], "light")
-        cbtf = open_asset(args.asset)
+        cbtf = open_asset(args.asset, lazy=True)
         result = render_swatch(cbtf, view, light, opts)
         what = f"swatch {cbtf.width}x{cbtf.height}, view {view}, light {light}"
     else:
