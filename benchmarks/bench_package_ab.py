@@ -65,6 +65,8 @@ def package(side_pipeline: Path | None, source: Path, out: Path, extra: list) ->
     env = dict(os.environ)
     if side_pipeline is not None:
         env["PYTHONPATH"] = str(side_pipeline)
+        # Its own schema plugin (this process's usdbtf import set the working tree's in the environment).
+        env["PXR_PLUGINPATH_NAME"] = str(Path(side_pipeline).parent / "plugin")
     r = run_measured(["nice", sys.executable, "-m", "usdbtf.cli", "package", str(source), "-o", str(out), "-q",
                       *map(str, extra)], env=env, pss_interval=0)
     if r.returncode != 0:
@@ -104,8 +106,8 @@ def main(argv=None) -> int:
                                   text=True, check=True).stdout.strip()
             tree = tmp / full
             tree.mkdir()
-            archive = subprocess.run(["git", "-C", str(REPO), "archive", rev, "pipeline"], capture_output=True,
-                                     check=True).stdout
+            archive = subprocess.run(["git", "-C", str(REPO), "archive", rev, "pipeline", "plugin"],
+                                     capture_output=True, check=True).stdout
             subprocess.run(["tar", "-x", "-C", str(tree)], input=archive, check=True)
             sides[f"before {full}"] = tree / "pipeline"
         sides[f"after {head}{' + working tree' if dirty else ''}"] = None

@@ -87,6 +87,8 @@ def render_once(pipeline: Path | None, scene_path: Path, out: Path, size) -> dic
     env = dict(os.environ)
     if pipeline is not None:
         env["PYTHONPATH"] = str(pipeline)
+        # Its own schema plugin (this process's usdbtf import set the working tree's in the environment).
+        env["PXR_PLUGINPATH_NAME"] = str(Path(pipeline).parent / "plugin")
     r = run_measured(["nice", sys.executable, "-m", "usdbtf.cli", "--force", "render", str(scene_path), "--camera",
                       "/World/Cam", "--size", *map(str, size), "-o", str(out), "--no-png", "-q"], env=env,
                      pss_interval=0)
@@ -114,7 +116,7 @@ def main(argv=None) -> int:
     try:
         rev = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", args.before], capture_output=True,
                              text=True, check=True).stdout.strip()
-        archive = subprocess.run(["git", "-C", str(REPO), "archive", rev, "pipeline"], capture_output=True,
+        archive = subprocess.run(["git", "-C", str(REPO), "archive", rev, "pipeline", "plugin"], capture_output=True,
                                  check=True).stdout
         (tmp / "old").mkdir()
         subprocess.run(["tar", "-x", "-C", str(tmp / "old")], input=archive, check=True)

@@ -339,7 +339,8 @@ class LazyCodes(Sequence):
     has one, calls its ``release``.  Values are bit for bit :func:`unpack`'s."""
 
     def __init__(self, flat: np.ndarray, directory_at: int, width: int, height: int, k: int, pages):
-        self._flat, self._directory_at, self._shape, self._k, self._pages = flat, directory_at, (height, width), k, pages
+        self._flat, self._directory_at, self._k, self._pages = flat, directory_at, k, pages
+        self._shape = (height, width)
         self._group: tuple[int, list] | None = None
         #: Packs read (page, pack) so far: what a test counts.
         self.reads: list[tuple[int, int]] = []
