@@ -72,16 +72,17 @@ def _read(p: Path, color_space: str | None, kw: dict) -> BTF:
     raise BTFError(f"{p}: unrecognised BTF input ({kind}); accepted: {ACCEPTED}")
 
 
-def open_compressed(path, *, material: str | None = None, lod: str | None = None):
+def open_compressed(path, *, material: str | None = None, lod: str | None = None, lazy: bool = False):
     """A :class:`~usdbtf.compress.format.CompressedBTF` from a compressed folder or a
     packaged USD asset (.usda/.usdc/.usd/.usdz; ``material`` picks one of several BTF
-    materials, ``lod`` a level-of-detail variant)."""
+    materials, ``lod`` a level-of-detail variant; ``lazy``: an asset's coefficients read when
+    asked for, :func:`usdbtf.usd.material.read_btf`)."""
     p = Path(path)
     from .usd.read import load_btf
     from .usdstage import USD_SUFFIXES
 
     if p.suffix.lower() in USD_SUFFIXES:
-        return load_btf(p, material=material, lod=lod)
+        return load_btf(p, material=material, lod=lod, lazy=lazy)
     if material is not None or lod is not None:
         raise BTFError(f"{p}: --material and --lod apply to USD assets only")
     from .compress.format import read_compressed

@@ -91,7 +91,7 @@ def _angles(text: str | None, what: str):
     return theta, phi
 
 
-def open_asset(asset: Path):
+def open_asset(asset: Path, *, lazy: bool = False):
     """The compressed BTF of ASSET: a ``btf-compressed/1`` folder (an original or a quilt) or a
     packaged USD asset (.usda/.usdc/.usd/.usdz, read back through :func:`usdbtf.io.open_compressed`)."""
     from ..compress.format import METADATA
@@ -101,7 +101,7 @@ def open_asset(asset: Path):
 
     # A USD asset is found through the asset resolver (a search-path-relative name works).
     if (asset.is_dir() and (asset / METADATA).is_file()) or usd_exists(asset):
-        return open_compressed(asset)
+        return open_compressed(asset, lazy=lazy)
     raise BTFError(f"{asset}: not a compressed BTF folder (no {METADATA}) or a USD asset")
 
 
@@ -127,7 +127,8 @@ def scene_parts(asset: Path, mesh: Path | None):
     from ..usd.read import open_stage
     from ..usd.scenes.scene import bound_btf_meshes
 
-    parts = bound_btf_meshes(open_stage(asset))
+    # Lazily: the renderer reads the pages of the mip levels a frame samples (issue 39).
+    parts = bound_btf_meshes(open_stage(asset), lazy=True)
     return parts if len({id(cbtf) for cbtf, _ in parts}) > 1 else None
 
 
@@ -201,7 +202,7 @@ def _render_scene(args, opts, t0: float) -> int:
     check_pattern(args.output, frames)
     extra = [parsed(parse_light, spec) for spec in args.light]
     width = None if args.size is DEFAULT_SIZE else args.size[0]
-    materials, shots = scene_shots(args.asset, args.camera, width, frames)
+    materials, shots = scene_shots(args.asset, args.camera, width, frames, lazy=True)
     spaces = {(c.working_space, c.ocio_config) for c in materials.values()}
     if len(spaces) > 1:
         raise BTFError(f"{args.asset}: its BTF materials are in different working spaces ({sorted(spaces)}); "
@@ -247,7 +248,7 @@ def run(args) -> int:
         if len(args.light) != 1:
             raise UsageError("--swatch needs exactly one --light THETA,PHI")
         view, light = _angles(args.view, "view"), _angles(args.light[0], "light")
-        cbtf = open_asset(args.asset)
+        cbtf = open_asset(args.asset, lazy=True)
         result = render_swatch(cbtf, view, light, opts)
         what = f"swatch {cbtf.width}x{cbtf.height}, view {view}, light {light}"
     else:
@@ -271,7 +272,7 @@ def run(args) -> int:
             what = (f"{camera.width}x{camera.height} frame, {len(parts)} meshes with {materials} BTF materials, "
                     f"{triangles} triangles, {len(lights)} light(s)")
         else:
-            cbtf = open_asset(args.asset)
+            cbtf = open_asset(args.asset, lazy=True)
             mesh = scene_mesh(args.asset, args.mesh)
             if mesh is None:
                 raise UsageError("give --mesh (an unwrap layer or a mesh with texture coordinates), or --swatch")

@@ -50,8 +50,8 @@ from ..compress.packs import (MAX_CODE as _MAX_CODE, TABLE_WIDTH, basis_code_off
 from ..errors import BTFError
 
 __all__ = ["MAX_PAGES", "PAGE_SIZE", "TABLE_WIDTH", "GpuLayout", "gpu_layout", "pack_count", "page_breaks",
-           "page_plan", "with_wrap", "HemisphereTable", "Pages", "PAGE_TEXELS", "unpack", "storage_dtype",
-           "basis_bytes"]
+           "page_plan", "with_wrap", "HemisphereTable", "Pages", "PAGE_TEXELS", "unpack", "unpack_lazy", "LazyCodes",
+           "storage_dtype", "basis_bytes"]
 
 #: Atlas textures ("pages") of coefficient packs a material binds: with the tables, 16
 #: samplers, for every k.
@@ -392,22 +392,64 @@ def _codes(values: np.ndarray, max_code: float, where: str, normalised: bool = T
     return codes
 
 
-def unpack(tables: np.ndarray, pages: list, k: int | None = None) -> tuple[np.ndarray, list[np.ndarray]]:
-    """The stored codes :func:`gpu_layout` packed, read back from its textures.
+class LazyCodes(Sequence):
+    """The ``k`` coefficient code textures of :func:`unpack`, each assembled from its three
+    packs when asked for (``codes[i]``, (h, w, 3)): a reader that wants one at a time (the
+    renderer building a mip level plane by plane) never holds them all.
 
-    Parameters
-    ----------
-    tables : (R, TABLE_WIDTH, 4) float32, the tables texture as written.
-    pages : the first pages, (H, W, 4) arrays as read from their files (uint8 codes, or floats:
-        code / largest code, or halves); enough of them for the ``k`` vectors asked for.
-    k : basis vectors to read (default all the tables hold).
+    pages : a sequence whose item ``i`` reads page ``i`` (e.g. caching the last one: walked in
+    order, each page is then decoded once per pass).  The last group's three packs are kept
+    (the four vectors of a group share them); :meth:`release` drops them and, where ``pages``
+    has one, calls its ``release``.  Values are bit for bit :func:`unpack`'s."""
 
-    Returns
-    -------
-    (basis (S, k, 1) codes in their storage type, k coefficient textures (h, w, 3) codes):
-    bit for bit what the compressed BTF stored (a uint8 texture packed beside uint16 ones comes
-    back as uint16 holding the same values: reconstructions are identical).
-    """
+    def __init__(self, flat: np.ndarray, directory_at: int, width: int, height: int, k: int, pages):
+        self._flat, self._directory_at, self._k, self._pages = flat, directory_at, k, pages
+        self._shape = (height, width)
+        self._group: tuple[int, list] | None = None
+        #: Packs read (page, pack) so far: what a test counts.
+        self.reads: list[tuple[int, int]] = []
+
+    def __len__(self) -> int:
+        return self._k
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(h, w) texels of each texture (from the tables: nothing read)."""
+        return self._shape
+
+    def _tiles(self, g: int) -> list[np.ndarray]:
+        if self._group is None or self._group[0] != g:
+            h, w = self._shape
+            tiles = []
+            for c in range(3):
+                p = 3 * g + c
+                page, x0, y0, code = self._flat[self._directory_at + p]
+                if int(page) >= len(self._pages):
+                    raise BTFError(f"coefficient pack {p} is on page {int(page)}; {len(self._pages)} page(s) given")
+                tile = np.asarray(self._pages[int(page)])[int(y0):int(y0) + h, int(x0):int(x0) + w]
+                if tile.shape[:2] != (h, w) or tile.ndim != 3 or tile.shape[2] != 4:
+                    raise BTFError(f"page {int(page)} does not hold coefficient pack {p} ({w}x{h} RGBA tile)")
+                tiles.append(np.array(_codes(tile, float(code), f"page {int(page)}")))   # a copy: the page may go
+                self.reads.append((int(page), p))
+            self._group = (g, tiles)
+        return self._group[1]
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        if not 0 <= i < self._k:
+            raise IndexError(i)
+        tiles = self._tiles(i // 4)
+        return np.stack([t[:, :, i % 4] for t in tiles], axis=2).astype(np.result_type(*tiles))
+
+    def release(self) -> None:
+        self._group = None
+        if hasattr(self._pages, "release"):
+            self._pages.release()
+
+
+def _directory(tables: np.ndarray, k: int | None):
+    """(flat tables (N, 4), k, basis codes (S, k, 1), directory address, width, height)."""
     flat = np.asarray(tables, np.float32).reshape(-1, 4)
     if len(flat) < _HEADER:
         raise BTFError("GPU tables: too small for a header")
@@ -427,6 +469,33 @@ def unpack(tables: np.ndarray, pages: list, k: int | None = None) -> tuple[np.nd
     codes = flat[at:at + groups * S].reshape(groups, S, 4).transpose(1, 0, 2).reshape(S, groups * 4)[:, :k]
     codes = codes.astype(np.float64) - offset
     basis = _codes(codes, max_code, "GPU tables basis", normalised=False)
+    return flat, k, basis[:, :, None], directory_at, width, height
+
+
+def unpack_lazy(tables: np.ndarray, pages, k: int | None = None) -> tuple[np.ndarray, LazyCodes]:
+    """As :func:`unpack`, the coefficient codes a :class:`LazyCodes` (nothing read from
+    ``pages`` yet)."""
+    flat, k, basis, directory_at, width, height = _directory(tables, k)
+    return basis, LazyCodes(flat, directory_at, width, height, k, pages)
+
+
+def unpack(tables: np.ndarray, pages: list, k: int | None = None) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The stored codes :func:`gpu_layout` packed, read back from its textures.
+
+    Parameters
+    ----------
+    tables : (R, TABLE_WIDTH, 4) float32, the tables texture as written.
+    pages : the first pages, (H, W, 4) arrays as read from their files (uint8 codes, or floats:
+        code / largest code, or halves); enough of them for the ``k`` vectors asked for.
+    k : basis vectors to read (default all the tables hold).
+
+    Returns
+    -------
+    (basis (S, k, 1) codes in their storage type, k coefficient textures (h, w, 3) codes):
+    bit for bit what the compressed BTF stored (a uint8 texture packed beside uint16 ones comes
+    back as uint16 holding the same values: reconstructions are identical).
+    """
+    flat, k, basis, directory_at, width, height = _directory(tables, k)
     coefficients = [np.empty((height, width, 3), np.uint8) for _ in range(k)]
     for g in range(-(-k // 4)):
         for c in range(3):
@@ -443,7 +512,7 @@ def unpack(tables: np.ndarray, pages: list, k: int | None = None) -> tuple[np.nd
                 if coefficients[i].dtype != tile.dtype:
                     coefficients[i] = coefficients[i].astype(tile.dtype)
                 coefficients[i][:, :, c] = tile[:, :, j]
-    return basis[:, :, None], coefficients
+    return basis, coefficients
 
 
 def with_wrap(layout: GpuLayout, wrap: str) -> GpuLayout:

@@ -7,6 +7,15 @@ is one contiguous row and each channel's dot with the blended basis row runs ove
 memory (measured 2.3x faster than a (k, 3) layout); memory is ``H * W * k * 12`` bytes plus a
 third for mip levels (built on first use, 2 x 2 box filter).
 
+Only the levels a frame samples are built (issue 39): a level n >= 1 with no finer level held
+is made coefficient plane by plane from the stored codes (de-quantised and box-filtered n
+times per plane: the same float32 operations per texel as boxing the whole level 0, so the
+same values bit for bit), so a frame that samples levels 2.. never holds level 0's
+``H * W * k * 12`` bytes, and a lazily read asset (``read_btf(..., lazy=True)``) decodes its
+pages once per level built, one at a time.  Level 0, when a tap needs it, is held as the
+stored codes, texel-major (``H * W * k * 3`` bytes for 8-bit codes, a quarter of the floats),
+and a tap de-quantises the texels it reads (the same float32 operations, so the same values).
+
 Texture coordinates follow USD: ``st`` in [0, 1], s to the right, t *up*; texel (row i,
 column j) of the image (row 0 at the top) is centred at ``s = (j + 0.5) / W``,
 ``t = 1 - (i + 0.5) / H``.
@@ -41,16 +50,18 @@ class CoefficientTexture:
         # it is linear, so that is exact, and it keeps this build to one pass over the data.
         matrix = np.asarray(cbtf.color_matrix, np.float32)
         self.matrix = None if np.array_equal(matrix, np.eye(3, dtype=np.float32)) else matrix
-        texels = _texel_major(cbtf, k)
         self.map = None if texel_map is None else np.asarray(texel_map)
+        self._cbtf = cbtf
+        self.levels = {}
         if self.map is None:
-            self.levels = {0: texels}
-            self._texels = None
+            self._texels = None                   # level 0 and the rest: built when first sampled
             self._shape = (cbtf.height, cbtf.width)
         else:
-            self.levels = {}
-            self._texels = texels.reshape(-1, 3, k)
+            self._texels = _texel_major(cbtf, k).reshape(-1, 3, k)
             self._shape = self.map.shape
+        #: Levels in the order they were built, and how ("level 0", "codes", "planes", "box", "gathered").
+        self.built: list[tuple[int, str]] = []
+        self._codes0 = None                       # level 0 as codes (h * w, 3, k), built when a tap needs it
         self._lock = threading.Lock()             # shading threads may ask for a new mip level at once
 
     @property
@@ -79,7 +90,18 @@ class CoefficientTexture:
 
     def _build_level(self, n: int) -> np.ndarray:
         below = [m for m in self.levels if m < n]
+        if not below and self.map is None:
+            self.built.append((n, "level 0" if n == 0 else "planes"))
+            if n == 0:
+                level = _texel_major(self._cbtf, self.k)
+            else:
+                planes = (self._cbtf.coefficients.__getitem__ if self._codes0 is None else
+                          lambda i: self._codes0[1][i])
+                level = _plane_level(planes, self._shape, self.k, n)
+            self._release()
+            return level
         if not below:                  # gathered level 0: stream it a band at a time, a band per thread
+            self.built.append((n, "gathered"))
             h, w = self.level_shape(n)
             out = np.empty((h, w, 3, self.k), np.float32)
             band = max(1, 32 >> n)
@@ -92,6 +114,7 @@ class CoefficientTexture:
         m = max(below)
         while m < n:
             self.levels[m + 1] = _box(self.levels[m])
+            self.built.append((m + 1, "box"))
             m += 1
         return self.levels[n]
 
@@ -111,10 +134,32 @@ class CoefficientTexture:
     def max_level(self) -> int:
         return int(np.ceil(np.log2(max(self.height, self.width, 1))))
 
+    def _release(self) -> None:
+        release = getattr(self._cbtf.coefficients, "release", None)
+        if release is not None:                      # a lazily read asset: its pages are not kept
+            release()
+
+    def _level0_codes(self):
+        """(codes (h * w, 3, k), [Stored-like views per coefficient], scale (3, k) float32,
+        bias (3, k) float32) of level 0, built on first use."""
+        if self._codes0 is None:
+            with self._lock:
+                if self._codes0 is None:
+                    self.built.append((0, "codes"))
+                    self._codes0 = _texel_major_codes(self._cbtf, self.k)
+                    self._release()
+        return self._codes0
+
     def _tap_texels(self, n: int, idx: np.ndarray) -> np.ndarray:
         """(p, 3, k) texels at flat indices ``idx`` of level ``n``."""
         if n == 0 and self.map is not None:
             return np.take(self._texels, self.map.ravel()[idx], axis=0)
+        if n == 0 and 0 not in self.levels:
+            codes, _, scale, bias = self._level0_codes()
+            out = np.take(codes, idx, axis=0).astype(np.float32)    # exactly _texel_major's values
+            out *= scale
+            out += bias
+            return out
         return np.take(self.level(n).reshape(-1, 3, self.k), idx, axis=0)
 
     def _taps(self, n: int, st: np.ndarray):
@@ -165,16 +210,72 @@ class CoefficientTexture:
         return out
 
 
+def _plane_level(coefficient, shape: tuple, k: int, n: int) -> np.ndarray:
+    """Mip level ``n`` (H_n, W_n, 3, k) float32 of the first ``k`` coefficients, made one
+    coefficient plane at a time: ``coefficient(i)`` (a Stored: pixels (H, W, 3), scale, bias;
+    ``shape`` = (H, W)); each plane de-quantised as :func:`_texel_major` does (code x float32
+    scale + float32 bias, in float32) and box-filtered ``n`` times (:func:`_box`), the same
+    operations per texel as boxing the texel-major level 0, so the same values.  Holds one
+    coefficient's codes and one plane at a time (plus the level)."""
+    h, w = shape
+    for _ in range(n):
+        h, w = -(-h // 2), -(-w // 2)
+    out = np.empty((h, w, 3, k), np.float32)
+    for i in range(k):
+        st = coefficient(i)                 # a lazily read asset: read here, dropped after
+        scale, bias = st.scale.astype(np.float32), st.bias.astype(np.float32)
+        for c in range(3):
+            plane = np.multiply(st.pixels[:, :, c], scale[c:c + 1], dtype=np.float32)
+            plane += bias[c:c + 1]
+            for _ in range(n):
+                plane = _box(plane)
+            out[:, :, c, i] = plane
+    return out
+
+
+class _CodesView:
+    """Coefficient ``i`` of texel-major codes, as a Stored reads (pixels (H, W, 3), scale, bias)."""
+
+    def __init__(self, codes, shape, i, scale, bias):
+        self.pixels = codes.reshape(shape + codes.shape[1:])[:, :, :, i]
+        self.scale, self.bias = scale, bias
+
+
+def _texel_major_codes(cbtf: CompressedBTF, k: int):
+    """Level 0 as stored codes: (codes (H * W, 3, k) in the widest storage type of the first
+    ``k`` coefficients, [per coefficient a view with pixels (H, W, 3), scale, bias],
+    scale (3, k) float32, bias (3, k) float32).  ``codes * scale + bias`` in float32 is
+    :func:`_texel_major` (a uint8 code held as uint16 or a half as float32 converts exactly)."""
+    H, W = cbtf.height, cbtf.width
+    coefficients = cbtf.coefficients
+    first = coefficients[0]
+    dtype = first.pixels.dtype
+    codes = np.empty((H * W, 3, k), dtype)
+    scale, bias = np.empty((3, k), np.float32), np.empty((3, k), np.float32)
+    scales, biases = [], []
+    for i in range(k):
+        st = first if i == 0 else coefficients[i]          # a lazy asset's: each read once, in order
+        if np.result_type(codes.dtype, st.pixels.dtype) != codes.dtype:
+            codes = codes.astype(np.result_type(codes.dtype, st.pixels.dtype))
+        codes[:, :, i] = st.pixels.reshape(H * W, 3)
+        scale[:, i], bias[:, i] = st.scale.astype(np.float32), st.bias.astype(np.float32)
+        scales.append(np.asarray(st.scale))
+        biases.append(np.asarray(st.bias))
+    views = [_CodesView(codes, (H, W), i, scales[i], biases[i]) for i in range(k)]
+    return codes, views, scale, bias
+
+
 def _texel_major(cbtf: CompressedBTF, k: int) -> np.ndarray:
     """(H, W, 3, k) float32 de-quantised coefficients of ``cbtf``, texel-major."""
     H, W = cbtf.height, cbtf.width
+    coefficients = list(cbtf.coefficients[:k])               # a lazy asset's: read once, not per block
     level = np.empty((H, W, 3, k), np.float32)
     rows = max(1, min(H, (1 << 22) // (W * 3 * k)))          # row blocks of ~16 MB
     block = np.empty((k, rows * W * 3), np.float32)           # reused: no fresh pages per block
     for y0 in range(0, H, rows):
         y1 = min(H, y0 + rows)
         n = (y1 - y0) * W * 3
-        for i, st in enumerate(cbtf.coefficients[:k]):        # exactly Stored.values(), on these rows
+        for i, st in enumerate(coefficients):                 # exactly Stored.values(), on these rows
             out = block[i, :n].reshape(y1 - y0, W, 3)
             np.multiply(st.pixels[y0:y1], st.scale.astype(np.float32), out=out, casting="unsafe")
             out += st.bias.astype(np.float32)

@@ -17,6 +17,7 @@ basis image (other samplings, and every asset of schema version 1, which keeps r
 from __future__ import annotations
 
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -226,10 +227,15 @@ def _authored(prim, name: str):
 def _read_asset(prim, asset, what: str, reader=None) -> np.ndarray:
     """Stored pixels of an asset-valued attribute, read through Ar (so usdz members work);
     ``reader(path)`` reads a file (default ``Codec.read``)."""
+    where = f"{prim.GetStage().GetRootLayer().identifier}: {prim.GetPath()}.{NS}{what}"
+    return _read_resolved(where, asset, reader)
+
+
+def _read_resolved(where: str, asset, reader=None) -> np.ndarray:
+    """:func:`_read_asset` of an asset path already resolved (it needs no prim, no stage)."""
     from pxr import Ar
 
     reader = reader or Codec.read
-    where = f"{prim.GetStage().GetRootLayer().identifier}: {prim.GetPath()}.{NS}{what}"
     resolved = asset.resolvedPath
     if not resolved:
         raise BTFError(f"{where}: texture {asset.path!r} does not resolve (missing file?)")
@@ -247,9 +253,15 @@ def _read_asset(prim, asset, what: str, reader=None) -> np.ndarray:
         return reader(path)
 
 
-def read_btf(material, *, k: int | None = None) -> CompressedBTF:
+def read_btf(material, *, k: int | None = None, lazy: bool = False) -> CompressedBTF:
     """The CompressedBTF described by a BtfMaterialAPI prim (composed values: a LOD
-    variant's btf:basisCount applies).  ``k`` keeps fewer basis vectors still."""
+    variant's btf:basisCount applies).  ``k`` keeps fewer basis vectors still.
+
+    ``lazy`` (the one-copy ``gpuPages`` layout only): the coefficients are a sequence whose
+    item ``i`` (a Stored) is read from its pages when asked for, and not kept
+    (:class:`usdbtf.gpu.tables.LazyCodes`; a reader walking them in order decodes each page
+    once); for a reader that needs one at a time (the renderer building a mip level), not
+    for one that indexes them repeatedly."""
     require_schema()
     path = material.GetPath()
     if not material.HasAPI(API_SCHEMA):
@@ -277,9 +289,10 @@ def read_btf(material, *, k: int | None = None) -> CompressedBTF:
     sampling = Sampling(view, light)
     width, height = (int(x) for x in _get(material, "resolution"))
     if gpu:
-        basis, coefficients = _read_gpu_copy(material, coeff_assets, k, len(sampling), (height, width))
+        basis, coefficients = _read_gpu_copy(material, coeff_assets, k, len(sampling), (height, width), lazy)
         basis = Stored(basis, bscale[:k], bbias[:k])
-        coefficients = [Stored(px, scales[i], biases[i]) for i, px in enumerate(coefficients)]
+        coefficients = (_LazyStored(coefficients, scales, biases) if lazy else
+                        [Stored(px, scales[i], biases[i]) for i, px in enumerate(coefficients)])
     else:
         basis, coefficients = _read_files(material, coeff_assets, k, sampling, (height, width), bscale, bbias,
                                           scales, biases)
@@ -297,8 +310,31 @@ class _LazyPages:
 
     def __getitem__(self, i: int):
         if i not in self._cache:
-            self._cache = {i: self._read(i)}         # one page at a time: pages are atlas-sized
+            self._cache = {}                         # one page at a time: pages are atlas-sized
+            self._cache = {i: self._read(i)}
         return self._cache[i]
+
+    def release(self) -> None:
+        self._cache = {}
+
+
+class _LazyStored(Sequence):
+    """k coefficient Stored, item i read from its pages when asked for (read_btf's ``lazy``)."""
+
+    def __init__(self, codes, scales: np.ndarray, biases: np.ndarray):
+        self.codes, self._scales, self._biases = codes, scales, biases
+
+    def __len__(self) -> int:
+        return len(self.codes)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[j] for j in range(*i.indices(len(self)))]
+        return Stored(self.codes[i], self._scales[i], self._biases[i])
+
+    def release(self) -> None:
+        """Drop the pages and packs read so far (the next item reads them again)."""
+        self.codes.release()
 
 
 def read_directions(material) -> tuple[np.ndarray, np.ndarray]:
@@ -311,23 +347,27 @@ def read_directions(material) -> tuple[np.ndarray, np.ndarray]:
     return view, light
 
 
-def _read_gpu_copy(material, pages: list, k: int, samples: int, shape: tuple) -> tuple:
-    """(basis codes (S, k, 1), k coefficient codes (H, W, 3)) from the GPU tables and pages."""
-    from ..gpu.tables import unpack
+def _read_gpu_copy(material, pages: list, k: int, samples: int, shape: tuple, lazy: bool = False) -> tuple:
+    """(basis codes (S, k, 1), k coefficient codes (H, W, 3)) from the GPU tables and pages
+    (``lazy``: the codes a :class:`usdbtf.gpu.tables.LazyCodes`, no page read yet)."""
+    from ..gpu.tables import unpack, unpack_lazy
     from ..imageio import read_rgba
 
     path = material.GetPath()
     tables = _read_asset(material, _get(material, "basis"), "basis", read_rgba)
     # Only the pages the first k vectors are on are read (unpack asks for them in order).
-    read = _LazyPages(lambda i: _read_asset(material, pages[i], f"coefficients[{i}]", read_rgba), len(pages))
+    # The stage may be gone when a lazy reader asks for a page: hold only the resolved paths.
+    where = f"{material.GetStage().GetRootLayer().identifier}: {path}.{NS}coefficients"
+    read = _LazyPages(lambda i: _read_resolved(f"{where}[{i}]", pages[i], read_rgba), len(pages))
     try:
-        basis, coefficients = unpack(tables, read, k)
+        basis, coefficients = (unpack_lazy if lazy else unpack)(tables, read, k)
     except BTFError as exc:
         raise BTFError(f"{path}: {exc}") from None
     if basis.shape[0] != samples:
         raise BTFError(f"{path}: the GPU tables hold {basis.shape[0]} basis rows for {samples} directions")
-    if coefficients[0].shape[:2] != shape:
-        raise BTFError(f"{path}: GPU pages hold {coefficients[0].shape[1]}x{coefficients[0].shape[0]} texels, "
+    held = coefficients.shape if lazy else coefficients[0].shape[:2]
+    if held != shape:
+        raise BTFError(f"{path}: GPU pages hold {held[1]}x{held[0]} texels, "
                        f"btf:resolution says {shape[1]}x{shape[0]}")
     return basis, coefficients
 

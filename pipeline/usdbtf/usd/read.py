@@ -70,10 +70,12 @@ def find_material(stage, material: str | None = None):
     return found[0]
 
 
-def load_btf(asset, *, material: str | None = None, lod: str | None = None, k: int | None = None) -> CompressedBTF:
-    """The compressed BTF of a packaged asset (a path or an open Usd.Stage)."""
+def load_btf(asset, *, material: str | None = None, lod: str | None = None, k: int | None = None,
+             lazy: bool = False) -> CompressedBTF:
+    """The compressed BTF of a packaged asset (a path or an open Usd.Stage); ``lazy``: its
+    coefficients read when asked for (:func:`usdbtf.usd.material.read_btf`)."""
     stage = open_stage(asset, lod=lod) if not hasattr(asset, "GetRootLayer") else asset
-    return read_btf(find_material(stage, material), k=k)
+    return read_btf(find_material(stage, material), k=k, lazy=lazy)
 
 
 def sample_index(cbtf: CompressedBTF, view, light, *, tol_deg: float = 1e-3) -> int:

@@ -311,11 +311,12 @@ def btf_mesh_prims(stage, *, time=None, rendered_only: bool = True, unbound: str
     return out
 
 
-def bound_btf_meshes(stage, *, k: int | None = None) -> list[tuple]:
+def bound_btf_meshes(stage, *, k: int | None = None, lazy: bool = False) -> list[tuple]:
     """[(CompressedBTF, Mesh)] for every Mesh prim of ``stage`` bound to a BTF material
     (:func:`btf_mesh_prims`, every purpose and visibility), each mesh in world space (metres):
     what ``usdbtf render ASSET`` draws (:func:`usdbtf.render.render_scene`).  Meshes of one
-    material share one CompressedBTF."""
+    material share one CompressedBTF (``lazy``: its coefficients read when asked for,
+    :func:`usdbtf.usd.material.read_btf`)."""
     from ...mesh import load_prim
     from ..material import read_btf
 
@@ -323,7 +324,7 @@ def bound_btf_meshes(stage, *, k: int | None = None) -> list[tuple]:
     # Every Mesh prim, as render ASSET always drew (render --camera keeps what a final render shows).
     for prim, material in btf_mesh_prims(stage, rendered_only=False):
         if material not in materials:
-            materials[material] = read_btf(stage.GetPrimAtPath(material), k=k)
+            materials[material] = read_btf(stage.GetPrimAtPath(material), k=k, lazy=lazy)
         parts.append((materials[material], load_prim(prim)))
     return parts
 

@@ -64,11 +64,13 @@ def frame_path(pattern: Path, frame: int | None) -> Path:
     return pattern.with_name(name[:run.start()] + number + name[run.end():])
 
 
-def scene_shots(path, camera_path: str, width: int | None, frames: list | None, *, k: int | None = None):
+def scene_shots(path, camera_path: str, width: int | None, frames: list | None, *, k: int | None = None,
+                lazy: bool = False):
     """(materials {material path: CompressedBTF}, [:class:`Shot`] per frame of ``frames``
     (None: the default time)) of the stage at ``path`` seen from the UsdGeom.Camera
     ``camera_path``; the frame ``width`` pixels wide (None: the stage's UsdRender.Settings
-    width, else 512), the height from the camera's apertures."""
+    width, else 512), the height from the camera's apertures; ``lazy``: each material's
+    coefficients read when asked for (:func:`usdbtf.usd.material.read_btf`)."""
     from pxr import UsdGeom
 
     from ...mesh import load_prim
@@ -88,7 +90,7 @@ def scene_shots(path, camera_path: str, width: int | None, frames: list | None, 
         parts = []
         for mesh_prim, material in btf_mesh_prims(stage, time=time, unbound="only", where=str(path), warned=warned):
             if material not in materials:
-                materials[material] = load_btf(stage, material=material, k=k)
+                materials[material] = load_btf(stage, material=material, k=k, lazy=lazy)
             parts.append((material, load_prim(mesh_prim, time)))
         shots.append(Shot(time, scene_camera(prim, width, meters, time), scene_lights(stage, time, path), parts))
     return materials, shots

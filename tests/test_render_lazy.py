@@ -1,0 +1,95 @@
+"""``usdbtf render`` reads the one copy lazily (issue 39): only the mip levels a frame samples are
+built, a packaged asset's pages are read when a level needs them, and the picture is the one
+the whole-texture path (level 0 held, every level boxed from it) gives, bit for bit.
+
+Inputs: the pebbles sample of quilt_render_data (48², k 24), packaged (``usdbtf package``).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from quilt_render_data import pebbles, work  # noqa: F401 (fixtures)
+from quilt_render_data import cli, plane_with_uv
+from usdbtf.camera import Camera
+from usdbtf.compress import read_compressed
+from usdbtf.gpu.tables import pack_count
+from usdbtf.mesh import Mesh
+from usdbtf.photometry import capture_irradiance
+from usdbtf.render import Light, RenderOptions, Renderer
+from usdbtf.render.texture import CoefficientTexture, _box, _texel_major
+from usdbtf.usd.read import load_btf
+
+
+@pytest.fixture(scope="module")
+def asset(work, pebbles):
+    out = work / "asset" / "pebbles.usda"
+    cli("package", pebbles, "-o", out, "-q")
+    return out
+
+
+def test_levels_from_planes_equal_the_boxed_level_0(pebbles):
+    """A level made plane by plane from the codes is the texel-major level 0 boxed n times."""
+    cbtf = read_compressed(pebbles)
+    texture = CoefficientTexture(cbtf, 24)
+    level = _texel_major(cbtf, 24)
+    for n in range(1, 4):
+        level = _box(level)
+        fresh = CoefficientTexture(cbtf, 24).level(n)
+        assert fresh.dtype == np.float32 and np.array_equal(fresh, level)
+    assert np.array_equal(texture.level(0), _texel_major(cbtf, 24))
+    assert texture.built == [(0, "level 0")]
+
+
+def test_lazy_asset_reads_the_pages_of_its_k_and_equals_the_eager_read(asset):
+    eager, lazy = load_btf(asset), load_btf(asset, lazy=True, k=8)
+    codes = lazy.coefficients.codes
+    assert codes.reads == []                                                  # nothing read when opened
+    for i in range(8):
+        st = lazy.coefficients[i]
+        assert st.pixels.dtype == eager.coefficients[i].pixels.dtype
+        assert np.array_equal(st.pixels, eager.coefficients[i].pixels)
+        assert np.array_equal(st.scale, eager.coefficients[i].scale)
+    assert sorted({p for _, p in codes.reads}) == list(range(pack_count(8)))  # the first 8 vectors' packs only
+    assert len(codes.reads) == pack_count(8)                                  # each once, walked in order
+
+
+def _far_plane():
+    """A 5 cm plane 0.6 m away in a 40 x 32 frame: several texels per pixel (no level 0)."""
+    points, faces, uv = plane_with_uv(0.05, 4)
+    camera = Camera(np.array([0.0, 0.0, 0.6]), np.zeros(3), np.array([0.0, 1.0, 0.0]), 12.0, 40, 32)
+    return Mesh(points, faces, uv=uv), camera
+
+
+def test_render_builds_only_the_sampled_levels_and_the_picture_is_unchanged(asset):
+    mesh, camera = _far_plane()
+    lights = [Light("directional", np.array([0.3, 0.2, 1.0]) / np.linalg.norm([0.3, 0.2, 1.0]),
+                    capture_irradiance(1.0))]
+    opts = RenderOptions(threads=1, shadows=False)
+    lazy = Renderer(load_btf(asset, lazy=True), opts)
+    image = lazy.render(mesh, camera, lights)
+    built = dict(lazy.texture.built)
+    assert image[..., 3].sum() > 100 and np.isfinite(image).all()
+    assert 0 not in lazy.texture.levels and built and min(built) >= 1         # level 0 never built
+    assert list(built.values())[0] == "planes"                                 # streamed, then boxed
+    # Today's path: level 0 held whole, every level boxed from it.
+    whole = Renderer(load_btf(asset), opts)
+    whole.texture.levels[0] = _texel_major(whole.cbtf, whole.texture.k)
+    assert np.array_equal(image, whole.render(mesh, camera, lights))
+
+
+def test_close_up_reads_level_0_as_codes_and_the_picture_is_unchanged(asset):
+    """Magnified (a texel over several pixels): level 0 held as codes, taps de-quantised."""
+    points, faces, uv = plane_with_uv(0.05, 4)
+    mesh = Mesh(points, faces, uv=uv)
+    camera = Camera(np.array([0.0, 0.0, 0.03]), np.zeros(3), np.array([0.0, 1.0, 0.0]), 30.0, 64, 48)
+    lights = [Light("point", np.array([0.01, 0.02, 0.05]), 0.01)]
+    for filt in ("mip", "bilinear"):
+        opts = RenderOptions(threads=2, chunk=1024, filter=filt)
+        lazy = Renderer(load_btf(asset, lazy=True), opts)
+        image = lazy.render(mesh, camera, lights)
+        assert (image[..., 3] > 0).all()
+        assert lazy.texture.built[0] == (0, "codes") and 0 not in lazy.texture.levels
+        whole = Renderer(load_btf(asset), opts)
+        whole.texture.levels[0] = _texel_major(whole.cbtf, whole.texture.k)
+        assert np.array_equal(image, whole.render(mesh, camera, lights))
