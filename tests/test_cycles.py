@@ -271,7 +271,7 @@ def test_principled_fallback_of_the_fitted_lobes(asset, swatch_renders):
     into the Principled inputs, without those conversions, missed by 4.4-6.0 steps and 9-12 %;
     tests/test_openpbr.py checks the conversions themselves).  Against the add-on's OSL BTF under the same
     sun the brightness is printed and kept within the fit's own bias (issue 40: the fit, not
-    the Principled mapping, decides it; notes/issue40-consumers-results.md)."""
+    the Principled mapping, decides it; benchmarks/history/fallbacks-and-photometry.md)."""
     from storm_helpers import openpbr_frame, pole_lights, shipped_openpbr_maps
 
     maps, cbtf = shipped_openpbr_maps(asset)

@@ -99,7 +99,7 @@ def coefficient_packs(cbtf, k: int, breaks: list[int]) -> tuple[list, np.ndarray
 #: default (adaptive: per row the filter of least absolute sum), 8 = PNG_FILTER_NONE.  Smooth
 #: leading coefficients favour the filters, the noise-like later ones none (k 190 paper-scale
 #: packs at level 6: adaptive 1,990,351, none 1,937,117, the smaller per pack 1,914,031 bytes;
-#: level 9 1,950,121 at 6x the encode time; notes/issue39-codec-results.md).
+#: level 9 1,950,121 at 6x the encode time; benchmarks/history/packaging.md, "Issue 39: the shipped codec").
 PNG_FILTERS = (0, 8)
 
 
@@ -192,7 +192,7 @@ class ShippedPacks:
 #: (code < 2^16) is exact in float32 with one exponent for every code, so the texel's bytes
 #: are the code's own (fixed point) and OpenEXR zip compresses them 8.8 % smaller than the
 #: bare codes, whose exponent follows their magnitude (k 190 paper-scale basis: 853,328
-#: against 935,306 bytes, notes/issue39-codec-results.md).  Readers subtract it (the basis
+#: against 935,306 bytes, benchmarks/history/packaging.md, "Issue 39: the shipped codec").  Readers subtract it (the basis
 #: block's first texel .w; 0 in older tables and for half codes, which are not integers).
 BASIS_CODE_OFFSET = 2.0 ** 23
 
