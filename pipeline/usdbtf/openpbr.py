@@ -342,20 +342,6 @@ class _Frame:
         LTC frame is X = normalise(V - N n.v), Y = N x X, N: w = (X.L, Y.L, N.L), and the
         lobe needs only w.x and (w.y)^2 = 1 - w.x^2 - w.z^2."""
         r = np.clip(roughness, 0.01, 1.0)
-        ra = np.asarray(r)
-        if ra.size and np.all(ra == ra.flat[0]):
-            # One roughness for every texel (the fit's grid): the lobe without its weight is
-            # memoised, so the grid's weights share it (the same products, in the same order).
-            key = ("fuzz", ra.dtype.str, ra.shape, float(ra.flat[0]))
-            if key not in self._memo:
-                self._memo[key] = self._fuzz_lobe(r)
-        else:
-            key = None
-        shape, albedo = self._memo[key] if key is not None else self._fuzz_lobe(r)
-        return shape * weight, 1.0 - albedo * weight
-
-    def _fuzz_lobe(self, r):
-        """(albedo * LTC, albedo) of :meth:`fuzz` at clipped roughness ``r``, each (S, T)."""
         len2 = 1.0 - 2.0 * self.nv * self.nv_f + self.nv * self.nv          # |V - N n.v|^2 (n.v clamped)
         ok = len2 > 1e-12
         # V == N: any frame (bInv = 0 there, so the lobe is symmetric about N).
@@ -370,7 +356,7 @@ class _Frame:
         len2_o = ox * ox + a_inv * a_inv * wy2 + wz * wz
         ltc = np.maximum(wz, 0.0) / np.pi * _sq(a_inv / len2_o)
         albedo = zeltner_dir_albedo(ndv, r)
-        return albedo * ltc, albedo
+        return albedo * ltc * weight, 1.0 - albedo * weight
 
     def diffuse(self, sigma):
         """(single-scattering factor, multiple-scattering factor, E_avg): the base's response is
@@ -684,11 +670,7 @@ class _Search:
 
     def _spec(self, st):
         rotation = st.rotation if np.any(st.anisotropy > 0) else None
-        # The last lobe shape is kept: the specular weight's stage changes only the Fresnel.
-        key = (st.roughness.tobytes(), st.anisotropy.tobytes(), None if rotation is None else rotation.tobytes())
-        if getattr(self, "_shape_key", None) != key:
-            self._shape_key, self._shape = key, self.fr.specular_shape(st.roughness, st.anisotropy, rotation)
-        return self.fr.specular_at(self._shape, st.spec_weight)
+        return self.fr.specular(st.roughness, st.anisotropy, rotation, st.spec_weight)
 
     def _fuzz(self, st):
         return self.fr.fuzz(st.fuzz_roughness, st.fuzz_weight) if np.any(st.fuzz_weight > 0) else (None, None)
