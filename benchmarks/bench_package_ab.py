@@ -71,7 +71,17 @@ def package(side_pipeline: Path | None, source: Path, out: Path, extra: list) ->
                       *map(str, extra)], env=env, pss_interval=0)
     if r.returncode != 0:
         raise SystemExit(f"package {source} ({side_pipeline or 'working tree'}) failed:\n{r.stderr[-3000:]}")
-    return {"wall_s": r.wall_s, "max_rss_bytes": r.max_rss_bytes, "asset_bytes": tree_bytes(out.parent)}
+    return {"wall_s": r.wall_s, "cpu_s": r.user_s + r.sys_s, "max_rss_bytes": r.max_rss_bytes,
+            "asset_bytes": tree_bytes(out.parent), "asset_digest": tree_digest(out.parent)}
+
+
+def tree_digest(folder: Path) -> str:
+    """sha256 over every file's relative path and bytes: equal digests, byte-identical assets."""
+    import hashlib
+    h = hashlib.sha256()
+    for f in sorted(p for p in folder.rglob("*") if p.is_file()):
+        h.update(str(f.relative_to(folder)).encode() + b"\0" + f.read_bytes())
+    return h.hexdigest()[:16]
 
 
 def main(argv=None) -> int:
@@ -82,6 +92,7 @@ def main(argv=None) -> int:
     p.add_argument("--max-bytes", type=int, default=PAPER_BYTES)
     p.add_argument("--workdir", type=Path, default=OUT / "data" / "package_ab")
     p.add_argument("--only", choices=["swatch", "sphere"], help="one input only")
+    p.add_argument("--swatch", type=Path, help="an existing compressed swatch folder (instead of synth + compress)")
     args = p.parse_args(argv)
     os.environ.setdefault("OCIO", "ocio://default")
     say(f"# bench_package_ab\n{format_machine(machine_info())}")
@@ -92,7 +103,7 @@ def main(argv=None) -> int:
     cli = cli_command()
     jobs = {}
     if args.only in (None, "swatch"):
-        jobs["swatch"] = (swatch_input(args.workdir, cli, args.max_bytes), [])
+        jobs["swatch"] = (args.swatch or swatch_input(args.workdir, cli, args.max_bytes), [])
     if args.only in (None, "sphere"):
         q = quilt_inputs(args.workdir / "quilt", [args.radius], cli)["quilts"][args.radius]
         jobs["sphere"] = (q[1], ["--mesh", q[0]])
@@ -118,20 +129,21 @@ def main(argv=None) -> int:
                 for side, pipeline in sides.items():
                     r = package(pipeline, source, tmp / "out" / job / "asset.usda", extra)
                     runs[job, side].append(r)
-                    say(f"  repeat {rep + 1} {job} {side}: {r['wall_s']:.1f} s, {r['max_rss_bytes'] / 1e9:.2f} GB, "
-                        f"{r['asset_bytes']:,} B")
+                    say(f"  repeat {rep + 1} {job} {side}: {r['wall_s']:.1f} s, CPU {r['cpu_s']:.1f} s, "
+                        f"{r['max_rss_bytes'] / 1e9:.2f} GB, {r['asset_bytes']:,} B, digest {r['asset_digest']}")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    lines = ["| input | side | package s (median) | peak RSS GB (median) | asset bytes | s vs first side | "
-             "RSS vs first side |", "|---|---|---|---|---|---|---|"]
+    lines = ["| input | side | package s (median) | CPU s (median) | peak RSS GB (median) | asset bytes | "
+             "s vs first side | CPU vs first side | RSS vs first side |", "|---|---|---|---|---|---|---|---|---|"]
     for job in jobs:
         base = None
         for side in sides:
             rs = runs[job, side]
             wall, rss = median(r["wall_s"] for r in rs), median(r["max_rss_bytes"] for r in rs)
-            base = base or (wall, rss)
-            lines.append(f"| {job} | {side} | {wall:.1f} | {rss / 1e9:.2f} | {rs[-1]['asset_bytes']:,} | "
-                         f"{wall / base[0]:.2f} | {rss / base[1]:.2f} |")
+            cpu = median(r["cpu_s"] for r in rs)
+            base = base or (wall, rss, cpu)
+            lines.append(f"| {job} | {side} | {wall:.1f} | {cpu:.1f} | {rss / 1e9:.2f} | {rs[-1]['asset_bytes']:,} | "
+                         f"{wall / base[0]:.2f} | {cpu / base[2]:.2f} | {rss / base[1]:.2f} |")
     say("\n" + "\n".join(lines))
     path = write_json(OUT / f"package_ab_{timestamp()}.json",
                       {"args": {k: str(v) for k, v in vars(args).items()}, "sides": list(sides),

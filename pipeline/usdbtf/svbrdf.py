@@ -164,24 +164,39 @@ class _Geometry:
         # n.l / (4 n.l n.v + eps): the roughness-independent part of the specular term times n.l
         self._nl_over_q = self.nl / (4 * self.nl * self.nv + np.float32(_EPS))
         self._tmp = np.empty_like(self.nl)
+        # One normal for every texel (the flat-normal fits): where the matrix products gave
+        # every texel the same column, bit for bit, specular_nl works on one column and copies
+        # it (element-wise float32 arithmetic, so the same bits as the full (S, T) pass).
+        self._one = (n.shape[1] > 1 and bool(np.all(n == n[:, :1]))
+                     and all(bool(np.all(a == a[:, :1])) for a in (self.nl, self.nv, self._nh2)))
 
     def specular_nl(self, roughness: float) -> np.ndarray:
         """(S, T) n.l D G / (4 n.l n.v + eps) at ``roughness`` (alpha = roughness^2): the
         specular term times n.l, without F.  In place, on scratch buffers (the fit's hot loop)."""
+        if self._one:
+            col = self._specular_nl(roughness, self._nh2[:, :1], self.nv[:, :1], self.nl[:, :1],
+                                    self._nl_over_q[:, :1], np.empty_like(self.nl[:, :1]))
+            out = np.empty_like(self.nl)
+            out[...] = col
+            return out
+        return self._specular_nl(roughness, self._nh2, self.nv, self.nl, self._nl_over_q, self._tmp)
+
+    @staticmethod
+    def _specular_nl(roughness, nh2, nv, nl, nl_over_q, tmp):
         r = max(float(roughness), MIN_ROUGHNESS)
         alpha = np.float32(r * r)
         a2, k = alpha * alpha, alpha * np.float32(0.5)
-        out, tmp = np.empty_like(self.nl), self._tmp
-        np.multiply(self._nh2, a2 - 1, out=out)            # D = (a2 + eps) / (pi (nh^2 (a2 - 1) + 1)^2)
+        out = np.empty_like(nl)
+        np.multiply(nh2, a2 - 1, out=out)                  # D = (a2 + eps) / (pi (nh^2 (a2 - 1) + 1)^2)
         out += 1
         np.multiply(out, out, out=out)
         np.divide((a2 + np.float32(_EPS)) / np.float32(np.pi), out, out=out)
-        for dot in (self.nv, self.nl):                     # G = G1(n.v) G1(n.l), G1(x) = x / (x (1 - k) + k)
+        for dot in (nv, nl):                               # G = G1(n.v) G1(n.l), G1(x) = x / (x (1 - k) + k)
             np.multiply(dot, 1 - k, out=tmp)
             tmp += k
             np.divide(dot, tmp, out=tmp)
             out *= tmp
-        out *= self._nl_over_q
+        out *= nl_over_q
         return out
 
 
