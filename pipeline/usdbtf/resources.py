@@ -4,7 +4,8 @@ A command that is about to allocate (or write) something large asks :func:`requi
 or :func:`require_disk` first; past what the machine has it stops at once with a message
 saying how much is needed, instead of failing with a MemoryError minutes later or
 filling the disk.  ``USDBTF_MEMORY_LIMIT`` (bytes, e.g. ``4e9``) caps what the estimate
-may use, for shared farm machines.
+may use, for shared farm machines.  :func:`release_free_heap` hands memory a finished step
+freed back to the system (glibc keeps it otherwise).
 """
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ import shutil
 
 from .errors import BTFError, IOFailure
 
-__all__ = ["available_memory", "require_memory", "require_disk", "human_bytes"]
+__all__ = ["available_memory", "require_memory", "require_disk", "human_bytes", "release_free_heap"]
 
 #: Fraction of the available memory one command may plan to use.
 _USABLE = 0.8
@@ -92,3 +93,27 @@ def require_disk(nbytes: float, folder, what: str) -> None:
         return
     if nbytes > free:
         raise IOFailure(f"{folder}: {what} needs about {human_bytes(nbytes)} of disk; {human_bytes(free)} is free")
+
+
+def release_free_heap() -> bool:
+    """Return the C heap's free pages to the system (glibc ``malloc_trim(0)``); False where the
+    C library is not glibc (musl, macOS, Windows: nothing to do, nothing done).
+
+    Why: glibc keeps what a step freed in its arenas -- one per thread that allocated (the
+    packaging's threaded encoders and fits), and below a mmap threshold glibc raises as large
+    blocks are freed -- so the process's resident memory stays at the step's peak and the next
+    step's peak lands on top of it.  Issue 42: compress's asset budget packages a choice 2-3
+    times; metal_flakes 32², paper sampling, ``--max-bytes 600000``: RSS 528 MB before the first
+    packaging, 671 MB after it without a trim, 531 MB with one.  Only free pages are returned:
+    no value, and so no output byte, changes.
+    """
+    import ctypes
+
+    try:
+        # The process's own symbols: glibc's malloc_trim where the C library is glibc.
+        trim = ctypes.CDLL(None).malloc_trim
+    except (OSError, AttributeError, TypeError):
+        return False
+    trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
+    trim(0)
+    return True

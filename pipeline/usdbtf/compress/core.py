@@ -27,6 +27,7 @@ from .. import __version__, numeric
 from ..atomic import atomic_dir
 from ..model import BTF
 from ..outputs import COMPRESSED as COMPRESSED_KIND
+from ..resources import release_free_heap
 from .coverage import shaped_input
 from .curve import write_curve
 from .decorrelate import color_decorrelation, rotate_color
@@ -177,6 +178,9 @@ def _project_and_choose(source, btf: BTF, fit_basis: np.ndarray, color: np.ndarr
         energy = float(np.einsum("kpc,kpc->", coeff, coeff, dtype=np.float64)) + outside
     f = Factorisation(btf, basis, coeff, color, energy, planes, step, domain)
     del coeff
+    # What the fit's and the projection's threads freed, back to the system before rate control
+    # allocates its own (a budget's packagings, issue 42): glibc would keep it resident.
+    release_free_heap()
     return rate_control(f, opts, held, k_fit=fit_basis.shape[1])
 
 

@@ -82,6 +82,7 @@ from .validate import validate_layer
 from .formats import PAYLOAD_FORMATS
 from ...numeric import single_blas_thread
 from ...photometry import white_level_of
+from ...resources import release_free_heap
 
 __all__ = ["PackageOptions", "PackageResult", "package", "write_package", "asset_layers", "read_input",
            "asset_pieces", "check_root_layer", "make_usdz", "default_lods", "LOD_VARIANT_SET", "FULL_LOD",
@@ -314,8 +315,14 @@ def asset_overhead(cbtf: CompressedBTF, fallback_fits: tuple | None = None) -> d
             pages = int(sum((folder / n).stat().st_size for n in names))
     finally:
         quiet.setLevel(level)
+    fits = (result.svbrdf_fit, result.openpbr_maps, result.fit_errors)
+    # The package (its textures' bytes, GPU pages, thumbnail) is only counted: drop it and hand
+    # what its threads freed back to the system, else compress's next step (another packaging,
+    # the encode, the evaluation) peaks on top of it (issue 42; :func:`release_free_heap`).
+    del result
+    release_free_heap()
     return {"full": full, "pages": pages, "paged": paged, "overhead": full - pages, "k": cbtf.k,
-            "fallback_fits": (result.svbrdf_fit, result.openpbr_maps, result.fit_errors)}
+            "fallback_fits": fits}
 
 
 def check_root_layer(out) -> None:
