@@ -647,7 +647,11 @@ def test_max_bytes_budgets_the_packaged_asset(src, tmp_path, capsys):
     cbtf = read_compressed(folder)
     assert cbtf.info["provenance"]["options"]["budget_for"] == "asset"
     choice = cbtf.info["choice"]
-    assert choice["budget_for"] == "asset" and abs(choice["bytes"] - full) <= 0.01 * budget
+    # choice.bytes is rate control's last packaging, whose fallback maps come from the first packaging's
+    # fits (issue 42: fitted once per run); package fits the final k's own, so on this 120 KB budget,
+    # where the maps are a quarter of the bytes, the two differ by ~1 % (1,295 B measured).  The asset
+    # itself is held to [0.97 B, 1.01 B] above.
+    assert choice["budget_for"] == "asset" and abs(choice["bytes"] - full) <= 0.02 * budget
     assert choice["folder_bytes"] == cbtf.info["bytes"]["payload"] < full
     # The asset ships the folder's codes exactly: every coefficient layer and basis vector.
     shipped = load_btf(out)
