@@ -23,7 +23,7 @@ import numpy as np
 from ..errors import BTFError
 
 __all__ = ["MAX_CODE", "pack_count", "coefficient_packs", "shipped_pack_bytes", "shipped_basis_bytes",
-           "basis_codes_group_major", "BASIS_CODE_OFFSET", "basis_code_offset", "PNG_FILTERS", "encode_png_page",
+           "basis_codes_group_major", "basis_block_bytes", "BASIS_CODE_OFFSET", "basis_code_offset", "PNG_FILTERS", "encode_png_page",
            "pack_bytes_by_k", "default_lods", "page_breaks", "ShippedPacks"]
 
 #: Largest code of each storage type: what a GPU's normalised read divides by.
@@ -220,10 +220,16 @@ def shipped_basis_bytes(cbtf, k: int | None = None) -> int:
     """Bytes of the first ``k`` (default all) basis vectors' codes, group-major, as float32
     OpenEXR zip in rows of TABLE_WIDTH texels (the basis block of ``gpu/tables.exr`` without
     the tables' other blocks; the last row padded with zeros).  Deterministic."""
+    k = min(cbtf.k if k is None else k, cbtf.k)
+    return basis_block_bytes(basis_codes_group_major(cbtf, k))
+
+
+def basis_block_bytes(block: np.ndarray) -> int:
+    """Bytes of group-major basis code texels ``block`` (N, 4) float32 encoded alone as the GPU
+    tables encode them: float32 OpenEXR zip in rows of TABLE_WIDTH texels, the last row padded
+    with zeros.  Deterministic."""
     from ..imageio import encode_image
 
-    k = min(cbtf.k if k is None else k, cbtf.k)
-    block = basis_codes_group_major(cbtf, k)
     rows = -(-len(block) // TABLE_WIDTH)
     image = np.zeros((rows * TABLE_WIDTH, 4), np.float32)
     image[:len(block)] = block

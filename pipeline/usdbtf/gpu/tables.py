@@ -45,8 +45,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..compress.format import CompressedBTF, cross_layout
-from ..compress.packs import (MAX_CODE as _MAX_CODE, TABLE_WIDTH, basis_code_offset, basis_codes_group_major,
-                              coefficient_packs as _pack, pack_count, page_breaks)
+from ..compress.packs import (MAX_CODE as _MAX_CODE, TABLE_WIDTH, basis_block_bytes, basis_code_offset,
+                              basis_codes_group_major, coefficient_packs as _pack, pack_count, page_breaks)
 from ..errors import BTFError
 
 __all__ = ["MAX_PAGES", "PAGE_SIZE", "TABLE_WIDTH", "GpuLayout", "gpu_layout", "pack_count", "page_breaks",
@@ -352,8 +352,6 @@ def basis_bytes(tables: np.ndarray, n: int | None = None) -> int:
     :func:`usdbtf.compress.packs.shipped_basis_bytes` measures on a compressed BTF).  What the
     full lod spends on the basis of vectors ``n+1..k`` is ``basis_bytes(t) - basis_bytes(t, n)``
     (a lower lod's share, :func:`usdbtf.usd.asset.lod.lod_share`).  Deterministic."""
-    from ..imageio import encode_image
-
     flat = np.asarray(tables, np.float32).reshape(-1, 4)
     groups, stored_k, basis_at = int(flat[0, 3]), int(flat[1, 0]), int(flat[1, 1])
     n = stored_k if n is None else min(int(n), stored_k)
@@ -361,11 +359,7 @@ def basis_bytes(tables: np.ndarray, n: int | None = None) -> int:
     at = basis_at + 1 + 2 * groups
     block = flat[at:at + used * S].copy().reshape(used, S, 4)
     block[used - 1, :, n - 4 * (used - 1):] = offset         # code 0
-    rows = -(-used * S // TABLE_WIDTH)
-    image = np.zeros((rows * TABLE_WIDTH, 4), np.float32)
-    image[:used * S] = block.reshape(-1, 4)
-    return len(encode_image(image.reshape(rows, TABLE_WIDTH, 4), "exr", color_space="data",
-                            attributes={"compression": "zip"}))
+    return basis_block_bytes(block.reshape(-1, 4))
 
 
 def _codes(values: np.ndarray, max_code: float, where: str, normalised: bool = True) -> np.ndarray:
@@ -495,24 +489,10 @@ def unpack(tables: np.ndarray, pages: list, k: int | None = None) -> tuple[np.nd
     bit for bit what the compressed BTF stored (a uint8 texture packed beside uint16 ones comes
     back as uint16 holding the same values: reconstructions are identical).
     """
-    flat, k, basis, directory_at, width, height = _directory(tables, k)
-    coefficients = [np.empty((height, width, 3), np.uint8) for _ in range(k)]
-    for g in range(-(-k // 4)):
-        for c in range(3):
-            p = 3 * g + c
-            page, x0, y0, code = flat[directory_at + p]
-            if int(page) >= len(pages):
-                raise BTFError(f"coefficient pack {p} is on page {int(page)}; {len(pages)} page(s) given")
-            tile = np.asarray(pages[int(page)])[int(y0):int(y0) + height, int(x0):int(x0) + width]
-            if tile.shape[:2] != (height, width) or tile.ndim != 3 or tile.shape[2] != 4:
-                raise BTFError(f"page {int(page)} does not hold coefficient pack {p} ({width}x{height} RGBA tile)")
-            tile = _codes(tile, float(code), f"page {int(page)}")
-            for j in range(min(4, k - 4 * g)):
-                i = 4 * g + j
-                if coefficients[i].dtype != tile.dtype:
-                    coefficients[i] = coefficients[i].astype(tile.dtype)
-                coefficients[i][:, :, c] = tile[:, :, j]
-    return basis, coefficients
+    basis, codes = unpack_lazy(tables, pages, k)
+    # LazyCodes reads a group's three packs once for its four vectors: the same lookups, checks
+    # and values as reading pack by pack (a uint8 pack beside uint16 ones promotes the texture).
+    return basis, list(codes)
 
 
 def with_wrap(layout: GpuLayout, wrap: str) -> GpuLayout:
