@@ -253,9 +253,6 @@ def shipped_bytes(root) -> dict:
     """{lod name: bytes of every file that ``lod`` loads} of the written asset ``root``
     (:func:`usdbtf.usd.asset.inspect.lod_files`: its layers, thumbnail, the BTF's textures and
     what its shader networks read), largest first."""
-    from .inspect import lod_files
-    from ..read import find_material, open_stage
-
     return {lv["name"] or FULL_LOD: lv["total"] for lv in shipped_levels(root, shares=False)}
 
 
@@ -379,11 +376,11 @@ def package(compressed, options: PackageOptions | None = None, *,
         basis, coefficients = gpu.tables, list(gpu.pages)
     else:
         basis, coefficients = package_textures(cbtf, textures)
-    reused = fallback_fits
-    fitted = fit_svbrdf(cbtf if texels is None else texels.compact, white_level=white) if reused is None else reused[0]
+    fitted = (fit_svbrdf(cbtf if texels is None else texels.compact, white_level=white) if fallback_fits is None
+              else fallback_fits[0])
     maps_added = fallback.add_maps(fitted, textures, cbtf.ocio_config, texels=texels)
     op_fitted, op_added, errors = _openpbr_fallback(cbtf if texels is None else texels.compact, fitted, white,
-                                                    textures, texels, reused)
+                                                    textures, texels, fallback_fits)
     thumb = None
     if options.thumbnail:
         thumb = textures.add_file(thumbnail.THUMBNAIL_FILE, thumbnail.thumbnail_png(cbtf, shape, texels=texels))
@@ -405,7 +402,7 @@ def _openpbr_fallback(cbtf: CompressedBTF, preview: SvbrdfMaps, white: float, te
                       reused: tuple | None = None):
     """The OpenPBR fallback of ``cbtf`` (a quilt's source texels when ``texels``): (its fit,
     its maps added to ``textures``, both fallbacks' errors); ``reused`` (:func:`package`'s
-    ``fallback``) gives the fit and errors instead."""
+    ``fallback_fits``) gives the fit and errors instead."""
     from ...openpbr import fit_openpbr
 
     if reused is not None:
