@@ -15,6 +15,9 @@ nearest   the fallback with its maps sampled texel by texel (``swatch_scene(near
           at one texel a pixel Storm on llvmpipe otherwise low-passes the maps (``checker``
           below), and the fallback's brightness is not linear in them (normals renormalised,
           roughness and F0 inside products);
+aniso1    the fallback as drawn, with ``HGI_MAX_ANISOTROPY=1`` in Storm's environment: llvmpipe's
+          anisotropic filtering (Storm asks for 16x) is what low-passes the maps at one texel a
+          pixel (``probes/storm_checker_alignment.py``: with it off a checker reads 0 and 1);
 openpbr   the same asset drawing only its OpenPBR network (``fallback="openpbr"``);
 legacy    the BTF shader with ``inputs:exposure = pi W``: exactly the shader before this convention
           (irradiance 1 = the capture light), the baseline, measured in the same run.
@@ -276,6 +279,15 @@ def measure(asset: Path, python: Path, work: Path, count: int) -> dict:
     if result.problems:
         raise SystemExit("\n".join(result.problems))
     images = {key: img[..., :3].astype(np.float64) for key, img in zip(kinds, result.images)}
+    # The fallback again with llvmpipe's anisotropic filtering off (HGI_MAX_ANISOTROPY=1, which
+    # reaches Storm only through the environment render_frames passes): at one texel a pixel
+    # llvmpipe's anisotropic path blurs a checker to 0.49-0.51, with it off 0 and 1 (probes/
+    # storm_checker_alignment.py).
+    fb = [(scene, scene.with_name(f"{scene.stem}_aniso1.exr")) for (scene, _), (s, kind) in zip(frames, kinds)
+          if kind == "fallback"]
+    aniso = hydra.render_frames(python, fb, camera, size, env=dict(hydra.storm_environment(), HGI_MAX_ANISOTROPY="1"))
+    for (s, _), img in zip(lights, aniso.images):
+        images[(s, "aniso1")] = img[..., :3].astype(np.float64)
     # Storm decodes the fallback's sRGB maps to linear Rec.709 and shades in it; the BTF shader
     # returns working-space values (the Material's ColorSpaceAPI): the fallback's frame taken to
     # the working space compares like with like.
@@ -289,6 +301,7 @@ def measure(asset: Path, python: Path, work: Path, count: int) -> dict:
     rows = [{"sample": s, "light": light, "btf_gain": g, "btf_steps": d,
              "fallback_over_btf": float(images[(s, "fallback")].mean() / images[(s, "btf")].mean()),
              "nearest_over_btf": float(images[(s, "nearest")].mean() / images[(s, "btf")].mean()),
+             "aniso1_over_btf": float(images[(s, "aniso1")].mean() / images[(s, "btf")].mean()),
              "nearest_working_over_btf": float(matched_nearest[s].mean() / images[(s, "btf")].mean()),
              "openpbr_over_btf": float(images[(s, "openpbr")].mean() / images[(s, "btf")].mean()),
              "fallback_over_legacy": float(images[(s, "fallback")].mean() / images[(s, "legacy")].mean()),
@@ -322,9 +335,9 @@ def main(argv=None) -> int:
         f"package --physical-size 0.05 0.05; {args.lights} pole-view lights, DistantLight irradiance 1")
     out = {"machine": info, "args": vars(args), "results": {}}
     lines = ["| preset | USD | BTF gain vs samples (pi W = 3.1416) | before | BTF steps | Storm UsdPreviewSurface / BTF | "
-             "same, maps sampled nearest | nearest, in the working space | Storm OpenPBR / BTF | "
+             "same, maps sampled nearest | same, HGI_MAX_ANISOTROPY=1 | nearest, in the working space | Storm OpenPBR / BTF | "
              "before (/ legacy BTF) | in the working space | normal map blocked | fit model / BTF | "
-             "Cycles Principled / OSL BTF | Storm checker |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "Cycles Principled / OSL BTF | Storm checker |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     with tempfile.TemporaryDirectory(prefix="usdbtf-bench-") as tmp:
         for preset in args.presets:
             asset = build(preset, Path(tmp) / preset, args.sampling, args.size, args.k)
@@ -343,7 +356,7 @@ def main(argv=None) -> int:
                     f"{r['btf_gain'] / r['convention_gain']:.4f} of it), before {r['legacy_gain']:.4f}; "
                     f"UsdPreviewSurface/BTF {np.round(ratios, 3).tolist()}, OpenPBR/BTF "
                     f"{np.round([row['openpbr_over_btf'] for row in r['lights']], 3).tolist()}, UsdPreviewSurface sampled "
-                    f"nearest / BTF {np.round([row['nearest_over_btf'] for row in r['lights']], 3).tolist()} (in the working space "
+                    f"nearest / BTF {np.round([row['nearest_over_btf'] for row in r['lights']], 3).tolist()}, anisotropy 1 / BTF {np.round([row['aniso1_over_btf'] for row in r['lights']], 3).tolist()} (in the working space "
                     f"{np.round([row['nearest_working_over_btf'] for row in r['lights']], 3).tolist()}), in the working space "
                     f"{np.round([row['fallback_working_over_btf'] for row in r['lights']], 3).tolist()}, normal map blocked "
                     f"{np.round([row['flat_normal_over_btf'] for row in r['lights']], 3).tolist()}, before {np.round(before, 3).tolist()} "
@@ -360,7 +373,7 @@ def main(argv=None) -> int:
 
                 cyc = f"{min(r['cycles']):.3f}-{max(r['cycles']):.3f}" if "cycles" in r else "-"
                 lines.append(f"| {preset} | {version} | {r['btf_gain']:.4f} | {r['legacy_gain']:.4f} | "
-                             f"{min(steps):.2f}-{max(steps):.2f} | {span('fallback_over_btf')} | {span('nearest_over_btf')} | {span('nearest_working_over_btf')} | {span('openpbr_over_btf')} | "
+                             f"{min(steps):.2f}-{max(steps):.2f} | {span('fallback_over_btf')} | {span('nearest_over_btf')} | {span('aniso1_over_btf')} | {span('nearest_working_over_btf')} | {span('openpbr_over_btf')} | "
                              f"{span('fallback_over_legacy')} | {span('fallback_working_over_btf')} | "
                              f"{span('flat_normal_over_btf')} | {span('model_over_btf')} | {cyc} | "
                              f"{r['checker']['x1']['middle_min']:.2f}..{r['checker']['x1']['middle_max']:.2f} "

@@ -56,7 +56,8 @@ from .progress import track
 from .sampling import to_vectors
 
 __all__ = ["SvbrdfMaps", "fit_svbrdf", "flat_fallback", "median_albedo", "fit_flat_roughness", "evaluate",
-           "fit_samples", "normal_samples", "validation_samples", "ROUGHNESS_GRID", "MIN_ROUGHNESS",
+           "fit_samples", "normal_samples", "validation_samples", "keep_brightness", "brightness_scale",
+           "ROUGHNESS_GRID", "MIN_ROUGHNESS",
            "VALIDATION_SAMPLES"]
 
 log = logging.getLogger(__name__)
@@ -78,6 +79,8 @@ POLE_MAX_LIGHT_DEG = 70.0
 POLE_WEIGHT = 1.0
 #: The pole samples' mean is kept per band of light elevation this wide (degrees).
 POLE_BAND_DEG = 20.0
+#: Bounds of step 4's factor on the lobes (a fit further off than this is not a brightness slip).
+BRIGHTNESS_SCALE = (0.5, 2.0)
 
 
 @dataclass
@@ -365,10 +368,12 @@ def validation_samples(cbtf: CompressedBTF, fit: np.ndarray, most: int = 1024) -
 @single_blas_thread
 def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: int = 1536,
                roughness_grid=ROUGHNESS_GRID, normals: bool = True, chunk_bytes: float = 64e6,
-               pole_weight: float = POLE_WEIGHT) -> SvbrdfMaps:
+               pole_weight: float = POLE_WEIGHT, brightness: bool = True, texel_weights=None) -> SvbrdfMaps:
     """Fit per-texel UsdPreviewSurface parameters to ``cbtf``'s reconstruction over its
     measured samples (module docstring), streamed over blocks of texels.  ``normals=False``
-    fits no normal map (every texel keeps the flat normal)."""
+    fits no normal map (every texel keeps the flat normal); ``brightness=False`` skips step 4
+    (:func:`keep_brightness`; the benchmarks' before); ``texel_weights`` (H*W,): how many
+    texels of the material each texel stands for, for step 4 (a quilt's source texels)."""
     if not white_level > 0:
         raise ValueError(f"white_level must be positive, got {white_level}")
     fit = fit_samples(cbtf, max_samples)
@@ -411,8 +416,55 @@ def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: in
         diffuse[block] = np.clip(a / np.maximum(1.0 - f, 1e-6), 0.0, 1.0)
         specular[block], rough[block], normal[block] = f, r, n_ps
     h, w = cbtf.height, cbtf.width
-    return SvbrdfMaps(diffuse.reshape(h, w, 3), specular.reshape(h, w, 3), rough.reshape(h, w),
+    maps = SvbrdfMaps(diffuse.reshape(h, w, 3), specular.reshape(h, w, 3), rough.reshape(h, w),
                       normal.reshape(h, w, 3), cbtf.working_space, float(white_level))
+    return keep_brightness(maps, cbtf, texel_weights, chunk_bytes) if brightness else maps
+
+
+def brightness_scale(maps: SvbrdfMaps, cbtf: CompressedBTF, texel_weights=None,
+                     chunk_bytes: float = 64e6) -> np.ndarray:
+    """(3,) float64 per colour channel: the factor on both lobes (diffuse and F0) that makes
+    the swatch of ``maps`` as bright as ``cbtf``'s at the pole samples (:func:`pole_samples`:
+    the views nearest the normal, lights up to :data:`POLE_MAX_LIGHT_DEG`; the values already
+    carry n.l, the convention's cosine), on average over those lights: what the Storm check
+    measures, a swatch under one light at a time (module docstring, step 4).  For sample p and
+    channel c, with Y = the BTF's swatch sum, A = the model's lobes' sum and G = the sum of the
+    Fresnel term's grazing part (F = mix(F0, 1, w): no parameter scales it), s makes
+    ``mean_p (s A + G) / Y`` one, within :data:`BRIGHTNESS_SCALE`.  ``texel_weights`` (H*W,): how many texels of the material
+    each texel stands for (a quilt fitted once per source texel); default one each."""
+    pole = pole_samples(cbtf)
+    rows = cbtf.basis_values()[pole]
+    zero = replace(maps, diffuse=np.zeros_like(maps.diffuse), specular=np.zeros_like(maps.specular))
+    texels = cbtf.width * cbtf.height
+    wts = np.ones(texels) if texel_weights is None else np.asarray(texel_weights, np.float64).reshape(-1)
+    sums = np.zeros((3, len(pole), 3))                                        # Y, A + G, G
+    view, light = cbtf.sampling.view[pole], cbtf.sampling.light[pole]
+    step = int(max(256, chunk_bytes // (len(pole) * 4 * 3 * 4)))
+    for t0 in range(0, texels, step):
+        block = slice(t0, min(t0 + step, texels))
+        w = wts[block]
+        # Both in BTF values (evaluate includes pi W), so no unit conversion.
+        sums[0] += np.einsum("ptc,t->pc", _reconstruct(cbtf, rows, block), w)
+        sums[1] += np.einsum("ptc,t->pc", evaluate(maps, view, light, block), w)
+        sums[2] += np.einsum("ptc,t->pc", evaluate(zero, view, light, block), w)
+    y, total, grazing = sums
+    ok = y > 1e-12 * max(float(y.max()), 1e-30)        # a sample the BTF is black at has no ratio
+    y = np.where(ok, y, 1.0)
+    lobes = np.where(ok, (total - grazing) / y, 0.0).sum(axis=0)
+    target = ok.sum(axis=0) - np.where(ok, grazing / y, 0.0).sum(axis=0)
+    lo, hi = BRIGHTNESS_SCALE
+    return np.where(lobes > 1e-12, np.clip(target / np.maximum(lobes, 1e-30), lo, hi), 1.0)
+
+
+def keep_brightness(maps: SvbrdfMaps, cbtf: CompressedBTF, texel_weights=None, chunk_bytes: float = 64e6) -> SvbrdfMaps:
+    """``maps`` with diffuse albedo times (1 - F0) and F0 scaled by :func:`brightness_scale`
+    per channel (F0 at most 1, the albedo in [0, 1]): step 4 of the fit."""
+    s = brightness_scale(maps, cbtf, texel_weights, chunk_bytes).astype(np.float32)
+    f0 = maps.specular.astype(np.float32)
+    a = maps.diffuse * (1.0 - f0) * s
+    spec = np.clip(f0 * s, 0.0, 1.0)
+    diffuse = np.clip(a / np.maximum(1.0 - spec, 1e-6), 0.0, 1.0)
+    return replace(maps, diffuse=diffuse.astype(np.float32), specular=spec.astype(np.float32))
 
 
 # ------------------------------------------------------------------ the flat fallback (the baseline)

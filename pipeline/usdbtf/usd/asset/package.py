@@ -376,8 +376,9 @@ def package(compressed, options: PackageOptions | None = None, *,
         basis, coefficients = gpu.tables, list(gpu.pages)
     else:
         basis, coefficients = package_textures(cbtf, textures)
-    fitted = (fit_svbrdf(cbtf if texels is None else texels.compact, white_level=white) if fallback_fits is None
-              else fallback_fits[0])
+    fitted = (fallback_fits[0] if fallback_fits is not None else fit_svbrdf(cbtf, white_level=white)
+              if texels is None else fit_svbrdf(texels.compact, white_level=white,
+                                                texel_weights=texels.multiplicity()))
     maps_added = fallback.add_maps(fitted, textures, cbtf.ocio_config, texels=texels)
     op_fitted, op_added, errors = _openpbr_fallback(cbtf if texels is None else texels.compact, fitted, white,
                                                     textures, texels, fallback_fits)
