@@ -54,9 +54,11 @@ def say(msg: str = "") -> None:
 
 #: --ablation: fits with one choice of fit_svbrdf undone (name -> keyword arguments).
 ABLATIONS = {"fitted, no normal map": {"normals": False}, "fitted, 512 fit samples": {"max_samples": 512}}
+#: --before-brightness: the fit without its step 4 (svbrdf.keep_brightness), in the same run.
+BEFORE_BRIGHTNESS = {"fitted, brightness not kept": {"brightness": False}}
 
 
-def shipped_fallbacks(cbtf, white: float, ablation: bool = False) -> tuple[dict, float, float]:
+def shipped_fallbacks(cbtf, white: float, ablation: bool = False, before_brightness: bool = False) -> tuple[dict, float, float]:
     """({"fitted": maps, "openpbr": maps, "flat": maps, ablations...} as a renderer reads them
     from the asset, seconds of the UsdPreviewSurface fit, seconds of the OpenPBR fit)."""
     from usdbtf import openpbr, svbrdf
@@ -73,6 +75,8 @@ def shipped_fallbacks(cbtf, white: float, ablation: bool = False) -> tuple[dict,
     maps = [("fitted", fitted), ("flat", flat)]
     if ablation:
         maps += [(name, svbrdf.fit_svbrdf(cbtf, white_level=white, **kw)) for name, kw in ABLATIONS.items()]
+    if before_brightness:
+        maps += [(name, svbrdf.fit_svbrdf(cbtf, white_level=white, **kw)) for name, kw in BEFORE_BRIGHTNESS.items()]
     shipped = {name: decode_maps(encode_maps(m, cbtf.ocio_config), cbtf.working_space,
                                  ocio_config=cbtf.ocio_config, white_level=white)
                for name, m in maps}
@@ -129,6 +133,8 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="small sampling, 64^2 (a check, not a measurement)")
     ap.add_argument("--ablation", action="store_true", help="also fit without the normal map and with 512 fit "
                     "samples (the choices fit_svbrdf makes by default)")
+    ap.add_argument("--before-brightness", action="store_true", help="also the UsdPreviewSurface fit without its "
+                    "brightness step (svbrdf.keep_brightness), the before of issue 40")
     args = ap.parse_args(argv)
     if args.quick:
         args.sampling, args.size = "small", 64
@@ -153,7 +159,7 @@ def main(argv=None) -> int:
         cbtf = compressed(cli, Path(data["folder"]), folder, args.k)
         orig = open_btf(data["folder"])
         white = float((cbtf.info.get("source_metadata") or {}).get("white_level", 1.0))
-        shipped, fit_s, op_s = shipped_fallbacks(cbtf, white, args.ablation)
+        shipped, fit_s, op_s = shipped_fallbacks(cbtf, white, args.ablation, args.before_brightness)
         say(f"  fits: UsdPreviewSurface {fit_s:.1f} s, OpenPBR {op_s:.1f} s for {cbtf.width}x{cbtf.height} texels, "
             f"{cbtf.n_samples} samples, k {cbtf.k}")
         t = time.perf_counter()
@@ -163,7 +169,7 @@ def main(argv=None) -> int:
             parts = [f"{dom} {v['percent']:.2f} % (RMSE {v['rmse']:.4f}, PSNR {v['psnr_db']:.1f} dB)"
                      for dom, v in r.items()]
             say(f"  {name:15s} " + "; ".join(parts))
-            if name in ABLATIONS:
+            if name in ABLATIONS or name in BEFORE_BRIGHTNESS:
                 ablation_rows.append(f"| {preset} | {name} | {r['linear']['percent']:.2f} | {r['linear']['rmse']:.4f} | "
                                      f"{r['encoded']['percent']:.2f} | {r['encoded']['rmse']:.4f} |")
         doc["presets"][preset] = {"fit_seconds": fit_s, "openpbr_fit_seconds": op_s, "errors": res,
@@ -192,7 +198,7 @@ def main(argv=None) -> int:
         say("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
         for row in rows[split]:
             say(row)
-    if args.ablation:
+    if args.ablation or args.before_brightness:
         say("\n| preset | fallback | % lin | RMSE lin | % enc | RMSE enc |\n|---|---|---|---|---|---|")
         for row in sorted(ablation_rows):
             say(row)
