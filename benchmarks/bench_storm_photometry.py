@@ -179,57 +179,12 @@ def storm_minimal_checker(python: Path, work: Path, n: int = 32) -> dict:
     (sRGB PNG, n x n black/white checker) <- UsdPrimvarReader_float2 st, an orthographic camera
     one texel a pixel, one DistantLight of irradiance pi from the pole.  Frame middle-half
     min..max over the white level (exact: 0..1)."""
-    import OpenImageIO as oiio
-    from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
-
+    from probes.storm_checker_alignment import quad
     from usdbtf.usd.preview import hydra
-    from usdbtf.usd.scenes.scene import add_distant
 
     folder = work / "minimal"
     folder.mkdir()
-    pixels = np.where((np.add.outer(np.arange(n), np.arange(n)) % 2 == 0)[..., None], 255, 0).astype(np.uint8)
-    out = oiio.ImageOutput.create(str(folder / "checker.png"))
-    out.open(str(folder / "checker.png"), oiio.ImageSpec(n, n, 3, "uint8"))
-    out.write_image(np.repeat(pixels, 3, axis=2))
-    out.close()
-    path = folder / "quad.usda"
-    stage = Usd.Stage.CreateNew(str(path))
-    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
-    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
-    mesh = UsdGeom.Mesh.Define(stage, "/World/Quad")
-    mesh.CreatePointsAttr([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)])
-    mesh.CreateFaceVertexCountsAttr([4])
-    mesh.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
-    mesh.CreateExtentAttr([(0, 0, 0), (1, 1, 0)])
-    UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex).Set(
-        [(0, 0), (1, 0), (1, 1), (0, 1)])
-    material = UsdShade.Material.Define(stage, "/World/Mat")
-    reader = UsdShade.Shader.Define(stage, "/World/Mat/St")
-    reader.CreateIdAttr("UsdPrimvarReader_float2")
-    reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
-    reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
-    tex = UsdShade.Shader.Define(stage, "/World/Mat/Tex")
-    tex.CreateIdAttr("UsdUVTexture")
-    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set("./checker.png")
-    tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
-    tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
-    tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
-    surface = UsdShade.Shader.Define(stage, "/World/Mat/Surface")
-    surface.CreateIdAttr("UsdPreviewSurface")
-    surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(tex.ConnectableAPI(), "rgb")
-    surface.CreateInput("useSpecularWorkflow", Sdf.ValueTypeNames.Int).Set(1)
-    surface.CreateInput("specularColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(0, 0, 0))
-    surface.CreateOutput("surface", Sdf.ValueTypeNames.Token)
-    material.CreateSurfaceOutput().ConnectToSource(surface.ConnectableAPI(), "surface")
-    UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
-    camera = UsdGeom.Camera.Define(stage, "/World/Camera")
-    camera.CreateProjectionAttr(UsdGeom.Tokens.orthographic)
-    camera.CreateHorizontalApertureAttr(10.0)           # tenths of a scene unit: the unit quad
-    camera.CreateVerticalApertureAttr(10.0)
-    camera.CreateClippingRangeAttr(Gf.Vec2f(0.5, 2.0))
-    camera.AddTranslateOp().Set(Gf.Vec3d(0.5, 0.5, 1.0))
-    add_distant(stage, "/World/Sun", (0.0, 0.0, 1.0), math.pi)
-    stage.GetRootLayer().Save()
+    path = quad(folder, n)
     frame = hydra.render_frames(python, [(path, folder / "quad.exr")], "/World/Camera", (n, n)).images[0][..., 0]
     middle = frame[n // 4:3 * n // 4, n // 4:3 * n // 4]
     return {"middle_min": float(middle.min()), "middle_max": float(middle.max())}

@@ -20,12 +20,17 @@ from usdbtf.model import ArrayBTF
 from usdbtf.sampling import preset
 
 
-@pytest.fixture(scope="module")
-def flakes():
-    material = synth.make_material("metal_flakes", 16, 5)
+def _synthetic(name: str, size: int):
+    """The ``name`` preset, size^2 texels, small sampling, compressed at k 12."""
+    material = synth.make_material(name, size, 5)
     sampling = preset("small")
     data = color.processor("Linear Rec.709 (sRGB)", "scene_linear").apply(synth.render_all(material, sampling))
     return compress(ArrayBTF.from_linear(sampling, data), CompressOptions(k=12, codec="exr"))
+
+
+@pytest.fixture(scope="module")
+def flakes():
+    return _synthetic("metal_flakes", 16)
 
 
 def _pole_ratios_and_error(cbtf, maps):
@@ -62,10 +67,7 @@ def _swatch_ratios(cbtf, maps) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def satin():
-    material = synth.make_material("satin_weave", 12, 5)
-    sampling = preset("small")
-    data = color.processor("Linear Rec.709 (sRGB)", "scene_linear").apply(synth.render_all(material, sampling))
-    return compress(ArrayBTF.from_linear(sampling, data), CompressOptions(k=12, codec="exr"))
+    return _synthetic("satin_weave", 12)
 
 
 def test_fit_keeps_the_mean_brightness_at_the_pole_lights(satin):

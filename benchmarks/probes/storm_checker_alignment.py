@@ -47,6 +47,9 @@ def ramp_png(path: Path, n: int) -> None:
 
 
 def quad(folder: Path, n: int, filters=None, shift: float = 0.0, texture: str = "checker") -> Path:
+    """Write the quad's stage in ``folder`` (module docstring; ``bench_storm_photometry``'s
+    hand-made checker too): ``filters`` = (minFilter, magFilter) or None (as authored), the camera
+    moved ``shift`` texels in x and y, ``texture`` "checker" (sRGB) or "ramp" (raw)."""
     import OpenImageIO as oiio
     from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
 
@@ -65,6 +68,7 @@ def quad(folder: Path, n: int, filters=None, shift: float = 0.0, texture: str = 
     path = folder / name
     stage = Usd.Stage.CreateNew(str(path))
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
     mesh = UsdGeom.Mesh.Define(stage, "/World/Quad")
     mesh.CreatePointsAttr([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)])
     mesh.CreateFaceVertexCountsAttr([4])
