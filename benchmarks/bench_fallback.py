@@ -54,8 +54,9 @@ def say(msg: str = "") -> None:
 
 #: --ablation: fits with one choice of fit_svbrdf undone (name -> keyword arguments).
 ABLATIONS = {"fitted, no normal map": {"normals": False}, "fitted, 512 fit samples": {"max_samples": 512}}
-#: --before-brightness: the fit without its step 4 (svbrdf.keep_brightness), in the same run.
-BEFORE_BRIGHTNESS = {"fitted, brightness not kept": {"brightness": False}}
+#: --before-brightness: the fits without their brightness step (svbrdf.keep_brightness,
+#: openpbr.keep_brightness; the OpenPBR fit from the UsdPreviewSurface fit without it), same run.
+BEFORE_BRIGHTNESS = ("fitted, brightness not kept", "openpbr, brightness not kept")
 
 
 def shipped_fallbacks(cbtf, white: float, ablation: bool = False, before_brightness: bool = False) -> tuple[dict, float, float]:
@@ -75,8 +76,11 @@ def shipped_fallbacks(cbtf, white: float, ablation: bool = False, before_brightn
     maps = [("fitted", fitted), ("flat", flat)]
     if ablation:
         maps += [(name, svbrdf.fit_svbrdf(cbtf, white_level=white, **kw)) for name, kw in ABLATIONS.items()]
+    unkept_op = None
     if before_brightness:
-        maps += [(name, svbrdf.fit_svbrdf(cbtf, white_level=white, **kw)) for name, kw in BEFORE_BRIGHTNESS.items()]
+        unkept = svbrdf.fit_svbrdf(cbtf, white_level=white, brightness=False)
+        maps.append(("fitted, brightness not kept", unkept))
+        unkept_op = openpbr.fit_openpbr(cbtf, svbrdf=unkept, white_level=white, brightness=False)
     shipped = {name: decode_maps(encode_maps(m, cbtf.ocio_config), cbtf.working_space,
                                  ocio_config=cbtf.ocio_config, white_level=white)
                for name, m in maps}
@@ -85,8 +89,10 @@ def shipped_fallbacks(cbtf, white: float, ablation: bool = False, before_brightn
     old.normal[:] = (0.0, 0.0, 1.0)
     old.specular[:] = 0.04
     old.roughness[:] = flat.roughness
-    shipped["openpbr"] = usd_openpbr.decode_maps(usd_openpbr.encode_maps(op, cbtf.ocio_config), cbtf.working_space,
-                                                 ocio_config=cbtf.ocio_config, white_level=white)
+    for name, fitted_op in (("openpbr", op), ("openpbr, brightness not kept", unkept_op)):
+        if fitted_op is not None:
+            shipped[name] = usd_openpbr.decode_maps(usd_openpbr.encode_maps(fitted_op, cbtf.ocio_config),
+                                                    cbtf.working_space, ocio_config=cbtf.ocio_config, white_level=white)
     return shipped, seconds, op_seconds
 
 
@@ -176,7 +182,7 @@ def main(argv=None) -> int:
                                   "samples": orig.n_samples, "texels": cbtf.width * cbtf.height, "k": cbtf.k,
                                   "split": preset_split(preset)}
         f, o, fl, rc = res["fitted"], res["openpbr"], res["flat"], res["reconstruction"]
-        for name in ("fitted", "flat"):
+        for name in ("fitted", "flat") + (("openpbr",) if args.before_brightness else ()):
             ablation_rows.append(f"| {preset} | {name} | {res[name]['linear']['percent']:.2f} | "
                                  f"{res[name]['linear']['rmse']:.4f} | {res[name]['encoded']['percent']:.2f} | "
                                  f"{res[name]['encoded']['rmse']:.4f} |")

@@ -51,6 +51,7 @@ Writes benchmarks/out/storm_photometry_<timestamp>.json and prints a markdown bl
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import sys
 import tempfile
@@ -67,15 +68,41 @@ def say(msg: str = "") -> None:
     print(msg, flush=True)
 
 
-def build(preset: str, work: Path, sampling: str, size: int, k: int) -> Path:
+@contextlib.contextmanager
+def brightness_step_off():
+    """Within: ``svbrdf.fit_svbrdf`` and ``openpbr.fit_openpbr`` default to ``brightness=False``
+    (the fits before their brightness step, issue 40: ``--before``).  ``usdbtf package`` runs in
+    this process, so the asset it writes carries the fits as they were."""
+    import inspect
+
+    from usdbtf import openpbr, svbrdf
+
+    fits = [inspect.unwrap(svbrdf.fit_svbrdf), inspect.unwrap(openpbr.fit_openpbr)]
+    saved = [dict(f.__kwdefaults__) for f in fits]
+    for f in fits:
+        f.__kwdefaults__["brightness"] = False
+    try:
+        yield
+    finally:
+        for f, kw in zip(fits, saved):
+            f.__kwdefaults__ = kw
+
+
+def build(preset: str, work: Path, sampling: str, size: int, k: int, before: bool = False) -> Path:
+    """The preset's asset (module docstring); ``before``: packaged with :func:`brightness_step_off`
+    from the same compressed BTF."""
     from usdbtf.cli import main
 
-    src, comp, asset = work / "src", work / "c", work / "a" / f"{preset}.usda"
-    for argv in (["synth", preset, "-o", str(src), "--sampling", sampling, "--size", str(size), "--seed", "5"],
-                 ["compress", str(src), "-o", str(comp), "--k", str(k), "--codec", "png"],
-                 ["package", str(comp), "-o", str(asset), "--physical-size", "0.05", "0.05"]):
-        if main(argv + ["-q"]) != 0:
-            raise SystemExit(f"usdbtf {' '.join(argv)} failed")
+    src, comp = work / "src", work / "c"
+    asset = work / ("a_before" if before else "a") / f"{preset}.usda"
+    steps = [["package", str(comp), "-o", str(asset), "--physical-size", "0.05", "0.05"]]
+    if not (comp / "btf-compressed.json").is_file():
+        steps[:0] = [["synth", preset, "-o", str(src), "--sampling", sampling, "--size", str(size), "--seed", "5"],
+                     ["compress", str(src), "-o", str(comp), "--k", str(k), "--codec", "png"]]
+    for argv in steps:
+        with brightness_step_off() if before else contextlib.nullcontext():
+            if main(argv + ["-q"]) != 0:
+                raise SystemExit(f"usdbtf {' '.join(argv)} failed")
     return asset
 
 
@@ -238,11 +265,11 @@ def measure(asset: Path, python: Path, work: Path, count: int) -> dict:
     # reaches Storm only through the environment render_frames passes): at one texel a pixel
     # llvmpipe's anisotropic path blurs a checker to 0.49-0.51, with it off 0 and 1 (probes/
     # storm_checker_alignment.py).
-    fb = [(scene, scene.with_name(f"{scene.stem}_aniso1.exr")) for (scene, _), (s, kind) in zip(frames, kinds)
-          if kind == "fallback"]
-    aniso = hydra.render_frames(python, fb, camera, size, env=dict(hydra.storm_environment(), HGI_MAX_ANISOTROPY="1"))
-    for (s, _), img in zip(lights, aniso.images):
-        images[(s, "aniso1")] = img[..., :3].astype(np.float64)
+    again = [(s, kind, scene) for (scene, _), (s, kind) in zip(frames, kinds) if kind in ("fallback", "openpbr")]
+    aniso = hydra.render_frames(python, [(scene, scene.with_name(f"{scene.stem}_aniso1.exr")) for _, _, scene in again],
+                                camera, size, env=dict(hydra.storm_environment(), HGI_MAX_ANISOTROPY="1"))
+    for (s, kind, _), img in zip(again, aniso.images):
+        images[(s, "aniso1" if kind == "fallback" else "openpbr_aniso1")] = img[..., :3].astype(np.float64)
     # Storm decodes the fallback's sRGB maps to linear Rec.709 and shades in it; the BTF shader
     # returns working-space values (the Material's ColorSpaceAPI): the fallback's frame taken to
     # the working space compares like with like.
@@ -261,6 +288,7 @@ def measure(asset: Path, python: Path, work: Path, count: int) -> dict:
                                               / images[(s, "btf")].mean()),
              "nearest_working_over_btf": float(matched_nearest[s].mean() / images[(s, "btf")].mean()),
              "openpbr_over_btf": float(images[(s, "openpbr")].mean() / images[(s, "btf")].mean()),
+             "openpbr_aniso1_over_btf": float(images[(s, "openpbr_aniso1")].mean() / images[(s, "btf")].mean()),
              "fallback_over_legacy": float(images[(s, "fallback")].mean() / images[(s, "legacy")].mean()),
              "fallback_working_over_btf": float(matched[s].mean() / images[(s, "btf")].mean()),
              "flat_normal_over_btf": float(images[(s, "flat")].mean() / images[(s, "btf")].mean())}
@@ -283,6 +311,8 @@ def main(argv=None) -> int:
     ap.add_argument("--lights", type=int, default=6)
     ap.add_argument("--usd", nargs="+", default=None, help="USD versions (default: every Storm environment)")
     ap.add_argument("--cycles", action="store_true", help="also Cycles (bpy 5.0.1, .venv-storm-5.0)")
+    ap.add_argument("--before", action="store_true", help="also the asset packaged with the fits' brightness step "
+                    "off (brightness_step_off), from the same compressed BTF, in the same run")
     args = ap.parse_args(argv)
     pythons = hydra.storm_pythons()
     versions = args.usd or sorted(pythons)
@@ -295,46 +325,58 @@ def main(argv=None) -> int:
              "same, maps sampled nearest | HGI_MAX_ANISOTROPY=1, in the working space | nearest, in the working space | Storm OpenPBR / BTF | "
              "before (/ legacy BTF) | in the working space | normal map blocked | fit model / BTF | "
              "Cycles Principled / OSL BTF | Storm checker |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    summary = ["| preset | USD | fits | UsdPreviewSurface as drawn | HGI_MAX_ANISOTROPY=1 | maps sampled nearest | "
+               "fit model / BTF | OpenPBR as drawn | OpenPBR, HGI_MAX_ANISOTROPY=1 |", "|---|---|---|---|---|---|---|---|---|"]
+    fits = ["after", "before"] if args.before else ["after"]
     with tempfile.TemporaryDirectory(prefix="usdbtf-bench-") as tmp:
         for preset in args.presets:
-            asset = build(preset, Path(tmp) / preset, args.sampling, args.size, args.k)
-            for version in versions:
-                work = Path(tmp) / preset / f"storm{version}"
-                work.mkdir()
-                r = measure(asset, pythons[version], work, args.lights)
-                r["checker"] = storm_checker(asset, pythons[version], work)
-                if args.cycles and version == versions[-1]:
-                    r["cycles"] = cycles_ratios(asset, [(row["sample"], row["light"]) for row in r["lights"]], work)
-                out["results"][f"{preset} {version}"] = r
-                ratios = [row["fallback_over_btf"] for row in r["lights"]]
-                before = [row["fallback_over_legacy"] for row in r["lights"]]
-                steps = [row["btf_steps"] for row in r["lights"]]
-                say(f"{preset} USD {version}: BTF gain {r['btf_gain']:.4f} (pi W = {r['convention_gain']:.4f}, "
-                    f"{r['btf_gain'] / r['convention_gain']:.4f} of it), before {r['legacy_gain']:.4f}; "
-                    f"UsdPreviewSurface/BTF {np.round(ratios, 3).tolist()}, OpenPBR/BTF "
-                    f"{np.round([row['openpbr_over_btf'] for row in r['lights']], 3).tolist()}, UsdPreviewSurface sampled "
-                    f"nearest / BTF {np.round([row['nearest_over_btf'] for row in r['lights']], 3).tolist()}, anisotropy 1 / BTF {np.round([row['aniso1_over_btf'] for row in r['lights']], 3).tolist()} (in the working space "
-                    f"{np.round([row['nearest_working_over_btf'] for row in r['lights']], 3).tolist()}), in the working space "
-                    f"{np.round([row['fallback_working_over_btf'] for row in r['lights']], 3).tolist()}, normal map blocked "
-                    f"{np.round([row['flat_normal_over_btf'] for row in r['lights']], 3).tolist()}, before {np.round(before, 3).tolist()} "
-                    f"({r['storm_seconds']:.1f} s Storm); fit model / BTF "
-                    f"{np.round([row['model_over_btf'] for row in r['lights']], 3).tolist()}; Storm checker at one "
-                    f"texel a pixel: {r['checker']['min']:.3f}..{r['checker']['max']:.3f}, middle "
-                    f"{r['checker']['x1']['middle_min']:.3f}..{r['checker']['x1']['middle_max']:.3f}, at 4 pixels a "
-                    f"texel middle {r['checker']['x4']['middle_min']:.3f}..{r['checker']['x4']['middle_max']:.3f} "
-                    "(exact: 0..1)"
-                    + (f"; Cycles Principled / OSL BTF {np.round(r['cycles'], 3).tolist()}" if "cycles" in r else ""))
-                def span(key):
-                    values = [row[key] for row in r["lights"]]
-                    return f"{min(values):.3f}-{max(values):.3f}"
+            for fit in fits:
+                asset = build(preset, Path(tmp) / preset, args.sampling, args.size, args.k, before=fit == "before")
+                for version in versions:
+                    work = Path(tmp) / preset / f"storm{version}_{fit}"
+                    work.mkdir()
+                    r = measure(asset, pythons[version], work, args.lights)
+                    r["checker"] = storm_checker(asset, pythons[version], work)
+                    if args.cycles and version == versions[-1]:
+                        r["cycles"] = cycles_ratios(asset, [(row["sample"], row["light"]) for row in r["lights"]], work)
+                    out["results"][f"{preset} {version} {fit}"] = r
 
-                cyc = f"{min(r['cycles']):.3f}-{max(r['cycles']):.3f}" if "cycles" in r else "-"
-                lines.append(f"| {preset} | {version} | {r['btf_gain']:.4f} | {r['legacy_gain']:.4f} | "
-                             f"{min(steps):.2f}-{max(steps):.2f} | {span('fallback_over_btf')} | {span('nearest_over_btf')} | {span('aniso1_working_over_btf')} | {span('nearest_working_over_btf')} | {span('openpbr_over_btf')} | "
-                             f"{span('fallback_over_legacy')} | {span('fallback_working_over_btf')} | "
-                             f"{span('flat_normal_over_btf')} | {span('model_over_btf')} | {cyc} | "
-                             f"{r['checker']['x1']['middle_min']:.2f}..{r['checker']['x1']['middle_max']:.2f} "
-                             f"({r['checker']['x4']['middle_min']:.2f}..{r['checker']['x4']['middle_max']:.2f}) |")
+                    def cell(key):
+                        values = [row[key] for row in r["lights"]]
+                        return f"{np.mean(values):.3f} ({min(values):.3f}-{max(values):.3f})"
+
+                    summary.append(f"| {preset} | {version} | {fit} | {cell('fallback_working_over_btf')} | "
+                                   f"{cell('aniso1_working_over_btf')} | {cell('nearest_working_over_btf')} | "
+                                   f"{cell('model_over_btf')} | {cell('openpbr_over_btf')} | {cell('openpbr_aniso1_over_btf')} |")
+                    ratios = [row["fallback_over_btf"] for row in r["lights"]]
+                    before = [row["fallback_over_legacy"] for row in r["lights"]]
+                    steps = [row["btf_steps"] for row in r["lights"]]
+                    say(f"{preset} USD {version}: BTF gain {r['btf_gain']:.4f} (pi W = {r['convention_gain']:.4f}, "
+                        f"{r['btf_gain'] / r['convention_gain']:.4f} of it), before {r['legacy_gain']:.4f}; "
+                        f"UsdPreviewSurface/BTF {np.round(ratios, 3).tolist()}, OpenPBR/BTF "
+                        f"{np.round([row['openpbr_over_btf'] for row in r['lights']], 3).tolist()}, UsdPreviewSurface sampled "
+                        f"nearest / BTF {np.round([row['nearest_over_btf'] for row in r['lights']], 3).tolist()}, anisotropy 1 / BTF {np.round([row['aniso1_over_btf'] for row in r['lights']], 3).tolist()} (in the working space "
+                        f"{np.round([row['nearest_working_over_btf'] for row in r['lights']], 3).tolist()}), in the working space "
+                        f"{np.round([row['fallback_working_over_btf'] for row in r['lights']], 3).tolist()}, normal map blocked "
+                        f"{np.round([row['flat_normal_over_btf'] for row in r['lights']], 3).tolist()}, before {np.round(before, 3).tolist()} "
+                        f"({r['storm_seconds']:.1f} s Storm); fit model / BTF "
+                        f"{np.round([row['model_over_btf'] for row in r['lights']], 3).tolist()}; Storm checker at one "
+                        f"texel a pixel: {r['checker']['min']:.3f}..{r['checker']['max']:.3f}, middle "
+                        f"{r['checker']['x1']['middle_min']:.3f}..{r['checker']['x1']['middle_max']:.3f}, at 4 pixels a "
+                        f"texel middle {r['checker']['x4']['middle_min']:.3f}..{r['checker']['x4']['middle_max']:.3f} "
+                        "(exact: 0..1)"
+                        + (f"; Cycles Principled / OSL BTF {np.round(r['cycles'], 3).tolist()}" if "cycles" in r else ""))
+                    def span(key):
+                        values = [row[key] for row in r["lights"]]
+                        return f"{min(values):.3f}-{max(values):.3f}"
+
+                    cyc = f"{min(r['cycles']):.3f}-{max(r['cycles']):.3f}" if "cycles" in r else "-"
+                    lines.append(f"| {preset} {fit} | {version} | {r['btf_gain']:.4f} | {r['legacy_gain']:.4f} | "
+                                 f"{min(steps):.2f}-{max(steps):.2f} | {span('fallback_over_btf')} | {span('nearest_over_btf')} | {span('aniso1_working_over_btf')} | {span('nearest_working_over_btf')} | {span('openpbr_over_btf')} | "
+                                 f"{span('fallback_over_legacy')} | {span('fallback_working_over_btf')} | "
+                                 f"{span('flat_normal_over_btf')} | {span('model_over_btf')} | {cyc} | "
+                                 f"{r['checker']['x1']['middle_min']:.2f}..{r['checker']['x1']['middle_max']:.2f} "
+                                 f"({r['checker']['x4']['middle_min']:.2f}..{r['checker']['x4']['middle_max']:.2f}) |")
     with tempfile.TemporaryDirectory(prefix="usdbtf-bench-") as tmp:
         for version in versions:
             work = Path(tmp) / version
@@ -347,6 +389,8 @@ def main(argv=None) -> int:
     write_json(path, out)
     say(f"\nwrote {path}\n")
     say("\n".join(lines))
+    say("\nMean over the lights (min-max), no gain; UsdPreviewSurface columns in the working space:\n")
+    say("\n".join(summary))
     return 0
 
 

@@ -64,6 +64,7 @@ from .sampling import to_vectors
 
 __all__ = ["SvbrdfMaps", "fit_svbrdf", "flat_fallback", "median_albedo", "fit_flat_roughness", "evaluate",
            "fit_samples", "normal_samples", "validation_samples", "keep_brightness", "brightness_scale",
+           "pole_swatch_sums", "pole_ratio", "BRIGHTNESS_SCALE",
            "ROUGHNESS_GRID", "MIN_ROUGHNESS",
            "VALIDATION_SAMPLES"]
 
@@ -428,39 +429,55 @@ def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: in
     return keep_brightness(maps, cbtf, texel_weights, chunk_bytes) if brightness else maps
 
 
+def pole_swatch_sums(cbtf: CompressedBTF, predicts, texel_weights=None, chunk_bytes: float = 64e6,
+                     truth: np.ndarray | None = None) -> tuple[np.ndarray, list]:
+    """Swatch sums at the pole samples (:func:`pole_samples`: the views nearest the normal,
+    lights up to :data:`POLE_MAX_LIGHT_DEG`): (Y, [M, ...]), each (P, 3) float64, Y the BTF's
+    (``truth`` when given: a previous call's), M per ``predicts`` entry, a function
+    (view_deg (P, 2), light_deg (P, 2), texels) -> (P, T, 3) BTF values of a model, streamed over
+    texel blocks.  ``texel_weights`` (H*W,): how many texels of the material each texel stands
+    for (a quilt fitted once per source texel); default one each."""
+    pole = pole_samples(cbtf)
+    texels = cbtf.width * cbtf.height
+    wts = np.ones(texels) if texel_weights is None else np.asarray(texel_weights, np.float64).reshape(-1)
+    y = np.zeros((len(pole), 3)) if truth is None else truth
+    sums = [np.zeros((len(pole), 3)) for _ in predicts]
+    view, light = cbtf.sampling.view[pole], cbtf.sampling.light[pole]
+    rows = cbtf.basis_values()[pole]
+    step = int(max(256, chunk_bytes // (len(pole) * 4 * 3 * 8)))
+    for t0 in range(0, texels, step):
+        block = slice(t0, min(t0 + step, texels))
+        w = wts[block]
+        if truth is None:
+            y += np.einsum("ptc,t->pc", _reconstruct(cbtf, rows, block), w)
+        for total, predict in zip(sums, predicts):
+            total += np.einsum("ptc,t->pc", predict(view, light, block), w)
+    return y, sums
+
+
+def pole_ratio(y: np.ndarray, model: np.ndarray) -> np.ndarray:
+    """(3,) per channel: the mean over the pole lights of the model's swatch over the BTF's
+    (sums from :func:`pole_swatch_sums`; a light the BTF is black at has no ratio)."""
+    ok = y > 1e-12 * max(float(y.max()), 1e-30)
+    return np.where(ok, model / np.where(ok, y, 1.0), 0.0).sum(axis=0) / np.maximum(ok.sum(axis=0), 1)
+
+
 def brightness_scale(maps: SvbrdfMaps, cbtf: CompressedBTF, texel_weights=None,
                      chunk_bytes: float = 64e6) -> np.ndarray:
     """(3,) float64 per colour channel: the factor on both lobes (diffuse and F0) that makes
-    the swatch of ``maps`` as bright as ``cbtf``'s at the pole samples (:func:`pole_samples`:
-    the views nearest the normal, lights up to :data:`POLE_MAX_LIGHT_DEG`; the values already
+    the swatch of ``maps`` as bright as ``cbtf``'s at the pole samples (the values already
     carry n.l, the convention's cosine), on average over those lights: what the Storm check
     measures, a swatch under one light at a time (module docstring, step 4).  For sample p and
     channel c, with Y = the BTF's swatch sum, A = the model's lobes' sum and G = the sum of the
     Fresnel term's grazing part (F = mix(F0, 1, w): no parameter scales it), s makes
-    ``mean_p (s A + G) / Y`` one, within :data:`BRIGHTNESS_SCALE`.  ``texel_weights`` (H*W,): how many texels of the material
-    each texel stands for (a quilt fitted once per source texel); default one each."""
-    pole = pole_samples(cbtf)
-    rows = cbtf.basis_values()[pole]
+    ``mean_p (s A + G) / Y`` one (:func:`pole_ratio`), within :data:`BRIGHTNESS_SCALE`;
+    ``texel_weights`` as :func:`pole_swatch_sums`."""
     zero = replace(maps, diffuse=np.zeros_like(maps.diffuse), specular=np.zeros_like(maps.specular))
-    texels = cbtf.width * cbtf.height
-    wts = np.ones(texels) if texel_weights is None else np.asarray(texel_weights, np.float64).reshape(-1)
-    sums = np.zeros((3, len(pole), 3))                                        # Y, A + G, G
-    view, light = cbtf.sampling.view[pole], cbtf.sampling.light[pole]
-    step = int(max(256, chunk_bytes // (len(pole) * 4 * 3 * 4)))
-    for t0 in range(0, texels, step):
-        block = slice(t0, min(t0 + step, texels))
-        w = wts[block]
-        # Both in BTF values (evaluate includes pi W), so no unit conversion.
-        sums[0] += np.einsum("ptc,t->pc", _reconstruct(cbtf, rows, block), w)
-        sums[1] += np.einsum("ptc,t->pc", evaluate(maps, view, light, block), w)
-        sums[2] += np.einsum("ptc,t->pc", evaluate(zero, view, light, block), w)
-    y, total, grazing = sums
-    ok = y > 1e-12 * max(float(y.max()), 1e-30)        # a sample the BTF is black at has no ratio
-    y = np.where(ok, y, 1.0)
-    lobes = np.where(ok, (total - grazing) / y, 0.0).sum(axis=0)
-    target = ok.sum(axis=0) - np.where(ok, grazing / y, 0.0).sum(axis=0)
+    y, (total, grazing) = pole_swatch_sums(cbtf, [lambda v, l, t: evaluate(maps, v, l, t),
+                                                  lambda v, l, t: evaluate(zero, v, l, t)], texel_weights, chunk_bytes)
+    lobes, left = pole_ratio(y, total - grazing), 1.0 - pole_ratio(y, grazing)
     lo, hi = BRIGHTNESS_SCALE
-    return np.where(lobes > 1e-12, np.clip(target / np.maximum(lobes, 1e-30), lo, hi), 1.0)
+    return np.where(lobes > 1e-12, np.clip(left / np.maximum(lobes, 1e-30), lo, hi), 1.0)
 
 
 def keep_brightness(maps: SvbrdfMaps, cbtf: CompressedBTF, texel_weights=None, chunk_bytes: float = 64e6) -> SvbrdfMaps:

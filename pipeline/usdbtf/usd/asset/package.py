@@ -408,7 +408,8 @@ def _openpbr_fallback(cbtf: CompressedBTF, preview: SvbrdfMaps, white: float, te
 
     if reused is not None:
         return reused[1], openpbr_fallback.add_maps(reused[1], textures, cbtf.ocio_config, texels=texels), reused[2]
-    fitted = fit_openpbr(cbtf, svbrdf=preview, white_level=white)
+    fitted = fit_openpbr(cbtf, svbrdf=preview, white_level=white,
+                         texel_weights=None if texels is None else texels.multiplicity())
     added = openpbr_fallback.add_maps(fitted, textures, cbtf.ocio_config, texels=texels)
     errors = openpbr_fallback.fit_errors(cbtf, preview, fitted)
     log.info(f"fallbacks against the BTF at held-out samples: UsdPreviewSurface {errors['preview_surface']:.2f} %, "
