@@ -129,18 +129,21 @@ def flat_normal(scene: Path) -> None:
     stage.Save()
 
 
-def fit_model_ratios(asset: Path, cbtf, samples: list[int]) -> list[float]:
-    """Per sample: the shipped fallback maps' prediction (svbrdf.evaluate) over the BTF's
-    reconstruction, mean over the swatch."""
-    from usdbtf import svbrdf
+def fit_model_ratios(asset: Path, cbtf, samples: list[int], kind: str = "preview") -> list[float]:
+    """Per sample: the shipped fallback maps' prediction over the BTF's reconstruction, mean
+    over the swatch; ``kind`` "preview" (UsdPreviewSurface maps, ``svbrdf.evaluate``) or
+    "openpbr" (the OpenPBR maps, ``openpbr.evaluate``)."""
+    from usdbtf import openpbr, svbrdf
     from usdbtf.compress import reconstruct
     from usdbtf.imageio import read_image
-    from usdbtf.usd.asset.fallback import FALLBACK_DIR, MAP_FILES, decode_maps
+    from usdbtf.usd.asset import fallback
+    from usdbtf.usd.asset import openpbr as usd_openpbr
 
-    folder = asset.with_name(f"{asset.stem}_textures") / FALLBACK_DIR
-    pixels = {name: read_image(folder / MAP_FILES[name][0])[0] for name in MAP_FILES}
-    maps = decode_maps(pixels, cbtf.working_space, ocio_config=cbtf.ocio_config)
-    pred = svbrdf.evaluate(maps, cbtf.sampling.view[samples], cbtf.sampling.light[samples])
+    module, evaluate = (fallback, svbrdf.evaluate) if kind == "preview" else (usd_openpbr, openpbr.evaluate)
+    folder = asset.with_name(f"{asset.stem}_textures") / fallback.FALLBACK_DIR
+    pixels = {name: read_image(folder / module.MAP_FILES[name][0])[0] for name in module.MAP_FILES}
+    maps = module.decode_maps(pixels, cbtf.working_space, ocio_config=cbtf.ocio_config)
+    pred = evaluate(maps, cbtf.sampling.view[samples], cbtf.sampling.light[samples])
     rec = reconstruct(cbtf, samples)
     return [float(pred[i].mean() / rec[i].mean()) for i in range(len(samples))]
 
@@ -294,8 +297,8 @@ def measure(asset: Path, python: Path, work: Path, count: int) -> dict:
              "flat_normal_over_btf": float(images[(s, "flat")].mean() / images[(s, "btf")].mean())}
             for (s, light), g, d in zip(lights, gains, steps)]
     model = fit_model_ratios(asset, cbtf, [s for s, _ in lights])
-    for row, m in zip(rows, model):
-        row["model_over_btf"] = m
+    for row, m, o in zip(rows, model, fit_model_ratios(asset, cbtf, [s for s, _ in lights], "openpbr")):
+        row["model_over_btf"], row["openpbr_model_over_btf"] = m, o
     return {"white_level": white, "btf_gain": gain, "legacy_gain": lgain, "convention_gain": capture_irradiance(white),
             "storm_seconds": seconds, "lights": rows}
 
@@ -326,7 +329,8 @@ def main(argv=None) -> int:
              "before (/ legacy BTF) | in the working space | normal map blocked | fit model / BTF | "
              "Cycles Principled / OSL BTF | Storm checker |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     summary = ["| preset | USD | fits | UsdPreviewSurface as drawn | HGI_MAX_ANISOTROPY=1 | maps sampled nearest | "
-               "fit model / BTF | OpenPBR as drawn | OpenPBR, HGI_MAX_ANISOTROPY=1 |", "|---|---|---|---|---|---|---|---|---|"]
+               "fit model / BTF | OpenPBR as drawn | OpenPBR, HGI_MAX_ANISOTROPY=1 | OpenPBR fit model / BTF |",
+               "|---|---|---|---|---|---|---|---|---|---|"]
     fits = ["after", "before"] if args.before else ["after"]
     with tempfile.TemporaryDirectory(prefix="usdbtf-bench-") as tmp:
         for preset in args.presets:
@@ -347,7 +351,8 @@ def main(argv=None) -> int:
 
                     summary.append(f"| {preset} | {version} | {fit} | {cell('fallback_working_over_btf')} | "
                                    f"{cell('aniso1_working_over_btf')} | {cell('nearest_working_over_btf')} | "
-                                   f"{cell('model_over_btf')} | {cell('openpbr_over_btf')} | {cell('openpbr_aniso1_over_btf')} |")
+                                   f"{cell('model_over_btf')} | {cell('openpbr_over_btf')} | {cell('openpbr_aniso1_over_btf')} | "
+                                   f"{cell('openpbr_model_over_btf')} |")
                     ratios = [row["fallback_over_btf"] for row in r["lights"]]
                     before = [row["fallback_over_legacy"] for row in r["lights"]]
                     steps = [row["btf_steps"] for row in r["lights"]]
