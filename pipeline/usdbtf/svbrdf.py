@@ -44,7 +44,8 @@ samples is all that is held; ``chunk_bytes`` bounds it):
    the whole material scales both lobes (diffuse albedo times (1 - F0), and F0) so that the
    swatch's mean over the BTF's, averaged over the pole lights, is one.  Per material, not
    per texel: a per-texel factor chases shadows and interreflections the model cannot show
-   (pebbles 16^2: error over all samples +19 %), one factor leaves the error as it was.
+   (pebbles 16^2: error over all samples +19 %); one factor moves it by -0.7 to +1.9 %
+   (``benchmarks/bench_fallback.py --before-brightness``, four presets).
 
 :func:`flat_fallback` is the fallback usdbtf shipped before (median albedo, one roughness,
 no normal map), kept as the baseline ``benchmarks/bench_fallback.py`` measures against.
