@@ -54,9 +54,12 @@ def say(msg: str = "") -> None:
 
 #: --ablation: fits with one choice of fit_svbrdf undone (name -> keyword arguments).
 ABLATIONS = {"fitted, no normal map": {"normals": False}, "fitted, 512 fit samples": {"max_samples": 512}}
+#: --before-brightness: the fits without their brightness step (svbrdf.keep_brightness,
+#: openpbr.keep_brightness; the OpenPBR fit from the UsdPreviewSurface fit without it), same run.
+BEFORE_BRIGHTNESS = ("fitted, brightness not kept", "openpbr, brightness not kept")
 
 
-def shipped_fallbacks(cbtf, white: float, ablation: bool = False) -> tuple[dict, float, float]:
+def shipped_fallbacks(cbtf, white: float, ablation: bool = False, before_brightness: bool = False) -> tuple[dict, float, float]:
     """({"fitted": maps, "openpbr": maps, "flat": maps, ablations...} as a renderer reads them
     from the asset, seconds of the UsdPreviewSurface fit, seconds of the OpenPBR fit)."""
     from usdbtf import openpbr, svbrdf
@@ -73,6 +76,11 @@ def shipped_fallbacks(cbtf, white: float, ablation: bool = False) -> tuple[dict,
     maps = [("fitted", fitted), ("flat", flat)]
     if ablation:
         maps += [(name, svbrdf.fit_svbrdf(cbtf, white_level=white, **kw)) for name, kw in ABLATIONS.items()]
+    unkept_op = None
+    if before_brightness:
+        unkept = svbrdf.fit_svbrdf(cbtf, white_level=white, brightness=False)
+        maps.append(("fitted, brightness not kept", unkept))
+        unkept_op = openpbr.fit_openpbr(cbtf, svbrdf=unkept, white_level=white, brightness=False)
     shipped = {name: decode_maps(encode_maps(m, cbtf.ocio_config), cbtf.working_space,
                                  ocio_config=cbtf.ocio_config, white_level=white)
                for name, m in maps}
@@ -81,8 +89,10 @@ def shipped_fallbacks(cbtf, white: float, ablation: bool = False) -> tuple[dict,
     old.normal[:] = (0.0, 0.0, 1.0)
     old.specular[:] = 0.04
     old.roughness[:] = flat.roughness
-    shipped["openpbr"] = usd_openpbr.decode_maps(usd_openpbr.encode_maps(op, cbtf.ocio_config), cbtf.working_space,
-                                                 ocio_config=cbtf.ocio_config, white_level=white)
+    for name, fitted_op in (("openpbr", op), ("openpbr, brightness not kept", unkept_op)):
+        if fitted_op is not None:
+            shipped[name] = usd_openpbr.decode_maps(usd_openpbr.encode_maps(fitted_op, cbtf.ocio_config),
+                                                    cbtf.working_space, ocio_config=cbtf.ocio_config, white_level=white)
     return shipped, seconds, op_seconds
 
 
@@ -129,6 +139,8 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="small sampling, 64^2 (a check, not a measurement)")
     ap.add_argument("--ablation", action="store_true", help="also fit without the normal map and with 512 fit "
                     "samples (the choices fit_svbrdf makes by default)")
+    ap.add_argument("--before-brightness", action="store_true", help="also the UsdPreviewSurface fit without its "
+                    "brightness step (svbrdf.keep_brightness), the before of issue 40")
     args = ap.parse_args(argv)
     if args.quick:
         args.sampling, args.size = "small", 64
@@ -153,7 +165,7 @@ def main(argv=None) -> int:
         cbtf = compressed(cli, Path(data["folder"]), folder, args.k)
         orig = open_btf(data["folder"])
         white = float((cbtf.info.get("source_metadata") or {}).get("white_level", 1.0))
-        shipped, fit_s, op_s = shipped_fallbacks(cbtf, white, args.ablation)
+        shipped, fit_s, op_s = shipped_fallbacks(cbtf, white, args.ablation, args.before_brightness)
         say(f"  fits: UsdPreviewSurface {fit_s:.1f} s, OpenPBR {op_s:.1f} s for {cbtf.width}x{cbtf.height} texels, "
             f"{cbtf.n_samples} samples, k {cbtf.k}")
         t = time.perf_counter()
@@ -163,14 +175,14 @@ def main(argv=None) -> int:
             parts = [f"{dom} {v['percent']:.2f} % (RMSE {v['rmse']:.4f}, PSNR {v['psnr_db']:.1f} dB)"
                      for dom, v in r.items()]
             say(f"  {name:15s} " + "; ".join(parts))
-            if name in ABLATIONS:
+            if name in ABLATIONS or name in BEFORE_BRIGHTNESS:
                 ablation_rows.append(f"| {preset} | {name} | {r['linear']['percent']:.2f} | {r['linear']['rmse']:.4f} | "
                                      f"{r['encoded']['percent']:.2f} | {r['encoded']['rmse']:.4f} |")
         doc["presets"][preset] = {"fit_seconds": fit_s, "openpbr_fit_seconds": op_s, "errors": res,
                                   "samples": orig.n_samples, "texels": cbtf.width * cbtf.height, "k": cbtf.k,
                                   "split": preset_split(preset)}
         f, o, fl, rc = res["fitted"], res["openpbr"], res["flat"], res["reconstruction"]
-        for name in ("fitted", "flat"):
+        for name in ("fitted", "flat") + (("openpbr",) if args.before_brightness else ()):
             ablation_rows.append(f"| {preset} | {name} | {res[name]['linear']['percent']:.2f} | "
                                  f"{res[name]['linear']['rmse']:.4f} | {res[name]['encoded']['percent']:.2f} | "
                                  f"{res[name]['encoded']['rmse']:.4f} |")
@@ -192,7 +204,7 @@ def main(argv=None) -> int:
         say("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
         for row in rows[split]:
             say(row)
-    if args.ablation:
+    if args.ablation or args.before_brightness:
         say("\n| preset | fallback | % lin | RMSE lin | % enc | RMSE enc |\n|---|---|---|---|---|---|")
         for row in sorted(ablation_rows):
             say(row)

@@ -15,9 +15,19 @@ nearest   the fallback with its maps sampled texel by texel (``swatch_scene(near
           at one texel a pixel Storm on llvmpipe otherwise low-passes the maps (``checker``
           below), and the fallback's brightness is not linear in them (normals renormalised,
           roughness and F0 inside products);
+aniso1    the fallback as drawn, with ``HGI_MAX_ANISOTROPY=1`` in Storm's environment: llvmpipe's
+          anisotropic filtering (Storm asks for 16x) is what low-passes the maps at one texel a
+          pixel (``probes/storm_checker_alignment.py``: with it off a checker reads 0 and 1);
 openpbr   the same asset drawing only its OpenPBR network (``fallback="openpbr"``);
 legacy    the BTF shader with ``inputs:exposure = pi W``: exactly the shader before this convention
           (irradiance 1 = the capture light), the baseline, measured in the same run.
+
+``--before``: each preset also packaged with the fits' brightness step off (``svbrdf.keep_brightness``,
+``openpbr.keep_brightness``; :func:`brightness_step_off`) from the same compressed BTF, measured in
+the same run.  A last table gives per preset, USD version and fit the mean (min-max) over the
+lights of: the UsdPreviewSurface as drawn, with ``HGI_MAX_ANISOTROPY=1``, sampled nearest, the
+fit's model, and the same for OpenPBR (its model from the OpenPBR maps as shipped,
+``openpbr.evaluate``), the Storm frames taken to the working space.
 
 Reported: the BTF's gain against the decompressed samples (``usd.preview.cycles.common_gain``: one
 least-squares gain per light, their mean; the convention says pi W) and its mean |difference|
@@ -48,6 +58,7 @@ Writes benchmarks/out/storm_photometry_<timestamp>.json and prints a markdown bl
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import sys
 import tempfile
@@ -64,15 +75,41 @@ def say(msg: str = "") -> None:
     print(msg, flush=True)
 
 
-def build(preset: str, work: Path, sampling: str, size: int, k: int) -> Path:
+@contextlib.contextmanager
+def brightness_step_off():
+    """Within: ``svbrdf.fit_svbrdf`` and ``openpbr.fit_openpbr`` default to ``brightness=False``
+    (the fits before their brightness step, issue 40: ``--before``).  ``usdbtf package`` runs in
+    this process, so the asset it writes carries the fits as they were."""
+    import inspect
+
+    from usdbtf import openpbr, svbrdf
+
+    fits = [inspect.unwrap(svbrdf.fit_svbrdf), inspect.unwrap(openpbr.fit_openpbr)]
+    saved = [dict(f.__kwdefaults__) for f in fits]
+    for f in fits:
+        f.__kwdefaults__["brightness"] = False
+    try:
+        yield
+    finally:
+        for f, kw in zip(fits, saved):
+            f.__kwdefaults__ = kw
+
+
+def build(preset: str, work: Path, sampling: str, size: int, k: int, before: bool = False) -> Path:
+    """The preset's asset (module docstring); ``before``: packaged with :func:`brightness_step_off`
+    from the same compressed BTF."""
     from usdbtf.cli import main
 
-    src, comp, asset = work / "src", work / "c", work / "a" / f"{preset}.usda"
-    for argv in (["synth", preset, "-o", str(src), "--sampling", sampling, "--size", str(size), "--seed", "5"],
-                 ["compress", str(src), "-o", str(comp), "--k", str(k), "--codec", "png"],
-                 ["package", str(comp), "-o", str(asset), "--physical-size", "0.05", "0.05"]):
-        if main(argv + ["-q"]) != 0:
-            raise SystemExit(f"usdbtf {' '.join(argv)} failed")
+    src, comp = work / "src", work / "c"
+    asset = work / ("a_before" if before else "a") / f"{preset}.usda"
+    steps = [["package", str(comp), "-o", str(asset), "--physical-size", "0.05", "0.05"]]
+    if not (comp / "btf-compressed.json").is_file():
+        steps[:0] = [["synth", preset, "-o", str(src), "--sampling", sampling, "--size", str(size), "--seed", "5"],
+                     ["compress", str(src), "-o", str(comp), "--k", str(k), "--codec", "png"]]
+    for argv in steps:
+        with brightness_step_off() if before else contextlib.nullcontext():
+            if main(argv + ["-q"]) != 0:
+                raise SystemExit(f"usdbtf {' '.join(argv)} failed")
     return asset
 
 
@@ -99,18 +136,21 @@ def flat_normal(scene: Path) -> None:
     stage.Save()
 
 
-def fit_model_ratios(asset: Path, cbtf, samples: list[int]) -> list[float]:
-    """Per sample: the shipped fallback maps' prediction (svbrdf.evaluate) over the BTF's
-    reconstruction, mean over the swatch."""
-    from usdbtf import svbrdf
+def fit_model_ratios(asset: Path, cbtf, samples: list[int], kind: str = "preview") -> list[float]:
+    """Per sample: the shipped fallback maps' prediction over the BTF's reconstruction, mean
+    over the swatch; ``kind`` "preview" (UsdPreviewSurface maps, ``svbrdf.evaluate``) or
+    "openpbr" (the OpenPBR maps, ``openpbr.evaluate``)."""
+    from usdbtf import openpbr, svbrdf
     from usdbtf.compress import reconstruct
     from usdbtf.imageio import read_image
-    from usdbtf.usd.asset.fallback import FALLBACK_DIR, MAP_FILES, decode_maps
+    from usdbtf.usd.asset import fallback
+    from usdbtf.usd.asset import openpbr as usd_openpbr
 
-    folder = asset.with_name(f"{asset.stem}_textures") / FALLBACK_DIR
-    pixels = {name: read_image(folder / MAP_FILES[name][0])[0] for name in MAP_FILES}
-    maps = decode_maps(pixels, cbtf.working_space, ocio_config=cbtf.ocio_config)
-    pred = svbrdf.evaluate(maps, cbtf.sampling.view[samples], cbtf.sampling.light[samples])
+    module, evaluate = (fallback, svbrdf.evaluate) if kind == "preview" else (usd_openpbr, openpbr.evaluate)
+    folder = asset.with_name(f"{asset.stem}_textures") / fallback.FALLBACK_DIR
+    pixels = {name: read_image(folder / module.MAP_FILES[name][0])[0] for name in module.MAP_FILES}
+    maps = module.decode_maps(pixels, cbtf.working_space, ocio_config=cbtf.ocio_config)
+    pred = evaluate(maps, cbtf.sampling.view[samples], cbtf.sampling.light[samples])
     rec = reconstruct(cbtf, samples)
     return [float(pred[i].mean() / rec[i].mean()) for i in range(len(samples))]
 
@@ -176,57 +216,12 @@ def storm_minimal_checker(python: Path, work: Path, n: int = 32) -> dict:
     (sRGB PNG, n x n black/white checker) <- UsdPrimvarReader_float2 st, an orthographic camera
     one texel a pixel, one DistantLight of irradiance pi from the pole.  Frame middle-half
     min..max over the white level (exact: 0..1)."""
-    import OpenImageIO as oiio
-    from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade
-
+    from probes.storm_checker_alignment import quad
     from usdbtf.usd.preview import hydra
-    from usdbtf.usd.scenes.scene import add_distant
 
     folder = work / "minimal"
     folder.mkdir()
-    pixels = np.where((np.add.outer(np.arange(n), np.arange(n)) % 2 == 0)[..., None], 255, 0).astype(np.uint8)
-    out = oiio.ImageOutput.create(str(folder / "checker.png"))
-    out.open(str(folder / "checker.png"), oiio.ImageSpec(n, n, 3, "uint8"))
-    out.write_image(np.repeat(pixels, 3, axis=2))
-    out.close()
-    path = folder / "quad.usda"
-    stage = Usd.Stage.CreateNew(str(path))
-    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
-    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
-    mesh = UsdGeom.Mesh.Define(stage, "/World/Quad")
-    mesh.CreatePointsAttr([(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0)])
-    mesh.CreateFaceVertexCountsAttr([4])
-    mesh.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
-    mesh.CreateExtentAttr([(0, 0, 0), (1, 1, 0)])
-    UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex).Set(
-        [(0, 0), (1, 0), (1, 1), (0, 1)])
-    material = UsdShade.Material.Define(stage, "/World/Mat")
-    reader = UsdShade.Shader.Define(stage, "/World/Mat/St")
-    reader.CreateIdAttr("UsdPrimvarReader_float2")
-    reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
-    reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
-    tex = UsdShade.Shader.Define(stage, "/World/Mat/Tex")
-    tex.CreateIdAttr("UsdUVTexture")
-    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set("./checker.png")
-    tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
-    tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
-    tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
-    surface = UsdShade.Shader.Define(stage, "/World/Mat/Surface")
-    surface.CreateIdAttr("UsdPreviewSurface")
-    surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(tex.ConnectableAPI(), "rgb")
-    surface.CreateInput("useSpecularWorkflow", Sdf.ValueTypeNames.Int).Set(1)
-    surface.CreateInput("specularColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(0, 0, 0))
-    surface.CreateOutput("surface", Sdf.ValueTypeNames.Token)
-    material.CreateSurfaceOutput().ConnectToSource(surface.ConnectableAPI(), "surface")
-    UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
-    camera = UsdGeom.Camera.Define(stage, "/World/Camera")
-    camera.CreateProjectionAttr(UsdGeom.Tokens.orthographic)
-    camera.CreateHorizontalApertureAttr(10.0)           # tenths of a scene unit: the unit quad
-    camera.CreateVerticalApertureAttr(10.0)
-    camera.CreateClippingRangeAttr(Gf.Vec2f(0.5, 2.0))
-    camera.AddTranslateOp().Set(Gf.Vec3d(0.5, 0.5, 1.0))
-    add_distant(stage, "/World/Sun", (0.0, 0.0, 1.0), math.pi)
-    stage.GetRootLayer().Save()
+    path = quad(folder, n)
     frame = hydra.render_frames(python, [(path, folder / "quad.exr")], "/World/Camera", (n, n)).images[0][..., 0]
     middle = frame[n // 4:3 * n // 4, n // 4:3 * n // 4]
     return {"middle_min": float(middle.min()), "middle_max": float(middle.max())}
@@ -276,6 +271,15 @@ def measure(asset: Path, python: Path, work: Path, count: int) -> dict:
     if result.problems:
         raise SystemExit("\n".join(result.problems))
     images = {key: img[..., :3].astype(np.float64) for key, img in zip(kinds, result.images)}
+    # The fallback again with llvmpipe's anisotropic filtering off (HGI_MAX_ANISOTROPY=1, which
+    # reaches Storm only through the environment render_frames passes): at one texel a pixel
+    # llvmpipe's anisotropic path blurs a checker to 0.49-0.51, with it off 0 and 1 (probes/
+    # storm_checker_alignment.py).
+    again = [(s, kind, scene) for (scene, _), (s, kind) in zip(frames, kinds) if kind in ("fallback", "openpbr")]
+    aniso = hydra.render_frames(python, [(scene, scene.with_name(f"{scene.stem}_aniso1.exr")) for _, _, scene in again],
+                                camera, size, env=dict(hydra.storm_environment(), HGI_MAX_ANISOTROPY="1"))
+    for (s, kind, _), img in zip(again, aniso.images):
+        images[(s, "aniso1" if kind == "fallback" else "openpbr_aniso1")] = img[..., :3].astype(np.float64)
     # Storm decodes the fallback's sRGB maps to linear Rec.709 and shades in it; the BTF shader
     # returns working-space values (the Material's ColorSpaceAPI): the fallback's frame taken to
     # the working space compares like with like.
@@ -283,21 +287,31 @@ def measure(asset: Path, python: Path, work: Path, count: int) -> dict:
     matched = {s: to_working.apply(images[(s, "fallback")].astype(np.float32)).astype(np.float64) for s, _ in lights}
     matched_nearest = {s: to_working.apply(images[(s, "nearest")].astype(np.float32)).astype(np.float64)
                        for s, _ in lights}
+    def working_ratio(frame, btf):
+        """The mean of ``frame`` taken to the working space over ``btf``'s (MaterialX in Storm
+        shades in linear Rec.709 too: the OpenPBR maps are srgb_texture)."""
+        return float(to_working.apply(frame.astype(np.float32)).mean() / btf.mean())
+
     samples = {s: decompress(cbtf, DecompressOptions(samples=str(s))).btf.read_samples([0])[0] for s, _ in lights}
     gain, gains, steps = common_gain([(images[(s, "btf")], samples[s]) for s, _ in lights])
     lgain, _, _ = common_gain([(images[(s, "legacy")], samples[s]) for s, _ in lights])
     rows = [{"sample": s, "light": light, "btf_gain": g, "btf_steps": d,
              "fallback_over_btf": float(images[(s, "fallback")].mean() / images[(s, "btf")].mean()),
              "nearest_over_btf": float(images[(s, "nearest")].mean() / images[(s, "btf")].mean()),
+             "aniso1_over_btf": float(images[(s, "aniso1")].mean() / images[(s, "btf")].mean()),
+             "aniso1_working_over_btf": working_ratio(images[(s, "aniso1")], images[(s, "btf")]),
              "nearest_working_over_btf": float(matched_nearest[s].mean() / images[(s, "btf")].mean()),
              "openpbr_over_btf": float(images[(s, "openpbr")].mean() / images[(s, "btf")].mean()),
+             "openpbr_aniso1_over_btf": float(images[(s, "openpbr_aniso1")].mean() / images[(s, "btf")].mean()),
+             "openpbr_working_over_btf": working_ratio(images[(s, "openpbr")], images[(s, "btf")]),
+             "openpbr_aniso1_working_over_btf": working_ratio(images[(s, "openpbr_aniso1")], images[(s, "btf")]),
              "fallback_over_legacy": float(images[(s, "fallback")].mean() / images[(s, "legacy")].mean()),
              "fallback_working_over_btf": float(matched[s].mean() / images[(s, "btf")].mean()),
              "flat_normal_over_btf": float(images[(s, "flat")].mean() / images[(s, "btf")].mean())}
             for (s, light), g, d in zip(lights, gains, steps)]
     model = fit_model_ratios(asset, cbtf, [s for s, _ in lights])
-    for row, m in zip(rows, model):
-        row["model_over_btf"] = m
+    for row, m, o in zip(rows, model, fit_model_ratios(asset, cbtf, [s for s, _ in lights], "openpbr")):
+        row["model_over_btf"], row["openpbr_model_over_btf"] = m, o
     return {"white_level": white, "btf_gain": gain, "legacy_gain": lgain, "convention_gain": capture_irradiance(white),
             "storm_seconds": seconds, "lights": rows}
 
@@ -313,6 +327,8 @@ def main(argv=None) -> int:
     ap.add_argument("--lights", type=int, default=6)
     ap.add_argument("--usd", nargs="+", default=None, help="USD versions (default: every Storm environment)")
     ap.add_argument("--cycles", action="store_true", help="also Cycles (bpy 5.0.1, .venv-storm-5.0)")
+    ap.add_argument("--before", action="store_true", help="also the asset packaged with the fits' brightness step "
+                    "off (brightness_step_off), from the same compressed BTF, in the same run")
     args = ap.parse_args(argv)
     pythons = hydra.storm_pythons()
     versions = args.usd or sorted(pythons)
@@ -322,49 +338,64 @@ def main(argv=None) -> int:
         f"package --physical-size 0.05 0.05; {args.lights} pole-view lights, DistantLight irradiance 1")
     out = {"machine": info, "args": vars(args), "results": {}}
     lines = ["| preset | USD | BTF gain vs samples (pi W = 3.1416) | before | BTF steps | Storm UsdPreviewSurface / BTF | "
-             "same, maps sampled nearest | nearest, in the working space | Storm OpenPBR / BTF | "
+             "same, maps sampled nearest | HGI_MAX_ANISOTROPY=1, in the working space | nearest, in the working space | Storm OpenPBR / BTF | "
              "before (/ legacy BTF) | in the working space | normal map blocked | fit model / BTF | "
-             "Cycles Principled / OSL BTF | Storm checker |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "Cycles Principled / OSL BTF | Storm checker |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    summary = ["| preset | USD | fits | UsdPreviewSurface as drawn | HGI_MAX_ANISOTROPY=1 | maps sampled nearest | "
+               "fit model / BTF | OpenPBR as drawn | OpenPBR, HGI_MAX_ANISOTROPY=1 | OpenPBR fit model / BTF | "
+               "OpenPBR, HGI_MAX_ANISOTROPY=1, not in the working space |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    fits = ["after", "before"] if args.before else ["after"]
     with tempfile.TemporaryDirectory(prefix="usdbtf-bench-") as tmp:
         for preset in args.presets:
-            asset = build(preset, Path(tmp) / preset, args.sampling, args.size, args.k)
-            for version in versions:
-                work = Path(tmp) / preset / f"storm{version}"
-                work.mkdir()
-                r = measure(asset, pythons[version], work, args.lights)
-                r["checker"] = storm_checker(asset, pythons[version], work)
-                if args.cycles and version == versions[-1]:
-                    r["cycles"] = cycles_ratios(asset, [(row["sample"], row["light"]) for row in r["lights"]], work)
-                out["results"][f"{preset} {version}"] = r
-                ratios = [row["fallback_over_btf"] for row in r["lights"]]
-                before = [row["fallback_over_legacy"] for row in r["lights"]]
-                steps = [row["btf_steps"] for row in r["lights"]]
-                say(f"{preset} USD {version}: BTF gain {r['btf_gain']:.4f} (pi W = {r['convention_gain']:.4f}, "
-                    f"{r['btf_gain'] / r['convention_gain']:.4f} of it), before {r['legacy_gain']:.4f}; "
-                    f"UsdPreviewSurface/BTF {np.round(ratios, 3).tolist()}, OpenPBR/BTF "
-                    f"{np.round([row['openpbr_over_btf'] for row in r['lights']], 3).tolist()}, UsdPreviewSurface sampled "
-                    f"nearest / BTF {np.round([row['nearest_over_btf'] for row in r['lights']], 3).tolist()} (in the working space "
-                    f"{np.round([row['nearest_working_over_btf'] for row in r['lights']], 3).tolist()}), in the working space "
-                    f"{np.round([row['fallback_working_over_btf'] for row in r['lights']], 3).tolist()}, normal map blocked "
-                    f"{np.round([row['flat_normal_over_btf'] for row in r['lights']], 3).tolist()}, before {np.round(before, 3).tolist()} "
-                    f"({r['storm_seconds']:.1f} s Storm); fit model / BTF "
-                    f"{np.round([row['model_over_btf'] for row in r['lights']], 3).tolist()}; Storm checker at one "
-                    f"texel a pixel: {r['checker']['min']:.3f}..{r['checker']['max']:.3f}, middle "
-                    f"{r['checker']['x1']['middle_min']:.3f}..{r['checker']['x1']['middle_max']:.3f}, at 4 pixels a "
-                    f"texel middle {r['checker']['x4']['middle_min']:.3f}..{r['checker']['x4']['middle_max']:.3f} "
-                    "(exact: 0..1)"
-                    + (f"; Cycles Principled / OSL BTF {np.round(r['cycles'], 3).tolist()}" if "cycles" in r else ""))
-                def span(key):
-                    values = [row[key] for row in r["lights"]]
-                    return f"{min(values):.3f}-{max(values):.3f}"
+            for fit in fits:
+                asset = build(preset, Path(tmp) / preset, args.sampling, args.size, args.k, before=fit == "before")
+                for version in versions:
+                    work = Path(tmp) / preset / f"storm{version}_{fit}"
+                    work.mkdir()
+                    r = measure(asset, pythons[version], work, args.lights)
+                    r["checker"] = storm_checker(asset, pythons[version], work)
+                    if args.cycles and version == versions[-1]:
+                        r["cycles"] = cycles_ratios(asset, [(row["sample"], row["light"]) for row in r["lights"]], work)
+                    out["results"][f"{preset} {version} {fit}"] = r
 
-                cyc = f"{min(r['cycles']):.3f}-{max(r['cycles']):.3f}" if "cycles" in r else "-"
-                lines.append(f"| {preset} | {version} | {r['btf_gain']:.4f} | {r['legacy_gain']:.4f} | "
-                             f"{min(steps):.2f}-{max(steps):.2f} | {span('fallback_over_btf')} | {span('nearest_over_btf')} | {span('nearest_working_over_btf')} | {span('openpbr_over_btf')} | "
-                             f"{span('fallback_over_legacy')} | {span('fallback_working_over_btf')} | "
-                             f"{span('flat_normal_over_btf')} | {span('model_over_btf')} | {cyc} | "
-                             f"{r['checker']['x1']['middle_min']:.2f}..{r['checker']['x1']['middle_max']:.2f} "
-                             f"({r['checker']['x4']['middle_min']:.2f}..{r['checker']['x4']['middle_max']:.2f}) |")
+                    def cell(key):
+                        values = [row[key] for row in r["lights"]]
+                        return f"{np.mean(values):.3f} ({min(values):.3f}-{max(values):.3f})"
+
+                    summary.append(f"| {preset} | {version} | {fit} | {cell('fallback_working_over_btf')} | "
+                                   f"{cell('aniso1_working_over_btf')} | {cell('nearest_working_over_btf')} | "
+                                   f"{cell('model_over_btf')} | {cell('openpbr_working_over_btf')} | "
+                                   f"{cell('openpbr_aniso1_working_over_btf')} | {cell('openpbr_model_over_btf')} | "
+                                   f"{cell('openpbr_aniso1_over_btf')} |")
+                    ratios = [row["fallback_over_btf"] for row in r["lights"]]
+                    before = [row["fallback_over_legacy"] for row in r["lights"]]
+                    steps = [row["btf_steps"] for row in r["lights"]]
+                    say(f"{preset} USD {version}: BTF gain {r['btf_gain']:.4f} (pi W = {r['convention_gain']:.4f}, "
+                        f"{r['btf_gain'] / r['convention_gain']:.4f} of it), before {r['legacy_gain']:.4f}; "
+                        f"UsdPreviewSurface/BTF {np.round(ratios, 3).tolist()}, OpenPBR/BTF "
+                        f"{np.round([row['openpbr_over_btf'] for row in r['lights']], 3).tolist()}, UsdPreviewSurface sampled "
+                        f"nearest / BTF {np.round([row['nearest_over_btf'] for row in r['lights']], 3).tolist()}, anisotropy 1 / BTF {np.round([row['aniso1_over_btf'] for row in r['lights']], 3).tolist()} (in the working space "
+                        f"{np.round([row['nearest_working_over_btf'] for row in r['lights']], 3).tolist()}), in the working space "
+                        f"{np.round([row['fallback_working_over_btf'] for row in r['lights']], 3).tolist()}, normal map blocked "
+                        f"{np.round([row['flat_normal_over_btf'] for row in r['lights']], 3).tolist()}, before {np.round(before, 3).tolist()} "
+                        f"({r['storm_seconds']:.1f} s Storm); fit model / BTF "
+                        f"{np.round([row['model_over_btf'] for row in r['lights']], 3).tolist()}; Storm checker at one "
+                        f"texel a pixel: {r['checker']['min']:.3f}..{r['checker']['max']:.3f}, middle "
+                        f"{r['checker']['x1']['middle_min']:.3f}..{r['checker']['x1']['middle_max']:.3f}, at 4 pixels a "
+                        f"texel middle {r['checker']['x4']['middle_min']:.3f}..{r['checker']['x4']['middle_max']:.3f} "
+                        "(exact: 0..1)"
+                        + (f"; Cycles Principled / OSL BTF {np.round(r['cycles'], 3).tolist()}" if "cycles" in r else ""))
+                    def span(key):
+                        values = [row[key] for row in r["lights"]]
+                        return f"{min(values):.3f}-{max(values):.3f}"
+
+                    cyc = f"{min(r['cycles']):.3f}-{max(r['cycles']):.3f}" if "cycles" in r else "-"
+                    lines.append(f"| {preset} {fit} | {version} | {r['btf_gain']:.4f} | {r['legacy_gain']:.4f} | "
+                                 f"{min(steps):.2f}-{max(steps):.2f} | {span('fallback_over_btf')} | {span('nearest_over_btf')} | {span('aniso1_working_over_btf')} | {span('nearest_working_over_btf')} | {span('openpbr_over_btf')} | "
+                                 f"{span('fallback_over_legacy')} | {span('fallback_working_over_btf')} | "
+                                 f"{span('flat_normal_over_btf')} | {span('model_over_btf')} | {cyc} | "
+                                 f"{r['checker']['x1']['middle_min']:.2f}..{r['checker']['x1']['middle_max']:.2f} "
+                                 f"({r['checker']['x4']['middle_min']:.2f}..{r['checker']['x4']['middle_max']:.2f}) |")
     with tempfile.TemporaryDirectory(prefix="usdbtf-bench-") as tmp:
         for version in versions:
             work = Path(tmp) / version
@@ -377,6 +408,8 @@ def main(argv=None) -> int:
     write_json(path, out)
     say(f"\nwrote {path}\n")
     say("\n".join(lines))
+    say("\nMean over the lights (min-max), no gain; the Storm fallback frames taken to the working space:\n")
+    say("\n".join(summary))
     return 0
 
 

@@ -53,6 +53,10 @@ views nearest the normal, per band of light elevation (:func:`usdbtf.svbrdf.pole
 the UsdPreviewSurface fit does, weighted :data:`POLE_WEIGHT` times the fit samples' count), so
 that the fallback keeps the BTF's brightness where a swatch is seen head-on.
 
+Last of all (:func:`keep_brightness`), the three colours are scaled by one factor per channel
+for the whole material so that, averaged over the pole lights, the swatch is as bright as the
+BTF's (the pole means' weight pulls towards that but does not pin it; issue 40).
+
 Stages 2-6 keep a candidate only where it lowers the fit samples' residual.  The final
 colours are also refitted towards the least absolute error (:data:`L1_ITERATIONS`
 reweighted passes; the benchmark's metric), kept where that predicts the held-out samples
@@ -72,10 +76,10 @@ from .compress.format import CompressedBTF
 from .numeric import single_blas_thread
 from .progress import track
 from .sampling import to_vectors
-from .svbrdf import (POLE_BAND_DEG, SvbrdfMaps, fit_samples, fit_svbrdf, pole_samples,
-                     validation_samples, _reconstruct)
+from .svbrdf import (BRIGHTNESS_SCALE, POLE_BAND_DEG, SvbrdfMaps, fit_samples, fit_svbrdf, pole_ratio,
+                     pole_samples, pole_swatch_sums, validation_samples, _reconstruct)
 
-__all__ = ["OpenPbrMaps", "evaluate_openpbr", "evaluate", "fit_openpbr", "SPECULAR_IOR",
+__all__ = ["OpenPbrMaps", "evaluate_openpbr", "evaluate", "fit_openpbr", "keep_brightness", "SPECULAR_IOR",
            "SPECULAR_WEIGHTS", "FUZZ_WEIGHTS", "FUZZ_ROUGHNESS_GRID", "FIT_SAMPLES", "HELD_OUT_SAMPLES"]
 
 log = logging.getLogger(__name__)
@@ -110,6 +114,9 @@ POLE_SAMPLES = 96
 #: adds fuzz to a glossy dielectric to close a 3 % gap (tests/test_openpbr.py's fuzz and
 #: anisotropy case); at 0.25 it closes the gap without it.
 POLE_WEIGHT = 0.25
+#: Refinements of the brightness factor (:func:`keep_brightness`; the base's multiple
+#: scattering makes the swatch's brightness not quite linear in the colours).
+BRIGHTNESS_ITERATIONS = 4
 #: Reweighted least-squares passes of the final colours towards the least absolute error.
 L1_ITERATIONS = 2
 _FUJII_1 = 0.5 - 2.0 / (3.0 * np.pi)
@@ -762,11 +769,14 @@ def _chunk_texels(n_samples: int, chunk_bytes: float) -> int:
 @single_blas_thread
 def fit_openpbr(cbtf: CompressedBTF, *, svbrdf: SvbrdfMaps | None = None, white_level: float = 1.0,
                 max_samples: int = FIT_SAMPLES, held_out: int = HELD_OUT_SAMPLES,
-                chunk_bytes: float = 64e6, pole_weight: float = POLE_WEIGHT) -> OpenPbrMaps:
+                chunk_bytes: float = 64e6, pole_weight: float = POLE_WEIGHT, brightness: bool = True,
+                texel_weights=None) -> OpenPbrMaps:
     """Fit per-texel ``open_pbr_surface`` inputs to ``cbtf``'s reconstruction over its
     measured samples (module docstring), streamed over blocks of texels, starting from
     ``svbrdf``: the UsdPreviewSurface fit of the same BTF (fitted here when None), whose
-    roughness and F0 start the search and whose normal map is kept where it helps."""
+    roughness and F0 start the search and whose normal map is kept where it helps.
+    ``brightness``: the last step, :func:`keep_brightness` (``texel_weights`` as
+    :func:`usdbtf.svbrdf.pole_swatch_sums`: a quilt's source texels)."""
     if not white_level > 0:
         raise ValueError(f"white_level must be positive, got {white_level}")
     if svbrdf is None:
@@ -845,5 +855,35 @@ def fit_openpbr(cbtf: CompressedBTF, *, svbrdf: SvbrdfMaps | None = None, white_
     maps = {name: a.reshape(h, w, 3) if a.ndim == 2 else a.reshape(h, w) for name, a in out.items()}
     # A texel without fuzz carries a neutral fuzz colour (weight 0 ignores it).
     maps["fuzz_color"][maps["fuzz_weight"] == 0] = 1.0
-    return OpenPbrMaps(**maps, normal=out_normal.reshape(h, w, 3), working_space=cbtf.working_space,
-                       white_level=float(white_level))
+    fitted = OpenPbrMaps(**maps, normal=out_normal.reshape(h, w, 3), working_space=cbtf.working_space,
+                         white_level=float(white_level))
+    return keep_brightness(fitted, cbtf, texel_weights, chunk_bytes) if brightness else fitted
+
+
+def _scaled_colours(maps: OpenPbrMaps, s: np.ndarray) -> OpenPbrMaps:
+    """``maps`` with the three colours times ``s`` (3,) in [0, 1] (a fuzz colour only where
+    there is fuzz: elsewhere it stays neutral)."""
+    fuzz = np.where((maps.fuzz_weight > 0)[..., None], maps.fuzz_color * s, maps.fuzz_color)
+    return replace(maps, base_color=np.clip(maps.base_color * s, 0.0, 1.0).astype(np.float32),
+                   specular_color=np.clip(maps.specular_color * s, 0.0, 1.0).astype(np.float32),
+                   fuzz_color=np.clip(fuzz, 0.0, 1.0).astype(np.float32))
+
+
+def keep_brightness(maps: OpenPbrMaps, cbtf: CompressedBTF, texel_weights=None, chunk_bytes: float = 64e6,
+                    iterations: int = BRIGHTNESS_ITERATIONS) -> OpenPbrMaps:
+    """``maps`` with the three colours (base, specular tint, fuzz) scaled by one factor per
+    channel, the same for every texel, so that averaged over the pole lights the swatch is as
+    bright as ``cbtf``'s (:func:`usdbtf.svbrdf.pole_ratio`, the UsdPreviewSurface fit's step 4).
+    The base's multiple-scattering lobe is not linear in its colour: the factor is refined
+    ``iterations`` times (s <- s / ratio), within :data:`usdbtf.svbrdf.BRIGHTNESS_SCALE`."""
+    lo, hi = BRIGHTNESS_SCALE
+    s, y, out = np.ones(3), None, maps
+    for _ in range(iterations):
+        y, (total,) = pole_swatch_sums(cbtf, [lambda v, l, t: evaluate(out, v, l, t)], texel_weights,
+                                       chunk_bytes, truth=y)
+        ratio = pole_ratio(y, total)
+        if np.all(np.abs(ratio - 1.0) < 1e-4) or not np.all(ratio > 0):
+            break
+        s = np.clip(s / ratio, lo, hi)
+        out = _scaled_colours(maps, s.astype(np.float32))
+    return out

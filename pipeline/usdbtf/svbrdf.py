@@ -38,6 +38,14 @@ samples is all that is held; ``chunk_bytes`` bounds it):
    photometric one; a texel keeps its photometric normal only where that fit predicts
    :data:`VALIDATION_SAMPLES` other measured samples better (a tilted normal with a sharp
    lobe can fit the fit samples and still flash at directions they do not cover).
+4. **Brightness** (:func:`keep_brightness`): the pole samples' weight in step 3 pulls the fit
+   towards the BTF's brightness there but does not pin it (measured, issue 40: the model's
+   swatch 3-13 % brighter than the BTF's at pole lights).  One factor per colour channel for
+   the whole material scales both lobes (diffuse albedo times (1 - F0), and F0) so that the
+   swatch's mean over the BTF's, averaged over the pole lights, is one.  Per material, not
+   per texel: a per-texel factor chases shadows and interreflections the model cannot show
+   (pebbles 16^2: error over all samples +19 %); one factor moves it by -0.7 to +1.9 %
+   (``benchmarks/bench_fallback.py --before-brightness``, four presets).
 
 :func:`flat_fallback` is the fallback usdbtf shipped before (median albedo, one roughness,
 no normal map), kept as the baseline ``benchmarks/bench_fallback.py`` measures against.
@@ -56,7 +64,9 @@ from .progress import track
 from .sampling import to_vectors
 
 __all__ = ["SvbrdfMaps", "fit_svbrdf", "flat_fallback", "median_albedo", "fit_flat_roughness", "evaluate",
-           "fit_samples", "normal_samples", "validation_samples", "ROUGHNESS_GRID", "MIN_ROUGHNESS",
+           "fit_samples", "normal_samples", "validation_samples", "keep_brightness", "brightness_scale",
+           "pole_swatch_sums", "pole_ratio", "BRIGHTNESS_SCALE",
+           "ROUGHNESS_GRID", "MIN_ROUGHNESS",
            "VALIDATION_SAMPLES"]
 
 log = logging.getLogger(__name__)
@@ -78,6 +88,8 @@ POLE_MAX_LIGHT_DEG = 70.0
 POLE_WEIGHT = 1.0
 #: The pole samples' mean is kept per band of light elevation this wide (degrees).
 POLE_BAND_DEG = 20.0
+#: Bounds of step 4's factor on the lobes (a fit further off than this is not a brightness slip).
+BRIGHTNESS_SCALE = (0.5, 2.0)
 
 
 @dataclass
@@ -365,10 +377,12 @@ def validation_samples(cbtf: CompressedBTF, fit: np.ndarray, most: int = 1024) -
 @single_blas_thread
 def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: int = 1536,
                roughness_grid=ROUGHNESS_GRID, normals: bool = True, chunk_bytes: float = 64e6,
-               pole_weight: float = POLE_WEIGHT) -> SvbrdfMaps:
+               pole_weight: float = POLE_WEIGHT, brightness: bool = True, texel_weights=None) -> SvbrdfMaps:
     """Fit per-texel UsdPreviewSurface parameters to ``cbtf``'s reconstruction over its
     measured samples (module docstring), streamed over blocks of texels.  ``normals=False``
-    fits no normal map (every texel keeps the flat normal)."""
+    fits no normal map (every texel keeps the flat normal); ``brightness=False`` skips step 4
+    (:func:`keep_brightness`; the benchmarks' before); ``texel_weights`` (H*W,): how many
+    texels of the material each texel stands for, for step 4 (a quilt's source texels)."""
     if not white_level > 0:
         raise ValueError(f"white_level must be positive, got {white_level}")
     fit = fit_samples(cbtf, max_samples)
@@ -411,8 +425,71 @@ def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: in
         diffuse[block] = np.clip(a / np.maximum(1.0 - f, 1e-6), 0.0, 1.0)
         specular[block], rough[block], normal[block] = f, r, n_ps
     h, w = cbtf.height, cbtf.width
-    return SvbrdfMaps(diffuse.reshape(h, w, 3), specular.reshape(h, w, 3), rough.reshape(h, w),
+    maps = SvbrdfMaps(diffuse.reshape(h, w, 3), specular.reshape(h, w, 3), rough.reshape(h, w),
                       normal.reshape(h, w, 3), cbtf.working_space, float(white_level))
+    return keep_brightness(maps, cbtf, texel_weights, chunk_bytes) if brightness else maps
+
+
+def pole_swatch_sums(cbtf: CompressedBTF, predicts, texel_weights=None, chunk_bytes: float = 64e6,
+                     truth: np.ndarray | None = None) -> tuple[np.ndarray, list]:
+    """Swatch sums at the pole samples (:func:`pole_samples`: the views nearest the normal,
+    lights up to :data:`POLE_MAX_LIGHT_DEG`): (Y, [M, ...]), each (P, 3) float64, Y the BTF's
+    (``truth`` when given: a previous call's), M per ``predicts`` entry, a function
+    (view_deg (P, 2), light_deg (P, 2), texels) -> (P, T, 3) BTF values of a model, streamed over
+    texel blocks.  ``texel_weights`` (H*W,): how many texels of the material each texel stands
+    for (a quilt fitted once per source texel); default one each."""
+    pole = pole_samples(cbtf)
+    texels = cbtf.width * cbtf.height
+    wts = np.ones(texels) if texel_weights is None else np.asarray(texel_weights, np.float64).reshape(-1)
+    y = np.zeros((len(pole), 3)) if truth is None else truth
+    sums = [np.zeros((len(pole), 3)) for _ in predicts]
+    view, light = cbtf.sampling.view[pole], cbtf.sampling.light[pole]
+    rows = cbtf.basis_values()[pole]
+    step = int(max(256, chunk_bytes // (len(pole) * 4 * 3 * 8)))
+    for t0 in range(0, texels, step):
+        block = slice(t0, min(t0 + step, texels))
+        w = wts[block]
+        if truth is None:
+            y += np.einsum("ptc,t->pc", _reconstruct(cbtf, rows, block), w)
+        for total, predict in zip(sums, predicts):
+            total += np.einsum("ptc,t->pc", predict(view, light, block), w)
+    return y, sums
+
+
+def pole_ratio(y: np.ndarray, model: np.ndarray) -> np.ndarray:
+    """(3,) per channel: the mean over the pole lights of the model's swatch over the BTF's
+    (sums from :func:`pole_swatch_sums`; a light the BTF is black at has no ratio)."""
+    ok = y > 1e-12 * max(float(y.max()), 1e-30)
+    return np.where(ok, model / np.where(ok, y, 1.0), 0.0).sum(axis=0) / np.maximum(ok.sum(axis=0), 1)
+
+
+def brightness_scale(maps: SvbrdfMaps, cbtf: CompressedBTF, texel_weights=None,
+                     chunk_bytes: float = 64e6) -> np.ndarray:
+    """(3,) float64 per colour channel: the factor on both lobes (diffuse and F0) that makes
+    the swatch of ``maps`` as bright as ``cbtf``'s at the pole samples (the values already
+    carry n.l, the convention's cosine), on average over those lights: what the Storm check
+    measures, a swatch under one light at a time (module docstring, step 4).  For sample p and
+    channel c, with Y = the BTF's swatch sum, A = the model's lobes' sum and G = the sum of the
+    Fresnel term's grazing part (F = mix(F0, 1, w): no parameter scales it), s makes
+    ``mean_p (s A + G) / Y`` one (:func:`pole_ratio`), within :data:`BRIGHTNESS_SCALE`;
+    ``texel_weights`` as :func:`pole_swatch_sums`."""
+    zero = replace(maps, diffuse=np.zeros_like(maps.diffuse), specular=np.zeros_like(maps.specular))
+    y, (total, grazing) = pole_swatch_sums(cbtf, [lambda v, l, t: evaluate(maps, v, l, t),
+                                                  lambda v, l, t: evaluate(zero, v, l, t)], texel_weights, chunk_bytes)
+    lobes, left = pole_ratio(y, total - grazing), 1.0 - pole_ratio(y, grazing)
+    lo, hi = BRIGHTNESS_SCALE
+    return np.where(lobes > 1e-12, np.clip(left / np.maximum(lobes, 1e-30), lo, hi), 1.0)
+
+
+def keep_brightness(maps: SvbrdfMaps, cbtf: CompressedBTF, texel_weights=None, chunk_bytes: float = 64e6) -> SvbrdfMaps:
+    """``maps`` with diffuse albedo times (1 - F0) and F0 scaled by :func:`brightness_scale`
+    per channel (F0 at most 1, the albedo in [0, 1]): step 4 of the fit."""
+    s = brightness_scale(maps, cbtf, texel_weights, chunk_bytes).astype(np.float32)
+    f0 = maps.specular.astype(np.float32)
+    a = maps.diffuse * (1.0 - f0) * s
+    spec = np.clip(f0 * s, 0.0, 1.0)
+    diffuse = np.clip(a / np.maximum(1.0 - spec, 1e-6), 0.0, 1.0)
+    return replace(maps, diffuse=diffuse.astype(np.float32), specular=spec.astype(np.float32))
 
 
 # ------------------------------------------------------------------ the flat fallback (the baseline)

@@ -51,6 +51,10 @@ class QuiltTexels:
         """(H, W) of the quilt."""
         return self.index.shape
 
+    def multiplicity(self) -> np.ndarray:
+        """(N,) float64: how many quilt texels each of ``compact``'s texels stands for."""
+        return np.bincount(self.index.reshape(-1), minlength=self.compact.width * self.compact.height).astype(np.float64)
+
     def gather(self, values: np.ndarray) -> np.ndarray:
         """(H, W, ...) per quilt texel from ``values`` (1, N, ...): an image of ``compact``."""
         values = np.asarray(values)

@@ -376,8 +376,9 @@ def package(compressed, options: PackageOptions | None = None, *,
         basis, coefficients = gpu.tables, list(gpu.pages)
     else:
         basis, coefficients = package_textures(cbtf, textures)
-    fitted = (fit_svbrdf(cbtf if texels is None else texels.compact, white_level=white) if fallback_fits is None
-              else fallback_fits[0])
+    fitted = (fallback_fits[0] if fallback_fits is not None else fit_svbrdf(cbtf, white_level=white)
+              if texels is None else fit_svbrdf(texels.compact, white_level=white,
+                                                texel_weights=texels.multiplicity()))
     maps_added = fallback.add_maps(fitted, textures, cbtf.ocio_config, texels=texels)
     op_fitted, op_added, errors = _openpbr_fallback(cbtf if texels is None else texels.compact, fitted, white,
                                                     textures, texels, fallback_fits)
@@ -407,7 +408,8 @@ def _openpbr_fallback(cbtf: CompressedBTF, preview: SvbrdfMaps, white: float, te
 
     if reused is not None:
         return reused[1], openpbr_fallback.add_maps(reused[1], textures, cbtf.ocio_config, texels=texels), reused[2]
-    fitted = fit_openpbr(cbtf, svbrdf=preview, white_level=white)
+    fitted = fit_openpbr(cbtf, svbrdf=preview, white_level=white,
+                         texel_weights=None if texels is None else texels.multiplicity())
     added = openpbr_fallback.add_maps(fitted, textures, cbtf.ocio_config, texels=texels)
     errors = openpbr_fallback.fit_errors(cbtf, preview, fitted)
     log.info(f"fallbacks against the BTF at held-out samples: UsdPreviewSurface {errors['preview_surface']:.2f} %, "
