@@ -170,20 +170,25 @@ class CoefficientTexture:
             return np.take(self._texels, self.map.ravel()[idx], axis=0)
         if not self._tiled(n):
             return np.take(self.level(n).reshape(-1, 3, self.k), idx, axis=0)
-        ids = self._tile_ids(n, idx)
-        held = self._held.get(n)
-        if held is None or (held.slot[ids] < 0).any():      # not asked for beforehand: made now, kept
-            self.hold({n: np.unique(ids)}, keep=True)
-            held = self._held[n]
-        T = self.tile
+        held, T = self._held[n], self.tile                 # made by shade's _have, if not held before
         y, x = np.divmod(idx, self.level_shape(n)[1])
-        out = np.take(held.pool.reshape(-1, 3, self.k), (held.slot[ids] * T + y % T) * T + x % T, axis=0)
+        slot = held.slot[self._tile_ids(n, idx)]
+        out = np.take(held.pool.reshape(-1, 3, self.k), (slot * T + y % T) * T + x % T, axis=0)
         if n == 0:                                     # codes: exactly _texel_major's operations
             scale, bias = self._dequant
             out = out.astype(np.float32)
             out *= scale
             out += bias
         return out
+
+    def _have(self, n: int, idx: np.ndarray) -> None:
+        """Make the tiles of level ``n`` holding texels ``idx`` (any shape) that are not held, in one
+        pass, and keep them: for a caller that did not :meth:`hold` what it shades."""
+        if self._tiled(n):
+            ids = np.unique(self._tile_ids(n, idx))
+            held = self._held.get(n)
+            if held is None or (held.slot[ids] < 0).any():
+                self.hold({n: ids}, keep=True)
 
     def _tiled(self, n: int) -> bool:
         """Level ``n``'s taps read tiles: no texel map, and neither it nor a finer level held whole."""
@@ -324,6 +329,7 @@ class CoefficientTexture:
         r = rows.astype(np.float32)
         for level, pick, scale in self._picks(lod, len(rows)):
             idx, wt = self._taps(level, st[pick])
+            self._have(level, idx)
             rp = r[pick]
             for tap in range(4):
                 coeffs = self._tap_texels(level, idx[tap])                       # (p, 3, k)
