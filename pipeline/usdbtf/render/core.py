@@ -242,8 +242,8 @@ def render_parts(parts: list, camera: Camera, lights: list[Light]) -> np.ndarray
             return surface, local[sl], xy[own_tri[sl]], depth[own_tri[sl]], px[sl] + 0.5, py[sl] + 0.5
 
         jobs.append((renderer, own_pix, args))
-        needed.setdefault(id(renderer), []).append(renderer._needed(len(own_pix),
-                                                                    lambda sl, a=args, r=renderer: r._texture_coords(*a(sl))))
+        coords = (lambda sl, a=args, r=renderer: r._texture_coords(*a(sl)))
+        needed.setdefault(id(renderer), []).append(renderer._needed(len(own_pix), coords))
     # Each material decodes the texture tiles its pixels sample, in every part it is bound to,
     # in one pass over its pages, before any is shaded (issue 39); it drops the tiles it held
     # for an earlier frame and no longer needs.
