@@ -163,3 +163,34 @@ def test_pages_read_in_bands_are_the_whole_read_and_a_truncated_page_is_one_erro
     cut.write_bytes(page.read_bytes()[: page.stat().st_size // 2])
     with pytest.raises(BTFError, match="cut.png: GPU texture is corrupt or truncated"):
         read_rgba(cut)
+
+
+def test_a_later_frame_holds_what_a_fresh_renderer_would_and_renders_the_same(asset):
+    """Frames of one renderer (``--frames``): each makes only the tiles it lacks and drops the
+    ones it no longer reads, so it holds what a fresh renderer of that frame holds, and its
+    pixels are that renderer's."""
+    points, faces, uv = plane_with_uv(0.05, 4)
+    mesh = Mesh(points, faces, uv=uv)
+    lights = [Light("directional", np.array([0.3, 0.2, 1.0]) / np.linalg.norm([0.3, 0.2, 1.0]),
+                    capture_irradiance(1.0))]
+    grazing = Camera(np.array([-0.03, -0.03, 0.012]), np.array([-0.005, -0.005, 0.0]), np.array([0.0, 0.0, 1.0]),
+                     50.0, 48, 32)
+    corner = Camera(np.array([-0.015, 0.015, 0.02]), np.array([-0.015, 0.015, 0.0]), np.array([0.0, 1.0, 0.0]),
+                    20.0, 48, 32)
+    opts = RenderOptions(threads=2, chunk=256, shadows=False)
+
+    def renderer():
+        r = Renderer(load_btf(asset, lazy=True), opts)
+        r.texture.tile = 8
+        return r
+
+    def held(r):
+        return {n: np.flatnonzero(t.slot >= 0).tolist() for n, t in sorted(r.texture._held.items())}
+
+    frames = renderer()
+    for camera in (grazing, corner, _far_plane()[1], grazing):
+        image = frames.render(mesh, camera, lights)
+        fresh = renderer()
+        assert np.array_equal(image, fresh.render(mesh, camera, lights)) and held(frames) == held(fresh)
+    # Made over the four frames: level 0's 8 + 4 + 0 + 8 again (the corner's went with the far frame).
+    assert frames.texture.tiles_made[0] == 20
