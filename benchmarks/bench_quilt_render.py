@@ -256,7 +256,7 @@ def render_speed(folder: Path, frame: int, repeats: int, cli) -> dict:
     timing = cpu_timed(one, repeats=repeats, warmup=1)
     covered = int((holder["img"][..., 3] > 0).sum())
     # Baseline: equation 2 with one fixed basis row per covered pixel, texel-major coefficients.
-    tex = renderer.texture.levels[0].reshape(-1, 3, renderer.interp.k)
+    tex = renderer.texture.level(0).reshape(-1, 3, renderer.interp.k)     # level 0 whole, texel-major
     rng = np.random.default_rng(0)
     idx = rng.integers(0, len(tex), covered)
     row = renderer.interp.basis[0]

@@ -389,9 +389,26 @@ def read_rgba(path):
             spec = inp.spec()
             if spec.nchannels != 4:
                 raise BTFError(f"{path}: GPU texture has {spec.nchannels} channels, expected 4 (RGBA)")
-            data = inp.read_image(0, 0, 0, 4, spec.format)
+            data = inp.read_image(0, 0, 0, 4, spec.format) if spec.tile_width else _scanline_bands(inp, spec)
             if data is None or inp.has_error:
                 raise BTFError(f"{path}: GPU texture is corrupt or truncated ({oiio_error(inp)})")
         finally:
             inp.close()
     return np.asarray(data)
+
+
+def _scanline_bands(inp, spec, rows: int = 256):
+    """(H, W, 4) pixels of an open scanline image read ``rows`` scanlines at a time into one
+    array (None on a read error): OIIO's PNG reader, asked for the whole image, decodes it into
+    a buffer of its own before copying it out, so a 64 MB coefficient page peaked at 128 MB
+    (issue 39: a render's page reads); in bands it peaks at the array and one band."""
+    data = None
+    for y in range(spec.y, spec.y + spec.height, rows):
+        band = inp.read_scanlines(0, 0, y, min(spec.y + spec.height, y + rows), 0, 0, 4, spec.format)
+        if band is None or inp.has_error:
+            return None
+        band = np.asarray(band)
+        if data is None:
+            data = np.empty((spec.height, spec.width, 4), band.dtype)
+        data[y - spec.y:y - spec.y + len(band)] = band.reshape(len(band), spec.width, 4)
+    return data

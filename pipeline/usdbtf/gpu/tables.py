@@ -413,6 +413,7 @@ class LazyCodes(Sequence):
 
     def _tiles(self, g: int) -> list[np.ndarray]:
         if self._group is None or self._group[0] != g:
+            self._group = None                   # the last group's packs go before this one's are cut
             h, w = self._shape
             tiles = []
             for c in range(3):
@@ -423,7 +424,7 @@ class LazyCodes(Sequence):
                 tile = np.asarray(self._pages[int(page)])[int(y0):int(y0) + h, int(x0):int(x0) + w]
                 if tile.shape[:2] != (h, w) or tile.ndim != 3 or tile.shape[2] != 4:
                     raise BTFError(f"page {int(page)} does not hold coefficient pack {p} ({w}x{h} RGBA tile)")
-                tiles.append(np.array(_codes(tile, float(code), f"page {int(page)}")))   # a copy: the page may go
+                tiles.append(_codes(tile, float(code), f"page {int(page)}"))   # a new array: the page may go
                 self.reads.append((int(page), p))
             self._group = (g, tiles)
         return self._group[1]

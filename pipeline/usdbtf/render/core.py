@@ -39,7 +39,7 @@ from .hemisphere import directions_to_vectors
 from .scene import Light
 from .shading import BasisInterpolator
 from .shadows import ShadowMap
-from .texture import CoefficientTexture
+from .texture import CoefficientTexture, merge_needed
 from ..numeric import single_blas_thread
 from ..photometry import radiance_per_irradiance, white_level_of
 
@@ -104,6 +104,8 @@ class Renderer:
         H, W = self.texture.height, self.texture.width
         j, i = np.meshgrid(np.arange(W), np.arange(H))
         st = np.stack([(j.ravel() + 0.5) / W, 1.0 - (i.ravel() + 0.5) / H], axis=1)
+        # The tiles every chunk reads, made in one pass over the pages (not one per chunk).
+        self.texture.hold(self._needed(len(st), lambda sl: (None, st[sl], None)))
         view = self.interp.view_weights(directions_to_vectors([view_deg]))
         light = self.interp.light_weights(directions_to_vectors([light_deg]))
         if self.domain.is_linear:
@@ -132,9 +134,13 @@ class Renderer:
         """(H, W, 4) float32 RGBA, working space."""
         return render_parts([(self, mesh)], camera, lights)
 
-    def _shade_chunks(self, n: int, fn) -> np.ndarray:
+    def _slices(self, n: int) -> list[slice]:
+        """The chunks of ``n`` pixels shaded as one task each."""
         step = self.opts.chunk
-        slices = [slice(a, min(a + step, n)) for a in range(0, n, step)]
+        return [slice(a, min(a + step, n)) for a in range(0, n, step)]
+
+    def _shade_chunks(self, n: int, fn) -> np.ndarray:
+        slices = self._slices(n)
         if self.opts.threads > 1 and len(slices) > 1:
             with ThreadPoolExecutor(self.opts.threads) as pool:
                 parts = list(pool.map(fn, slices))
@@ -142,12 +148,23 @@ class Renderer:
             parts = [fn(sl) for sl in slices]
         return np.concatenate(parts) if parts else np.zeros((0, 3), np.float32)
 
-    def _shade_pixels(self, surface, camera, lights, shadow_maps, tri, tri_xy, tri_depth, x, y) -> np.ndarray:
+    def _texture_coords(self, surface, tri, tri_xy, tri_depth, x, y):
+        """(barycentrics (n, 3), st (n, 2), lod (n,) or None) of pixel points (x, y) on triangles ``tri``."""
         b = perspective_weights(tri_xy, tri_depth, x, y)
-        p = np.einsum("nk,nkd->nd", b, surface.points[tri])
-        normal, tangent, bitangent = point_frames(b, surface, tri)
         st = np.einsum("nk,nkd->nd", b, surface.uv[tri])
         lod = self._lod(tri_xy, tri_depth, surface.uv[tri], st, x, y) if self.opts.filter == "mip" else None
+        return b, st, lod
+
+    def _needed(self, n: int, coords) -> dict:
+        """The texture tiles (:meth:`~.texture.CoefficientTexture.needed`) that shading ``n``
+        pixels reads, ``coords(slice)`` giving a chunk's :meth:`_texture_coords` (the chunks
+        :meth:`_shade_chunks` shades, so the same st and lod, bit for bit)."""
+        return merge_needed(*(self.texture.needed(*coords(sl)[1:]) for sl in self._slices(n)))
+
+    def _shade_pixels(self, surface, camera, lights, shadow_maps, tri, tri_xy, tri_depth, x, y) -> np.ndarray:
+        b, st, lod = self._texture_coords(surface, tri, tri_xy, tri_depth, x, y)
+        p = np.einsum("nk,nkd->nd", b, surface.points[tri])
+        normal, tangent, bitangent = point_frames(b, surface, tri)
         to_eye = camera.eye - p
         to_eye /= np.linalg.norm(to_eye, axis=1, keepdims=True)
         frame = np.stack([tangent, bitangent, normal], axis=1)                   # (n, 3, 3) rows
@@ -212,6 +229,7 @@ def render_parts(parts: list, camera: Camera, lights: list[Light]) -> np.ndarray
     shadow_maps = [ShadowMap(points, light, res) if opts.shadows else None for light in lights]
     flat = image.reshape(-1, 4)
     first = np.cumsum([0] + [len(s.points) for s in surfaces])
+    jobs, needed = [], {}
     for n, ((renderer, _), surface) in enumerate(zip(parts, surfaces)):
         mine = owner[tri] == n
         if not mine.any():
@@ -220,9 +238,21 @@ def render_parts(parts: list, camera: Camera, lights: list[Light]) -> np.ndarray
         local = own_tri - first[n]
         py, px = np.divmod(own_pix, camera.width)
 
-        def task(sl, renderer=renderer, surface=surface, local=local, own_tri=own_tri, px=px, py=py):
-            return renderer._shade_pixels(surface, camera, lights, shadow_maps, local[sl], xy[own_tri[sl]],
-                                          depth[own_tri[sl]], px[sl] + 0.5, py[sl] + 0.5)
+        def args(sl, surface=surface, local=local, own_tri=own_tri, px=px, py=py):
+            return surface, local[sl], xy[own_tri[sl]], depth[own_tri[sl]], px[sl] + 0.5, py[sl] + 0.5
+
+        jobs.append((renderer, own_pix, args))
+        coords = (lambda sl, a=args, r=renderer: r._texture_coords(*a(sl)))
+        needed.setdefault(id(renderer), []).append(renderer._needed(len(own_pix), coords))
+    # Each material decodes the texture tiles its pixels sample, in every part it is bound to,
+    # in one pass over its pages, before any is shaded (issue 39); it drops the tiles it held
+    # for an earlier frame and no longer needs.
+    for renderer in {id(r): r for r, _, _ in jobs}.values():
+        renderer.texture.hold(merge_needed(*needed[id(renderer)]))
+    for renderer, own_pix, args in jobs:
+        def task(sl, renderer=renderer, args=args):
+            surface, *rest = args(sl)
+            return renderer._shade_pixels(surface, camera, lights, shadow_maps, *rest)
 
         flat[own_pix, :3] = renderer._shade_chunks(len(own_pix), task)
         flat[own_pix, 3] = 1.0

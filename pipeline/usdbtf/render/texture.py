@@ -7,14 +7,16 @@ is one contiguous row and each channel's dot with the blended basis row runs ove
 memory (measured 2.3x faster than a (k, 3) layout); memory is ``H * W * k * 12`` bytes plus a
 third for mip levels (built on first use, 2 x 2 box filter).
 
-Only the levels a frame samples are built (issue 39): a level n >= 1 with no finer level held
-is made coefficient plane by plane from the stored codes (de-quantised and box-filtered n
-times per plane: the same float32 operations per texel as boxing the whole level 0, so the
-same values bit for bit), so a frame that samples levels 2.. never holds level 0's
-``H * W * k * 12`` bytes, and a lazily read asset (``read_btf(..., lazy=True)``) decodes its
-pages once per level built, one at a time.  Level 0, when a tap needs it, is held as the
-stored codes, texel-major (``H * W * k * 3`` bytes for 8-bit codes, a quarter of the floats),
-and a tap de-quantises the texels it reads (the same float32 operations, so the same values).
+Only what a frame samples is decoded (issue 39): each mip level is cut into tiles of
+:attr:`CoefficientTexture.tile` texels a side, and a frame first asks for the tiles its taps
+touch (:meth:`CoefficientTexture.needed`, :meth:`CoefficientTexture.hold`), which are then made
+in one pass over the stored codes (a lazily read asset, ``read_btf(..., lazy=True)``: each page
+decoded once).  Level 0's tiles hold the stored codes (``3 k`` bytes a texel for 8-bit codes),
+de-quantised per tap; a level n >= 1's tiles are cut from each coefficient plane de-quantised
+and box-filtered n times (the same float32 operations per texel as boxing the whole texel-major
+level 0, so the same values bit for bit).  A frame holds the tiles of its own taps, not a
+level's ``H_n * W_n * k * 12`` bytes.  A whole level (:meth:`CoefficientTexture.level`) is still
+built when asked for, and taps then read it.
 
 Texture coordinates follow USD: ``st`` in [0, 1], s to the right, t *up*; texel (row i,
 column j) of the image (row 0 at the top) is centred at ``s = (j + 0.5) / W``,
@@ -23,13 +25,31 @@ column j) of the image (row 0 at the top) is centred at ``s = (j + 0.5) / W``,
 from __future__ import annotations
 
 import threading
+from typing import NamedTuple
 
 import numpy as np
 
 from ..compress.format import CompressedBTF
 from ..compress.parallel import in_threads
+from ..resources import release_free_heap
 
-__all__ = ["CoefficientTexture"]
+__all__ = ["CoefficientTexture", "TILE", "merge_needed"]
+
+#: Texels a side of a level's tiles (:meth:`CoefficientTexture.hold`): a 64 x 64 tile of k = 48
+#: is 0.6 MB of codes at level 0, 2.4 MB of floats above; small enough that a frame's tiles
+#: follow the region it samples, large enough that a frame's tiles number hundreds, not tens of
+#: thousands (one cut per tile, coefficient and channel while they are made).
+TILE = 64
+
+
+class _Tiles(NamedTuple):
+    """The held tiles of one level: ``slot`` (tiles of the level,) int64, each tile's index in
+    ``pool`` or -1 (not held); ``pool`` (held, T, T, 3, k): stored codes (level 0) or float32
+    (levels >= 1); a tile at the level's right or bottom edge is padded with repeated edge texels
+    that no tap reads.  Replaced whole, never changed, so shading threads read one consistently."""
+
+    slot: np.ndarray
+    pool: np.ndarray
 
 
 class CoefficientTexture:
@@ -59,10 +79,17 @@ class CoefficientTexture:
         else:
             self._texels = _texel_major(cbtf, k).reshape(-1, 3, k)
             self._shape = self.map.shape
-        #: Levels in the order they were built, and how ("level 0", "codes", "planes", "box", "gathered").
+        #: Levels in the order they were first built, and how: whole ("level 0", "planes", "box",
+        #: "gathered"), or their first tiles ("codes": level 0's stored codes, "planes": cut from
+        #: de-quantised, boxed coefficient planes).
         self.built: list[tuple[int, str]] = []
-        self._codes0 = None                       # level 0 as codes (h * w, 3, k), built when a tap needs it
-        self._lock = threading.Lock()             # shading threads may ask for a new mip level at once
+        #: Texels a side of a tile (set before the first frame).
+        self.tile = TILE
+        #: Tiles made so far per level ({level: count}, over every pass): what a test counts.
+        self.tiles_made: dict[int, int] = {}
+        self._held: dict[int, _Tiles] = {}        # the tiles held per level
+        self._dequant = None                      # level 0's (scale, bias) (3, k) float32, with its tiles
+        self._lock = threading.RLock()            # shading threads may ask for new tiles at once
 
     @property
     def height(self) -> int:
@@ -95,9 +122,7 @@ class CoefficientTexture:
             if n == 0:
                 level = _texel_major(self._cbtf, self.k)
             else:
-                planes = (self._cbtf.coefficients.__getitem__ if self._codes0 is None else
-                          lambda i: self._codes0[1][i])
-                level = _plane_level(planes, self._shape, self.k, n)
+                level = _plane_level(self._cbtf.coefficients.__getitem__, self._shape, self.k, n)
             self._release()
             return level
         if not below:                  # gathered level 0: stream it a band at a time, a band per thread
@@ -139,28 +164,143 @@ class CoefficientTexture:
         if release is not None:                      # a lazily read asset: its pages are not kept
             release()
 
-    def _level0_codes(self):
-        """(codes (h * w, 3, k), [Stored-like views per coefficient], scale (3, k) float32,
-        bias (3, k) float32) of level 0, built on first use."""
-        if self._codes0 is None:
-            with self._lock:
-                if self._codes0 is None:
-                    self.built.append((0, "codes"))
-                    self._codes0 = _texel_major_codes(self._cbtf, self.k)
-                    self._release()
-        return self._codes0
-
     def _tap_texels(self, n: int, idx: np.ndarray) -> np.ndarray:
         """(p, 3, k) texels at flat indices ``idx`` of level ``n``."""
         if n == 0 and self.map is not None:
             return np.take(self._texels, self.map.ravel()[idx], axis=0)
-        if n == 0 and 0 not in self.levels:
-            codes, _, scale, bias = self._level0_codes()
-            out = np.take(codes, idx, axis=0).astype(np.float32)    # exactly _texel_major's values
+        if not self._tiled(n):
+            return np.take(self.level(n).reshape(-1, 3, self.k), idx, axis=0)
+        held, T = self._held[n], self.tile                 # made by shade's _have, if not held before
+        y, x = np.divmod(idx, self.level_shape(n)[1])
+        slot = held.slot[self._tile_ids(n, idx)]
+        out = np.take(held.pool.reshape(-1, 3, self.k), (slot * T + y % T) * T + x % T, axis=0)
+        if n == 0:                                     # codes: exactly _texel_major's operations
+            scale, bias = self._dequant
+            out = out.astype(np.float32)
             out *= scale
             out += bias
-            return out
-        return np.take(self.level(n).reshape(-1, 3, self.k), idx, axis=0)
+        return out
+
+    def _have(self, n: int, idx: np.ndarray) -> None:
+        """Make the tiles of level ``n`` holding texels ``idx`` (any shape) that are not held, in one
+        pass, and keep them: for a caller that did not :meth:`hold` what it shades."""
+        if self._tiled(n):
+            ids = np.unique(self._tile_ids(n, idx))
+            held = self._held.get(n)
+            if held is None or (held.slot[ids] < 0).any():
+                self.hold({n: ids}, keep=True)
+
+    def _tiled(self, n: int) -> bool:
+        """Level ``n``'s taps read tiles: no texel map, and neither it nor a finer level held whole."""
+        return self.map is None and not any(m <= n for m in self.levels)
+
+    def _tile_ids(self, n: int, idx: np.ndarray) -> np.ndarray:
+        """Tile ids (``row * tiles across + column``) of flat texel indices ``idx`` of level ``n``."""
+        w = self.level_shape(n)[1]
+        y, x = np.divmod(idx, w)
+        return (y // self.tile) * -(-w // self.tile) + x // self.tile
+
+    def needed(self, st: np.ndarray, lod: np.ndarray | None = None) -> dict[int, np.ndarray]:
+        """{level: sorted unique tile ids} that :meth:`shade` of points ``st`` (m, 2) at ``lod``
+        (m,) reads, for :meth:`hold` (none for a texel-mapped texture: it has no tiles)."""
+        if self.map is not None:
+            return {}
+        found: dict[int, list] = {}
+        for level, pick, _ in self._picks(lod, len(st)):
+            found.setdefault(level, []).append(np.unique(self._tile_ids(level, self._taps(level, st[pick])[0])))
+        return {n: np.unique(np.concatenate(ids)) for n, ids in sorted(found.items())}
+
+    def hold(self, needed: dict[int, np.ndarray], keep: bool = False) -> None:
+        """Hold the tiles ``needed`` ({level: tile ids}, :meth:`needed`): those not held are made
+        in one pass over the stored codes (a lazily read asset's pages each decoded once, then
+        released); tiles of other levels, or not listed, are dropped unless ``keep``.  Levels
+        read whole (:meth:`_tiled`) are left out."""
+        with self._lock:
+            plan = {}
+            for n in sorted(needed):
+                if not self._tiled(n):
+                    continue
+                ids = np.unique(np.asarray(needed[n], np.int64))
+                old = self._held.get(n)
+                held = np.flatnonzero(old.slot >= 0) if old is not None else np.zeros(0, np.int64)
+                new = np.setdiff1d(ids, held)
+                kept = held if keep else np.intersect1d(ids, held)
+                if len(new) or len(kept) < len(held):
+                    plan[n] = (kept, new)
+            if not keep:
+                for n in [m for m in self._held if m not in needed]:
+                    del self._held[n]
+            for n, (kept, new) in plan.items():             # the kept tiles moved to the front
+                old = self._held.pop(n, None)
+                h, w = self.level_shape(n)
+                slot = np.full(-(-h // self.tile) * -(-w // self.tile), -1, np.int64)
+                slot[kept] = np.arange(len(kept))
+                slot[new] = np.arange(len(kept), len(kept) + len(new))
+                dtype = np.float32 if n else (old.pool.dtype if old is not None else None)
+                pool = None if dtype is None else np.empty((len(kept) + len(new), self.tile, self.tile, 3, self.k),
+                                                           dtype)
+                if len(kept):
+                    pool[:len(kept)] = old.pool[old.slot[kept]]
+                plan[n] = (_Tiles(slot, pool), new, len(kept))
+            made = {n: p for n, p in plan.items() if len(p[1])}
+            if made:
+                plan.update(self._make(made))
+            for n, (tiles, new, _) in sorted(plan.items()):
+                if len(new):
+                    if n not in self.tiles_made:
+                        self.built.append((n, "planes" if n else "codes"))
+                    self.tiles_made[n] = self.tiles_made.get(n, 0) + len(new)
+                self._held[n] = tiles
+
+    def _make(self, plan: dict) -> dict:
+        """Fill the new tiles of ``plan`` ({level: (_Tiles, new tile ids, their first slot)}) in
+        one pass over the first k coefficients: level 0's cut from the codes, a level n's from
+        each coefficient plane de-quantised and boxed n times.  Returns ``plan`` (level 0's pool
+        allocated here, in the codes' widest storage type)."""
+        T, top = self.tile, max(plan)
+        scale, bias = np.empty((3, self.k), np.float32), np.empty((3, self.k), np.float32)
+        coefficients = self._cbtf.coefficients
+        for i in range(self.k):
+            st = coefficients[i]                      # a lazy asset's: each page read once, in order
+            scale[:, i], bias[:, i] = st.scale.astype(np.float32), st.bias.astype(np.float32)
+            if 0 in plan:
+                tiles, new, at = plan[0]
+                dtype = st.pixels.dtype if tiles.pool is None else np.result_type(tiles.pool.dtype, st.pixels.dtype)
+                if tiles.pool is None:
+                    tiles = tiles._replace(pool=np.empty((at + len(new), T, T, 3, self.k), dtype))
+                elif dtype != tiles.pool.dtype:          # a uint8 texture beside uint16 ones
+                    tiles = tiles._replace(pool=tiles.pool.astype(dtype))
+                plan[0] = (tiles, new, at)
+                tiles.pool[at:, :, :, :, i] = _cut(st.pixels, new, T)
+            if top >= 1:
+                for c, plane in enumerate(_planes(st)):
+                    for n in range(1, top + 1):
+                        plane = _box(plane)
+                        if n in plan:
+                            tiles, new, at = plan[n]
+                            tiles.pool[at:, :, :, c, i] = _cut(plane, new, T)
+        if 0 in plan:
+            self._dequant = (scale, bias)
+        self._release()
+        # The pass's pages, packs and planes go back to the system, so the next material's pass
+        # (or the shading) does not peak on top of them (issue 42's :func:`release_free_heap`).
+        release_free_heap()
+        return plan
+
+    def _picks(self, lod: np.ndarray | None, m: int):
+        """The trilinear filter's levels for ``m`` points at ``lod`` (m,) (None or <= 0: level 0,
+        bilinear): (level, the points that read it, their weight (float32)) per level read."""
+        if lod is None:
+            lod = np.zeros(m)
+        lod = np.clip(lod, 0.0, self.max_level)
+        base = np.floor(lod).astype(np.int64)
+        frac = (lod - base).astype(np.float32)
+        for n in np.unique(base):
+            sel = np.flatnonzero(base == n)
+            for level, scale in ((int(n), 1.0 - frac[sel]), (int(n) + 1, frac[sel])):
+                use = scale > 0
+                if use.any() and level <= self.max_level:
+                    yield level, sel[use], scale[use]
 
     def _taps(self, n: int, st: np.ndarray):
         """Bilinear taps at level n: flat texel indices (4, m) and weights (4, m)."""
@@ -186,25 +326,15 @@ class CoefficientTexture:
         (log2 texels per pixel; None or <= 0: bilinear on level 0, else trilinear).
         """
         out = np.zeros((len(rows), 3), np.float32)
-        if lod is None:
-            lod = np.zeros(len(rows))
-        lod = np.clip(lod, 0.0, self.max_level)
-        base = np.floor(lod).astype(np.int64)
-        frac = (lod - base).astype(np.float32)
         r = rows.astype(np.float32)
-        for n in np.unique(base):
-            sel = np.flatnonzero(base == n)
-            for level, scale in ((int(n), 1.0 - frac[sel]), (int(n) + 1, frac[sel])):
-                use = scale > 0
-                if not use.any() or level > self.max_level:
-                    continue
-                pick = sel[use]
-                idx, wt = self._taps(level, st[pick])
-                rp = r[pick]
-                for tap in range(4):
-                    coeffs = self._tap_texels(level, idx[tap])                   # (p, 3, k)
-                    val = np.einsum("pk,pck->pc", rp, coeffs)
-                    out[pick] += (wt[tap] * scale[use])[:, None].astype(np.float32) * val
+        for level, pick, scale in self._picks(lod, len(rows)):
+            idx, wt = self._taps(level, st[pick])
+            self._have(level, idx)
+            rp = r[pick]
+            for tap in range(4):
+                coeffs = self._tap_texels(level, idx[tap])                       # (p, 3, k)
+                val = np.einsum("pk,pck->pc", rp, coeffs)
+                out[pick] += (wt[tap] * scale)[:, None].astype(np.float32) * val
         if self.matrix is not None:                      # stored channels -> working-space RGB
             out = np.einsum("dc,pc->pd", self.matrix, out)
         return out
@@ -222,47 +352,40 @@ def _plane_level(coefficient, shape: tuple, k: int, n: int) -> np.ndarray:
         h, w = -(-h // 2), -(-w // 2)
     out = np.empty((h, w, 3, k), np.float32)
     for i in range(k):
-        st = coefficient(i)                 # a lazily read asset: read here, dropped after
-        scale, bias = st.scale.astype(np.float32), st.bias.astype(np.float32)
-        for c in range(3):
-            plane = np.multiply(st.pixels[:, :, c], scale[c:c + 1], dtype=np.float32)
-            plane += bias[c:c + 1]
+        for c, plane in enumerate(_planes(coefficient(i))):   # a lazily read asset: read here, dropped after
             for _ in range(n):
                 plane = _box(plane)
             out[:, :, c, i] = plane
     return out
 
 
-class _CodesView:
-    """Coefficient ``i`` of texel-major codes, as a Stored reads (pixels (H, W, 3), scale, bias)."""
+def _planes(st):
+    """The three (H, W) float32 planes of a Stored coefficient, de-quantised as
+    :func:`_texel_major` does (code x float32 scale + float32 bias, in float32), one at a time."""
+    scale, bias = st.scale.astype(np.float32), st.bias.astype(np.float32)
+    for c in range(3):
+        plane = np.multiply(st.pixels[:, :, c], scale[c:c + 1], dtype=np.float32)
+        plane += bias[c:c + 1]
+        yield plane
 
-    def __init__(self, codes, shape, i, scale, bias):
-        self.pixels = codes.reshape(shape + codes.shape[1:])[:, :, :, i]
-        self.scale, self.bias = scale, bias
+
+def _cut(image: np.ndarray, ids: np.ndarray, T: int) -> np.ndarray:
+    """(len(ids), T, T, ...) tiles ``ids`` (``row * tiles across + column``) of ``image`` (h, w, ...),
+    the edge row and column repeated past the image's edge."""
+    h, w = image.shape[:2]
+    ty, tx = np.divmod(np.asarray(ids, np.int64), -(-w // T))
+    rows = np.minimum(ty[:, None] * T + np.arange(T), h - 1)
+    cols = np.minimum(tx[:, None] * T + np.arange(T), w - 1)
+    return image[rows[:, :, None], cols[:, None, :]]
 
 
-def _texel_major_codes(cbtf: CompressedBTF, k: int):
-    """Level 0 as stored codes: (codes (H * W, 3, k) in the widest storage type of the first
-    ``k`` coefficients, [per coefficient a view with pixels (H, W, 3), scale, bias],
-    scale (3, k) float32, bias (3, k) float32).  ``codes * scale + bias`` in float32 is
-    :func:`_texel_major` (a uint8 code held as uint16 or a half as float32 converts exactly)."""
-    H, W = cbtf.height, cbtf.width
-    coefficients = cbtf.coefficients
-    first = coefficients[0]
-    dtype = first.pixels.dtype
-    codes = np.empty((H * W, 3, k), dtype)
-    scale, bias = np.empty((3, k), np.float32), np.empty((3, k), np.float32)
-    scales, biases = [], []
-    for i in range(k):
-        st = first if i == 0 else coefficients[i]          # a lazy asset's: each read once, in order
-        if np.result_type(codes.dtype, st.pixels.dtype) != codes.dtype:
-            codes = codes.astype(np.result_type(codes.dtype, st.pixels.dtype))
-        codes[:, :, i] = st.pixels.reshape(H * W, 3)
-        scale[:, i], bias[:, i] = st.scale.astype(np.float32), st.bias.astype(np.float32)
-        scales.append(np.asarray(st.scale))
-        biases.append(np.asarray(st.bias))
-    views = [_CodesView(codes, (H, W), i, scales[i], biases[i]) for i in range(k)]
-    return codes, views, scale, bias
+def merge_needed(*needs: dict) -> dict[int, np.ndarray]:
+    """{level: sorted unique tile ids} of several :meth:`CoefficientTexture.needed` answers."""
+    out: dict[int, list] = {}
+    for need in needs:
+        for n, ids in need.items():
+            out.setdefault(n, []).append(np.asarray(ids, np.int64))
+    return {n: np.unique(np.concatenate(ids)) for n, ids in sorted(out.items())}
 
 
 def _texel_major(cbtf: CompressedBTF, k: int) -> np.ndarray:
