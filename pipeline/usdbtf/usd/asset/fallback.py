@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...color import processor
-from ...imageio import encode_image
+from ...imageio import encode_png_smallest
 from ...svbrdf import SvbrdfMaps
 
 __all__ = ["COLOUR_ENCODING", "FALLBACK_DIR", "MAP_FILES", "encode_maps", "decode_maps", "add_maps", "add_map_pngs",
@@ -97,7 +97,9 @@ def add_map_pngs(encoded: dict, files: dict, textures, texels, label: str) -> di
     def encode(name):
         pixels = encoded[name] if texels is None else texels.gather(encoded[name])
         space = COLOUR_ENCODING if files[name][1] == "srgb" else DATA
-        return encode_image(pixels, "png", color_space=space, attributes={"png:compressionLevel": 9})
+        # The smaller of two filters (issue 39: fitted maps of a noisy material compress best
+        # unfiltered, smooth ones filtered); the same pixels either way.
+        return encode_png_smallest(pixels, color_space=space, level=9)
 
     data = encode_in_workers(encode, encoded, label)
     return {name: textures.add(f"{FALLBACK_DIR}/{files[name][0]}", blob, files[name][1])
