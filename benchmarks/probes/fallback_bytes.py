@@ -16,11 +16,13 @@ Per preset: ``usdbtf synth PRESET --sampling paper --size N`` and ``usdbtf compr
 * the fallbacks' fitted errors (``usd.asset.openpbr.fit_errors``: held-out samples, working
   space, against the compressed BTF) as shipped, and for two storage choices not taken, with
   their bytes: the colour maps as JPEG (4:4:4, quality 95 and 90), and the OpenPBR 16-bit data
-  maps (params, lobes) at 8 bits.
+  maps (params, lobes) at 8 bits;
+* what the second encode costs: median CPU seconds to encode the 11 maps (tiled ``--tile`` times a
+  side, a larger texture of the same statistics) the base commit's way and the smaller-filter way.
 
 Usage (repository root)::
 
-    .venv/bin/python benchmarks/probes/fallback_bytes.py [--presets metal_flakes,pebbles,velvet] [--size 64] [--k 150]
+    .venv/bin/python benchmarks/probes/fallback_bytes.py [--presets metal_flakes,pebbles,velvet] [--size 64] [--k 150] [--tile 8]
 """
 from __future__ import annotations
 
@@ -124,7 +126,32 @@ def what_ifs(cbtf, result) -> list[tuple[str, int, dict]]:
     return rows
 
 
-def measure(preset: str, size: int, k: int) -> dict:
+def encode_seconds(cbtf, result, tile: int, repeats: int = 5) -> tuple[float, float]:
+    """Median CPU seconds (this process: OIIO encodes on the calling thread) to encode both
+    fallbacks' maps, tiled ``tile`` x ``tile`` (a larger texture of the same statistics), the
+    base commit's way (one PNG encode each) and the smaller-filter way (two each)."""
+    import time
+
+    from usdbtf.imageio import encode_image, encode_png_smallest
+    from usdbtf.usd.asset import fallback, openpbr
+
+    pixels = [np.tile(p, (tile, tile, 1)) for p in (*fallback.encode_maps(result.svbrdf_fit, cbtf.ocio_config).values(),
+                                                    *openpbr.encode_maps(result.openpbr_maps, cbtf.ocio_config).values())]
+    ways = {"before": lambda px: encode_image(px, "png", color_space="data", attributes={"png:compressionLevel": 9}),
+            "after": lambda px: encode_png_smallest(px, color_space="data", level=9)}
+    out = []
+    for way in ways.values():
+        runs = []
+        for _ in range(repeats):
+            t = time.process_time()
+            for px in pixels:
+                way(px)
+            runs.append(time.process_time() - t)
+        out.append(float(np.median(runs)))
+    return out[0], out[1]
+
+
+def measure(preset: str, size: int, k: int, tile: int) -> dict:
     from usdbtf.imageio import decode_image
     from usdbtf.usd.asset import fallback, openpbr
     from usdbtf.usd.asset.package import PackageOptions, package, read_input, write_package
@@ -149,7 +176,7 @@ def measure(preset: str, size: int, k: int) -> dict:
     before_fb = sum(b for b, _ in files.values())
     return {"k": cbtf.k, "files": files, "thumbnail": thumb, "full_after": full,
             "full_before": full - after_fb + before_fb, "fit_errors": result.fit_errors,
-            "what_ifs": what_ifs(cbtf, result)}
+            "what_ifs": what_ifs(cbtf, result), "tile": tile, "encode_s": encode_seconds(cbtf, result, tile)}
 
 
 def main() -> None:
@@ -157,6 +184,7 @@ def main() -> None:
     p.add_argument("--presets", default="metal_flakes,pebbles,velvet")
     p.add_argument("--size", type=int, default=64)
     p.add_argument("--k", type=int, default=150)
+    p.add_argument("--tile", type=int, default=8, help="the encode timing's maps tiled this many times a side")
     args = p.parse_args()
     presets = args.presets.split(",")
     header("issue 39: the fallback maps' bytes in the packaged asset (before = the base commit's PNG encoding)",
@@ -167,7 +195,7 @@ def main() -> None:
             "asset = every file the full lod loads (layers, thumbnail, GPU tables and pages, both fallbacks' maps)",
             "fit errors: usd.asset.openpbr.fit_errors (256 held-out samples, working space, vs the compressed BTF)"])
     for preset in presets:
-        r = measure(preset, args.size, args.k)
+        r = measure(preset, args.size, args.k, args.tile)
         say(f"\n## {preset} ({args.size}^2, k {r['k']})\n")
         say("| file | before | after | after / before |")
         say("|---|---:|---:|---:|")
@@ -185,6 +213,10 @@ def main() -> None:
         e = r["fit_errors"]
         say(f"fitted error as shipped (identical before/after: same pixels): UsdPreviewSurface "
             f"{e['preview_surface']:.3f} %, OpenPBR {e['open_pbr']:.3f} %\n")
+        before_s, after_s = r["encode_s"]
+        side = args.size * r["tile"]
+        say(f"encoding both fallbacks' 11 maps tiled to {side}^2, median CPU s of 5: before {before_s:.3f}, "
+            f"after {after_s:.3f} ({after_s / before_s:.2f}x)\n")
         say("| storage of the maps it changes | their bytes | UsdPreviewSurface % | OpenPBR % |")
         say("|---|---:|---:|---:|")
         for name, size, err in r["what_ifs"]:

@@ -10,7 +10,8 @@ whose inputs come from four textures fitted to the BTF by :func:`usdbtf.svbrdf.f
     <stem>_textures/fallback/normal.png      normal         8-bit RGB = n * 0.5 + 0.5, data (raw),
                                                             read with scale (2, 2, 2, 1), bias (-1, -1, -1, 0)
 
-(other files with ``--texture-format``).  The colour maps are the fit's working-space values
+(other files with ``--texture-format``; each PNG at level 9 with the smaller of two libpng
+filters, :func:`usdbtf.imageio.encode_png_smallest`).  The colour maps are the fit's working-space values
 converted by OCIO to Rec.709 and sRGB-encoded, clipped to [0, 1]; the shader declares
 ``lin_rec709_scene`` (``Usd.ColorSpaceAPI``), the data inputs ``raw``.  The normal map is in
 the texture's tangent space (x = +s, y = +t), which is the sample's (image right, image up).
