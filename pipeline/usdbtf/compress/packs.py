@@ -23,7 +23,7 @@ import numpy as np
 from ..errors import BTFError
 
 __all__ = ["MAX_CODE", "pack_count", "coefficient_packs", "shipped_pack_bytes", "shipped_basis_bytes",
-           "basis_codes_group_major", "basis_block_bytes", "BASIS_CODE_OFFSET", "basis_code_offset", "PNG_FILTERS", "encode_png_page",
+           "basis_codes_group_major", "basis_block_bytes", "BASIS_CODE_OFFSET", "basis_code_offset", "encode_png_page",
            "pack_bytes_by_k", "default_lods", "page_breaks", "ShippedPacks"]
 
 #: Largest code of each storage type: what a GPU's normalised read divides by.
@@ -95,30 +95,14 @@ def coefficient_packs(cbtf, k: int, breaks: list[int]) -> tuple[list, np.ndarray
     return packs, np.asarray(scales), np.asarray(biases)
 
 
-#: libpng's filter choices tried on every 8-bit page (OIIO "png:filter"): 0 = libpng's
-#: default (adaptive: per row the filter of least absolute sum), 8 = PNG_FILTER_NONE.  Smooth
-#: leading coefficients favour the filters, the noise-like later ones none (k 190 paper-scale
-#: packs at level 6: adaptive 1,990,351, none 1,937,117, the smaller per pack 1,914,031 bytes;
-#: level 9 1,950,121 at 6x the encode time; benchmarks/history/packaging.md, "Issue 39: the shipped codec").
-PNG_FILTERS = (0, 8)
-
-
 def encode_png_page(pixels: np.ndarray) -> bytes:
     """An 8-bit RGBA page or pack (H, W, 4) as the asset's PNG: level 6, the smaller of the
-    :data:`PNG_FILTERS` encodings (the first on a tie; deterministic).  Alpha is the fourth
-    coefficient layer, not coverage: OIIO must not un-premultiply RGB by it (Storm's PNG
-    reader takes the file's values as they are)."""
-    from ..imageio import encode_image
+    :data:`~usdbtf.imageio.PNG_FILTERS` encodings (:func:`~usdbtf.imageio.encode_png_smallest`).
+    Alpha is the fourth coefficient layer, not coverage: OIIO must not un-premultiply RGB by it
+    (Storm's PNG reader takes the file's values as they are)."""
+    from ..imageio import encode_png_smallest
 
-    best = None
-    for png_filter in PNG_FILTERS:
-        attributes = {"png:compressionLevel": 6, "oiio:UnassociatedAlpha": 1}
-        if png_filter:
-            attributes["png:filter"] = png_filter
-        data = encode_image(pixels, "png", color_space="data", attributes=attributes)
-        if best is None or len(data) < len(best):
-            best = data
-    return best
+    return encode_png_smallest(pixels, color_space="data", level=6, attributes={"oiio:UnassociatedAlpha": 1})
 
 
 def _encode_pack(pixels: np.ndarray) -> bytes:

@@ -10,7 +10,8 @@ whose inputs come from four textures fitted to the BTF by :func:`usdbtf.svbrdf.f
     <stem>_textures/fallback/normal.png      normal         8-bit RGB = n * 0.5 + 0.5, data (raw),
                                                             read with scale (2, 2, 2, 1), bias (-1, -1, -1, 0)
 
-(other files with ``--texture-format``).  The colour maps are the fit's working-space values
+(other files with ``--texture-format``; each PNG at level 9 with the smaller of two libpng
+filters, :func:`usdbtf.imageio.encode_png_smallest`).  The colour maps are the fit's working-space values
 converted by OCIO to Rec.709 and sRGB-encoded, clipped to [0, 1]; the shader declares
 ``lin_rec709_scene`` (``Usd.ColorSpaceAPI``), the data inputs ``raw``.  The normal map is in
 the texture's tangent space (x = +s, y = +t), which is the sample's (image right, image up).
@@ -23,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...color import processor
-from ...imageio import encode_image
+from ...imageio import encode_png_smallest
 from ...svbrdf import SvbrdfMaps
 
 __all__ = ["COLOUR_ENCODING", "FALLBACK_DIR", "MAP_FILES", "encode_maps", "decode_maps", "add_maps", "add_map_pngs",
@@ -97,7 +98,9 @@ def add_map_pngs(encoded: dict, files: dict, textures, texels, label: str) -> di
     def encode(name):
         pixels = encoded[name] if texels is None else texels.gather(encoded[name])
         space = COLOUR_ENCODING if files[name][1] == "srgb" else DATA
-        return encode_image(pixels, "png", color_space=space, attributes={"png:compressionLevel": 9})
+        # The smaller of two filters (issue 39: fitted maps of a noisy material compress best
+        # unfiltered, smooth ones filtered); the same pixels either way.
+        return encode_png_smallest(pixels, color_space=space, level=9)
 
     data = encode_in_workers(encode, encoded, label)
     return {name: textures.add(f"{FALLBACK_DIR}/{files[name][0]}", blob, files[name][1])

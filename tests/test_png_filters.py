@@ -1,0 +1,52 @@
+"""The asset's PNGs choose their filter (issue 39): the smaller encoding, the same pixels."""
+import usdbtf  # noqa: F401  (before numpy)
+import numpy as np
+
+from usdbtf.imageio import PNG_FILTERS, decode_image, encode_image, encode_png_smallest
+
+
+def _each_filter(pixels, space):
+    return [encode_image(pixels, "png", color_space=space,
+                         attributes={"png:compressionLevel": 9, **({"png:filter": f} if f else {})})
+            for f in PNG_FILTERS]
+
+
+def test_the_smaller_filter_wins_and_the_pixels_are_the_same():
+    rng = np.random.default_rng(0)
+    # Noise about a mid-grey (like a noisy material's fitted maps): libpng's adaptive default
+    # filters every row (least absolute sum), but the differences of noise cost more than it.
+    noise = np.clip(rng.normal(128.0, 8.0, (32, 32, 3)), 0, 255).astype(np.uint8)
+    ramp = np.stack(np.meshgrid(np.arange(32), np.arange(32)), -1).astype(np.uint16) * 2000   # filtered is smaller
+    ramp = np.concatenate([ramp, ramp[..., :1]], -1)
+    for pixels, winner in ((noise, 1), (ramp, 0)):
+        encoded = _each_filter(pixels, "data")
+        assert len(encoded[winner]) < len(encoded[1 - winner])        # the case is the one it claims
+        best = encode_png_smallest(pixels, color_space="data", level=9)
+        assert best == encoded[winner]
+        assert np.array_equal(decode_image(best), pixels)
+
+
+def test_fallback_maps_are_written_with_the_smaller_filter():
+    from usdbtf.svbrdf import SvbrdfMaps
+    from usdbtf.usd.asset import fallback
+    from usdbtf.usd.asset.textures import DATA, TextureSet, png_as_data
+
+    rng = np.random.default_rng(1)
+    n = rng.normal(0.0, 0.3, (16, 16, 3)).astype(np.float32)
+    n[..., 2] = 1.0
+    grey = np.clip(rng.normal(0.2, 0.01, (16, 16, 3)), 0, 1).astype(np.float32)     # noise about a grey
+    maps = SvbrdfMaps(grey, grey * 0.2,
+                      np.full((16, 16), 0.4, np.float32), n / np.linalg.norm(n, axis=-1, keepdims=True), "ACEScg")
+    textures = TextureSet()
+    names = fallback.add_maps(maps, textures)
+    pixels = fallback.encode_maps(maps)
+    chose_none = 0
+    for name, (_, kind) in fallback.MAP_FILES.items():
+        colour = kind == "srgb"
+        encoded = _each_filter(pixels[name], fallback.COLOUR_ENCODING if colour else DATA)
+        expected = min(encoded, key=len)
+        chose_none += len(expected) < len(encoded[0])
+        written = textures.files[names[name]].data
+        assert written == (expected if colour else png_as_data(expected)), name
+        assert (decode_image(written) == pixels[name]).all()      # (a grey file reads back as RGB)
+    assert chose_none            # the maps exercise the choice (libpng's default alone is larger)
