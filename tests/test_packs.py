@@ -121,3 +121,42 @@ def test_tables_basis_codes_carry_the_offset_and_older_tables_still_read(made):
         unpack(old, pages)
     # the layout in memory is what the file holds
     np.testing.assert_array_equal(gpu_layout(cbtf).tables.reshape(-1, 4)[at:at + groups * cbtf.n_samples], stored)
+
+
+def test_basis_page_round_trips_the_codes_bit_for_bit_through_png(tmp_path):
+    """Issue 39 (basis8): the 8-bit hi / lo basis page, written as the asset writes PNG pages
+    and read back through OIIO as Storm's readers see it (8 bits per channel), gives every
+    code back, also codes >= 256 and a group split over two columns."""
+    from usdbtf.errors import BTFError
+    from usdbtf.imageio import read_rgba
+
+    rng = np.random.default_rng(3)
+    views, lights = 3, 5
+    rows = packs.BASIS_PAGE_ROWS
+    packs.BASIS_PAGE_ROWS = 12                   # 2 groups (2 V rows each) per column: 18 vectors, 3 columns
+    try:
+        codes = rng.integers(0, 2**16, (views * lights, 18))
+        codes[:, 0] = 65535                          # largest code: both bytes 255
+        codes[:, 1] = np.arange(views * lights)      # sample order: view-major
+        image = packs.basis_page(codes, views, lights)
+        assert image.shape == (12, 3 * lights, 4) and image.dtype == np.uint8    # 5 groups, 2 per column
+        # view 1, light 2 of vector 1 (sample 7): group 0, high byte row 1, low byte row V + 1
+        assert image[1, 2, 1] == 0 and image[views + 1, 2, 1] == 7
+        path = tmp_path / "basis.png"
+        path.write_bytes(packs.encode_png_page(image))
+        back = read_rgba(path)
+        assert back.dtype == np.uint8 and np.array_equal(back, image)
+        assert np.array_equal(packs.basis_page_codes(back, views, lights, 18), codes)
+        assert np.array_equal(packs.basis_page_codes(back, views, lights, 5), codes[:, :5])
+        with pytest.raises(BTFError, match="does not hold group"):
+            packs.basis_page_codes(back[:, :lights], views, lights, 18)
+    finally:
+        packs.BASIS_PAGE_ROWS = rows
+
+
+def test_basis_page_bytes_beat_the_tables_block(made):
+    """The PNG basis page of a real compressed folder is smaller than its schema-3 EXR block."""
+    cbtf = read_compressed(made[0])
+    png = packs.basis_page_bytes(cbtf)
+    exr = packs.shipped_basis_bytes(cbtf)
+    assert 0 < png < exr

@@ -24,7 +24,8 @@ from ..errors import BTFError
 
 __all__ = ["MAX_CODE", "pack_count", "coefficient_packs", "shipped_pack_bytes", "shipped_basis_bytes",
            "basis_codes_group_major", "basis_block_bytes", "BASIS_CODE_OFFSET", "basis_code_offset", "PNG_FILTERS", "encode_png_page",
-           "pack_bytes_by_k", "default_lods", "page_breaks", "ShippedPacks"]
+           "pack_bytes_by_k", "default_lods", "page_breaks", "ShippedPacks", "BASIS_PAGE_ROWS", "basis_page",
+           "basis_page_codes", "basis_page_bytes"]
 
 #: Largest code of each storage type: what a GPU's normalised read divides by.
 MAX_CODE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0, np.dtype(np.float16): 1.0}
@@ -235,3 +236,83 @@ def basis_block_bytes(block: np.ndarray) -> int:
     image[:len(block)] = block
     return len(encode_image(image.reshape(rows, TABLE_WIDTH, 4), "exr", color_space="data",
                             attributes={"compression": "zip"}))
+
+
+#: Image rows a column of groups of the 8-bit basis page fills at most (a GPU page's height,
+#: ``gpu.tables.PAGE_SIZE``): groups past it start a new column of ``lights`` texels.
+BASIS_PAGE_ROWS = 16384
+
+
+def basis_page(codes: np.ndarray, views: int, lights: int) -> np.ndarray:
+    """Integer basis codes as an 8-bit RGBA image Storm reads exactly (issue 39's candidate
+    for the basis of a packaged asset: Storm reads a 16-bit PNG as 8 bits, so each code is
+    two bytes).
+
+    Parameters
+    ----------
+    codes : (S, n) integer codes, 0 <= code < 2^16, S = views * lights samples view-major
+        (sample ``v * lights + l``).
+    views, lights : V and L of the cross sampling.
+
+    Returns
+    -------
+    (rows, columns, 4) uint8: group g (vectors 4g..4g+3 in RGBA; vectors past n code 0) as a
+    V x L image of the high bytes above a V x L image of the low bytes (image rows from the
+    top: views down, lights across, so PNG's 2-D filters predict each byte from its
+    neighbouring directions), groups down a column of at most BASIS_PAGE_ROWS rows
+    (``BASIS_PAGE_ROWS // (2 V)`` groups), then the next column to the right.  The layout
+    measured smallest of six (``benchmarks/probes/basis8_layouts.py``: 0.713x the schema-3
+    float32 EXR block at k 190 on metal_flakes, paper sampling, 32^2).
+    """
+    codes = np.asarray(codes)
+    S, n = codes.shape
+    if S != views * lights:
+        raise BTFError(f"basis page: {S} samples are not {views} views x {lights} lights")
+    if codes.size and (codes.min() < 0 or codes.max() >= 2**16):
+        raise BTFError("basis page: codes must lie in 0..65535")
+    groups = -(-n // 4)
+    per_column = BASIS_PAGE_ROWS // (2 * views)
+    if per_column < 1:
+        raise BTFError(f"basis page: {views} views do not fit {BASIS_PAGE_ROWS} rows")
+    padded = np.zeros((S, groups * 4), np.int64)
+    padded[:, :n] = codes
+    planes = padded.reshape(views, lights, groups, 4).transpose(2, 0, 1, 3)            # (G, V, L, 4)
+    stacked = np.concatenate([planes >> 8, planes & 255], axis=1).astype(np.uint8)     # (G, 2V, L, 4)
+    columns = -(-groups // per_column)
+    rows = 2 * views * min(groups, per_column)
+    image = np.zeros((rows, columns * lights, 4), np.uint8)
+    for g in range(groups):
+        y0, x0 = (g % per_column) * 2 * views, (g // per_column) * lights
+        image[y0:y0 + 2 * views, x0:x0 + lights] = stacked[g]
+    return image
+
+
+def basis_page_codes(image: np.ndarray, views: int, lights: int, n: int) -> np.ndarray:
+    """The (S, n) int64 codes :func:`basis_page` laid out, read back from its image (rows,
+    columns, 4) of 8-bit values (uint8 as a PNG reads back); BTFError if it is too small."""
+    image = np.asarray(image)
+    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 4:
+        raise BTFError(f"basis page: expected 8-bit RGBA texels, got {image.dtype} {image.shape}")
+    groups = -(-n // 4)
+    per_column = BASIS_PAGE_ROWS // (2 * views)
+    out = np.zeros((groups, views, lights, 4), np.int64)
+    for g in range(groups):
+        y0, x0 = (g % per_column) * 2 * views, (g // per_column) * lights
+        block = image[y0:y0 + 2 * views, x0:x0 + lights].astype(np.int64)
+        if block.shape[:2] != (2 * views, lights):
+            raise BTFError(f"basis page of {image.shape[1]}x{image.shape[0]} texels does not hold group {g}")
+        out[g] = block[:views] * 256 + block[views:]
+    return out.transpose(1, 2, 0, 3).reshape(views * lights, groups * 4)[:, :n]
+
+
+def basis_page_bytes(cbtf, k: int | None = None) -> int:
+    """Bytes of the first ``k`` (default all) basis vectors' integer codes as :func:`basis_page`
+    encoded by :func:`encode_png_page` (what a schema-4 asset would ship for its basis).
+    Deterministic."""
+    from .format import cross_layout
+
+    k = min(cbtf.k if k is None else k, cbtf.k)
+    layout = cross_layout(cbtf.sampling)
+    if layout is None or cbtf.basis.pixels.dtype == np.float16:
+        raise BTFError("basis page: needs integer codes on a V x L sampling")
+    return len(encode_png_page(basis_page(cbtf.basis.pixels[:, :k, 0], *layout)))
