@@ -91,13 +91,29 @@ def test_shipped_packs_follow_the_assets_page_breaks(made):
     assert packs.default_lods(12) == [6] and packs.page_breaks(12, [6]) == [6]
 
 
-def test_tables_basis_codes_carry_the_offset_and_older_tables_still_read(made):
-    """Schema 3 (issue 39): integer basis codes sit in the tables as 2^23 + code (one float
-    exponent, smaller OpenEXR zip); the block's first texel .w says so and ``unpack`` subtracts
-    it.  Tables written before (offset 0, the bare codes) read the same codes; any other offset
-    is refused in one line."""
+def schema3_tables(tables: np.ndarray, cbtf) -> np.ndarray:
+    """Schema-3 tables of the same BTF from schema-4 ``tables``: the codes (2^23 + code,
+    group-major) appended after the basis block's de-quantisation (the tables' last block), its
+    offset 2^23: what ``package`` wrote before the basis page."""
+    flat = np.asarray(tables, np.float32).reshape(-1, 4)
+    basis_at, groups, k = int(flat[1, 1]), int(flat[0, 3]), int(flat[1, 0])
+    at = basis_at + 1 + 2 * groups
+    body = np.concatenate([flat[:at], packs.basis_codes_group_major(cbtf, k)])
+    rows = -(-len(body) // packs.TABLE_WIDTH)
+    out = np.zeros((rows * packs.TABLE_WIDTH, 4), np.float32)
+    out[:len(body)] = body
+    out[basis_at, 3] = packs.BASIS_CODE_OFFSET
+    return out.reshape(rows, packs.TABLE_WIDTH, 4)
+
+
+def test_tables_point_at_the_basis_page_and_older_tables_still_read(made):
+    """Schema 4 (issue 39, basis8): integer basis codes live in gpu/basis.png (8-bit high / low
+    planes), the tables keep their de-quantisation and say so (basis block .w = BASIS_IN_PAGE);
+    ``unpack`` reads the codes from the page bit for bit, and refuses in one line without it.
+    Schema-3 tables (2^23 + code in the tables) and older ones (offset 0, the bare codes) read
+    the same codes; any other offset is refused in one line."""
     from usdbtf.errors import BTFError
-    from usdbtf.gpu.tables import gpu_layout, unpack
+    from usdbtf.gpu.tables import BASIS_IN_PAGE, basis_in_page, gpu_layout, unpack
     from usdbtf.imageio import read_rgba
 
     compressed, gpu = made
@@ -105,22 +121,26 @@ def test_tables_basis_codes_carry_the_offset_and_older_tables_still_read(made):
     shipped = read_rgba(gpu / "tables.exr")
     flat = shipped.reshape(-1, 4)
     basis_at, groups = int(flat[1, 1]), int(flat[0, 3])
-    assert flat[basis_at, 3] == packs.BASIS_CODE_OFFSET == 2.0 ** 23
-    at = basis_at + 1 + 2 * groups
-    stored = flat[at:at + groups * cbtf.n_samples]
-    assert stored.min() >= 2.0 ** 23 and stored.max() < 2.0 ** 24       # exact in float32
+    assert flat[basis_at, 3] == BASIS_IN_PAGE and basis_in_page(shipped)
+    assert len(flat) < basis_at + 1 + 2 * groups + packs.TABLE_WIDTH   # no codes after the de-quantisation
     pages = [read_rgba(p) for p in sorted(gpu.glob("page*.png"))]
-    basis, _ = unpack(shipped, pages)
+    page = read_rgba(gpu / "basis.png")
+    basis, _ = unpack(shipped, pages, basis_page=page)
+    assert basis.dtype == cbtf.basis.pixels.dtype
     np.testing.assert_array_equal(basis, cbtf.basis.pixels)
-    old = np.asarray(shipped, np.float32).copy()
+    np.testing.assert_array_equal(page, gpu_layout(cbtf).basis_page)      # the file holds the layout's page
+    with pytest.raises(BTFError, match="basis page, and none was given"):
+        unpack(shipped, pages)
+    old = schema3_tables(shipped, cbtf)
+    assert not basis_in_page(old)
+    np.testing.assert_array_equal(unpack(old, pages)[0], cbtf.basis.pixels)
+    at = basis_at + 1 + 2 * groups
     old.reshape(-1, 4)[at:at + groups * cbtf.n_samples] -= np.float32(2.0 ** 23)
     old.reshape(-1, 4)[basis_at, 3] = 0.0
     np.testing.assert_array_equal(unpack(old, pages)[0], cbtf.basis.pixels)
     old.reshape(-1, 4)[basis_at, 3] = 5.0
     with pytest.raises(BTFError, match="basis code offset"):
         unpack(old, pages)
-    # the layout in memory is what the file holds
-    np.testing.assert_array_equal(gpu_layout(cbtf).tables.reshape(-1, 4)[at:at + groups * cbtf.n_samples], stored)
 
 
 def test_basis_page_round_trips_the_codes_bit_for_bit_through_png(tmp_path):
@@ -154,9 +174,10 @@ def test_basis_page_round_trips_the_codes_bit_for_bit_through_png(tmp_path):
         packs.BASIS_PAGE_ROWS = rows
 
 
-def test_basis_page_bytes_beat_the_tables_block(made):
-    """The PNG basis page of a real compressed folder is smaller than its schema-3 EXR block."""
+def test_shipped_basis_bytes_are_the_basis_page_file(made):
+    """Rate control's basis bytes (``shipped_basis_bytes``) are the asset's gpu/basis.png,
+    byte for byte, and fewer than the schema-3 EXR block of the same codes."""
     cbtf = read_compressed(made[0])
-    png = packs.basis_page_bytes(cbtf)
-    exr = packs.shipped_basis_bytes(cbtf)
-    assert 0 < png < exr
+    shipped = packs.shipped_basis_bytes(cbtf)
+    assert shipped == packs.basis_page_bytes(cbtf) == (made[1] / "basis.png").stat().st_size
+    assert shipped < packs.basis_block_bytes(packs.basis_codes_group_major(cbtf, cbtf.k))

@@ -25,7 +25,7 @@ from ..errors import BTFError
 __all__ = ["MAX_CODE", "pack_count", "coefficient_packs", "shipped_pack_bytes", "shipped_basis_bytes",
            "basis_codes_group_major", "basis_block_bytes", "BASIS_CODE_OFFSET", "basis_code_offset", "PNG_FILTERS", "encode_png_page",
            "pack_bytes_by_k", "default_lods", "page_breaks", "ShippedPacks", "BASIS_PAGE_ROWS", "basis_page",
-           "basis_page_codes", "basis_page_bytes"]
+           "basis_page_codes", "basis_page_bytes", "PNG_DATA_CHUNK_BYTES"]
 
 #: Largest code of each storage type: what a GPU's normalised read divides by.
 MAX_CODE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0, np.dtype(np.float16): 1.0}
@@ -218,10 +218,16 @@ def basis_codes_group_major(cbtf, k: int) -> np.ndarray:
 
 
 def shipped_basis_bytes(cbtf, k: int | None = None) -> int:
-    """Bytes of the first ``k`` (default all) basis vectors' codes, group-major, as float32
-    OpenEXR zip in rows of TABLE_WIDTH texels (the basis block of ``gpu/tables.exr`` without
-    the tables' other blocks; the last row padded with zeros).  Deterministic."""
+    """Bytes of the first ``k`` (default all) basis vectors' codes as the packaged asset ships
+    them: integer codes on a V x L sampling as the 8-bit basis page (``gpu/basis.png``, schema
+    4, :func:`basis_page_bytes`: the file itself); half codes (or another sampling) group-major
+    as float32 OpenEXR zip in rows of TABLE_WIDTH texels (the basis block of ``gpu/tables.exr``
+    without the tables' other blocks; the last row padded with zeros).  Deterministic."""
+    from .format import cross_layout
+
     k = min(cbtf.k if k is None else k, cbtf.k)
+    if cbtf.basis.pixels.dtype != np.float16 and cross_layout(cbtf.sampling) is not None:
+        return basis_page_bytes(cbtf, k)
     return basis_block_bytes(basis_codes_group_major(cbtf, k))
 
 
@@ -305,14 +311,19 @@ def basis_page_codes(image: np.ndarray, views: int, lights: int, n: int) -> np.n
     return out.transpose(1, 2, 0, 3).reshape(views * lights, groups * 4)[:, :n]
 
 
+#: Bytes the packaged asset adds to every PNG it writes: a gAMA chunk of 1.0 (12 bytes of
+#: chunk framing, 4 of data) that marks the pixels as data (``usd.asset.textures.png_as_data``).
+PNG_DATA_CHUNK_BYTES = 16
+
+
 def basis_page_bytes(cbtf, k: int | None = None) -> int:
     """Bytes of the first ``k`` (default all) basis vectors' integer codes as :func:`basis_page`
-    encoded by :func:`encode_png_page` (what a schema-4 asset would ship for its basis).
-    Deterministic."""
+    encoded by :func:`encode_png_page`, plus the chunk the asset adds (PNG_DATA_CHUNK_BYTES):
+    the size of a schema-4 asset's ``gpu/basis.png``.  Deterministic."""
     from .format import cross_layout
 
     k = min(cbtf.k if k is None else k, cbtf.k)
     layout = cross_layout(cbtf.sampling)
     if layout is None or cbtf.basis.pixels.dtype == np.float16:
         raise BTFError("basis page: needs integer codes on a V x L sampling")
-    return len(encode_png_page(basis_page(cbtf.basis.pixels[:, :k, 0], *layout)))
+    return len(encode_png_page(basis_page(cbtf.basis.pixels[:, :k, 0], *layout))) + PNG_DATA_CHUNK_BYTES

@@ -99,7 +99,7 @@ def lod_files(stage, prim, budget: int | None = None, *, shares: bool = True) ->
         paged = str(p.GetAttribute(NS + "coefficientLayout").Get() or "files") == GPU_PAGES
         return {"name": name, "k": k, "files": [{"path": rel(f), "bytes": n} for f, n in files],
                 "total": int(sum(n for _, n in files)), "share": None,
-                "_pages": {a.resolvedPath for a in _as_list(p.GetAttribute(NS + "coefficients").Get())} if paged
+                "_pages": [a.resolvedPath for a in _as_list(p.GetAttribute(NS + "coefficients").Get())] if paged
                 else None, "_basis": p.GetAttribute(NS + "basis").Get(), "_sizes": dict(files)}
 
     out = _per_lod(stage, prim, entry)
@@ -115,7 +115,7 @@ def lod_files(stage, prim, budget: int | None = None, *, shares: bool = True) ->
 def _shares(levels: list[dict], budget: int | None) -> None:
     """Set each level's "share" (:func:`lod_files`) from the full (first) level's pages and
     tables: what it spends on the vectors a level drops."""
-    from ...gpu.tables import basis_bytes
+    from ...gpu.tables import basis_bytes, basis_in_page
     from ...imageio import read_rgba
     from .lod import lod_share
 
@@ -128,10 +128,18 @@ def _shares(levels: list[dict], budget: int | None) -> None:
     if len(levels) == 1:
         return
     tables = read_rgba(full["_basis"].resolvedPath)
-    basis_full = basis_bytes(tables)
+    if basis_in_page(tables):
+        # Schema 4: each level's basis page is listed last, its bytes are the file's.
+        def split(lv):
+            return set(lv["_pages"][:-1]), lv["_sizes"].get(lv["_pages"][-1], 0)
+    else:
+        def split(lv):
+            return set(lv["_pages"]), basis_bytes(tables, lv["k"])
+    full_pages, basis_full = split(full)
     for lv in levels[1:]:
-        dropped = sum(full["_sizes"].get(page, 0) for page in full["_pages"] - lv["_pages"])
-        lv["share"] = lod_share(budget, dropped, basis_full, basis_bytes(tables, lv["k"]))
+        pages, basis_own = split(lv)
+        dropped = sum(full["_sizes"].get(page, 0) for page in full_pages - pages)
+        lv["share"] = lod_share(budget, dropped, basis_full, basis_own)
 
 
 def _error_at(prim, k: int) -> float | None:

@@ -373,7 +373,8 @@ def package(compressed, options: PackageOptions | None = None, *,
     # preview can draw the sampling; else one file per coefficient and a basis image.
     gpu = storm.add_gpu_textures(cbtf, textures, levels, texels=texels)
     if gpu is not None:
-        basis, coefficients = gpu.tables, list(gpu.pages)
+        # Schema 4: the basis page (integer codes) listed after the coefficient pages.
+        basis, coefficients = gpu.tables, list(gpu.pages) + ([gpu.basis] if gpu.basis else [])
     else:
         basis, coefficients = package_textures(cbtf, textures)
     fitted = (fit_svbrdf(cbtf if texels is None else texels.compact, white_level=white) if fallback_fits is None
@@ -469,7 +470,7 @@ def _author_payload(stage, result: PackageResult, names: _Names, provenance: str
     if result.gpu is not None:
         g = result.gpu
         gpu = storm.author_gpu_preview(stage, material, textures.texture(g.tables, names.textures),
-                                       [textures.texture(p, names.textures) for p in g.pages], g.k, wrap,
+                                       [p and textures.texture(p, names.textures) for p in g.slots()], g.k, wrap,
                                        g.first_packs, white_level_of(cbtf.info))
     prim = author_mesh(stage, f"/{names.root}/geo/{valid_name(result.mesh.name)}", result.mesh)
     UsdShade.MaterialBindingAPI.Apply(prim).Bind(material)
@@ -502,8 +503,10 @@ def _author_root(stage, result: PackageResult, names: _Names, root_name: str, co
         thumbnail.declare_thumbnail(prim, f"./{names.textures}/{result.thumbnail}")
     lod_tables = None if result.gpu is None else {
         n: result.textures.texture(name, names.textures).path for n, name in result.gpu.lod_tables.items()}
+    lod_basis = None if result.gpu is None else {
+        n: result.textures.texture(name, names.textures).path for n, name in result.gpu.lod_basis.items()}
     lod.author_lod_variants(stage, f"/{names.root}", f"/{names.root}/mtl/{MATERIAL}", result.levels, coefficients,
-                            gpu, paged=result.gpu is not None, tables=lod_tables)
+                            gpu, paged=result.gpu is not None, tables=lod_tables, basis_pages=lod_basis)
 
 
 def _authored(path: Path, author):
