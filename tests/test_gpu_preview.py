@@ -252,6 +252,28 @@ def test_headless_swatch_matches_cpu_renderer(gl, asset):
     assert psnr(gl.swatch((30, 60), (45, 25)), cpu.swatch((30, 60), (45, 10))) < PSNR_MIN
 
 
+def test_schema3_tables_render_what_the_basis_page_renders(egl, gl, asset):
+    """Issue 39 (schema 4): the shader reads the basis codes from the 8-bit basis page (page
+    slot 14) where the tables say so, and from the tables as before where they hold them
+    (schema 3: 2^23 + code): the same codes, so the same frame, value for value.  An old asset
+    keeps rendering."""
+    from basis_helpers import schema3_tables
+    from usdbtf.gpu.headless import HeadlessRenderer
+    from usdbtf.gpu.tables import BASIS_PAGE, GpuLayout, basis_in_page
+
+    layout, wrap, _ = storm.layout_from_asset(asset)
+    assert basis_in_page(layout.tables) and layout.slots()[BASIS_PAGE] is layout.basis_page
+    old = GpuLayout(schema3_tables(layout.tables, load_btf(asset)), layout.pages, layout.k, layout.first_packs)
+    assert not basis_in_page(old.tables) and old.slots()[BASIS_PAGE] is None
+    gl3 = HeadlessRenderer(old, wrap=wrap, ctx=egl)
+    try:
+        for view, light in SWATCH_CASES[:2]:
+            new, before = gl.swatch(view, light), gl3.swatch(view, light)
+            assert before.max() > 0 and np.array_equal(new, before), (view, light)
+    finally:
+        gl3.release()
+
+
 def test_headless_sphere_matches_cpu_renderer(egl, asset):
     from usdbtf.gpu.headless import HeadlessRenderer, psnr, uv_sphere
     from usdbtf.camera import auto_camera

@@ -16,6 +16,7 @@ import usdbtf  # noqa: F401  (registers the schema plugin first)
 from usdbtf.cli import main
 from usdbtf.compress import packs
 from usdbtf.compress.format import read_compressed
+from basis_helpers import schema3_tables
 
 K = 12
 
@@ -89,21 +90,6 @@ def test_shipped_packs_follow_the_assets_page_breaks(made):
     from usdbtf.usd.asset import lod
     assert lod.default_lods is packs.default_lods and tables.page_breaks is packs.page_breaks
     assert packs.default_lods(12) == [6] and packs.page_breaks(12, [6]) == [6]
-
-
-def schema3_tables(tables: np.ndarray, cbtf) -> np.ndarray:
-    """Schema-3 tables of the same BTF from schema-4 ``tables``: the codes (2^23 + code,
-    group-major) appended after the basis block's de-quantisation (the tables' last block), its
-    offset 2^23: what ``package`` wrote before the basis page."""
-    flat = np.asarray(tables, np.float32).reshape(-1, 4)
-    basis_at, groups, k = int(flat[1, 1]), int(flat[0, 3]), int(flat[1, 0])
-    at = basis_at + 1 + 2 * groups
-    body = np.concatenate([flat[:at], packs.basis_codes_group_major(cbtf, k)])
-    rows = -(-len(body) // packs.TABLE_WIDTH)
-    out = np.zeros((rows * packs.TABLE_WIDTH, 4), np.float32)
-    out[:len(body)] = body
-    out[basis_at, 3] = packs.BASIS_CODE_OFFSET
-    return out.reshape(rows, packs.TABLE_WIDTH, 4)
 
 
 def test_tables_point_at_the_basis_page_and_older_tables_still_read(made):

@@ -269,7 +269,7 @@ def author_materialx_preview(stage, material_path: str, tables: str, pages: list
                              white_level: float = 1.0):
     """A Material at ``material_path`` whose ``outputs:mtlx:surface`` is the usdbtf node in
     Hydra's MaterialX path: ``ND_surface`` <- ``ND_usdbtf_bsdf`` (the tables and pages as
-    asset inputs, ``texcoord`` from ``ND_texcoord_vector2``, ``basisCount`` = ``k``).  Storm
+    asset inputs, ``pages`` per page slot, None where unbound: :meth:`GpuTextures.slots`, ``texcoord`` from ``ND_texcoord_vector2``, ``basisCount`` = ``k``).  Storm
     25.08 generates and compiles it (``tests/test_storm.py``); the ``usdbtf_surface`` node
     graph cannot be used there: Storm's MaterialX code defines a macro named after each texture
     input, which rewrites the graph function's parameters of the same name.  Returns the
@@ -280,8 +280,9 @@ def author_materialx_preview(stage, material_path: str, tables: str, pages: list
     bsdf = UsdShade.Shader.Define(stage, f"{material_path}/BtfBsdf")
     bsdf.CreateIdAttr(f"ND_{shaders.MTLX_BSDF}")
     bsdf.CreateInput("tables", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(tables))
-    for p, page in enumerate(pages):
-        bsdf.CreateInput(shaders.page_name(p), Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(page))
+    for p, page in enumerate(pages):          # per page slot; None: unbound
+        if page is not None:
+            bsdf.CreateInput(shaders.page_name(p), Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(page))
     bsdf.CreateInput("basisCount", Sdf.ValueTypeNames.Int).Set(int(k))
     bsdf.CreateInput("whiteLevel", Sdf.ValueTypeNames.Float).Set(float(white_level))     # usdbtf.photometry
     st = UsdShade.Shader.Define(stage, f"{material_path}/TexCoord")
