@@ -3,24 +3,33 @@
 The layout is documented texel by texel at the top of ``glsl/btf_core.glsl`` (the shader
 that reads it); this module writes it.  Pure arrays in, arrays out:
 
-* ``tables`` (R, TABLE_WIDTH, 4) float32: a header, the basis (its stored integer codes plus
-  2^23, schema 3: one float exponent, so OpenEXR zip packs them 0.91x; or halves; exactly, group-major: 4 basis vectors per texel, one group's S samples after the
-  other, with each vector's de-quantisation: the shader de-quantises, so the tables hold the
-  compressed basis itself and nothing else needs to, :func:`unpack`), a point-location table
-  for the view and for the light hemisphere (the triangulations of :mod:`usdbtf.render.hemisphere`, so the GPU interpolates exactly as
-  the CPU renderer does), the de-quantisation of every pack, the colour matrix and the
-  directory of the packs (which page, where).  The blocks are found through the header, and
-  the basis codes come last, from the first row of an OpenEXR zip chunk (16 rows), so the
-  file costs the other blocks plus the codes compressed on their own.  A level of detail of
-  n < k vectors gets tables of its own (``GpuLayout.lod_tables``, issue 39): the same blocks
-  with only its n basis vectors and its packs' entries, so it loads no basis vector it does
-  not draw (the first n vectors' codes in group-major order are a prefix of the k vectors');
+* ``tables`` (R, TABLE_WIDTH, 4) float32: a header, the basis's de-quantisation (each
+  vector's scale and bias: the shader de-quantises, so the asset holds the compressed basis
+  itself and nothing else needs to, :func:`unpack`), a point-location table for the view and
+  for the light hemisphere (the triangulations of :mod:`usdbtf.render.hemisphere`, so the GPU
+  interpolates exactly as the CPU renderer does), the de-quantisation of every pack, the colour
+  matrix and the directory of the packs (which page, where).  The blocks are found through the
+  header.  Half basis codes (not two bytes of an integer) stay in the tables as schema 3 put
+  every basis there: group-major, 4 vectors per texel, one group's S samples after the other,
+  last, from the first row of an OpenEXR zip chunk (16 rows), so the file costs the other
+  blocks plus the codes compressed on their own.  A level of detail of n < k vectors gets
+  tables of its own (``GpuLayout.lod_tables``, issue 39): the same blocks with only its n
+  basis vectors and its packs' entries;
+* ``basis_page`` (schema 4, integer codes): the codes as 8-bit high and low planes, each
+  group's V x L samples as an image (:func:`usdbtf.compress.packs.basis_page`), in page slot
+  :data:`BASIS_PAGE`; the basis block's first texel .w is :data:`BASIS_IN_PAGE` (2^23 or 0:
+  the codes are in the tables, schema 3 and older, which every reader still takes).  A level
+  of detail of n vectors gets its own (``GpuLayout.lod_basis_pages``), so it loads no basis
+  vector it does not draw.  Why: Storm reads a 16-bit PNG as 8 bits; the 8-bit page took
+  0.713x the schema-3 float32 EXR block of the same codes (metal_flakes, paper sampling, k 190,
+  ``benchmarks/probes/basis8_layouts.py``), the smallest of six 8-bit layouts;
 * coefficient *packs*, 3 * ceil(k / 4) tiles (H, W, 4): pack ``p = 3 g + c`` holds colour
   channel ``c`` of basis vectors ``4g .. 4g+3`` as the stored integer codes (uint8/uint16)
   or halves, so a page written as PNG/EXR reproduces the compressed values exactly.  Energy
   order makes a level of detail of k' vectors the first ``3 * ceil(k' / 4)`` packs;
-* ``pages``: the packs laid out as tiles of at most :data:`MAX_PAGES` atlas textures
-  (``pages``), so a material binds at most ``1 + MAX_PAGES`` = 16 samplers for any k: the
+* ``pages``: the packs laid out as tiles of at most ``MAX_PAGES - 1`` atlas textures
+  (``pages``; the last page slot is the basis page's), so a material binds at most
+  ``1 + MAX_PAGES`` = 16 samplers for any k: the
   limit of the GPUs studios preview on (Metal's Hgi allows 31 per stage, GL without bindless
   textures 16 to 32).  A page ends where a level of detail ends (``lods``), so a level loads
   only its own pages, and where the storage type changes.  The shader filters a pack itself
@@ -35,7 +44,7 @@ packs were the smallest PNG pages of three layouts (in tall pages: planar single
 12 and 4);
 the basis codes group-major in float32 OpenEXR (zip) took 1.58 MB against 2.67 MB sample-major
 and 7.28 MB as float32 values (the asset's former 16-bit basis.png: 1.53 MB, which Storm would
-read as 8 bits), with no sampler of their own.
+read as 8 bits); schema 4's 8-bit basis page takes one page slot (module list above).
 """
 from __future__ import annotations
 

@@ -286,7 +286,7 @@ def asset_overhead(cbtf: CompressedBTF, fallback_fits: tuple | None = None) -> d
     dict : "full" (bytes the full lod loads), "pages" (bytes of its coefficient files: GPU pages,
     or coefficient files and basis image when the sampling has no GPU preview), "paged" (GPU
     pages were written), "overhead" (full - pages: tables, fallback maps, thumbnail, MaterialX,
-    layers; with pages the tables' basis block is still in it), "k", "fallback_fits" (the
+    layers; with pages the basis page, or the tables' basis block, is still in it), "k", "fallback_fits" (the
     fallback fits used, to pass to a later call).
     """
     import tempfile
@@ -307,7 +307,9 @@ def asset_overhead(cbtf: CompressedBTF, fallback_fits: tuple | None = None) -> d
             summary = write_package(result, Path(tmp) / "probe.usda")
             full = int(summary["bytes"][FULL_LOD])
             paged = result.gpu is not None
-            names = set(result.coefficients) | (set() if paged else {result.basis})
+            # The coefficient files: without the basis page listed after the GPU pages (schema
+            # 4), whose bytes stay in the overhead as the tables' basis block did before.
+            names = (set(result.gpu.pages) if paged else set(result.coefficients) | {result.basis})
             folder = Path(summary["textures"])
             pages = int(sum((folder / n).stat().st_size for n in names))
     finally:
