@@ -153,7 +153,13 @@ def test_basis_page_round_trips_the_codes_bit_for_bit_through_png(tmp_path):
         back = read_rgba(path)
         assert back.dtype == np.uint8 and np.array_equal(back, image)
         assert np.array_equal(packs.basis_page_codes(back, views, lights, 18), codes)
-        assert np.array_equal(packs.basis_page_codes(back, views, lights, 5), codes[:, :5])
+        assert np.array_equal(packs.basis_page_codes(back, views, lights, 5, groups=5), codes[:, :5])
+        assert packs.basis_page_column(3, views) == 2 and packs.basis_page_column(4, views) == 2
+        packs.BASIS_PAGE_ROWS = 18                   # at most 3 groups a column: 4 groups as 2 + 2, not 3 + 1
+        assert packs.basis_page_column(4, views) == 2 and packs.basis_page(codes[:, :16], views, lights).shape == \
+            (12, 2 * lights, 4)
+        assert np.array_equal(packs.basis_page_codes(packs.basis_page(codes[:, :16], views, lights), views, lights,
+                                                     16), codes[:, :16])
         with pytest.raises(BTFError, match="does not hold group"):
             packs.basis_page_codes(back[:, :lights], views, lights, 18)
     finally:

@@ -25,7 +25,7 @@ from ..errors import BTFError
 __all__ = ["MAX_CODE", "pack_count", "coefficient_packs", "shipped_pack_bytes", "shipped_basis_bytes",
            "basis_codes_group_major", "basis_block_bytes", "BASIS_CODE_OFFSET", "basis_code_offset", "PNG_FILTERS", "encode_png_page",
            "pack_bytes_by_k", "default_lods", "page_breaks", "ShippedPacks", "BASIS_PAGE_ROWS", "basis_page",
-           "basis_page_codes", "basis_page_bytes", "PNG_DATA_CHUNK_BYTES"]
+           "basis_page_codes", "basis_page_column", "basis_page_bytes", "PNG_DATA_CHUNK_BYTES"]
 
 #: Largest code of each storage type: what a GPU's normalised read divides by.
 MAX_CODE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0, np.dtype(np.float16): 1.0}
@@ -265,8 +265,10 @@ def basis_page(codes: np.ndarray, views: int, lights: int) -> np.ndarray:
     (rows, columns, 4) uint8: group g (vectors 4g..4g+3 in RGBA; vectors past n code 0) as a
     V x L image of the high bytes above a V x L image of the low bytes (image rows from the
     top: views down, lights across, so PNG's 2-D filters predict each byte from its
-    neighbouring directions), groups down a column of at most BASIS_PAGE_ROWS rows
-    (``BASIS_PAGE_ROWS // (2 V)`` groups), then the next column to the right.  The layout
+    neighbouring directions), groups down a column, then the next column to the right: as
+    few columns as BASIS_PAGE_ROWS rows allow (``BASIS_PAGE_ROWS // (2 V)`` groups each),
+    evenly filled (:func:`basis_page_column`: a nearly empty last column beside a full one
+    cost 11 % more bytes, metal_flakes 64^2 k 365).  The layout
     measured smallest of six (``benchmarks/probes/basis8_layouts.py``: 0.713x the schema-3
     float32 EXR block at k 190 on metal_flakes, paper sampling, 32^2).
     """
@@ -277,9 +279,7 @@ def basis_page(codes: np.ndarray, views: int, lights: int) -> np.ndarray:
     if codes.size and (codes.min() < 0 or codes.max() >= 2**16):
         raise BTFError("basis page: codes must lie in 0..65535")
     groups = -(-n // 4)
-    per_column = BASIS_PAGE_ROWS // (2 * views)
-    if per_column < 1:
-        raise BTFError(f"basis page: {views} views do not fit {BASIS_PAGE_ROWS} rows")
+    per_column = basis_page_column(groups, views)
     padded = np.zeros((S, groups * 4), np.int64)
     padded[:, :n] = codes
     planes = padded.reshape(views, lights, groups, 4).transpose(2, 0, 1, 3)            # (G, V, L, 4)
@@ -293,14 +293,27 @@ def basis_page(codes: np.ndarray, views: int, lights: int) -> np.ndarray:
     return image
 
 
-def basis_page_codes(image: np.ndarray, views: int, lights: int, n: int) -> np.ndarray:
-    """The (S, n) int64 codes :func:`basis_page` laid out, read back from its image (rows,
-    columns, 4) of 8-bit values (uint8 as a PNG reads back); BTFError if it is too small."""
+def basis_page_column(groups: int, views: int) -> int:
+    """Groups per column of a basis page of ``groups`` groups (:func:`basis_page`): the
+    columns as few as BASIS_PAGE_ROWS rows allow, evenly filled.  The shader computes the same
+    from the tables' group count (glsl/btf_core.glsl, btfShadeLight)."""
+    most = BASIS_PAGE_ROWS // (2 * views)
+    if most < 1:
+        raise BTFError(f"basis page: {views} views do not fit {BASIS_PAGE_ROWS} rows")
+    columns = max(1, -(-groups // most))
+    return max(1, -(-groups // columns))
+
+
+def basis_page_codes(image: np.ndarray, views: int, lights: int, n: int, groups: int | None = None) -> np.ndarray:
+    """The (S, n) int64 codes of the first ``n`` vectors :func:`basis_page` laid out, read back
+    from its image (rows, columns, 4) of 8-bit values (uint8 as a PNG reads back); ``groups``:
+    the groups the page holds (default ceil(n / 4)), which decide its columns; BTFError if it
+    is too small."""
     image = np.asarray(image)
     if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 4:
         raise BTFError(f"basis page: expected 8-bit RGBA texels, got {image.dtype} {image.shape}")
+    per_column = basis_page_column(-(-n // 4) if groups is None else groups, views)
     groups = -(-n // 4)
-    per_column = BASIS_PAGE_ROWS // (2 * views)
     out = np.zeros((groups, views, lights, 4), np.int64)
     for g in range(groups):
         y0, x0 = (g % per_column) * 2 * views, (g // per_column) * lights

@@ -524,7 +524,7 @@ def _directory(tables: np.ndarray, k: int | None, basis_page=None):
         page = basis_page() if callable(basis_page) else basis_page
         V, L = int(flat[0, 1]), int(flat[0, 2])
         # 8-bit texels as a PNG holds them, or floats byte / 255 (a tiled EXR conversion)
-        codes = basis_page_codes(_codes(np.asarray(page), 255.0, "GPU basis page"), V, L, k)
+        codes = basis_page_codes(_codes(np.asarray(page), 255.0, "GPU basis page"), V, L, k, groups)
         if codes.max(initial=0) > max_code:
             raise BTFError(f"GPU basis page: codes above {max_code:g} for {dtype} storage")
         return flat, k, codes.astype(dtype)[:, :, None], directory_at, width, height

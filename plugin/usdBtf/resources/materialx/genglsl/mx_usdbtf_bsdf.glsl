@@ -48,9 +48,9 @@
 // tiles of at most BTF_MAX_PAGES - 1 RGBA textures ("pages"), filtered here (btfPack).
 // Basis page (schema 4, integer codes; page slot BTF_MAX_PAGES - 1, 8-bit RGBA): group g of
 // vectors 4g..4g+3 is a V x L image of the codes' high bytes (image rows = views, from the
-// top; columns = lights) above a V x L image of their low bytes; groups fill a column of at
-// most 16384 rows (16384 / (2 V) groups), then the next column, L texels to the right
-// (usdbtf.compress.packs.basis_page).
+// top; columns = lights) above a V x L image of their low bytes; groups fill a column, then
+// the next, L texels to the right: as few columns as 16384 rows allow (16384 / (2 V) groups
+// each), evenly filled (usdbtf.compress.packs.basis_page, basis_page_column).
 //
 // Environments (Storm glslfx, MaterialX genglsl, the headless harness) include this text
 // unchanged after the definitions usdbtf.gpu.shaders.core_source() puts in front of it
@@ -289,7 +289,9 @@ vec3 btfShadeLight(sampler2D btfTables, BTF_PAGE_PARAMS, ivec3 viewIndex, vec3 v
         inPage = 1;
     }
     int views = int(h0.y);
-    int perColumn = 16384 / (2 * views);
+    int mostPerColumn = max(1, 16384 / (2 * views));
+    int columns = max(1, (groups + mostPerColumn - 1) / mostPerColumn);
+    int perColumn = max(1, (groups + columns - 1) / columns);
     vec3 stored = vec3(0.0);
     for (int g = 0; 4 * g < k && g < groups; ++g) {
         // The blended codes, then de-quantised: the bias enters with the weights' sum.
