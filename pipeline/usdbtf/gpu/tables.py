@@ -59,7 +59,7 @@ from ..compress.packs import (MAX_CODE as _MAX_CODE, TABLE_WIDTH, basis_block_by
                               pack_count, page_breaks)
 from ..errors import BTFError
 
-__all__ = ["MAX_PAGES", "BASIS_PAGE", "BASIS_IN_PAGE", "PAGE_SIZE", "TABLE_WIDTH", "GpuLayout", "gpu_layout", "pack_count", "page_breaks",
+__all__ = ["MAX_PAGES", "BASIS_PAGE", "BASIS_IN_PAGE", "page_slots", "PAGE_SIZE", "TABLE_WIDTH", "GpuLayout", "gpu_layout", "pack_count", "page_breaks",
            "page_plan", "with_wrap", "HemisphereTable", "Pages", "PAGE_TEXELS", "unpack", "unpack_lazy", "LazyCodes",
            "storage_dtype", "basis_bytes", "basis_in_page"]
 
@@ -112,21 +112,30 @@ class GpuLayout:
     lod_basis_pages: dict = field(default_factory=dict)
 
     def slots(self, n: int | None = None) -> list:
-        """The MAX_PAGES page slots a material binds for the first ``n`` (default k) vectors:
-        their coefficient pages from slot 0, the basis page (if any) in slot BASIS_PAGE,
-        None elsewhere."""
-        n = self.k if n is None else min(int(n), self.k)
-        out = [None] * MAX_PAGES
-        for p in range(self.pages_for(n)):
-            out[p] = self.pages[p]
-        basis = self.basis_page if n == self.k else self.lod_basis_pages.get(n, self.basis_page)
-        if basis is not None:
-            out[BASIS_PAGE] = basis
-        return out
+        """The page slots a material binds for the first ``n`` (default k) vectors
+        (:func:`page_slots`)."""
+        return page_slots(self.pages, self.first_packs, self.k, n, self.basis_page, self.lod_basis_pages)
 
     def pages_for(self, k: int) -> int:
         """How many pages (from the first) hold the packs of the first ``k`` basis vectors."""
         return sum(1 for first in self.first_packs if first < pack_count(min(k, self.k)))
+
+
+def page_slots(pages, first_packs: list, k: int, n: int | None, basis, lod_basis: dict) -> list:
+    """The MAX_PAGES page slots a material binds for the first ``n`` (default ``k``) of ``k``
+    vectors: their coefficient pages (``pages[p]``, those whose first pack is one of theirs)
+    from slot 0, their basis page (``basis`` for k, ``lod_basis[n]`` for a lower level, None
+    where the tables hold the codes) in slot BASIS_PAGE, None elsewhere.  ``pages`` and the
+    basis pages may be arrays or file names (``usd.asset.storm.GpuTextures``)."""
+    n = k if n is None else min(int(n), k)
+    out = [None] * MAX_PAGES
+    for p, first in enumerate(first_packs):
+        if first < pack_count(n):
+            out[p] = pages[p]
+    own = basis if n == k else lod_basis.get(n, basis)
+    if own is not None:
+        out[BASIS_PAGE] = own
+    return out
 
 
 class _Texels:

@@ -53,7 +53,7 @@ from ...compress.format import CompressedBTF
 from ...compress.packs import encode_png_page
 from ...errors import BTFError
 from ...gpu import shaders
-from ...gpu.tables import BASIS_PAGE, MAX_PAGES, gpu_layout, pack_count
+from ...gpu.tables import BASIS_PAGE, gpu_layout, page_slots
 from ...imageio import read_rgba
 from ...photometry import white_level_of
 
@@ -94,17 +94,9 @@ class GpuTextures:
     lod_basis: dict = field(default_factory=dict)
 
     def slots(self, n: int | None = None) -> list:
-        """The page slots' file names (None: unbound) of the first ``n`` (default k) vectors:
-        their coefficient pages from slot 0, their basis page in slot BASIS_PAGE."""
-        n = self.k if n is None else min(int(n), self.k)
-        out = [None] * MAX_PAGES
-        for p, (name, first) in enumerate(zip(self.pages, self.first_packs)):
-            if first < pack_count(n):
-                out[p] = name
-        basis = self.basis if n == self.k else self.lod_basis.get(n, self.basis)
-        if basis is not None:
-            out[BASIS_PAGE] = basis
-        return out
+        """The page slots' file names (None: unbound) of the first ``n`` (default k) vectors
+        (:func:`usdbtf.gpu.tables.page_slots`)."""
+        return page_slots(self.pages, self.first_packs, self.k, n, self.basis, self.lod_basis)
 
 
 def lod_tables_name(n: int) -> str:
