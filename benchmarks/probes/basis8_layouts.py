@@ -66,12 +66,12 @@ def candidates(codes: np.ndarray, V: int, L: int) -> dict:
     out["rows 512: hi.png + lo.png"] = [_rows(hi.reshape(-1, 4)), _rows(lo.reshape(-1, 4))]
     out["rows 512: one png, hi rows then lo rows"] = [np.concatenate([_rows(hi.reshape(-1, 4)), _rows(lo.reshape(-1, 4))])]
     vl_hi, vl_lo = hi.reshape(groups * V, L, 4), lo.reshape(groups * V, L, 4)
-    out["V x L per group: hi | lo side by side (G V, 2 L)"] = [np.concatenate([vl_hi, vl_lo], axis=1)]
+    out["V x L per group: hi, lo side by side (G V, 2 L)"] = [np.concatenate([vl_hi, vl_lo], axis=1)]
     out["V x L per group: hi, lo stacked per group (2 G V, L)"] = [
         np.stack([hi.reshape(groups, V, L, 4), lo.reshape(groups, V, L, 4)], axis=1).reshape(2 * groups * V, L, 4)]
     lv_hi = hi.reshape(groups, V, L, 4).transpose(0, 2, 1, 3).reshape(groups * L, V, 4)
     lv_lo = lo.reshape(groups, V, L, 4).transpose(0, 2, 1, 3).reshape(groups * L, V, 4)
-    out["L x V per group: hi | lo side by side (G L, 2 V)"] = [np.concatenate([lv_hi, lv_lo], axis=1)]
+    out["L x V per group: hi, lo side by side (G L, 2 V)"] = [np.concatenate([lv_hi, lv_lo], axis=1)]
     # Two vectors per texel: (hi a, lo a, hi b, lo b); group g -> two V x L images side by side.
     pair = np.stack([hi, lo], axis=-1).reshape(groups, S, 2, 4)        # (G, S, pair, [hi a, lo a, hi b, lo b])
     out["V x L per group: 2 vectors/texel (hi a lo a hi b lo b), pairs side by side (G V, 2 L)"] = [
