@@ -206,12 +206,13 @@ def test_pages_hold_the_stored_codes_and_lods_load_only_their_pages(asset):
                                            (64, 4096, (32, 16, 8))])
 def test_every_k_fits_sixteen_samplers(k, size, lods):
     """Issue 25: at most 1 + MAX_PAGES samplers for any k the packager writes (compress
-    allows k <= 300) at texture sizes up to 2048 (4096 at k = 64); a level of detail's pages
-    are its own; no two packs share a tile, no page exceeds PAGE_SIZE."""
-    from usdbtf.gpu.tables import MAX_PAGES, PAGE_SIZE, page_breaks, page_plan
+    allows k <= 300) at texture sizes up to 2048 (4096 at k = 64): the coefficient pages leave
+    the last page slot to the basis page (schema 4); a level of detail's pages are its own; no
+    two packs share a tile, no page exceeds PAGE_SIZE."""
+    from usdbtf.gpu.tables import BASIS_PAGE, MAX_PAGES, PAGE_SIZE, page_breaks, page_plan
 
     plan, directory = page_plan(pack_count(k), size, size, page_breaks(k, lods))
-    assert 1 + len(plan) <= 16 and len(plan) <= MAX_PAGES
+    assert 1 + MAX_PAGES <= 16 and len(plan) <= BASIS_PAGE == MAX_PAGES - 1
     assert all(pack_count(n) in [first for first, *_ in plan] for n in lods)
     assert all(cols * size <= PAGE_SIZE and rows * size <= PAGE_SIZE and end - first <= cols * rows
                for first, end, cols, rows in plan)
