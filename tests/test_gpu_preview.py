@@ -275,6 +275,42 @@ def test_schema3_tables_render_what_the_basis_page_renders(egl, gl, asset):
         gl3.release()
 
 
+def test_basis_page_in_two_columns_renders_what_the_tables_render(egl, asset, monkeypatch):
+    """A basis page whose groups fill more than one column (paper sampling past k 364, ubo151
+    past k 216): the column height lowered to two groups in the packer and the shader alike,
+    k 12 (3 groups) goes in two columns; the codes read back exactly and the frame is the
+    schema-3 tables' frame, value for value."""
+    from basis_helpers import schema3_tables
+    from usdbtf.compress import packs
+    from usdbtf.compress.format import cross_layout
+    from usdbtf.gpu import shaders
+    from usdbtf.gpu.headless import HeadlessRenderer
+    from usdbtf.gpu.tables import GpuLayout, gpu_layout, unpack
+
+    cbtf = load_btf(asset)
+    views, lights = cross_layout(cbtf.sampling)
+    rows = 2 * 2 * views                                # two groups per column
+    core = shaders.core_source()
+    lowered = core.replace("16384 / (2 * views)", f"{rows} / (2 * views)")
+    assert lowered != core
+    monkeypatch.setattr(packs, "BASIS_PAGE_ROWS", rows)
+    monkeypatch.setattr(shaders, "core_source", lambda: lowered)
+    layout = gpu_layout(cbtf)
+    assert layout.k == 12 and layout.basis_page.shape[:2] == (rows, 2 * lights)
+    np.testing.assert_array_equal(unpack(layout.tables, list(layout.pages), basis_page=layout.basis_page)[0],
+                                  cbtf.basis.pixels)
+    _, wrap, _ = storm.layout_from_asset(asset)
+    old = GpuLayout(schema3_tables(layout.tables, cbtf), layout.pages, layout.k, layout.first_packs)
+    gl4, gl3 = HeadlessRenderer(layout, wrap=wrap, ctx=egl), HeadlessRenderer(old, wrap=wrap, ctx=egl)
+    try:
+        for view, light in SWATCH_CASES[:2]:
+            new, before = gl4.swatch(view, light), gl3.swatch(view, light)
+            assert before.max() > 0 and np.array_equal(new, before), (view, light)
+    finally:
+        gl4.release()
+        gl3.release()
+
+
 def test_headless_sphere_matches_cpu_renderer(egl, asset):
     from usdbtf.gpu.headless import HeadlessRenderer, psnr, uv_sphere
     from usdbtf.camera import auto_camera
