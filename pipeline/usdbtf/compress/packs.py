@@ -10,11 +10,12 @@ the bytes it ships without importing ``gpu`` (layers: docs/architecture.md).
 What :func:`shipped_pack_bytes` and :func:`shipped_basis_bytes` measure (issue 39): each pack
 encoded on its own exactly as the asset encodes a page (8-bit: RGBA PNG, compression level 6,
 unassociated alpha; 16-bit: float32 code / 65535 and half: as they are, OpenEXR zip), and the
-basis codes group-major as float32 OpenEXR zip in rows of the tables' width, as
-``gpu/tables.exr`` holds them.  They are a probe, not the asset's files: the asset's pages
-hold several packs each (one PNG stream per page) and the tables hold a header, hemisphere
-tables, de-quantisation and directory beside the basis (issue 39 measured per-pack PNG totals
-within 2.4..3.5 % of the paged files on metal_flakes).
+basis codes as the asset ships them: integer codes as the 8-bit basis page, the asset's
+``gpu/basis.png`` byte for byte (schema 4, :func:`basis_page`); half codes group-major as
+float32 OpenEXR zip in rows of the tables' width, as ``gpu/tables.exr`` holds them.  The packs
+are a probe, not the asset's files: the asset's pages hold several packs each (one PNG stream
+per page; issue 39 measured per-pack PNG totals within 2.4..3.5 % of the paged files on
+metal_flakes).
 """
 from __future__ import annotations
 
@@ -250,9 +251,9 @@ BASIS_PAGE_ROWS = 16384
 
 
 def basis_page(codes: np.ndarray, views: int, lights: int) -> np.ndarray:
-    """Integer basis codes as an 8-bit RGBA image Storm reads exactly (issue 39's candidate
-    for the basis of a packaged asset: Storm reads a 16-bit PNG as 8 bits, so each code is
-    two bytes).
+    """Integer basis codes as an 8-bit RGBA image Storm reads exactly: the packaged asset's
+    basis page (``gpu/basis.png``, schema 4; Storm reads a 16-bit PNG as 8 bits, so each code
+    is two bytes).
 
     Parameters
     ----------
