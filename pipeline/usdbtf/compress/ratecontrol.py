@@ -479,7 +479,7 @@ def _with_budget_for(cbtf: CompressedBTF, choice: dict, budget_for: str) -> tupl
 
 #: The asset budget aims the full lod's files at this fraction of ``--max-bytes``: what the
 #: probes do not see exactly (the pages' one PNG stream per page against one per pack, calibrated
-#: once; the basis page (or half codes among the tables); one page more or less in
+#: once; half basis codes among the tables' other blocks (the 8-bit basis page is counted exactly); one page more or less in
 #: the layers) is left this much room; each choice is then packaged and checked.
 _ASSET_AIM = 0.997
 #: Bytes the asset's layers hold that the in-memory choice packaged by rate control lacks: the
@@ -533,7 +533,7 @@ def _asset_max_bytes(f: Factorisation, options: CompressOptions, table) -> tuple
     model = _modelled(table, min(k, k_cap), step, fc * ratio, fb)
     # Fit k on the measured packs and basis codes, package that choice (its codes: no codec
     # encode), and correct what packaging adds by what it measured: what the probes miss
-    # (pages as one stream per page, the basis page, the layers' page lists)
+    # (pages as one stream per page, the layers' page lists)
     # changes little with k, so a second fit lands within a coefficient of the aim.
     best, tried = None, set()
     for attempt in range(1, 4):
