@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...errors import BTFError
 from ...compress.coverage import coverage_summary, coverage_text
 from ..material import GPU_PAGES, LOD_VARIANT_SET, NS, btf_materials, read_coverage, read_directions
 from ...usdstage import resolve_usd
@@ -215,6 +216,21 @@ def fallback_summary(prim) -> list[dict]:
     return out
 
 
+def _basis_page_listed(tables) -> bool:
+    """Whether the GPU tables ``tables`` (an asset path) keep the basis codes in the basis page
+    listed last in btf:coefficients (schema 4); False where they cannot be read as a file."""
+    from ...gpu.tables import basis_in_page
+    from ...imageio import read_rgba
+
+    resolved = tables.resolvedPath if tables else ""
+    if not resolved or "[" in resolved:
+        return False
+    try:
+        return basis_in_page(read_rgba(resolved))
+    except BTFError:
+        return False
+
+
 def material_summary(stage, prim) -> dict:
     """One BTF material's entry of :func:`summary`."""
     get = lambda name: prim.GetAttribute(NS + name).Get()  # noqa: E731
@@ -232,6 +248,10 @@ def material_summary(stage, prim) -> dict:
     view, light = read_directions(prim) if get("viewDirections") else (np.zeros((0, 2)), np.zeros((0, 2)))
     basis_bytes = asset_bytes(get("basis"))
     coeff_bytes = sum(asset_bytes(a) for a in coeffs[:k])
+    if paged and _basis_page_listed(get("basis")):
+        # Schema 4: the basis page, listed after the pages, is the basis's, beside its tables.
+        page = asset_bytes(coeffs[-1])
+        basis_bytes, coeff_bytes = basis_bytes + page, coeff_bytes - page
     size = get("physicalSize")
     resolution = [int(x) for x in (get("resolution") or (0, 0))]
     entry.update(
