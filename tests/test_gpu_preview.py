@@ -268,11 +268,16 @@ def test_schema3_tables_render_what_the_basis_page_renders(egl, gl, asset):
     assert not basis_in_page(old.tables) and old.slots()[BASIS_PAGE] is None
     gl3 = HeadlessRenderer(old, wrap=wrap, ctx=egl)
     try:
-        for view, light in SWATCH_CASES[:2]:
-            new, before = gl.swatch(view, light), gl3.swatch(view, light)
-            assert before.max() > 0 and np.array_equal(new, before), (view, light)
+        _assert_same_swatches(gl, gl3)
     finally:
         gl3.release()
+
+
+def _assert_same_swatches(gl, other) -> None:
+    """Two headless renderers draw the same swatch frames, value for value (and not black)."""
+    for view, light in SWATCH_CASES[:2]:
+        frame, expected = gl.swatch(view, light), other.swatch(view, light)
+        assert expected.max() > 0 and np.array_equal(frame, expected), (view, light)
 
 
 def test_basis_page_in_two_columns_renders_what_the_tables_render(egl, asset, monkeypatch):
@@ -303,9 +308,7 @@ def test_basis_page_in_two_columns_renders_what_the_tables_render(egl, asset, mo
     old = GpuLayout(schema3_tables(layout.tables, cbtf), layout.pages, layout.k, layout.first_packs)
     gl4, gl3 = HeadlessRenderer(layout, wrap=wrap, ctx=egl), HeadlessRenderer(old, wrap=wrap, ctx=egl)
     try:
-        for view, light in SWATCH_CASES[:2]:
-            new, before = gl4.swatch(view, light), gl3.swatch(view, light)
-            assert before.max() > 0 and np.array_equal(new, before), (view, light)
+        _assert_same_swatches(gl4, gl3)
     finally:
         gl4.release()
         gl3.release()
