@@ -206,12 +206,13 @@ def test_pages_hold_the_stored_codes_and_lods_load_only_their_pages(asset):
                                            (64, 4096, (32, 16, 8))])
 def test_every_k_fits_sixteen_samplers(k, size, lods):
     """Issue 25: at most 1 + MAX_PAGES samplers for any k the packager writes (compress
-    allows k <= 300) at texture sizes up to 2048 (4096 at k = 64); a level of detail's pages
-    are its own; no two packs share a tile, no page exceeds PAGE_SIZE."""
-    from usdbtf.gpu.tables import MAX_PAGES, PAGE_SIZE, page_breaks, page_plan
+    allows k <= 300) at texture sizes up to 2048 (4096 at k = 64): the coefficient pages leave
+    the last page slot to the basis page (schema 4); a level of detail's pages are its own; no
+    two packs share a tile, no page exceeds PAGE_SIZE."""
+    from usdbtf.gpu.tables import BASIS_PAGE, MAX_PAGES, PAGE_SIZE, page_breaks, page_plan
 
     plan, directory = page_plan(pack_count(k), size, size, page_breaks(k, lods))
-    assert 1 + len(plan) <= 16 and len(plan) <= MAX_PAGES
+    assert 1 + MAX_PAGES <= 16 and len(plan) <= BASIS_PAGE == MAX_PAGES - 1
     assert all(pack_count(n) in [first for first, *_ in plan] for n in lods)
     assert all(cols * size <= PAGE_SIZE and rows * size <= PAGE_SIZE and end - first <= cols * rows
                for first, end, cols, rows in plan)
@@ -250,6 +251,67 @@ def test_headless_swatch_matches_cpu_renderer(gl, asset):
     assert min(values) >= PSNR_MIN
     # The control: a light off by 15 degrees of azimuth is told apart.
     assert psnr(gl.swatch((30, 60), (45, 25)), cpu.swatch((30, 60), (45, 10))) < PSNR_MIN
+
+
+def test_schema3_tables_render_what_the_basis_page_renders(egl, gl, asset):
+    """Issue 39 (schema 4): the shader reads the basis codes from the 8-bit basis page (page
+    slot 14) where the tables say so, and from the tables as before where they hold them
+    (schema 3: 2^23 + code): the same codes, so the same frame, value for value.  An old asset
+    keeps rendering."""
+    from basis_helpers import schema3_tables
+    from usdbtf.gpu.headless import HeadlessRenderer
+    from usdbtf.gpu.tables import BASIS_PAGE, GpuLayout, basis_in_page
+
+    layout, wrap, _ = storm.layout_from_asset(asset)
+    assert basis_in_page(layout.tables) and layout.slots()[BASIS_PAGE] is layout.basis_page
+    old = GpuLayout(schema3_tables(layout.tables, load_btf(asset)), layout.pages, layout.k, layout.first_packs)
+    assert not basis_in_page(old.tables) and old.slots()[BASIS_PAGE] is None
+    gl3 = HeadlessRenderer(old, wrap=wrap, ctx=egl)
+    try:
+        _assert_same_swatches(gl, gl3)
+    finally:
+        gl3.release()
+
+
+def _assert_same_swatches(gl, other) -> None:
+    """Two headless renderers draw the same swatch frames, value for value (and not black)."""
+    for view, light in SWATCH_CASES[:2]:
+        frame, expected = gl.swatch(view, light), other.swatch(view, light)
+        assert expected.max() > 0 and np.array_equal(frame, expected), (view, light)
+
+
+def test_basis_page_in_two_columns_renders_what_the_tables_render(egl, asset, monkeypatch):
+    """A basis page whose groups fill more than one column (paper sampling past k 364, ubo151
+    past k 216): the column height lowered to two groups in the packer and the shader alike,
+    k 12 (3 groups) goes in two columns; the codes read back exactly and the frame is the
+    schema-3 tables' frame, value for value."""
+    from basis_helpers import schema3_tables
+    from usdbtf.compress import packs
+    from usdbtf.compress.format import cross_layout
+    from usdbtf.gpu import shaders
+    from usdbtf.gpu.headless import HeadlessRenderer
+    from usdbtf.gpu.tables import GpuLayout, gpu_layout, unpack
+
+    cbtf = load_btf(asset)
+    views, lights = cross_layout(cbtf.sampling)
+    rows = 2 * 2 * views                                # two groups per column
+    core = shaders.core_source()
+    lowered = core.replace("16384 / (2 * views)", f"{rows} / (2 * views)")
+    assert lowered != core
+    monkeypatch.setattr(packs, "BASIS_PAGE_ROWS", rows)
+    monkeypatch.setattr(shaders, "core_source", lambda: lowered)
+    layout = gpu_layout(cbtf)
+    assert layout.k == 12 and layout.basis_page.shape[:2] == (rows, 2 * lights)
+    np.testing.assert_array_equal(unpack(layout.tables, list(layout.pages), basis_page=layout.basis_page)[0],
+                                  cbtf.basis.pixels)
+    _, wrap, _ = storm.layout_from_asset(asset)
+    old = GpuLayout(schema3_tables(layout.tables, cbtf), layout.pages, layout.k, layout.first_packs)
+    gl4, gl3 = HeadlessRenderer(layout, wrap=wrap, ctx=egl), HeadlessRenderer(old, wrap=wrap, ctx=egl)
+    try:
+        _assert_same_swatches(gl4, gl3)
+    finally:
+        gl4.release()
+        gl3.release()
 
 
 def test_headless_sphere_matches_cpu_renderer(egl, asset):

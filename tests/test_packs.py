@@ -16,6 +16,7 @@ import usdbtf  # noqa: F401  (registers the schema plugin first)
 from usdbtf.cli import main
 from usdbtf.compress import packs
 from usdbtf.compress.format import read_compressed
+from basis_helpers import schema3_tables
 
 K = 12
 
@@ -91,13 +92,14 @@ def test_shipped_packs_follow_the_assets_page_breaks(made):
     assert packs.default_lods(12) == [6] and packs.page_breaks(12, [6]) == [6]
 
 
-def test_tables_basis_codes_carry_the_offset_and_older_tables_still_read(made):
-    """Schema 3 (issue 39): integer basis codes sit in the tables as 2^23 + code (one float
-    exponent, smaller OpenEXR zip); the block's first texel .w says so and ``unpack`` subtracts
-    it.  Tables written before (offset 0, the bare codes) read the same codes; any other offset
-    is refused in one line."""
+def test_tables_point_at_the_basis_page_and_older_tables_still_read(made):
+    """Schema 4 (issue 39, basis8): integer basis codes live in gpu/basis.png (8-bit high / low
+    planes), the tables keep their de-quantisation and say so (basis block .w = BASIS_IN_PAGE);
+    ``unpack`` reads the codes from the page bit for bit, and refuses in one line without it.
+    Schema-3 tables (2^23 + code in the tables) and older ones (offset 0, the bare codes) read
+    the same codes; any other offset is refused in one line."""
     from usdbtf.errors import BTFError
-    from usdbtf.gpu.tables import gpu_layout, unpack
+    from usdbtf.gpu.tables import BASIS_IN_PAGE, basis_in_page, gpu_layout, unpack
     from usdbtf.imageio import read_rgba
 
     compressed, gpu = made
@@ -105,19 +107,69 @@ def test_tables_basis_codes_carry_the_offset_and_older_tables_still_read(made):
     shipped = read_rgba(gpu / "tables.exr")
     flat = shipped.reshape(-1, 4)
     basis_at, groups = int(flat[1, 1]), int(flat[0, 3])
-    assert flat[basis_at, 3] == packs.BASIS_CODE_OFFSET == 2.0 ** 23
-    at = basis_at + 1 + 2 * groups
-    stored = flat[at:at + groups * cbtf.n_samples]
-    assert stored.min() >= 2.0 ** 23 and stored.max() < 2.0 ** 24       # exact in float32
+    assert flat[basis_at, 3] == BASIS_IN_PAGE and basis_in_page(shipped)
+    assert len(flat) < basis_at + 1 + 2 * groups + packs.TABLE_WIDTH   # no codes after the de-quantisation
     pages = [read_rgba(p) for p in sorted(gpu.glob("page*.png"))]
-    basis, _ = unpack(shipped, pages)
+    page = read_rgba(gpu / "basis.png")
+    basis, _ = unpack(shipped, pages, basis_page=page)
+    assert basis.dtype == cbtf.basis.pixels.dtype
     np.testing.assert_array_equal(basis, cbtf.basis.pixels)
-    old = np.asarray(shipped, np.float32).copy()
+    np.testing.assert_array_equal(page, gpu_layout(cbtf).basis_page)      # the file holds the layout's page
+    with pytest.raises(BTFError, match="basis page, and none was given"):
+        unpack(shipped, pages)
+    old = schema3_tables(shipped, cbtf)
+    assert not basis_in_page(old)
+    np.testing.assert_array_equal(unpack(old, pages)[0], cbtf.basis.pixels)
+    at = basis_at + 1 + 2 * groups
     old.reshape(-1, 4)[at:at + groups * cbtf.n_samples] -= np.float32(2.0 ** 23)
     old.reshape(-1, 4)[basis_at, 3] = 0.0
     np.testing.assert_array_equal(unpack(old, pages)[0], cbtf.basis.pixels)
     old.reshape(-1, 4)[basis_at, 3] = 5.0
     with pytest.raises(BTFError, match="basis code offset"):
         unpack(old, pages)
-    # the layout in memory is what the file holds
-    np.testing.assert_array_equal(gpu_layout(cbtf).tables.reshape(-1, 4)[at:at + groups * cbtf.n_samples], stored)
+
+
+def test_basis_page_round_trips_the_codes_bit_for_bit_through_png(tmp_path):
+    """Issue 39 (basis8): the 8-bit hi / lo basis page, written as the asset writes PNG pages
+    and read back through OIIO as Storm's readers see it (8 bits per channel), gives every
+    code back, also codes >= 256 and a group split over two columns."""
+    from usdbtf.errors import BTFError
+    from usdbtf.imageio import read_rgba
+
+    rng = np.random.default_rng(3)
+    views, lights = 3, 5
+    rows = packs.BASIS_PAGE_ROWS
+    packs.BASIS_PAGE_ROWS = 12                   # 2 groups (2 V rows each) per column: 18 vectors, 3 columns
+    try:
+        codes = rng.integers(0, 2**16, (views * lights, 18))
+        codes[:, 0] = 65535                          # largest code: both bytes 255
+        codes[:, 1] = np.arange(views * lights)      # sample order: view-major
+        image = packs.basis_page(codes, views, lights)
+        assert image.shape == (12, 3 * lights, 4) and image.dtype == np.uint8    # 5 groups, 2 per column
+        # view 1, light 2 of vector 1 (sample 7): group 0, high byte row 1, low byte row V + 1
+        assert image[1, 2, 1] == 0 and image[views + 1, 2, 1] == 7
+        path = tmp_path / "basis.png"
+        path.write_bytes(packs.encode_png_page(image))
+        back = read_rgba(path)
+        assert back.dtype == np.uint8 and np.array_equal(back, image)
+        assert np.array_equal(packs.basis_page_codes(back, views, lights, 18), codes)
+        assert np.array_equal(packs.basis_page_codes(back, views, lights, 5, groups=5), codes[:, :5])
+        assert packs.basis_page_column(3, views) == 2 and packs.basis_page_column(4, views) == 2
+        packs.BASIS_PAGE_ROWS = 18                   # at most 3 groups a column: 4 groups as 2 + 2, not 3 + 1
+        assert packs.basis_page_column(4, views) == 2 and packs.basis_page(codes[:, :16], views, lights).shape == \
+            (12, 2 * lights, 4)
+        assert np.array_equal(packs.basis_page_codes(packs.basis_page(codes[:, :16], views, lights), views, lights,
+                                                     16), codes[:, :16])
+        with pytest.raises(BTFError, match="does not hold group"):
+            packs.basis_page_codes(back[:, :lights], views, lights, 18)
+    finally:
+        packs.BASIS_PAGE_ROWS = rows
+
+
+def test_shipped_basis_bytes_are_the_basis_page_file(made):
+    """Rate control's basis bytes (``shipped_basis_bytes``) are the asset's gpu/basis.png,
+    byte for byte, and fewer than the schema-3 EXR block of the same codes."""
+    cbtf = read_compressed(made[0])
+    shipped = packs.shipped_basis_bytes(cbtf)
+    assert shipped == packs.basis_page_bytes(cbtf) == (made[1] / "basis.png").stat().st_size
+    assert shipped < packs.basis_block_bytes(packs.basis_codes_group_major(cbtf, cbtf.k))

@@ -229,6 +229,7 @@ def test_materialx_node_renders_through_storms_materialx_path(assets, tmp_path):
 
     from usdbtf.decompress import DecompressOptions, decompress
     from usdbtf.usd.read import load_btf
+    from usdbtf.gpu.tables import BASIS_PAGE
     from usdbtf.usd.asset.storm import author_materialx_preview, layout_from_asset
 
     asset = assets[64]
@@ -239,6 +240,7 @@ def test_materialx_node_renders_through_storms_materialx_path(assets, tmp_path):
     layout, _, k = layout_from_asset(asset)
     gpu = asset.parent / "satin_textures" / "gpu"
     pages = [str(next(gpu.glob(f"page{p:02d}.*"))) for p in range(len(layout.pages))]
+    pages += [None] * (BASIS_PAGE - len(pages)) + [str(gpu / "basis.png")]       # schema 4: the basis page slot
     stage = Usd.Stage.Open(str(scene))
     material = author_materialx_preview(stage, "/World/Looks/BtfMaterialX", str(gpu / "tables.exr"), pages, k)
     swatch = stage.GetPrimAtPath("/World/Asset/geo/swatch")

@@ -193,15 +193,22 @@ def test_data_is_raw_and_color_is_declared(asset):
     select = Usd.Stage.Open(Sdf.Layer.OpenAsAnonymous(str(asset)))       # the lod chosen off the shared layer
     select.GetDefaultPrim().GetVariantSets().SetSelection("lod", "k6")
     coeffs = select.GetPrimAtPath("/pebbles/mtl/BtfMaterial").GetAttribute("btf:coefficients")
-    # The lod lists the pages its 6 vectors are on: a prefix of the full list.
-    assert [a.path for a in coeffs.Get()] == [a.path for a in full[:len(coeffs.Get())]]
-    assert 1 <= len(coeffs.Get()) < len(full) and space(coeffs) == "raw"  # the lod override too
+    # The lod lists the pages its 6 vectors are on, a prefix of the full list's pages, then
+    # (schema 4, integer basis codes) its own basis page where the full list has the full one.
+    own = [a.path for a in coeffs.Get()]
+    in_page = full[-1].path.endswith("gpu/basis.png")
+    assert in_page == (asset.parent.name != "asset_c_exr")     # half codes (exr codec) stay in the tables
+    pages = own[:-1] if in_page else own
+    assert pages == [a.path for a in full[:len(pages)]]
+    assert not in_page or own[-1].endswith("gpu/basis_k6.png")
+    assert 1 <= len(pages) < len(full) and space(coeffs) == "raw"  # the lod override too
     files = {}
     for prim in stage.Traverse():
         shader = S.Shader(prim)
         if shader and shader.GetIdAttr().Get() == "UsdUVTexture":
             files[prim.GetName()] = (space(shader.GetInput("file").GetAttr()), shader.GetInput("sourceColorSpace").Get())
-    for name in ("StormTables", "StormPage00", "RoughnessTexture", "NormalTexture"):
+    for name in ("StormTables", "StormPage00", *(["StormPage14"] if in_page else []), "RoughnessTexture",
+                 "NormalTexture"):
         assert files[name] == ("raw", "raw"), name
     for name in ("DiffuseTexture", "SpecularTexture"):
         assert files[name] == ("srgb_rec709_scene", "sRGB"), name
@@ -210,7 +217,7 @@ def test_data_is_raw_and_color_is_declared(asset):
     assert space(surface.GetInput("roughness").GetAttr()) == "raw"
     # The files say it too: OIIO reads the data PNGs as linear, not sRGB-encoded.
     tex = asset.with_name("pebbles_textures")
-    for rel in ("coeff/c000.png", "gpu/page00.png", "fallback/normal.png"):
+    for rel in ("coeff/c000.png", "gpu/page00.png", "gpu/basis.png", "fallback/normal.png"):
         if (tex / rel).is_file():
             assert read_info_space(tex / rel) != "srgb_rec709_scene", rel
     assert read_info_space(tex / "fallback" / "diffuse.png") == "srgb_rec709_scene"
@@ -312,16 +319,18 @@ def test_inspect_reports_k_bytes_directions_error(asset, capsys):
     assert "169 samples: 13 views" in out
     assert "% at k = 12" in out and "0 error(s)" in out
     gpu = asset.with_name("pebbles_textures") / "gpu"
-    on_disk = sum(p.stat().st_size for p in gpu.iterdir() if p.name.startswith(("tables.", "page")))
-    assert f"bytes        {on_disk} " in out    # the BTF's one copy: the GPU tables and its pages
+    on_disk = sum(p.stat().st_size for p in gpu.iterdir() if p.name.startswith(("tables.", "page", "basis.")))
+    basis = sum(p.stat().st_size for p in gpu.iterdir() if p.name.startswith(("tables.", "basis.")))
+    # the BTF's one copy: the GPU tables, its pages and (schema 4) basis page, counted as the basis's
+    assert f"bytes        {on_disk} (basis {basis}, coefficients {on_disk - basis}" in out
     # (the full lod's: each lower lod's own tables, gpu/tables_k<n>.exr, are not counted)
 
 
 def test_inspect_lists_the_files_each_lod_loads(asset, capsys):
     """Every lod's file list is files on disk with their sizes, totals are their sums, the full
     lod loads every file of the asset but the usdz, the MaterialX documents (which no layer
-    names) and the lower lods' own tables; a lower lod loads fewer pages and its own tables
-    (issue 39) in place of the full ones, and inspect says it is within its share."""
+    names) and the lower lods' own tables and basis pages; a lower lod loads fewer pages and its
+    own tables and basis page (issue 39) in place of the full ones, and inspect says it is within its share."""
     import json
 
     info = json.loads(ok(capsys, "inspect", asset, "--json"))
@@ -333,12 +342,15 @@ def test_inspect_lists_the_files_each_lod_loads(asset, capsys):
         assert lv["total"] == sum(sizes.values())
     full = {f["path"] for f in levels["full"]["files"]}
     shipped = {str(p.relative_to(asset.parent)) for p in asset.parent.rglob("*") if p.is_file()
-               and p.suffix not in (".usdz", ".mtlx") and not p.name.startswith("tables_k")}
+               and p.suffix not in (".usdz", ".mtlx") and not p.name.startswith(("tables_k", "basis_k"))}
     assert full == shipped
     low = {f["path"] for f in levels["k6"]["files"]}
-    assert low - full == {"pebbles_textures/gpu/tables_k6.exr"}
-    assert full - low - {"pebbles_textures/gpu/tables.exr"} and \
-        all("page" in Path(p).name for p in full - low - {"pebbles_textures/gpu/tables.exr"})
+    in_page = "pebbles_textures/gpu/basis.png" in full        # schema 4: integer basis codes (not exr's halves)
+    assert in_page == (asset.parent.name != "asset_c_exr")
+    assert low - full == {"pebbles_textures/gpu/tables_k6.exr"} | ({"pebbles_textures/gpu/basis_k6.png"}
+                                                                   if in_page else set())
+    own = {"pebbles_textures/gpu/tables.exr", "pebbles_textures/gpu/basis.png"}
+    assert full - low - own and all("page" in Path(p).name for p in full - low - own)
     assert levels["full"]["share"] == levels["full"]["total"]
     assert levels["k6"]["total"] <= levels["k6"]["share"] < levels["full"]["total"]
     out = ok(capsys, "inspect", asset)
@@ -363,6 +375,10 @@ def test_asset_holds_each_coefficient_once(asset, compressed):
         if prim.GetName().startswith("Storm") and UsdShade.Shader(prim).GetInput("file"):
             storm_files[prim.GetName()] = UsdShade.Shader(prim).GetInput("file").Get().path
     assert material.GetAttribute("btf:basis").Get().path == storm_files["StormTables"]
+    # the coefficient pages from slot 0, then (schema 4: integer basis codes, not exr's halves)
+    # the basis page in the last slot
+    if pages[-1].endswith("gpu/basis.png"):
+        assert pages.pop() == storm_files["StormPage14"] and asset.parent.name != "asset_c_exr"
     assert pages == [storm_files[f"StormPage{i:02d}"] for i in range(len(pages))]
     from usdbtf.usd.asset.storm import layout_from_asset
 
@@ -397,6 +413,36 @@ def test_old_files_layout_assets_keep_reading(compressed, tmp_path, monkeypatch)
     prim.RemoveProperty(prim.attributes["btf:coefficientLayout"])
     payload.Save()
     assert np.array_equal(reconstruct(load_btf(out)), want)
+
+
+def test_schema3_gpu_assets_keep_reading(compressed, tmp_path):
+    """An asset of schema version 3 (integer basis codes in the GPU tables, 2^23 + code; no
+    basis page in btf:coefficients) reads back bit for bit: the readers follow the tables,
+    not the version number."""
+    from basis_helpers import schema3_tables
+    from usdbtf.imageio import encode_image, read_rgba
+
+    cbtf = read_compressed(compressed)
+    if cbtf.basis.pixels.dtype == np.float16:
+        pytest.skip("half basis codes stay in the tables: no basis page to undo")
+    out = tmp_path / "v3" / "pebbles.usda"
+    pkg.write_package(pkg.package(compressed, pkg.PackageOptions(thumbnail=False)), out)
+    gpu = out.with_name("pebbles_textures") / "gpu"
+    tables = gpu / "tables.exr"
+    tables.write_bytes(encode_image(schema3_tables(read_rgba(tables), cbtf), "exr", color_space="data",
+                                    attributes={"compression": "zip"}))
+    payload = Sdf.Layer.FindOrOpen(str(out.with_name("pebbles_payload.usdc")))
+    prim = payload.GetPrimAtPath("/pebbles/mtl/BtfMaterial")
+    prim.attributes["btf:schemaVersion"].default = 3
+    listed = list(prim.attributes["btf:coefficients"].default)
+    assert listed[-1].path.endswith("gpu/basis.png")
+    prim.attributes["btf:coefficients"].default = Sdf.AssetPathArray(listed[:-1])
+    payload.Save()
+    (gpu / "basis.png").unlink()
+    got = load_btf(out)
+    np.testing.assert_array_equal(got.basis.pixels, cbtf.basis.pixels)
+    for a, b in zip(got.coefficients, cbtf.coefficients):
+        np.testing.assert_array_equal(a.pixels, b.pixels)
 
 
 # ------------------------------------------------------------------ the fallback
@@ -676,31 +722,37 @@ def test_max_bytes_budgets_the_packaged_asset(src, tmp_path, capsys):
 
 def _assert_lods_within_their_shares(out: Path, lods: list, cbtf, budget: int, shares: dict) -> None:
     """Issue 39: each lower lod of the asset ``out`` (``lods``: inspect's lod_files) loads its own
-    tables, holding exactly its first n basis vectors' codes, and no more than its share of
-    ``budget``, recomputed from the compressed BTF ``cbtf``'s codes; ``shares``: what package
-    reported, the same numbers."""
-    from usdbtf.compress.packs import basis_codes_group_major, shipped_basis_bytes
+    tables and basis page (schema 4), the page holding exactly its first n basis vectors'
+    codes, and no more than its share of ``budget``, recomputed from the compressed BTF
+    ``cbtf``'s codes; ``shares``: what package reported, the same numbers."""
+    from usdbtf.compress.format import cross_layout
+    from usdbtf.compress.packs import basis_page_codes, shipped_basis_bytes
+    from usdbtf.gpu.tables import basis_in_page
     from usdbtf.usd.asset.lod import lod_share
     from usdbtf.usd.asset.storm import read_rgba
 
     full = lods[0]
     sizes = {f["path"]: f["bytes"] for f in full["files"]}
     assert full["name"] == "full" and shares["full"] == budget and full["total"] <= 1.01 * budget
+    assert sizes["pebbles_textures/gpu/basis.png"] == shipped_basis_bytes(cbtf)     # rate control's count
     for lv in lods[1:]:
         n, own = lv["k"], {f["path"] for f in lv["files"]}
-        tables = f"pebbles_textures/gpu/tables_k{n}.exr"
-        assert tables in own and "pebbles_textures/gpu/tables.exr" not in own
+        tables, basis = f"pebbles_textures/gpu/tables_k{n}.exr", f"pebbles_textures/gpu/basis_k{n}.png"
+        assert {tables, basis} <= own and not {"pebbles_textures/gpu/tables.exr", "pebbles_textures/gpu/basis.png"} & own
         flat = read_rgba(out.parent / tables).reshape(-1, 4)
-        groups, at = -(-n // 4), int(flat[1, 1])
+        groups = -(-n // 4)
         assert int(flat[1, 0]) == n and int(flat[0, 3]) == groups         # its n vectors, its groups
-        codes = flat[at + 1 + 2 * groups:at + 1 + 2 * groups + groups * cbtf.n_samples]
-        np.testing.assert_array_equal(codes, basis_codes_group_major(cbtf, n))
+        assert basis_in_page(flat)
+        codes = basis_page_codes(read_rgba(out.parent / basis), *cross_layout(cbtf.sampling), n)
+        np.testing.assert_array_equal(codes, cbtf.basis.pixels[:, :n, 0])
+        assert (out.parent / basis).stat().st_size == shipped_basis_bytes(cbtf, n)
         dropped = sum(sizes[p] for p in set(sizes) - own if "/gpu/page" in p)
         share = lod_share(budget, dropped, shipped_basis_bytes(cbtf), shipped_basis_bytes(cbtf, n))
         assert shares[lv["name"]] == share
         assert lv["total"] <= share, (lv["name"], lv["total"], share)
-        # Its own tables cost less than the full ones (every basis vector), which it loaded before.
+        # Its own tables and basis page cost less than the full ones, which it loaded before.
         assert (out.parent / tables).stat().st_size < sizes["pebbles_textures/gpu/tables.exr"]
+        assert (out.parent / basis).stat().st_size < sizes["pebbles_textures/gpu/basis.png"]
 
 
 def test_cross_sampling_stores_each_direction_once(asset, compressed):

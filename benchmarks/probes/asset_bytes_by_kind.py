@@ -1,21 +1,23 @@
 #!/usr/bin/env python
 """Bytes per file kind of packaged assets (issue 39 codec slice): each argument an asset root layer
 (``m.usda``); its ``<stem>_textures`` folder is counted by kind: gpu pages, gpu tables (full lod),
-lower lods' tables, fallback maps, thumbnail, MaterialX documents, layers.  Prints a markdown table
+the basis page (schema 4, full lod), lower lods' tables and basis pages, fallback maps, thumbnail, MaterialX documents, layers.  Prints a markdown table
 with the ratio of each asset to the first."""
 import sys
 from pathlib import Path
 
 
 def kinds(root: Path) -> dict:
-    out = {"gpu pages": 0, "gpu/tables.exr": 0, "lower lods' tables_k<n>.exr, usdbtf_k<n>.mtlx": 0, "fallback maps": 0,
+    lower = "lower lods' tables_k<n>.exr, basis_k<n>.png, usdbtf_k<n>.mtlx"
+    out = {"gpu pages": 0, "gpu/tables.exr": 0, "gpu/basis.png": 0, lower: 0, "fallback maps": 0,
            "thumbnail": 0, "MaterialX": 0, "layers": 0}
     for f in root.parent.rglob("*"):
         if not f.is_file():
             continue
         n, size = f.name, f.stat().st_size
         key = ("gpu pages" if n.startswith("page") else "gpu/tables.exr" if n == "tables.exr"
-               else "lower lods' tables_k<n>.exr, usdbtf_k<n>.mtlx" if n.startswith(("tables_k", "usdbtf_k")) else "fallback maps"
+               else "gpu/basis.png" if n == "basis.png" and f.parent.name == "gpu"
+               else lower if n.startswith(("tables_k", "usdbtf_k", "basis_k")) else "fallback maps"
                if f.parent.name == "fallback" else "thumbnail" if n.startswith("thumbnail")
                else "MaterialX" if n.endswith(".mtlx") else "layers" if n.endswith((".usda", ".usdc")) else n)
         out[key] = out.get(key, 0) + size

@@ -10,11 +10,12 @@ the bytes it ships without importing ``gpu`` (layers: docs/architecture.md).
 What :func:`shipped_pack_bytes` and :func:`shipped_basis_bytes` measure (issue 39): each pack
 encoded on its own exactly as the asset encodes a page (8-bit: RGBA PNG, compression level 6,
 unassociated alpha; 16-bit: float32 code / 65535 and half: as they are, OpenEXR zip), and the
-basis codes group-major as float32 OpenEXR zip in rows of the tables' width, as
-``gpu/tables.exr`` holds them.  They are a probe, not the asset's files: the asset's pages
-hold several packs each (one PNG stream per page) and the tables hold a header, hemisphere
-tables, de-quantisation and directory beside the basis (issue 39 measured per-pack PNG totals
-within 2.4..3.5 % of the paged files on metal_flakes).
+basis codes as the asset ships them: integer codes as the 8-bit basis page, the asset's
+``gpu/basis.png`` byte for byte (schema 4, :func:`basis_page`); half codes group-major as
+float32 OpenEXR zip in rows of the tables' width, as ``gpu/tables.exr`` holds them.  The packs
+are a probe, not the asset's files: the asset's pages hold several packs each (one PNG stream
+per page; issue 39 measured per-pack PNG totals within 2.4..3.5 % of the paged files on
+metal_flakes).
 """
 from __future__ import annotations
 
@@ -24,7 +25,8 @@ from ..errors import BTFError
 
 __all__ = ["MAX_CODE", "pack_count", "coefficient_packs", "shipped_pack_bytes", "shipped_basis_bytes",
            "basis_codes_group_major", "basis_block_bytes", "BASIS_CODE_OFFSET", "basis_code_offset", "encode_png_page",
-           "pack_bytes_by_k", "default_lods", "page_breaks", "ShippedPacks"]
+           "pack_bytes_by_k", "default_lods", "page_breaks", "ShippedPacks", "BASIS_PAGE_ROWS", "basis_page",
+           "basis_page_codes", "basis_page_column", "basis_page_bytes", "PNG_DATA_CHUNK_BYTES"]
 
 #: Largest code of each storage type: what a GPU's normalised read divides by.
 MAX_CODE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0, np.dtype(np.float16): 1.0}
@@ -201,10 +203,16 @@ def basis_codes_group_major(cbtf, k: int) -> np.ndarray:
 
 
 def shipped_basis_bytes(cbtf, k: int | None = None) -> int:
-    """Bytes of the first ``k`` (default all) basis vectors' codes, group-major, as float32
-    OpenEXR zip in rows of TABLE_WIDTH texels (the basis block of ``gpu/tables.exr`` without
-    the tables' other blocks; the last row padded with zeros).  Deterministic."""
+    """Bytes of the first ``k`` (default all) basis vectors' codes as the packaged asset ships
+    them: integer codes on a V x L sampling as the 8-bit basis page (``gpu/basis.png``, schema
+    4, :func:`basis_page_bytes`: the file itself); half codes (or another sampling) group-major
+    as float32 OpenEXR zip in rows of TABLE_WIDTH texels (the basis block of ``gpu/tables.exr``
+    without the tables' other blocks; the last row padded with zeros).  Deterministic."""
+    from .format import cross_layout
+
     k = min(cbtf.k if k is None else k, cbtf.k)
+    if cbtf.basis.pixels.dtype != np.float16 and cross_layout(cbtf.sampling) is not None:
+        return basis_page_bytes(cbtf, k)
     return basis_block_bytes(basis_codes_group_major(cbtf, k))
 
 
@@ -219,3 +227,101 @@ def basis_block_bytes(block: np.ndarray) -> int:
     image[:len(block)] = block
     return len(encode_image(image.reshape(rows, TABLE_WIDTH, 4), "exr", color_space="data",
                             attributes={"compression": "zip"}))
+
+
+#: Image rows a column of groups of the 8-bit basis page fills at most (a GPU page's height,
+#: ``gpu.tables.PAGE_SIZE``): groups past it start a new column of ``lights`` texels.
+BASIS_PAGE_ROWS = 16384
+
+
+def basis_page(codes: np.ndarray, views: int, lights: int) -> np.ndarray:
+    """Integer basis codes as an 8-bit RGBA image Storm reads exactly: the packaged asset's
+    basis page (``gpu/basis.png``, schema 4; Storm reads a 16-bit PNG as 8 bits, so each code
+    is two bytes).
+
+    Parameters
+    ----------
+    codes : (S, n) integer codes, 0 <= code < 2^16, S = views * lights samples view-major
+        (sample ``v * lights + l``).
+    views, lights : V and L of the cross sampling.
+
+    Returns
+    -------
+    (rows, columns, 4) uint8: group g (vectors 4g..4g+3 in RGBA; vectors past n code 0) as a
+    V x L image of the high bytes above a V x L image of the low bytes (image rows from the
+    top: views down, lights across, so PNG's 2-D filters predict each byte from its
+    neighbouring directions), groups down a column, then the next column to the right: as
+    few columns as BASIS_PAGE_ROWS rows allow (``BASIS_PAGE_ROWS // (2 V)`` groups each),
+    evenly filled (:func:`basis_page_column`: a nearly empty last column beside a full one
+    cost 11 % more bytes, metal_flakes 64^2 k 365).  The layout
+    measured smallest of six (``benchmarks/probes/basis8_layouts.py``: 0.713x the schema-3
+    float32 EXR block at k 190 on metal_flakes, paper sampling, 32^2).
+    """
+    codes = np.asarray(codes)
+    S, n = codes.shape
+    if S != views * lights:
+        raise BTFError(f"basis page: {S} samples are not {views} views x {lights} lights")
+    if codes.size and (codes.min() < 0 or codes.max() >= 2**16):
+        raise BTFError("basis page: codes must lie in 0..65535")
+    groups = -(-n // 4)
+    per_column = basis_page_column(groups, views)
+    padded = np.zeros((S, groups * 4), np.int64)
+    padded[:, :n] = codes
+    planes = padded.reshape(views, lights, groups, 4).transpose(2, 0, 1, 3)            # (G, V, L, 4)
+    stacked = np.concatenate([planes >> 8, planes & 255], axis=1).astype(np.uint8)     # (G, 2V, L, 4)
+    columns = -(-groups // per_column)
+    rows = 2 * views * min(groups, per_column)
+    image = np.zeros((rows, columns * lights, 4), np.uint8)
+    for g in range(groups):
+        y0, x0 = (g % per_column) * 2 * views, (g // per_column) * lights
+        image[y0:y0 + 2 * views, x0:x0 + lights] = stacked[g]
+    return image
+
+
+def basis_page_column(groups: int, views: int) -> int:
+    """Groups per column of a basis page of ``groups`` groups (:func:`basis_page`): the
+    columns as few as BASIS_PAGE_ROWS rows allow, evenly filled.  The shader computes the same
+    from the tables' group count (glsl/btf_core.glsl, btfShadeLight)."""
+    most = BASIS_PAGE_ROWS // (2 * views)
+    if most < 1:
+        raise BTFError(f"basis page: {views} views do not fit {BASIS_PAGE_ROWS} rows")
+    columns = max(1, -(-groups // most))
+    return max(1, -(-groups // columns))
+
+
+def basis_page_codes(image: np.ndarray, views: int, lights: int, n: int, groups: int | None = None) -> np.ndarray:
+    """The (S, n) int64 codes of the first ``n`` vectors :func:`basis_page` laid out, read back
+    from its image (rows, columns, 4) of 8-bit values (uint8 as a PNG reads back); ``groups``:
+    the groups the page holds (default ceil(n / 4)), which decide its columns; BTFError if it
+    is too small."""
+    image = np.asarray(image)
+    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 4:
+        raise BTFError(f"basis page: expected 8-bit RGBA texels, got {image.dtype} {image.shape}")
+    per_column = basis_page_column(-(-n // 4) if groups is None else groups, views)
+    groups = -(-n // 4)
+    out = np.zeros((groups, views, lights, 4), np.int64)
+    for g in range(groups):
+        y0, x0 = (g % per_column) * 2 * views, (g // per_column) * lights
+        block = image[y0:y0 + 2 * views, x0:x0 + lights].astype(np.int64)
+        if block.shape[:2] != (2 * views, lights):
+            raise BTFError(f"basis page of {image.shape[1]}x{image.shape[0]} texels does not hold group {g}")
+        out[g] = block[:views] * 256 + block[views:]
+    return out.transpose(1, 2, 0, 3).reshape(views * lights, groups * 4)[:, :n]
+
+
+#: Bytes the packaged asset adds to every PNG it writes: a gAMA chunk of 1.0 (12 bytes of
+#: chunk framing, 4 of data) that marks the pixels as data (``usd.asset.textures.png_as_data``).
+PNG_DATA_CHUNK_BYTES = 16
+
+
+def basis_page_bytes(cbtf, k: int | None = None) -> int:
+    """Bytes of the first ``k`` (default all) basis vectors' integer codes as :func:`basis_page`
+    encoded by :func:`encode_png_page`, plus the chunk the asset adds (PNG_DATA_CHUNK_BYTES):
+    the size of a schema-4 asset's ``gpu/basis.png``.  Deterministic."""
+    from .format import cross_layout
+
+    k = min(cbtf.k if k is None else k, cbtf.k)
+    layout = cross_layout(cbtf.sampling)
+    if layout is None or cbtf.basis.pixels.dtype == np.float16:
+        raise BTFError("basis page: needs integer codes on a V x L sampling")
+    return len(encode_png_page(basis_page(cbtf.basis.pixels[:, :k, 0], *layout))) + PNG_DATA_CHUNK_BYTES

@@ -7,7 +7,7 @@ Four cases, one function each, all returning an encoded :class:`CompressedBTF` (
   the projection (:func:`step_for_k`); encode once;
 * ``--max-bytes`` of the packaged asset (``budget_for="asset"``, the CLI's default, issue 39):
   (k, step) from the rate-distortion table calibrated on the shipped-bytes probes
-  (:mod:`.packs`: RGBA PNG packs, the basis codes as tables.exr holds them), with what
+  (:mod:`.packs`: RGBA PNG packs, the basis codes as the asset ships them), with what
   packaging adds beside them measured by packaging a near choice for real
   (``options.asset_overhead``); then k fitted on the packs' and basis's measured bytes
   (:func:`_asset_max_bytes`);
@@ -479,7 +479,7 @@ def _with_budget_for(cbtf: CompressedBTF, choice: dict, budget_for: str) -> tupl
 
 #: The asset budget aims the full lod's files at this fraction of ``--max-bytes``: what the
 #: probes do not see exactly (the pages' one PNG stream per page against one per pack, calibrated
-#: once; the basis block inside tables.exr beside its other blocks; one page more or less in
+#: once; half basis codes among the tables' other blocks (the 8-bit basis page is counted exactly); one page more or less in
 #: the layers) is left this much room; each choice is then packaged and checked.
 _ASSET_AIM = 0.997
 #: Bytes the asset's layers hold that the in-memory choice packaged by rate control lacks: the
@@ -500,9 +500,9 @@ def _asset_max_bytes(f: Factorisation, options: CompressOptions, table) -> tuple
 
     1. The rate-distortion model calibrated on the shipped-bytes probes (:mod:`.packs`): the
        RGBA PNG packs of up to three groups of four coefficients, the basis codes of every
-       other vector as ``tables.exr`` holds them.
-    2. What packaging adds beside pages and basis codes (fallback maps, thumbnail, the tables'
-       other blocks, MaterialX, layers), measured by packaging that choice for real
+       other vector as the asset ships them (the 8-bit basis page, schema 4).
+    2. What packaging adds beside pages and basis codes (fallback maps, thumbnail, the tables,
+       MaterialX, layers), measured by packaging that choice for real
        (``options.asset_overhead``), and the pages' bytes per probe byte (one PNG stream per
        page against one per pack).
     3. The model's choice for the bytes left; k then fitted on the measured bytes of every pack
@@ -533,7 +533,7 @@ def _asset_max_bytes(f: Factorisation, options: CompressOptions, table) -> tuple
     model = _modelled(table, min(k, k_cap), step, fc * ratio, fb)
     # Fit k on the measured packs and basis codes, package that choice (its codes: no codec
     # encode), and correct what packaging adds by what it measured: what the probes miss
-    # (pages as one stream per page, the basis block among the tables, the layers' page lists)
+    # (pages as one stream per page, the layers' page lists)
     # changes little with k, so a second fit lands within a coefficient of the aim.
     best, tried = None, set()
     for attempt in range(1, 4):
@@ -595,7 +595,7 @@ def _asset_fit_planned(f: Factorisation, options: CompressOptions, step: float, 
 def _asset_fit(q: CompressedBTF, packs: ShippedPacks, ratio: float, rest: float, aim: float) -> tuple[int, float]:
     """The largest k <= q.k with ``rest + ratio * packs(k) + basis(k) <= aim`` (0 when none) and
     that total: packs(k) the packs of the first k layers as the asset ships them
-    (:class:`.packs.ShippedPacks`), basis(k) the first k vectors' codes as tables.exr holds
+    (:class:`.packs.ShippedPacks`), basis(k) the first k vectors' codes as the asset ships
     them (:func:`.packs.shipped_basis_bytes`).  Bisection: both grow with k."""
     memo = {}
 

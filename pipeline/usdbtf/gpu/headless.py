@@ -117,7 +117,10 @@ class HeadlessRenderer:
                                        np.ascontiguousarray(layout.tables[::-1], np.float32).tobytes(), dtype="f4")
         self.tables.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self.pages = []
-        for pixels in layout.pages:
+        for pixels in layout.slots():           # coefficient pages, then the basis page's slot
+            if pixels is None:
+                self.pages.append(None)
+                continue
             h, w = pixels.shape[:2]
             # Image row 0 is the top (t = 1); GL's first row is t = 0 (as Storm uploads it).
             tex = self.ctx.texture((w, h), 4, np.ascontiguousarray(_normalised(pixels)[::-1]).tobytes(), dtype="f4")
@@ -147,7 +150,7 @@ class HeadlessRenderer:
             self.ctx.enable(self.ctx.DEPTH_TEST)
             self.tables.use(0)
             for i in range(MAX_PAGES):
-                (self.pages[i] if i < len(self.pages) else self.empty).use(i + 1)
+                (self.pages[i] if self.pages[i] is not None else self.empty).use(i + 1)
             light_vec = np.zeros((shaders.HARNESS_MAX_LIGHTS, 4), np.float32)
             light_int = np.zeros(shaders.HARNESS_MAX_LIGHTS, np.float32)
             for i, (vec, w, intensity) in enumerate(lights):
@@ -196,6 +199,6 @@ class HeadlessRenderer:
                           [*camera.eye, 1.0], lights_gl, k)
 
     def release(self) -> None:
-        for tex in [self.tables, self.empty, *self.pages]:
+        for tex in [self.tables, self.empty, *(page for page in self.pages if page is not None)]:
             tex.release()
         self.program.release()

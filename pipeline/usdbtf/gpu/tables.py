@@ -3,24 +3,33 @@
 The layout is documented texel by texel at the top of ``glsl/btf_core.glsl`` (the shader
 that reads it); this module writes it.  Pure arrays in, arrays out:
 
-* ``tables`` (R, TABLE_WIDTH, 4) float32: a header, the basis (its stored integer codes plus
-  2^23, schema 3: one float exponent, so OpenEXR zip packs them 0.91x; or halves; exactly, group-major: 4 basis vectors per texel, one group's S samples after the
-  other, with each vector's de-quantisation: the shader de-quantises, so the tables hold the
-  compressed basis itself and nothing else needs to, :func:`unpack`), a point-location table
-  for the view and for the light hemisphere (the triangulations of :mod:`usdbtf.render.hemisphere`, so the GPU interpolates exactly as
-  the CPU renderer does), the de-quantisation of every pack, the colour matrix and the
-  directory of the packs (which page, where).  The blocks are found through the header, and
-  the basis codes come last, from the first row of an OpenEXR zip chunk (16 rows), so the
-  file costs the other blocks plus the codes compressed on their own.  A level of detail of
-  n < k vectors gets tables of its own (``GpuLayout.lod_tables``, issue 39): the same blocks
-  with only its n basis vectors and its packs' entries, so it loads no basis vector it does
-  not draw (the first n vectors' codes in group-major order are a prefix of the k vectors');
+* ``tables`` (R, TABLE_WIDTH, 4) float32: a header, the basis's de-quantisation (each
+  vector's scale and bias: the shader de-quantises, so the asset holds the compressed basis
+  itself and nothing else needs to, :func:`unpack`), a point-location table for the view and
+  for the light hemisphere (the triangulations of :mod:`usdbtf.render.hemisphere`, so the GPU
+  interpolates exactly as the CPU renderer does), the de-quantisation of every pack, the colour
+  matrix and the directory of the packs (which page, where).  The blocks are found through the
+  header.  Half basis codes (not two bytes of an integer) stay in the tables as schema 3 put
+  every basis there: group-major, 4 vectors per texel, one group's S samples after the other,
+  last, from the first row of an OpenEXR zip chunk (16 rows), so the file costs the other
+  blocks plus the codes compressed on their own.  A level of detail of n < k vectors gets
+  tables of its own (``GpuLayout.lod_tables``, issue 39): the same blocks with only its n
+  basis vectors and its packs' entries;
+* ``basis_page`` (schema 4, integer codes): the codes as 8-bit high and low planes, each
+  group's V x L samples as an image (:func:`usdbtf.compress.packs.basis_page`), in page slot
+  :data:`BASIS_PAGE`; the basis block's first texel .w is :data:`BASIS_IN_PAGE` (2^23 or 0:
+  the codes are in the tables, schema 3 and older, which every reader still takes).  A level
+  of detail of n vectors gets its own (``GpuLayout.lod_basis_pages``), so it loads no basis
+  vector it does not draw.  Why: Storm reads a 16-bit PNG as 8 bits; the 8-bit page took
+  0.713x the schema-3 float32 EXR block of the same codes (metal_flakes, paper sampling, k 190,
+  ``benchmarks/probes/basis8_layouts.py``), the smallest of six 8-bit layouts;
 * coefficient *packs*, 3 * ceil(k / 4) tiles (H, W, 4): pack ``p = 3 g + c`` holds colour
   channel ``c`` of basis vectors ``4g .. 4g+3`` as the stored integer codes (uint8/uint16)
   or halves, so a page written as PNG/EXR reproduces the compressed values exactly.  Energy
   order makes a level of detail of k' vectors the first ``3 * ceil(k' / 4)`` packs;
-* ``pages``: the packs laid out as tiles of at most :data:`MAX_PAGES` atlas textures
-  (``pages``), so a material binds at most ``1 + MAX_PAGES`` = 16 samplers for any k: the
+* ``pages``: the packs laid out as tiles of at most ``MAX_PAGES - 1`` atlas textures
+  (``pages``; the last page slot is the basis page's), so a material binds at most
+  ``1 + MAX_PAGES`` = 16 samplers for any k: the
   limit of the GPUs studios preview on (Metal's Hgi allows 31 per stage, GL without bindless
   textures 16 to 32).  A page ends where a level of detail ends (``lods``), so a level loads
   only its own pages, and where the storage type changes.  The shader filters a pack itself
@@ -35,7 +44,7 @@ packs were the smallest PNG pages of three layouts (in tall pages: planar single
 12 and 4);
 the basis codes group-major in float32 OpenEXR (zip) took 1.58 MB against 2.67 MB sample-major
 and 7.28 MB as float32 values (the asset's former 16-bit basis.png: 1.53 MB, which Storm would
-read as 8 bits), with no sampler of their own.
+read as 8 bits); schema 4's 8-bit basis page takes one page slot (module list above).
 """
 from __future__ import annotations
 
@@ -46,16 +55,23 @@ import numpy as np
 
 from ..compress.format import CompressedBTF, cross_layout
 from ..compress.packs import (MAX_CODE as _MAX_CODE, TABLE_WIDTH, basis_block_bytes, basis_code_offset,
-                              basis_codes_group_major, coefficient_packs as _pack, pack_count, page_breaks)
+                              basis_codes_group_major, basis_page, basis_page_codes, coefficient_packs as _pack,
+                              pack_count, page_breaks)
 from ..errors import BTFError
 
-__all__ = ["MAX_PAGES", "PAGE_SIZE", "TABLE_WIDTH", "GpuLayout", "gpu_layout", "pack_count", "page_breaks",
+__all__ = ["MAX_PAGES", "BASIS_PAGE", "BASIS_IN_PAGE", "page_slots", "PAGE_SIZE", "TABLE_WIDTH", "GpuLayout", "gpu_layout", "pack_count", "page_breaks",
            "page_plan", "with_wrap", "HemisphereTable", "Pages", "PAGE_TEXELS", "unpack", "unpack_lazy", "LazyCodes",
-           "storage_dtype", "basis_bytes"]
+           "storage_dtype", "basis_bytes", "basis_in_page"]
 
-#: Atlas textures ("pages") of coefficient packs a material binds: with the tables, 16
-#: samplers, for every k.
+#: Page samplers a material binds: with the tables, 16 samplers, for every k.  Slots 0 ..
+#: MAX_PAGES - 2 hold coefficient pages; with an integer basis (schema 4) the last slot,
+#: :data:`BASIS_PAGE`, holds the basis codes (``compress.packs.basis_page``).
 MAX_PAGES = 15
+#: The page slot of the 8-bit basis page (schema 4).
+BASIS_PAGE = MAX_PAGES - 1
+#: The basis head's code offset (texel basisOffset .w) that says "the codes are in page slot
+#: BASIS_PAGE, 8-bit high and low planes" (schema 4); 2^23 (schema 3) or 0 say "in the tables".
+BASIS_IN_PAGE = -1.0
 #: Largest width and height of a page (texels): what GL 4.x and Metal GPUs all sample.
 PAGE_SIZE = 16384
 #: Texels a page holds at most while the sampler budget allows more pages: a large atlas's
@@ -89,10 +105,37 @@ class GpuLayout:
     k: int
     first_packs: list
     lod_tables: dict = field(default_factory=dict)
+    #: (rows, cols, 4) uint8 basis page of the k vectors (schema 4, page slot BASIS_PAGE), or
+    #: None where the tables hold the codes (half codes; schema 3 assets).
+    basis_page: np.ndarray | None = None
+    #: {n: basis page of the first n vectors} per lower level of detail (as lod_tables).
+    lod_basis_pages: dict = field(default_factory=dict)
+
+    def slots(self, n: int | None = None) -> list:
+        """The page slots a material binds for the first ``n`` (default k) vectors
+        (:func:`page_slots`)."""
+        return page_slots(self.pages, self.first_packs, self.k, n, self.basis_page, self.lod_basis_pages)
 
     def pages_for(self, k: int) -> int:
         """How many pages (from the first) hold the packs of the first ``k`` basis vectors."""
         return sum(1 for first in self.first_packs if first < pack_count(min(k, self.k)))
+
+
+def page_slots(pages, first_packs: list, k: int, n: int | None, basis, lod_basis: dict) -> list:
+    """The MAX_PAGES page slots a material binds for the first ``n`` (default ``k``) of ``k``
+    vectors: their coefficient pages (``pages[p]``, those whose first pack is one of theirs)
+    from slot 0, their basis page (``basis`` for k, ``lod_basis[n]`` for a lower level, None
+    where the tables hold the codes) in slot BASIS_PAGE, None elsewhere.  ``pages`` and the
+    basis pages may be arrays or file names (``usd.asset.storm.GpuTextures``)."""
+    n = k if n is None else min(int(n), k)
+    out = [None] * MAX_PAGES
+    for p, first in enumerate(first_packs):
+        if first < pack_count(n):
+            out[p] = pages[p]
+    own = basis if n == k else lod_basis.get(n, basis)
+    if own is not None:
+        out[BASIS_PAGE] = own
+    return out
 
 
 class _Texels:
@@ -190,7 +233,7 @@ def page_plan(n_packs: int, width: int, height: int, breaks: list[int], dtypes=N
     # budget: every segment between breaks may end in a part-filled page.
     fit = (PAGE_SIZE // width) * (PAGE_SIZE // height)
     segments = 1 + len([b for b in breaks if 0 < b < n_packs])
-    spread = -(-n_packs // max(1, MAX_PAGES - segments))
+    spread = -(-n_packs // max(1, BASIS_PAGE - segments))
     per_page = min(fit, max(1, PAGE_TEXELS // (width * height), spread))
     dtypes = [None] * n_packs if dtypes is None else list(dtypes)
     plan, start = [], 0
@@ -278,9 +321,9 @@ def gpu_layout(cbtf: CompressedBTF, k: int | None = None, lods=(), wrap: str = "
     else:
         packs, scales, biases = _pack(texels.compact, k, breaks)
         pages, first_packs, directory = _pages(packs, breaks, texels.gather, (cbtf.height, cbtf.width))
-    if len(pages) > MAX_PAGES:
+    if len(pages) > BASIS_PAGE:
         raise BTFError(f"k = {k} coefficient textures of {cbtf.width}x{cbtf.height} texels need {len(pages)} GPU "
-                       f"pages; a material binds at most {MAX_PAGES} (use a smaller k or texture)")
+                       f"pages; a material binds at most {BASIS_PAGE} beside its basis (use a smaller k or texture)")
 
     directory[:, 3] = [_MAX_CODE[np.dtype(pages.dtype(page))] for page in directory[:, 0].astype(int)]
     hemispheres = (HemisphereTable.from_triangulation(views), HemisphereTable.from_triangulation(lights))
@@ -288,10 +331,19 @@ def gpu_layout(cbtf: CompressedBTF, k: int | None = None, lods=(), wrap: str = "
     def tables_for(n: int) -> np.ndarray:
         return _tables(cbtf, n, (V, L), hemispheres, scales, biases, directory, wrap)
 
-    # A level of detail's own tables: the basis block and the packs' entries of its n vectors
-    # only, so a lower lod loads no basis vector it does not draw (issue 39).
-    return GpuLayout(tables_for(k), pages, k, first_packs,
-                     {n: tables_for(n) for n in sorted({int(n) for n in lods if 0 < n < k}, reverse=True)})
+    # A level of detail's own tables and basis page: the basis and the packs' entries of its n
+    # vectors only, so a lower lod loads no basis vector it does not draw (issue 39).
+    levels = sorted({int(n) for n in lods if 0 < n < k}, reverse=True)
+    in_page = _basis_in_page(cbtf)
+    return GpuLayout(tables_for(k), pages, k, first_packs, {n: tables_for(n) for n in levels},
+                     basis_page(cbtf.basis.pixels[:, :k, 0], V, L) if in_page else None,
+                     {n: basis_page(cbtf.basis.pixels[:, :n, 0], V, L) for n in levels} if in_page else {})
+
+
+def _basis_in_page(cbtf: CompressedBTF) -> bool:
+    """Whether the basis codes go to the 8-bit basis page (schema 4: integer codes) rather
+    than into the tables (half codes, which are not two bytes of an integer)."""
+    return np.dtype(cbtf.basis.pixels.dtype) != np.float16
 
 
 def _tables(cbtf: CompressedBTF, k: int, cross: tuple[int, int], hemispheres: tuple, scales: np.ndarray,
@@ -309,12 +361,14 @@ def _tables(cbtf: CompressedBTF, k: int, cross: tuple[int, int], hemispheres: tu
     dequant_at = table.add(np.stack([scales[:packs], biases[:packs]], axis=1))
     matrix_at = table.add(np.c_[np.asarray(cbtf.color_matrix, np.float64), np.zeros(3)])
     directory_at = table.add(directory[:packs])
-    # The basis codes last, from the first row of an OpenEXR zip chunk: the file is then the
-    # other blocks' chunks plus the codes' chunks, each compressed alone, so the tables of a
-    # level of n vectors cost the codes of its n vectors (basis_bytes(t, n)) plus blocks no
-    # larger than the full tables' (its share, usdbtf.usd.asset.lod).
-    table.pad_to(-(1 + 2 * groups), _ZIP_ROWS * TABLE_WIDTH)
-    basis_at = table.add(_basis_block(cbtf, k, groups))
+    # Codes in the tables (half codes) last, from the first row of an OpenEXR zip chunk: the
+    # file is then the other blocks' chunks plus the codes' chunks, each compressed alone, so
+    # the tables of a level of n vectors cost the codes of its n vectors (basis_bytes(t, n))
+    # plus blocks no larger than the full tables' (its share, usdbtf.usd.asset.lod).
+    in_page = _basis_in_page(cbtf)
+    if not in_page:
+        table.pad_to(-(1 + 2 * groups), _ZIP_ROWS * TABLE_WIDTH)
+    basis_at = table.add(_basis_block(cbtf, k, groups, in_page))
     image = table.image()
     flat = image.reshape(-1, 4)
     flat[0] = [TABLE_WIDTH, V, L, groups]
@@ -326,12 +380,13 @@ def _tables(cbtf: CompressedBTF, k: int, cross: tuple[int, int], hemispheres: tu
     return image
 
 
-def _basis_block(cbtf: CompressedBTF, k: int, groups: int) -> np.ndarray:
+def _basis_block(cbtf: CompressedBTF, k: int, groups: int, in_page: bool = False) -> np.ndarray:
     """The tables' basis block (texels, 4): (largest code of its storage type, S, groups,
     offset), then per group g the scale and the bias of vectors 4g..4g+3 (float32, as
     ``CompressedBTF.basis_values`` rounds them), then the stored codes plus ``offset``
     (:func:`usdbtf.compress.packs.basis_code_offset`) group-major (texel 1 + 2 groups + g S + s:
-    vectors 4g..4g+3 of sample s; vectors past k are code 0)."""
+    vectors 4g..4g+3 of sample s; vectors past k are code 0).  ``in_page`` (schema 4): no
+    codes; offset :data:`BASIS_IN_PAGE` (they are in the basis page)."""
     b = cbtf.basis
     S = cbtf.n_samples
     dtype = np.dtype(b.pixels.dtype)
@@ -340,9 +395,16 @@ def _basis_block(cbtf: CompressedBTF, k: int, groups: int) -> np.ndarray:
     scale = np.zeros(groups * 4, np.float32)
     bias = np.zeros(groups * 4, np.float32)
     scale[:k], bias[:k] = b.scale[:k], b.bias[:k]
-    head = np.array([[_MAX_CODE[dtype], S, groups, basis_code_offset(dtype)]], np.float32)
+    head = np.array([[_MAX_CODE[dtype], S, groups, BASIS_IN_PAGE if in_page else basis_code_offset(dtype)]],
+                    np.float32)
     dequant = np.stack([scale.reshape(groups, 4), bias.reshape(groups, 4)], axis=1).reshape(-1, 4)
-    return np.concatenate([head, dequant, basis_codes_group_major(cbtf, k)])
+    return np.concatenate([head, dequant] + ([] if in_page else [basis_codes_group_major(cbtf, k)]))
+
+
+def basis_in_page(tables: np.ndarray) -> bool:
+    """Whether ``tables`` (as written) say their basis codes are in the basis page (schema 4)."""
+    flat = np.asarray(tables, np.float32).reshape(-1, 4)
+    return float(flat[int(flat[1, 1]), 3]) == BASIS_IN_PAGE
 
 
 def basis_bytes(tables: np.ndarray, n: int | None = None) -> int:
@@ -351,7 +413,11 @@ def basis_bytes(tables: np.ndarray, n: int | None = None) -> int:
     of TABLE_WIDTH texels, vectors past ``n`` in its last group 0 (what
     :func:`usdbtf.compress.packs.shipped_basis_bytes` measures on a compressed BTF).  What the
     full lod spends on the basis of vectors ``n+1..k`` is ``basis_bytes(t) - basis_bytes(t, n)``
-    (a lower lod's share, :func:`usdbtf.usd.asset.lod.lod_share`).  Deterministic."""
+    (a lower lod's share, :func:`usdbtf.usd.asset.lod.lod_share`).  Deterministic.  Tables
+    whose codes are in the basis page (:func:`basis_in_page`) hold none: the page files' own
+    bytes are what a level spends there."""
+    if basis_in_page(tables):
+        raise BTFError("GPU tables: the basis codes are in the basis page (count its file's bytes)")
     flat = np.asarray(tables, np.float32).reshape(-1, 4)
     groups, stored_k, basis_at = int(flat[0, 3]), int(flat[1, 0]), int(flat[1, 1])
     n = stored_k if n is None else min(int(n), stored_k)
@@ -443,8 +509,10 @@ class LazyCodes(Sequence):
             self._pages.release()
 
 
-def _directory(tables: np.ndarray, k: int | None):
-    """(flat tables (N, 4), k, basis codes (S, k, 1), directory address, width, height)."""
+def _directory(tables: np.ndarray, k: int | None, basis_page=None):
+    """(flat tables (N, 4), k, basis codes (S, k, 1), directory address, width, height);
+    ``basis_page``: the 8-bit basis page (or a callable returning it) where the tables say
+    the codes are in it (schema 4)."""
     flat = np.asarray(tables, np.float32).reshape(-1, 4)
     if len(flat) < _HEADER:
         raise BTFError("GPU tables: too small for a header")
@@ -455,10 +523,22 @@ def _directory(tables: np.ndarray, k: int | None):
     basis_at, directory_at = int(flat[1, 1]), int(flat[3, 0])
     width, height = int(flat[3, 1]), int(flat[3, 2])
     max_code, S, block_groups = float(flat[basis_at, 0]), int(flat[basis_at, 1]), int(flat[basis_at, 2])
-    offset = float(flat[basis_at, 3])       # 2^23 for integer codes (schema 3), 0 before and for halves
+    # 2^23 for integer codes (schema 3), 0 before and for halves; BASIS_IN_PAGE: in the basis page (schema 4)
+    offset = float(flat[basis_at, 3])
     if block_groups != groups:
         raise BTFError("GPU tables: the basis block does not match the header (written by an older usdbtf?)")
-    if offset not in (0.0, basis_code_offset(storage_dtype(max_code, "GPU tables basis"))):
+    dtype = storage_dtype(max_code, "GPU tables basis")
+    if offset == BASIS_IN_PAGE and dtype != np.float16:
+        if basis_page is None:
+            raise BTFError("GPU tables: the basis codes are in the basis page, and none was given")
+        page = basis_page() if callable(basis_page) else basis_page
+        V, L = int(flat[0, 1]), int(flat[0, 2])
+        # 8-bit texels as a PNG holds them, or floats byte / 255 (a tiled EXR conversion)
+        codes = basis_page_codes(_codes(np.asarray(page), 255.0, "GPU basis page"), V, L, k, groups)
+        if codes.max(initial=0) > max_code:
+            raise BTFError(f"GPU basis page: codes above {max_code:g} for {dtype} storage")
+        return flat, k, codes.astype(dtype)[:, :, None], directory_at, width, height
+    if offset not in (0.0, basis_code_offset(dtype)):
         raise BTFError(f"GPU tables: basis code offset {offset!r} (written by a newer usdbtf?)")
     at = basis_at + 1 + 2 * groups
     codes = flat[at:at + groups * S].reshape(groups, S, 4).transpose(1, 0, 2).reshape(S, groups * 4)[:, :k]
@@ -467,14 +547,15 @@ def _directory(tables: np.ndarray, k: int | None):
     return flat, k, basis[:, :, None], directory_at, width, height
 
 
-def unpack_lazy(tables: np.ndarray, pages, k: int | None = None) -> tuple[np.ndarray, LazyCodes]:
+def unpack_lazy(tables: np.ndarray, pages, k: int | None = None, basis_page=None) -> tuple[np.ndarray, LazyCodes]:
     """As :func:`unpack`, the coefficient codes a :class:`LazyCodes` (nothing read from
     ``pages`` yet)."""
-    flat, k, basis, directory_at, width, height = _directory(tables, k)
+    flat, k, basis, directory_at, width, height = _directory(tables, k, basis_page)
     return basis, LazyCodes(flat, directory_at, width, height, k, pages)
 
 
-def unpack(tables: np.ndarray, pages: list, k: int | None = None) -> tuple[np.ndarray, list[np.ndarray]]:
+def unpack(tables: np.ndarray, pages: list, k: int | None = None,
+           basis_page=None) -> tuple[np.ndarray, list[np.ndarray]]:
     """The stored codes :func:`gpu_layout` packed, read back from its textures.
 
     Parameters
@@ -483,6 +564,9 @@ def unpack(tables: np.ndarray, pages: list, k: int | None = None) -> tuple[np.nd
     pages : the first pages, (H, W, 4) arrays as read from their files (uint8 codes, or floats:
         code / largest code, or halves); enough of them for the ``k`` vectors asked for.
     k : basis vectors to read (default all the tables hold).
+    basis_page : (rows, cols, 4) uint8, the basis page (page slot BASIS_PAGE) of these tables,
+        or a callable returning it: needed where the tables say the codes are in it (schema 4,
+        integer codes); tables that hold the codes themselves (schema 3, halves) ignore it.
 
     Returns
     -------
@@ -490,7 +574,7 @@ def unpack(tables: np.ndarray, pages: list, k: int | None = None) -> tuple[np.nd
     bit for bit what the compressed BTF stored (a uint8 texture packed beside uint16 ones comes
     back as uint16 holding the same values: reconstructions are identical).
     """
-    basis, codes = unpack_lazy(tables, pages, k)
+    basis, codes = unpack_lazy(tables, pages, k, basis_page)
     # LazyCodes reads a group's three packs once for its four vectors: the same lookups, checks
     # and values as reading pack by pack (a uint8 pack beside uint16 ones promotes the texture).
     return basis, list(codes)
@@ -505,4 +589,5 @@ def with_wrap(layout: GpuLayout, wrap: str) -> GpuLayout:
     lod_tables = {n: t.copy() for n, t in layout.lod_tables.items()}
     for t in lod_tables.values():
         t.reshape(-1, 4)[3, 3] = tables.reshape(-1, 4)[3, 3]
-    return GpuLayout(tables, layout.pages, layout.k, layout.first_packs, lod_tables)
+    return GpuLayout(tables, layout.pages, layout.k, layout.first_packs, lod_tables, layout.basis_page,
+                     layout.lod_basis_pages)

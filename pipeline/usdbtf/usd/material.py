@@ -9,8 +9,9 @@ bit for bit.
 Two layouts of the textures (``btf:coefficientLayout``, schema version 2): ``gpuPages``, what
 ``package`` writes for a BTF the real-time preview draws (every light at every view): the one
 copy of the BTF is the GPU tables (``btf:basis``, whose basis block holds the stored basis
-codes) and the RGBA coefficient pages (``btf:coefficients``; a ``lod`` lists the pages its
-vectors need, a prefix), which the Storm shader, the MaterialX node, the OSL shader and the CPU
+codes; schema version 4: its de-quantisation, the codes being in the 8-bit basis page listed
+last in ``btf:coefficients``) and the RGBA coefficient pages (``btf:coefficients``; a ``lod``
+lists the pages its vectors need, a prefix, then its own basis page), which the Storm shader, the MaterialX node, the OSL shader and the CPU
 readers all read (:func:`usdbtf.gpu.tables.unpack`); ``files``, one image per coefficient and a
 basis image (other samplings, and every asset of schema version 1, which keeps reading).
 """
@@ -30,10 +31,12 @@ from ..errors import BTFError
 from ..sampling import Sampling
 from .plugin import API_SCHEMA, require_schema
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 #: Versions :func:`read_btf` reads (1: the ``files`` layout only, before btf:coefficientLayout;
-#: 3: the GPU tables' integer basis codes plus 2^23, usdbtf.compress.packs.BASIS_CODE_OFFSET).
-READABLE_VERSIONS = (1, 2, 3)
+#: 3: the GPU tables' integer basis codes plus 2^23, usdbtf.compress.packs.BASIS_CODE_OFFSET;
+#: 4: integer basis codes in an 8-bit basis page, listed last in btf:coefficients, which the
+#: tables say: usdbtf.gpu.tables.BASIS_IN_PAGE).
+READABLE_VERSIONS = (1, 2, 3, 4)
 #: btf:coefficientLayout values.
 FILES, GPU_PAGES = "files", "gpuPages"
 #: btf:basisLayout of the GPU tables.
@@ -350,17 +353,23 @@ def read_directions(material) -> tuple[np.ndarray, np.ndarray]:
 def _read_gpu_copy(material, pages: list, k: int, samples: int, shape: tuple, lazy: bool = False) -> tuple:
     """(basis codes (S, k, 1), k coefficient codes (H, W, 3)) from the GPU tables and pages
     (``lazy``: the codes a :class:`usdbtf.gpu.tables.LazyCodes`, no page read yet)."""
-    from ..gpu.tables import unpack, unpack_lazy
+    from ..gpu.tables import basis_in_page, unpack, unpack_lazy
     from ..imageio import read_rgba
 
     path = material.GetPath()
     tables = _read_asset(material, _get(material, "basis"), "basis", read_rgba)
+    basis_page = None
+    if basis_in_page(tables):           # schema 4: the basis page is listed last
+        if not pages:
+            raise BTFError(f"{path}: the GPU tables keep the basis codes in a basis page; {NS}coefficients lists none")
+        basis_page = _read_asset(material, pages[-1], "coefficients", read_rgba)
+        pages = pages[:-1]
     # Only the pages the first k vectors are on are read (unpack asks for them in order).
     # The stage may be gone when a lazy reader asks for a page: hold only the resolved paths.
     where = f"{material.GetStage().GetRootLayer().identifier}: {path}.{NS}coefficients"
     read = _LazyPages(lambda i: _read_resolved(f"{where}[{i}]", pages[i], read_rgba), len(pages))
     try:
-        basis, coefficients = (unpack_lazy if lazy else unpack)(tables, read, k)
+        basis, coefficients = (unpack_lazy if lazy else unpack)(tables, read, k, basis_page)
     except BTFError as exc:
         raise BTFError(f"{path}: {exc}") from None
     if basis.shape[0] != samples:

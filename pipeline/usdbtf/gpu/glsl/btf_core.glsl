@@ -21,7 +21,8 @@
 //   basis          basisOffset (maxCode, S, G, codeOffset)   S = V * L samples; maxCode: the codes'
 //                  storage (255 uint8, 65535 uint16, 1 half; for readers of the one copy,
 //                  usdbtf.gpu.tables.unpack); codeOffset: added to every code (2^23 for integer
-//                  codes: one float exponent, smaller files; 0 for halves and in older tables)
+//                  codes: one float exponent, smaller files; 0 for halves and in older tables),
+//                  or -1: the codes are in the basis page (schema 4, below), not here
 //                  basisOffset + 1 + 2g = scale, + 2 + 2g = bias of vectors 4g..4g+3
 //                  basisOffset + 1 + 2G + g * S + view * L + light: the stored codes of vectors
 //                  4g..4g+3 at that sample plus codeOffset (value = code * scale + bias, the
@@ -37,7 +38,12 @@
 //                  texel is column x0, image row y0 (from the top) of page `page`; maxCode: its
 //                  codes' storage (as the basis's; the shader reads normalised values)
 // Coefficient pack p = 3 g + c holds colour channel c of vectors 4g..4g+3; the packs are
-// tiles of at most BTF_MAX_PAGES RGBA textures ("pages"), filtered here (btfPack).
+// tiles of at most BTF_MAX_PAGES - 1 RGBA textures ("pages"), filtered here (btfPack).
+// Basis page (schema 4, integer codes; page slot BTF_MAX_PAGES - 1, 8-bit RGBA): group g of
+// vectors 4g..4g+3 is a V x L image of the codes' high bytes (image rows = views, from the
+// top; columns = lights) above a V x L image of their low bytes; groups fill a column, then
+// the next, L texels to the right: as few columns as 16384 rows allow (16384 / (2 V) groups
+// each), evenly filled (usdbtf.compress.packs.basis_page, basis_page_column).
 //
 // Environments (Storm glslfx, MaterialX genglsl, the headless harness) include this text
 // unchanged after the definitions usdbtf.gpu.shaders.core_source() puts in front of it
@@ -271,6 +277,14 @@ vec3 btfShadeLight(sampler2D btfTables, BTF_PAGE_PARAMS, ivec3 viewIndex, vec3 v
     // Subtracted from each fetched texel before blending: exact (both below 2^24), where
     // subtracting the blended offset would cancel 2^23 against the code's fraction.
     vec4 codeOffset = vec4(btfFetch(btfTables, basis).w);
+    int inPage = 0;
+    if (codeOffset.x < -0.5) {
+        inPage = 1;
+    }
+    int views = int(h0.y);
+    int mostPerColumn = max(1, 16384 / (2 * views));
+    int columns = max(1, (groups + mostPerColumn - 1) / mostPerColumn);
+    int perColumn = max(1, (groups + columns - 1) / columns);
     vec3 stored = vec3(0.0);
     for (int g = 0; 4 * g < k && g < groups; ++g) {
         // The blended codes, then de-quantised: the bias enters with the weights' sum.
@@ -280,7 +294,16 @@ vec3 btfShadeLight(sampler2D btfTables, BTF_PAGE_PARAMS, ivec3 viewIndex, vec3 v
             for (int b = 0; b < 3; ++b) {
                 float w = viewWeight[a] * lightWeight[b];
                 if (w != 0.0) {
-                    row += w * (btfFetch(btfTables, codes + g * samples + viewIndex[a] * lights + lightIndex[b]) - codeOffset);
+                    if (inPage == 1) {
+                        // Both bytes read normalised (byte / 255): rounded back to integers.
+                        int x = (g / perColumn) * lights + lightIndex[b];
+                        int y = (g % perColumn) * 2 * views + viewIndex[a];
+                        vec4 high = btfPageTexel(BTF_PAGE_ARGS, BTF_MAX_PAGES - 1, x, y);
+                        vec4 low = btfPageTexel(BTF_PAGE_ARGS, BTF_MAX_PAGES - 1, x, y + views);
+                        row += w * (floor(high * 255.0 + vec4(0.5)) * 256.0 + floor(low * 255.0 + vec4(0.5)));
+                    } else {
+                        row += w * (btfFetch(btfTables, codes + g * samples + viewIndex[a] * lights + lightIndex[b]) - codeOffset);
+                    }
                     weights += w;
                 }
             }

@@ -70,6 +70,7 @@ float dot(btfVec2 a, btfVec2 b) { return a.x * b.x + a.y * b.y; }
 float dot(btfVec4 a, btfVec4 b) { return a.x * b.x + a.y * b.y + a.z * b.z + a.w * b.w; }
 float length(btfVec2 a) { return sqrt(a.x * a.x + a.y * a.y); }
 btfVec2 floor(btfVec2 a) { return btfVec2(floor(a.x), floor(a.y)); }
+btfVec4 floor(btfVec4 a) { return btfVec4(floor(a.x), floor(a.y), floor(a.z), floor(a.w)); }
 btfVec4 mix(btfVec4 a, btfVec4 b, float t) { return a * (1.0 - t) + b * t; }
 btfIVec2 clamp(btfIVec2 a, btfIVec2 lo, btfIVec2 hi) { return btfIVec2(clamp(a.x, lo.x, hi.x), clamp(a.y, lo.y, hi.y)); }
 // Comparisons give 0/1 components (GLSL's bvecN, converted where the core converts them).

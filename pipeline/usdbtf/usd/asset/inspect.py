@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...errors import BTFError
 from ...compress.coverage import coverage_summary, coverage_text
 from ..material import GPU_PAGES, LOD_VARIANT_SET, NS, btf_materials, read_coverage, read_directions
 from ...usdstage import resolve_usd
@@ -99,7 +100,7 @@ def lod_files(stage, prim, budget: int | None = None, *, shares: bool = True) ->
         paged = str(p.GetAttribute(NS + "coefficientLayout").Get() or "files") == GPU_PAGES
         return {"name": name, "k": k, "files": [{"path": rel(f), "bytes": n} for f, n in files],
                 "total": int(sum(n for _, n in files)), "share": None,
-                "_pages": {a.resolvedPath for a in _as_list(p.GetAttribute(NS + "coefficients").Get())} if paged
+                "_pages": [a.resolvedPath for a in _as_list(p.GetAttribute(NS + "coefficients").Get())] if paged
                 else None, "_basis": p.GetAttribute(NS + "basis").Get(), "_sizes": dict(files)}
 
     out = _per_lod(stage, prim, entry)
@@ -115,7 +116,7 @@ def lod_files(stage, prim, budget: int | None = None, *, shares: bool = True) ->
 def _shares(levels: list[dict], budget: int | None) -> None:
     """Set each level's "share" (:func:`lod_files`) from the full (first) level's pages and
     tables: what it spends on the vectors a level drops."""
-    from ...gpu.tables import basis_bytes
+    from ...gpu.tables import basis_bytes, basis_in_page
     from ...imageio import read_rgba
     from .lod import lod_share
 
@@ -128,10 +129,18 @@ def _shares(levels: list[dict], budget: int | None) -> None:
     if len(levels) == 1:
         return
     tables = read_rgba(full["_basis"].resolvedPath)
-    basis_full = basis_bytes(tables)
+    if basis_in_page(tables):
+        # Schema 4: each level's basis page is listed last, its bytes are the file's.
+        def split(lv):
+            return set(lv["_pages"][:-1]), lv["_sizes"].get(lv["_pages"][-1], 0)
+    else:
+        def split(lv):
+            return set(lv["_pages"]), basis_bytes(tables, lv["k"])
+    full_pages, basis_full = split(full)
     for lv in levels[1:]:
-        dropped = sum(full["_sizes"].get(page, 0) for page in full["_pages"] - lv["_pages"])
-        lv["share"] = lod_share(budget, dropped, basis_full, basis_bytes(tables, lv["k"]))
+        pages, basis_own = split(lv)
+        dropped = sum(full["_sizes"].get(page, 0) for page in full_pages - pages)
+        lv["share"] = lod_share(budget, dropped, basis_full, basis_own)
 
 
 def _error_at(prim, k: int) -> float | None:
@@ -207,6 +216,21 @@ def fallback_summary(prim) -> list[dict]:
     return out
 
 
+def _basis_page_listed(tables) -> bool:
+    """Whether the GPU tables ``tables`` (an asset path) keep the basis codes in the basis page
+    listed last in btf:coefficients (schema 4); False where they cannot be read as a file."""
+    from ...gpu.tables import basis_in_page
+    from ...imageio import read_rgba
+
+    resolved = tables.resolvedPath if tables else ""
+    if not resolved or "[" in resolved:
+        return False
+    try:
+        return basis_in_page(read_rgba(resolved))
+    except BTFError:
+        return False
+
+
 def material_summary(stage, prim) -> dict:
     """One BTF material's entry of :func:`summary`."""
     get = lambda name: prim.GetAttribute(NS + name).Get()  # noqa: E731
@@ -224,6 +248,10 @@ def material_summary(stage, prim) -> dict:
     view, light = read_directions(prim) if get("viewDirections") else (np.zeros((0, 2)), np.zeros((0, 2)))
     basis_bytes = asset_bytes(get("basis"))
     coeff_bytes = sum(asset_bytes(a) for a in coeffs[:k])
+    if paged and _basis_page_listed(get("basis")):
+        # Schema 4: the basis page, listed after the pages, is the basis's, beside its tables.
+        page = asset_bytes(coeffs[-1])
+        basis_bytes, coeff_bytes = basis_bytes + page, coeff_bytes - page
     size = get("physicalSize")
     resolution = [int(x) for x in (get("resolution") or (0, 0))]
     entry.update(

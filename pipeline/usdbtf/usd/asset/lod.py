@@ -11,7 +11,9 @@ payload, so they can be chosen before it loads):
   needs (pages end where levels end, so Storm then loads only its own textures); with the
   GPU pages it also names the level's own tables (``gpu/tables_k<n>.exr``: the basis
   vectors and packs of its n vectors only) as ``btf:basis`` and as the Storm tables node's
-  file, so every consumer of the composed stage reads that level's own tables; variant
+  file, and (schema 4) its own basis page (``gpu/basis_k<n>.png``: its n vectors' codes) last
+  in ``btf:coefficients`` and as the Storm basis page node's file, so every consumer of the
+  composed stage reads that level's own tables and basis; variant
   ``full`` changes nothing.  A scene that
   references only the material (``@asset.usda@</pebbles/mtl/BtfMaterial>``, the scene pattern
   of docs/scenes-and-build.md) switches it with its own ``variants = {lod = "k16"}``.
@@ -28,7 +30,8 @@ level loads) is ``B`` less what the full level spends on the vectors it drops
                  - (basis_bytes(k) - basis_bytes(n))
 
 with ``basis_bytes(m)`` the first m basis vectors' codes encoded alone as the tables encode
-them (:func:`usdbtf.gpu.tables.basis_bytes`).  Not ``B n / k``: coefficients are energy-ordered,
+them (:func:`usdbtf.gpu.tables.basis_bytes`; schema 4: the bytes of the basis page file of
+the level of m vectors).  Not ``B n / k``: coefficients are energy-ordered,
 so the first vectors carry most of the bytes (pebbles 32^2, k 152: the first 19 vectors, 1/8,
 hold 37 % of the page bytes and 29 % of the basis bytes), and no prefix of the same codes could
 meet a proportional share.  A level that loaded the full tables (assets before its own tables)
@@ -62,7 +65,7 @@ def lod_share(budget: int, dropped_pages: int, basis_full: int, basis_own: int) 
 
 def author_lod_variants(stage, root_path: str, material_path: str, levels: list[int], coefficients: list[str],
                         storm: tuple[str, list, int] | None = None, *, paged: bool = False,
-                        tables: dict | None = None) -> list[str]:
+                        tables: dict | None = None, basis_pages: dict | None = None) -> list[str]:
     """Author both ``lod`` variant sets on ``stage`` (the root layer); returns the variant names.
 
     levels : basis counts below k (descending); coefficients : the k coefficient asset
@@ -73,13 +76,16 @@ def author_lod_variants(stage, root_path: str, material_path: str, levels: list[
     tables : {n: asset path of the GPU tables of the first n vectors} (paged assets since issue
     39): variant ``k<n>`` names them as ``btf:basis`` and as the Storm tables node's file, so a
     level loads only its own basis vectors; a level without an entry keeps the full tables.
+    basis_pages : {n: asset path of the basis page of the first n vectors} (schema 4): variant
+    ``k<n>`` lists it after its pages in ``btf:coefficients`` (``coefficients`` then ends with
+    the full level's basis page) and names it as the Storm basis page node's file.
     """
     from pxr import Sdf
 
     from ...gpu.shaders import page_name
     from ...gpu.tables import pack_count
     from ..material import NS
-    from .storm import TABLES_NODE
+    from .storm import TABLES_NODE, basis_node
 
     names = [FULL_LOD] + [lod_name(n) for n in levels]
     material = stage.OverridePrim(material_path)
@@ -97,6 +103,8 @@ def author_lod_variants(stage, root_path: str, material_path: str, levels: list[
             if paged:
                 _, first_packs, gpu_k = storm
                 files = [c for c, first in zip(coefficients, first_packs) if first < pack_count(min(n, gpu_k))]
+                if basis_pages and n in basis_pages:
+                    files.append(basis_pages[n])
             else:
                 files = coefficients[:n]
             coeffs.Set(Sdf.AssetPathArray([Sdf.AssetPath(p) for p in files]))
@@ -115,6 +123,9 @@ def author_lod_variants(stage, root_path: str, material_path: str, levels: list[
                 if tables and n in tables:
                     node = stage.OverridePrim(f"{material_path}/{TABLES_NODE}")
                     node.CreateAttribute("inputs:file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(tables[n]))
+                if basis_pages and n in basis_pages:
+                    node = stage.OverridePrim(f"{material_path}/{basis_node()}")
+                    node.CreateAttribute("inputs:file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(basis_pages[n]))
                 for page, first in enumerate(first_packs):
                     if first >= pack_count(min(n, gpu_k)):       # a page of vectors beyond n only
                         over.CreateAttribute(f"inputs:{page_name(page)}", Sdf.ValueTypeNames.Float).SetConnections([])

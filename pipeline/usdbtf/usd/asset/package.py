@@ -286,7 +286,7 @@ def asset_overhead(cbtf: CompressedBTF, fallback_fits: tuple | None = None) -> d
     dict : "full" (bytes the full lod loads), "pages" (bytes of its coefficient files: GPU pages,
     or coefficient files and basis image when the sampling has no GPU preview), "paged" (GPU
     pages were written), "overhead" (full - pages: tables, fallback maps, thumbnail, MaterialX,
-    layers; with pages the tables' basis block is still in it), "k", "fallback_fits" (the
+    layers; with pages the basis page, or the tables' basis block, is still in it), "k", "fallback_fits" (the
     fallback fits used, to pass to a later call).
     """
     import tempfile
@@ -307,7 +307,9 @@ def asset_overhead(cbtf: CompressedBTF, fallback_fits: tuple | None = None) -> d
             summary = write_package(result, Path(tmp) / "probe.usda")
             full = int(summary["bytes"][FULL_LOD])
             paged = result.gpu is not None
-            names = set(result.coefficients) | (set() if paged else {result.basis})
+            # The coefficient files: without the basis page listed after the GPU pages (schema
+            # 4), whose bytes stay in the overhead as the tables' basis block did before.
+            names = (set(result.gpu.pages) if paged else set(result.coefficients) | {result.basis})
             folder = Path(summary["textures"])
             pages = int(sum((folder / n).stat().st_size for n in names))
     finally:
@@ -373,7 +375,8 @@ def package(compressed, options: PackageOptions | None = None, *,
     # preview can draw the sampling; else one file per coefficient and a basis image.
     gpu = storm.add_gpu_textures(cbtf, textures, levels, texels=texels)
     if gpu is not None:
-        basis, coefficients = gpu.tables, list(gpu.pages)
+        # Schema 4: the basis page (integer codes) listed after the coefficient pages.
+        basis, coefficients = gpu.tables, list(gpu.pages) + ([gpu.basis] if gpu.basis else [])
     else:
         basis, coefficients = package_textures(cbtf, textures)
     fitted = (fallback_fits[0] if fallback_fits is not None else fit_svbrdf(cbtf, white_level=white)
@@ -471,7 +474,7 @@ def _author_payload(stage, result: PackageResult, names: _Names, provenance: str
     if result.gpu is not None:
         g = result.gpu
         gpu = storm.author_gpu_preview(stage, material, textures.texture(g.tables, names.textures),
-                                       [textures.texture(p, names.textures) for p in g.pages], g.k, wrap,
+                                       [p and textures.texture(p, names.textures) for p in g.slots()], g.k, wrap,
                                        g.first_packs, white_level_of(cbtf.info))
     prim = author_mesh(stage, f"/{names.root}/geo/{valid_name(result.mesh.name)}", result.mesh)
     UsdShade.MaterialBindingAPI.Apply(prim).Bind(material)
@@ -504,8 +507,10 @@ def _author_root(stage, result: PackageResult, names: _Names, root_name: str, co
         thumbnail.declare_thumbnail(prim, f"./{names.textures}/{result.thumbnail}")
     lod_tables = None if result.gpu is None else {
         n: result.textures.texture(name, names.textures).path for n, name in result.gpu.lod_tables.items()}
+    lod_basis = None if result.gpu is None else {
+        n: result.textures.texture(name, names.textures).path for n, name in result.gpu.lod_basis.items()}
     lod.author_lod_variants(stage, f"/{names.root}", f"/{names.root}/mtl/{MATERIAL}", result.levels, coefficients,
-                            gpu, paged=result.gpu is not None, tables=lod_tables)
+                            gpu, paged=result.gpu is not None, tables=lod_tables, basis_pages=lod_basis)
 
 
 def _authored(path: Path, author):

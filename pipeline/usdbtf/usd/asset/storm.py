@@ -14,14 +14,17 @@ next to the UsdPreviewSurface fallback::
     <stem>_textures/gpu/tables.exr   basis rows, hemisphere lookups, de-quantisation, the
                                      packs' directory (float32)
     <stem>_textures/gpu/pageNN.png   coefficient packs (4 layers per RGBA tile) laid out on at
-                                     most 15 atlas pages: 8-bit codes as PNG, 16-bit codes as
+                                     most 14 atlas pages: 8-bit codes as PNG, 16-bit codes as
                                      float32 EXR (code / 65535), half floats as EXR; the stored
-                                     codes exactly: with the tables, at most 16 samplers for
-                                     any k (usdbtf.gpu.tables)
+                                     codes exactly
+    <stem>_textures/gpu/basis.png    the integer basis codes as 8-bit high / low planes (schema
+                                     4, page slot 14, ``page14``; half codes stay in the tables):
+                                     with the tables, at most 16 samplers for any k
+                                     (usdbtf.gpu.tables)
     <stem>_textures/gpu/usdbtf.mtlx  the same material as a MaterialX document (usdbtf_surface)
-    <stem>_textures/gpu/tables_k<n>.exr, usdbtf_k<n>.mtlx
-                                     per lower level of detail: its own tables (its n basis
-                                     vectors and its packs' entries only) and document
+    <stem>_textures/gpu/tables_k<n>.exr, basis_k<n>.png, usdbtf_k<n>.mtlx
+                                     per lower level of detail: its own tables (its packs'
+                                     entries only), basis page (its n vectors) and document
 
 Renderers pick by render context: Storm takes ``glslfx``, every other renderer the
 universal ``outputs:surface`` (UsdPreviewSurface).
@@ -37,8 +40,9 @@ shader, the plugin ships its definition (sourceAsset + glslfx).
 
 Levels of detail (:mod:`usdbtf.usd.asset.lod`): the Material's ``lod`` variant ``k<n>``, in the
 root layer, sets ``basisCount``, points the tables node at the level's own tables and
-blocks the connections of the pages beyond those holding its packs (pages end where levels
-end), so Storm loads only those textures; the payload holds the full set.
+points the basis page node at the level's own basis page and blocks the connections of the
+pages beyond those holding its packs (pages end where levels end), so Storm loads only those
+textures; the payload holds the full set.
 """
 from __future__ import annotations
 
@@ -49,12 +53,12 @@ from ...compress.format import CompressedBTF
 from ...compress.packs import encode_png_page
 from ...errors import BTFError
 from ...gpu import shaders
-from ...gpu.tables import MAX_PAGES, gpu_layout, pack_count
+from ...gpu.tables import BASIS_PAGE, gpu_layout, page_slots
 from ...imageio import read_rgba
 from ...photometry import white_level_of
 
 __all__ = ["plugin_dir_resources", "GPU_DIR", "STORM_SURFACE", "GpuTextures", "add_gpu_textures",
-           "author_gpu_preview", "lod_tables_name", "lod_mtlx_name", "author_materialx_preview",
+           "author_gpu_preview", "lod_tables_name", "lod_basis_name", "basis_node", "lod_mtlx_name", "author_materialx_preview",
            "materialx_document", "storm_shader", "layout_from_asset", "read_rgba"]
 
 GPU_DIR = "gpu"
@@ -77,18 +81,37 @@ class GpuTextures:
     """The Storm preview's files in a texture set: ``tables`` and ``pages`` (names), the basis
     count ``k`` the tables hold, the first pack of each page (``first_packs``), and
     ``lod_tables``: {n: name of the tables of the first n vectors} per lower level of detail
-    (:func:`lod_tables_name`; empty for a layout made without levels)."""
+    (:func:`lod_tables_name`; empty for a layout made without levels); ``basis``: the basis
+    page's name (schema 4; None where the tables hold the codes) and ``lod_basis``: {n: name
+    of the basis page of the first n vectors}."""
 
     tables: str
     pages: list
     k: int
     first_packs: list
     lod_tables: dict = field(default_factory=dict)
+    basis: str | None = None
+    lod_basis: dict = field(default_factory=dict)
+
+    def slots(self, n: int | None = None) -> list:
+        """The page slots' file names (None: unbound) of the first ``n`` (default k) vectors
+        (:func:`usdbtf.gpu.tables.page_slots`)."""
+        return page_slots(self.pages, self.first_packs, self.k, n, self.basis, self.lod_basis)
 
 
 def lod_tables_name(n: int) -> str:
     """File stem of the tables of a level of detail of ``n`` vectors (``tables_k<n>``)."""
     return f"tables_k{n}"
+
+
+def lod_basis_name(n: int) -> str:
+    """File stem of the basis page of a level of detail of ``n`` vectors (``basis_k<n>``)."""
+    return f"basis_k{n}"
+
+
+def basis_node() -> str:
+    """The name of the UsdUVTexture node of the basis page (page slot BASIS_PAGE)."""
+    return f"Storm{shaders.page_name(BASIS_PAGE).capitalize()}"
 
 
 def add_gpu_textures(cbtf: CompressedBTF, textures, lods=(), *, texels=None) -> GpuTextures | None:
@@ -131,19 +154,24 @@ def add_gpu_textures(cbtf: CompressedBTF, textures, lods=(), *, texels=None) -> 
                                 forkable=all(layout.pages.dtype(p) == np.uint8 for p in pages_range))
     pages = [textures.add(f"{GPU_DIR}/{shaders.page_name(p)}{suffix}", data, kind)
              for p, (suffix, data, kind) in enumerate(encoded)]
-    white = white_level_of(cbtf.info)
-    document = materialx_document(Path(tables).name, [Path(name).name for name in pages], layout.k, white)
-    textures.add_file(f"{GPU_DIR}/{MTLX_FILE}", document.encode())
-    lod_tables = {}
+    basis = None if layout.basis_page is None else \
+        textures.add(f"{GPU_DIR}/basis.png", encode_png_page(layout.basis_page), "unorm")
+    lod_tables, lod_basis = {}, {}
     for n, table in layout.lod_tables.items():
-        # Each lower level's own tables (its basis vectors and packs only), and its own
-        # MaterialX document on them and on its pages.
+        # Each lower level's own tables (its packs only) and basis page (its vectors only).
         lod_tables[n] = textures.add(f"{GPU_DIR}/{lod_tables_name(n)}.exr", encode_image(
             table, "exr", color_space="data", attributes={"compression": "zip"}), "float")
-        own = [Path(name).name for name, first in zip(pages, layout.first_packs) if first < pack_count(n)]
-        textures.add_file(f"{GPU_DIR}/{lod_mtlx_name(n)}",
-                          materialx_document(Path(lod_tables[n]).name, own, n, white).encode())
-    return GpuTextures(tables, pages, layout.k, layout.first_packs, lod_tables)
+        if n in layout.lod_basis_pages:
+            lod_basis[n] = textures.add(f"{GPU_DIR}/{lod_basis_name(n)}.png",
+                                        encode_png_page(layout.lod_basis_pages[n]), "unorm")
+    made = GpuTextures(tables, pages, layout.k, layout.first_packs, lod_tables, basis, lod_basis)
+    # The MaterialX documents, the full level's and each lower level's own, on its files.
+    white = white_level_of(cbtf.info)
+    for n, name in [(layout.k, MTLX_FILE), *((n, lod_mtlx_name(n)) for n in lod_tables)]:
+        slots = [None if f is None else Path(f).name for f in made.slots(n)]
+        table = tables if n == layout.k else lod_tables[n]
+        textures.add_file(f"{GPU_DIR}/{name}", materialx_document(Path(table).name, slots, n, white).encode())
+    return made
 
 
 def lod_mtlx_name(n: int) -> str:
@@ -151,10 +179,10 @@ def lod_mtlx_name(n: int) -> str:
     return f"{Path(MTLX_FILE).stem}_k{n}.mtlx"
 
 
-def materialx_document(tables: str, pages: list[str], k: int, white_level: float = 1.0) -> str:
+def materialx_document(tables: str, pages: list, k: int, white_level: float = 1.0) -> str:
     """A MaterialX document instancing usdbtf_surface on the given texture files (paths
-    relative to the document), bound to a surfacematerial named BtfMaterial; ``white_level``:
-    the BTF's W (:mod:`usdbtf.photometry`)."""
+    relative to the document; ``pages`` per page slot, None for an unbound slot), bound to a
+    surfacematerial named BtfMaterial; ``white_level``: the BTF's W (:mod:`usdbtf.photometry`)."""
     lines = ['<?xml version="1.0"?>',
              "<!-- usdbtf: the packaged BTF as MaterialX; needs plugin/usdBtf/resources/materialx on the"
              " library search path (PXR_MTLX_PLUGIN_SEARCH_PATHS for Hydra). -->",
@@ -162,7 +190,7 @@ def materialx_document(tables: str, pages: list[str], k: int, white_level: float
              '  <usdbtf_surface name="btf" type="surfaceshader">',
              f'    <input name="tables" type="filename" value="{tables}" />']
     lines += [f'    <input name="{shaders.page_name(p)}" type="filename" value="{name}" />'
-              for p, name in enumerate(pages)]
+              for p, name in enumerate(pages) if name is not None]
     lines += [f'    <input name="basisCount" type="integer" value="{k}" />',
               f'    <input name="whiteLevel" type="float" value="{float(white_level)!r}" />',
               "  </usdbtf_surface>",
@@ -188,7 +216,8 @@ def _texture(stage, path, texture, reader, wrap: str):
 def author_gpu_preview(stage, material, tables, pages: list, k: int, wrap: str,
                        first_packs: list, white_level: float = 1.0) -> tuple[str, list, int]:
     """Author the Storm shader network in ``material`` (a UsdShade.Material on ``stage``, whose
-    layer sits next to the texture folder) on the GPU textures ``tables`` and ``pages``
+    layer sits next to the texture folder) on the GPU textures ``tables`` and ``pages`` (per page
+    slot, None where unbound: :meth:`GpuTextures.slots`)
     (:class:`~usdbtf.usd.asset.textures.Texture`\\ s of :func:`add_gpu_textures`' files; the tables
     hold ``k`` basis vectors; ``wrap`` for the page nodes, which the shader reads texel by
     texel; ``first_packs``: the first pack of each page; ``white_level``: the BTF's W,
@@ -215,7 +244,10 @@ def author_gpu_preview(stage, material, tables, pages: list, k: int, wrap: str,
     data_inputs.append(surface.CreateInput("tables", Sdf.ValueTypeNames.Float))
     data_inputs[-1].ConnectToSource(tex.ConnectableAPI(), "r")
     for p, texture in enumerate(pages):
-        tex = _texture(stage, mpath.AppendChild(f"Storm{shaders.page_name(p).capitalize()}"), texture, reader, wrap)
+        if texture is None:
+            continue
+        tex = _texture(stage, mpath.AppendChild(f"Storm{shaders.page_name(p).capitalize()}"), texture, reader,
+                       "clamp" if p == BASIS_PAGE else wrap)
         data_inputs.append(surface.CreateInput(shaders.page_name(p), Sdf.ValueTypeNames.Float))
         data_inputs[-1].ConnectToSource(tex.ConnectableAPI(), "r")
     for inp in data_inputs:             # data, not colour (the material declares its working space)
@@ -229,7 +261,7 @@ def author_materialx_preview(stage, material_path: str, tables: str, pages: list
                              white_level: float = 1.0):
     """A Material at ``material_path`` whose ``outputs:mtlx:surface`` is the usdbtf node in
     Hydra's MaterialX path: ``ND_surface`` <- ``ND_usdbtf_bsdf`` (the tables and pages as
-    asset inputs, ``texcoord`` from ``ND_texcoord_vector2``, ``basisCount`` = ``k``).  Storm
+    asset inputs, ``pages`` per page slot, None where unbound: :meth:`GpuTextures.slots`, ``texcoord`` from ``ND_texcoord_vector2``, ``basisCount`` = ``k``).  Storm
     25.08 generates and compiles it (``tests/test_storm.py``); the ``usdbtf_surface`` node
     graph cannot be used there: Storm's MaterialX code defines a macro named after each texture
     input, which rewrites the graph function's parameters of the same name.  Returns the
@@ -240,8 +272,9 @@ def author_materialx_preview(stage, material_path: str, tables: str, pages: list
     bsdf = UsdShade.Shader.Define(stage, f"{material_path}/BtfBsdf")
     bsdf.CreateIdAttr(f"ND_{shaders.MTLX_BSDF}")
     bsdf.CreateInput("tables", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(tables))
-    for p, page in enumerate(pages):
-        bsdf.CreateInput(shaders.page_name(p), Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(page))
+    for p, page in enumerate(pages):          # per page slot; None: unbound
+        if page is not None:
+            bsdf.CreateInput(shaders.page_name(p), Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(page))
     bsdf.CreateInput("basisCount", Sdf.ValueTypeNames.Int).Set(int(k))
     bsdf.CreateInput("whiteLevel", Sdf.ValueTypeNames.Float).Set(float(white_level))     # usdbtf.photometry
     st = UsdShade.Shader.Define(stage, f"{material_path}/TexCoord")
@@ -304,14 +337,15 @@ def layout_from_asset(asset, *, lod: str | None = None):
         raise BTFError(f"{asset}: {shader.GetPath()} has no tables texture connected")
     tables = np.asarray(tables, np.float32)
     pages, wrap = [], "clamp"
-    for p in range(MAX_PAGES):
+    for p in range(BASIS_PAGE):
         pixels, page_wrap = texture(shaders.page_name(p))
         if pixels is None:
             break
         pages.append(pixels)
         wrap = page_wrap
+    basis_page, _ = texture(shaders.page_name(BASIS_PAGE))          # schema 4 (None before)
     k = int(shader.GetInput("basisCount").Get())
     flat = tables.reshape(-1, 4)
     directory = flat[int(flat[3, 0]):int(flat[3, 0]) + 3 * -(-int(flat[1, 0]) // 4), 0].astype(int)
     first_packs = [int(np.argmax(directory == page)) for page in range(int(directory.max()) + 1)]
-    return GpuLayout(tables, pages, k, first_packs), wrap, k
+    return GpuLayout(tables, pages, k, first_packs, basis_page=basis_page), wrap, k
