@@ -247,7 +247,7 @@ def check_basis_bytes(codes: np.ndarray, header: int) -> tuple[int, int]:
 
     S, k = codes.shape
     whole = np.concatenate([_group_block(codes[:, 4 * g:4 * g + 4]) for g in range(-(-k // 4))])
-    return basis_bytes(("check", id(codes)), codes, header), basis_block_bytes(whole)
+    return basis_bytes(("check", codes.shape), codes, header), basis_block_bytes(whole)
 
 
 @dataclass
@@ -425,6 +425,81 @@ def best_at_error(rows):
     return min(rows, key=lambda r: r["bytes"]["payload"]) if rows else None
 
 
+def separable_basis(u: np.ndarray, sampling, rank: int) -> np.ndarray:
+    """Each basis vector (S,) as a (views x lights) matrix cut to rank ``rank``, its factors
+    rounded to half floats: (S, k) float32.  A renderer would rebuild a basis row from ``rank``
+    view and light factors per vector instead of reading S codes."""
+    vid = np.unique(sampling.view, axis=0, return_inverse=True)[1].ravel()
+    lid = np.unique(sampling.light, axis=0, return_inverse=True)[1].ravel()
+    out = np.empty_like(u)
+    for j in range(u.shape[1]):
+        m = np.zeros((vid.max() + 1, lid.max() + 1))
+        m[vid, lid] = u[:, j]
+        a, sv, bt = np.linalg.svd(m, full_matrices=False)
+        fa = (a[:, :rank] * sv[:rank]).astype(np.float16).astype(np.float64)
+        fb = bt[:rank].astype(np.float16).astype(np.float64)
+        out[:, j] = (fa @ fb)[vid, lid]
+    return out, int(vid.max() + 1 + lid.max() + 1)
+
+
+def separable_rows(search, glob: Model, u0, g, sampling, row: dict, ranks, size: int) -> list:
+    """The global configuration ``row`` (its k and step) with a rank-r separable basis (r in
+    ``ranks``): coefficients re-fitted by least squares in the global span, quantised at the same
+    step and counted as PNG packs; the basis counted as half-float factors, 2 bytes each."""
+    out = []
+    k, step = row["keep"][0], row["step"]
+    for r in ranks:
+        us, nvl = separable_basis(glob.clusters[0].u[:, :k], sampling, r)
+        coef = np.linalg.lstsq(us.astype(np.float64), u0.astype(np.float64) @ g.reshape(g.shape[0], -1),
+                               rcond=None)[0]                                  # (k, 3P) domain channels
+        stored = (coef.reshape(-1, 3) @ glob.rot).reshape(k, -1, 3).astype(np.float32)
+        m = Model([Cluster(np.arange(glob.P), us, stored, np.ones(k))], glob.rot, glob.P, size, glob.S,
+                  np.zeros(glob.P, int))
+        st = Encoder(m, step, f"separable{r}").store([k])
+        st.bases[0] = us
+        factor_bytes = 2 * k * r * nvl
+        st.bytes = {"payload": st.bytes["coefficients"] + factor_bytes, "coefficients": st.bytes["coefficients"],
+                    "basis": factor_bytes, "index": 0}
+        out.append({**search.row(st, search.errors(st)), "rank": r, "step": step})
+    return out
+
+
+def basis_png_bytes(codes: np.ndarray, sampling) -> int:
+    """Bytes of basis codes (S, k) as one 16-bit RGBA PNG per group of four vectors, each laid out
+    views x lights (rows x columns), so PNG's filters see both directional neighbours: the
+    codec alternative to today's group-major float32 OpenEXR zip rows (Storm reads 16-bit PNG)."""
+    from usdbtf.compress.packs import encode_png_page
+
+    vid = np.unique(sampling.view, axis=0, return_inverse=True)[1].ravel()
+    lid = np.unique(sampling.light, axis=0, return_inverse=True)[1].ravel()
+    total = 0
+    for g in range(-(-codes.shape[1] // 4)):
+        img = np.zeros((vid.max() + 1, lid.max() + 1, 4), np.uint16)
+        part = codes[:, 4 * g:4 * g + 4]
+        img[vid, lid, :part.shape[1]] = part
+        total += len(encode_png_page(img))
+    return total
+
+
+def basis_codec_rows(search, glob: Model, sampling, row: dict, factors) -> list:
+    """The global configuration ``row`` with its basis steps multiplied by each of ``factors``
+    (coarser basis codes at the same coefficient step): error, bytes with today's EXR block, and
+    the basis as 16-bit PNG views x lights (:func:`basis_png_bytes`)."""
+    out = []
+    k, step = row["keep"][0], row["step"]
+    cl = glob.clusters[0]
+    for f in factors:
+        enc = Encoder(glob, step, f"basis{f}")
+        enc.bq = [quantise_basis(cl.u, cl.energy / f ** 2, step)]           # step / sigma_j -> f step / sigma_j
+        st = enc.store([k])
+        png = basis_png_bytes(enc.bq[0][0][:, :k], sampling)
+        r = {**search.row(st, search.errors(st)), "factor": f, "basis_png": png,
+             "payload_png": st.bytes["coefficients"] + png, "x_budget_png": (st.bytes["coefficients"] + png)
+             / search.budget}
+        out.append(r)
+    return out
+
+
 # ----------------------------------------------------------------------------- main
 
 
@@ -432,6 +507,7 @@ def run_preset(preset: str, args) -> dict:
     from usdbtf.bench.datasets import HELDOUT_PRESETS
 
     res = {"held_out": preset in HELDOUT_PRESETS}
+    _BASIS_BYTES.clear()              # its keys name a method, a step and a group, not a preset
     data = load(preset, "paper", args.size)
     sel = stride_rows(data, args.stride)
     paper = paper_cached(data)
@@ -446,7 +522,7 @@ def run_preset(preset: str, args) -> dict:
     t0 = time.process_time()
     x = dom.code_table(data.lut)[np.asarray(data.codes)]                   # (S, P, 3) domain values
     u0, g = global_fit(x, args.k0)
-    del x
+    del x                                       # g = U0^T X: the later fits work in the global span
     rot = color_axes(g).astype(np.float64)
     glob = build_model(u0, g, rot, np.zeros(data.P, int), args.size)
     glob.seconds = time.process_time() - t0
@@ -516,7 +592,27 @@ def run_preset(preset: str, args) -> dict:
                     r.update(step=step, cap=K, log_mu=float(grid[r["knob"]]))
                 out["per-texel k"][key].append(r)
         say(f"  step {step}: {time.process_time() - t:.0f} CPU s, {search.evals} evaluations so far")
+    if args.separable and best_at_error(out["global"]["at_error"]):
+        rows = separable_rows(search, glob, u0, g, data.sampling, best_at_error(out["global"]["at_error"]),
+                              args.separable, args.size)
+        out["separable"] = rows
+        for r in rows:
+            say(f"  global at the paper's error, basis as rank-{r['rank']} view x light factors: "
+                f"{r['bytes']['payload']:,} B = {r['x_budget']:.3f} B (factors {r['bytes']['basis']:,}, coeff "
+                f"{r['bytes']['coefficients']:,}), {r['encoded']:.3f} / {r['linear']:.3f} %, ratio "
+                f"{r['ratio'][0]:.3f} / {r['ratio'][1]:.3f}")
+    if args.basis_factors and best_at_error(out["global"]["at_error"]):
+        rows = basis_codec_rows(search, glob, data.sampling, best_at_error(out["global"]["at_error"]),
+                                args.basis_factors)
+        out["basis_codec"] = rows
+        for r in rows:
+            say(f"  global at the paper's error, basis steps x{r['factor']:g}: EXR block {r['bytes']['basis']:,} B, "
+                f"16-bit PNG views x lights {r['basis_png']:,} B; total {r['x_budget']:.3f} B (EXR) / "
+                f"{r['x_budget_png']:.3f} B (PNG); {r['encoded']:.3f} / {r['linear']:.3f} %, ratio "
+                f"{r['ratio'][0]:.3f} / {r['ratio'][1]:.3f}")
     for name, o in out.items():
+        if name in ("separable", "basis_codec") or (not o["at_bytes"] and not o["at_error"]):
+            continue
         o["best_at_bytes"] = best_at_bytes(o["at_bytes"])
         o["best_at_error"] = best_at_error(o["at_error"])
         bb, be = o["best_at_bytes"], o["best_at_error"]
@@ -546,11 +642,17 @@ def main(argv=None) -> int:
     p.add_argument("--feature-k", type=int, default=24)
     p.add_argument("--refine-rank", type=int, default=16)
     p.add_argument("--refine-iterations", type=int, default=4)
+    p.add_argument("--separable", default="", help="ranks r: also the global at-error configuration with "
+                   "each basis vector as a rank-r view x light matrix (e.g. 4,8,16)")
+    p.add_argument("--basis-factors", default="", help="also the global at-error configuration with its "
+                   "basis steps times each factor (e.g. 1,2,4), basis bytes as EXR and as 16-bit PNG")
     p.add_argument("--json", default=str(OUT / "probe_issue43.json"))
     args = p.parse_args(argv)
     args.clusters = [int(c) for c in args.clusters.split(",") if c]
     args.steps = [float(s) for s in args.steps.split(",") if s]
     args.cap_factors = [float(s) for s in args.cap_factors.split(",") if s]
+    args.separable = [int(s) for s in args.separable.split(",") if s]
+    args.basis_factors = [float(s) for s in args.basis_factors.split(",") if s]
     presets = preset_list(args.presets, tuning_only=False)
     presets = [x for x in presets if x not in HELDOUT_PRESETS] + [x for x in presets if x in HELDOUT_PRESETS]
     header("issue 43 probe: clustered local bases and per-texel k vs one global basis (shipped bytes)",
@@ -587,6 +689,8 @@ def main(argv=None) -> int:
         say(f"| {name} | paper k 150 | {pa['encoded']:.3f} / {pa['linear']:.3f} | 1 / 1 | {pa['bytes']['payload']:,} "
             f"(1) | {pa['bytes']['basis']:,} / {pa['bytes']['coefficients']:,} / - | 150 | - |")
         for method, o in r["methods"].items():
+            if method in ("separable", "basis_codec") or (not o["at_bytes"] and not o["at_error"]):
+                continue                                   # not run (per-texel k with --cap-factors "")
             bb, be = o["best_at_bytes"], o["best_at_error"]
             at_b = ("-", "-") if not bb else (f"{bb['encoded']:.3f} / {bb['linear']:.3f}",
                                               f"{bb['ratio'][0]:.3f} / {bb['ratio'][1]:.3f}")
