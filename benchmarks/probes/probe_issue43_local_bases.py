@@ -42,10 +42,17 @@ error over every --stride-th sample, all texels and channels, on the 8-bit sRGB 
 in scene-linear ACEScg (``research/rlib.evaluate``).  CPU seconds = process time (all threads)
 of the fit (basis, clustering, cluster bases) and of the whole search.
 
+Side measurements on the global configuration at the paper's error (its k and step):
+``--separable R,..`` replaces each basis vector by its rank-r SVD as a views x lights matrix (half-float
+factors counted raw, coefficients re-fitted by least squares in the global span); ``--basis-factors
+F,..`` multiplies the basis steps by f and counts the basis codes both as today's EXR block and as one
+16-bit RGBA PNG per group of four vectors laid out views x lights.
+
 Usage::
 
     nice -n 19 .venv/bin/python benchmarks/probes/probe_issue43_local_bases.py \\
-        [--presets metal_flakes,pebbles,crevice_stones] [--size 32] [--stride 12] [--clusters 2,4,8] [--steps 0.1,0.2,0.4]
+        [--presets metal_flakes,pebbles,crevice_stones] [--size 32] [--stride 12] [--clusters 2,4,8]
+        [--steps 0.1,0.2,0.4] [--cap-factors 1,1.5] [--separable 2,4,8,16] [--basis-factors 1,2,4]
 """
 from __future__ import annotations
 
