@@ -105,6 +105,7 @@ class Model:
     labels: np.ndarray
     seconds: float = 0.0
     info: dict = field(default_factory=dict)
+    shared: int = 0             # the first ``shared`` vectors of every cluster are one basis, shipped once
 
 
 def global_fit(x: np.ndarray, k0: int, seed: int = 0):
@@ -182,6 +183,24 @@ def build_model(u0: np.ndarray, g: np.ndarray, rot: np.ndarray, labels: np.ndarr
         stored = (coeff.reshape(-1, 3) @ rot).reshape(coeff.shape).astype(np.float32)
         clusters.append(Cluster(texels, (u0.astype(np.float64) @ v).astype(np.float32), stored, s ** 2))
     return Model(clusters, rot, g.shape[1], size, u0.shape[0], labels)
+
+
+def hybrid_model(u0: np.ndarray, g: np.ndarray, rot: np.ndarray, labels: np.ndarray, shared: int,
+                 size: int) -> Model:
+    """The first ``shared`` global vectors for every texel, then per cluster its own vectors fitted
+    to what they leave (SVD of the cluster's remaining projected coefficients): a texel reads the
+    shared block and its cluster's block."""
+    head = g[:shared]
+    e_head = (head.astype(np.float64) ** 2).sum(axis=(1, 2))
+    clusters = []
+    for c in range(labels.max() + 1):
+        texels = np.flatnonzero(labels == c)
+        v, s, coeff = _cluster_svd(g[shared:], texels)
+        both = np.concatenate([head[:, texels].astype(np.float64), coeff])
+        stored = (both.reshape(-1, 3) @ rot).reshape(both.shape).astype(np.float32)
+        u = np.concatenate([u0[:, :shared], (u0[:, shared:].astype(np.float64) @ v).astype(np.float32)], axis=1)
+        clusters.append(Cluster(texels, u, stored, np.concatenate([e_head, s ** 2])))
+    return Model(clusters, rot, g.shape[1], size, u0.shape[0], labels, shared=shared)
 
 
 # ----------------------------------------------------------------------------- storage
@@ -302,7 +321,10 @@ class Encoder:
                 for j in range(len(part)):
                     pix[:, :, j] = part[j, :, ch].reshape(n, n)
                 coeff_bytes += _pack_bytes(pix)
-        bb = sum(basis_bytes((self.tag, step, ci), self.bq[ci][0][:, :c], self.header) for ci, c in enumerate(keep) if c)
+        h = m.shared
+        bb = 0 if not h else basis_bytes((self.tag, step, "shared"), self.bq[0][0][:, :h], self.header)
+        bb += sum(basis_bytes((self.tag, step, ci), self.bq[ci][0][:, h:c], self.header)
+                  for ci, c in enumerate(keep) if c > h)
         index_bytes = 0
         if len(m.clusters) > 1:
             from usdbtf.imageio import encode_image
@@ -350,12 +372,13 @@ def bisect_int(lo: int, hi: int, ok) -> int | None:
 def greedy_keep(model: Model, total: int, a: float, b: float) -> list:
     """Vectors per cluster: the ``total`` components of most energy per byte, sigma^2 / (a 3 n_c + b S)."""
     util, owner = [], []
+    h = model.shared                              # shared vectors are always kept; the knob counts the rest
     for ci, cl in enumerate(model.clusters):
-        util.append(cl.energy / (a * 3 * len(cl.texels) + b * model.S))
-        owner.append(np.full(len(cl.energy), ci))
+        util.append(cl.energy[h:] / (a * 3 * len(cl.texels) + b * model.S))
+        owner.append(np.full(len(cl.energy) - h, ci))
     util, owner = np.concatenate(util), np.concatenate(owner)
     top = owner[np.argsort(-util, kind="stable")[:total]]
-    return [int((top == ci).sum()) for ci in range(len(model.clusters))]
+    return [h + int((top == ci).sum()) for ci in range(len(model.clusters))]
 
 
 def per_texel_cutoff(model: Model, K: int, log_mu: float) -> np.ndarray:
@@ -578,6 +601,22 @@ def run_preset(preset: str, args) -> dict:
                 if r:
                     r["step"] = step
                 out[name][key].append(r)
+        # shared + per-cluster vectors: the shared count a fraction of the global's k at the same target
+        for frac in args.hybrid:
+            for C, labels in ((C, models[f"local {C}"].labels) for C in args.clusters):
+                for key, ref_row in (("at_bytes", gb), ("at_error", ge)):
+                    if ref_row is None:
+                        continue
+                    h = max(4, 4 * int(round(frac * ref_row["knob"] / 4)))
+                    hm = hybrid_model(u0, g, rot, labels, h, args.size)
+                    enc = Encoder(hm, step, f"hybrid{C}-{h}")
+                    total = sum(len(c.energy) - h for c in hm.clusters)
+                    make = lambda n, hm=hm, enc=enc: enc.store(greedy_keep(hm, n, a, b))   # noqa: E731
+                    r = search.at_bytes(make, 0, total) if key == "at_bytes" else search.at_error(make, 0, total)
+                    if r:
+                        r.update(step=step, shared=h)
+                    out.setdefault(f"shared x{frac:g} + local {C}", {"fit_cpu_s": models[f"local {C}"].seconds,
+                                                                     "at_bytes": [], "at_error": []})[key].append(r)
         # per-texel k: cap K at 1, 1.5, 2 x the global method's k for the same target; knob mu
         e0 = float(glob.clusters[0].energy.max())
         grid = np.linspace(np.log(e0 * 1e-12), np.log(e0 * 1e-2), 129)     # knob index -> log mu
@@ -653,6 +692,8 @@ def main(argv=None) -> int:
                    "each basis vector as a rank-r view x light matrix (e.g. 4,8,16)")
     p.add_argument("--basis-factors", default="", help="also the global at-error configuration with its "
                    "basis steps times each factor (e.g. 1,2,4), basis bytes as EXR and as 16-bit PNG")
+    p.add_argument("--hybrid", default="", help="fractions f: also f x the global's k shared vectors plus "
+                   "per-cluster vectors for each C of --clusters (e.g. 0.5,0.75)")
     p.add_argument("--json", default=str(OUT / "probe_issue43.json"))
     args = p.parse_args(argv)
     args.clusters = [int(c) for c in args.clusters.split(",") if c]
@@ -660,6 +701,7 @@ def main(argv=None) -> int:
     args.cap_factors = [float(s) for s in args.cap_factors.split(",") if s]
     args.separable = [int(s) for s in args.separable.split(",") if s]
     args.basis_factors = [float(s) for s in args.basis_factors.split(",") if s]
+    args.hybrid = [float(s) for s in args.hybrid.split(",") if s]
     presets = preset_list(args.presets, tuning_only=False)
     presets = [x for x in presets if x not in HELDOUT_PRESETS] + [x for x in presets if x in HELDOUT_PRESETS]
     header("issue 43 probe: clustered local bases and per-texel k vs one global basis (shipped bytes)",
