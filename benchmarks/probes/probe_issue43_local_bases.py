@@ -42,6 +42,10 @@ error over every --stride-th sample, all texels and channels, on the 8-bit sRGB 
 in scene-linear ACEScg (``research/rlib.evaluate``).  CPU seconds = process time (all threads)
 of the fit (basis, clustering, cluster bases) and of the whole search.
 
+``--hybrid F,..``: for each C of --clusters, the first f x (the global's k at the same target, rounded
+to whole groups of four) global vectors are shared by every texel and shipped once; each cluster adds its
+own vectors fitted to what the shared ones leave (greedy by energy per byte, the knob their total).
+
 Side measurements on the global configuration at the paper's error (its k and step):
 ``--separable R,..`` replaces each basis vector by its rank-r SVD as a views x lights matrix (half-float
 factors counted raw, coefficients re-fitted by least squares in the global span); ``--basis-factors
@@ -52,7 +56,7 @@ Usage::
 
     nice -n 19 .venv/bin/python benchmarks/probes/probe_issue43_local_bases.py \\
         [--presets metal_flakes,pebbles,crevice_stones] [--size 32] [--stride 12] [--clusters 2,4,8]
-        [--steps 0.1,0.2,0.4] [--cap-factors 1,1.5] [--separable 2,4,8,16] [--basis-factors 1,2,4]
+        [--steps 0.1,0.2,0.4] [--cap-factors 1,1.5] [--separable 2,4,8,16] [--basis-factors 1,2,4] [--hybrid 0.5]
 """
 from __future__ import annotations
 
