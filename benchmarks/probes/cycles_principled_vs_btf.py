@@ -21,7 +21,9 @@ linear Rec.709), the same with the BTF frame converted from the working space to
 (one space: the brightness comparison that means something when the working space is not
 Rec.709), OSL BTF mean / the decompressed sample's mean (working space: the BTF path's own
 check, 1 under the capture light), and the fit model's mean / the sample's mean in the working
-space (no renderer: the fit's own bias).
+space (no renderer: the fit's own bias).  After each preset's table: that ratio per colour
+channel (swatch sums) averaged over *every* measured light at the pole view, the quantity the
+fits' brightness step (usdbtf.svbrdf.pole_ratio) drives to 1, and its range over those lights.
 
 ``--by-parameter``: per preset, the Principled frames' per-texel brightness over the model's
 (sum over the lights, Rec.709) against each scalar OpenPBR input: its range and that ratio in
@@ -65,6 +67,7 @@ def build(preset: str, work: Path, sampling: str, size: int, k: int) -> Path:
 
 
 def main(argv=None) -> int:
+    from bench_cycles import require_cycles_python
     from storm_helpers import openpbr_frame, pole_lights, shipped_openpbr_maps
     from usdbtf import openpbr
     from usdbtf.color import processor
@@ -80,9 +83,7 @@ def main(argv=None) -> int:
     ap.add_argument("--lights", type=int, default=4)
     ap.add_argument("--by-parameter", action="store_true", help="Principled / model per texel against each input")
     args = ap.parse_args(argv)
-    python = cycles.cycles_python()
-    if python is None:
-        raise SystemExit("no .venv-storm-5.0 (bpy 5.0.1): run scripts/bootstrap.sh")
+    python = require_cycles_python()
     print(format_machine(machine_info()))
     print(f"Blender (bpy) {cycles.BLENDER_VERSION}, Cycles with OSL on the CPU; inputs: --sampling {args.sampling} "
           f"--size {args.size} --seed 5, --k {args.k} --codec png, package --no-thumbnail", flush=True)
@@ -124,10 +125,26 @@ def main(argv=None) -> int:
             print(f"| {preset} | ({light[0]:.0f}, {light[1]:.0f}) | " + " | ".join(f"{v:.3f}" for v in row) + " |")
         mean = np.mean(rows, axis=0)
         print(f"| {preset} ({cbtf.working_space}) | **mean** | " + " | ".join(f"**{v:.3f}**" for v in mean) + " |", flush=True)
+        print(f"  {preset}: fit model / sample over all pole-view lights: " + pole_mean(maps, cbtf), flush=True)
         if args.by_parameter:
             by_parameter(preset, maps, [result.images[first + i][..., :3] for i in range(n)],
                          [openpbr_frame(maps, light, rendering, cbtf.ocio_config) for _, light in lights])
     return 0
+
+
+def pole_mean(maps, cbtf) -> str:
+    """Per channel, the fit model's swatch sum over the BTF's, averaged over every measured light
+    at the pole view (working space), and the per-light range of the mean ratio."""
+    from usdbtf import openpbr
+    from usdbtf.compress import reconstruct
+
+    view0 = np.flatnonzero(np.all(np.abs(cbtf.sampling.view) < 1e-9, axis=1))
+    rec = reconstruct(cbtf, view0).reshape(len(view0), -1, 3).astype(np.float64)
+    pred = openpbr.evaluate(maps, cbtf.sampling.view[view0], cbtf.sampling.light[view0]).astype(np.float64)
+    per_channel = (pred.sum(axis=1) / np.maximum(rec.sum(axis=1), 1e-12)).mean(axis=0)
+    per_light = pred.mean(axis=(1, 2)) / rec.mean(axis=(1, 2))
+    return (f"{len(view0)} lights, per channel {' / '.join(f'{v:.3f}' for v in per_channel)}, "
+            f"per light {per_light.min():.3f}..{per_light.max():.3f}")
 
 
 def by_parameter(preset: str, maps, principled: list, models: list) -> None:
