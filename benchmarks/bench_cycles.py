@@ -45,6 +45,14 @@ LIGHTS = [(15.0, 60.0), (30.0, 0.0), (45.0, 180.0), (60.0, 120.0), (75.0, 240.0)
 SUN = np.array([0.3, 0.5, 1.0]) / np.linalg.norm([0.3, 0.5, 1.0])
 
 
+def require_cycles_python() -> Path:
+    """The bpy 5.0.1 environment's Python; exits with the reason where it is absent."""
+    python = cycles.cycles_python()
+    if python is None:
+        raise SystemExit("no .venv-storm-5.0 (bpy 5.0.1): run scripts/bootstrap.sh")
+    return python
+
+
 def run(*args: str) -> None:
     print("$ usdbtf " + " ".join(args), flush=True)
     if usdbtf([*args, "-q"]) != 0:
@@ -144,9 +152,7 @@ def main(argv=None) -> int:
     p.add_argument("--figure", type=Path, help="write the Cycles | Storm | CPU figure (PNG) here")
     p.add_argument("--size", type=int, default=192, help="the figure's frame size (pixels)")
     args = p.parse_args(argv)
-    python = cycles.cycles_python()
-    if python is None:
-        raise SystemExit("no .venv-storm-5.0 (bpy 5.0.1): run scripts/bootstrap.sh")
+    python = require_cycles_python()
     print(format_machine(machine_info()))
     print(f"Blender (bpy) {cycles.BLENDER_VERSION}, Cycles on the CPU with OSL, 1 sample at the pixel centre, "
           "2 threads")

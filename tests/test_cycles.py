@@ -270,20 +270,25 @@ def test_principled_fallback_of_the_fitted_lobes(asset, swatch_renders):
     8-bit steps and mean brightness within 5 %, no gain (measured: the same maps wired straight
     into the Principled inputs, without those conversions, missed by 4.4-6.0 steps and 9-12 %;
     tests/test_openpbr.py checks the conversions themselves).  Against the add-on's OSL BTF under the same
-    sun the brightness is printed and kept within the fit's own bias (issue 40: the fit, not
-    the Principled mapping, decides it; benchmarks/history/fallbacks-and-photometry.md)."""
+    sun, in one space (the OSL BTF returns working-space values, here ACEScg: converted to
+    Blender's linear Rec.709 first), the brightness is printed and kept within the fit's own
+    per-light bias at the pole view, which the fit's one-factor-per-channel brightness step
+    evens out only over all the pole lights (measured 0.95 and 1.12 at these two lights;
+    benchmarks/probes/cycles_principled_vs_btf.py)."""
     from storm_helpers import openpbr_frame, pole_lights, shipped_openpbr_maps
+    from usdbtf.color import processor
 
     maps, cbtf = shipped_openpbr_maps(asset)
     lights = pole_lights(cbtf, 2)                    # the lights of _principled_frames, in its order
     result = swatch_renders["principled"]
+    to_rendering = processor(cbtf.working_space, "Linear Rec.709 (sRGB)", cbtf.ocio_config)
     for i, (s, light) in enumerate(lights):
         principled = result.images[i][..., :3].astype(np.float64)
-        btf = result.images[len(lights) + i][..., :3].astype(np.float64)
+        btf = to_rendering.apply(np.ascontiguousarray(result.images[len(lights) + i][..., :3], np.float32))
         model = openpbr_frame(maps, light, "Linear Rec.709 (sRGB)", cbtf.ocio_config)
         steps = float(np.abs(cycles.srgb8(principled) - cycles.srgb8(model)).mean())
         ratio, over_btf = principled.mean() / model.mean(), principled.mean() / btf.mean()
         print(f"Cycles Principled (fitted OpenPBR) at {light}: {steps:.2f} steps from the fit's model, "
-              f"mean / model {ratio:.3f}, / OSL BTF {over_btf:.3f}")
+              f"mean / model {ratio:.3f}, / OSL BTF (Rec.709) {over_btf:.3f}")
         assert steps <= MAX_STEPS and abs(ratio - 1.0) <= 0.05, (light, steps, ratio)
-        assert 0.6 <= over_btf <= 1.6, (light, over_btf)
+        assert 0.8 <= over_btf <= 1.25, (light, over_btf)

@@ -13,8 +13,9 @@ converted here so that both surfaces give the same response:
 - **Colour of a layer and what it lets through**: MaterialX tints the specular reflection with
   ``specular_color`` but attenuates the base by the *untinted* albedo, ``1 - (F0 A + B) c``
   (``c`` the energy compensation, (A, B) MaterialX's GGX albedo fit); Cycles tints ``F0`` and
-  attenuates by the *tinted* albedo.  Likewise the fuzz: MaterialX ``1 - w E_fuzz``, Cycles
-  ``1 - w tint E_fuzz``.  The base colour (and, under the fuzz, the specular tint) is scaled by
+  attenuates every channel by the *largest channel* of the tinted albedo (its layering weight,
+  ``1 - max_c albedo_c``).  Likewise the fuzz: MaterialX ``1 - w E_fuzz``, Cycles
+  ``1 - w E_fuzz max_c tint_c``.  The base colour (and, under the fuzz, the specular tint) is scaled by
   the ratio of the two throughputs, evaluated head-on (n.v = 1, the pole view; the ratio drifts
   towards grazing views).
 
@@ -88,11 +89,13 @@ def principled_inputs(base, specular, fuzz, params, lobes, ndv: float = 1.0) -> 
     comp = 1.0 + f0 * (1.0 - ess) / ess
     through_mx = 1.0 - (f0 * a_ + b_) * comp
     f0t = f0[..., None] * tint
-    through_cycles = 1.0 - (f0t * a_[..., None] + b_[..., None]) * (1.0 + f0t * ((1.0 - ess) / ess)[..., None])
-    spec_ratio = through_mx[..., None] / np.maximum(through_cycles, 1e-6)
+    # Cycles attenuates the layers below by its largest channel: 1 - max_c(albedo_c).
+    albedo_cycles = (f0t * a_[..., None] + b_[..., None]) * (1.0 + f0t * ((1.0 - ess) / ess)[..., None])
+    through_cycles = 1.0 - albedo_cycles.max(axis=-1)
+    spec_ratio = (through_mx / np.maximum(through_cycles, 1e-6))[..., None]
     fw, fr = lobes[..., 0], np.clip(lobes[..., 1], 0.01, 1.0)
     e_fuzz = _zeltner_albedo(ndv, fr)
-    fuzz_ratio = (1.0 - fw * e_fuzz)[..., None] / np.maximum(1.0 - (fw * e_fuzz)[..., None] * fuzz_c, 1e-6)
+    fuzz_ratio = ((1.0 - fw * e_fuzz) / np.maximum(1.0 - fw * e_fuzz * fuzz_c.max(axis=-1), 1e-6))[..., None]
     return {"Base Color": base * spec_ratio * fuzz_ratio, "Specular Tint": tint * fuzz_ratio,
             "Sheen Tint": fuzz_c,
             "Roughness": np.sqrt(np.sqrt(ax * ay)), "Anisotropic": np.clip((1.0 - ay / ax) / 0.9, 0.0, 1.0),

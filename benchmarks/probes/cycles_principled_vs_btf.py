@@ -1,0 +1,169 @@
+"""Issue 40, Cycles must-show: the add-on's Principled fallback under one sun against the fit's
+own model (no gain) and against the add-on's OSL BTF under the same sun (no gain).
+
+    .venv/bin/python benchmarks/probes/cycles_principled_vs_btf.py \
+        [--presets satin_weave metal_flakes velvet] [--sampling ubo81] [--size 16] [--k 32] [--lights 4]
+
+Per preset (``velvet`` is held out from the fit's tuning): ``synth PRESET --sampling S --size N
+--seed 5``, ``compress --k K --codec png``, ``package --no-thumbnail`` (the route of
+tests/test_cycles.py's asset).  Frames (bpy 5.0.1, Cycles with OSL on the CPU, one sample at
+the pixel centre, one texel a pixel, orthographic from the pole), all in one Blender process:
+the add-on's ``PRINCIPLED`` surface and its OSL ``BTF`` under one sun of the capture irradiance
+pi W (usdbtf.photometry) from ``--lights`` measured light directions at the pole view
+(theta 15..65 degrees, tests/storm_helpers.pole_lights).
+
+Printed per light: mean |difference| (8-bit sRGB steps) of the Principled frame against the
+fit's model (usdbtf.openpbr.evaluate of the maps as shipped, Blender's linear Rec.709; the
+test's reference, storm_helpers.openpbr_frame), Principled mean / model mean, Principled mean /
+OSL BTF mean as the frames come (what tests/test_cycles.py prints: the OSL BTF returns
+working-space values, docs/production-renderers-and-fallbacks.md, the Principled Blender's
+linear Rec.709), the same with the BTF frame converted from the working space to linear Rec.709
+(one space: the brightness comparison that means something when the working space is not
+Rec.709), OSL BTF mean / the decompressed sample's mean (working space: the BTF path's own
+check, 1 under the capture light), and the fit model's mean / the sample's mean in the working
+space (no renderer: the fit's own bias).  After each preset's table: that ratio per colour
+channel (swatch sums) averaged over *every* measured light at the pole view, the quantity the
+fits' brightness step (usdbtf.svbrdf.pole_ratio) drives to 1, and its range over those lights.
+
+``--by-parameter``: per preset, the Principled frames' per-texel brightness over the model's
+(sum over the lights, Rec.709) against each scalar OpenPBR input: its range and that ratio in
+its lower and upper half of texels (where Blender's Principled departs from the fit's model).
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import tempfile
+from pathlib import Path
+
+import usdbtf  # noqa: F401  (before numpy: pins the numeric platform; registers the schema plugin)
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))
+sys.path.insert(0, str(HERE.parent.parent / "tests"))
+from common import format_machine, machine_info  # noqa: E402
+
+
+def towards(theta_phi) -> tuple:
+    theta, phi = (math.radians(a) for a in theta_phi)
+    return (math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta))
+
+
+def build(preset: str, work: Path, sampling: str, size: int, k: int) -> Path:
+    from usdbtf.cli import main
+
+    out = work / preset / "a" / f"{preset}.usda"
+    for argv in (["synth", preset, "-o", str(work / preset / "src"), "--sampling", sampling, "--size", str(size),
+                  "--seed", "5"],
+                 ["compress", str(work / preset / "src"), "-o", str(work / preset / "c"), "--k", str(k),
+                  "--codec", "png"],
+                 ["package", str(work / preset / "c"), "-o", str(out), "--no-thumbnail"]):
+        print("$ usdbtf " + " ".join(argv), flush=True)
+        if main(argv + ["-q"]) != 0:
+            raise SystemExit(f"usdbtf {argv[0]} failed")
+    return out
+
+
+def main(argv=None) -> int:
+    from bench_cycles import require_cycles_python
+    from storm_helpers import openpbr_frame, pole_lights, shipped_openpbr_maps
+    from usdbtf import openpbr
+    from usdbtf.color import processor
+    from usdbtf.compress import reconstruct
+    from usdbtf.photometry import capture_irradiance, white_level_of
+    from usdbtf.usd.preview import cycles
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--presets", nargs="+", default=["satin_weave", "metal_flakes", "velvet"])
+    ap.add_argument("--sampling", default="ubo81")
+    ap.add_argument("--size", type=int, default=16)
+    ap.add_argument("--k", type=int, default=32)
+    ap.add_argument("--lights", type=int, default=4)
+    ap.add_argument("--by-parameter", action="store_true", help="Principled / model per texel against each input")
+    args = ap.parse_args(argv)
+    python = require_cycles_python()
+    print(format_machine(machine_info()))
+    print(f"Blender (bpy) {cycles.BLENDER_VERSION}, Cycles with OSL on the CPU; inputs: --sampling {args.sampling} "
+          f"--size {args.size} --seed 5, --k {args.k} --codec png, package --no-thumbnail", flush=True)
+    rendering = "Linear Rec.709 (sRGB)"
+    with tempfile.TemporaryDirectory(prefix="usdbtf-cyc-pr-") as tmp:
+        work = Path(tmp)
+        cases, frames = [], []
+        for preset in args.presets:
+            asset = build(preset, work, args.sampling, args.size, args.k)
+            maps, cbtf = shipped_openpbr_maps(asset)
+            lights = pole_lights(cbtf, args.lights)
+            irradiance = capture_irradiance(white_level_of(cbtf.info))
+            first = len(frames)
+            frames += [cycles.CyclesFrame(asset, work / f"{preset}_{surface}_{s}.exr", towards(light),
+                                          size=maps.shape[::-1], irradiance=irradiance, surface=surface)
+                       for surface in ("PRINCIPLED", "BTF") for s, light in lights]
+            cases.append((preset, maps, cbtf, lights, first))
+        result = cycles.render_frames(python, frames, timeout=1200.0)
+    print("\n| preset | light (theta, phi) | Principled vs fit model (steps) | Principled / model | "
+          "Principled / OSL BTF (as rendered) | Principled / OSL BTF (one space, Rec.709) | OSL BTF / sample | "
+          "fit model / sample |")
+    print("|---|---|---|---|---|---|---|---|")
+    for preset, maps, cbtf, lights, first in cases:
+        n = len(lights)
+        rec = reconstruct(cbtf, [s for s, _ in lights])
+        to709 = processor(cbtf.working_space, rendering, cbtf.ocio_config)
+        rows = []
+        for i, (s, light) in enumerate(lights):
+            principled = result.images[first + i][..., :3].astype(np.float64)
+            btf = result.images[first + n + i][..., :3].astype(np.float64)
+            model = openpbr_frame(maps, light, rendering, cbtf.ocio_config)
+            fit = openpbr.evaluate(maps, np.zeros((1, 2)), np.asarray([light], float))[0]
+            btf709 = to709.apply(np.ascontiguousarray(btf, np.float32)).astype(np.float64)
+            row = (float(np.abs(cycles.srgb8(principled) - cycles.srgb8(model)).mean()),
+                   principled.mean() / model.mean(), principled.mean() / btf.mean(),
+                   principled.mean() / btf709.mean(), btf.mean() / float(rec[i].mean()),
+                   float(fit.mean() / rec[i].mean()))
+            rows.append(row)
+            print(f"| {preset} | ({light[0]:.0f}, {light[1]:.0f}) | " + " | ".join(f"{v:.3f}" for v in row) + " |")
+        mean = np.mean(rows, axis=0)
+        print(f"| {preset} ({cbtf.working_space}) | **mean** | " + " | ".join(f"**{v:.3f}**" for v in mean) + " |", flush=True)
+        print(f"  {preset}: fit model / sample over all pole-view lights: " + pole_mean(maps, cbtf), flush=True)
+        if args.by_parameter:
+            by_parameter(preset, maps, [result.images[first + i][..., :3] for i in range(n)],
+                         [openpbr_frame(maps, light, rendering, cbtf.ocio_config) for _, light in lights])
+    return 0
+
+
+def pole_mean(maps, cbtf) -> str:
+    """Per channel, the fit model's swatch sum over the BTF's, averaged over every measured light
+    at the pole view (working space), and the per-light range of the mean ratio."""
+    from usdbtf import openpbr
+    from usdbtf.compress import reconstruct
+
+    view0 = np.flatnonzero(np.all(np.abs(cbtf.sampling.view) < 1e-9, axis=1))
+    rec = reconstruct(cbtf, view0).reshape(len(view0), -1, 3).astype(np.float64)
+    pred = openpbr.evaluate(maps, cbtf.sampling.view[view0], cbtf.sampling.light[view0]).astype(np.float64)
+    per_channel = (pred.sum(axis=1) / np.maximum(rec.sum(axis=1), 1e-12)).mean(axis=0)
+    per_light = pred.mean(axis=(1, 2)) / rec.mean(axis=(1, 2))
+    return (f"{len(view0)} lights, per channel {' / '.join(f'{v:.3f}' for v in per_channel)}, "
+            f"per light {per_light.min():.3f}..{per_light.max():.3f}")
+
+
+def by_parameter(preset: str, maps, principled: list, models: list) -> None:
+    """Print, per scalar input, the Principled / model brightness of the texels below and above
+    its median (``--by-parameter``)."""
+    p = np.sum([np.asarray(f, np.float64).sum(axis=-1) for f in principled], axis=0).reshape(-1)
+    m = np.sum([np.asarray(f, np.float64).sum(axis=-1) for f in models], axis=0).reshape(-1)
+    for name in maps.SCALARS:
+        value = getattr(maps, name).reshape(-1)
+        if np.ptp(value) < 1e-6:
+            print(f"  {preset} {name}: constant {value[0]:.3f}")
+            continue
+        low = value <= np.median(value)
+        if low.all():
+            low = value < value.max()
+        print(f"  {preset} {name}: {value.min():.3f}..{value.max():.3f}; Principled / model "
+              f"{p[low].sum() / m[low].sum():.3f} (lower half, {low.sum()} texels), "
+              f"{p[~low].sum() / m[~low].sum():.3f} (upper)")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
