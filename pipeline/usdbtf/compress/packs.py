@@ -26,7 +26,7 @@ from ..errors import BTFError
 __all__ = ["MAX_CODE", "pack_count", "coefficient_packs", "shipped_pack_bytes", "shipped_basis_bytes",
            "basis_codes_group_major", "basis_block_bytes", "BASIS_CODE_OFFSET", "basis_code_offset", "encode_png_page",
            "pack_bytes_by_k", "default_lods", "page_breaks", "ShippedPacks", "BASIS_PAGE_ROWS", "basis_page",
-           "basis_page_codes", "basis_page_column", "basis_page_bytes", "PNG_DATA_CHUNK_BYTES"]
+           "basis_page_codes", "basis_page_column", "basis_page_bytes", "ships_basis_page", "PNG_DATA_CHUNK_BYTES"]
 
 #: Largest code of each storage type: what a GPU's normalised read divides by.
 MAX_CODE = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0, np.dtype(np.float16): 1.0}
@@ -208,12 +208,19 @@ def shipped_basis_bytes(cbtf, k: int | None = None) -> int:
     4, :func:`basis_page_bytes`: the file itself); half codes (or another sampling) group-major
     as float32 OpenEXR zip in rows of TABLE_WIDTH texels (the basis block of ``gpu/tables.exr``
     without the tables' other blocks; the last row padded with zeros).  Deterministic."""
-    from .format import cross_layout
-
     k = min(cbtf.k if k is None else k, cbtf.k)
-    if cbtf.basis.pixels.dtype != np.float16 and cross_layout(cbtf.sampling) is not None:
+    if ships_basis_page(cbtf):
         return basis_page_bytes(cbtf, k)
     return basis_block_bytes(basis_codes_group_major(cbtf, k))
+
+
+def ships_basis_page(cbtf) -> bool:
+    """Whether the packaged asset ships ``cbtf``'s basis codes as the 8-bit basis page (schema
+    4: integer codes on a V x L sampling) rather than in the GPU tables (half codes, which are
+    not two bytes of an integer)."""
+    from .format import cross_layout
+
+    return np.dtype(cbtf.basis.pixels.dtype) != np.float16 and cross_layout(cbtf.sampling) is not None
 
 
 def basis_block_bytes(block: np.ndarray) -> int:
@@ -297,16 +304,16 @@ def basis_page_codes(image: np.ndarray, views: int, lights: int, n: int, groups:
     image = np.asarray(image)
     if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 4:
         raise BTFError(f"basis page: expected 8-bit RGBA texels, got {image.dtype} {image.shape}")
-    per_column = basis_page_column(-(-n // 4) if groups is None else groups, views)
-    groups = -(-n // 4)
-    out = np.zeros((groups, views, lights, 4), np.int64)
-    for g in range(groups):
+    wanted = -(-n // 4)
+    per_column = basis_page_column(wanted if groups is None else groups, views)
+    out = np.zeros((wanted, views, lights, 4), np.int64)
+    for g in range(wanted):
         y0, x0 = (g % per_column) * 2 * views, (g // per_column) * lights
         block = image[y0:y0 + 2 * views, x0:x0 + lights].astype(np.int64)
         if block.shape[:2] != (2 * views, lights):
             raise BTFError(f"basis page of {image.shape[1]}x{image.shape[0]} texels does not hold group {g}")
         out[g] = block[:views] * 256 + block[views:]
-    return out.transpose(1, 2, 0, 3).reshape(views * lights, groups * 4)[:, :n]
+    return out.transpose(1, 2, 0, 3).reshape(views * lights, wanted * 4)[:, :n]
 
 
 #: Bytes the packaged asset adds to every PNG it writes: a gAMA chunk of 1.0 (12 bytes of
@@ -320,8 +327,7 @@ def basis_page_bytes(cbtf, k: int | None = None) -> int:
     the size of a schema-4 asset's ``gpu/basis.png``.  Deterministic."""
     from .format import cross_layout
 
-    k = min(cbtf.k if k is None else k, cbtf.k)
-    layout = cross_layout(cbtf.sampling)
-    if layout is None or cbtf.basis.pixels.dtype == np.float16:
+    if not ships_basis_page(cbtf):
         raise BTFError("basis page: needs integer codes on a V x L sampling")
-    return len(encode_png_page(basis_page(cbtf.basis.pixels[:, :k, 0], *layout))) + PNG_DATA_CHUNK_BYTES
+    k = min(cbtf.k if k is None else k, cbtf.k)
+    return len(encode_png_page(basis_page(cbtf.basis.pixels[:, :k, 0], *cross_layout(cbtf.sampling)))) + PNG_DATA_CHUNK_BYTES

@@ -56,7 +56,7 @@ import numpy as np
 from ..compress.format import CompressedBTF, cross_layout
 from ..compress.packs import (MAX_CODE as _MAX_CODE, TABLE_WIDTH, basis_block_bytes, basis_code_offset,
                               basis_codes_group_major, basis_page, basis_page_codes, coefficient_packs as _pack,
-                              pack_count, page_breaks)
+                              pack_count, page_breaks, ships_basis_page)
 from ..errors import BTFError
 
 __all__ = ["MAX_PAGES", "BASIS_PAGE", "BASIS_IN_PAGE", "page_slots", "PAGE_SIZE", "TABLE_WIDTH", "GpuLayout", "gpu_layout", "pack_count", "page_breaks",
@@ -334,16 +334,10 @@ def gpu_layout(cbtf: CompressedBTF, k: int | None = None, lods=(), wrap: str = "
     # A level of detail's own tables and basis page: the basis and the packs' entries of its n
     # vectors only, so a lower lod loads no basis vector it does not draw (issue 39).
     levels = sorted({int(n) for n in lods if 0 < n < k}, reverse=True)
-    in_page = _basis_in_page(cbtf)
+    in_page = ships_basis_page(cbtf)
     return GpuLayout(tables_for(k), pages, k, first_packs, {n: tables_for(n) for n in levels},
                      basis_page(cbtf.basis.pixels[:, :k, 0], V, L) if in_page else None,
                      {n: basis_page(cbtf.basis.pixels[:, :n, 0], V, L) for n in levels} if in_page else {})
-
-
-def _basis_in_page(cbtf: CompressedBTF) -> bool:
-    """Whether the basis codes go to the 8-bit basis page (schema 4: integer codes) rather
-    than into the tables (half codes, which are not two bytes of an integer)."""
-    return np.dtype(cbtf.basis.pixels.dtype) != np.float16
 
 
 def _tables(cbtf: CompressedBTF, k: int, cross: tuple[int, int], hemispheres: tuple, scales: np.ndarray,
@@ -365,7 +359,7 @@ def _tables(cbtf: CompressedBTF, k: int, cross: tuple[int, int], hemispheres: tu
     # file is then the other blocks' chunks plus the codes' chunks, each compressed alone, so
     # the tables of a level of n vectors cost the codes of its n vectors (basis_bytes(t, n))
     # plus blocks no larger than the full tables' (its share, usdbtf.usd.asset.lod).
-    in_page = _basis_in_page(cbtf)
+    in_page = ships_basis_page(cbtf)
     if not in_page:
         table.pad_to(-(1 + 2 * groups), _ZIP_ROWS * TABLE_WIDTH)
     basis_at = table.add(_basis_block(cbtf, k, groups, in_page))
