@@ -172,7 +172,7 @@ class CoefficientTexture:
             return np.take(self.level(n).reshape(-1, 3, self.k), idx, axis=0)
         held, T = self._held[n], self.tile                 # made by shade's _have, if not held before
         y, x = np.divmod(idx, self.level_shape(n)[1])
-        slot = held.slot[self._tile_ids(n, idx)]
+        slot = held.slot[self._tile_of(n, y, x)]
         out = np.take(held.pool.reshape(-1, 3, self.k), (slot * T + y % T) * T + x % T, axis=0)
         if n == 0:                                     # codes: exactly _texel_major's operations
             scale, bias = self._dequant
@@ -196,9 +196,11 @@ class CoefficientTexture:
 
     def _tile_ids(self, n: int, idx: np.ndarray) -> np.ndarray:
         """Tile ids (``row * tiles across + column``) of flat texel indices ``idx`` of level ``n``."""
-        w = self.level_shape(n)[1]
-        y, x = np.divmod(idx, w)
-        return (y // self.tile) * -(-w // self.tile) + x // self.tile
+        return self._tile_of(n, *np.divmod(idx, self.level_shape(n)[1]))
+
+    def _tile_of(self, n: int, y: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """Tile ids of level ``n``'s texels at rows ``y``, columns ``x`` (a tap's, already split)."""
+        return (y // self.tile) * -(-self.level_shape(n)[1] // self.tile) + x // self.tile
 
     def needed(self, st: np.ndarray, lod: np.ndarray | None = None) -> dict[int, np.ndarray]:
         """{level: sorted unique tile ids} that :meth:`shade` of points ``st`` (m, 2) at ``lod``
