@@ -444,9 +444,10 @@ def _principled_module():
 def test_principled_inputs_reproduce_open_pbr_parameters():
     """The add-on's conversion (issue 40 item 3): Cycles' Disney anisotropy of the converted
     (Roughness, Anisotropic) gives open_pbr_anisotropy's alphas (a <= 0.9, the fit's range);
-    the Specular IOR Level gives F0 = 0.04 specular_weight; with white tints nothing is
-    rescaled, and a dark specular tint over F0 0.2 darkens the base by MaterialX's untinted
-    throughput over Cycles' tinted one (< 1 head-on, the base MaterialX attenuates more)."""
+    the Specular IOR Level gives F0 = 0.04 specular_weight; with white tints and a Lambert base
+    the base is not rescaled (the two layerings agree within 1e-3); a dark specular tint over F0
+    0.2 darkens the base by MaterialX's untinted throughput over Cycles' tinted one (< 1 head-on,
+    the base MaterialX attenuates more)."""
     from usdbtf.openpbr import specular_alpha
 
     pr = _principled_module()
@@ -464,11 +465,47 @@ def test_principled_inputs_reproduce_open_pbr_parameters():
     np.testing.assert_allclose(out["Roughness"] ** 2 / aspect, ax, rtol=1e-6)
     np.testing.assert_allclose(out["Roughness"] ** 2 * aspect, ay, rtol=1e-6)
     np.testing.assert_allclose(0.04 * 2.0 * out["Specular IOR Level"], np.minimum(0.04 * w, 0.99999), rtol=1e-6)
-    np.testing.assert_allclose(out["Base Color"], pr.srgb_to_linear(base), rtol=1e-9)
+    np.testing.assert_allclose(out["Base Color"], pr.srgb_to_linear(base), rtol=1e-3, atol=1e-9)
     dark = pr.principled_inputs(base, np.full((n, 3), 0.05), white, params, lobes)
     ratio = dark["Base Color"] / pr.srgb_to_linear(np.maximum(base, 1e-3))
     f0_02 = w == 5.0
     assert np.all(ratio[f0_02] < 0.9) and np.all(ratio[f0_02] > 0.6), ratio[f0_02]
+
+
+def test_principled_inputs_match_cycles_lobes_head_on():
+    """The two lobes Cycles (bpy 5.0.1, kernel/closure) computes unlike open_pbr_surface, checked
+    head-on against Cycles' formulas written out here: (1) its Oren-Nayar multiple scattering
+    carries the base colour once more (c^3 where MaterialX has c^2), so at diffuse roughness 1
+    the Base Color is raised until ``c' E + c'^3 E_avg / (1 - c' (1 - E_avg)) (1 - E)`` is
+    MaterialX's albedo (up to 5.5 % for mid colours, none for a Lambert base or white);
+    (2) its multiscatter GGX compensates with the multi-bounce Fresnel of the *tinted* F0, so
+    under a dark tint, F0 ~ 1 and roughness 1 the tint is raised (2.7x for 0.3 sRGB) until
+    ``F0' (1 + F_ms(F0') (1 - E) / E)`` is MaterialX's ``F0 t / E``."""
+    pr = _principled_module()
+    c = np.array([[0.2, 0.5, 1.0]])                 # sRGB files: linear 0.033, 0.214, 1
+    lin = pr.srgb_to_linear(c)
+    white = np.ones((1, 3))
+    for sigma, raised in ((0.0, (1.0, 1.0)), (1.0, (1.03, 1.05))):
+        # F0 0.01 under white tints: the two layerings agree (within 1e-3), the base alone differs.
+        out = pr.principled_inputs(c, white, white, np.array([[0.5, 0.0, sigma]]),
+                                   np.array([[0.0, 0.5, 0.25 / 25.0]]))
+        e = pr._fujii_dir_albedo(1.0, sigma)
+        e_avg = (1.0 + pr._FUJII_2 * sigma) / (1.0 + pr._FUJII_1 * sigma)
+        cp = out["Base Color"][0]
+        mx = lin[0] * e + lin[0] ** 2 * e_avg / (1.0 - lin[0] * (1.0 - e_avg)) * (1.0 - e)
+        cy = cp * e + (cp ** 3 * e_avg / (1.0 - cp * (1.0 - e_avg)) * (1.0 - e) if sigma else 0.0)
+        np.testing.assert_allclose(cy, mx, rtol=1e-3)
+        gain = cp / lin[0]
+        assert raised[0] - 1e-3 <= gain[1] <= raised[1] + 1e-3 and abs(gain[2] - 1.0) < 1e-3, (sigma, gain)
+    out = pr.principled_inputs(c, np.full((1, 3), 0.3), white, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 0.5, 1.0]]))
+    f0 = 0.99999
+    a_, b_ = pr._ggx_albedo_ab(1.0, 1.0)
+    e, e_avg = a_ + b_, pr._ggx_avg_albedo(1.0)
+    x = f0 * out["Specular Tint"][0, 0]
+    fss = x                                         # s_avg = 0 where F0 >= 0.99
+    cycles = x * (1.0 + fss * e_avg / (1.0 - fss * (1.0 - e_avg)) * (1.0 - e) / e)
+    np.testing.assert_allclose(cycles, f0 * pr.srgb_to_linear(0.3) * (1.0 + f0 * (1.0 - e) / e), rtol=1e-4)
+    assert 2.5 < out["Specular Tint"][0, 0] / pr.srgb_to_linear(0.3) < 4.0, out["Specular Tint"]
 
 
 def _document_from_usd(material):

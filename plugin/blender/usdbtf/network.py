@@ -28,8 +28,8 @@ open_pbr_surface                Principled BSDF
 =============================== ==================================================
 base_diffuse_roughness          Diffuse Roughness
 specular_weight                 Specular IOR Level = F0 / 0.08 (F0 = 0.04 specular_weight), IOR 1.5
-specular_color (sRGB file)      Specular Tint (x the fuzz throughput ratio, principled.py)
-base_color x throughput ratios  Base Color (principled.py: untinted vs tinted layers)
+specular_color (sRGB file)      Specular Tint: Cycles' multiscatter lobe solved to MaterialX's (principled.py)
+base_color x throughput ratios  Base Color (principled.py: untinted vs tinted layers, Oren-Nayar's c^3)
 specular_roughness, _anisotropy Roughness = (alpha_x alpha_y)^(1/4), Anisotropic ~ a / 0.9
 tangent map (cos, sin, 0)       Anisotropic Rotation = atan2(sin, cos) / 2 pi, Tangent: the UV map's
 fuzz_weight / _color / _rough.  Sheen Weight / Sheen Tint / Sheen Roughness
@@ -258,7 +258,8 @@ def build_principled(material, maps: dict, uv_map: str = UV_MAP):
     """Add to ``material``'s node tree the Principled BSDF of the fitted OpenPBR lobes on
     ``maps`` (:func:`read_openpbr_maps`); returns the Principled node (not linked to the
     output).  The inputs whose parameterisation differs from open_pbr_surface's (anisotropy,
-    the tinted layers' throughput: ``principled.py``) are baked per texel into float images
+    the specular energy compensation, the tinted layers' throughput, the base's multiple
+    scattering: ``principled.py``) are baked per texel into float images
     named after the material; the rest read the asset's files."""
     import numpy as np
 
