@@ -22,8 +22,15 @@ linear Rec.709), the same with the BTF frame converted from the working space to
 Rec.709), OSL BTF mean / the decompressed sample's mean (working space: the BTF path's own
 check, 1 under the capture light), and the fit model's mean / the sample's mean in the working
 space (no renderer: the fit's own bias).  After each preset's table: that ratio per colour
-channel (swatch sums) averaged over *every* measured light at the pole view, the quantity the
-fits' brightness step (usdbtf.svbrdf.pole_ratio) drives to 1, and its range over those lights.
+channel (swatch sums) averaged over the fit's pole samples (usdbtf.svbrdf.pole_samples: the pole
+view, lights up to 70 degrees), the quantity the fits' brightness step (usdbtf.svbrdf.pole_ratio)
+drives to 1, its mean over those lights and its range.  ``--lights`` as many as there are
+measured lights at 15..65 degrees (ubo81: 56, small: 12) renders every one of them.
+
+``--before REV``: the Principled frames also with the add-on's ``principled.py`` as it was at git
+revision REV (a copy of the add-on folder with that module; same assets, lights and OSL BTF frames,
+same Blender process kind): the "before" columns, steps against the model, / model and / OSL BTF in
+one space, measured in the same run.
 
 ``--by-parameter``: per preset, the Principled frames' per-texel brightness over the model's
 (sum over the lights, Rec.709) against each scalar OpenPBR input: its range and that ratio in
@@ -33,6 +40,8 @@ from __future__ import annotations
 
 import argparse
 import math
+import shutil
+import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -82,6 +91,7 @@ def main(argv=None) -> int:
     ap.add_argument("--k", type=int, default=32)
     ap.add_argument("--lights", type=int, default=4)
     ap.add_argument("--by-parameter", action="store_true", help="Principled / model per texel against each input")
+    ap.add_argument("--before", metavar="REV", help="also render the Principled with principled.py at git revision REV")
     args = ap.parse_args(argv)
     python = require_cycles_python()
     print(format_machine(machine_info()))
@@ -102,10 +112,20 @@ def main(argv=None) -> int:
                        for surface in ("PRINCIPLED", "BTF") for s, light in lights]
             cases.append((preset, maps, cbtf, lights, first))
         result = cycles.render_frames(python, frames, timeout=1200.0)
+        before = None
+        if args.before:
+            principled = [f for f in frames if f.surface == "PRINCIPLED"]
+            for f in principled:
+                f.output = f.output.with_name("before_" + f.output.name)
+            before = cycles.render_frames(python, principled, timeout=1200.0,
+                                          addon=addon_at(args.before, work / "addon_before")).images
+            print(f"before: plugin/blender/usdbtf/principled.py at {args.before}", flush=True)
+    extra = " before: steps | before: / model | before: / OSL BTF (one space) |" if before else ""
     print("\n| preset | light (theta, phi) | Principled vs fit model (steps) | Principled / model | "
           "Principled / OSL BTF (as rendered) | Principled / OSL BTF (one space, Rec.709) | OSL BTF / sample | "
-          "fit model / sample |")
-    print("|---|---|---|---|---|---|---|---|")
+          "fit model / sample |" + extra)
+    print("|---|---|---|---|---|---|---|---|" + "---|" * (3 if before else 0))
+    seen = 0
     for preset, maps, cbtf, lights, first in cases:
         n = len(lights)
         rec = reconstruct(cbtf, [s for s, _ in lights])
@@ -121,30 +141,53 @@ def main(argv=None) -> int:
                    principled.mean() / model.mean(), principled.mean() / btf.mean(),
                    principled.mean() / btf709.mean(), btf.mean() / float(rec[i].mean()),
                    float(fit.mean() / rec[i].mean()))
+            if before:
+                old = before[seen + i][..., :3].astype(np.float64)
+                row += (float(np.abs(cycles.srgb8(old) - cycles.srgb8(model)).mean()), old.mean() / model.mean(),
+                        old.mean() / btf709.mean())
             rows.append(row)
             print(f"| {preset} | ({light[0]:.0f}, {light[1]:.0f}) | " + " | ".join(f"{v:.3f}" for v in row) + " |")
         mean = np.mean(rows, axis=0)
         print(f"| {preset} ({cbtf.working_space}) | **mean** | " + " | ".join(f"**{v:.3f}**" for v in mean) + " |", flush=True)
-        print(f"  {preset}: fit model / sample over all pole-view lights: " + pole_mean(maps, cbtf), flush=True)
+        print(f"  {preset}: fit model / sample over the fit's pole samples: " + pole_mean(maps, cbtf), flush=True)
+        seen += n
         if args.by_parameter:
             by_parameter(preset, maps, [result.images[first + i][..., :3] for i in range(n)],
                          [openpbr_frame(maps, light, rendering, cbtf.ocio_config) for _, light in lights])
     return 0
 
 
+def addon_at(rev: str, folder: Path) -> Path:
+    """A copy of plugin/blender (with the OSL surface beside the add-on, where network.py looks
+    first) whose usdbtf/principled.py is the one at git revision ``rev``; returns the copy."""
+    from usdbtf.plugin_folder import plugin_dir
+
+    root = Path(__file__).resolve().parents[2]
+    shutil.copytree(plugin_dir() / "blender", folder)
+    shutil.copy(plugin_dir() / "usdBtf" / "resources" / "osl" / "usdbtf_surface.osl",
+                folder / "usdbtf" / "usdbtf_surface.osl")
+    text = subprocess.run(["git", "show", f"{rev}:plugin/blender/usdbtf/principled.py"], cwd=root,
+                          capture_output=True, text=True, check=True).stdout
+    (folder / "usdbtf" / "principled.py").write_text(text)
+    return folder
+
+
 def pole_mean(maps, cbtf) -> str:
-    """Per channel, the fit model's swatch sum over the BTF's, averaged over every measured light
-    at the pole view (working space), and the per-light range of the mean ratio."""
+    """Per channel, the fit model's swatch sum over the BTF's, averaged over the fit's own pole
+    samples (usdbtf.svbrdf.pole_samples: the views nearest the normal, lights up to
+    POLE_MAX_LIGHT_DEG; working space; usdbtf.svbrdf.pole_ratio, what the brightness step drives
+    to 1), the mean over those lights of the mean ratio, and its per-light range."""
     from usdbtf import openpbr
     from usdbtf.compress import reconstruct
+    from usdbtf.svbrdf import pole_ratio, pole_samples
 
-    view0 = np.flatnonzero(np.all(np.abs(cbtf.sampling.view) < 1e-9, axis=1))
-    rec = reconstruct(cbtf, view0).reshape(len(view0), -1, 3).astype(np.float64)
-    pred = openpbr.evaluate(maps, cbtf.sampling.view[view0], cbtf.sampling.light[view0]).astype(np.float64)
-    per_channel = (pred.sum(axis=1) / np.maximum(rec.sum(axis=1), 1e-12)).mean(axis=0)
+    pole = pole_samples(cbtf)
+    rec = reconstruct(cbtf, pole).reshape(len(pole), -1, 3).astype(np.float64)
+    pred = openpbr.evaluate(maps, cbtf.sampling.view[pole], cbtf.sampling.light[pole]).astype(np.float64)
+    per_channel = pole_ratio(rec.sum(axis=1), pred.sum(axis=1))
     per_light = pred.mean(axis=(1, 2)) / rec.mean(axis=(1, 2))
-    return (f"{len(view0)} lights, per channel {' / '.join(f'{v:.3f}' for v in per_channel)}, "
-            f"per light {per_light.min():.3f}..{per_light.max():.3f}")
+    return (f"{len(pole)} lights, per channel {' / '.join(f'{v:.3f}' for v in per_channel)}, "
+            f"mean {per_light.mean():.3f}, per light {per_light.min():.3f}..{per_light.max():.3f}")
 
 
 def by_parameter(preset: str, maps, principled: list, models: list) -> None:

@@ -82,15 +82,18 @@ def cycles_python(root: Path | None = None) -> Path | None:
     return storm_pythons(root).get("25.08")
 
 
-def render_frames(python: Path, frames: list[CyclesFrame], *, timeout: float = 300.0) -> CyclesFrames:
-    """Render ``frames`` in one Blender process of ``python``.  BTFError when it cannot run
-    or writes no frame (its last stderr lines say why)."""
+def render_frames(python: Path, frames: list[CyclesFrame], *, timeout: float = 300.0,
+                  addon: Path | None = None) -> CyclesFrames:
+    """Render ``frames`` in one Blender process of ``python``.  ``addon``: the folder holding
+    the add-on package ``usdbtf/`` (default the plugin's ``blender``; a benchmark's copy with
+    an earlier revision's module, say).  BTFError when it cannot run or writes no frame (its
+    last stderr lines say why)."""
     from ..asset.storm import read_rgba
 
     with tempfile.TemporaryDirectory(prefix="usdbtf-cycles-") as work:
         jobs, report = Path(work) / "jobs.json", Path(work) / "report.json"
         jobs.write_text(json.dumps({"frames": [f.job() for f in frames], "report": str(report)}))
-        cmd = [str(python), str(FRAME_SCRIPT), str(jobs), str(plugin_dir() / "blender")]
+        cmd = [str(python), str(FRAME_SCRIPT), str(jobs), str(addon or plugin_dir() / "blender")]
         try:
             proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout,
                                   env={"PATH": os.environ.get("PATH", "/usr/bin:/bin")},
