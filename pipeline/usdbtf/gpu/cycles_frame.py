@@ -8,10 +8,14 @@ Run by the Python of the bpy 5.0.1 environment (``scripts/bootstrap.sh`` makes
 JOBS.json: ``{"frames": [{"asset", "lod" (null: the asset's own), "output" (.exr), "size": [w, h],
 "camera": {"kind": "pole"} | {"kind": "perspective", "eye", "target", "up", "fov"},
 "sun": [x, y, z] (towards the light, the asset's USD space), "irradiance", "samples", "fallback",
-"surface"}], "report": path}``.  ``"fallback": true`` imports the asset with Blender's USD importer
+"surface", "maps"}], "report": path}``.  ``"fallback": true`` imports the asset with Blender's USD importer
 only (its UsdPreviewSurface fallback as a Principled BSDF, what Blender shows without the add-on);
 ``"surface"``: the add-on's surface shown ("BTF", the default: the OSL BTF; "PRINCIPLED": its
-Principled BSDF of the fitted OpenPBR lobes).
+Principled BSDF of the fitted OpenPBR lobes).  ``"maps"`` ({map: OpenPBR map file}, the
+``openpbr_*.png`` of an asset's fallback folder): no asset is read; a unit square in the xy
+plane (normal +z, UV map ``st`` over it, as a swatch) carries the add-on's Principled BSDF of
+those maps (``network.build_principled``), so that its conversions are checked on maps made
+for the purpose.
 Everything in USD space is converted to Blender's with the imported root's transform (the
 importer's up-axis and unit conversion).  Frames of one asset and lod share one import.  A
 "pole" camera looks orthographically down the swatch's normal (+z in USD), its extent filling
@@ -109,6 +113,29 @@ def _sun(bpy, mathutils, direction, irradiance, to_world):
     return sun
 
 
+def _maps_plane(bpy, addon, maps: dict):
+    """A unit square (UV map ``st``) whose material is the add-on's Principled BSDF of ``maps``."""
+    corners = [(-0.5, -0.5, 0.0), (0.5, -0.5, 0.0), (0.5, 0.5, 0.0), (-0.5, 0.5, 0.0)]
+    mesh = bpy.data.meshes.new("usdbtf_maps")
+    mesh.from_pydata(corners, [], [(0, 1, 2, 3)])
+    uv = mesh.uv_layers.new(name=addon.network.UV_MAP)
+    for loop in mesh.loops:
+        x, y, _ = corners[loop.vertex_index]
+        uv.data[loop.index].uv = (x + 0.5, y + 0.5)
+    plane = bpy.data.objects.new("usdbtf_maps", mesh)
+    bpy.context.scene.collection.objects.link(plane)
+    material = bpy.data.materials.new("usdbtf_maps")
+    material.use_nodes = True
+    tree = material.node_tree
+    for node in list(tree.nodes):
+        tree.nodes.remove(node)
+    output = tree.nodes.new("ShaderNodeOutputMaterial")
+    bsdf = addon.network.build_principled(material, maps)
+    tree.links.new(bsdf.outputs["BSDF"], output.inputs["Surface"])
+    mesh.materials.append(material)
+    return [plane]
+
+
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     jobs = json.loads(Path(argv[0]).read_text())
@@ -121,12 +148,15 @@ def main(argv=None) -> int:
     addon = _addon(Path(argv[1]))
     report, loaded = [], None
     for frame in jobs["frames"]:
-        key = (frame["asset"], frame.get("lod"), bool(frame.get("fallback")), frame.get("surface", "BTF"))
+        key = (frame["asset"], frame.get("lod"), bool(frame.get("fallback")), frame.get("surface", "BTF"),
+               json.dumps(frame.get("maps"), sort_keys=True))
         if key != loaded:
             bpy.ops.wm.read_factory_settings(use_empty=True)
             scene = _setup_scene(bpy)
             start = time.perf_counter()
-            if frame.get("fallback"):
+            if frame.get("maps"):
+                objects, materials = _maps_plane(bpy, addon, frame["maps"]), []
+            elif frame.get("fallback"):
                 before = set(bpy.data.objects)
                 if "FINISHED" not in bpy.ops.wm.usd_import(filepath=frame["asset"], import_usd_preview=True):
                     print(f"cycles_frame: {frame['asset']}: Blender's USD import failed", file=sys.stderr)

@@ -52,6 +52,9 @@ class CyclesFrame:
     fallback: bool = False
     #: The add-on's surface: "BTF" (the OSL BTF, one sun) or "PRINCIPLED" (the fitted OpenPBR lobes).
     surface: str = "BTF"
+    #: {map: file} of OpenPBR maps (usd.asset.openpbr.MAP_FILES' keys): instead of ``asset``, a unit
+    #: swatch carrying the add-on's Principled BSDF of these maps (``asset`` then only names the frame).
+    maps: dict | None = None
 
     def job(self) -> dict:
         camera = {"kind": "pole"} if isinstance(self.camera, str) else {
@@ -61,7 +64,8 @@ class CyclesFrame:
         return {"asset": str(Path(self.asset).resolve()), "lod": self.lod, "output": str(self.output),
                 "size": [int(s) for s in self.size], "camera": camera, "sun": [float(x) for x in self.sun],
                 "irradiance": float(self.irradiance), "samples": int(self.samples), "fallback": bool(self.fallback),
-                "surface": str(self.surface)}
+                "surface": str(self.surface),
+                "maps": {k: str(Path(v).resolve()) for k, v in self.maps.items()} if self.maps else None}
 
 
 @dataclass
