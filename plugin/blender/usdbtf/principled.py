@@ -105,7 +105,16 @@ def _multi_colour(c, e_avg):
     return c * c * e_avg / (1.0 - c * (1.0 - e_avg))
 
 
-def _ggx_avg_albedo(alpha):
+def _tabulated(f, top: float, points: int = 1025):
+    """``f`` (a smooth function of one variable on [0, top]) read from a table of ``points``
+    values, linearly interpolated: per texel it costs one lookup, not a quadrature (maps of
+    millions of texels)."""
+    grid = np.linspace(0.0, top, points)
+    table = f(grid)
+    return lambda x: np.interp(np.asarray(x, np.float64), grid, table)
+
+
+def _ggx_avg_albedo_exact(alpha):
     """(...,) GGX's cosine-weighted mean directional albedo ``2 int E(mu) mu dmu`` (E the analytic fit)."""
     a_, b_ = _ggx_albedo_ab(_MU, np.asarray(alpha, np.float64)[..., None])
     return 2.0 * np.sum((a_ + b_) * _MU * _MU_WEIGHT, axis=-1)
@@ -117,7 +126,7 @@ def _fresnel_dielectric(c, eta):
     return 0.5 * ((g - c) / (g + c)) ** 2 * (1.0 + (((g + c) * c - 1.0) / ((g - c) * c + 1.0)) ** 2)
 
 
-def _fresnel_rise(f0):
+def _fresnel_rise_exact(f0):
     """(...,) Cycles' ``s_avg`` for a Principled F0: the IOR it renders (``ior_from_F0``, F0 at most
     :data:`CYCLES_MAX_F0`) and the cosine-weighted mean of that IOR's Fresnel, as a fraction of the
     way from its F0 to 1 (the weight of F90 in the lobe's mean Fresnel, ``F_ss``)."""
@@ -128,6 +137,10 @@ def _fresnel_rise(f0):
     return np.clip((mean - f0_real) / np.maximum(1.0 - f0_real, 1e-12), 0.0, 1.0)
 
 
+_ggx_avg_albedo = _tabulated(_ggx_avg_albedo_exact, 1.0)
+_fresnel_rise = _tabulated(_fresnel_rise_exact, 1.0)
+
+
 def _cycles_compensation(f0t, s_avg, e_avg, missing):
     """Cycles' multiscatter GGX factor ``1 + F_ms (1 - E) / E`` for the tinted F0 ``f0t`` (...,
     3); ``missing`` = (1 - E) / E, ``s_avg`` and ``e_avg`` (...,)."""
@@ -136,7 +149,7 @@ def _cycles_compensation(f0t, s_avg, e_avg, missing):
     return 1.0 + fss * e / (1.0 - fss * (1.0 - e)) * missing[..., None]
 
 
-def _solve_increasing(f, target, hi, iterations: int = 40):
+def _solve_increasing(f, target, hi, iterations: int = 32):
     """The x in [0, hi] with ``f(x) = target`` (elementwise, ``f`` increasing; bisection: the
     largest x where the target is beyond ``f(hi)``)."""
     lo = np.zeros_like(target)
