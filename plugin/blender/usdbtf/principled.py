@@ -196,7 +196,8 @@ def principled_inputs(base, specular, fuzz, params, lobes, ndv: float = 1.0) -> 
     f0t = _solve_increasing(lambda x: x * _cycles_compensation(x, s_avg, e_avg, missing), target, 1.0)
     # Cycles attenuates the layers below by its largest channel: 1 - max_c(albedo_c).
     albedo_cycles = (f0t * a_[..., None] + b_[..., None]) * _cycles_compensation(f0t, s_avg, e_avg, missing)
-    through_cycles = 1.0 - albedo_cycles.max(axis=-1)
+    # F0 0 is IOR 1, where Cycles leaves the lobe out (MaterialX still dims the base by its F90 part).
+    through_cycles = np.where(f0 > 0.0, 1.0 - albedo_cycles.max(axis=-1), 1.0)
     ratio = (through_mx / np.maximum(through_cycles, 1e-6))[..., None] * fuzz_ratio
     # The base head-on: MaterialX c E + ms(c) (1 - E), Cycles' Oren-Nayar c' E + c' ms(min(c', 1)) (1 - E).
     e_v = _fujii_dir_albedo(ndv, sigma)[..., None]
@@ -208,7 +209,9 @@ def principled_inputs(base, specular, fuzz, params, lobes, ndv: float = 1.0) -> 
         return c * e_v + np.where(rough, c * _multi_colour(np.minimum(c, 1.0), e_avg_d), 0.0) * (1.0 - e_v)
 
     base_cycles = _solve_increasing(cycles_base, target, np.maximum(target / np.maximum(e_v, 1e-6), 1e-6) + 1e-6)
-    return {"Base Color": base_cycles, "Specular Tint": f0t / np.maximum(f0, 1e-12)[..., None],
+    # No specular (F0 0: Cycles leaves the lobe out): the tint as MaterialX's, not 0 / 0.
+    spec_tint = np.where((f0 > 1e-6)[..., None], f0t / np.maximum(f0, 1e-6)[..., None], tint * fuzz_ratio)
+    return {"Base Color": base_cycles, "Specular Tint": spec_tint,
             "Sheen Tint": fuzz_c,
             "Roughness": np.sqrt(np.sqrt(ax * ay)), "Anisotropic": np.clip((1.0 - ay / ax) / 0.9, 0.0, 1.0),
             "Diffuse Roughness": sigma, "Specular IOR Level": f0 / (2.0 * F0_IOR_15),
