@@ -345,5 +345,6 @@ def test_principled_conversions_on_a_lobe_grid(tmp_path):
         model = openpbr_frame(shipped, light, maps.working_space)
         steps = float(np.abs(cycles.srgb8(principled) - cycles.srgb8(model)).mean())
         ratio = principled.mean() / model.mean()
-        print(f"Cycles Principled on the lobe grid at {light}: {steps:.2f} steps from the model, mean / model {ratio:.3f}")
+        print(f"Cycles Principled on the lobe grid at {light}: {steps:.2f} steps from the model, "
+              f"mean / model {ratio:.3f}")
         assert steps <= 1.0 and abs(ratio - 1.0) <= 0.02, (light, steps, ratio)
