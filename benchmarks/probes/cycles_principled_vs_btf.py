@@ -32,6 +32,11 @@ revision REV (a copy of the add-on folder with that module; same assets, lights 
 same Blender process kind): the "before" columns, steps against the model, / model and / OSL BTF in
 one space, measured in the same run.
 
+``--by-lobe``: per preset and light, the least-squares scale of each of the model's lobes (base,
+specular, fuzz: usdbtf.openpbr.evaluate of the maps with the other two colours 0) that fits the
+Principled frame (Rec.709, every texel and channel), and each lobe's share of the model: which of
+Cycles' lobes departs from MaterialX's, and where.
+
 ``--by-parameter``: per preset, the Principled frames' per-texel brightness over the model's
 (sum over the lights, Rec.709) against each scalar OpenPBR input: its range and that ratio in
 its lower and upper half of texels (where Blender's Principled departs from the fit's model).
@@ -91,6 +96,7 @@ def main(argv=None) -> int:
     ap.add_argument("--k", type=int, default=32)
     ap.add_argument("--lights", type=int, default=4)
     ap.add_argument("--by-parameter", action="store_true", help="Principled / model per texel against each input")
+    ap.add_argument("--by-lobe", action="store_true", help="per light, the scale of each model lobe that fits the frame")
     ap.add_argument("--before", metavar="REV", help="also render the Principled with principled.py at git revision REV")
     args = ap.parse_args(argv)
     python = require_cycles_python()
@@ -151,6 +157,8 @@ def main(argv=None) -> int:
         print(f"| {preset} ({cbtf.working_space}) | **mean** | " + " | ".join(f"**{v:.3f}**" for v in mean) + " |", flush=True)
         print(f"  {preset}: fit model / sample over the fit's pole samples: " + pole_mean(maps, cbtf), flush=True)
         seen += n
+        if args.by_lobe:
+            by_lobe(preset, maps, cbtf, lights, [result.images[first + i][..., :3] for i in range(n)], rendering)
         if args.by_parameter:
             by_parameter(preset, maps, [result.images[first + i][..., :3] for i in range(n)],
                          [openpbr_frame(maps, light, rendering, cbtf.ocio_config) for _, light in lights])
@@ -188,6 +196,25 @@ def pole_mean(maps, cbtf) -> str:
     per_light = pred.mean(axis=(1, 2)) / rec.mean(axis=(1, 2))
     return (f"{len(pole)} lights, per channel {' / '.join(f'{v:.3f}' for v in per_channel)}, "
             f"mean {per_light.mean():.3f}, per light {per_light.min():.3f}..{per_light.max():.3f}")
+
+
+def by_lobe(preset: str, maps, cbtf, lights, principled: list, rendering: str) -> None:
+    """Print, per light, the least-squares scale of the model's base, specular and fuzz lobes
+    that fits the Principled frame, and each lobe's share of the model (``--by-lobe``)."""
+    from dataclasses import replace
+
+    from storm_helpers import openpbr_frame
+
+    zero = np.zeros_like(maps.base_color)
+    lobes = {"base": replace(maps, specular_color=zero, fuzz_color=zero),
+             "specular": replace(maps, base_color=zero, fuzz_color=zero),
+             "fuzz": replace(maps, base_color=zero, specular_color=zero)}
+    for (_, light), frame in zip(lights, principled):
+        x = np.stack([openpbr_frame(m, light, rendering, cbtf.ocio_config).reshape(-1) for m in lobes.values()], axis=1)
+        scale = np.linalg.lstsq(x.astype(np.float64), np.asarray(frame, np.float64).reshape(-1), rcond=None)[0]
+        share = x.sum(axis=0) / max(float(x.sum()), 1e-30)
+        print(f"  {preset} ({light[0]:.0f}, {light[1]:.0f}): Principled / model lobe: " +
+              ", ".join(f"{k} {s:.3f} (share {w:.2f})" for k, s, w in zip(lobes, scale, share)))
 
 
 def by_parameter(preset: str, maps, principled: list, models: list) -> None:
