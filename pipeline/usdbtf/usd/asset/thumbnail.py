@@ -8,8 +8,8 @@ the measured values' own brightness.
 The image is display-encoded through OCIO (the renderer's default display and view),
 composited over a flat grey (:data:`BACKGROUND`) where nothing was hit, written as a 256²
 baseline JPEG (:data:`JPEG_ATTRIBUTES`: what studio asset browsers show; every lod loads it,
-so its bytes count against ``--max-bytes``: about a third of the RGBA PNG it replaces,
-issue 39) and declared on the root prim with ``UsdMedia.AssetPreviewsAPI`` (``defaultImage``).
+so its bytes count against ``--max-bytes``: 0.20-0.25 of the RGBA PNG it replaced on the
+seven paper-scale assets, issue 39) and declared on the root prim with ``UsdMedia.AssetPreviewsAPI`` (``defaultImage``).
 The file declares its encoding as the PNG did: OIIO writes the sRGB display as the JPEG's
 EXIF ``ColorSpace`` 1 (sRGB), which OIIO reads back as ``srgb_rec709_scene``.
 """
@@ -29,9 +29,9 @@ THUMBNAIL_SIZE = 256
 THUMBNAIL_FILE = "thumbnail.jpg"
 #: Display code (8-bit) of the grey behind the geometry: 18 % grey through an sRGB display.
 BACKGROUND = 118
-#: OIIO's JPEG options: quality 90 with 4:2:0 chroma, libjpeg's and asset browsers' usual
-#: thumbnail setting (256² metal_flakes: 19.6 KB against the PNG's 64 KB;
-#: benchmarks/probes/smallfiles_bytes.py).
+#: OIIO's JPEG options: quality 90 with 4:2:0 chroma, the usual setting of a browser's
+#: thumbnail (256² metal_flakes paper-scale asset: 12,826 bytes against its PNG's 64,061;
+#: quality 95 4:4:4 would be 0.43 of the PNG; benchmarks/probes/smallfiles_bytes.py).
 JPEG_ATTRIBUTES = {"Compression": "jpeg:90", "jpeg:subsampling": "4:2:0"}
 #: Towards the light, world space (Y up): above, left, in front.
 LIGHT_DIRECTION = (-0.45, 0.55, 0.7)
@@ -56,8 +56,8 @@ def render_thumbnail(cbtf: CompressedBTF, mesh: Mesh, size: int = THUMBNAIL_SIZE
 
 def composite_background(rgba: np.ndarray, background: int = BACKGROUND) -> np.ndarray:
     """(H, W, 3) uint8: the display-encoded (H, W, 4) uint8 ``rgba`` over a flat ``background``
-    code, blended on the display codes (the renderer's alpha is coverage: 0 or 1 but at
-    silhouettes)."""
+    code, blended on the display codes as straight alpha (the renderer's alpha is whether a
+    pixel hit the geometry: 0 or 255 in its thumbnails, so the blend only picks)."""
     rgb = rgba[..., :3].astype(np.float32)
     alpha = rgba[..., 3:4].astype(np.float32) / 255.0
     return np.rint(rgb * alpha + np.float32(background) * (1.0 - alpha)).astype(np.uint8)
