@@ -2,10 +2,16 @@
 """What a packaged asset ships, file kind by file kind, and what single-copy layouts would ship (issue 39).
 
 For one synthetic material (``usdbtf synth``, cached) compressed twice (``usdbtf compress --max-bytes B`` and
-``--k K``, cached), ``usdbtf package`` (this checkout's code) writes the asset; its files are counted by kind:
-``tables.exr`` (split into the basis block and the rest: hemisphere tables, de-quantisation, directory; the
-rest measured by encoding the same tables with the basis block zeroed), the coefficient pages, ``coeff/``,
-``basis.*`` (before issue 39), the fallback maps, the thumbnail, the MaterialX document and the USD layers.
+``--k K``, cached), ``usdbtf package`` (this checkout's code) writes the asset; its files are counted by kind
+(:func:`kind_of`):
+the full lod's ``gpu/tables.exr`` (split into the basis block and the rest: hemisphere tables,
+de-quantisation, directory; the rest measured by encoding the same tables with the basis block zeroed; under
+schema 4 the block holds only the basis's de-quantisation, the codes being in the basis page), the coefficient
+pages, the basis page ``gpu/basis.png`` (schema 4), the lower lods' own files (``tables_k<n>.exr``,
+``basis_k<n>.png``, ``usdbtf_k<n>.mtlx``: not loaded by the full lod), the MaterialX document, the fallback
+maps, the thumbnail (``thumbnail.jpg``, a PNG before issue 39), the USD layers, and of older assets
+``coeff/`` and ``basis.*``: every file the asset folder holds, and the files the full lod loads as
+``inspect`` lists them (``usd.asset.package.shipped_levels``; what ``--max-bytes`` budgets), by kind.
 
 Then, from the same codes (the compressed folder's, read with ``read_compressed``), the bytes of candidate
 single-copy layouts, every one PNG at compression level 6 for 8-bit codes (what ``package`` writes) and the
@@ -54,16 +60,26 @@ def run(cmd: list) -> float:
     return time.perf_counter() - t0
 
 
+#: Kinds of files the full lod does not load (a lower lod's own tables, basis page, MaterialX document).
+LOWER_LODS = "lower lods' own files"
+
+
 def kind_of(rel: str) -> str:
-    """The file kind of a path relative to the asset's folder."""
+    """The file kind of a path relative to the asset's folder (a schema-4 asset's, or an older one's)."""
+    import re
+
     parts = Path(rel).parts
     name = parts[-1]
     if name.endswith((".usda", ".usdc", ".usd")):
         return "layers"
+    if "gpu" in parts and re.fullmatch(r"(tables|basis|usdbtf)_k\d+\.\w+", name):
+        return LOWER_LODS
     if "gpu" in parts and name.startswith("tables"):
         return "tables"
     if "gpu" in parts and name.startswith("page"):
         return "pages"
+    if "gpu" in parts and name.startswith("basis"):
+        return "basis page"
     if "gpu" in parts and name.endswith(".mtlx"):
         return "materialx"
     if "coeff" in parts:
@@ -78,11 +94,23 @@ def kind_of(rel: str) -> str:
 
 
 def asset_breakdown(folder: Path) -> dict:
+    """{kind: bytes} of every file under the asset's folder ``folder`` (:func:`kind_of`)."""
     out: dict = {}
     for path in sorted(folder.rglob("*")):
         if path.is_file():
             kind = kind_of(str(path.relative_to(folder)))
             out[kind] = out.get(kind, 0) + path.stat().st_size
+    return out
+
+
+def full_lod_breakdown(root: Path) -> dict:
+    """{kind: bytes} of the files the full lod of the asset ``root`` loads (``inspect``'s list)."""
+    from usdbtf.usd.asset.package import shipped_levels
+
+    out: dict = {}
+    for f in shipped_levels(root, shares=False)[0]["files"]:
+        kind = kind_of(f["path"])
+        out[kind] = out.get(kind, 0) + int(f["bytes"])
     return out
 
 
@@ -134,6 +162,7 @@ def probe(folder: Path) -> dict:
 def candidates(folder: Path) -> dict:
     """Bytes of the candidate layouts from the codes of compressed folder ``folder``."""
     from usdbtf.compress.format import read_compressed
+    from usdbtf.compress.packs import encode_png_page
     from usdbtf.gpu.tables import gpu_layout, page_breaks
     from usdbtf.usd.asset.lod import default_lods
 
@@ -158,12 +187,13 @@ def candidates(folder: Path) -> dict:
     flat = layout.tables.reshape(-1, 4)
     V, L, groups = int(flat[0][1]), int(flat[0][2]), int(flat[0][3])
     S = V * L
-    # The basis block runs from its offset to the view hemisphere's table (both layouts).
-    basis_at, view_at = int(flat[1][1]), int(flat[1][2])
+    # The basis block is the tables' last block (schema 3 and 4): from its offset to the end.
+    basis_at = int(flat[1][1])
     zeroed = layout.tables.copy()
-    zeroed.reshape(-1, 4)[basis_at:view_at] = 0
+    zeroed.reshape(-1, 4)[basis_at:] = 0
     out["tables_this_checkout"] = exr(layout.tables)
     out["tables_rest"] = exr(zeroed)
+    out["basis_page"] = None if layout.basis_page is None else len(encode_png_page(layout.basis_page))
 
     def rows512(texels: np.ndarray) -> np.ndarray:
         rows = -(-len(texels) // 512)
@@ -222,38 +252,44 @@ def main(argv=None) -> int:
         if not (comp / "btf-compressed.json").is_file():
             run(cli + ["compress", src, "-o", comp, "-q"] + flags)
         asset = work / f"a_{label}"
-        seconds = run(cli + ["package", comp, "-o", asset / "m.usda", "-q"])
+        seconds = run(cli + ["package", comp, "-o", asset / "m.usda", "-q", "--force"])
         kinds = asset_breakdown(asset)
+        full_kinds = full_lod_breakdown(asset / "m.usda")
         cand = candidates(comp)
         import json
 
         folder_payload = json.loads((comp / "btf-compressed.json").read_text())["bytes"]["payload"]
-        report["runs"][label] = {"kinds": kinds, "total": sum(kinds.values()), "package_s": seconds,
+        report["runs"][label] = {"kinds": kinds, "total": sum(kinds.values()), "full_kinds": full_kinds,
+                                 "full_lod": sum(full_kinds.values()), "package_s": seconds,
                                  "folder_payload": folder_payload, "candidates": cand, "probe": probe(comp)}
     write_json(OUT / f"asset_bytes_{timestamp()}.json", report)
 
-    print("\n| run | k | folder payload (basis + coeff) | asset total | " +
-          " | ".join(sorted({k for r in report["runs"].values() for k in r["kinds"]})) + " |")
     cols = sorted({k for r in report["runs"].values() for k in r["kinds"]})
-    print("|" + "---|" * (4 + len(cols)))
+    print("\nper kind: bytes the full lod loads (inspect's lod_files: what --max-bytes budgets) / bytes the folder "
+          "holds (with the lower lods' own files and what no lod loads)\n")
+    print("| run | k | folder payload (basis + coeff) | full lod | all files | " + " | ".join(cols) + " |")
+    print("|" + "---|" * (5 + len(cols)))
     for label, r in report["runs"].items():
-        print(f"| {label} | {r['candidates']['k']} | {r['folder_payload']:,} | {r['total']:,} | "
-              + " | ".join(f"{r['kinds'].get(c, 0):,}" for c in cols) + " |")
-    print("\ntables.exr (this checkout): the basis block = tables - the same tables with the block zeroed")
+        print(f"| {label} | {r['candidates']['k']} | {r['folder_payload']:,} | {r['full_lod']:,} | {r['total']:,} | "
+              + " | ".join(f"{r['full_kinds'].get(c, 0):,} / {r['kinds'].get(c, 0):,}" for c in cols) + " |")
+    print("\ntables.exr (this checkout): the basis block = tables - the same tables with the block zeroed; "
+          "basis page = gpu/basis.png re-encoded from the layout (schema 4; - when the codes are in the tables)")
     for label, r in report["runs"].items():
         c = r["candidates"]
+        page = "-" if c["basis_page"] is None else f"{c['basis_page']:,}"
         print(f"- {label}: tables {c['tables_this_checkout']:,} = basis block "
-              f"{c['tables_this_checkout'] - c['tables_rest']:,} + rest {c['tables_rest']:,}; "
+              f"{c['tables_this_checkout'] - c['tables_rest']:,} + rest {c['tables_rest']:,}; basis page {page}; "
               f"coefficient codes {c['coefficient_dtype']}, basis codes {c['basis_dtype']}")
     print("\nshipped-bytes probe (usdbtf.compress.packs: each pack on its own, the basis codes alone) "
           "against the asset's files")
-    print("\n| run | probe packs | pages | probe / pages | probe basis codes | tables basis block | probe s |")
+    print("\n| run | probe packs | pages | probe / pages | probe basis codes | asset's basis codes | probe s |")
     print("|---|---|---|---|---|---|---|")
     for label, r in report["runs"].items():
         pr, c, pages = r["probe"], r["candidates"], r["kinds"].get("pages", 0)
-        block = c["tables_this_checkout"] - c["tables_rest"]
+        # schema 4: the basis page file; else the tables' basis block
+        shipped = r["kinds"].get("basis page") or c["tables_this_checkout"] - c["tables_rest"]
         print(f"| {label} | {pr['packs']:,} | {pages:,} | {pr['packs'] / max(1, pages):.4f} | {pr['basis']:,} | "
-              f"{block:,} | {pr['seconds']:.2f} |")
+              f"{shipped:,} | {pr['seconds']:.2f} |")
     print("\n| run | coefficients layout | bytes | pages | page fetches / coeff | dequant fetches / coeff |")
     print("|---|---|---|---|---|---|")
     for label, r in report["runs"].items():

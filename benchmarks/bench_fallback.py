@@ -6,8 +6,9 @@ For each preset: the synthetic BTF (``usdbtf synth``, cached), compressed (``usd
 
 fitted   ``usdbtf.svbrdf.fit_svbrdf`` on the compressed BTF (timed, in this process), written
          and read back exactly as the asset ships it (``usd.asset.fallback.encode_maps`` /
-         ``decode_maps``: 8-bit sRGB colour maps, 8-bit roughness and normal maps): the
-         UsdPreviewSurface on ``outputs:surface``;
+         ``shipped_pixels`` / ``decode_maps``: 8-bit sRGB colour maps, 8-bit roughness and
+         normal maps, a lossy file decoded back): the UsdPreviewSurface on
+         ``outputs:surface``;
 openpbr  ``usdbtf.openpbr.fit_openpbr`` (timed; it starts from the fitted UsdPreviewSurface's
          normals), written and read back as shipped (``usd.asset.openpbr.encode_maps`` /
          ``decode_maps``): the OpenPBR Surface on ``outputs:mtlx:surface``, evaluated with
@@ -25,10 +26,16 @@ with (a) the measured samples (the synthetic originals) in the scene-linear work
 error is the paper's metric, 100 * sum|orig - pred| / sum(orig); RMSE and PSNR in the same
 run.  The compressed BTF's own error against the originals is printed for context.
 
+``--png-baseline`` also evaluates both fits read back from every map as PNG (the storage
+before issue 39's JPEG maps: same fits, same run) and prints each storage's error relative to
+it; ``--what-if Q:MAPS`` (repeatable) adds a storage not shipped: the maps named (both
+fallbacks' map names, comma-separated) as JPEG at quality Q, the others PNG.
+
 Usage (repository root)::
 
     .venv/bin/python benchmarks/bench_fallback.py                 # all seven presets, paper sampling, 128^2, k 64
     .venv/bin/python benchmarks/bench_fallback.py --quick         # small sampling, 64^2 (a check)
+    .venv/bin/python benchmarks/bench_fallback.py --quick --png-baseline --what-if 95:diffuse,base
 
 Writes benchmarks/out/fallback_<timestamp>.json and prints a markdown block for RESULTS.md
 (the held-out presets, ``usdbtf.bench.datasets.HELDOUT_PRESETS``, in a table of their own).
@@ -59,12 +66,46 @@ ABLATIONS = {"fitted, no normal map": {"normals": False}, "fitted, 512 fit sampl
 BEFORE_BRIGHTNESS = ("fitted, brightness not kept", "openpbr, brightness not kept")
 
 
-def shipped_fallbacks(cbtf, white: float, ablation: bool = False, before_brightness: bool = False) -> tuple[dict, float, float]:
+#: --png-baseline: the storage before issue 39's JPEG maps (every map PNG).
+PNG_BASELINE = "all maps PNG"
+
+
+def storage(jpeg_maps: str | None, quality: int | None) -> tuple[dict, dict, dict]:
+    """(UsdPreviewSurface files, OpenPBR files, JPEG options) of a storage: the shipped
+    ``MAP_FILES`` with the maps named in ``jpeg_maps`` (comma-separated; "none": no map;
+    None: as shipped) as ".jpg" and the others ".png", at JPEG ``quality`` (None: as shipped)."""
+    from usdbtf.usd.asset import fallback as ups, openpbr as op
+
+    jpeg = dict(ups.MAP_JPEG) if quality is None else {**ups.MAP_JPEG, "Compression": f"jpeg:{quality}"}
+    if jpeg_maps is None:
+        return ups.MAP_FILES, op.MAP_FILES, jpeg
+    chosen = set() if jpeg_maps == "none" else set(jpeg_maps.split(","))
+
+    def files(table):
+        return {m: (f"{Path(f).stem}{'.jpg' if m in chosen else '.png'}", kind) for m, (f, kind) in table.items()}
+
+    return files(ups.MAP_FILES), files(op.MAP_FILES), jpeg
+
+
+def read_back(maps, cbtf, white: float, files: dict, jpeg: dict):
+    """``maps`` (a UsdPreviewSurface or OpenPBR fit) as a renderer reads them from ``files``."""
+    from usdbtf import openpbr
+    from usdbtf.usd.asset import fallback as ups, openpbr as op
+
+    module = op if isinstance(maps, openpbr.OpenPbrMaps) else ups
+    pixels = ups.shipped_pixels(module.encode_maps(maps, cbtf.ocio_config), files, jpeg)
+    return module.decode_maps(pixels, cbtf.working_space, ocio_config=cbtf.ocio_config, white_level=white)
+
+
+def shipped_fallbacks(cbtf, white: float, ablation: bool = False, before_brightness: bool = False,
+                      storages: dict | None = None) -> tuple[dict, float, float]:
     """({"fitted": maps, "openpbr": maps, "flat": maps, ablations...} as a renderer reads them
-    from the asset, seconds of the UsdPreviewSurface fit, seconds of the OpenPBR fit)."""
+    from the asset, seconds of the UsdPreviewSurface fit, seconds of the OpenPBR fit).
+    ``storages``: {label: :func:`storage`} of storages not shipped: both fits read back from
+    each too, as "fitted, <label>" and "openpbr, <label>"."""
     from usdbtf import openpbr, svbrdf
-    from usdbtf.usd.asset import openpbr as usd_openpbr
-    from usdbtf.usd.asset.fallback import decode_maps, encode_maps
+
+    ups_files, op_files, jpeg = storage(None, None)
 
     t = time.perf_counter()
     fitted = svbrdf.fit_svbrdf(cbtf, white_level=white)
@@ -81,9 +122,7 @@ def shipped_fallbacks(cbtf, white: float, ablation: bool = False, before_brightn
         unkept = svbrdf.fit_svbrdf(cbtf, white_level=white, brightness=False)
         maps.append(("fitted, brightness not kept", unkept))
         unkept_op = openpbr.fit_openpbr(cbtf, svbrdf=unkept, white_level=white, brightness=False)
-    shipped = {name: decode_maps(encode_maps(m, cbtf.ocio_config), cbtf.working_space,
-                                 ocio_config=cbtf.ocio_config, white_level=white)
-               for name, m in maps}
+    shipped = {name: read_back(m, cbtf, white, ups_files, jpeg) for name, m in maps}
     # The old asset had no normal map and constant inputs: only its albedo went through a file.
     old = shipped["flat"]
     old.normal[:] = (0.0, 0.0, 1.0)
@@ -91,8 +130,10 @@ def shipped_fallbacks(cbtf, white: float, ablation: bool = False, before_brightn
     old.roughness[:] = flat.roughness
     for name, fitted_op in (("openpbr", op), ("openpbr, brightness not kept", unkept_op)):
         if fitted_op is not None:
-            shipped[name] = usd_openpbr.decode_maps(usd_openpbr.encode_maps(fitted_op, cbtf.ocio_config),
-                                                    cbtf.working_space, ocio_config=cbtf.ocio_config, white_level=white)
+            shipped[name] = read_back(fitted_op, cbtf, white, op_files, jpeg)
+    for label, (other_ups, other_op, other_jpeg) in (storages or {}).items():
+        shipped[f"fitted, {label}"] = read_back(fitted, cbtf, white, other_ups, other_jpeg)
+        shipped[f"openpbr, {label}"] = read_back(op, cbtf, white, other_op, other_jpeg)
     return shipped, seconds, op_seconds
 
 
@@ -141,6 +182,10 @@ def main(argv=None) -> int:
                     "samples (the choices fit_svbrdf makes by default)")
     ap.add_argument("--before-brightness", action="store_true", help="also the UsdPreviewSurface fit without its "
                     "brightness step (svbrdf.keep_brightness), the before of issue 40")
+    ap.add_argument("--png-baseline", action="store_true", help="also both fits read back from all-PNG maps (before "
+                    "issue 39's JPEG maps), and each storage's error relative to it")
+    ap.add_argument("--what-if", action="append", default=[], metavar="Q:MAPS", help="also both fits read back from "
+                    "the maps MAPS (comma-separated) as JPEG at quality Q, the others PNG (repeatable)")
     args = ap.parse_args(argv)
     if args.quick:
         args.sampling, args.size = "small", 64
@@ -157,6 +202,11 @@ def main(argv=None) -> int:
         f"PNG, synth seed {args.seed}; compressed with `usdbtf compress --k {args.k} --codec png` (rsvd)")
     say(f"- command: {' '.join([Path(sys.executable).name, *sys.argv])}")
     cli = cli_command()
+    storages = {PNG_BASELINE: storage("none", None)} if args.png_baseline else {}
+    for spec in args.what_if:
+        quality, _, names = spec.partition(":")
+        storages[f"JPEG q{quality} {names}"] = storage(names, int(quality))
+    storage_rows = []
     rows, ablation_rows, doc = {"tuning": [], "held-out": []}, [], {"machine": info, "args": vars(args), "presets": {}}
     for preset in args.presets.split(","):
         say(f"\n## {preset}")
@@ -165,7 +215,7 @@ def main(argv=None) -> int:
         cbtf = compressed(cli, Path(data["folder"]), folder, args.k)
         orig = open_btf(data["folder"])
         white = float((cbtf.info.get("source_metadata") or {}).get("white_level", 1.0))
-        shipped, fit_s, op_s = shipped_fallbacks(cbtf, white, args.ablation, args.before_brightness)
+        shipped, fit_s, op_s = shipped_fallbacks(cbtf, white, args.ablation, args.before_brightness, storages)
         say(f"  fits: UsdPreviewSurface {fit_s:.1f} s, OpenPBR {op_s:.1f} s for {cbtf.width}x{cbtf.height} texels, "
             f"{cbtf.n_samples} samples, k {cbtf.k}")
         t = time.perf_counter()
@@ -187,6 +237,13 @@ def main(argv=None) -> int:
                                  f"{res[name]['linear']['rmse']:.4f} | {res[name]['encoded']['percent']:.2f} | "
                                  f"{res[name]['encoded']['rmse']:.4f} |")
         pct = lambda r, d: r[d]["percent"]  # noqa: E731
+        if args.png_baseline:
+            base = (res[f"fitted, {PNG_BASELINE}"], res[f"openpbr, {PNG_BASELINE}"])
+            for label in ["as shipped", *storages]:
+                pair = (f, o) if label == "as shipped" else (res[f"fitted, {label}"], res[f"openpbr, {label}"])
+                storage_rows.append(f"| {preset} | {label} | " + " | ".join(
+                    f"{pct(x, d):.3f} ({pct(x, d) / pct(b, d) - 1:+.2%})"
+                    for x, b in zip(pair, base) for d in ("linear", "encoded")) + " |")
         rows[preset_split(preset)].append(
             f"| {preset} | {pct(fl, 'linear'):.2f} | {pct(f, 'linear'):.2f} | {pct(o, 'linear'):.2f} | "
             f"{pct(o, 'linear') / pct(f, 'linear'):.2f}x | {pct(fl, 'encoded'):.2f} | {pct(f, 'encoded'):.2f} | "
@@ -207,6 +264,11 @@ def main(argv=None) -> int:
     if args.ablation or args.before_brightness:
         say("\n| preset | fallback | % lin | RMSE lin | % enc | RMSE enc |\n|---|---|---|---|---|---|")
         for row in sorted(ablation_rows):
+            say(row)
+    if storage_rows:
+        say("\nmap storage (each fit read back from its files; in brackets: relative to every map PNG, same fit):\n")
+        say("| preset | storage | UPS % lin | UPS % enc | OpenPBR % lin | OpenPBR % enc |\n|---|---|---|---|---|---|")
+        for row in storage_rows:
             say(row)
     path = write_json(OUT / f"fallback_{timestamp()}.json", doc)
     say(f"\nwrote {path}")

@@ -13,7 +13,10 @@ Per preset (tuning presets first, then the held-out presets no tuning run used):
    issue 39); each folder then packaged (``usdbtf package``), its bytes the files the full lod
    loads (package's summary) and its error computed from the asset's own files
    (``usdbtf.usd.read.load_btf``), beside the folder's bytes and error;
-3. optionally ``--domain linear`` (the default before issue 16) and ``--solver paper`` (the
+3. with ``--target-error``: ``usdbtf compress IN -o OUT --target-error <the paper's % on the
+   8-bit values>`` (the other side of the comparison: at the paper's error, the asset's bytes
+   as a fraction of the paper's), packaged and measured as in 2;
+4. optionally ``--domain linear`` (the default before issue 16) and ``--solver paper`` (the
    product's paper solver, k = 150, on the input's encoding curve) under no budget;
 
 percent error over every sample (``--stride`` subsamples), texel and channel, on the 8-bit
@@ -21,10 +24,16 @@ sRGB file values (exact encoder) and in scene-linear ACEScg (``research/rlib.eva
 With ``--heldout-directions``, 10 % of the light directions (every view) are removed, the
 product compresses the rest under the paper's budget for that subset, and the held-out images
 are predicted the way the renderer does (4 nearest stored directions, rows blended in the
-working domain, the inverse curve, the foreshortening after it).  Usage::
+working domain, the inverse curve, the foreshortening after it).  An asset's "basis" bytes are
+the basis codes its full lod loads: ``gpu/basis.png`` (schema 4), else the tables' basis
+block (``packs.shipped_basis_bytes``); they are part of its bytes.  Usage::
 
     .venv/bin/python benchmarks/bench_issue16.py [--presets a,b] [--stride 1] [--linear] [--paper-solver]
-        [--heldout-directions] [--size 128]
+        [--heldout-directions] [--size 128] [--target-error] [--no-folder-budget]
+
+The issue-39 table (at the paper's bytes and at the paper's error, asset and folder, one run)::
+
+    .venv/bin/python benchmarks/bench_issue16.py --target-error
 """
 from __future__ import annotations
 
@@ -106,14 +115,28 @@ def package_cli(folder: Path) -> tuple[dict, Path]:
     return json.loads(record.read_text()), root
 
 
+def asset_basis_bytes(root: Path, cbtf) -> int:
+    """Bytes of the basis codes the full lod of the asset ``root`` loads: its basis page
+    (``gpu/basis.png``, schema 4) when it has one, else the basis block of its GPU tables
+    (``packs.shipped_basis_bytes`` of ``cbtf``, the asset's own codes)."""
+    from usdbtf.compress.packs import shipped_basis_bytes
+    from usdbtf.usd.asset.package import shipped_levels
+
+    full = shipped_levels(root, shares=False)[0]
+    pages = [f["bytes"] for f in full["files"] if f["path"].replace("\\", "/").endswith("gpu/basis.png")]
+    return int(pages[0]) if pages else int(shipped_basis_bytes(cbtf))
+
+
 def asset_product(folder: Path, data) -> tuple["Product", dict]:
     """The packaged asset of ``folder`` as the evaluation reads it: its codes from the asset's
-    own files (``load_btf``), its bytes the files its full lod loads."""
+    own files (``load_btf``), its bytes the files its full lod loads, of which "basis" the
+    basis codes (:func:`asset_basis_bytes`)."""
     from usdbtf.usd.read import load_btf
 
     summary, root = package_cli(folder)
     full = int(summary["bytes"]["full"])
-    return Product(load_btf(root), data, {"payload": full, "basis": 0}), summary
+    cbtf = load_btf(root)
+    return Product(cbtf, data, {"payload": full, "basis": asset_basis_bytes(root, cbtf)}), summary
 
 
 def directions(data, stride: int) -> dict:
@@ -139,6 +162,9 @@ def main(argv=None) -> int:
     p.add_argument("--size", type=int, default=128, help="texels per side of the synthetic data (paper: 128)")
     p.add_argument("--no-folder-budget", action="store_true",
                    help="skip the --budget-for folder run (the compressed-folder figures before issue 39)")
+    p.add_argument("--target-error", action="store_true",
+                   help="also compress --target-error <the paper's %% enc> and package it: the asset's bytes at the "
+                        "paper's error, as a fraction of the paper's bytes")
     args = p.parse_args(argv)
     presets = preset_list(args.presets, tuning_only=False)
     header("issue 16 in the product: usdbtf compress (defaults) vs the paper's method at the paper's bytes",
@@ -154,9 +180,17 @@ def main(argv=None) -> int:
         paper = paper_cached(data)
         budget = paper.bytes["payload"]
         runs = [("paper", paper, None)]
+        # The paper's errors (this run's samples), once: the table's baseline and --target-error's target.
+        measured = {"paper": evaluate(data, paper.recon, sel)}
         variants = [("default", ["--max-bytes", budget])]
         if not args.no_folder_budget:
             variants.append(("folder budget", ["--max-bytes", budget, "--budget-for", "folder"]))
+        if args.target_error:
+            # The paper's error on the 8-bit values (compress's --target-error is on the encoded
+            # values by default, measured on its held-out texels).
+            target = float(measured["paper"].encoded)
+            r["paper target % enc"] = target
+            variants.append(("target error", ["--target-error", f"{target:.4f}"]))
         if args.linear:
             variants.append(("linear", ["--max-bytes", budget, "--domain", "linear"]))
         if args.paper_solver:
@@ -164,14 +198,15 @@ def main(argv=None) -> int:
         for name, extra in variants:
             # "default" budgets the asset since issue 39: a folder of its own (not an older run's)
             tag = "asset_budget" if name == "default" else name.replace(' ', '_')
-            out = PRODUCT / f"{preset}-{args.size}-{tag}-{budget}"
+            out = PRODUCT / (f"{preset}-{args.size}-{tag}-{budget}" if name != "target error"
+                             else f"{preset}-{args.size}-target_error-{extra[1]}")
             secs = compress_cli(folder, out, *extra)
             runs.append((name, Product(out, data), secs))
-            if name in ("default", "folder budget"):
+            if name in ("default", "folder budget", "target error"):
                 product, summary = asset_product(out, data)
                 runs.append((f"{name} asset", product, summary["seconds"]))
         for name, f, secs in runs:
-            e = evaluate(data, f.recon, sel)
+            e = measured[name] if name in measured else evaluate(data, f.recon, sel)
             r[name] = {"k": f.k, "bytes": f.bytes["payload"], "basis_bytes": f.bytes["basis"],
                        "encoded": e.encoded, "linear": e.linear, "seconds": secs, "domain": f.dom.name}
             r[name]["ratio"] = [e.encoded / r["paper"]["encoded"], e.linear / r["paper"]["linear"]]
@@ -185,7 +220,8 @@ def main(argv=None) -> int:
                 f"{k} {v['encoded']:.2f} / {v['linear']:.2f}" for k, v in r["directions"].items()) + f" ({t.s:.0f} s)")
         (PRODUCT / "results.json").write_text(json.dumps(results, indent=1, default=float))
     say("\nbudget = the paper's bytes B; 'asset' = the packaged asset: bytes = every file its full lod loads, "
-        "error from the asset's own files; 'folder' = the compressed folder's textures and codes")
+        "error from the asset's own files; 'folder' = the compressed folder's textures and codes; "
+        "'at the paper's error' = compress --target-error <paper % enc> (no budget), its asset bytes x B")
     say("\n| preset | paper bytes B | paper % enc / lin | compress budgets | k | folder bytes | asset bytes (x B) | "
         "folder % enc / lin | asset % enc / lin | **asset ratio enc / lin** | compress s |")
     say("|" + "---|" * 11)
@@ -194,7 +230,8 @@ def main(argv=None) -> int:
             r = results[preset]
             pa = r["paper"]
             name = ("**held out:** " if preset in HELDOUT_PRESETS else "") + preset
-            for variant, label in (("default", "asset (default)"), ("folder budget", "folder (before issue 39)")):
+            for variant, label in (("default", "asset (default)"), ("folder budget", "folder (before issue 39)"),
+                                   ("target error", "at the paper's error (--target-error)")):
                 if variant not in r:
                     continue
                 de, asset = r[variant], r.get(f"{variant} asset")

@@ -15,11 +15,16 @@ Each side packages the *same* compressed folders.  A side "before" is an older c
 benchmarks/ab_compress.sh does), run by the same virtualenv; "after" is the working tree.
 Runs are interleaved (each repeat: every input, every side in turn), each a child process
 under ``nice``; wall time and peak RSS are the child's (usdbtf.bench.measure.run_measured);
-asset bytes are every file the asset folder holds.  Medians of ``--repeats``.
+asset bytes are every file the asset folder holds, full lod the files its full lod loads
+(``usd.asset.package.shipped_bytes``, the budgeted bytes), and per file kind
+(bench_asset_bytes.kind_of) the thumbnail and fallback maps.  Medians of ``--repeats``.
+``--swatch`` takes several compressed folders (e.g. the paper-scale issue-16 assets' folders).
 
 Usage (repository root)::
 
     nice .venv/bin/python benchmarks/bench_package_ab.py --before d4d391a 9dedc99 --repeats 3
+    nice .venv/bin/python benchmarks/bench_package_ab.py --before HEAD --only swatch --repeats 1 \
+        --swatch /tmp/velvet-128-asset_budget-3416295 /tmp/metal_flakes-128-asset_budget-3418164
 """
 from __future__ import annotations
 
@@ -35,6 +40,7 @@ from common import OUT, REPO, cli_command, format_machine, machine_info, median,
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_package_quilt import inputs as quilt_inputs, run_cli  # noqa: E402  (the same sphere route)
+from bench_asset_bytes import asset_breakdown  # noqa: E402  (file kinds)
 
 PAPER_BYTES = 3418156
 
@@ -71,8 +77,13 @@ def package(side_pipeline: Path | None, source: Path, out: Path, extra: list) ->
                       *map(str, extra)], env=env, pss_interval=0)
     if r.returncode != 0:
         raise SystemExit(f"package {source} ({side_pipeline or 'working tree'}) failed:\n{r.stderr[-3000:]}")
+    from usdbtf.usd.asset.package import FULL_LOD, shipped_bytes
+
+    kinds = asset_breakdown(out.parent)
     return {"wall_s": r.wall_s, "cpu_s": r.user_s + r.sys_s, "max_rss_bytes": r.max_rss_bytes,
-            "asset_bytes": tree_bytes(out.parent), "asset_digest": tree_digest(out.parent)}
+            "asset_bytes": tree_bytes(out.parent), "asset_digest": tree_digest(out.parent),
+            "full_lod_bytes": shipped_bytes(out)[FULL_LOD], "thumbnail_bytes": kinds.get("thumbnail", 0),
+            "fallback_bytes": kinds.get("fallback", 0)}
 
 
 def tree_digest(folder: Path) -> str:
@@ -92,7 +103,8 @@ def main(argv=None) -> int:
     p.add_argument("--max-bytes", type=int, default=PAPER_BYTES)
     p.add_argument("--workdir", type=Path, default=OUT / "data" / "package_ab")
     p.add_argument("--only", choices=["swatch", "sphere"], help="one input only")
-    p.add_argument("--swatch", type=Path, help="an existing compressed swatch folder (instead of synth + compress)")
+    p.add_argument("--swatch", type=Path, nargs="+", help="existing compressed swatch folders (instead of synth + "
+                   "compress), each an input")
     args = p.parse_args(argv)
     os.environ.setdefault("OCIO", "ocio://default")
     say(f"# bench_package_ab\n{format_machine(machine_info())}")
@@ -103,7 +115,8 @@ def main(argv=None) -> int:
     cli = cli_command()
     jobs = {}
     if args.only in (None, "swatch"):
-        jobs["swatch"] = (args.swatch or swatch_input(args.workdir, cli, args.max_bytes), [])
+        for folder in args.swatch or [swatch_input(args.workdir, cli, args.max_bytes)]:
+            jobs["swatch" if not args.swatch or len(args.swatch) == 1 else f"swatch {folder.name}"] = (folder, [])
     if args.only in (None, "sphere"):
         q = quilt_inputs(args.workdir / "quilt", [args.radius], cli)["quilts"][args.radius]
         jobs["sphere"] = (q[1], ["--mesh", q[0]])
@@ -130,11 +143,14 @@ def main(argv=None) -> int:
                     r = package(pipeline, source, tmp / "out" / job / "asset.usda", extra)
                     runs[job, side].append(r)
                     say(f"  repeat {rep + 1} {job} {side}: {r['wall_s']:.1f} s, CPU {r['cpu_s']:.1f} s, "
-                        f"{r['max_rss_bytes'] / 1e9:.2f} GB, {r['asset_bytes']:,} B, digest {r['asset_digest']}")
+                        f"{r['max_rss_bytes'] / 1e9:.2f} GB, {r['asset_bytes']:,} B (full lod "
+                        f"{r['full_lod_bytes']:,}, thumbnail {r['thumbnail_bytes']:,}, fallback maps "
+                        f"{r['fallback_bytes']:,}), digest {r['asset_digest']}")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     lines = ["| input | side | package s (median) | CPU s (median) | peak RSS GB (median) | asset bytes | "
-             "s vs first side | CPU vs first side | RSS vs first side |", "|---|---|---|---|---|---|---|---|---|"]
+             "full lod bytes | thumbnail | fallback maps | s vs first side | CPU vs first side | RSS vs first side |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for job in jobs:
         base = None
         for side in sides:
@@ -142,7 +158,9 @@ def main(argv=None) -> int:
             wall, rss = median(r["wall_s"] for r in rs), median(r["max_rss_bytes"] for r in rs)
             cpu = median(r["cpu_s"] for r in rs)
             base = base or (wall, rss, cpu)
-            lines.append(f"| {job} | {side} | {wall:.1f} | {cpu:.1f} | {rss / 1e9:.2f} | {rs[-1]['asset_bytes']:,} | "
+            last = rs[-1]
+            lines.append(f"| {job} | {side} | {wall:.1f} | {cpu:.1f} | {rss / 1e9:.2f} | {last['asset_bytes']:,} | "
+                         f"{last['full_lod_bytes']:,} | {last['thumbnail_bytes']:,} | {last['fallback_bytes']:,} | "
                          f"{wall / base[0]:.2f} | {cpu / base[2]:.2f} | {rss / base[1]:.2f} |")
     say("\n" + "\n".join(lines))
     path = write_json(OUT / f"package_ab_{timestamp()}.json",

@@ -60,7 +60,7 @@ TARGET_RATIO, TARGET_RSS = 2.0, 1.5e9
 STEPS = (("usdbtf.usd.asset.package", "read_input", "read"), ("usdbtf.quilt.texels", "quilt_texels", "source texels"),
          ("usdbtf.svbrdf", "fit_svbrdf", "fallback fit"), ("usdbtf.usd.asset.fallback", "add_maps", "fallback maps"),
          ("usdbtf.usd.asset.storm", "add_gpu_textures", "GPU tables+pages"),
-         ("usdbtf.usd.asset.thumbnail", "thumbnail_png", "thumbnail"),
+         ("usdbtf.usd.asset.thumbnail", "thumbnail_jpeg", "thumbnail"),
          ("usdbtf.usd.asset.textures:TextureSet", "write", "texture folder"),
          ("usdbtf.usd.asset.package", "_check_published", "validation"))
 #: Writer settings of the atlas-sized textures ``package`` encodes, by folder (see usd.asset.storm, usd.asset.fallback).

@@ -1,4 +1,5 @@
-"""The asset's PNGs choose their filter (issue 39): the smaller encoding, the same pixels."""
+"""The asset's PNGs choose their filter (issue 39): the smaller encoding, the same pixels; a map
+named ".jpg" is a JPEG, read back as what a reader decodes."""
 import usdbtf  # noqa: F401  (before numpy)
 import numpy as np
 
@@ -50,3 +51,29 @@ def test_fallback_maps_are_written_with_the_smaller_filter():
         assert written == (expected if colour else png_as_data(expected)), name
         assert (decode_image(written) == pixels[name]).all()      # (a grey file reads back as RGB)
     assert chose_none            # the maps exercise the choice (libpng's default alone is larger)
+
+
+def test_a_jpeg_map_is_read_back_as_its_decoded_pixels():
+    """``MAP_FILES`` names choose the encoding (issue 39): a ".jpg" map is a 4:4:4 JPEG and
+    ``shipped_pixels`` (what the fit's error as shipped is measured on) returns what a reader
+    decodes from it -- close to, not equal to, the pixels -- while PNG maps come back unchanged."""
+    import os
+
+    from usdbtf.imageio import memory_file, read_info
+    from usdbtf.usd.asset import fallback
+
+    rng = np.random.default_rng(2)
+    smooth = np.linspace(40, 200, 32)[None, :, None] + rng.normal(0.0, 6.0, (32, 32, 3))
+    colour = np.clip(smooth, 0, 255).astype(np.uint8)
+    grey = colour[..., :1].copy()
+    files = {"diffuse": ("diffuse.jpg", "srgb"), "roughness": ("roughness.png", "unorm")}
+    blob = fallback.encode_map_file(colour, *files["diffuse"])
+    assert blob[:3] == b"\xff\xd8\xff"
+    shipped = fallback.shipped_pixels({"diffuse": colour, "roughness": grey}, files)
+    assert np.array_equal(shipped["diffuse"], decode_image(blob))
+    diff = np.abs(shipped["diffuse"].astype(int) - colour.astype(int))
+    assert 0 < diff.mean() < 3 and diff.max() < 32            # lossy, at high quality
+    assert shipped["roughness"] is grey                          # lossless files: the pixels themselves
+    with memory_file() as (fd, path):
+        os.write(fd, blob)
+        assert read_info(path).color_space == "srgb_rec709_scene"   # the colour encoding is declared

@@ -95,7 +95,7 @@ def test_every_piece_is_a_usdbtf_output_that_force_replaces(asset, tmp_path, cap
     pieces = {"fabric.usda": outputs.ASSET, "fabric_payload.usdc": outputs.ASSET, "fabric.usdz": outputs.ASSET,
               "fabric_ar.usdz": outputs.ASSET, "fabric_textures": outputs.ASSET_TEXTURES}
     assert {name: outputs.identify(asset.with_name(name)) for name in pieces} == pieces
-    assert (asset.with_name("fabric_textures") / "thumbnail.png").is_file()
+    assert (asset.with_name("fabric_textures") / "thumbnail.jpg").is_file()
     folder = tmp_path / "a"
     folder.mkdir()
     for name in pieces:

@@ -97,8 +97,9 @@ _BASELINE_FILE = "baseline.json"
 _BASELINE_VIDEO = "video.mp4"
 _BASELINE_VIEW = "view{:04d}"
 _SIM_FRAME_FILES = re.compile(r"(latest|s\d+|flat\d+|\.tmp-[^/]*)\.tif|\.[^/]*\.tmp-[^/]*")
-# preview_albedo.png: the flat fallback of assets written before the fitted one.
-_TEXTURE_FILES = re.compile(r"(basis\.\w+|coeff/c\d+\.\w+|preview_albedo\.png|gpu/[\w.-]+|thumbnail\.png"
+# preview_albedo.png: the flat fallback of assets written before the fitted one; thumbnail.png:
+# the thumbnail before issue 39's JPEG one.
+_TEXTURE_FILES = re.compile(r"(basis\.\w+|coeff/c\d+\.\w+|preview_albedo\.png|gpu/[\w.-]+|thumbnail\.(png|jpg)"
                             r"|fallback/(diffuse|specular|roughness|normal)\.\w+"
                             r"|fallback/openpbr_(base|specular|fuzz|params|lobes|tangent|normal)\.\w+)")
 #: Root and payload layer names a texture folder ``<stem>_textures`` sits beside.

@@ -11,31 +11,42 @@ whose inputs come from four textures fitted to the BTF by :func:`usdbtf.svbrdf.f
                                                             read with scale (2, 2, 2, 1), bias (-1, -1, -1, 0)
 
 (other files with ``--texture-format``; each PNG at level 9 with the smaller of two libpng
-filters, :func:`usdbtf.imageio.encode_png_smallest`).  The colour maps are the fit's working-space values
-converted by OCIO to Rec.709 and sRGB-encoded, clipped to [0, 1]; the shader declares
+filters, :func:`usdbtf.imageio.encode_png_smallest`).  The maps stay lossless: JPEG colour
+maps (4:4:4) would save 17-43 % of the diffuse/base colour files at quality 98-95 but move
+the fits' error as shipped by +1.6 to +6.7 % relative on the smoothest preset
+(ridged_fabric; ``benchmarks/bench_fallback.py --png-baseline --what-if Q:MAPS``), the
+specular and fuzz colours and the data maps gain little or nothing; a ``MAP_FILES`` name
+ending ".jpg" would be written as a JPEG (:data:`MAP_JPEG`) and read back as one.  The
+colour maps are the fit's working-space values converted by OCIO to Rec.709 and
+sRGB-encoded, clipped to [0, 1]; the shader declares
 ``lin_rec709_scene`` (``Usd.ColorSpaceAPI``), the data inputs ``raw``.  The normal map is in
 the texture's tangent space (x = +s, y = +t), which is the sample's (image right, image up).
 
 :func:`encode_maps` / :func:`decode_maps` are exactly what is written and what a renderer
-reads back, so the benchmark measures the fallback as shipped.
+reads back from the pixels, :func:`shipped_pixels` what it decodes from the files (a JPEG's
+pixels are not the encoded ones), so the benchmark measures the fallback as shipped.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from ...color import processor
-from ...imageio import encode_png_smallest
+from ...imageio import decode_image, encode_image, encode_png_smallest
 from ...svbrdf import SvbrdfMaps
 
-__all__ = ["COLOUR_ENCODING", "FALLBACK_DIR", "MAP_FILES", "encode_maps", "decode_maps", "add_maps", "add_map_pngs",
-           "author_fallback", "uv_texture", "st_reader"]
+__all__ = ["COLOUR_ENCODING", "FALLBACK_DIR", "MAP_FILES", "MAP_JPEG", "encode_maps", "decode_maps", "encode_map_file",
+           "shipped_pixels", "add_maps", "add_map_files", "author_fallback", "uv_texture", "st_reader"]
 
 #: The colour maps' file encoding: what UsdUVTexture decodes with sourceColorSpace "sRGB".
 COLOUR_ENCODING = "sRGB Encoded Rec.709 (sRGB)"
 FALLBACK_DIR = "fallback"
-#: map -> (file under FALLBACK_DIR, texture kind for textures.TextureSet)
+#: map -> (file under FALLBACK_DIR, texture kind for textures.TextureSet); the suffix chooses
+#: the encoding (:func:`encode_map_file`).
 MAP_FILES = {"diffuse": ("diffuse.png", "srgb"), "specular": ("specular.png", "srgb"),
              "roughness": ("roughness.png", "unorm"), "normal": ("normal.png", "unorm")}
+#: OIIO's options for a map stored as JPEG (none is, module docstring): no chroma subsampling
+#: (a map's texels are the material's own, each one read by the fit's error).
+MAP_JPEG = {"Compression": "jpeg:97", "jpeg:subsampling": "4:4:4"}
 _SHADER_SPACE = "lin_rec709_scene"
 
 
@@ -73,34 +84,61 @@ def decode_maps(pixels: dict[str, np.ndarray], working_space: str, *, ocio_confi
                       working_space, float(white_level))
 
 
+def encode_map_file(pixels: np.ndarray, file: str, kind: str, jpeg: dict | None = None) -> bytes:
+    """The bytes of the map file ``file`` (a name from a ``MAP_FILES``: its suffix chooses the
+    encoding) holding the (H, W, C) uint8/uint16 ``pixels`` of a ``kind`` texture: a JPEG with
+    ``jpeg`` (default :data:`MAP_JPEG`) for ".jpg", else the smaller-filter PNG at level 9.
+    Colour ("srgb") files declare :data:`COLOUR_ENCODING`, the others data."""
+    from .textures import DATA
+
+    space = COLOUR_ENCODING if kind == "srgb" else DATA
+    if file.lower().endswith(".jpg"):
+        return encode_image(pixels, "jpg", color_space=space, attributes=MAP_JPEG if jpeg is None else jpeg)
+    # The smaller of two filters (issue 39: fitted maps of a noisy material compress best
+    # unfiltered, smooth ones filtered); the same pixels either way.
+    return encode_png_smallest(pixels, color_space=space, level=9)
+
+
+def shipped_pixels(encoded: dict, files: dict, jpeg: dict | None = None) -> dict:
+    """{map: (H, W, C) pixels a renderer decodes from its file}: ``encoded`` ({map: pixels},
+    an ``encode_maps``) through the lossy files of ``files`` ({map: (file, kind)}, a
+    ``MAP_FILES``) and back (:func:`encode_map_file`); the lossless files' pixels unchanged."""
+    out = {}
+    for name, pixels in encoded.items():
+        file, kind = files[name]
+        if file.lower().endswith(".jpg"):
+            back = decode_image(encode_map_file(pixels, file, kind, jpeg))
+            pixels = back[..., :pixels.shape[-1]] if pixels.ndim == 3 else back[..., 0]
+        out[name] = pixels
+    return out
+
+
 def add_maps(maps: SvbrdfMaps, textures, ocio_config: str | None = None, names=tuple(MAP_FILES),
              texels=None) -> dict:
-    """Encode the maps ``names`` as PNG files (in memory) into ``textures`` (a
+    """Encode the maps ``names`` as their files (in memory) into ``textures`` (a
     textures.TextureSet, under :data:`FALLBACK_DIR`); {map: its name in ``textures``}.
     ``texels`` (a :class:`usdbtf.quilt.texels.QuiltTexels`): ``maps`` are those of its compact
     source texels, and the encoded pixels are gathered through its index (encoding is per
     texel, so this is the encoding of the gathered maps)."""
     encoded = {name: pixels for name, pixels in encode_maps(maps, ocio_config).items() if name in names}
-    return add_map_pngs(encoded, MAP_FILES, textures, texels, "fallback maps")
+    return add_map_files(encoded, MAP_FILES, textures, texels, "fallback maps")
 
 
-def add_map_pngs(encoded: dict, files: dict, textures, texels, label: str) -> dict:
-    """Encode fallback map pixels as PNG files (in memory, on every CPU) into ``textures`` under
-    :data:`FALLBACK_DIR`: the one writer of the UsdPreviewSurface and OpenPBR maps.
+def add_map_files(encoded: dict, files: dict, textures, texels, label: str) -> dict:
+    """Encode fallback map pixels as their files (:func:`encode_map_file`; in memory, on every
+    CPU) into ``textures`` under :data:`FALLBACK_DIR`: the one writer of the
+    UsdPreviewSurface and OpenPBR maps.
 
     encoded : {map: (H, W, C) uint8/uint16 pixels}, or a quilt's source-texel pixels when
         ``texels`` (a :class:`usdbtf.quilt.texels.QuiltTexels`) gathers them per pixel.
     files : {map: (file name, kind)}; kind "srgb" is colour (:data:`COLOUR_ENCODING`), any
-        other kind data.
+        other kind data; a ".jpg" name is a JPEG (:data:`MAP_JPEG`), any other a PNG.
     Returns {map: its name in ``textures``}."""
-    from .textures import DATA, encode_in_workers
+    from .textures import encode_in_workers
 
     def encode(name):
         pixels = encoded[name] if texels is None else texels.gather(encoded[name])
-        space = COLOUR_ENCODING if files[name][1] == "srgb" else DATA
-        # The smaller of two filters (issue 39: fitted maps of a noisy material compress best
-        # unfiltered, smooth ones filtered); the same pixels either way.
-        return encode_png_smallest(pixels, color_space=space, level=9)
+        return encode_map_file(pixels, files[name][0], files[name][1])
 
     data = encode_in_workers(encode, encoded, label)
     return {name: textures.add(f"{FALLBACK_DIR}/{files[name][0]}", blob, files[name][1])

@@ -23,9 +23,11 @@ The network is one list of MaterialX nodes (:func:`network`), authored into USD
 (:func:`author_openpbr`) and into a MaterialX document (:func:`materialx_document`, which
 MaterialX's own validation checks).  Colour files are declared ``srgb_texture`` (the
 MaterialX name of the sRGB-encoded Rec.709 space: the image nodes are MaterialX's, so is
-their colour management), data files ``raw``.  :func:`encode_maps` / :func:`decode_maps` are
-what is written and what a renderer reads back, so the benchmark measures the fallback as
-shipped.
+their colour management), data files ``raw``.  The files are written as the
+UsdPreviewSurface's (:func:`usdbtf.usd.asset.fallback.encode_map_file`: lossless PNGs).
+:func:`encode_maps` / :func:`decode_maps` are what is written and what a renderer reads back
+(through :func:`usdbtf.usd.asset.fallback.shipped_pixels`: a lossy file's decoded pixels), so
+the benchmark measures the fallback as shipped.
 """
 from __future__ import annotations
 
@@ -33,7 +35,7 @@ import numpy as np
 
 from ...color import processor
 from ...openpbr import OpenPbrMaps
-from .fallback import COLOUR_ENCODING, FALLBACK_DIR, add_map_pngs
+from .fallback import COLOUR_ENCODING, FALLBACK_DIR, add_map_files, shipped_pixels
 
 __all__ = ["FIT_ERROR_KEY", "fit_errors", "MAP_FILES", "SPECULAR_WEIGHT_SCALE", "MTLX_COLOUR_SPACE", "encode_maps", "decode_maps", "add_maps",
            "network", "author_openpbr", "materialx_document", "SHADER_ID"]
@@ -97,10 +99,10 @@ def decode_maps(pixels: dict[str, np.ndarray], working_space: str, *, ocio_confi
 
 
 def add_maps(maps: OpenPbrMaps, textures, ocio_config: str | None = None, texels=None) -> dict:
-    """Encode the maps as PNG files (in memory) into ``textures`` (a textures.TextureSet,
+    """Encode the maps as their files (in memory) into ``textures`` (a textures.TextureSet,
     under FALLBACK_DIR); {map: its name in ``textures``}.  ``texels``: as
     :func:`usdbtf.usd.asset.fallback.add_maps` (maps of a quilt's source texels, gathered per pixel)."""
-    return add_map_pngs(encode_maps(maps, ocio_config), MAP_FILES, textures, texels, "OpenPBR maps")
+    return add_map_files(encode_maps(maps, ocio_config), MAP_FILES, textures, texels, "OpenPBR maps")
 
 
 # ------------------------------------------------------------------ the network
@@ -241,14 +243,15 @@ def fit_errors(cbtf, preview, openpbr: OpenPbrMaps, *, samples: int = 256, texel
     from ... import openpbr as model
     from ... import svbrdf
     from ...svbrdf import _reconstruct
+    from .fallback import MAP_FILES as PREVIEW_FILES
     from .fallback import decode_maps as decode_preview
     from .fallback import encode_maps as encode_preview
 
     white = openpbr.white_level
-    sv = decode_preview(encode_preview(preview, cbtf.ocio_config), cbtf.working_space,
+    sv = decode_preview(shipped_pixels(encode_preview(preview, cbtf.ocio_config), PREVIEW_FILES), cbtf.working_space,
                         ocio_config=cbtf.ocio_config, white_level=white)
-    op = decode_maps(encode_maps(openpbr, cbtf.ocio_config), cbtf.working_space, ocio_config=cbtf.ocio_config,
-                     white_level=white)
+    op = decode_maps(shipped_pixels(encode_maps(openpbr, cbtf.ocio_config), MAP_FILES), cbtf.working_space,
+                     ocio_config=cbtf.ocio_config, white_level=white)
     val = svbrdf.validation_samples(cbtf, svbrdf.fit_samples(cbtf), samples)
     view, light = cbtf.sampling.view[val], cbtf.sampling.light[val]
     rows = cbtf.basis_values()[val]

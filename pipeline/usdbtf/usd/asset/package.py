@@ -387,7 +387,7 @@ def package(compressed, options: PackageOptions | None = None, *,
                                                     textures, texels, fallback_fits)
     thumb = None
     if options.thumbnail:
-        thumb = textures.add_file(thumbnail.THUMBNAIL_FILE, thumbnail.thumbnail_png(cbtf, shape, texels=texels))
+        thumb = textures.add_file(thumbnail.THUMBNAIL_FILE, thumbnail.thumbnail_jpeg(cbtf, shape, texels=texels))
     # The quilt-sized maps after the thumbnail, whose mip levels are the other large arrays.
     maps = fitted if texels is None else fitted.gathered(texels.gather)
     log.info(f"fallback fitted: median roughness {float(np.median(maps.roughness)):.2f}, "

@@ -5,9 +5,13 @@ shows the measured material, not its fallback.  The camera frames the geometry's
 sphere from above the front (``auto_camera``); one distant light comes from the upper left,
 the capture light (irradiance ``pi * W``, :mod:`usdbtf.photometry`), so the thumbnail shows
 the measured values' own brightness.
-The image is display-encoded through OCIO (the renderer's default display and view) as an
-8-bit RGBA PNG, transparent where nothing was hit, and declared on the root prim with
-``UsdMedia.AssetPreviewsAPI`` (``defaultImage``).
+The image is display-encoded through OCIO (the renderer's default display and view),
+composited over a flat grey (:data:`BACKGROUND`) where nothing was hit, written as a 256²
+baseline JPEG (:data:`JPEG_ATTRIBUTES`: what studio asset browsers show; every lod loads it,
+so its bytes count against ``--max-bytes``: 0.20-0.25 of the RGBA PNG it replaced on the
+seven paper-scale assets, issue 39) and declared on the root prim with ``UsdMedia.AssetPreviewsAPI`` (``defaultImage``).
+The file declares its encoding as the PNG did: OIIO writes the sRGB display as the JPEG's
+EXIF ``ColorSpace`` 1 (sRGB), which OIIO reads back as ``srgb_rec709_scene``.
 """
 from __future__ import annotations
 
@@ -16,11 +20,19 @@ import numpy as np
 from ...compress.format import CompressedBTF
 from ...mesh import Mesh
 
-__all__ = ["THUMBNAIL_SIZE", "THUMBNAIL_FILE", "render_thumbnail", "thumbnail_png", "declare_thumbnail"]
+__all__ = ["THUMBNAIL_SIZE", "THUMBNAIL_FILE", "BACKGROUND", "JPEG_ATTRIBUTES", "render_thumbnail",
+           "composite_background", "thumbnail_jpeg", "declare_thumbnail"]
 
 THUMBNAIL_SIZE = 256
-#: The thumbnail's file name inside the asset's texture folder.
-THUMBNAIL_FILE = "thumbnail.png"
+#: The thumbnail's file name inside the asset's texture folder (assets before issue 39 hold
+#: ``thumbnail.png``, an RGBA PNG: readers take whatever ``defaultImage`` names).
+THUMBNAIL_FILE = "thumbnail.jpg"
+#: Display code (8-bit) of the grey behind the geometry: 18 % grey through an sRGB display.
+BACKGROUND = 118
+#: OIIO's JPEG options: quality 90 with 4:2:0 chroma, the usual setting of a browser's
+#: thumbnail (256² metal_flakes paper-scale asset: 12,826 bytes against its PNG's 64,061;
+#: quality 95 4:4:4 would be 0.43 of the PNG; benchmarks/probes/smallfiles_bytes.py).
+JPEG_ATTRIBUTES = {"Compression": "jpeg:90", "jpeg:subsampling": "4:2:0"}
 #: Towards the light, world space (Y up): above, left, in front.
 LIGHT_DIRECTION = (-0.45, 0.55, 0.7)
 
@@ -42,15 +54,25 @@ def render_thumbnail(cbtf: CompressedBTF, mesh: Mesh, size: int = THUMBNAIL_SIZE
     return to_display(image, cbtf.working_space, config=cbtf.ocio_config)
 
 
-def thumbnail_png(cbtf: CompressedBTF, mesh: Mesh, size: int = THUMBNAIL_SIZE, texels=None) -> bytes:
-    """The thumbnail rendered (:func:`render_thumbnail`) and encoded as a PNG file's bytes, in
-    memory (sRGB display encoding, tagged as such)."""
+def composite_background(rgba: np.ndarray, background: int = BACKGROUND) -> np.ndarray:
+    """(H, W, 3) uint8: the display-encoded (H, W, 4) uint8 ``rgba`` over a flat ``background``
+    code, blended on the display codes as straight alpha (the renderer's alpha is whether a
+    pixel hit the geometry: 0 or 255 in its thumbnails, so the blend only picks)."""
+    rgb = rgba[..., :3].astype(np.float32)
+    alpha = rgba[..., 3:4].astype(np.float32) / 255.0
+    return np.rint(rgb * alpha + np.float32(background) * (1.0 - alpha)).astype(np.uint8)
+
+
+def thumbnail_jpeg(cbtf: CompressedBTF, mesh: Mesh, size: int = THUMBNAIL_SIZE, texels=None) -> bytes:
+    """The thumbnail rendered (:func:`render_thumbnail`), composited over :data:`BACKGROUND`
+    and encoded as a JPEG file's bytes (:data:`JPEG_ATTRIBUTES`), in memory; its display
+    encoding is declared (module docstring)."""
     from ...imageio import encode_image
     from ...render.output import display_processor
 
-    pixels = render_thumbnail(cbtf, mesh, size, texels)
+    pixels = composite_background(render_thumbnail(cbtf, mesh, size, texels))
     _, display, _ = display_processor(cbtf.working_space, None, None, cbtf.ocio_config)
-    return encode_image(pixels, "png", color_space=display, attributes={"png:compressionLevel": 9})
+    return encode_image(pixels, "jpg", color_space=display, attributes=JPEG_ATTRIBUTES)
 
 
 def declare_thumbnail(prim, asset_path: str) -> None:
