@@ -110,6 +110,12 @@ uniform float whiteLevelValue;
 int HdGet_basisCount() {{ return basisCountValue; }}
 float HdGet_exposure() {{ return exposureValue; }}
 float HdGet_whiteLevel() {{ return whiteLevelValue; }}
+uniform vec3 renderingMatrixRValue;
+uniform vec3 renderingMatrixGValue;
+uniform vec3 renderingMatrixBValue;
+vec3 HdGet_renderingMatrixR() {{ return renderingMatrixRValue; }}
+vec3 HdGet_renderingMatrixG() {{ return renderingMatrixGValue; }}
+vec3 HdGet_renderingMatrixB() {{ return renderingMatrixBValue; }}
 {samplers}
 // surfaceHelpers.glslfx (SurfaceHelpers.TangentSpace): same signature.
 mat3 ComputeTBNMatrix(vec3 P, vec3 N, vec2 st)
