@@ -370,6 +370,7 @@ def test_inspect_reports_k_bytes_directions_error(asset, capsys):
     assert "k            12 of 12" in out
     assert "169 samples: 13 views" in out
     assert "% at k = 12" in out and "0 error(s)" in out
+    assert "shaders return Linear Rec.709 (sRGB)" in out          # issue 40: btf:renderingColorSpace
     gpu = asset.with_name("pebbles_textures") / "gpu"
     on_disk = sum(p.stat().st_size for p in gpu.iterdir() if p.name.startswith(("tables.", "page", "basis.")))
     basis = sum(p.stat().st_size for p in gpu.iterdir() if p.name.startswith(("tables.", "basis.")))
