@@ -81,6 +81,23 @@ def patch_means(image) -> dict:
             for name, (r, c) in PATCHES.items()}
 
 
+def channel_agreement(pairs, lights) -> tuple[float, float]:
+    """(worst |other / BTF - 1|, worst |BTF / (albedo cos / pi) - 1|) over every channel of every
+    patch of the saturated swatch (patch_means), ``pairs`` = [(BTF frame, other frame)] under
+    irradiance 1 from ``lights`` [(sample, (theta, phi))] in order: no gain anywhere."""
+    import math
+
+    albedo = patch_means(saturated_albedo())
+    worst_other = worst_btf = 0.0
+    for (btf_frame, other_frame), (_, light) in zip(pairs, lights):
+        btf, other = patch_means(btf_frame), patch_means(other_frame)
+        cos = math.cos(math.radians(light[0]))
+        for name in albedo:
+            worst_other = max(worst_other, float(np.abs(other[name] / btf[name] - 1).max()))
+            worst_btf = max(worst_btf, float(np.abs(btf[name] * math.pi / (albedo[name] * cos) - 1).max()))
+    return worst_other, worst_btf
+
+
 def to_rendering(asset, rgb) -> np.ndarray:
     """(..., 3) float64: working-space values of ``asset``'s BTF (a reconstruction, a CPU render)
     in the space its shaders return (usd.asset.storm.rendering_space_of: linear Rec.709 for an

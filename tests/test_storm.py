@@ -38,8 +38,8 @@ from usdbtf.errors import BTFError
 from usdbtf.photometry import capture_irradiance, white_level_of
 from usdbtf.usd.preview import hydra
 from usdbtf.usd.preview.cycles import common_gain, srgb8
-from storm_helpers import (against_cpu_render, patch_means, pole_lights, saturated_albedo, to_rendering,
-                           write_lambertian_asset)
+from storm_helpers import (against_cpu_render, channel_agreement, patch_means, pole_lights, saturated_albedo,
+                           to_rendering, write_lambertian_asset)
 
 PYTHONS = hydra.storm_pythons()
 MAX_STEPS = 2.0          # mean |difference|, 8-bit sRGB steps
@@ -274,6 +274,31 @@ def lambertian_asset(tmp_path_factory) -> Path:
     return write_lambertian_asset(tmp_path_factory.mktemp("lambertian") / "a" / "white.usda", WHITE_LEVEL)
 
 
+def pole_frames(asset: Path, lights, kinds, tmp_path, legacy) -> tuple[list, str, tuple]:
+    """([(scene, frame)], camera, size): ``asset``'s swatch under a DistantLight of irradiance 1
+    from each of ``lights`` [(sample, (theta, phi))], for each of ``kinds`` ("btf", or a
+    ``swatch_scene`` fallback kind), light-major; then one scene at the first light whose BTF
+    Storm shader ``legacy(shader)`` edits (the control: the shader as it was before)."""
+    from pxr import Usd
+
+    from usdbtf.usd.asset.storm import storm_shader
+    from usdbtf.usd.material import btf_materials
+
+    frames = []
+    for s, light in lights:
+        for kind in kinds:
+            scene = tmp_path / f"{kind}_{s}.usda"
+            camera, size = hydra.swatch_scene(asset, scene, light, irradiance=1.0,
+                                              fallback=False if kind == "btf" else kind)
+            frames.append((scene, scene.with_suffix(".exr")))
+    scene = tmp_path / "legacy.usda"
+    hydra.swatch_scene(asset, scene, lights[0][1], irradiance=1.0)
+    stage = Usd.Stage.Open(str(scene))
+    legacy(storm_shader(btf_materials(stage)[0]))
+    stage.Save()
+    return frames + [(scene, scene.with_suffix(".exr"))], camera, size
+
+
 @pytest.mark.parametrize("version", sorted(hydra.STORM_ENVIRONMENTS))
 def test_btf_and_its_fallback_agree_on_white(version, lambertian_asset, tmp_path):
     """Issue 40, real Storm: the BTF swatch and the same asset's two fallbacks, the
@@ -285,30 +310,15 @@ def test_btf_and_its_fallback_agree_on_white(version, lambertian_asset, tmp_path
     UsdPreviewSurface returns), and the BTF's gain against the measured samples is pi W within
     3 %.  The control: the old convention (the BTF shader's exposure pi W, i.e. irradiance 1 =
     the capture light) is pi / 0.8 too bright and fails."""
-    from pxr import Usd
-
     from usdbtf.decompress import DecompressOptions, decompress
-    from usdbtf.usd.material import btf_materials
     from usdbtf.usd.read import load_btf
-    from usdbtf.usd.asset.storm import storm_shader
 
     cbtf = load_btf(lambertian_asset)
     assert white_level_of(cbtf.info) == pytest.approx(WHITE_LEVEL)
     lights = pole_lights(cbtf, CONVENTION_LIGHTS)
-    frames = []
-    kinds = ("btf", "preview", "openpbr")
-    for s, light in lights:
-        for kind in kinds:
-            scene = tmp_path / f"{kind}_{s}.usda"
-            camera, size = hydra.swatch_scene(lambertian_asset, scene, light, irradiance=1.0,
-                                              fallback=False if kind == "btf" else kind)
-            frames.append((scene, scene.with_suffix(".exr")))
-    legacy = tmp_path / "legacy.usda"
-    hydra.swatch_scene(lambertian_asset, legacy, lights[0][1], irradiance=1.0)
-    stage = Usd.Stage.Open(str(legacy))
-    storm_shader(btf_materials(stage)[0]).GetInput("exposure").Set(capture_irradiance(WHITE_LEVEL))
-    stage.Save()
-    frames.append((legacy, legacy.with_suffix(".exr")))
+    # The control: the shader's exposure pi W, i.e. the old convention.
+    frames, camera, size = pole_frames(lambertian_asset, lights, ("btf", "preview", "openpbr"), tmp_path,
+                                       lambda shader: shader.GetInput("exposure").Set(capture_irradiance(WHITE_LEVEL)))
     result = render(version, frames, camera, size)
     assert result.problems == [], "\n".join(result.problems)
     images = [image[..., :3].astype(np.float64) for image in result.images]
@@ -354,40 +364,21 @@ def test_btf_and_its_fallback_agree_per_channel_on_a_saturated_material(version,
     matrix, btf:renderingColorSpace).  The control: the same asset with the shader's rendering
     rows at identity (what an asset packaged before the fix draws: ACEScg values in a Rec.709
     frame) is off by more than 50 % in some channel."""
-    from pxr import Usd
-
     from usdbtf.gpu.shaders import IDENTITY_ROWS, RENDERING_INPUTS
-    from usdbtf.usd.asset.storm import rendering_space_of, storm_shader
-    from usdbtf.usd.material import btf_materials
+    from usdbtf.usd.asset.storm import rendering_space_of
     from usdbtf.usd.read import load_btf
 
     assert rendering_space_of(saturated_asset)[1] == "Linear Rec.709 (sRGB)"
     cbtf = load_btf(saturated_asset)
     lights = pole_lights(cbtf, 2)
-    frames = []
-    for s, light in lights:
-        for kind in ("btf", "preview"):
-            scene = tmp_path / f"{kind}_{s}.usda"
-            camera, size = hydra.swatch_scene(saturated_asset, scene, light, irradiance=1.0,
-                                              fallback=False if kind == "btf" else kind)
-            frames.append((scene, scene.with_suffix(".exr")))
-    legacy = tmp_path / "legacy.usda"
-    hydra.swatch_scene(saturated_asset, legacy, lights[0][1], irradiance=1.0)
-    stage = Usd.Stage.Open(str(legacy))
-    for name, row in zip(RENDERING_INPUTS, IDENTITY_ROWS):
-        storm_shader(btf_materials(stage)[0]).GetInput(name).Set(row)
-    stage.Save()
-    frames.append((legacy, legacy.with_suffix(".exr")))
+    # The control: the shader's rendering rows at identity, an asset packaged before them.
+    frames, camera, size = pole_frames(saturated_asset, lights, ("btf", "preview"), tmp_path,
+                                       lambda shader: [shader.GetInput(name).Set(row)
+                                                       for name, row in zip(RENDERING_INPUTS, IDENTITY_ROWS)])
     result = render(version, frames, camera, size)
     assert result.problems == [], "\n".join(result.problems)
-    albedo = patch_means(saturated_albedo())
-    worst_fallback, worst_btf = 0.0, 0.0
-    for i, (_, light) in enumerate(lights):
-        btf, preview = (patch_means(result.images[2 * i + j]) for j in (0, 1))
-        cos = math.cos(math.radians(light[0]))
-        for name in albedo:
-            worst_fallback = max(worst_fallback, float(np.abs(preview[name] / btf[name] - 1).max()))
-            worst_btf = max(worst_btf, float(np.abs(btf[name] * math.pi / (albedo[name] * cos) - 1).max()))
+    worst_fallback, worst_btf = channel_agreement(
+        [(result.images[2 * i], result.images[2 * i + 1]) for i in range(len(lights))], lights)
     legacy_red = patch_means(result.images[-1])["red"] / patch_means(result.images[0])["red"]
     print(f"USD {version} saturated Lambertian: UsdPreviewSurface / BTF per channel worst {worst_fallback:.4f}, "
           f"BTF / (albedo cos / pi) worst {worst_btf:.4f}; identity rows (before) / BTF, red patch "
