@@ -24,7 +24,7 @@ def against_cpu_render(image, scene, camera: str, size: int, tmp_path) -> tuple[
     return psnr(srgb_encoded(image[..., :3]), srgb_encoded(cpu[..., :3]), both), both, cpu
 
 
-def write_lambertian_asset(out, white_level: float = 0.8, grey: float = 0.35, albedo=None):
+def write_lambertian_asset(out, white_level: float = 0.8, grey: float = 0.35, albedo=None, rendering_space=None):
     """Package (``out``, .usda) a flat Lambertian BTF on the "small" sampling, white (albedo 1)
     on the left half of its 16 x 16 texels and ``grey`` on the right, recorded with
     ``white_level`` (a white Lambertian lit head-on reads it): values ``W x albedo x cos``.  Its
@@ -32,7 +32,9 @@ def write_lambertian_asset(out, white_level: float = 0.8, grey: float = 0.35, al
     fallback differ only in what each path makes of a value and of a light (usdbtf.photometry).
     ``albedo``: (16, 16, 3) albedos in linear Rec.709 (what a ``UsdPreviewSurface``
     diffuseColor means) instead, taken to the working space (ACEScg) for the BTF's values, so a
-    saturated colour tests what each path makes of the working space (issue 40)."""
+    saturated colour tests what each path makes of the working space (issue 40).
+    ``rendering_space``: ``PackageOptions.rendering_space`` (default the package default; the
+    working space gives the identity rows, what an asset packaged before them renders)."""
     from usdbtf.color import WORKING_SPACE, processor
     from usdbtf.compress import CompressOptions, compress
     from usdbtf.model import ArrayBTF
@@ -50,7 +52,10 @@ def write_lambertian_asset(out, white_level: float = 0.8, grey: float = 0.35, al
     btf.metadata.update(physical_size_m=[0.02, 0.02], white_level=white_level)
     opts = CompressOptions(k=2, codec="exr")
     opts.extra = {"source_metadata": dict(btf.metadata)}
-    pkg.write_package(pkg.package(compress(btf, opts), pkg.PackageOptions(thumbnail=False)), out)
+    options = pkg.PackageOptions(thumbnail=False)
+    if rendering_space is not None:
+        options.rendering_space = rendering_space
+    pkg.write_package(pkg.package(compress(btf, opts), options), out)
     return out
 
 

@@ -9,11 +9,16 @@ BTF's working space, ACEScg, for its values; white level 0.8).  Its fallback fit
 Lambertian), so the BTF and its fallbacks can differ only in what each path makes of the
 values' colour space.
 
+The baseline, in the same run: the same BTF packaged with ``rendering_space`` = its working
+space, so its shaders' rendering rows are the identity: exactly what an asset packaged before
+issue 40's colour fix draws (working-space values in the renderer's frame).
+
 Frames (no gain anywhere): real Storm (``.venv-storm-*``: USD 25.02 and 25.08), pole view,
 orthographic, one texel a pixel, one DistantLight of irradiance 1 from ``--lights`` measured
-pole-view directions: the BTF shader, the UsdPreviewSurface (``fallback="preview"``) and the
-OpenPBR network (``fallback="openpbr"``).  Cycles (bpy 5.0.1): the add-on's OSL BTF and its
-Principled surface under one sun of irradiance 1 from the same directions.
+pole-view directions: the BTF shader (now, and the baseline), the UsdPreviewSurface
+(``fallback="preview"``) and the OpenPBR network (``fallback="openpbr"``).  Cycles (bpy 5.0.1):
+the add-on's OSL BTF (now, and the baseline) and its Principled surface under one sun of
+irradiance 1 from the same directions.
 
 Printed per renderer, surface and patch: the patch's mean linear RGB over the lights (each
 light's frame divided by cos(theta_l), so the mean is the patch's albedo / pi as a white
@@ -78,21 +83,24 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory(prefix="usdbtf-color-") as tmp:
         work = Path(tmp)
         asset = write_lambertian_asset(work / "a" / "sat.usda", WHITE_LEVEL, albedo=albedo)
+        before = write_lambertian_asset(work / "b" / "sat.usda", WHITE_LEVEL, albedo=albedo,
+                                        rendering_space="scene_linear")
         cbtf = load_btf(asset)
         print(f"asset: saturated Lambertian, working space {cbtf.working_space}, W {WHITE_LEVEL}; "
-              f"Material: {rendering_space_of(asset)}")
+              f"Material: {rendering_space_of(asset)}; baseline: {rendering_space_of(before)} (identity rows)")
         lights = pole_lights(cbtf, args.lights)
         print(f"lights (theta, phi): {[light for _, light in lights]}, irradiance 1, no gain")
-        kinds = {"BTF shader": False, "UsdPreviewSurface": "preview", "OpenPBR": "openpbr"}
+        kinds = {"BTF shader": (asset, False), "BTF shader, before (identity rows)": (before, False),
+                 "UsdPreviewSurface": (asset, "preview"), "OpenPBR": (asset, "openpbr")}
         for version in args.usd:
             if version not in pythons:
                 print(f"USD {version}: no storm environment, skipped")
                 continue
             frames = []
             for s, light in lights:
-                for kind, fallback in kinds.items():
-                    scene = work / f"{version}_{s}_{fallback}.usda"
-                    camera, size = hydra.swatch_scene(asset, scene, light, irradiance=1.0, fallback=fallback)
+                for j, (source, fallback) in enumerate(kinds.values()):
+                    scene = work / f"{version}_{s}_{j}.usda"
+                    camera, size = hydra.swatch_scene(source, scene, light, irradiance=1.0, fallback=fallback)
                     frames.append((scene, scene.with_suffix(".exr")))
             result = hydra.render_frames(pythons[version], frames, camera, size)
             if result.problems:
@@ -110,10 +118,11 @@ def main(argv=None) -> int:
             if python is None:
                 print("no .venv-storm-5.0: Cycles skipped")
                 return 0
-            surfaces = ("BTF", "PRINCIPLED")
-            frames = [cycles.CyclesFrame(asset, work / f"cyc_{surface}_{s}.exr", towards(light), size=(16, 16),
+            surfaces = {"BTF": (asset, "BTF"), "BTF, before (identity rows)": (before, "BTF"),
+                        "PRINCIPLED": (asset, "PRINCIPLED")}
+            frames = [cycles.CyclesFrame(source, work / f"cyc_{j}_{s}.exr", towards(light), size=(16, 16),
                                          irradiance=1.0, surface=surface)
-                      for surface in surfaces for s, light in lights]
+                      for j, (source, surface) in enumerate(surfaces.values()) for s, light in lights]
             result = cycles.render_frames(python, frames, timeout=600.0)
             by_surface = {}
             for j, surface in enumerate(surfaces):
