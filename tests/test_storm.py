@@ -38,8 +38,8 @@ from usdbtf.errors import BTFError
 from usdbtf.photometry import capture_irradiance, white_level_of
 from usdbtf.usd.preview import hydra
 from usdbtf.usd.preview.cycles import common_gain, srgb8
-from storm_helpers import (against_cpu_render, channel_agreement, patch_means, pole_lights, saturated_albedo,
-                           to_rendering, write_lambertian_asset)
+from storm_helpers import (REC709, against_cpu_render, channel_agreement, patch_means, pole_lights,
+                           saturated_albedo, to_rendering, write_lambertian_asset)
 
 PYTHONS = hydra.storm_pythons()
 MAX_STEPS = 2.0          # mean |difference|, 8-bit sRGB steps
@@ -362,30 +362,40 @@ def test_btf_and_its_fallback_agree_per_channel_on_a_saturated_material(version,
     channel of every patch (red, green, blue, white) agrees within 3 %, and the BTF's is the
     patch's albedo x cos / pi within 2 % (the shader applies the asset's working -> rendering
     matrix, btf:renderingColorSpace).  The control: the same asset with the shader's rendering
-    rows at identity (what an asset packaged before the fix draws: ACEScg values in a Rec.709
-    frame) is off by more than 50 % in some channel."""
-    from usdbtf.gpu.shaders import IDENTITY_ROWS, RENDERING_INPUTS
+    rows blocked (what an asset packaged before the fix draws: the Sdr definition's identity
+    defaults) returns its working-space (ACEScg) values within 2 %, as it always did, which in
+    the Rec.709 frame is off by more than 50 % in some channel."""
+    from usdbtf.color import processor
+    from usdbtf.gpu.shaders import RENDERING_INPUTS
     from usdbtf.usd.asset.storm import rendering_space_of
     from usdbtf.usd.read import load_btf
 
     assert rendering_space_of(saturated_asset)[1] == "Linear Rec.709 (sRGB)"
     cbtf = load_btf(saturated_asset)
     lights = pole_lights(cbtf, 2)
-    # The control: the shader's rendering rows at identity, an asset packaged before them.
+    # The control: the shader's rendering rows blocked (no value: Sdr's defaults), as in an asset
+    # packaged before them.
     frames, camera, size = pole_frames(saturated_asset, lights, ("btf", "preview"), tmp_path,
-                                       lambda shader: [shader.GetInput(name).Set(row)
-                                                       for name, row in zip(RENDERING_INPUTS, IDENTITY_ROWS)])
+                                       lambda shader: [shader.GetInput(name).GetAttr().Block()
+                                                       for name in RENDERING_INPUTS])
     result = render(version, frames, camera, size)
     assert result.problems == [], "\n".join(result.problems)
     worst_fallback, worst_btf = channel_agreement(
         [(result.images[2 * i], result.images[2 * i + 1]) for i in range(len(lights))], lights)
-    legacy_red = patch_means(result.images[-1])["red"] / patch_means(result.images[0])["red"]
+    legacy = patch_means(result.images[-1])
+    legacy_red = legacy["red"] / patch_means(result.images[0])["red"]
+    # An asset without the rows renders as before: its working-space values (ACEScg) in the frame.
+    cos = math.cos(math.radians(lights[0][1][0]))
+    working = {name: processor(REC709, cbtf.working_space).apply(np.float32(rgb)[None])[0] * cos / math.pi
+               for name, rgb in patch_means(saturated_albedo()).items()}
+    as_before = max(float(np.abs(legacy[name] / working[name] - 1).max()) for name in working)
     print(f"USD {version} saturated Lambertian: UsdPreviewSurface / BTF per channel worst {worst_fallback:.4f}, "
-          f"BTF / (albedo cos / pi) worst {worst_btf:.4f}; identity rows (before) / BTF, red patch "
-          f"{np.round(legacy_red, 3).tolist()}")
+          f"BTF / (albedo cos / pi) worst {worst_btf:.4f}; rows blocked (before) / BTF, red patch "
+          f"{np.round(legacy_red, 3).tolist()}, / working-space values worst {as_before:.4f}")
     assert worst_fallback <= 0.03, worst_fallback
     assert worst_btf <= 0.02, worst_btf
     assert np.abs(legacy_red - 1).max() > 0.5, legacy_red          # the control: working-space values
+    assert as_before <= 0.02, as_before
 
 
 @pytest.mark.parametrize("version", sorted(hydra.STORM_ENVIRONMENTS))
