@@ -104,16 +104,11 @@ def channel_agreement(pairs, lights) -> tuple[float, float]:
 
 
 def to_rendering(asset, rgb) -> np.ndarray:
-    """(..., 3) float64: working-space values of ``asset``'s BTF (a reconstruction, a CPU render)
-    in the space its shaders return (usd.asset.storm.rendering_space_of: linear Rec.709 for an
-    asset packaged now), so a Storm or Cycles frame compares with them channel by channel."""
-    from usdbtf.color import processor
-    from usdbtf.usd.asset.storm import rendering_space_of
+    """(..., 3 or 4) float64 :func:`usdbtf.usd.asset.storm.to_rendering_space`: working-space values
+    of ``asset``'s BTF in the space its shaders return (a Storm or Cycles frame's)."""
+    from usdbtf.usd.asset.storm import to_rendering_space
 
-    working, rendering, config = rendering_space_of(asset)
-    rgb = np.asarray(rgb)
-    out = processor(working, rendering, config).apply(np.ascontiguousarray(rgb[..., :3], np.float32))
-    return np.concatenate([out, rgb[..., 3:]], axis=-1).astype(np.float64)
+    return to_rendering_space(asset, rgb).astype(np.float64)
 
 
 def pole_lights(cbtf, count: int) -> list[tuple[int, tuple]]:

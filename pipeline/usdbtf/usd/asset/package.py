@@ -481,16 +481,16 @@ def _author_payload(stage, result: PackageResult, names: _Names, provenance: str
                                         wrap=wrap, fit_errors=result.fit_errors)
     gpu = None
     if result.gpu is not None:
+        from pxr import Sdf
+
         g = result.gpu
+        space, matrix = rendering_matrix(cbtf, result.options)
         gpu = storm.author_gpu_preview(stage, material, textures.texture(g.tables, names.textures),
                                        [p and textures.texture(p, names.textures) for p in g.slots()], g.k, wrap,
-                                       g.first_packs, white_level_of(cbtf.info),
-                                       rendering_matrix(cbtf, result.options)[1])
-    from pxr import Sdf
-
-    # Issue 40: the space the BTF shaders return (the data stay in btf:colorSpace).
-    material.GetPrim().CreateAttribute("btf:renderingColorSpace", Sdf.ValueTypeNames.String, custom=False,
-                                       variability=Sdf.VariabilityUniform).Set(rendering_matrix(cbtf, result.options)[0])
+                                       g.first_packs, white_level_of(cbtf.info), matrix)
+        # Issue 40: the space the BTF shaders return (the data stay in btf:colorSpace).
+        material.GetPrim().CreateAttribute("btf:renderingColorSpace", Sdf.ValueTypeNames.String, custom=False,
+                                           variability=Sdf.VariabilityUniform).Set(space)
     prim = author_mesh(stage, f"/{names.root}/geo/{valid_name(result.mesh.name)}", result.mesh)
     UsdShade.MaterialBindingAPI.Apply(prim).Bind(material)
     return coefficients, gpu

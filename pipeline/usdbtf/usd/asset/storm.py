@@ -59,7 +59,7 @@ from ...photometry import white_level_of
 
 __all__ = ["plugin_dir_resources", "GPU_DIR", "STORM_SURFACE", "GpuTextures", "add_gpu_textures",
            "author_gpu_preview", "rendering_rows", "lod_tables_name", "lod_basis_name", "basis_node", "lod_mtlx_name", "author_materialx_preview",
-           "materialx_document", "storm_shader", "rendering_space_of", "layout_from_asset", "read_rgba"]
+           "materialx_document", "storm_shader", "rendering_space_of", "to_rendering_space", "layout_from_asset", "read_rgba"]
 
 GPU_DIR = "gpu"
 STORM_SURFACE = "StormSurface"
@@ -338,6 +338,21 @@ def rendering_space_of(asset) -> tuple[str, str, str | None]:
     get = lambda name: (material.GetAttribute(name).Get() if material.GetAttribute(name) else None)  # noqa: E731
     working = get("btf:colorSpace") or "ACEScg"
     return working, get("btf:renderingColorSpace") or working, get("btf:ocioConfig") or None
+
+
+def to_rendering_space(asset, rgb):
+    """(..., 3 or 4) float32: working-space values of ``asset``'s BTF (a reconstruction, a
+    ``usdbtf render`` frame) taken through OCIO to the space its shaders return
+    (:func:`rendering_space_of`; linear Rec.709 for an asset packaged now), alpha kept, so a
+    Storm or Cycles frame of the asset compares with them channel by channel."""
+    import numpy as np
+
+    from ...color import processor
+
+    working, rendering, config = rendering_space_of(asset)
+    rgb = np.asarray(rgb, np.float32)
+    out = processor(working, rendering, config).apply(np.ascontiguousarray(rgb[..., :3]))
+    return np.concatenate([out, rgb[..., 3:]], axis=-1)
 
 
 def layout_from_asset(asset, *, lod: str | None = None):
