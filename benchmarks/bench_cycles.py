@@ -38,7 +38,7 @@ from usdbtf.render.scene import Light
 from usdbtf.usd.preview import cycles, hydra
 from usdbtf.usd.read import load_btf
 from usdbtf.usd.scenes.scene import write_scene
-from usdbtf.usd.asset.storm import read_rgba, rendering_space_of, to_rendering_space
+from usdbtf.usd.asset.storm import read_rgba, to_rendering_space
 
 #: Measured light directions of the UBO2003 sampling (theta, phi degrees).
 LIGHTS = [(15.0, 60.0), (30.0, 0.0), (45.0, 180.0), (60.0, 120.0), (75.0, 240.0)]
@@ -123,16 +123,18 @@ def mesh_frames(python: Path, asset: Path, size: int, work: Path) -> dict:
     cpu_seconds = time.perf_counter() - start
     result = cycles.render_frames(python, [cycles.CyclesFrame(asset, work / f"{asset.stem}_{size}_cycles.exr",
                                                               tuple(SUN), camera=camera, size=(size, size))])
-    # usdbtf render writes the working space; Cycles and Storm the asset's rendering space (issue 40).
-    out = {"cpu": to_rendering_space(asset, read_rgba(cpu_out)).astype(np.float64),
-           "cycles": result.images[0].astype(np.float64),
+    # usdbtf render writes the working space, Cycles and Storm the asset's rendering space (issue 40):
+    # their frames are taken to the working space.
+    out = {"cpu": np.asarray(read_rgba(cpu_out), np.float64),
+           "cycles": to_rendering_space(asset, result.images[0], back=True).astype(np.float64),
            "cpu_s": cpu_seconds, "cycles_s": result.seconds[0]}
     storm_python = hydra.storm_pythons().get("25.08")
     if storm_python is not None:
         start = time.perf_counter()
         storm = hydra.render_frames(storm_python, [(scene, work / f"{asset.stem}_{size}_storm.exr")], prim,
                                     (size, size))
-        out["storm"], out["storm_s"] = storm.images[0].astype(np.float64), time.perf_counter() - start
+        out["storm"], out["storm_s"] = (to_rendering_space(asset, storm.images[0], back=True).astype(np.float64),
+                                        time.perf_counter() - start)
     for name in ("cycles", "storm"):
         if name in out:
             both = (out[name][..., 3] > 0.999) & (out["cpu"][..., 3] > 0.999)
@@ -173,7 +175,7 @@ def main(argv=None) -> int:
             if name == "pebbles_sphere" and args.figure:
                 from usdbtf.imageio import write_image
 
-                image = figure(frames, rendering_space_of(assets[name])[1], size)
+                image = figure(frames, load_btf(assets[name]).working_space, size)
                 args.figure.parent.mkdir(parents=True, exist_ok=True)
                 write_image(args.figure, image, color_space="sRGB Encoded Rec.709 (sRGB)")
                 print(f"figure: {args.figure}")

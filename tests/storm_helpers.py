@@ -8,18 +8,19 @@ from usdbtf.cli import main
 
 def against_cpu_render(image, scene, camera: str, size: int, tmp_path) -> tuple[float, np.ndarray, np.ndarray]:
     """(PSNR in dB of the Storm frame ``image`` (H, W, 4) against `usdbtf render SCENE --camera
-    PRIM` (no shadows, bilinear), both sRGB-encoded, over the pixels where both have full
-    geometry coverage; that mask (H, W) bool; the CPU frame (H, W, 4) float64, taken from the
-    working space `usdbtf render` writes to the space the scene's BTF shaders return, Storm's)."""
+    PRIM` (no shadows, bilinear), both sRGB-encoded in the working space `usdbtf render` writes
+    (the Storm frame taken there from the space the scene's BTF shaders return, issue 40), over
+    the pixels where both have full geometry coverage; that mask (H, W) bool; the CPU frame
+    (H, W, 4) float64)."""
     from usdbtf.render.output import srgb_encoded
     from usdbtf.gpu.headless import psnr
-    from usdbtf.usd.asset.storm import read_rgba
+    from usdbtf.usd.asset.storm import read_rgba, to_rendering_space
 
     cpu_out = tmp_path / "cpu.exr"
     assert main(["render", str(scene), "--camera", camera, "--size", str(size), str(size), "--no-shadows",
                  "--filter", "bilinear", "-o", str(cpu_out), "--no-png", "-q"]) == 0
-    cpu = to_rendering(scene, np.asarray(read_rgba(cpu_out), np.float64))
-    image = np.asarray(image, np.float64)
+    cpu = np.asarray(read_rgba(cpu_out), np.float64)
+    image = to_rendering_space(scene, image, back=True).astype(np.float64)
     both = (image[..., 3] > 0.999) & (cpu[..., 3] > 0.999)
     return psnr(srgb_encoded(image[..., :3]), srgb_encoded(cpu[..., :3]), both), both, cpu
 

@@ -221,7 +221,7 @@ def test_cycles_matches_usdbtf_render_on_a_curved_mesh(sphere_asset, tmp_path):
     from usdbtf.gpu.headless import psnr
     from usdbtf.render.scene import Light
     from usdbtf.usd.scenes.scene import write_scene
-    from usdbtf.usd.asset.storm import read_rgba
+    from usdbtf.usd.asset.storm import read_rgba, to_rendering_space
 
     size = 64
     camera = Camera(np.array([0.05, 0.06, 0.15]), np.zeros(3), np.array([0.0, 1.0, 0.0]), 35.0, size, size)
@@ -231,11 +231,12 @@ def test_cycles_matches_usdbtf_render_on_a_curved_mesh(sphere_asset, tmp_path):
     cpu_out = tmp_path / "cpu.exr"
     assert main(["render", str(scene), "--camera", prim, "--size", str(size), str(size), "--no-shadows", "--filter",
                  "bilinear", "-o", str(cpu_out), "--no-png", "-q"]) == 0
-    cpu = to_rendering(sphere_asset, np.asarray(read_rgba(cpu_out), np.float64))     # the working space -> Blender's
+    cpu = np.asarray(read_rgba(cpu_out), np.float64)
     result = cycles.render_frames(bpy_python(), [cycles.CyclesFrame(sphere_asset, tmp_path / "cycles.exr", tuple(sun),
                                                                     camera=camera, size=(size, size),
                                                                     irradiance=math.pi)])
-    image = result.images[0].astype(np.float64)
+    # Cycles draws the asset's rendering space; usdbtf render writes its working space (issue 40).
+    image = to_rendering_space(sphere_asset, result.images[0], back=True).astype(np.float64)
     both = (image[..., 3] > 0.999) & (cpu[..., 3] > 0.999)
     assert both.sum() > 0.3 * both.size
     value = psnr(srgb_encoded(image[..., :3]), srgb_encoded(cpu[..., :3]), both)

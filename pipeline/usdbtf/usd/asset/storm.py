@@ -340,19 +340,20 @@ def rendering_space_of(asset) -> tuple[str, str, str | None]:
     return working, get("btf:renderingColorSpace") or working, get("btf:ocioConfig") or None
 
 
-def to_rendering_space(asset, rgb):
+def to_rendering_space(asset, rgb, *, back: bool = False):
     """(..., 3 or 4) float32: working-space values of ``asset``'s BTF (a reconstruction, a
     ``usdbtf render`` frame) taken through OCIO to the space its shaders return
     (:func:`rendering_space_of`; linear Rec.709 for an asset packaged now), alpha kept, so a
-    Storm or Cycles frame of the asset compares with them channel by channel."""
+    Storm or Cycles frame of the asset compares with them channel by channel; ``back``: the
+    other way, a Storm or Cycles frame of it to its working space (``usdbtf render``'s)."""
     import numpy as np
 
     from ...color import processor
 
     working, rendering, config = rendering_space_of(asset)
     rgb = np.asarray(rgb, np.float32)
-    out = processor(working, rendering, config).apply(np.ascontiguousarray(rgb[..., :3]))
-    return np.concatenate([out, rgb[..., 3:]], axis=-1)
+    proc = processor(rendering, working, config) if back else processor(working, rendering, config)
+    return np.concatenate([proc.apply(np.ascontiguousarray(rgb[..., :3])), rgb[..., 3:]], axis=-1)
 
 
 def layout_from_asset(asset, *, lod: str | None = None):
