@@ -44,13 +44,15 @@ IDENTITY_ROWS = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 #: The shader inputs that carry the working -> rendering space matrix, one row each (usdbtf.color.linear_matrix).
 RENDERING_INPUTS = ("renderingMatrixR", "renderingMatrixG", "renderingMatrixB")
 
-# (name, Sdf type, glslfx default, doc) of the Storm shader's inputs, in order.
+# (name, Sdf type, glslfx default, doc) of the Storm shader's inputs, in order.  The matrix rows are
+# color3f: what Sdr's glslfx parser (USD 25.08) makes of a 3-float default, so the two Sdr definitions
+# (the glslfx's and the .usda's) agree; the asset declares them raw (data, no colour conversion).
 INPUTS = ([("basisCount", "int", 0, "Basis vectors to use; 0 = all the tables hold (a LOD uses fewer)."),
            ("exposure", "float", 1.0, "Multiplier on the result (1: radiance = value x irradiance / (pi x whiteLevel), "
                                       "usdbtf.photometry)."),
            ("whiteLevel", "float", 1.0, "The BTF value a white Lambertian lit head-on reads (btf:whiteLevel): a light "
                                         "of irradiance pi x whiteLevel reproduces the measured values."),
-           *[(f"renderingMatrix{c}", "float3", row, f"Row {c} of the working space -> rendering space matrix "
+           *[(f"renderingMatrix{c}", "color3f", row, f"Row {c} of the working space -> rendering space matrix "
                                                     "(btf:renderingColorSpace; usdbtf.color.linear_matrix): the "
                                                     "shader returns rendering-space radiance.  Identity: the "
                                                     "working space (an asset packaged before issue 40's colour fix).")
@@ -193,7 +195,7 @@ def sdr_definition_usda() -> str:
              ""]
     for name, kind, default, doc in INPUTS:
         value = (repr(default) if kind == "float" else
-                 "(" + ", ".join(repr(v) for v in default) + ")" if kind == "float3" else str(default))
+                 "(" + ", ".join(repr(v) for v in default) + ")" if kind == "color3f" else str(default))
         lines += [f"    {kind} inputs:{name} = {value} (", f'        doc = "{doc}"', "    )"]
     lines += ["", "    token outputs:surface (", "        sdrMetadata = {",
               '            string renderType = "terminal surface"', "        }", "    )", "}", ""]

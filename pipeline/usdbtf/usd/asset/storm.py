@@ -258,7 +258,7 @@ def author_gpu_preview(stage, material, tables, pages: list, k: int, wrap: str,
     data_inputs.append(surface.CreateInput("whiteLevel", Sdf.ValueTypeNames.Float))
     data_inputs[-1].Set(float(white_level))
     for name, row in rendering_rows(rendering_matrix):
-        data_inputs.append(surface.CreateInput(name, Sdf.ValueTypeNames.Float3))
+        data_inputs.append(surface.CreateInput(name, Sdf.ValueTypeNames.Color3f))     # the Sdr definitions' type
         data_inputs[-1].Set(Gf.Vec3f(*row))
     tex = _texture(stage, mpath.AppendChild(TABLES_NODE), tables, reader, "clamp")
     data_inputs.append(surface.CreateInput("tables", Sdf.ValueTypeNames.Float))
