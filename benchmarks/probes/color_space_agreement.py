@@ -143,7 +143,9 @@ def rendering_space_of(asset: Path) -> str:
 
     stage = Usd.Stage.Open(str(asset))
     attr = btf_materials(stage)[0].GetAttribute("btf:renderingColorSpace")
-    return f"btf:renderingColorSpace = {attr.Get()!r}" if attr and attr.HasAuthoredValue() else "no rendering space recorded"
+    if attr and attr.HasAuthoredValue():
+        return f"btf:renderingColorSpace = {attr.Get()!r}"
+    return "no rendering space recorded"
 
 
 if __name__ == "__main__":

@@ -31,7 +31,8 @@ from . import osl
 from .core import GLSL_DIR, MTLX_BSDF, MTLX_SURFACE, core_source, page_name, page_sampler
 from .tables import MAX_PAGES
 
-__all__ = ["SHADER_ID", "INPUTS", "IDENTITY_ROWS", "RENDERING_INPUTS", "PRIMVARS", "GLSL_DIR", "MTLX_BSDF", "core_source", "page_name", "page_sampler",
+__all__ = ["SHADER_ID", "INPUTS", "IDENTITY_ROWS", "RENDERING_INPUTS", "PRIMVARS", "GLSL_DIR", "MTLX_BSDF",
+           "core_source", "page_name", "page_sampler",
            "storm_glslfx", "sdr_definition_usda", "materialx_impl", "materialx_defs", "harness_fragment", "HARNESS_VERTEX", "plugin_files",
            "write_plugin_files", "stale_plugin_files"]
 

@@ -58,8 +58,9 @@ from ...imageio import read_rgba
 from ...photometry import white_level_of
 
 __all__ = ["plugin_dir_resources", "GPU_DIR", "STORM_SURFACE", "GpuTextures", "add_gpu_textures",
-           "author_gpu_preview", "rendering_rows", "lod_tables_name", "lod_basis_name", "basis_node", "lod_mtlx_name", "author_materialx_preview",
-           "materialx_document", "storm_shader", "rendering_space_of", "to_rendering_space", "layout_from_asset", "read_rgba"]
+           "author_gpu_preview", "rendering_rows", "lod_tables_name", "lod_basis_name", "basis_node", "lod_mtlx_name",
+           "author_materialx_preview", "materialx_document", "storm_shader", "rendering_space_of", "to_rendering_space",
+           "layout_from_asset", "read_rgba"]
 
 GPU_DIR = "gpu"
 STORM_SURFACE = "StormSurface"
@@ -238,8 +239,8 @@ def author_gpu_preview(stage, material, tables, pages: list, k: int, wrap: str,
     hold ``k`` basis vectors; ``wrap`` for the page nodes, which the shader reads texel by
     texel; ``first_packs``: the first pack of each page; ``white_level``: the BTF's W,
     :mod:`usdbtf.photometry`; ``rendering_matrix``: (3, 3) working -> rendering space, the
-    shader's ``renderingMatrix*`` rows, :func:`rendering_rows`; None: unauthored, identity).  Returns (the shader's name under the
-    material, ``first_packs``, k) for the ``lod`` variants (:mod:`usdbtf.usd.asset.lod`)."""
+    shader's ``renderingMatrix*`` rows, :func:`rendering_rows`; None: unauthored, identity).  Returns (the
+    shader's name under the material, ``first_packs``, k) for the ``lod`` variants (:mod:`usdbtf.usd.asset.lod`)."""
     from pxr import Gf, Sdf, UsdShade
 
     from .fallback import st_reader
