@@ -38,7 +38,7 @@ from usdbtf.render.scene import Light
 from usdbtf.usd.preview import cycles, hydra
 from usdbtf.usd.read import load_btf
 from usdbtf.usd.scenes.scene import write_scene
-from usdbtf.usd.asset.storm import read_rgba
+from usdbtf.usd.asset.storm import read_rgba, to_rendering_space
 
 #: Measured light directions of the UBO2003 sampling (theta, phi degrees).
 LIGHTS = [(15.0, 60.0), (30.0, 0.0), (45.0, 180.0), (60.0, 120.0), (75.0, 240.0)]
@@ -97,7 +97,9 @@ def swatch_rows(python: Path, asset: Path, work: Path) -> list[str]:
             used.append(tuple(lights[j]))
             frames.append(cycles.CyclesFrame(asset, work / f"swatch_{lod}_{i}.exr", towards(lights[j]), size=(16, 16),
                                              lod=lod))
-            references.append(decompress(cbtf, DecompressOptions(samples=str(j))).btf.read_samples([0])[0])
+            # In the space the OSL shader returns (the asset's rendering space; issue 40).
+            references.append(to_rendering_space(asset, decompress(cbtf, DecompressOptions(samples=str(j)))
+                                                 .btf.read_samples([0])[0]).astype(np.float64))
         result = cycles.render_frames(python, frames)
         gain, gains, steps = cycles.common_gain([(img[..., :3].astype(np.float64), ref)
                                                  for img, ref in zip(result.images, references)])
@@ -121,14 +123,18 @@ def mesh_frames(python: Path, asset: Path, size: int, work: Path) -> dict:
     cpu_seconds = time.perf_counter() - start
     result = cycles.render_frames(python, [cycles.CyclesFrame(asset, work / f"{asset.stem}_{size}_cycles.exr",
                                                               tuple(SUN), camera=camera, size=(size, size))])
-    out = {"cpu": np.asarray(read_rgba(cpu_out), np.float64), "cycles": result.images[0].astype(np.float64),
+    # usdbtf render writes the working space, Cycles and Storm the asset's rendering space (issue 40):
+    # their frames are taken to the working space.
+    out = {"cpu": np.asarray(read_rgba(cpu_out), np.float64),
+           "cycles": to_rendering_space(asset, result.images[0], back=True).astype(np.float64),
            "cpu_s": cpu_seconds, "cycles_s": result.seconds[0]}
     storm_python = hydra.storm_pythons().get("25.08")
     if storm_python is not None:
         start = time.perf_counter()
         storm = hydra.render_frames(storm_python, [(scene, work / f"{asset.stem}_{size}_storm.exr")], prim,
                                     (size, size))
-        out["storm"], out["storm_s"] = storm.images[0].astype(np.float64), time.perf_counter() - start
+        out["storm"], out["storm_s"] = (to_rendering_space(asset, storm.images[0], back=True).astype(np.float64),
+                                        time.perf_counter() - start)
     for name in ("cycles", "storm"):
         if name in out:
             both = (out[name][..., 3] > 0.999) & (out["cpu"][..., 3] > 0.999)

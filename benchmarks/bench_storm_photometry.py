@@ -38,7 +38,9 @@ tell the causes apart, in the same run and at the same lights:
 model     the fit's own prediction (``svbrdf.evaluate`` of the maps as shipped) over the BTF's
           reconstruction, mean over the swatch (exact sampling, no renderer);
 working   the Storm fallback frame taken from linear Rec.709 (what Storm shades the sRGB maps
-          in) to the BTF's working space (what the BTF shader returns) before the mean;
+          in), and the BTF's from the asset's rendering space (btf:renderingColorSpace: linear
+          Rec.709 since issue 40's colour fix, the working space before), to the BTF's working
+          space before the mean (the BTF's gain against the samples is taken there too);
 flat      the Storm fallback with its normal map blocked;
 cycles    Cycles (bpy 5.0.1): Blender's USD importer's Principled BSDF from the fallback over
           the add-on's OSL BTF, one sun of 1 W/m^2 (``--cycles``);
@@ -243,6 +245,7 @@ def legacy_exposure(scene: Path, value: float) -> None:
 def measure(asset: Path, python: Path, work: Path, count: int) -> dict:
     from usdbtf.color import processor
     from usdbtf.decompress import DecompressOptions, decompress
+    from usdbtf.usd.asset.storm import rendering_space_of
     from usdbtf.photometry import capture_irradiance, white_level_of
     from usdbtf.usd.preview import hydra
     from usdbtf.usd.preview.cycles import common_gain
@@ -281,9 +284,16 @@ def measure(asset: Path, python: Path, work: Path, count: int) -> dict:
     for (s, kind, _), img in zip(again, aniso.images):
         images[(s, "aniso1" if kind == "fallback" else "openpbr_aniso1")] = img[..., :3].astype(np.float64)
     # Storm decodes the fallback's sRGB maps to linear Rec.709 and shades in it; the BTF shader
-    # returns working-space values (the Material's ColorSpaceAPI): the fallback's frame taken to
-    # the working space compares like with like.
+    # returns the asset's rendering space (btf:renderingColorSpace, linear Rec.709 since issue 40's
+    # colour fix; an older asset: its working space).  The "working" columns take every frame to
+    # the working space (the samples' and the fit model's), the others compare them as drawn.
     to_working = processor("Linear Rec.709 (sRGB)", cbtf.working_space, cbtf.ocio_config)
+    _, drawn_space, _ = rendering_space_of(asset)
+    btf_to_working = processor(drawn_space, cbtf.working_space, cbtf.ocio_config)
+    for s, _ in lights:
+        for kind in ("btf", "legacy"):
+            images[(s, kind + "_working")] = btf_to_working.apply(
+                images[(s, kind)].astype(np.float32)).astype(np.float64)
     matched = {s: to_working.apply(images[(s, "fallback")].astype(np.float32)).astype(np.float64) for s, _ in lights}
     matched_nearest = {s: to_working.apply(images[(s, "nearest")].astype(np.float32)).astype(np.float64)
                        for s, _ in lights}
@@ -293,20 +303,20 @@ def measure(asset: Path, python: Path, work: Path, count: int) -> dict:
         return float(to_working.apply(frame.astype(np.float32)).mean() / btf.mean())
 
     samples = {s: decompress(cbtf, DecompressOptions(samples=str(s))).btf.read_samples([0])[0] for s, _ in lights}
-    gain, gains, steps = common_gain([(images[(s, "btf")], samples[s]) for s, _ in lights])
-    lgain, _, _ = common_gain([(images[(s, "legacy")], samples[s]) for s, _ in lights])
+    gain, gains, steps = common_gain([(images[(s, "btf_working")], samples[s]) for s, _ in lights])
+    lgain, _, _ = common_gain([(images[(s, "legacy_working")], samples[s]) for s, _ in lights])
     rows = [{"sample": s, "light": light, "btf_gain": g, "btf_steps": d,
              "fallback_over_btf": float(images[(s, "fallback")].mean() / images[(s, "btf")].mean()),
              "nearest_over_btf": float(images[(s, "nearest")].mean() / images[(s, "btf")].mean()),
              "aniso1_over_btf": float(images[(s, "aniso1")].mean() / images[(s, "btf")].mean()),
-             "aniso1_working_over_btf": working_ratio(images[(s, "aniso1")], images[(s, "btf")]),
-             "nearest_working_over_btf": float(matched_nearest[s].mean() / images[(s, "btf")].mean()),
+             "aniso1_working_over_btf": working_ratio(images[(s, "aniso1")], images[(s, "btf_working")]),
+             "nearest_working_over_btf": float(matched_nearest[s].mean() / images[(s, "btf_working")].mean()),
              "openpbr_over_btf": float(images[(s, "openpbr")].mean() / images[(s, "btf")].mean()),
              "openpbr_aniso1_over_btf": float(images[(s, "openpbr_aniso1")].mean() / images[(s, "btf")].mean()),
-             "openpbr_working_over_btf": working_ratio(images[(s, "openpbr")], images[(s, "btf")]),
-             "openpbr_aniso1_working_over_btf": working_ratio(images[(s, "openpbr_aniso1")], images[(s, "btf")]),
+             "openpbr_working_over_btf": working_ratio(images[(s, "openpbr")], images[(s, "btf_working")]),
+             "openpbr_aniso1_working_over_btf": working_ratio(images[(s, "openpbr_aniso1")], images[(s, "btf_working")]),
              "fallback_over_legacy": float(images[(s, "fallback")].mean() / images[(s, "legacy")].mean()),
-             "fallback_working_over_btf": float(matched[s].mean() / images[(s, "btf")].mean()),
+             "fallback_working_over_btf": float(matched[s].mean() / images[(s, "btf_working")].mean()),
              "flat_normal_over_btf": float(images[(s, "flat")].mean() / images[(s, "btf")].mean())}
             for (s, light), g, d in zip(lights, gains, steps)]
     model = fit_model_ratios(asset, cbtf, [s for s, _ in lights])

@@ -237,7 +237,7 @@ def write_png(path: Path, image: np.ndarray) -> None:
 
 
 def figure(work: Path, renderer: str, size: tuple[int, int], usd: str) -> np.ndarray:
-    from usdbtf.usd.read import load_btf
+    from usdbtf.usd.asset.storm import rendering_space_of
 
     scene = make_scene(work, *size)
     built, knot_asset = run_build(scene)
@@ -256,7 +256,8 @@ def figure(work: Path, renderer: str, size: tuple[int, int], usd: str) -> np.nda
              f"on a 20 cm torus knot, quilted at {density['mesh_texels_per_metre']:.0f} texels/m as measured on the "
              f"mesh (the material: {density['material_texels_per_metre']:.0f})",
              f"lit by {light}"]
-    return picture(frame, load_btf(work / "build" / "Pebbles.usda").working_space, lines)
+    # Storm and Cycles draw the asset's rendering space (btf:renderingColorSpace; issue 40).
+    return picture(frame, rendering_space_of(work / "build" / "Pebbles.usda")[1], lines)
 
 
 def main(argv=None) -> int:

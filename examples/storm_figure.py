@@ -31,16 +31,14 @@ from usdbtf.gpu.headless import psnr
 from usdbtf.imageio import write_image
 from usdbtf.render import parse_light
 from usdbtf.usd.preview import hydra
-from usdbtf.usd.read import load_btf
 from usdbtf.usd.scenes.scene import write_scene
-from usdbtf.usd.asset.storm import read_rgba
+from usdbtf.usd.asset.storm import read_rgba, rendering_space_of, to_rendering_space
 
 
 def figure(asset: Path, version: str, size: int) -> np.ndarray:
     pythons = hydra.storm_pythons()
     if version not in pythons:
         raise SystemExit(f"no Storm environment for USD {version}: run scripts/bootstrap.sh")
-    cbtf = load_btf(asset)
     camera = Camera(np.array([0.05, 0.06, 0.15]), np.zeros(3), np.array([0.0, 1.0, 0.0]), 35.0, size, size)
     lights = [parse_light("dir:0.3,0.5,1"), parse_light("point:0.1,0.05,0.1:0.0628")]
     with tempfile.TemporaryDirectory(prefix="usdbtf-figure-") as tmp:
@@ -51,14 +49,16 @@ def figure(asset: Path, version: str, size: int) -> np.ndarray:
             raise SystemExit("\n".join(storm.problems))
         assert usdbtf_main(["render", str(scene), "--camera", prim, "--size", str(size), str(size), "--no-shadows",
                             "--filter", "bilinear", "-o", str(cpu_out), "--no-png", "-q"]) == 0
-        cpu = np.asarray(read_rgba(cpu_out), np.float32)
+        # usdbtf render writes the working space; Storm draws the asset's rendering space (issue 40).
+        cpu = to_rendering_space(asset, read_rgba(cpu_out))
+        _, shown, _ = rendering_space_of(asset)
     image = storm.images[0]
     both = (image[..., 3] > 0.999) & (cpu[..., 3] > 0.999)
     value = psnr(srgb_encoded(image[..., :3]), srgb_encoded(cpu[..., :3]), both)
     diff = np.abs(image[..., :3] - cpu[..., :3]) * 10.0
-    return np.concatenate([_tile(image, cbtf.working_space, f"Storm (USD {version})", size),
-                           _tile(cpu, cbtf.working_space, "usdbtf render (CPU)", size),
-                           _tile(diff, cbtf.working_space, f"|diff| x10, {value:.1f} dB sRGB", size)], axis=1)
+    return np.concatenate([_tile(image, shown, f"Storm (USD {version})", size),
+                           _tile(cpu, shown, "usdbtf render (CPU)", size),
+                           _tile(diff, shown, f"|diff| x10, {value:.1f} dB sRGB", size)], axis=1)
 
 
 def main(argv=None) -> int:

@@ -116,10 +116,17 @@ def test_cycles_osl_compiler_takes_the_surface_shader_and_the_genosl_output(tmp_
 
 def test_blender_addon_constants_follow_the_pipeline():
     """The add-on runs inside Blender without usdbtf, so it restates two facts: how many page
-    inputs the shader has and the Storm shader's identifier it reads the textures from."""
+    inputs the shader has, the Storm shader's identifier it reads the textures from, and the
+    rendering matrix's inputs (issue 40) with their identity."""
     from usdbtf.gpu.tables import MAX_PAGES
     from usdbtf.plugin_folder import SHADER_ID, plugin_dir
 
     text = (plugin_dir() / "blender" / "usdbtf" / "network.py").read_text()
     assert re.search(r"^MAX_PAGES = (\d+)$", text, re.M).group(1) == str(MAX_PAGES)
     assert re.search(r'^STORM_ID = "(\w+)"$', text, re.M).group(1) == SHADER_ID
+    from usdbtf.gpu.shaders import IDENTITY_ROWS, RENDERING_INPUTS
+
+    import ast
+
+    for name, value in (("RENDERING_INPUTS", RENDERING_INPUTS), ("IDENTITY_ROWS", IDENTITY_ROWS)):
+        assert ast.literal_eval(re.search(rf"^{name} = (.+)$", text, re.M).group(1)) == value, name

@@ -38,7 +38,8 @@ from usdbtf.errors import BTFError
 from usdbtf.photometry import capture_irradiance, white_level_of
 from usdbtf.usd.preview import hydra
 from usdbtf.usd.preview.cycles import common_gain, srgb8
-from storm_helpers import against_cpu_render, pole_lights, write_lambertian_asset
+from storm_helpers import (REC709, against_cpu_render, channel_agreement, patch_means, pole_lights,
+                           saturated_albedo, to_rendering, write_lambertian_asset)
 
 PYTHONS = hydra.storm_pythons()
 MAX_STEPS = 2.0          # mean |difference|, 8-bit sRGB steps
@@ -118,7 +119,7 @@ def test_storm_reproduces_the_decompressed_sample(version, assets, tmp_path):
                 assert tables and all(t.endswith(f"gpu/tables_{lod}.exr") for t in tables), tables
             frames.append((scene, scene.with_suffix(".exr")))
             sample = decompress(cbtf, DecompressOptions(samples=str(index))).btf.read_samples([0])[0]
-            expected.append((k, light, sample))
+            expected.append((k, light, to_rendering(asset, sample)))      # Storm's frame: the rendering space
     result = render(version, frames, camera, size)
     assert result.problems == [], "\n".join(result.problems)
     for k, *_ in cases:
@@ -156,7 +157,7 @@ def test_storm_lights_sphere_rect_and_camera(version, assets, tmp_path):
     assert np.allclose(cbtf.sampling.light[0], 0.0)
     wanted = {"sphere": index, "rect": index, "camera": 0}
     for (kind, sample_index), image in zip(wanted.items(), [*lit.images, *pole.images]):
-        ref = decompress(cbtf, DecompressOptions(samples=str(sample_index))).btf.read_samples([0])[0]
+        ref = to_rendering(asset, decompress(cbtf, DecompressOptions(samples=str(sample_index))).btf.read_samples([0])[0])
         img = image[..., :3]
         assert img.mean() > 0, kind
         gain = float((img * ref).sum() / (img * img).sum())
@@ -201,6 +202,7 @@ def test_storm_matches_usdbtf_render_of_the_same_stage_on_a_curved_mesh(version,
     from usdbtf.render.output import srgb_encoded
     from usdbtf.gpu.headless import psnr
     from usdbtf.render.scene import Light
+    from usdbtf.usd.asset.storm import to_rendering_space
     from usdbtf.usd.scenes.scene import write_scene
 
     scene = tmp_path / "scene.usda"
@@ -212,7 +214,7 @@ def test_storm_matches_usdbtf_render_of_the_same_stage_on_a_curved_mesh(version,
     storm = render(version, [(scene, tmp_path / "storm.exr")], prim, (96, 96))
     assert storm.problems == [], "\n".join(storm.problems)
     value, both, cpu = against_cpu_render(storm.images[0], scene, prim, 96, tmp_path)
-    image = storm.images[0].astype(np.float64)
+    image = to_rendering_space(scene, storm.images[0], back=True).astype(np.float64)     # as against_cpu_render
     assert both.sum() > 0.3 * both.size
     print(f"USD {version} curved mesh: Storm vs usdbtf render {value:.2f} dB (sRGB) over {both.sum()} pixels")
     assert value >= 35.0
@@ -230,7 +232,8 @@ def test_materialx_node_renders_through_storms_materialx_path(assets, tmp_path):
     from usdbtf.decompress import DecompressOptions, decompress
     from usdbtf.usd.read import load_btf
     from usdbtf.gpu.tables import BASIS_PAGE
-    from usdbtf.usd.asset.storm import author_materialx_preview, layout_from_asset
+    from usdbtf.color import linear_matrix
+    from usdbtf.usd.asset.storm import author_materialx_preview, layout_from_asset, rendering_space_of
 
     asset = assets[64]
     cbtf = load_btf(asset)
@@ -242,13 +245,15 @@ def test_materialx_node_renders_through_storms_materialx_path(assets, tmp_path):
     pages = [str(next(gpu.glob(f"page{p:02d}.*"))) for p in range(len(layout.pages))]
     pages += [None] * (BASIS_PAGE - len(pages)) + [str(gpu / "basis.png")]       # schema 4: the basis page slot
     stage = Usd.Stage.Open(str(scene))
-    material = author_materialx_preview(stage, "/World/Looks/BtfMaterialX", str(gpu / "tables.exr"), pages, k)
+    working, rendering, config = rendering_space_of(asset)
+    material = author_materialx_preview(stage, "/World/Looks/BtfMaterialX", str(gpu / "tables.exr"), pages, k,
+                                        rendering_matrix=linear_matrix(working, rendering, config))
     swatch = stage.GetPrimAtPath("/World/Asset/geo/swatch")
     UsdShade.MaterialBindingAPI.Apply(swatch).Bind(material, UsdShade.Tokens.strongerThanDescendants)
     stage.Save()
     result = render("25.08", [(scene, scene.with_suffix(".exr"))], camera, size)
     assert result.problems == [], "\n".join(result.problems)
-    ref = decompress(cbtf, DecompressOptions(samples=str(index))).btf.read_samples([0])[0]
+    ref = to_rendering(asset, decompress(cbtf, DecompressOptions(samples=str(index))).btf.read_samples([0])[0])
     img = result.images[0][..., :3]
     gain = float((img * ref).sum() / (img * img).sum())
     steps = float(np.abs(srgb8(img * gain) - srgb8(ref)).mean())
@@ -270,6 +275,31 @@ def lambertian_asset(tmp_path_factory) -> Path:
     return write_lambertian_asset(tmp_path_factory.mktemp("lambertian") / "a" / "white.usda", WHITE_LEVEL)
 
 
+def pole_frames(asset: Path, lights, kinds, tmp_path, legacy) -> tuple[list, str, tuple]:
+    """([(scene, frame)], camera, size): ``asset``'s swatch under a DistantLight of irradiance 1
+    from each of ``lights`` [(sample, (theta, phi))], for each of ``kinds`` ("btf", or a
+    ``swatch_scene`` fallback kind), light-major; then one scene at the first light whose BTF
+    Storm shader ``legacy(shader)`` edits (the control: the shader as it was before)."""
+    from pxr import Usd
+
+    from usdbtf.usd.asset.storm import storm_shader
+    from usdbtf.usd.material import btf_materials
+
+    frames = []
+    for s, light in lights:
+        for kind in kinds:
+            scene = tmp_path / f"{kind}_{s}.usda"
+            camera, size = hydra.swatch_scene(asset, scene, light, irradiance=1.0,
+                                              fallback=False if kind == "btf" else kind)
+            frames.append((scene, scene.with_suffix(".exr")))
+    scene = tmp_path / "legacy.usda"
+    hydra.swatch_scene(asset, scene, lights[0][1], irradiance=1.0)
+    stage = Usd.Stage.Open(str(scene))
+    legacy(storm_shader(btf_materials(stage)[0]))
+    stage.Save()
+    return frames + [(scene, scene.with_suffix(".exr"))], camera, size
+
+
 @pytest.mark.parametrize("version", sorted(hydra.STORM_ENVIRONMENTS))
 def test_btf_and_its_fallback_agree_on_white(version, lambertian_asset, tmp_path):
     """Issue 40, real Storm: the BTF swatch and the same asset's two fallbacks, the
@@ -281,30 +311,15 @@ def test_btf_and_its_fallback_agree_on_white(version, lambertian_asset, tmp_path
     UsdPreviewSurface returns), and the BTF's gain against the measured samples is pi W within
     3 %.  The control: the old convention (the BTF shader's exposure pi W, i.e. irradiance 1 =
     the capture light) is pi / 0.8 too bright and fails."""
-    from pxr import Usd
-
     from usdbtf.decompress import DecompressOptions, decompress
-    from usdbtf.usd.material import btf_materials
     from usdbtf.usd.read import load_btf
-    from usdbtf.usd.asset.storm import storm_shader
 
     cbtf = load_btf(lambertian_asset)
     assert white_level_of(cbtf.info) == pytest.approx(WHITE_LEVEL)
     lights = pole_lights(cbtf, CONVENTION_LIGHTS)
-    frames = []
-    kinds = ("btf", "preview", "openpbr")
-    for s, light in lights:
-        for kind in kinds:
-            scene = tmp_path / f"{kind}_{s}.usda"
-            camera, size = hydra.swatch_scene(lambertian_asset, scene, light, irradiance=1.0,
-                                              fallback=False if kind == "btf" else kind)
-            frames.append((scene, scene.with_suffix(".exr")))
-    legacy = tmp_path / "legacy.usda"
-    hydra.swatch_scene(lambertian_asset, legacy, lights[0][1], irradiance=1.0)
-    stage = Usd.Stage.Open(str(legacy))
-    storm_shader(btf_materials(stage)[0]).GetInput("exposure").Set(capture_irradiance(WHITE_LEVEL))
-    stage.Save()
-    frames.append((legacy, legacy.with_suffix(".exr")))
+    # The control: the shader's exposure pi W, i.e. the old convention.
+    frames, camera, size = pole_frames(lambertian_asset, lights, ("btf", "preview", "openpbr"), tmp_path,
+                                       lambda shader: shader.GetInput("exposure").Set(capture_irradiance(WHITE_LEVEL)))
     result = render(version, frames, camera, size)
     assert result.problems == [], "\n".join(result.problems)
     images = [image[..., :3].astype(np.float64) for image in result.images]
@@ -328,6 +343,60 @@ def test_btf_and_its_fallback_agree_on_white(version, lambertian_asset, tmp_path
     assert abs(gain / capture_irradiance(WHITE_LEVEL) - 1.0) <= 0.03, gain
     assert max(steps) <= MAX_STEPS, steps
     assert images[-1].mean() / images[1].mean() > 1.5          # the old convention fails
+
+
+@pytest.fixture(scope="module")
+def saturated_asset(tmp_path_factory) -> Path:
+    """storm_helpers.write_lambertian_asset of saturated_albedo(): red, green, blue and white
+    patches given in linear Rec.709, the BTF's values in its working space (ACEScg)."""
+    if not PYTHONS:
+        pytest.skip("no Storm environment")
+    return write_lambertian_asset(tmp_path_factory.mktemp("saturated") / "a" / "sat.usda", WHITE_LEVEL,
+                                  albedo=saturated_albedo())
+
+
+@pytest.mark.parametrize("version", sorted(hydra.STORM_ENVIRONMENTS))
+def test_btf_and_its_fallback_agree_per_channel_on_a_saturated_material(version, saturated_asset, tmp_path):
+    """Issue 40, colour: a saturated Lambertian BTF (working space ACEScg) and its
+    UsdPreviewSurface fallback (sRGB Rec.709 maps) in one Storm frame buffer (linear Rec.709),
+    pole view, one DistantLight of irradiance 1 from 2 measured directions, no gain: every
+    channel of every patch (red, green, blue, white) agrees within 3 %, and the BTF's is the
+    patch's albedo x cos / pi within 2 % (the shader applies the asset's working -> rendering
+    matrix, btf:renderingColorSpace).  The control: the same asset with the shader's rendering
+    rows blocked (what an asset packaged before the fix draws: the Sdr definition's identity
+    defaults) returns its working-space (ACEScg) values within 2 %, as it always did, which in
+    the Rec.709 frame is off by more than 50 % in some channel."""
+    from usdbtf.color import processor
+    from usdbtf.gpu.shaders import RENDERING_INPUTS
+    from usdbtf.usd.asset.storm import rendering_space_of
+    from usdbtf.usd.read import load_btf
+
+    assert rendering_space_of(saturated_asset)[1] == "Linear Rec.709 (sRGB)"
+    cbtf = load_btf(saturated_asset)
+    lights = pole_lights(cbtf, 2)
+    # The control: the shader's rendering rows blocked (no value: Sdr's defaults), as in an asset
+    # packaged before them.
+    frames, camera, size = pole_frames(saturated_asset, lights, ("btf", "preview"), tmp_path,
+                                       lambda shader: [shader.GetInput(name).GetAttr().Block()
+                                                       for name in RENDERING_INPUTS])
+    result = render(version, frames, camera, size)
+    assert result.problems == [], "\n".join(result.problems)
+    worst_fallback, worst_btf = channel_agreement(
+        [(result.images[2 * i], result.images[2 * i + 1]) for i in range(len(lights))], lights)
+    legacy = patch_means(result.images[-1])
+    legacy_red = legacy["red"] / patch_means(result.images[0])["red"]
+    # An asset without the rows renders as before: its working-space values (ACEScg) in the frame.
+    cos = math.cos(math.radians(lights[0][1][0]))
+    working = {name: processor(REC709, cbtf.working_space).apply(np.float32(rgb)[None])[0] * cos / math.pi
+               for name, rgb in patch_means(saturated_albedo()).items()}
+    as_before = max(float(np.abs(legacy[name] / working[name] - 1).max()) for name in working)
+    print(f"USD {version} saturated Lambertian: UsdPreviewSurface / BTF per channel worst {worst_fallback:.4f}, "
+          f"BTF / (albedo cos / pi) worst {worst_btf:.4f}; rows blocked (before) / BTF, red patch "
+          f"{np.round(legacy_red, 3).tolist()}, / working-space values worst {as_before:.4f}")
+    assert worst_fallback <= 0.03, worst_fallback
+    assert worst_btf <= 0.02, worst_btf
+    assert np.abs(legacy_red - 1).max() > 0.5, legacy_red          # the control: working-space values
+    assert as_before <= 0.02, as_before
 
 
 @pytest.mark.parametrize("version", sorted(hydra.STORM_ENVIRONMENTS))
@@ -368,14 +437,15 @@ def test_fitted_fallback_brightness_on_a_held_out_material(version, assets, tmp_
     samples = [s for s, _ in lights]
     # Irradiance 1: radiance = value / (pi W) (usdbtf.photometry).
     model = svbrdf.evaluate(maps, cbtf.sampling.view[samples], cbtf.sampling.light[samples]) / (math.pi * white)
-    # Storm shades the maps in linear Rec.709; the BTF shader returns working-space values.
+    # Storm shades the maps in linear Rec.709, and the BTF shader returns the asset's rendering
+    # space (linear Rec.709, issue 40); the fit's model is in the working space.
     to_working = processor("Linear Rec.709 (sRGB)", cbtf.working_space, cbtf.ocio_config)
     drawn, nearest, vs_model = [], [], []
     for i in range(len(lights)):
         btf, fallback, near = images[len(kinds) * i: len(kinds) * (i + 1)]
-        near = to_working.apply(near.astype(np.float32)).astype(np.float64)
         drawn.append(fallback.mean() / btf.mean())
         nearest.append(near.mean() / btf.mean())
+        near = to_working.apply(near.astype(np.float32)).astype(np.float64)
         vs_model.append(near.mean() / float(model[i].mean()))
     print(f"USD {version} satin_weave k 64: Storm's fallback (OpenPBR) / BTF {np.round(drawn, 3).tolist()}; "
           f"UsdPreviewSurface sampled nearest / BTF {np.round(nearest, 3).tolist()} (mean {np.mean(nearest):.3f}), "

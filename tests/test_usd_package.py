@@ -229,6 +229,58 @@ def test_data_is_raw_and_color_is_declared(asset):
     assert read_info_space(tex / "fallback" / "diffuse.png") == "srgb_rec709_scene"
 
 
+def test_shaders_return_the_recorded_rendering_space(asset):
+    """Issue 40, colour: the Material records the space its BTF shaders return
+    (btf:renderingColorSpace, linear Rec.709 by default: what UsdPreviewSurface colours and the
+    renderers' frames mean), the Storm shader's renderingMatrixR/G/B and the packaged MaterialX
+    document's node hold OCIO's working -> rendering matrix (ACEScg -> linear Rec.709: its red
+    row 1.705, -0.622, -0.083), and the rows are data (raw).  The BTF itself is untouched
+    (test_round_trip_bit_for_bit)."""
+    import xml.etree.ElementTree as ET
+
+    from usdbtf.gpu.shaders import RENDERING_INPUTS
+    from usdbtf.usd.asset.storm import rendering_space_of, storm_shader
+
+    stage = Usd.Stage.Open(str(asset))
+    material = stage.GetPrimAtPath("/pebbles/mtl/BtfMaterial")
+    assert material.GetAttribute("btf:renderingColorSpace").Get() == color.RENDERING_SPACE
+    assert rendering_space_of(asset)[:2] == ("ACEScg", color.RENDERING_SPACE)
+    want = color.linear_matrix("ACEScg", color.RENDERING_SPACE)
+    assert np.allclose(want[0], [1.705051, -0.621792, -0.083259], atol=1e-5)
+    shader = storm_shader(material)
+    cache = Usd.ColorSpaceHashCache()
+    for name, row in zip(RENDERING_INPUTS, want):
+        assert np.allclose(shader.GetInput(name).Get(), row, atol=1e-6), name
+        assert Usd.ColorSpaceAPI.ComputeColorSpaceName(shader.GetInput(name).GetAttr(), cache) == "raw"
+    node = ET.parse(asset.with_name("pebbles_textures") / "gpu" / "usdbtf.mtlx").getroot().find("usdbtf_surface")
+    values = {i.get("name"): i.get("value") for i in node.findall("input")}
+    for name, row in zip(RENDERING_INPUTS, want):
+        assert np.allclose([float(v) for v in values[name].split(",")], row, atol=1e-6), name
+
+
+def test_rendering_space_option(compressed, tmp_path, capsys):
+    """``package --rendering-space``: a USD token or OCIO name of a scene-linear space (the
+    working space itself: identity rows, the shaders return working-space values); an encoded
+    or unknown space is refused with one line naming the option (exit 2), nothing written."""
+    from usdbtf.gpu.shaders import IDENTITY_ROWS, RENDERING_INPUTS
+    from usdbtf.usd.asset.storm import storm_shader
+
+    if compressed.name != "c_exr":
+        pytest.skip("the option does not depend on the codec: checked once")
+    out = tmp_path / "ap1" / "a.usda"
+    assert main(["package", str(compressed), "-o", str(out), "--rendering-space", "lin_ap1_scene", "--no-thumbnail",
+                 "--lod", "", "-q"]) == 0
+    stage = Usd.Stage.Open(str(out))
+    material = stage.GetPrimAtPath("/a/mtl/BtfMaterial")
+    assert material.GetAttribute("btf:renderingColorSpace").Get() == "ACEScg"
+    for name, row in zip(RENDERING_INPUTS, IDENTITY_ROWS):
+        assert np.allclose(storm_shader(material).GetInput(name).Get(), row, atol=1e-7), name
+    for space in ("srgb_rec709_scene", "no such space"):
+        bad_usage(capsys, "package", compressed, "-o", tmp_path / "x" / "a.usda", "--rendering-space", space,
+                  names="--rendering-space")
+        _assert_nothing_written(tmp_path / "x")
+
+
 def read_info_space(path: Path) -> str:
     import OpenImageIO as oiio
 
@@ -324,6 +376,7 @@ def test_inspect_reports_k_bytes_directions_error(asset, capsys):
     assert "k            12 of 12" in out
     assert "169 samples: 13 views" in out
     assert "% at k = 12" in out and "0 error(s)" in out
+    assert "shaders return Linear Rec.709 (sRGB)" in out          # issue 40: btf:renderingColorSpace
     gpu = asset.with_name("pebbles_textures") / "gpu"
     on_disk = sum(p.stat().st_size for p in gpu.iterdir() if p.name.startswith(("tables.", "page", "basis.")))
     basis = sum(p.stat().st_size for p in gpu.iterdir() if p.name.startswith(("tables.", "basis.")))

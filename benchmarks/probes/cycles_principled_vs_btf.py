@@ -15,11 +15,12 @@ pi W (usdbtf.photometry) from ``--lights`` measured light directions at the pole
 Printed per light: mean |difference| (8-bit sRGB steps) of the Principled frame against the
 fit's model (usdbtf.openpbr.evaluate of the maps as shipped, Blender's linear Rec.709; the
 test's reference, storm_helpers.openpbr_frame), Principled mean / model mean, Principled mean /
-OSL BTF mean as the frames come (what tests/test_cycles.py prints: the OSL BTF returns
-working-space values, docs/production-renderers-and-fallbacks.md, the Principled Blender's
-linear Rec.709), the same with the BTF frame converted from the working space to linear Rec.709
-(one space: the brightness comparison that means something when the working space is not
-Rec.709), OSL BTF mean / the decompressed sample's mean (working space: the BTF path's own
+OSL BTF mean as the frames come (the OSL BTF returns the asset's rendering space,
+btf:renderingColorSpace: linear Rec.709 since issue 40's colour fix, working-space values
+before; the Principled Blender's linear Rec.709), the same with the BTF frame converted from
+that space to linear Rec.709 (one space: the brightness comparison that means something for an
+asset packaged before the fix), OSL BTF mean / the decompressed sample's mean (the frame taken
+to the working space: the BTF path's own
 check, 1 under the capture light), and the fit model's mean / the sample's mean in the working
 space (no renderer: the fit's own bias).  After each preset's table: that ratio per colour
 channel (swatch sums) averaged over the fit's pole samples (usdbtf.svbrdf.pole_samples: the pole
@@ -87,6 +88,7 @@ def main(argv=None) -> int:
     from usdbtf.color import processor
     from usdbtf.compress import reconstruct
     from usdbtf.photometry import capture_irradiance, white_level_of
+    from usdbtf.usd.asset.storm import rendering_space_of
     from usdbtf.usd.preview import cycles
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -116,7 +118,9 @@ def main(argv=None) -> int:
             frames += [cycles.CyclesFrame(asset, work / f"{preset}_{surface}_{s}.exr", towards(light),
                                           size=maps.shape[::-1], irradiance=irradiance, surface=surface)
                        for surface in ("PRINCIPLED", "BTF") for s, light in lights]
-            cases.append((preset, maps, cbtf, lights, first))
+            # The OSL BTF returns the asset's rendering space (btf:renderingColorSpace; linear
+            # Rec.709 since issue 40's colour fix, the working space before).
+            cases.append((preset, maps, cbtf, lights, first, rendering_space_of(asset)[1]))
         result = cycles.render_frames(python, frames, timeout=1200.0)
         before = None
         if args.before:
@@ -132,10 +136,11 @@ def main(argv=None) -> int:
           "fit model / sample |" + extra)
     print("|---|---|---|---|---|---|---|---|" + "---|" * (3 if before else 0))
     seen = 0
-    for preset, maps, cbtf, lights, first in cases:
+    for preset, maps, cbtf, lights, first, drawn in cases:
         n = len(lights)
         rec = reconstruct(cbtf, [s for s, _ in lights])
-        to709 = processor(cbtf.working_space, rendering, cbtf.ocio_config)
+        to709 = processor(drawn, rendering, cbtf.ocio_config)
+        to_working = processor(drawn, cbtf.working_space, cbtf.ocio_config)
         rows = []
         for i, (s, light) in enumerate(lights):
             principled = result.images[first + i][..., :3].astype(np.float64)
@@ -143,9 +148,10 @@ def main(argv=None) -> int:
             model = openpbr_frame(maps, light, rendering, cbtf.ocio_config)
             fit = openpbr.evaluate(maps, np.zeros((1, 2)), np.asarray([light], float))[0]
             btf709 = to709.apply(np.ascontiguousarray(btf, np.float32)).astype(np.float64)
+            btf_working = to_working.apply(np.ascontiguousarray(btf, np.float32)).astype(np.float64)
             row = (float(np.abs(cycles.srgb8(principled) - cycles.srgb8(model)).mean()),
                    principled.mean() / model.mean(), principled.mean() / btf.mean(),
-                   principled.mean() / btf709.mean(), btf.mean() / float(rec[i].mean()),
+                   principled.mean() / btf709.mean(), btf_working.mean() / float(rec[i].mean()),
                    float(fit.mean() / rec[i].mean()))
             if before:
                 old = before[seen + i][..., :3].astype(np.float64)

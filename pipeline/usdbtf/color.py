@@ -25,10 +25,14 @@ from .errors import BTFError
 __all__ = [
     "DEFAULT_CONFIG", "WORKING_SPACE", "get_config", "resolve_space", "Processor", "processor",
     "IntegerDecoder", "integer_decoder", "usd_color_space", "mix_rgb", "mix_channel",
+    "RENDERING_SPACE", "rendering_space", "linear_matrix",
 ]
 
 DEFAULT_CONFIG = "ocio://default"
 WORKING_SPACE = "scene_linear"
+#: The rendering space a packaged BTF's shaders return by default (issue 40): linear Rec.709, what
+#: UsdPreviewSurface colours mean and what Storm's, Blender's and MaterialX's frames hold.
+RENDERING_SPACE = "Linear Rec.709 (sRGB)"
 _VERIFY_TOLERANCE = 1e-5
 
 
@@ -245,3 +249,30 @@ _USD_NAMES = {
 def usd_color_space(name: str, config: str | None = None) -> str | None:
     """The USD colour-space token for an OCIO space, or None if USD has no equivalent."""
     return _USD_NAMES.get(resolve_space(name, config))
+
+
+def rendering_space(name: str, config: str | None = None) -> str:
+    """Canonical OCIO name of a rendering space given as an OCIO name, alias or role, or as a
+    USD colour-space token (``lin_rec709_scene``, ``lin_ap1_scene``, ...: Gf.ColorSpaceNames)."""
+    ocio_name = {usd: name_ for name_, usd in _USD_NAMES.items()}.get(name, name)
+    return resolve_space(ocio_name, config)
+
+
+def linear_matrix(src: str, dst: str, config: str | None = None) -> np.ndarray:
+    """(3, 3) float64 M with ``rgb_dst = M @ rgb_src``: OCIO's transform ``src`` -> ``dst``
+    taken as a matrix (OCIO evaluated on the unit colours), checked to be one.
+
+    Between scene-linear spaces (ACEScg, linear Rec.709, ...) OCIO's transform is a 3 x 3 matrix
+    (chromatic adaptation included).  A transform that is not (an encoded space, a look) raises
+    BTFError naming both spaces: a shader cannot apply it after its own linear colour matrix.
+    """
+    proc = processor(src, dst, config)
+    basis = proc.apply(np.eye(3, dtype=np.float32)).astype(np.float64)     # row c: the image of e_c
+    matrix = basis.T
+    rng = np.random.default_rng(12345)
+    probe = rng.uniform(-0.5, 4.0, size=(256, 3)).astype(np.float32)
+    want = proc.apply(probe).astype(np.float64)
+    if not np.allclose(probe.astype(np.float64) @ matrix.T, want, rtol=1e-4, atol=1e-5):
+        raise BTFError(f"colour transform {src!r} -> {dst!r} is not a 3 x 3 matrix: choose a scene-linear "
+                       "rendering space")
+    return matrix

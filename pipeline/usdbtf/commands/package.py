@@ -34,6 +34,10 @@ def add_parser(sub) -> None:
     p.add_argument("--asset-version", help="assetInfo version (default: none)")
     p.add_argument("--creator", help="who made the asset: assetInfo and layer metadata (default: none)")
     p.add_argument("--no-thumbnail", action="store_true", help="do not render a thumbnail")
+    p.add_argument("--rendering-space", default=None, metavar="SPACE",
+                   help="scene-linear space the BTF shaders return, an OCIO name or a USD token (default: "
+                        "lin_rec709_scene, linear Rec.709: what UsdPreviewSurface colours and Storm's and "
+                        "Blender's frames mean); the BTF data stay in the working space")
     p.add_argument("--no-validate", action="store_true", help="skip the UsdValidation check before publishing")
     p.add_argument("--json", action="store_true", help="print a JSON summary of what was written on stdout")
     p.set_defaults(func=run)
@@ -59,7 +63,8 @@ def run(args) -> int:
                              physical_size=tuple(args.physical_size) if args.physical_size else None,
                              payload_format=args.payload_format, texture_format=args.texture_format,
                              asset_name=args.asset_name, asset_version=args.asset_version, creator=args.creator,
-                             thumbnail=not args.no_thumbnail, validate=not args.no_validate)
+                             thumbnail=not args.no_thumbnail, validate=not args.no_validate,
+                             **({} if args.rendering_space is None else {"rendering_space": args.rendering_space}))
     options.check()                  # every option and the output's name checked before anything is read
     check_root_layer(args.output)
     summary = write_package(package(args.input, options), args.output)

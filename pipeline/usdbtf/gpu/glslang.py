@@ -104,12 +104,7 @@ in vec3 bitangentIn;
 vec2 HdGet_st() {{ return stIn; }}
 vec3 HdGet_tangents() {{ return tangentIn; }}
 vec3 HdGet_bitangents() {{ return bitangentIn; }}
-uniform int basisCountValue;
-uniform float exposureValue;
-uniform float whiteLevelValue;
-int HdGet_basisCount() {{ return basisCountValue; }}
-float HdGet_exposure() {{ return exposureValue; }}
-float HdGet_whiteLevel() {{ return whiteLevelValue; }}
+{values}
 {samplers}
 // surfaceHelpers.glslfx (SurfaceHelpers.TangentSpace): same signature.
 mat3 ComputeTBNMatrix(vec3 P, vec3 N, vec2 st)
@@ -134,6 +129,13 @@ void main()
 """
 
 
+def _glsl_type(default) -> str:
+    """The GLSL type Storm gives a glslfx parameter of this default value."""
+    if isinstance(default, list):
+        return f"vec{len(default)}"
+    return "int" if isinstance(default, int) and not isinstance(default, bool) else "float"
+
+
 def storm_translation_unit(glslfx_text: str, *, textures: list[str], primvars: bool = True, lights: int = 2) -> str:
     """A fragment shader around ``glslfx_text``'s surfaceShader as Storm would bind it:
     ``textures`` are the connected texture inputs (HD_HAS_<name>, HdGetSampler_<name>());
@@ -149,6 +151,12 @@ def storm_translation_unit(glslfx_text: str, *, textures: list[str], primvars: b
                                            "#define HD_HAS_transform 1"] if primvars else [])
     samplers = "\n".join(f"uniform sampler2D sampler2d_{name};\n#define HdGetSampler_{name}() sampler2d_{name}"
                          for name in textures)
+    # HdGet_<p>() of every parameter not bound to a texture: its value, typed by its default
+    # (an int, a float, a list of 3: vec3), as Storm's code generator declares them.
+    values = "\n".join(f"uniform {kind} {name}Value;\n{kind} HdGet_{name}() {{ return {name}Value; }}"
+                       for name, kind in ((name, _glsl_type(spec["default"]))
+                                          for name, spec in config.get("parameters", {}).items())
+                       if name not in textures)
     prelude = _STORM_PRELUDE.format(lights=lights, light_slots=max(lights, 1), defines="\n".join(defines),
-                                    samplers=samplers)
+                                    samplers=samplers, values=values)
     return prelude + "\n".join(sections[name] for name in own) + _STORM_MAIN

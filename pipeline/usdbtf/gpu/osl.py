@@ -39,6 +39,10 @@ SURFACE_PARAMETERS = [
     ("vector lightDirection = vector(0.0, 0.0, 1.0)", "World-space direction towards the one (sun) light."),
     ("int incidentTowardsViewer = 0", "1 where the renderer's I points from the surface to the viewer (Cycles "
                                       "sets I = sd->wi); 0: the OSL specification's I, towards the surface."),
+    ("vector renderingMatrixR = vector(1.0, 0.0, 0.0)", "Row R of the working -> rendering space matrix "
+                                                        "(btf:renderingColorSpace); identity: the working space."),
+    ("vector renderingMatrixG = vector(0.0, 1.0, 0.0)", "Row G of the working -> rendering space matrix."),
+    ("vector renderingMatrixB = vector(0.0, 0.0, 1.0)", "Row B of the working -> rendering space matrix."),
     ("float lightIrradiance = 1.0", "The light's irradiance (a Blender sun's strength, W/m^2); radiance = value x "
                                     "lightIrradiance / (pi x whiteLevel), so pi x whiteLevel reproduces the capture."),
 ]
@@ -68,7 +72,8 @@ _SURFACE_BODY = """\
     vector radiance = btfShadeLight(tables, {pages}, viewIndex, viewWeight,
                                     btfLocal(frame, normalize(lightDirection)),
                                     lightIrradiance * btfRadiancePerIrradiance(whiteLevel), btfVec2(st[0], st[1]), k);
-    Radiance = exposure * color(radiance) * emission();
+    Radiance = exposure * color(btfToRendering(radiance, renderingMatrixR, renderingMatrixG, renderingMatrixB))
+             * emission();
 }}
 """
 
@@ -91,7 +96,8 @@ _MTLX_BODY = """\
 // lightdirection input names (zero: the view direction, a headlight), as emitted radiance --
 // an OSL closure cannot be evaluated per light (usdbtf.gpu.osl).
 void mx_{bsdf}(textureresource tables, {params}, vector2 texcoord, int basisCount, float weight, vector normal_,
-               vector tangent, vector bitangent, vector lightdirection, float whiteLevel, output BSDF bsdf)
+               vector tangent, vector bitangent, vector lightdirection, float whiteLevel, vector renderingMatrixR,
+               vector renderingMatrixG, vector renderingMatrixB, output BSDF bsdf)
 {{
     bsdf = 0;
     if (weight <= 0.0 || tables.filename == "") {{
@@ -105,7 +111,7 @@ void mx_{bsdf}(textureresource tables, {params}, vector2 texcoord, int basisCoun
     vector l = lightdirection != vector(0.0) ? normalize(lightdirection) : -I;
     vector radiance = btfShadeLight(tables.filename, {files}, viewIndex, viewWeight, btfLocal(frame, l),
                                     btfRadiancePerIrradiance(whiteLevel), btfVec2(texcoord.x, texcoord.y), k);
-    bsdf = weight * color(radiance) * emission();
+    bsdf = weight * color(btfToRendering(radiance, renderingMatrixR, renderingMatrixG, renderingMatrixB)) * emission();
 }}
 """
 

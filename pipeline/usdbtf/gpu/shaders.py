@@ -31,7 +31,8 @@ from . import osl
 from .core import GLSL_DIR, MTLX_BSDF, MTLX_SURFACE, core_source, page_name, page_sampler
 from .tables import MAX_PAGES
 
-__all__ = ["SHADER_ID", "INPUTS", "PRIMVARS", "GLSL_DIR", "MTLX_BSDF", "core_source", "page_name", "page_sampler",
+__all__ = ["SHADER_ID", "INPUTS", "IDENTITY_ROWS", "RENDERING_INPUTS", "PRIMVARS", "GLSL_DIR", "MTLX_BSDF",
+           "core_source", "page_name", "page_sampler",
            "storm_glslfx", "sdr_definition_usda", "materialx_impl", "materialx_defs", "harness_fragment", "HARNESS_VERTEX", "plugin_files",
            "write_plugin_files", "stale_plugin_files"]
 
@@ -39,12 +40,24 @@ __all__ = ["SHADER_ID", "INPUTS", "PRIMVARS", "GLSL_DIR", "MTLX_BSDF", "core_sou
 PRIMVARS = ("st", "tangents", "bitangents")
 
 
-# (name, Sdf type, glslfx default, doc) of the Storm shader's inputs, in order.
+#: The rendering matrix's rows that leave the working space as it is (an asset without them).
+IDENTITY_ROWS = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+#: The shader inputs that carry the working -> rendering space matrix, one row each (usdbtf.color.linear_matrix).
+RENDERING_INPUTS = ("renderingMatrixR", "renderingMatrixG", "renderingMatrixB")
+
+# (name, Sdf type, glslfx default, doc) of the Storm shader's inputs, in order.  The matrix rows are
+# color3f: what Sdr's glslfx parser (USD 25.08) makes of a 3-float default, so the two Sdr definitions
+# (the glslfx's and the .usda's) agree; the asset declares them raw (data, no colour conversion).
 INPUTS = ([("basisCount", "int", 0, "Basis vectors to use; 0 = all the tables hold (a LOD uses fewer)."),
            ("exposure", "float", 1.0, "Multiplier on the result (1: radiance = value x irradiance / (pi x whiteLevel), "
                                       "usdbtf.photometry)."),
            ("whiteLevel", "float", 1.0, "The BTF value a white Lambertian lit head-on reads (btf:whiteLevel): a light "
                                         "of irradiance pi x whiteLevel reproduces the measured values."),
+           *[(f"renderingMatrix{c}", "color3f", row, f"Row {c} of the working space -> rendering space matrix "
+                                                    "(btf:renderingColorSpace; usdbtf.color.linear_matrix): the "
+                                                    "shader returns rendering-space radiance.  Identity: the "
+                                                    "working space (an asset packaged before issue 40's colour fix).")
+             for c, row in zip("RGB", IDENTITY_ROWS)],
            ("tables", "float", 0.0, "The tables texture (basis, hemisphere lookups, de-quantisation, the packs' "
                                     "directory); connect a UsdUVTexture, read with texelFetch.")]
           + [(page_name(p), "float", 0.0, f"Coefficient page {p}: tiles of coefficient packs (the tables' "
@@ -117,8 +130,11 @@ surfaceShader(vec4 Peye, vec3 Neye, vec4 color, vec4 patchCoord)
         intensity *= light.hasShadow ? shadowing(/*lightIndex=*/i, Peye) : 1.0;
 #endif
         // One light at a time: a light's colour multiplies its whole contribution.
-        c += light.diffuse.rgb * btfShadeLight(HdGetSampler_tables(), BTF_PAGE_ARGS, viewIndex, viewWeight,
-                                               btfLocal(frame, l), intensity, st, k);
+        // In the rendering space, where the light's colour is.
+        c += light.diffuse.rgb * btfToRendering(btfShadeLight(HdGetSampler_tables(), BTF_PAGE_ARGS, viewIndex,
+                                                              viewWeight, btfLocal(frame, l), intensity, st, k),
+                                                HdGet_renderingMatrixR(), HdGet_renderingMatrixG(),
+                                                HdGet_renderingMatrixB());
     }}
 #endif
     c *= HdGet_exposure() * btfRadiancePerIrradiance(HdGet_whiteLevel());     // usdbtf.photometry
@@ -179,7 +195,8 @@ def sdr_definition_usda() -> str:
              f"    uniform asset info:glslfx:sourceAsset = {glslfx}",
              ""]
     for name, kind, default, doc in INPUTS:
-        value = repr(default) if kind == "float" else str(default)
+        value = (repr(default) if kind == "float" else
+                 "(" + ", ".join(repr(v) for v in default) + ")" if kind == "color3f" else str(default))
         lines += [f"    {kind} inputs:{name} = {value} (", f'        doc = "{doc}"', "    )"]
     lines += ["", "    token outputs:surface (", "        sdrMetadata = {",
               '            string renderType = "terminal surface"', "        }", "    )", "}", ""]
@@ -195,7 +212,7 @@ _MTLX_FUNCTION = """\
 // lightdirection is for OSL (genosl), which cannot be called per light; GLSL is.
 void mx_{bsdf}(ClosureData closureData, sampler2D btfTables, BTF_PAGE_PARAMS, vec2 texcoord, int basisCount,
                float weight, vec3 normal, vec3 tangent, vec3 bitangent, vec3 lightdirection, float whiteLevel,
-               inout BSDF bsdf)
+               vec3 renderingMatrixR, vec3 renderingMatrixG, vec3 renderingMatrixB, inout BSDF bsdf)
 {{
     bsdf.throughput = vec3(0.0);
     bsdf.response = vec3(0.0);
@@ -208,8 +225,10 @@ void mx_{bsdf}(ClosureData closureData, sampler2D btfTables, BTF_PAGE_PARAMS, ve
     btfViewLookup(btfTables, btfLocal(frame, closureData.V), viewIndex, viewWeight);
     int k = basisCount > 0 ? basisCount : 1 << 20;
     bsdf.response = weight * closureData.occlusion
-                  * btfShadeLight(btfTables, BTF_PAGE_ARGS, viewIndex, viewWeight, btfLocal(frame, closureData.L),
-                                  btfRadiancePerIrradiance(whiteLevel), texcoord, k);
+                  * btfToRendering(btfShadeLight(btfTables, BTF_PAGE_ARGS, viewIndex, viewWeight,
+                                                 btfLocal(frame, closureData.L), btfRadiancePerIrradiance(whiteLevel),
+                                                 texcoord, k),
+                                   renderingMatrixR, renderingMatrixG, renderingMatrixB);
 }}
 """
 
@@ -225,6 +244,11 @@ def materialx_impl() -> str:
 _WHITE_LEVEL_INPUT = ('    <input name="whiteLevel" type="float" value="1.0" uniform="true" doc="The BTF value a white '
                       'Lambertian lit head-on reads (btf:whiteLevel): radiance = value x irradiance / (pi x '
                       'whiteLevel), usdbtf.photometry." />')
+#: The nodedefs' rendering matrix rows (usdbtf.color.linear_matrix; identity: the working space).
+_RENDERING_INPUTS = [f'    <input name="{name}" type="vector3" value="{", ".join(repr(v) for v in row)}" uniform="true" '
+                     f'doc="Row {name[-1]} of the working space -> rendering space matrix (btf:renderingColorSpace): '
+                     'the node returns rendering-space radiance; identity: the working space." />'
+                     for name, row in zip(RENDERING_INPUTS, IDENTITY_ROWS)]
 
 
 def materialx_defs() -> str:
@@ -252,6 +276,7 @@ def materialx_defs() -> str:
            'cannot be evaluated per light): world-space direction towards the one light the BTF is evaluated for, '
            'returned as emission; 0: the view direction. genglsl ignores it (it is called per light)." />',
            _WHITE_LEVEL_INPUT,
+           *_RENDERING_INPUTS,
            '    <output name="out" type="BSDF" />',
            "  </nodedef>",
            f'  <implementation name="IM_{MTLX_BSDF}_genglsl" nodedef="ND_{MTLX_BSDF}" '
@@ -263,6 +288,7 @@ def materialx_defs() -> str:
            '    <input name="basisCount" type="integer" value="0" uniform="true" />',
            '    <input name="texcoord" type="vector2" defaultgeomprop="UV0" />',
            _WHITE_LEVEL_INPUT,
+           *_RENDERING_INPUTS,
            '    <output name="out" type="surfaceshader" />',
            "  </nodedef>",
            f'  <nodegraph name="NG_{MTLX_SURFACE}" nodedef="ND_{MTLX_SURFACE}">',
@@ -271,6 +297,7 @@ def materialx_defs() -> str:
     out += ['      <input name="texcoord" type="vector2" interfacename="texcoord" />',
             '      <input name="basisCount" type="integer" interfacename="basisCount" />',
             '      <input name="whiteLevel" type="float" interfacename="whiteLevel" />',
+            *[f'      <input name="{n}" type="vector3" interfacename="{n}" />' for n in RENDERING_INPUTS],
             f"    </{MTLX_BSDF}>",
             '    <surface name="surface" type="surfaceshader">',
             '      <input name="bsdf" type="BSDF" nodename="btf" />',

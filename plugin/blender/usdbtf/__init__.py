@@ -86,6 +86,9 @@ class IMPORT_SCENE_OT_usdbtf(bpy.types.Operator, ImportHelper):
             material.usdbtf_sun = sun
             material.usdbtf_surface = self.surface
             network.sync_sun(material, sun)
+        warning = network.working_space_warning(self.filepath)
+        if warning:
+            self.report({"WARNING"}, warning)
         self.report({"INFO"}, f"usdbtf: {len(objects)} objects, {len(materials)} BTF materials")
         return {"FINISHED"}
 

@@ -50,6 +50,10 @@ import mathutils
 #: The Storm shader's Sdr identifier in usdbtf assets: its inputs name the textures.
 STORM_ID = "UsdBtfSurface"
 MAX_PAGES = 15
+#: The shader inputs holding the working -> rendering space matrix's rows, and their identity
+#: (usdbtf.gpu.shaders.RENDERING_INPUTS, IDENTITY_ROWS).
+RENDERING_INPUTS = ("renderingMatrixR", "renderingMatrixG", "renderingMatrixB")
+IDENTITY_ROWS = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 #: The generated OSL surface: beside this file in the add-on's zip (scripts/blender_addon_zip.py
 #: puts it there), else the plugin's own copy when the add-on runs from a usdbtf checkout
 #: (plugin/blender/usdbtf -> plugin/usdBtf/resources/osl): the source tree holds it once.
@@ -156,7 +160,7 @@ def _storm_shader(stage):
 
 
 def read_lods(asset: str) -> tuple[str, str, dict]:
-    """(material prim name, default lod, {lod: {"basisCount", "whiteLevel", "tables", "pages"}}) of a
+    """(material prim name, default lod, {lod: {"basisCount", "whiteLevel", "rendering", "tables", "pages"}}) of a
     usdbtf asset (a .usda/.usdc on disk: the textures must be files OSL can open).
 
     The textures and basis count come from the asset's Storm network under each selection
@@ -187,7 +191,12 @@ def read_lods(asset: str) -> tuple[str, str, dict]:
         count = shader.GetInput("basisCount").Get() if shader.GetInput("basisCount") else 0
         # The white level (usdbtf.photometry); an asset from before it has none: 1.
         white = shader.GetInput("whiteLevel").Get() if shader.GetInput("whiteLevel") else None
-        lods[name] = {"basisCount": int(count or 0), "whiteLevel": float(white or 1.0), "tables": tables,
+        # The working -> rendering space rows (issue 40: linear Rec.709, Blender's default scene
+        # linear); an asset from before them has none: identity, the working space as before.
+        rendering = [list(shader.GetInput(row).Get()) if shader.GetInput(row) else list(identity)
+                     for row, identity in zip(RENDERING_INPUTS, IDENTITY_ROWS)]
+        lods[name] = {"basisCount": int(count or 0), "whiteLevel": float(white or 1.0), "rendering": rendering,
+                      "tables": tables,
                       "pages": [_connected_file(shader, page_name(p)) for p in range(MAX_PAGES)]}
     return material, default, lods
 
@@ -463,6 +472,8 @@ def apply_lod(material, lod: str) -> None:
         node.inputs[page_name(p)].default_value = raw_texture(path)
     node.inputs["basisCount"].default_value = level["basisCount"]
     node.inputs["whiteLevel"].default_value = level.get("whiteLevel", 1.0)
+    for row, values in zip(RENDERING_INPUTS, level.get("rendering", IDENTITY_ROWS)):
+        node.inputs[row].default_value = values
 
 
 def sun_direction(sun) -> tuple[float, float, float]:
@@ -483,6 +494,35 @@ def sync_sun(material, sun) -> None:
         node.inputs["lightDirection"].default_value = direction
     if node.inputs["lightIrradiance"].default_value != sun.data.energy:
         node.inputs["lightIrradiance"].default_value = sun.data.energy
+
+
+#: Blender 5's working spaces (bpy.data.colorspace.working_space_interop_id) -> OCIO names, as
+#: usdbtf records btf:renderingColorSpace (usdbtf.color._USD_NAMES).
+_WORKING_SPACES = {"lin_rec709_scene": "Linear Rec.709 (sRGB)", "lin_rec2020_scene": "Linear Rec.2020",
+                   "lin_ap1_scene": "ACEScg"}
+
+
+def working_space_warning(asset: str) -> str | None:
+    """A line saying the OSL BTF's colours will be off, where the asset's BTF returns another
+    space than this Blender file's working space (Blender 5: Linear Rec.709 by default, or
+    Rec.2020 or ACEScg; the shader's renderingMatrix rows were computed for the asset's
+    btf:renderingColorSpace, or are absent: its working space); None where they agree or
+    Blender does not say (4.x: always Linear Rec.709)."""
+    Usd, _ = _pxr()
+
+    stage = Usd.Stage.Open(str(asset))
+    shader = _storm_shader(stage) if stage else None
+    if shader is None:
+        return None
+    material = shader.GetPrim().GetParent()
+    attr = material.GetAttribute("btf:renderingColorSpace")
+    returns = (attr.Get() if attr else "") or (material.GetAttribute("btf:colorSpace").Get() or "ACEScg")
+    interop = getattr(getattr(bpy.data, "colorspace", None), "working_space_interop_id", "lin_rec709_scene")
+    blender = _WORKING_SPACES.get(interop, interop)
+    if blender == returns:
+        return None
+    return (f"usdbtf: {os.path.basename(asset)}'s BTF returns {returns} and this file's working space is "
+            f"{blender}: the OSL BTF's colours will be off (package with --rendering-space {interop})")
 
 
 def import_asset(asset: str, lod: str | None = None, surface: str = SURFACE_BTF) -> tuple[list, list]:

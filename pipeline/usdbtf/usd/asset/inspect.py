@@ -262,6 +262,8 @@ def material_summary(stage, prim) -> dict:
         view_theta_deg=_theta_range(view), light_theta_deg=_theta_range(light),
         interpolated=len(get("interpolatedSamples") or []), error_percent=_error_at(prim, k),
         color_space=get("colorSpace"), ocio_config=get("ocioConfig"),
+        # Issue 40: what the BTF shaders return; None (an asset before it): the working space.
+        rendering_space=get("renderingColorSpace") or None,
         photometry=str(get("photometry")), white_level=float(get("whiteLevel")),
         source={"color_space": get("source:colorSpace"), "bit_depth": get("source:bitDepth")},
         provenance={"solver": get("provenance:solver"), "codec": get("provenance:codec"),
@@ -320,7 +322,9 @@ def describe(path, info: dict | None = None) -> str:
         lines.append("    error        " + (f"{err:.3f} % at k = {m['k']} (scene-linear, paper's metric)"
                                              if err is not None else "not recorded"))
         lines.append(f"    colour       {m['color_space']} ({m['ocio_config']}); measured in "
-                     f"{m['source']['color_space']} {m['source']['bit_depth']}")
+                     f"{m['source']['color_space']} {m['source']['bit_depth']}; shaders return "
+                     + (m.get("rendering_space") or f"{m['color_space']} (packaged before the rendering space: "
+                                                    "beside Rec.709 surfaces its hues differ)"))
         lines.append(f"    photometry   {m['photometry']}: radiance = value x irradiance / (pi x {m['white_level']:g})"
                      + (" (written before the convention: renders 1/pi as bright as it did)"
                         if m["photometry"] == "legacy" else ""))

@@ -64,6 +64,7 @@ import numpy as np
 from ...atomic import atomic_group
 from ...compress.codecs import get_codec
 from ...compress.format import METADATA, CompressedBTF, EncodedTextures, basis_file, coefficient_file, read_compressed
+from ...color import RENDERING_SPACE, linear_matrix, rendering_space
 from ...errors import BTFError, UsageError
 from ...mesh import Mesh, load_mesh
 from ...mesh.author import author_mesh
@@ -87,7 +88,7 @@ from ...resources import release_free_heap
 __all__ = ["PackageOptions", "PackageResult", "package", "write_package", "asset_layers", "read_input",
            "asset_pieces", "check_root_layer", "make_usdz", "default_lods", "LOD_VARIANT_SET", "FULL_LOD",
            "MATERIAL", "ROOT_FORMATS", "PAYLOAD_FORMATS", "read_error_curve", "physical_size_of",
-           "provenance_path"]
+           "provenance_path", "rendering_matrix"]
 
 ROOT_FORMATS = (".usda", ".usdc", ".usd")
 log = logging.getLogger(__name__)
@@ -108,6 +109,11 @@ class PackageOptions:
         (none unless given); creator : assetInfo and layer metadata (none unless given).
     thumbnail : render and declare a thumbnail (UsdMedia.AssetPreviewsAPI).
     validate : run every UsdValidation validator before publishing.
+    rendering_space : the scene-linear space the BTF shaders return (an OCIO name, alias or role,
+        or a USD token such as ``lin_rec709_scene``; default :data:`usdbtf.color.RENDERING_SPACE`,
+        linear Rec.709: what UsdPreviewSurface colours and Storm's and Blender's frames mean).
+        The shaders apply OCIO's working -> rendering matrix after the stored colour matrix;
+        the Material records it (``btf:renderingColorSpace``); the BTF data do not change.
     """
 
     mesh: Path | None = None
@@ -122,6 +128,7 @@ class PackageOptions:
     creator: str | None = None
     thumbnail: bool = True
     validate: bool = True
+    rendering_space: str = RENDERING_SPACE
 
     def check(self) -> None:
         """Raise UsageError for options that contradict each other or are out of range."""
@@ -351,6 +358,7 @@ def package(compressed, options: PackageOptions | None = None, *,
         name, where = str(folder), str(folder / METADATA)
         compressed = read_input(folder)
     cbtf = compressed
+    rendering_matrix(cbtf, options)          # refuse a space OCIO cannot reach by a matrix, before any work
     size = options.physical_size or physical_size_of(cbtf)
     if size is None:
         raise BTFError(f"{where}: no physical_size_m recorded; pass --physical-size W H (metres)")
@@ -373,7 +381,8 @@ def package(compressed, options: PackageOptions | None = None, *,
     texels = quilt_texels(cbtf, folder)
     # One copy of the BTF: the GPU tables and pages, which every consumer reads, where the
     # preview can draw the sampling; else one file per coefficient and a basis image.
-    gpu = storm.add_gpu_textures(cbtf, textures, levels, texels=texels)
+    gpu = storm.add_gpu_textures(cbtf, textures, levels, texels=texels,
+                                 rendering_matrix=rendering_matrix(cbtf, options)[1])
     if gpu is not None:
         # Schema 4: the basis page (integer codes) listed after the coefficient pages.
         basis, coefficients = gpu.tables, list(gpu.pages) + ([gpu.basis] if gpu.basis else [])
@@ -472,13 +481,32 @@ def _author_payload(stage, result: PackageResult, names: _Names, provenance: str
                                         wrap=wrap, fit_errors=result.fit_errors)
     gpu = None
     if result.gpu is not None:
+        from pxr import Sdf
+
         g = result.gpu
+        space, matrix = rendering_matrix(cbtf, result.options)
         gpu = storm.author_gpu_preview(stage, material, textures.texture(g.tables, names.textures),
                                        [p and textures.texture(p, names.textures) for p in g.slots()], g.k, wrap,
-                                       g.first_packs, white_level_of(cbtf.info))
+                                       g.first_packs, white_level_of(cbtf.info), matrix)
+        # Issue 40: the space the BTF shaders return (the data stay in btf:colorSpace).
+        material.GetPrim().CreateAttribute("btf:renderingColorSpace", Sdf.ValueTypeNames.String, custom=False,
+                                           variability=Sdf.VariabilityUniform).Set(space)
     prim = author_mesh(stage, f"/{names.root}/geo/{valid_name(result.mesh.name)}", result.mesh)
     UsdShade.MaterialBindingAPI.Apply(prim).Bind(material)
     return coefficients, gpu
+
+
+def rendering_matrix(cbtf: CompressedBTF, options: PackageOptions) -> tuple[str, np.ndarray]:
+    """(OCIO name of ``options.rendering_space``, (3, 3) float64 matrix from ``cbtf``'s working
+    space to it: :func:`usdbtf.color.linear_matrix` in the BTF's OCIO config).  UsageError
+    naming ``--rendering-space`` for a space that is unknown or not a matrix away."""
+    try:
+        name = rendering_space(options.rendering_space, cbtf.ocio_config)
+        return name, linear_matrix(cbtf.working_space, name, cbtf.ocio_config)
+    except UsageError:
+        raise
+    except BTFError as exc:
+        raise UsageError(f"--rendering-space {options.rendering_space!r}: {exc}") from None
 
 
 def _author_root(stage, result: PackageResult, names: _Names, root_name: str, coefficients: list,

@@ -58,8 +58,9 @@ from ...imageio import read_rgba
 from ...photometry import white_level_of
 
 __all__ = ["plugin_dir_resources", "GPU_DIR", "STORM_SURFACE", "GpuTextures", "add_gpu_textures",
-           "author_gpu_preview", "lod_tables_name", "lod_basis_name", "basis_node", "lod_mtlx_name", "author_materialx_preview",
-           "materialx_document", "storm_shader", "layout_from_asset", "read_rgba"]
+           "author_gpu_preview", "rendering_rows", "lod_tables_name", "lod_basis_name", "basis_node", "lod_mtlx_name",
+           "author_materialx_preview", "materialx_document", "storm_shader", "rendering_space_of", "to_rendering_space",
+           "layout_from_asset", "read_rgba"]
 
 GPU_DIR = "gpu"
 STORM_SURFACE = "StormSurface"
@@ -114,14 +115,16 @@ def basis_node() -> str:
     return f"Storm{shaders.page_name(BASIS_PAGE).capitalize()}"
 
 
-def add_gpu_textures(cbtf: CompressedBTF, textures, lods=(), *, texels=None) -> GpuTextures | None:
+def add_gpu_textures(cbtf: CompressedBTF, textures, lods=(), *, texels=None,
+                     rendering_matrix=None) -> GpuTextures | None:
     """Encode tables.exr, the coefficient pages and the MaterialX document (in memory) into
     ``textures`` (a :class:`~usdbtf.usd.asset.textures.TextureSet`, under ``gpu/``), pages ending
     where the levels of detail ``lods`` (basis counts) end; None (nothing added) for a BTF
     whose sampling is not every light at every view, which the preview cannot interpolate.
     ``texels`` (a :class:`usdbtf.quilt.texels.QuiltTexels` of ``cbtf``): the packs are made
     from its compact source texels and gathered through its index (the same codes, without
-    the whole quilt-sized set of packs in memory)."""
+    the whole quilt-sized set of packs in memory).  ``rendering_matrix``: (3, 3) working ->
+    rendering space (:func:`rendering_rows`), given to the MaterialX documents' node."""
     import numpy as np
 
     from ...compress.format import cross_layout
@@ -170,7 +173,8 @@ def add_gpu_textures(cbtf: CompressedBTF, textures, lods=(), *, texels=None) -> 
     for n, name in [(layout.k, MTLX_FILE), *((n, lod_mtlx_name(n)) for n in lod_tables)]:
         slots = [None if f is None else Path(f).name for f in made.slots(n)]
         table = tables if n == layout.k else lod_tables[n]
-        textures.add_file(f"{GPU_DIR}/{name}", materialx_document(Path(table).name, slots, n, white).encode())
+        textures.add_file(f"{GPU_DIR}/{name}", materialx_document(Path(table).name, slots, n, white,
+                                                                  rendering_matrix).encode())
     return made
 
 
@@ -179,10 +183,12 @@ def lod_mtlx_name(n: int) -> str:
     return f"{Path(MTLX_FILE).stem}_k{n}.mtlx"
 
 
-def materialx_document(tables: str, pages: list, k: int, white_level: float = 1.0) -> str:
+def materialx_document(tables: str, pages: list, k: int, white_level: float = 1.0, rendering_matrix=None) -> str:
     """A MaterialX document instancing usdbtf_surface on the given texture files (paths
     relative to the document; ``pages`` per page slot, None for an unbound slot), bound to a
-    surfacematerial named BtfMaterial; ``white_level``: the BTF's W (:mod:`usdbtf.photometry`)."""
+    surfacematerial named BtfMaterial; ``white_level``: the BTF's W (:mod:`usdbtf.photometry`);
+    ``rendering_matrix``: (3, 3) working -> rendering space (None: the node's identity
+    default, working-space values; :func:`rendering_rows`)."""
     lines = ['<?xml version="1.0"?>',
              "<!-- usdbtf: the packaged BTF as MaterialX; needs plugin/usdBtf/resources/materialx on the"
              " library search path (PXR_MTLX_PLUGIN_SEARCH_PATHS for Hydra). -->",
@@ -192,8 +198,10 @@ def materialx_document(tables: str, pages: list, k: int, white_level: float = 1.
     lines += [f'    <input name="{shaders.page_name(p)}" type="filename" value="{name}" />'
               for p, name in enumerate(pages) if name is not None]
     lines += [f'    <input name="basisCount" type="integer" value="{k}" />',
-              f'    <input name="whiteLevel" type="float" value="{float(white_level)!r}" />',
-              "  </usdbtf_surface>",
+              f'    <input name="whiteLevel" type="float" value="{float(white_level)!r}" />']
+    lines += [f'    <input name="{name}" type="vector3" value="{", ".join(repr(v) for v in row)}" />'
+              for name, row in rendering_rows(rendering_matrix)]
+    lines += ["  </usdbtf_surface>",
               '  <surfacematerial name="BtfMaterial" type="material">',
               '    <input name="surfaceshader" type="surfaceshader" nodename="btf" />',
               "  </surfacematerial>",
@@ -213,17 +221,27 @@ def _texture(stage, path, texture, reader, wrap: str):
     return uv_texture(stage, path, texture, reader, wrap, ("r", Sdf.ValueTypeNames.Float))
 
 
+def rendering_rows(matrix) -> list[tuple[str, tuple]]:
+    """[(shader input name, row as 3 floats)] of the working -> rendering space ``matrix``
+    ((3, 3), :func:`usdbtf.color.linear_matrix`) as the shaders take it
+    (:data:`usdbtf.gpu.shaders.RENDERING_INPUTS`); None: []."""
+    if matrix is None:
+        return []
+    return [(name, tuple(float(v) for v in row)) for name, row in zip(shaders.RENDERING_INPUTS, matrix)]
+
+
 def author_gpu_preview(stage, material, tables, pages: list, k: int, wrap: str,
-                       first_packs: list, white_level: float = 1.0) -> tuple[str, list, int]:
+                       first_packs: list, white_level: float = 1.0, rendering_matrix=None) -> tuple[str, list, int]:
     """Author the Storm shader network in ``material`` (a UsdShade.Material on ``stage``, whose
     layer sits next to the texture folder) on the GPU textures ``tables`` and ``pages`` (per page
     slot, None where unbound: :meth:`GpuTextures.slots`)
     (:class:`~usdbtf.usd.asset.textures.Texture`\\ s of :func:`add_gpu_textures`' files; the tables
     hold ``k`` basis vectors; ``wrap`` for the page nodes, which the shader reads texel by
     texel; ``first_packs``: the first pack of each page; ``white_level``: the BTF's W,
-    :mod:`usdbtf.photometry`).  Returns (the shader's name under the
-    material, ``first_packs``, k) for the ``lod`` variants (:mod:`usdbtf.usd.asset.lod`)."""
-    from pxr import Sdf, UsdShade
+    :mod:`usdbtf.photometry`; ``rendering_matrix``: (3, 3) working -> rendering space, the
+    shader's ``renderingMatrix*`` rows, :func:`rendering_rows`; None: unauthored, identity).  Returns (the
+    shader's name under the material, ``first_packs``, k) for the ``lod`` variants (:mod:`usdbtf.usd.asset.lod`)."""
+    from pxr import Gf, Sdf, UsdShade
 
     from .fallback import st_reader
 
@@ -240,6 +258,9 @@ def author_gpu_preview(stage, material, tables, pages: list, k: int, wrap: str,
     data_inputs[1].Set(1.0)
     data_inputs.append(surface.CreateInput("whiteLevel", Sdf.ValueTypeNames.Float))
     data_inputs[-1].Set(float(white_level))
+    for name, row in rendering_rows(rendering_matrix):
+        data_inputs.append(surface.CreateInput(name, Sdf.ValueTypeNames.Color3f))     # the Sdr definitions' type
+        data_inputs[-1].Set(Gf.Vec3f(*row))
     tex = _texture(stage, mpath.AppendChild(TABLES_NODE), tables, reader, "clamp")
     data_inputs.append(surface.CreateInput("tables", Sdf.ValueTypeNames.Float))
     data_inputs[-1].ConnectToSource(tex.ConnectableAPI(), "r")
@@ -258,15 +279,16 @@ def author_gpu_preview(stage, material, tables, pages: list, k: int, wrap: str,
 
 
 def author_materialx_preview(stage, material_path: str, tables: str, pages: list[str], k: int,
-                             white_level: float = 1.0):
+                             white_level: float = 1.0, rendering_matrix=None):
     """A Material at ``material_path`` whose ``outputs:mtlx:surface`` is the usdbtf node in
     Hydra's MaterialX path: ``ND_surface`` <- ``ND_usdbtf_bsdf`` (the tables and pages as
     asset inputs, ``pages`` per page slot, None where unbound: :meth:`GpuTextures.slots`, ``texcoord`` from ``ND_texcoord_vector2``, ``basisCount`` = ``k``).  Storm
     25.08 generates and compiles it (``tests/test_storm.py``); the ``usdbtf_surface`` node
     graph cannot be used there: Storm's MaterialX code defines a macro named after each texture
-    input, which rewrites the graph function's parameters of the same name.  Returns the
-    UsdShade.Material."""
-    from pxr import Sdf, UsdShade
+    input, which rewrites the graph function's parameters of the same name.  ``rendering_matrix``:
+    (3, 3) working -> rendering space (:func:`rendering_rows`; None: the node's identity).
+    Returns the UsdShade.Material."""
+    from pxr import Gf, Sdf, UsdShade
 
     material = UsdShade.Material.Define(stage, material_path)
     bsdf = UsdShade.Shader.Define(stage, f"{material_path}/BtfBsdf")
@@ -277,6 +299,8 @@ def author_materialx_preview(stage, material_path: str, tables: str, pages: list
             bsdf.CreateInput(shaders.page_name(p), Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(page))
     bsdf.CreateInput("basisCount", Sdf.ValueTypeNames.Int).Set(int(k))
     bsdf.CreateInput("whiteLevel", Sdf.ValueTypeNames.Float).Set(float(white_level))     # usdbtf.photometry
+    for name, row in rendering_rows(rendering_matrix):
+        bsdf.CreateInput(name, Sdf.ValueTypeNames.Vector3f).Set(Gf.Vec3f(*row))
     st = UsdShade.Shader.Define(stage, f"{material_path}/TexCoord")
     st.CreateIdAttr("ND_texcoord_vector2")
     bsdf.CreateInput("texcoord", Sdf.ValueTypeNames.Float2).ConnectToSource(
@@ -299,6 +323,38 @@ def storm_shader(material):
         return None
     sources = output.GetConnectedSources()[0] if output.HasConnectedSource() else []
     return UsdShade.Shader(sources[0].source.GetPrim()) if sources else None
+
+
+def rendering_space_of(asset) -> tuple[str, str, str | None]:
+    """(working space, rendering space, OCIO config) of a packaged ``asset``'s first BTF
+    Material: the space its data are in (``btf:colorSpace``) and the one its shaders return
+    (``btf:renderingColorSpace``; unauthored, an asset packaged before issue 40's colour fix:
+    the working space, as its shaders' identity rows return)."""
+    from pxr import Usd
+
+    from ..material import btf_materials
+
+    stage = Usd.Stage.Open(str(asset))
+    material = btf_materials(stage)[0]
+    get = lambda name: (material.GetAttribute(name).Get() if material.GetAttribute(name) else None)  # noqa: E731
+    working = get("btf:colorSpace") or "ACEScg"
+    return working, get("btf:renderingColorSpace") or working, get("btf:ocioConfig") or None
+
+
+def to_rendering_space(asset, rgb, *, back: bool = False):
+    """(..., 3 or 4) float32: working-space values of ``asset``'s BTF (a reconstruction, a
+    ``usdbtf render`` frame) taken through OCIO to the space its shaders return
+    (:func:`rendering_space_of`; linear Rec.709 for an asset packaged now), alpha kept, so a
+    Storm or Cycles frame of the asset compares with them channel by channel; ``back``: the
+    other way, a Storm or Cycles frame of it to its working space (``usdbtf render``'s)."""
+    import numpy as np
+
+    from ...color import processor
+
+    working, rendering, config = rendering_space_of(asset)
+    rgb = np.asarray(rgb, np.float32)
+    proc = processor(rendering, working, config) if back else processor(working, rendering, config)
+    return np.concatenate([proc.apply(np.ascontiguousarray(rgb[..., :3])), rgb[..., 3:]], axis=-1)
 
 
 def layout_from_asset(asset, *, lod: str | None = None):

@@ -255,6 +255,16 @@ float btfRadiancePerIrradiance(float whiteLevel)
     return 1.0 / (BTF_PI * max(whiteLevel, 1e-30));
 }
 
+// Working space -> the renderer's rendering space (btf:renderingColorSpace, issue 40): the rows of
+// the matrix usdbtf package computed with OCIO (linear Rec.709 by default, what UsdPreviewSurface
+// colours and Storm's, Blender's and MaterialX's frames mean).  Applied after the inverse curve,
+// per light (a light's colour is in the rendering space); the identity rows (an asset packaged
+// before it) return working-space values, as such an asset always rendered.
+vec3 btfToRendering(vec3 working, vec3 rowR, vec3 rowG, vec3 rowB)
+{
+    return vec3(dot(rowR, working), dot(rowG, working), dot(rowB, working));
+}
+
 // One light's working-space radiance at texture coordinate st from the first k basis
 // vectors: per group of 4 vectors, the 3 x 3 basis rows blended with weights summing to 1
 // (in the working domain) dotted with the group's 3 packs, then the colour matrix and the
@@ -337,7 +347,7 @@ vec3 btfShadeLight(sampler2D btfTables, BTF_PAGE_PARAMS, ivec3 viewIndex, vec3 v
 // lightdirection is for OSL (genosl), which cannot be called per light; GLSL is.
 void mx_usdbtf_bsdf(ClosureData closureData, sampler2D btfTables, BTF_PAGE_PARAMS, vec2 texcoord, int basisCount,
                float weight, vec3 normal, vec3 tangent, vec3 bitangent, vec3 lightdirection, float whiteLevel,
-               inout BSDF bsdf)
+               vec3 renderingMatrixR, vec3 renderingMatrixG, vec3 renderingMatrixB, inout BSDF bsdf)
 {
     bsdf.throughput = vec3(0.0);
     bsdf.response = vec3(0.0);
@@ -350,6 +360,8 @@ void mx_usdbtf_bsdf(ClosureData closureData, sampler2D btfTables, BTF_PAGE_PARAM
     btfViewLookup(btfTables, btfLocal(frame, closureData.V), viewIndex, viewWeight);
     int k = basisCount > 0 ? basisCount : 1 << 20;
     bsdf.response = weight * closureData.occlusion
-                  * btfShadeLight(btfTables, BTF_PAGE_ARGS, viewIndex, viewWeight, btfLocal(frame, closureData.L),
-                                  btfRadiancePerIrradiance(whiteLevel), texcoord, k);
+                  * btfToRendering(btfShadeLight(btfTables, BTF_PAGE_ARGS, viewIndex, viewWeight,
+                                                 btfLocal(frame, closureData.L), btfRadiancePerIrradiance(whiteLevel),
+                                                 texcoord, k),
+                                   renderingMatrixR, renderingMatrixG, renderingMatrixB);
 }
