@@ -239,7 +239,8 @@ def exr_dwa_pages(stored: np.ndarray, level: float, scale: float, H: int, W: int
             img = (planes / scale).astype(np.float16).astype(np.float32).reshape(-1, W, 1)
             data = encode_image(img, "exr", color_space="data", attributes={"compression": f"dwaa:{level:g}"})
             total += len(data)
-            dec = decode_image(data).astype(np.float64).reshape(len(planes), -1)
+            dec = decode_image(data)
+            dec = dec.reshape(dec.shape[0], dec.shape[1], -1)[..., 0].astype(np.float64).reshape(len(planes), -1)
             out[a:a + PAGE_PLANES, :, c] = dec * scale
     return total, out
 
