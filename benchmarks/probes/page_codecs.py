@@ -10,24 +10,28 @@ measures, at the folder's k and basis:
 
 * the added squared error of any coding of the coefficients, in coefficient space: for a coding
   error D (k, 3P) in working-space colour, ``trace(D^T G D)`` with G = U^T U the de-quantised basis's
-  Gram matrix (U is orthonormal to the quantiser's precision: the probe prints max |G - I|, so
-  coefficient-space error is the working-domain error of the reconstruction, the least-squares
-  residual being orthogonal to it);
-* lossless layouts of the same codes (equal error by construction): today's RGBA packs through the
-  shipped encoder (``packs.encode_png_page``: the baseline, measured in the same run), and through a
-  PNG writer of this probe (zlib level 9, the best of six row-filter choices and two strategies); one
-  gray 128 x 512 PNG per pack (the four planes stacked); RGB of one coefficient's three colour planes;
-  gray planes at the lowest PNG bit depth (1/2/4/8) that holds each plane's codes;
+  Gram matrix (U is orthonormal only to the basis quantiser's precision: the probe prints G's diagonal
+  range and largest off-diagonal, and uses G exactly; the least-squares residual is orthogonal to any
+  coding error, so this is the working-domain error the coding adds to the reconstruction);
+* lossless layouts of the same codes (equal error by construction, ``--layouts``): RGBA packs as the
+  asset encoded pages before issue 39's page encoder (OIIO/libpng level 6, the smaller of adaptive and
+  no filter: the baseline, measured in the same run) and as ``packs.encode_png_page`` encodes them now
+  (adaptive rows, zlib Z_RLE); and, each the best of 6 row-filter choices x 4 zlib strategies at level 9
+  (``imageio.encode_png_rle``): RGBA packs; one gray 128 x 512 PNG per pack (the four planes stacked);
+  RGB of one coefficient's three colour planes; gray planes at the lowest PNG bit depth (1/2/4/8) that
+  holds each plane's codes;
+* the packaged asset's own PNG pages and basis pages (FOLDER-asset, when present) re-encoded by
+  ``packs.encode_png_page``: the same pixels, the bytes before and now;
 * the uniform quantiser's step moved (``--steps``, times the folder's step) with the shipped PNG: the
   curve a lossy codec must beat at equal added error;
 * lossy gray JPEG (Pillow/libjpeg-turbo, baseline, optimised Huffman, no subsampling: one channel)
   with a flat quantisation table (MSE-optimal for an orthonormal DCT) per page of 16 planes of one
   colour channel, each plane mapped to 8 bits at step ``q / Q`` (Q the table's value), so the DCT-domain
   step is the target step ``q``; planes re-quantised from the float coefficients;
-* OpenEXR DWAA half pages (one ``Y`` channel: DWA's lossy channel) at a few compression levels.
+* OpenEXR DWAA half pages (one channel, values in step units) at a few compression levels.
 
 Bytes are per pack / per plane file (headers included); the asset's pages hold several packs per
-PNG stream (2.4-3.5 % fewer bytes than per-pack files).  With ``--evaluate`` the baseline and the
+PNG stream (the run-length pages measured 1.02x the per-pack files).  With ``--evaluate`` the baseline and the
 JPEG point nearest the baseline's error are also converted to the paper's metrics (percent error on
 the 8-bit sRGB values and in scene-linear ACEScg, every ``--stride``-th sample) as
 ``benchmarks/bench_issue16.py`` computes them.
