@@ -173,3 +173,23 @@ def test_shipped_basis_bytes_are_the_basis_page_file(made):
     shipped = packs.shipped_basis_bytes(cbtf)
     assert shipped == packs.basis_page_bytes(cbtf) == (made[1] / "basis.png").stat().st_size
     assert shipped < packs.basis_block_bytes(packs.basis_codes_group_major(cbtf, cbtf.k))
+
+
+def test_asset_pages_are_smaller_than_libpng_level_6_with_the_same_pixels(made):
+    """The asset's page encoder (``encode_png_page``: adaptive rows, zlib run-length; issue 39)
+    against the one it replaced (OIIO/libpng level 6, the smaller of adaptive and no filter) on
+    the asset's own pages and basis page: fewer bytes in all, the pages' pixels read back."""
+    from usdbtf.imageio import encode_png_smallest, read_rgba
+    from usdbtf.usd.asset.textures import png_as_data
+
+    new = old = 0
+    for path in sorted(made[1].glob("page*.png")) + [made[1] / "basis.png"]:
+        pixels = read_rgba(path)
+        data = packs.encode_png_page(pixels)
+        # byte for byte what the packager wrote (in its worker processes): deterministic, and the
+        # file rate control measures
+        assert png_as_data(data) == path.read_bytes(), path.name
+        assert len(data) + packs.PNG_DATA_CHUNK_BYTES == path.stat().st_size
+        new += len(data)
+        old += len(encode_png_smallest(pixels, color_space="data", level=6, attributes={"oiio:UnassociatedAlpha": 1}))
+    assert new < 0.97 * old, (new, old)

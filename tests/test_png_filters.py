@@ -1,5 +1,7 @@
 """The asset's PNGs choose their filter (issue 39): the smaller encoding, the same pixels; a map
 named ".jpg" is a JPEG, read back as what a reader decodes."""
+import os
+
 import usdbtf  # noqa: F401  (before numpy)
 import numpy as np
 
@@ -57,7 +59,6 @@ def test_a_jpeg_map_is_read_back_as_its_decoded_pixels():
     """``MAP_FILES`` names choose the encoding (issue 39): a ".jpg" map is a 4:4:4 JPEG and
     ``shipped_pixels`` (what the fit's error as shipped is measured on) returns what a reader
     decodes from it -- close to, not equal to, the pixels -- while PNG maps come back unchanged."""
-    import os
 
     from usdbtf.imageio import memory_file, read_info
     from usdbtf.usd.asset import fallback
@@ -77,3 +78,39 @@ def test_a_jpeg_map_is_read_back_as_its_decoded_pixels():
     with memory_file() as (fd, path):
         os.write(fd, blob)
         assert read_info(path).color_space == "srgb_rec709_scene"   # the colour encoding is declared
+
+
+def _laplacian_codes(rng, shape, scale):
+    """Noise-like integer codes about mid-range: a late coefficient's plane."""
+    return np.clip(np.rint(rng.laplace(128.0, scale, shape)), 0, 255).astype(np.uint8)
+
+
+def test_run_length_png_reads_back_exactly_for_every_layout_and_filter(monkeypatch):
+    """``encode_png_rle`` (the asset's pages, issue 39) is a PNG any reader decodes to the same
+    codes: gray, gray-alpha, RGB, RGBA (alpha unassociated: not premultiplied), 1/2/4-bit gray,
+    every row filter, and images filtered in several row blocks (atlas pages)."""
+    import OpenImageIO as oiio
+
+    import usdbtf.imageio as imageio
+    from usdbtf.imageio import encode_png_rle
+
+    rng = np.random.default_rng(3)
+    cases = [(_laplacian_codes(rng, (19, 23, c), 6.0), 8) for c in (1, 2, 3, 4)]
+    cases.append((_laplacian_codes(rng, (19, 23), 20.0), 8))
+    cases += [(rng.integers(0, 2**b, (19, 23)).astype(np.uint8), b) for b in (1, 2, 4)]
+    cases[3][0][0, 0] = (7, 200, 13, 0)              # zero alpha beside colour: must not be cleared
+    monkeypatch.setattr(imageio, "_PNG_ROWS_BYTES", 50)     # 1-2 rows per block: the "up" row crosses blocks
+    for pixels, bits in cases:
+        for row_filter in ("adaptive", 0, 1, 2, 3, 4):
+            data = encode_png_rle(pixels, row_filter=row_filter, bit_depth=bits)
+            with imageio.memory_file() as (fd, path):
+                os.write(fd, data)
+                spec = oiio.ImageSpec()
+                spec.attribute("oiio:UnassociatedAlpha", 1)
+                image = oiio.ImageInput.open(str(path), spec)
+                back = image.read_image("uint8")
+                image.close()
+            if bits < 8:
+                back = back // (255 // (2**bits - 1))          # readers scale low bit depths to 8 bits
+            assert np.array_equal(back.reshape(pixels.shape), pixels), (pixels.shape, bits, row_filter)
+

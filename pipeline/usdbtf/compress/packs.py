@@ -8,14 +8,14 @@ packs and nothing else.  This module sits in ``compress`` so that rate control c
 the bytes it ships without importing ``gpu`` (layers: docs/architecture.md).
 
 What :func:`shipped_pack_bytes` and :func:`shipped_basis_bytes` measure (issue 39): each pack
-encoded on its own exactly as the asset encodes a page (8-bit: RGBA PNG, compression level 6,
-unassociated alpha; 16-bit: float32 code / 65535 and half: as they are, OpenEXR zip), and the
+encoded on its own exactly as the asset encodes a page (8-bit: RGBA PNG, :func:`encode_png_page`; 16-bit: float32 code / 65535 and half: as they are, OpenEXR zip), and the
 basis codes as the asset ships them: integer codes as the 8-bit basis page, the asset's
 ``gpu/basis.png`` byte for byte (schema 4, :func:`basis_page`); half codes group-major as
 float32 OpenEXR zip in rows of the tables' width, as ``gpu/tables.exr`` holds them.  The packs
 are a probe, not the asset's files: the asset's pages hold several packs each (one PNG stream
 per page; issue 39 measured per-pack PNG totals within 2.4..3.5 % of the paged files on
-metal_flakes).
+metal_flakes with libpng level 6, and the paged files 1.02x the per-pack total with the run-length
+encoder; rate control calibrates the ratio by packaging).
 """
 from __future__ import annotations
 
@@ -98,13 +98,14 @@ def coefficient_packs(cbtf, k: int, breaks: list[int]) -> tuple[list, np.ndarray
 
 
 def encode_png_page(pixels: np.ndarray) -> bytes:
-    """An 8-bit RGBA page or pack (H, W, 4) as the asset's PNG: level 6, the smaller of the
-    :data:`~usdbtf.imageio.PNG_FILTERS` encodings (:func:`~usdbtf.imageio.encode_png_smallest`).
-    Alpha is the fourth coefficient layer, not coverage: OIIO must not un-premultiply RGB by it
-    (Storm's PNG reader takes the file's values as they are)."""
-    from ..imageio import encode_png_smallest
+    """An 8-bit RGBA page or pack (H, W, 4) as the asset's PNG: libpng's adaptive row filter
+    and zlib's run-length strategy (:func:`~usdbtf.imageio.encode_png_rle`; 0.908x the bytes of
+    the earlier OIIO level-6 encoding on the pages and basis pages of two paper-scale assets,
+    the same pixels).  Alpha is the fourth coefficient layer, not coverage: stored as it is,
+    unassociated (Storm's PNG reader takes the file's values as they are)."""
+    from ..imageio import encode_png_rle
 
-    return encode_png_smallest(pixels, color_space="data", level=6, attributes={"oiio:UnassociatedAlpha": 1})
+    return encode_png_rle(pixels)
 
 
 def _encode_pack(pixels: np.ndarray) -> bytes:
