@@ -27,6 +27,14 @@ compressed folder's provenance and ``build``'s signatures.
 
 OpenCV's SIMD dispatch (colour transforms, table lookups) was checked not to change a bit
 (``OPENCV_CPU_DISABLE`` down to SSE4.2 gave the same files), so it is not pinned.
+
+One more library decides bytes without computing a float: **zlib**.  The asset's coefficient
+and basis pages are deflated by Python's ``zlib`` module (:func:`usdbtf.imageio.encode_png_rle`),
+which links the zlib of the Python build (the system's ``libz`` for a distribution's Python).
+Another zlib may deflate other bytes for the same settings (zlib-ng's compatibility library,
+which some newer distributions ship as ``libz``, does).  Rate control measures those bytes, so they can
+move k too.  :func:`platform` records the runtime version, so the Dask worker check, the
+provenance and ``build``'s signatures name a different one; the pixels are the same either way.
 """
 from __future__ import annotations
 
@@ -54,7 +62,7 @@ OPENBLAS_KERNEL_FLAGS = {"Haswell": frozenset({"avx2", "fma"}), "Zen": frozenset
                          "SandyBridge": frozenset({"avx"}), "Nehalem": frozenset({"sse4_2", "ssse3"}),
                          "Prescott": frozenset({"pni"})}
 #: The keys of :func:`platform`, with the words messages use for them.
-PLATFORM_NAMES = {"blas": "BLAS", "blas_kernel": "BLAS kernel", "numpy_simd": "numpy SIMD"}
+PLATFORM_NAMES = {"blas": "BLAS", "blas_kernel": "BLAS kernel", "numpy_simd": "numpy SIMD", "zlib": "zlib"}
 #: The variables that choose the platform when the libraries load.
 PLATFORM_VARIABLES = ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES")
 #: The opt-out: ``USDBTF_NUMERIC=native`` leaves the libraries' choices alone.
@@ -125,7 +133,10 @@ def pin(environ=None) -> dict[str, str]:
 def platform() -> dict[str, str]:
     """What decides the bits of this process's arithmetic, beside library versions:
     {"blas": library and version, "blas_kernel": the kernel it runs, "numpy_simd": the
-    widest SIMD level numpy dispatches to}.  Loads numpy."""
+    widest SIMD level numpy dispatches to, "zlib": the runtime version of the zlib that deflates
+    the asset's pages}.  Loads numpy."""
+    import zlib
+
     import numpy as np
 
     blas, kernel = "unknown", "unknown"
@@ -133,7 +144,7 @@ def platform() -> dict[str, str]:
     if lib is not None:
         blas = f"{lib.get('internal_api', '?')} {lib.get('version', '?')}"
         kernel = str(lib.get("architecture") or "unknown")
-    return {"blas": blas, "blas_kernel": kernel, "numpy_simd": _numpy_simd(np)}
+    return {"blas": blas, "blas_kernel": kernel, "numpy_simd": _numpy_simd(np), "zlib": zlib.ZLIB_RUNTIME_VERSION}
 
 
 def _numpy_blas(np) -> dict | None:
