@@ -19,7 +19,7 @@ memo      whether converting each distinct (r, g, b) code triple of a projection
           per value" lever of issue 42): distinct triples per tile, differing values, ulps; and
           whether converting the tile in cache-sized pieces of 16 rows does (and its thread CPU).
 
-    .venv/bin/python benchmarks/probes/k150_time_budget.py INPUT [--workers 2]
+    .venv/bin/python benchmarks/probes/k150_time_budget.py INPUT [--workers 2] [--no-memo]
 
 Nothing is kept (the output folder is written to a temporary folder, timed, and removed).  On a shared machine read the CPU columns, not wall time.
 """
@@ -132,6 +132,9 @@ class Ledger:
 
         projection.TileProjector._accumulate = timed
         convert.Conversion.__call__ = self.thread_timed("curve conversion", convert.Conversion.__call__)
+        if hasattr(convert, "TripleConversion"):        # issue 42, third session: the memo's own __call__
+            convert.TripleConversion.__call__ = self.thread_timed("curve conversion",
+                                                                  convert.TripleConversion.__call__)
         # projection.py calls color.mix_rgb / color.mix_channel through the module: patch there.
         color.mix_rgb = self.thread_timed("colour mix", color.mix_rgb)
         color.mix_channel = self.thread_timed("colour mix", color.mix_channel)
@@ -180,6 +183,7 @@ def main(argv=None) -> int:  # noqa: C901 (one report, printed in order)
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("input")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--no-memo", action="store_true", help="skip the memo table (the last section)")
     args = ap.parse_args(argv)
     print(format_machine(machine_info()))
     btf = open_btf(args.input)
@@ -237,6 +241,8 @@ def main(argv=None) -> int:  # noqa: C901 (one report, printed in order)
         print(f"| {name} | {parts[name]:.2f} |")
     print(f"| GEMMs and accumulation | {gemm:.2f} |\n| all tiles | {parts['tile total']:.2f} |")
 
+    if args.no_memo:
+        return 0
     print("\nmemo of the conversion per distinct code triple (srgb domain), per tile:\n")
     print("| first sample | block | texels x samples | distinct triples | memo: values that differ | memo: max ulps "
           "| 16-row pieces: values that differ | whole tile ms | 16-row pieces ms |\n|---|---|---|---|---|---|---|---|---|")
