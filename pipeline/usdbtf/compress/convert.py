@@ -84,10 +84,12 @@ class Conversion:
 
 
 def _lazy_zeros(shape, dtype) -> np.ndarray:
-    """Zeros in an anonymous memory map: pages cost memory only once written (a 2^24-entry
-    table of which a material writes a few thousand pages)."""
+    """Zeros in a private anonymous memory map: pages cost memory only once written (a
+    2^24-entry table of which a material writes a few thousand pages); private, so a forked
+    worker's writes stay its own."""
     nbytes = int(np.prod(shape)) * np.dtype(dtype).itemsize
-    return np.frombuffer(mmap.mmap(-1, max(nbytes, 1)), dtype, int(np.prod(shape))).reshape(shape)
+    area = mmap.mmap(-1, max(nbytes, 1), flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS)
+    return np.frombuffer(area, dtype, int(np.prod(shape))).reshape(shape)
 
 
 class TripleSlots:
