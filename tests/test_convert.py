@@ -193,6 +193,19 @@ def test_memo_beyond_its_capacity_and_shared_between_domains():
     assert slots.count == 5
 
 
+def test_memo_learned_in_a_forked_worker_stays_the_workers():
+    """The memo's tables are private maps: triples a forked worker numbers do not appear in
+    the parent's table (a shared map would give the parent numbers its own count never made)."""
+    _, conv = _triple_conversion(Domain("srgb"))
+    conv(np.zeros((1, 3), np.uint8))
+    pid = os.fork()
+    if pid == 0:                                   # the child: learn 200 more triples, exit
+        conv(np.arange(600, dtype=np.uint16).astype(np.uint8).reshape(1, 600))
+        os._exit(0)
+    os.waitpid(pid, 0)
+    assert conv.slots.count == 1 and np.count_nonzero(conv.slots.table) == 1
+
+
 def test_sources_memoise_8_bit_codes_with_a_matrix_in_a_curved_domain(tmp_path):
     """An 8-bit sRGB input (primaries matrix into ACEScg) converts through the memo in every
     curved domain, with one numbering shared by the candidates; the linear domain keeps the
