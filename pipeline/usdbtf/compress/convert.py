@@ -16,8 +16,10 @@ from the rest: only the shape of the arrays a step sees decides which).
 case) go through :class:`TripleConversion` instead: the converted value of a texel is a
 function of its three codes alone, computed once per distinct code triple (a material's
 10,800 paper-scale images hold 0.5-45 thousand of the 16.7 million; a projection tile of
-524,288 texels about 20 thousand) and gathered from a table (issue 42: 2.6 -> 1.4 ms a
-tile).  Its matrix is applied per triple in float64 (:meth:`TripleConversion.triples`), so a
+524,288 texels about 20 thousand) and gathered from a table (issue 42: the paper-scale
+projection's conversion 2.35 -> 1.20 CPU-s, ``benchmarks/probes/k150_ab.py``; what a material
+holds: ``benchmarks/probes/distinct_triples.py``).  Its matrix is applied per triple in
+float64 (:meth:`TripleConversion.triples`), so a
 value's bits never depend on where it sits in an array, on the CPU's SIMD width or on the
 BLAS kernel.
 """
@@ -101,7 +103,7 @@ class TripleSlots:
     Attributes
     ----------
     table : (2^24,) int32, the number of each packed triple (0: not met).  64 MiB of address
-        space, of which only the written pages take memory (paper-scale materials: 3-17 MB).
+        space, of which only the written pages take memory (paper-scale materials: 1-17 MB).
     codes : (cap + 1, 3) uint8, triple number -> its codes (row 0 unused).
     count : triples numbered so far (at most ``cap``; later ones are converted where met).
     """
