@@ -46,7 +46,7 @@ class Scratch(threading.local):
 
     def get(self, name: str, shape, dtype=np.float32) -> np.ndarray:
         buffers = self.__dict__.setdefault("buffers", {})
-        size = math.prod(shape)                 # (np.prod: 10 us a call, a fifth of a small piece's time)
+        size = math.prod(shape)                 # (np.prod costs more than a small piece's table lookups)
         buf = buffers.get((name, dtype))
         if buf is None or buf.size < size:
             buf = buffers[(name, dtype)] = np.empty(size, dtype)
@@ -158,7 +158,7 @@ class TripleConversion(Conversion):
         self.slots = slots if slots is not None else TripleSlots()
         self._m64 = np.asarray(matrix, np.float32).astype(np.float64)
         # Values per triple number, 4 floats a row (r, g, b, unused): a 16-byte row is one
-        # element of a complex128 view, which numpy's take gathers fast (12-byte rows: 3x slower).
+        # element of a complex128 view, which numpy's take gathers fast (12-byte rows take its slow path).
         self._values = _lazy_zeros((self.slots.cap + 1, 4), np.float32)
         self._rows = self._values.view(np.complex128).reshape(-1)
         self._filled = 1                        # values known for triple numbers < _filled
@@ -189,7 +189,7 @@ class TripleConversion(Conversion):
             out.reshape(-1, 3)[...] = self.triples(np.asarray(raw).reshape(-1, 3))
             return result
         # Pieces of about _PIECE texels: the piece's keys, numbers and gathered rows stay in
-        # the core's cache between the steps (a 512 x 1024-texel tile at once: 1.4x the time).
+        # the core's cache between the steps (a whole 512 x 1024-texel tile at once is slower).
         # Each texel's value is its triple's, so the cut changes no bit.
         n = raw.shape[1] // 3
         step = min(raw.shape[0], max(1, _PIECE // n))

@@ -168,7 +168,7 @@ def rows_apply(fn, x, out, *, rows: int = 256, into: bool = False):
     the same places on every machine).  ``out`` has ``fn(x)``'s shape and dtype; it may be
     ``x`` itself (each block reads its rows before it writes them).  ``into``: ``fn`` writes
     its rows itself, called as ``fn(rows of x, out=rows of out)`` (no fresh array per block
-    to fault in and copy: 0.45 s of a paper-scale compress's columns).  Returns ``out``."""
+    to fault in and copy).  Returns ``out``."""
     n = x.shape[0]
     if n <= rows:
         if into:
