@@ -172,6 +172,9 @@ def test_memo_values_do_not_depend_on_position_shape_or_threads():
     assert np.array_equal(_bits(conv(texels[perm].reshape(16, 3 * 256)).reshape(-1, 3)), _bits(want[perm]))
     assert np.array_equal(_bits(conv(texels[perm][:, None, :].reshape(4096, 3))), _bits(want[perm]))
     assert np.array_equal(_bits(conv(texels.reshape(8, 512, 3))), _bits(want.reshape(8, 512, 3)))   # not 2-D
+    wide = np.zeros((64, 2 * 3 * 64), np.float32)
+    assert conv(texels.reshape(64, 3 * 64), out=wide[:, ::2]) is not None          # a strided out is written
+    assert np.array_equal(_bits(wide[:, ::2].reshape(-1, 3)), _bits(want))
     _, fresh = _triple_conversion(d)
     blocks = [texels[a:a + 512].reshape(8, 3 * 64) for a in range(0, 4096, 512)]
     with ThreadPoolExecutor(4) as pool:

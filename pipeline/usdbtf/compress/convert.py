@@ -179,6 +179,9 @@ class TripleConversion(Conversion):
     def __call__(self, raw: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         if out is None:
             out = np.empty(raw.shape, np.float32)
+        if not out.flags.c_contiguous:     # the pieces write through reshaped views of out
+            out[...] = self(raw)
+            return out
         result = out
         if raw.size == 0:
             return result
