@@ -1,5 +1,7 @@
 """The projection's value conversion (issue 17): the same bits as the plain expressions, in
-reused buffers, without the slow paths it avoids; the spill's piecewise writes."""
+reused buffers, without the slow paths it avoids; the memo per code triple (issue 42):
+every texel the bits of its triple's plain conversion, wherever it sits; the spill's
+piecewise writes."""
 from __future__ import annotations
 
 import dataclasses
@@ -10,7 +12,8 @@ import pytest
 
 from usdbtf import color
 from usdbtf.compress import spill as spill_module
-from usdbtf.compress.convert import Conversion, Scratch
+from usdbtf.compress import convert as convert_module
+from usdbtf.compress.convert import Conversion, Scratch, TripleConversion, TripleSlots
 from usdbtf.compress.domain import Domain
 from usdbtf.compress.spill import Spill
 
@@ -111,6 +114,127 @@ def test_a_decode_without_matrix_fuses_into_one_table(d):
     fused = dataclasses.replace(dec, lut=d.forward(dec.lut))
     raw = np.random.default_rng(7).integers(0, 256, (64, 3 * 333), dtype=np.uint8)
     assert np.array_equal(_bits(Conversion(fused.decode_curves)(raw)), _bits(d.forward(dec.decode_curves(raw))))
+
+
+def _plain_triples(dec, d: Domain, codes: np.ndarray) -> np.ndarray:
+    """(m, 3) uint8 codes -> the memo's values as plain expressions: the table per channel,
+    the matrix in float64 (exact products, y_c = (m_c0 x_0 + m_c1 x_1) + m_c2 x_2, one rounding
+    to float32), then the plain curve."""
+    x = np.stack([dec.lut[c][codes[:, c]] for c in range(3)], axis=1).astype(np.float64)
+    m = dec.matrix.astype(np.float64)
+    y = np.stack([(m[c, 0] * x[:, 0] + m[c, 1] * x[:, 1]) + m[c, 2] * x[:, 2] for c in range(3)], axis=1)
+    return _plain_forward(d, y.astype(np.float32))
+
+
+def _triple_conversion(d: Domain, **kw) -> tuple:
+    dec = color.integer_decoder(SRGB, 8)
+    return dec, TripleConversion(dec.decode_curves, dec.matrix, d, nonnegative=True, **kw)
+
+
+@pytest.mark.parametrize("d", CURVES, ids=lambda d: d.name)
+def test_memo_per_code_triple_gives_each_texel_its_triples_plain_value(d, monkeypatch):
+    """Every texel gets the bits of its own triple's plain conversion: on strided column
+    blocks of a larger array, cut in pieces (a piece of 1,000 texels here, so a row is split
+    and the last piece is short), with new triples met call after call (learned between calls
+    and inside one), into a reused buffer; and within a few float32 ulps (1e-6 relative) of the
+    OpenCV chain it replaces (whose rounding depends on where a texel sits)."""
+    monkeypatch.setattr(convert_module, "_PIECE", 1000)
+    dec, conv = _triple_conversion(d)
+    rng = np.random.default_rng(11)
+    data = rng.integers(0, 256, (70, 3 * 900), dtype=np.uint8)
+    data[:, :150] = rng.integers(0, 8, (70, 150))                    # dark texels: the sRGB toe, zeros
+    data[5:40, 600:1200] = data[0, 600:1200]                         # repeats: most texels found, not learned
+    out = np.empty((70, 3 * 300), np.float32)
+    for cols in (slice(0, 900), slice(900, 1800), slice(1800, 2700), slice(0, 900)):
+        raw = data[:, cols]
+        want = _plain_triples(dec, d, np.ascontiguousarray(raw).reshape(-1, 3)).reshape(raw.shape)
+        got = conv(raw, out=out)
+        assert got is out and np.array_equal(_bits(got), _bits(want))
+        old = Conversion(dec.decode_curves, dec.matrix, d, nonnegative=True)(raw)
+        np.testing.assert_allclose(got, old, rtol=1e-6, atol=1e-9)
+    assert conv.slots.count == len(np.unique(data.reshape(-1, 3), axis=0))
+    assert np.array_equal(_bits(conv.triples(data[:9, :30].reshape(-1, 3))),
+                          _bits(_plain_triples(dec, d, data[:9, :30].reshape(-1, 3))))
+
+
+def test_memo_values_do_not_depend_on_position_shape_or_threads():
+    """The same texels in another order, another array shape, one (m, 3) list, or converted by
+    four threads at once through one fresh memo: the same bits per texel."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    d = Domain("srgb")
+    rng = np.random.default_rng(12)
+    texels = rng.integers(0, 256, (4096, 3), dtype=np.uint8)
+    texels[rng.random(4096) < 0.5] = texels[0]
+    want = _triple_conversion(d)[1](texels.reshape(64, 3 * 64)).reshape(-1, 3)
+    perm = rng.permutation(4096)
+    _, conv = _triple_conversion(d)
+    assert np.array_equal(_bits(conv(texels[perm].reshape(16, 3 * 256)).reshape(-1, 3)), _bits(want[perm]))
+    assert np.array_equal(_bits(conv(texels[perm][:, None, :].reshape(4096, 3))), _bits(want[perm]))
+    assert np.array_equal(_bits(conv(texels.reshape(8, 512, 3))), _bits(want.reshape(8, 512, 3)))   # not 2-D
+    wide = np.zeros((64, 2 * 3 * 64), np.float32)
+    assert conv(texels.reshape(64, 3 * 64), out=wide[:, ::2]) is not None          # a strided out is written
+    assert np.array_equal(_bits(wide[:, ::2].reshape(-1, 3)), _bits(want))
+    _, fresh = _triple_conversion(d)
+    blocks = [texels[a:a + 512].reshape(8, 3 * 64) for a in range(0, 4096, 512)]
+    with ThreadPoolExecutor(4) as pool:
+        got = list(pool.map(fresh, blocks))
+    assert np.array_equal(_bits(np.concatenate(got).reshape(-1, 3)), _bits(want))
+
+
+def test_memo_beyond_its_capacity_and_shared_between_domains():
+    """A memo full after 5 triples converts the others where it meets them (the same bits);
+    two domains sharing one numbering of the triples each keep their own values."""
+    rng = np.random.default_rng(13)
+    raw = rng.integers(0, 256, (12, 3 * 40), dtype=np.uint8)
+    slots = TripleSlots(cap=5)
+    dec, srgb = _triple_conversion(Domain("srgb"), slots=slots)
+    _, power = _triple_conversion(Domain("power", 2.2), slots=slots)
+    for conv, d in ((srgb, Domain("srgb")), (power, Domain("power", 2.2)), (srgb, Domain("srgb"))):
+        want = _plain_triples(dec, d, raw.reshape(-1, 3)).reshape(raw.shape)
+        assert np.array_equal(_bits(conv(raw)), _bits(want))
+    assert slots.count == 5
+
+
+def test_memo_learned_in_a_forked_worker_stays_the_workers():
+    """The memo's tables are private maps: triples a forked worker numbers do not appear in
+    the parent's table (a shared map would give the parent numbers its own count never made)."""
+    _, conv = _triple_conversion(Domain("srgb"))
+    conv(np.zeros((1, 3), np.uint8))
+    pid = os.fork()
+    if pid == 0:                                   # the child: learn 200 more triples, exit
+        conv(np.arange(600, dtype=np.uint16).astype(np.uint8).reshape(1, 600))
+        os._exit(0)
+    os.waitpid(pid, 0)
+    assert conv.slots.count == 1 and np.count_nonzero(conv.slots.table) == 1
+
+
+def test_sources_memoise_8_bit_codes_with_a_matrix_in_a_curved_domain(tmp_path):
+    """An 8-bit sRGB input (primaries matrix into ACEScg) converts through the memo in every
+    curved domain, with one numbering shared by the candidates; the linear domain keeps the
+    table-and-matrix chain (no curve to save); columns, samples and tiles agree texel for texel."""
+    from usdbtf import synth
+    from usdbtf.compress.source import InMemorySource
+    from usdbtf.compress.domain import LINEAR
+    from usdbtf.manifest import read_manifest, write_manifest
+    from usdbtf.sampling import preset
+
+    s = preset("small")
+    imgs = synth.render_all(synth.make_material("metal_flakes", 12, 2), s)
+    btf = read_manifest(write_manifest(tmp_path / "m", s, imgs, color_space=SRGB, bit_depth="uint8", ext="png"))
+    src = InMemorySource(btf, workers=1)
+    convs = [src.curves_in(d) for d in CURVES]
+    assert all(isinstance(c, TripleConversion) for c in convs)
+    assert len({id(c.slots) for c in convs}) == 1
+    assert type(src.curves_in(LINEAR)) is Conversion
+    src.set_domain(Domain("srgb"))
+    texels = np.array([0, 5, 77, 143])
+    cols = src.columns(texels).reshape(btf.n_samples, len(texels), 3)
+    samples = src.working_samples(np.arange(btf.n_samples))
+    assert np.array_equal(_bits(cols), _bits(samples[:, texels]))
+    dec = color.integer_decoder(SRGB, 8)
+    want = _plain_triples(dec, Domain("srgb"), src.raw_columns(texels).reshape(-1, 3))
+    assert np.array_equal(_bits(cols.reshape(-1, 3)), _bits(want))
 
 
 def test_scratch_is_per_thread_and_grows():

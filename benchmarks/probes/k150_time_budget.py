@@ -19,7 +19,7 @@ memo      whether converting each distinct (r, g, b) code triple of a projection
           per value" lever of issue 42): distinct triples per tile, differing values, ulps; and
           whether converting the tile in cache-sized pieces of 16 rows does (and its thread CPU).
 
-    .venv/bin/python benchmarks/probes/k150_time_budget.py INPUT [--workers 2]
+    .venv/bin/python benchmarks/probes/k150_time_budget.py INPUT [--workers 2] [--no-memo | --memo-only]
 
 Nothing is kept (the output folder is written to a temporary folder, timed, and removed).  On a shared machine read the CPU columns, not wall time.
 """
@@ -132,6 +132,9 @@ class Ledger:
 
         projection.TileProjector._accumulate = timed
         convert.Conversion.__call__ = self.thread_timed("curve conversion", convert.Conversion.__call__)
+        if hasattr(convert, "TripleConversion"):        # issue 42, third session: the memo's own __call__
+            convert.TripleConversion.__call__ = self.thread_timed("curve conversion",
+                                                                  convert.TripleConversion.__call__)
         # projection.py calls color.mix_rgb / color.mix_channel through the module: patch there.
         color.mix_rgb = self.thread_timed("colour mix", color.mix_rgb)
         color.mix_channel = self.thread_timed("colour mix", color.mix_channel)
@@ -141,7 +144,11 @@ def memo_probe(btf, n_tiles: int = 4, tile: int = 512) -> list:
     """Per tile (``tile`` consecutive samples x one 1,024-texel block, as the projection cuts
     them): distinct code triples, and the float32 values where converting each distinct triple
     once (a (1, 3 u) array) and gathering differs from converting the tile."""
-    curves = _Source(btf).curves_in(parse_domain("srgb"))
+    source = _Source(btf)
+    curves = source.curves_in(parse_domain("srgb"))
+    # The OpenCV chain (table, cv2.transform, curve) that the memo replaced (issue 42, third
+    # session): how far the memo's float64-matrix values are from it.
+    chain = convert.Conversion(source._decode, source.matrix, parse_domain("srgb"), nonnegative=curves.nonnegative)
     rows = []
     for n in range(n_tiles):
         s0 = (n * btf.n_samples // n_tiles) // tile * tile
@@ -155,13 +162,17 @@ def memo_probe(btf, n_tiles: int = 4, tile: int = 512) -> list:
         codes = np.stack([uniq >> 16, (uniq >> 8) & 255, uniq & 255], 1).astype(np.uint8).reshape(1, -1)
         memo = curves(codes).reshape(-1, 3)[inv.reshape(-1)].reshape(raw.shape)
         ulps = np.abs(whole.view(np.int32).astype(np.int64) - memo.view(np.int32))
+        opencv = chain(raw)
+        off = np.abs(whole.view(np.int32).astype(np.int64) - opencv.view(np.int32))
+        rel = float(np.max(np.abs(whole - opencv) / np.maximum(np.abs(opencv), 1e-30)))
         # The same tile converted 16 rows at a time (cache-sized pieces): the same bits?  cheaper?
         pieces = np.empty_like(whole)
         t_whole = _thread_cpu(lambda: curves(raw, out=whole))
         t_pieces = _thread_cpu(lambda: [curves(raw[r:r + 16], out=pieces[r:r + 16]) for r in range(0, len(raw), 16)])
         rows.append((s0, blk, len(tri), len(uniq), int(np.count_nonzero(ulps)), int(ulps.max()),
                      int(np.count_nonzero(whole.view(np.int32) != pieces.view(np.int32))),
-                     f"{t_whole * 1e3:.2f}", f"{t_pieces * 1e3:.2f}"))
+                     f"{t_whole * 1e3:.2f}", f"{t_pieces * 1e3:.2f}", int(np.count_nonzero(off)), int(off.max()),
+                     f"{rel:.1e}"))
     return rows
 
 
@@ -180,12 +191,16 @@ def main(argv=None) -> int:  # noqa: C901 (one report, printed in order)
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("input")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--no-memo", action="store_true", help="skip the memo table (the last section)")
+    ap.add_argument("--memo-only", action="store_true", help="only the memo table")
     args = ap.parse_args(argv)
     print(format_machine(machine_info()))
     btf = open_btf(args.input)
     print(f"\ninput: {args.input} ({btf.n_samples} samples of {btf.width}x{btf.height}, {btf.bit_depth}); "
           f"load {os.getloadavg()[0]:.1f}\n")
 
+    if args.memo_only:
+        return print_memo(btf)
     dec_wall, dec_cpu = decode_pass(btf, args.workers)
     gemm_wall, ginfo = gemm_pass(btf.n_samples, btf.n_pixels)
     floor = dec_cpu + ginfo["cpu_s"]
@@ -237,9 +252,16 @@ def main(argv=None) -> int:  # noqa: C901 (one report, printed in order)
         print(f"| {name} | {parts[name]:.2f} |")
     print(f"| GEMMs and accumulation | {gemm:.2f} |\n| all tiles | {parts['tile total']:.2f} |")
 
+    if args.no_memo:
+        return 0
+    return print_memo(btf)
+
+
+def print_memo(btf) -> int:
     print("\nmemo of the conversion per distinct code triple (srgb domain), per tile:\n")
     print("| first sample | block | texels x samples | distinct triples | memo: values that differ | memo: max ulps "
-          "| 16-row pieces: values that differ | whole tile ms | 16-row pieces ms |\n|---|---|---|---|---|---|---|---|---|")
+          "| 16-row pieces: values that differ | whole tile ms | 16-row pieces ms | vs the OpenCV chain: values that differ "
+          "| max ulps | max relative |\n|---|---|---|---|---|---|---|---|---|---|---|---|")
     for row in memo_probe(btf):
         print("| " + " | ".join(str(v) for v in row) + " |")
     return 0

@@ -184,8 +184,8 @@ def score_domains(source, texels, k: int, options, candidates=AUTO_CANDIDATES, *
     probe_k = max(1, min(k, _PROBE_K, S // _PROBE_FRACTION))
     for dom in candidates:
         forward = source.curves_in(dom)
-        fit = fit_basis(rows_apply(lambda b: forward(np.ascontiguousarray(b)).reshape(len(b), -1), half, x_dom),
-                        probe_k, options)
+        fit = fit_basis(rows_apply(lambda b, out: forward(np.ascontiguousarray(b), out=out.reshape(b.shape)), half,
+                                   x_dom, into=True), probe_k, options)
         u = fit.basis[:, :max(1, min(fit.k, probe_k))]
         # Coefficients of the evaluation texels: U^T f(Y) over the scored samples, summed over
         # their blocks in order.

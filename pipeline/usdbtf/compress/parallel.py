@@ -160,20 +160,28 @@ def rows_gemm(a, b):
     return out
 
 
-def rows_apply(fn, x, out, *, rows: int = 256):
+def rows_apply(fn, x, out, *, rows: int = 256, into: bool = False):
     """``out[...] = fn(x)`` for a row-wise ``fn`` (elementwise curves, colour transforms,
     encoders: row i of the result depends on row i of ``x`` only), with the rows cut into
     block of ``rows`` rows mapped over the CPUs' threads: the same values as one call.  The
     blocks do not depend on the number of CPUs (a vectorised kernel's remainder loop sits at
     the same places on every machine).  ``out`` has ``fn(x)``'s shape and dtype; it may be
-    ``x`` itself (each block reads its rows before it writes them).  Returns ``out``."""
+    ``x`` itself (each block reads its rows before it writes them).  ``into``: ``fn`` writes
+    its rows itself, called as ``fn(rows of x, out=rows of out)`` (no fresh array per block
+    to fault in and copy).  Returns ``out``."""
     n = x.shape[0]
     if n <= rows:
-        out[...] = fn(x)
+        if into:
+            fn(x, out=out)
+        else:
+            out[...] = fn(x)
         return out
 
     def piece(a):
-        out[a:a + rows] = fn(x[a:a + rows])
+        if into:
+            fn(x[a:a + rows], out=out[a:a + rows])
+        else:
+            out[a:a + rows] = fn(x[a:a + rows])
 
     in_threads(piece, range(0, n, rows))
     return out

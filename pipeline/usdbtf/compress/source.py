@@ -41,7 +41,7 @@ from ..atomic import raise_if_interrupted
 from ..errors import BTFError
 from ..lifetime import forked_pool
 from ..model import BTF, FileBTF
-from .convert import Conversion, Scratch
+from .convert import Conversion, Scratch, TripleConversion, TripleSlots
 from .domain import LINEAR
 from .load import _STATE, BlockedData, _init, decodes_in_workers, default_workers, load_encoded, stored_dtype
 from .parallel import cpu_count, in_threads, one_blas_thread, rows_apply, thread_map
@@ -113,6 +113,7 @@ class _Source(Closable):
         #: Stored values -> curve-decoded float32 (then, after :meth:`set_domain`, domain values).
         self.curves = Conversion(self._decode)
         self._domain_curves: dict = {}
+        self._triple_slots = None
 
     def to_working(self, x: np.ndarray) -> np.ndarray:
         """(..., 3 n) or (..., 3) curve-decoded values -> working space."""
@@ -149,7 +150,15 @@ class _Source(Closable):
             else:
                 nonnegative = dec is not None and bool(np.all(dec.lut >= 0)) and \
                     (self.matrix is None or bool(np.all(self.matrix >= 0)))
-                self._domain_curves[domain] = Conversion(self._decode, self.matrix, domain, nonnegative=nonnegative)
+                if dec is not None and dec.bits == 8 and self.matrix is not None and not domain.is_linear:
+                    # Each distinct code triple converted once (.convert.TripleConversion); the
+                    # candidate domains share one numbering of the triples.
+                    if self._triple_slots is None:
+                        self._triple_slots = TripleSlots()
+                    self._domain_curves[domain] = TripleConversion(self._decode, self.matrix, domain,
+                                                                   nonnegative=nonnegative, slots=self._triple_slots)
+                else:
+                    self._domain_curves[domain] = Conversion(self._decode, self.matrix, domain, nonnegative=nonnegative)
         return self._domain_curves[domain]
 
     def set_domain(self, domain) -> None:
@@ -171,7 +180,7 @@ class _Source(Closable):
 
     def _decoded(self, raw: np.ndarray) -> np.ndarray:
         """(S, 3 n) stored values -> the curves' float32 values (on every core)."""
-        return rows_apply(self.curves, raw, np.empty(raw.shape, np.float32))
+        return rows_apply(self.curves, raw, np.empty(raw.shape, np.float32), into=True)
 
 
 class InMemorySource(_Source):
