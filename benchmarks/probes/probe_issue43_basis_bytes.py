@@ -24,6 +24,9 @@ anything), one global basis as the product builds it, stored several ways:
   water-filling), 16-bit PNG pages like the basis page; the coefficients re-fitted by least squares
   against the de-quantised low-rank basis before they are quantised.  Per-pixel work: sum_j r_j
   multiply-adds to rebuild a basis row (reported as mean r).
+* **(b') low-rank tail**: (b) with each rank capped at HYBRID_RANK_CAP: a vector whose rank would pass it
+  is stored full, as today, in a basis page of its own (counted beside the factors); per-pixel work at
+  most the cap per vector (--hybrid-tol).
 * **(d) JPEG basis**: the basis codes at a quarter of today's steps (at most 8 bits: a column's step at
   least its span / 255) as one grey JPEG of quality Q (--jpeg), each vector a views x lights tile; the
   loader's DCT decode is the transform coding of (b) at no per-pixel cost; error from the decoded file.
@@ -209,6 +212,9 @@ def basis_steps(u: np.ndarray, energy: np.ndarray, step: float, factor: float, c
     return steps
 
 
+#: Variant (b'): a vector whose water-filled rank passes this stays a full row of the basis page.
+HYBRID_RANK_CAP = 8
+
 #: Variant (d) codes the basis at JPEG_FINE x today's steps (at most 8 bits) before JPEG, so the codec's
 #: own error (a code or two at quality 90+) stays below today's quantisation step.
 JPEG_FINE = 0.25
@@ -249,32 +255,43 @@ class LowRank:
         self.f, self.V, self.L = f, views, lights
         self.a, self.s, self.b = vl_matrices(f["u"][:, :kmax], views, lights)
 
-    def store(self, k: int, step: float, tol: float, n_values: int):
-        """(basis values (S, k) float32, re-fitted stored coefficients (k, P, 3), factor bytes, ranks)."""
+    def store(self, k: int, step: float, tol: float, n_values: int, cap: int | None = None):
+        """(basis values (S, k) float32, re-fitted stored coefficients (k, P, 3), factor bytes, ranks).
+        ``cap``: a vector whose rank would pass it is stored full, as today (its codes in a basis page,
+        counted with the factors; its rank reported as 1: one read a row)."""
         sigma2 = self.f["energy"][:k]
         budget = tol * n_values * step ** 2 / 12.0
         tail = sigma2[:, None] * (1.0 - np.cumsum(self.s[:k] ** 2, axis=1))       # dropped energy at rank r+1
         ranks = np.minimum((tail > budget).sum(axis=1) + 1, self.s.shape[1])
+        full = ranks > cap if cap else np.zeros(k, bool)
         sig = np.sqrt(np.maximum(sigma2, 1e-300))
         cols_a, cols_b, steps_a, steps_b, owner = [], [], [], [], []
-        for j in range(k):
+        for j in np.flatnonzero(~full):
             for r in range(ranks[j]):
                 cols_a.append(self.a[j, :, r] * self.s[j, r])
                 cols_b.append(self.b[j, r, :])
                 steps_a.append(step / sig[j])
                 steps_b.append(step / (sig[j] * max(self.s[j, r], 1e-12)))
                 owner.append(j)
-        A, B = np.array(cols_a).T, np.array(cols_b).T                                # (V, R), (L, R)
-        ca, va = quantise_columns(A, np.minimum(np.array(steps_a), np.ptp(A, axis=0) + 1e-30))
-        cb, vb = quantise_columns(B, np.minimum(np.array(steps_b), np.ptp(B, axis=0) + 1e-30))
-        ca, cb = np.minimum(ca, 65535), np.minimum(cb, 65535)
-        nbytes = png16_bytes(ca) + png16_bytes(cb)
+        nbytes, va, vb = 0, np.zeros((self.V, 0)), np.zeros((self.L, 0))
+        if owner:
+            A, B = np.array(cols_a).T, np.array(cols_b).T                            # (V, R), (L, R)
+            ca, va = quantise_columns(A, np.minimum(np.array(steps_a), np.ptp(A, axis=0) + 1e-30))
+            cb, vb = quantise_columns(B, np.minimum(np.array(steps_b), np.ptp(B, axis=0) + 1e-30))
+            nbytes = png16_bytes(np.minimum(ca, 65535)) + png16_bytes(np.minimum(cb, 65535))
+        if full.any():
+            u = self.f["u"][:, :k][:, full]
+            codes, whole = quantise_columns(u, basis_steps(u, sigma2[full], step, 1.0, False))
+            nbytes += basis_page_bytes(codes, self.V, self.L)
         owner = np.array(owner)
         basis = np.zeros((self.V, self.L, k), np.float32)
-        for j in range(k):
+        for j in np.flatnonzero(~full):
             cols = owner == j
             basis[:, :, j] = va[:, cols].astype(np.float64) @ vb[:, cols].T.astype(np.float64)
         basis = basis.reshape(-1, k)
+        if full.any():
+            basis[:, full] = whole
+        ranks = np.where(full, 1, ranks)
         # least squares in the global span: C' = (Ut~ Ut)^-1 Ut~ U0 G, G = the unquantised coefficients
         u0 = self.f["u"].astype(np.float64)
         g = self.f["coeff"].reshape(self.f["coeff"].shape[0], -1).astype(np.float64)
@@ -308,10 +325,11 @@ class Probe:
         """(basis values (S, k), stored coefficient values (k, P, 3), row fields) of a configuration."""
         kind, param = variant
         f, u, energy = self.f, self.f["u"][:, :k], self.f["energy"][:k]
-        if kind == "lowrank":
+        if kind in ("lowrank", "hybrid"):
             if self.lowrank is None:
                 self.lowrank = LowRank(f, self.V, self.L, f["u"].shape[1])
-            basis, refit, bb, ranks = self.lowrank.store(k, step, param, 3 * self.data.P)
+            basis, refit, bb, ranks = self.lowrank.store(k, step, param, 3 * self.data.P,
+                                                         HYBRID_RANK_CAP if kind == "hybrid" else None)
             values, cb = self._coeff(step).layers(k, refit)
             extra = {"mean_rank": float(ranks.mean()), "max_rank": int(ranks.max())}
         elif kind == "jpeg":
@@ -413,7 +431,8 @@ def run_preset(preset: str, args) -> dict:
         f"{float(f['fit_cpu_s']):.0f} CPU s")
     probe = Probe(data, dom, f, sel, (pe.encoded, pe.linear), B - prod["overhead"], views, lights)
     variants = [("factor", x) for x in args.factors] + [("cap8", 1.0)] * args.cap8 + \
-        [("lowrank", t) for t in args.lowrank_tol] + [("jpeg", int(q)) for q in args.jpeg]
+        [("lowrank", t) for t in args.lowrank_tol] + [("hybrid", t) for t in args.hybrid_tol] + \
+        [("jpeg", int(q)) for q in args.jpeg]
     out = {}
     for v in variants:
         name = f"{v[0]} {v[1]:g}"
@@ -422,8 +441,9 @@ def run_preset(preset: str, args) -> dict:
         for s in args.steps:                   # a coarser step needs more vectors: start from the last k
             at_e.append(probe.at_error(v, s, guess))
             guess = at_e[-1]["k"] if at_e[-1] else guess
-        # at B: not for the low-rank variant (every byte count re-fits the coefficients)
-        at_b = [probe.at_bytes(v, s) for s in args.steps] if not args.no_at_bytes and v[0] != "lowrank" else []
+        # at B: not for the low-rank variants (every byte count re-fits the coefficients)
+        at_b = [probe.at_bytes(v, s) for s in args.steps] if not args.no_at_bytes and v[0] in (
+            "factor", "cap8", "jpeg") else []
         be = min((r for r in at_e if r), key=lambda r: r["payload"], default=None)
         bb = min((r for r in at_b if r), key=lambda r: np.log(r["ratio"][0]) + np.log(r["ratio"][1]), default=None)
         out[name] = {"at_error": be, "at_bytes": bb, "cpu_s": time.process_time() - t, "by_step": at_e}
@@ -475,6 +495,8 @@ def main(argv=None) -> int:
     p.add_argument("--factors", type=numbers, default="1")
     p.add_argument("--cap8", type=int, default=0)
     p.add_argument("--lowrank-tol", type=numbers, default="1")
+    p.add_argument("--hybrid-tol", type=numbers, default="", help="low-rank tolerances of variant (b'): "
+                   "ranks capped at HYBRID_RANK_CAP, a vector past it kept full")
     p.add_argument("--jpeg", type=numbers, default="90", help="JPEG qualities for variant (d), e.g. 85,95")
     p.add_argument("--no-at-bytes", action="store_true")
     p.add_argument("--table", default="", help="only print the table of these result files (comma-separated "
