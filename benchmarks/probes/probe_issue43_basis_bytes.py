@@ -543,11 +543,10 @@ def main(argv=None) -> int:
 
 def table(results: dict, presets: list) -> None:
     """The markdown table: per preset and variant, bytes at the paper's error and error at B."""
+    columns = ("preset", "variant", "at paper's error: k, step", "payload x B", "basis x B", "asset x B",
+               "ratio enc / lin", "at B: k, ratio enc / lin")
     say("\nB = the paper's bytes; x B = payload / B (asset = payload + the product's overhead at B); ratio = "
-        "error / the paper's error (enc / lin)")
-    say("\n| preset | variant | at paper's error: k, step | payload x B | basis x B | asset x B | ratio enc / lin "
-        "| at B: k, ratio enc / lin |")
-    say("|" + "---|" * 8)
+        "error / the paper's error (enc / lin)\n\n| " + " | ".join(columns) + " |\n|" + "---|" * len(columns))
     for preset in presets:
         r = results[preset]
         B = r["paper"]["bytes"]["payload"]
