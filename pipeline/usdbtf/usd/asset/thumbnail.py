@@ -10,14 +10,18 @@ composited over a flat grey (:data:`BACKGROUND`) where nothing was hit, written 
 baseline JPEG (:data:`JPEG_ATTRIBUTES`: what studio asset browsers show; every lod loads it,
 so its bytes count against ``--max-bytes``: 0.20-0.25 of the RGBA PNG it replaced on the
 seven paper-scale assets, issue 39) and declared on the root prim with ``UsdMedia.AssetPreviewsAPI`` (``defaultImage``).
-The file declares its encoding as the PNG did: OIIO writes the sRGB display as the JPEG's
-EXIF ``ColorSpace`` 1 (sRGB), which OIIO reads back as ``srgb_rec709_scene``.
+The JPEG is encoded in memory by OpenCV (libjpeg-turbo in its wheel), never through a file: OIIO's
+JPEG writer lets libjpeg end the process (status 1) when a write fails, e.g. under a file size
+limit, where usdbtf must report an I/O error (74) and clean up.  An sRGB display needs no tag: a
+plain JFIF file is sRGB by convention and OIIO reads it back as ``srgb_rec709_scene``.  Another
+display (an OCIO config whose default display is not sRGB) goes through OIIO, which records it.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from ...compress.format import CompressedBTF
+from ...errors import IOFailure
 from ...mesh import Mesh
 
 __all__ = ["THUMBNAIL_SIZE", "THUMBNAIL_FILE", "BACKGROUND", "JPEG_ATTRIBUTES", "render_thumbnail",
@@ -33,6 +37,8 @@ BACKGROUND = 118
 #: thumbnail (256² metal_flakes paper-scale asset: 12,826 bytes against its PNG's 64,061;
 #: quality 95 4:4:4 would be 0.43 of the PNG; benchmarks/probes/smallfiles_bytes.py).
 JPEG_ATTRIBUTES = {"Compression": "jpeg:90", "jpeg:subsampling": "4:2:0"}
+#: The same options for OpenCV's in-memory encoder (4:2:0 is its default sampling).
+JPEG_PARAMS = (1, 90)       # (cv2.IMWRITE_JPEG_QUALITY, 90): cv2 is imported only where it is used
 #: Towards the light, world space (Y up): above, left, in front.
 LIGHT_DIRECTION = (-0.45, 0.55, 0.7)
 
@@ -72,6 +78,13 @@ def thumbnail_jpeg(cbtf: CompressedBTF, mesh: Mesh, size: int = THUMBNAIL_SIZE, 
 
     pixels = composite_background(render_thumbnail(cbtf, mesh, size, texels))
     _, display, _ = display_processor(cbtf.working_space, None, None, cbtf.ocio_config)
+    if "srgb" in display.lower():
+        import cv2
+
+        ok, data = cv2.imencode(".jpg", np.ascontiguousarray(pixels[..., ::-1]), list(JPEG_PARAMS))
+        if not ok:
+            raise IOFailure("thumbnail: OpenCV could not encode the JPEG")
+        return data.tobytes()
     return encode_image(pixels, "jpg", color_space=display, attributes=JPEG_ATTRIBUTES)
 
 
