@@ -218,3 +218,14 @@ def test_target_error_lands_just_under_the_target(pebbles):
     assert choice["estimated_percent"] == pytest.approx(exact, rel=1e-5)
     assert (1 - ratecontrol._TARGET_TOLERANCE) * 6.0 <= exact <= 6.0
     assert choice["attempts"] >= 2
+
+
+def test_in_sample_stratum_streamed_as_in_memory(pebbles):
+    # The in-sample texels are one more set a streaming source keeps up front: a streamed
+    # (memory_budget=0) run estimates and chooses what an in-memory one does.
+    opts = dict(target_error=6.0, fit_texels=256, eval_texels=256, budget_for="folder")
+    mem = compress(pebbles, CompressOptions(**opts))
+    streamed = compress(pebbles, CompressOptions(**opts, memory_budget=0))
+    assert mem.info["estimated_error"]["in_sample_texels"] == 256
+    assert streamed.info["estimated_error"] == mem.info["estimated_error"]
+    _same_output(streamed, mem)
