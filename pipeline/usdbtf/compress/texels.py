@@ -4,7 +4,7 @@ Texels are numbered row-major, ``t = y * W + x`` (y = 0 the top row of the image
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -53,9 +53,8 @@ def sample_texels(btf: BTF, options: CompressOptions) -> Texels:
     Texels : see :func:`fit_texels` and :func:`evaluation_texels`.
     """
     fit = fit_texels(btf.width, btf.height, options)
-    evaluation = evaluation_texels(btf.width * btf.height, fit, options)
-    held_out = not np.isin(evaluation, fit).any()
-    return Texels(fit, evaluation, in_sample_texels(fit, options) if held_out else None)
+    texels = Texels(fit, evaluation_texels(btf.width * btf.height, fit, options))
+    return replace(texels, in_sample=in_sample_texels(fit, options)) if texels.held_out else texels
 
 
 def in_sample_texels(fit: np.ndarray, options: CompressOptions) -> np.ndarray:
