@@ -227,9 +227,12 @@ def _described(cbtf: CompressedBTF, opts: CompressOptions, choice: dict, singula
         "singular_values": [float(s) for s in singular_values],
         "estimated_error": {"linear": sums[0].report(), "encoded": sums[1].report(),
                             "texels": int(len(held.texels)),
-                            "note": ("held-out texels (not used in the fit)" if held.disjoint else
+                            **({"in_sample_texels": int(len(held.in_sample.texels))} if held.in_sample else {}),
+                            "note": ("held-out texels (not used in the fit) and a sample of the fitted ones, "
+                                     "weighted by their shares of the image" if held.in_sample else
+                                     "held-out texels (not used in the fit)" if held.disjoint else
                                      "all texels (the image is smaller than the fitting sample: in-sample)")
-                            + ", all samples, working space"},
+                            + ", all samples"},
         "error_curve": {"file": "error_curve.csv", "plot": "error_curve.png"},
         # The numeric platform decides the bits as much as the version does (usdbtf.numeric).
         "provenance": {"tool": "usdbtf", "version": __version__, "solver": opts.solver, "seed": opts.seed,

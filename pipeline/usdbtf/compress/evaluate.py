@@ -2,8 +2,10 @@
 
 Both use the paper's percent error (Fig. 3: "the sum of the differences between original
 and reconstructed pixels divided by the sum of the original pixels"), here as
-100 sum|x - x'| / sum x over working-space (scene-linear) values, reconstructed by Eq. (2)
-from the stored -- quantised, encoded and decoded -- representation.
+100 sum|x - x'| / sum x over scene-linear values or the input file's values, reconstructed by
+Eq. (2) from the stored -- quantised, encoded and decoded -- representation.  The estimate
+stands for every texel: held-out texels for those not fitted, a sample of the fitted ones
+for those (reconstructed better, in-sample), each weighted by its stratum's share.
 """
 from __future__ import annotations
 
@@ -34,6 +36,9 @@ class HeldOut:
         working space when the domain is linear; :func:`held_out_error` measures in
         scene-linear either way).
     disjoint : True when none of them was used in the fit (an out-of-sample estimate).
+    in_sample : a sample of the fitted texels (a :class:`HeldOut` of its own, not disjoint),
+        or None when ``texels`` are every texel.
+    weights : (held-out, in-sample) texels of the image each sampled texel stands for.
     """
 
     texels: np.ndarray
@@ -41,6 +46,8 @@ class HeldOut:
     disjoint: bool
     encode: object = None
     _codes: dict = field(default_factory=dict, repr=False)
+    in_sample: "HeldOut | None" = None
+    weights: tuple = (1.0, 0.0)
 
     def encoded(self, linear: np.ndarray) -> np.ndarray:
         """Scene-linear working-space values -> the input file's values, normalised to [0, 1]
@@ -73,15 +80,25 @@ def held_out_set(source, texels: Texels) -> HeldOut:
     ----------
     source : where the data is read (see :mod:`.source`).
     texels : ``texels.evaluation`` are read; ``texels.held_out`` says whether they are disjoint
-        from the fit.
+        from the fit; ``texels.in_sample`` (fitted texels) too when they are.
 
     Returns
     -------
-    HeldOut : truth (S, n, 3) float32 in working space (scene-linear).
+    HeldOut : truth (S, n, 3) float32 in working space (scene-linear); ``in_sample`` the
+    same of ``texels.in_sample``, and the two strata's weights.
     """
+    encode = file_encoder(source.btf)
+
+    def truth(ev: np.ndarray) -> np.ndarray:
+        return source.to_working(source.columns(ev)).reshape(source.btf.n_samples, len(ev), 3)
+
     ev = texels.evaluation
-    truth = source.to_working(source.columns(ev)).reshape(source.btf.n_samples, len(ev), 3)
-    return HeldOut(ev, truth, texels.held_out, file_encoder(source.btf))
+    if not texels.held_out or texels.in_sample is None:
+        return HeldOut(ev, truth(ev), texels.held_out, encode)
+    inner = HeldOut(texels.in_sample, truth(texels.in_sample), False, encode)
+    n_fit = len(texels.fit)
+    return HeldOut(ev, truth(ev), True, encode, in_sample=inner,
+                   weights=((source.btf.n_pixels - n_fit) / len(ev), n_fit / len(texels.in_sample)))
 
 
 def file_encoder(btf):
@@ -123,7 +140,23 @@ def held_out_error(cbtf: CompressedBTF, held: HeldOut, k: int | None = None, dom
 def held_out_errors(cbtf: CompressedBTF, held: HeldOut, k: int | None = None,
                     domains=("linear", "encoded")) -> list:
     """:func:`held_out_error` in each of ``domains``, from one reconstruction per block of
-    samples (the same sums, bit for bit, as one call per domain)."""
+    samples (the same sums, bit for bit, as one call per domain).  With an in-sample stratum
+    (``held.in_sample``), each stratum's sums weighted by the texels it stands for."""
+    sums = _stratum_errors(cbtf, held, k, domains)
+    if held.in_sample is None:
+        return sums
+    inner = _stratum_errors(cbtf, held.in_sample, k, domains)
+    out = []
+    for outside, fitted in zip(sums, inner):
+        both = ErrorSums()
+        both.merge_scaled(outside, held.weights[0])
+        both.merge_scaled(fitted, held.weights[1])
+        out.append(both)
+    return out
+
+
+def _stratum_errors(cbtf: CompressedBTF, held: HeldOut, k: int | None, domains) -> list:
+    """Unweighted :class:`ErrorSums` over ``held``'s own texels, one per domain."""
     k = cbtf.k if k is None else k
     coeff = working_coefficient_texels(cbtf, held.texels, k).reshape(k, -1)      # (k, n * 3)
     basis = cbtf.basis_values(k)                                                  # (S, k)

@@ -52,6 +52,14 @@ class ErrorSums:
         self.sq_err += other.sq_err
         self.count += other.count
 
+    def merge_scaled(self, other: "ErrorSums", weight: float) -> None:
+        """Add ``weight`` times the sums of ``other``: a sample of ``1 / weight`` of a
+        stratum standing for the whole stratum (``count`` rounded)."""
+        self.abs_err += weight * other.abs_err
+        self.total += weight * other.total
+        self.sq_err += weight * other.sq_err
+        self.count += int(round(weight * other.count))
+
     @property
     def percent(self) -> float:
         return 100.0 * self.abs_err / self.total if self.total > 0 else float("nan")

@@ -46,7 +46,7 @@ def load_source(btf: BTF, texels: Texels, options: CompressOptions):
         if options.dask:
             log.info("transcoding from the input's factors in this process (--dask is for decoding images)")
         return FactoredSource(btf, options)
-    keep = [texels.fit, texels.evaluation]
+    keep = [texels.fit, texels.evaluation] + ([] if texels.in_sample is None else [texels.in_sample])
     rows = curve_samples(btf.n_samples)
     if options.dask:
         from .distributed import DaskSource

@@ -4,14 +4,14 @@ Texels are numbered row-major, ``t = y * W + x`` (y = 0 the top row of the image
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..model import BTF
 from .options import CompressOptions
 
-__all__ = ["Texels", "sample_texels", "fit_texels", "evaluation_texels", "default_fit_texels", "RUN"]
+__all__ = ["Texels", "sample_texels", "fit_texels", "evaluation_texels", "in_sample_texels", "default_fit_texels", "RUN"]
 
 #: Texels per contiguous run of the rsvd fitting sample (whole cache lines, cheap to gather).
 RUN = 64
@@ -25,10 +25,13 @@ class Texels:
     ----------
     fit : (n_fit,) int, sorted texel indices the basis is fitted on (the paper's M, Eq. (1)).
     evaluation : (n_eval,) int, sorted texel indices the error is estimated on.
+    in_sample : (m,) int, sorted, a sample of ``fit`` standing for the fitted texels in the
+        estimate (:func:`in_sample_texels`); None when ``evaluation`` is every texel.
     """
 
     fit: np.ndarray
     evaluation: np.ndarray
+    in_sample: np.ndarray | None = None
 
     @property
     def held_out(self) -> bool:
@@ -50,7 +53,25 @@ def sample_texels(btf: BTF, options: CompressOptions) -> Texels:
     Texels : see :func:`fit_texels` and :func:`evaluation_texels`.
     """
     fit = fit_texels(btf.width, btf.height, options)
-    return Texels(fit, evaluation_texels(btf.width * btf.height, fit, options))
+    texels = Texels(fit, evaluation_texels(btf.width * btf.height, fit, options))
+    return replace(texels, in_sample=in_sample_texels(fit, options)) if texels.held_out else texels
+
+
+def in_sample_texels(fit: np.ndarray, options: CompressOptions) -> np.ndarray:
+    """(m,) sorted texel indices, about ``eval_texels`` of the fitting texels ``fit`` in random
+    pieces of :data:`RUN` consecutive entries of ``fit`` (seed + 2; all of ``fit`` when it
+    is no larger).
+
+    The fitted texels are reconstructed better than the others (in-sample: at paper-scale
+    pebbles' k = 320 from 4096 texels, ~0.7x the held-out error), so an error over all
+    texels weighs the held-out estimate with a sample of them (issue 39).
+    """
+    pieces = len(fit) // RUN
+    count = max(1, options.eval_texels // RUN)
+    if pieces <= count:
+        return np.asarray(fit)
+    pick = np.sort(np.random.default_rng(options.seed + 2).choice(pieces, size=count, replace=False)) * RUN
+    return np.sort(np.asarray(fit)[(pick[:, None] + np.arange(RUN)[None, :]).ravel()])
 
 
 def default_fit_texels(options: CompressOptions) -> int:
