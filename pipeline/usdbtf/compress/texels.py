@@ -66,12 +66,12 @@ def in_sample_texels(fit: np.ndarray, options: CompressOptions) -> np.ndarray:
     pebbles' k = 320 from 4096 texels, ~0.7x the held-out error), so an error over all
     texels weighs the held-out estimate with a sample of them (issue 39).
     """
-    pieces = len(fit) // RUN
+    fit = np.asarray(fit)
     count = max(1, options.eval_texels // RUN)
-    if pieces <= count:
-        return np.asarray(fit)
-    pick = np.sort(np.random.default_rng(options.seed + 2).choice(pieces, size=count, replace=False)) * RUN
-    return np.sort(np.asarray(fit)[(pick[:, None] + np.arange(RUN)[None, :]).ravel()])
+    if len(fit) // RUN <= count:
+        return fit
+    # Runs of positions in ``fit`` (not of texels): pieces of RUN consecutive fitted texels.
+    return np.sort(fit[_runs(len(fit), count, np.random.default_rng(options.seed + 2))])
 
 
 def default_fit_texels(options: CompressOptions) -> int:
