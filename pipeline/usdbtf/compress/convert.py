@@ -169,8 +169,8 @@ class TripleConversion(Conversion):
         matrix with float64 products and sums (exact products; y_c = (m_c0 x_0 + m_c1 x_1) +
         m_c2 x_2, rounded once to float32), then the curve."""
         out = np.empty(codes.shape, np.float32)
-        for a in range(0, len(codes), 1 << 16):         # cache-sized pieces (a whole array unmemoised)
-            x = self.decode(np.ascontiguousarray(codes[a:a + (1 << 16)])).astype(np.float64)
+        for a in range(0, len(codes), _PIECE):          # cache-sized pieces (a whole array unmemoised)
+            x = self.decode(np.ascontiguousarray(codes[a:a + _PIECE])).astype(np.float64)
             m = self._m64
             y = x[:, 0:1] * m[:, 0] + x[:, 1:2] * m[:, 1] + x[:, 2:3] * m[:, 2]
             out[a:a + len(x)] = y
