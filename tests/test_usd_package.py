@@ -387,9 +387,10 @@ def test_inspect_reports_k_bytes_directions_error(asset, capsys):
 
 def test_inspect_lists_the_files_each_lod_loads(asset, capsys):
     """Every lod's file list is files on disk with their sizes, totals are their sums, the full
-    lod loads every file of the asset but the usdz, the MaterialX documents (which no layer
-    names) and the lower lods' own tables and basis pages; a lower lod loads fewer pages and its
-    own tables and basis page (issue 39) in place of the full ones, and inspect says it is within its share."""
+    lod loads every file of the asset but the usdz and the lower lods' own tables, basis pages
+    and MaterialX documents (its own document, which no layer names, counts: a MaterialX consumer
+    loads it); a lower lod loads fewer pages and its own tables, basis page and document (issue
+    39) in place of the full ones, and inspect says it is within its share."""
     import json
 
     info = json.loads(ok(capsys, "inspect", asset, "--json"))
@@ -401,14 +402,14 @@ def test_inspect_lists_the_files_each_lod_loads(asset, capsys):
         assert lv["total"] == sum(sizes.values())
     full = {f["path"] for f in levels["full"]["files"]}
     shipped = {str(p.relative_to(asset.parent)) for p in asset.parent.rglob("*") if p.is_file()
-               and p.suffix not in (".usdz", ".mtlx") and not p.name.startswith(("tables_k", "basis_k"))}
+               and p.suffix != ".usdz" and not p.name.startswith(("tables_k", "basis_k", "usdbtf_k"))}
     assert full == shipped
     low = {f["path"] for f in levels["k6"]["files"]}
     in_page = "pebbles_textures/gpu/basis.png" in full        # schema 4: integer basis codes (not exr's halves)
     assert in_page == (asset.parent.name != "asset_c_exr")
-    assert low - full == {"pebbles_textures/gpu/tables_k6.exr"} | ({"pebbles_textures/gpu/basis_k6.png"}
-                                                                   if in_page else set())
-    own = {"pebbles_textures/gpu/tables.exr", "pebbles_textures/gpu/basis.png"}
+    assert low - full == {"pebbles_textures/gpu/tables_k6.exr", "pebbles_textures/gpu/usdbtf_k6.mtlx"} | (
+        {"pebbles_textures/gpu/basis_k6.png"} if in_page else set())
+    own = {"pebbles_textures/gpu/tables.exr", "pebbles_textures/gpu/basis.png", "pebbles_textures/gpu/usdbtf.mtlx"}
     assert full - low - own and all("page" in Path(p).name for p in full - low - own)
     assert levels["full"]["share"] == levels["full"]["total"]
     assert levels["k6"]["total"] <= levels["k6"]["share"] < levels["full"]["total"]

@@ -96,6 +96,9 @@ def lod_files(stage, prim, budget: int | None = None, *, shares: bool = True) ->
 
     def entry(name, p):
         files = loaded_files(stage, p)
+        document = _materialx_document(p)
+        if document is not None:
+            files = sorted(set(files) | {(document, _resolved_size(document))})
         k = int(p.GetAttribute(NS + "basisCount").Get() or 0)
         paged = str(p.GetAttribute(NS + "coefficientLayout").Get() or "files") == GPU_PAGES
         return {"name": name, "k": k, "files": [{"path": rel(f), "bytes": n} for f, n in files],
@@ -111,6 +114,25 @@ def lod_files(stage, prim, budget: int | None = None, *, shares: bool = True) ->
         for key in ("_pages", "_basis", "_sizes"):
             lv.pop(key)
     return out
+
+
+def _materialx_document(prim) -> str | None:
+    """The MaterialX document ``package`` wrote beside the level's tables (``gpu/usdbtf.mtlx``
+    for the full level, ``usdbtf_k<n>.mtlx`` for a lower one), if there is one: a MaterialX
+    consumer of that level loads it with the pages, so it counts among the level's files
+    although no USD layer names it."""
+    import os
+    from .storm import MTLX_FILE, lod_mtlx_name, lod_tables_name
+
+    tables = prim.GetAttribute(NS + "basis").Get()
+    path = getattr(tables, "resolvedPath", "") or ""
+    if not path or "[" in path:
+        return None                 # unresolved, or a .usdz member (no document beside it)
+    k = int(prim.GetAttribute(NS + "basisCount").Get() or 0)
+    stem = os.path.splitext(os.path.basename(path))[0]
+    name = lod_mtlx_name(k) if stem == lod_tables_name(k) else MTLX_FILE
+    document = os.path.join(os.path.dirname(path), name)
+    return document if os.path.isfile(document) else None
 
 
 def _shares(levels: list[dict], budget: int | None) -> None:
