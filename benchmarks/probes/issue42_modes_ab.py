@@ -27,7 +27,7 @@ from common import format_machine, machine_info
 STEPS = Path(__file__).with_name("issue42_modes_steps.py")
 _TOTAL = re.compile(r"total: rc (\d+), wall ([\d.]+) s, CPU ([\d.]+) s in process \+ ([\d.]+) s in children; "
                     r"peak RSS (\d+) MB")
-_ROW = re.compile(r"^(\S+)\s+(\d+)\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)$")
+_ROW = re.compile(r"^(\S+)\s+(\d+)\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)(?:\s+\d+)?$")
 
 
 def run_once(pipeline: str | None, inp: str, args: list) -> dict:

@@ -7,7 +7,8 @@ the steps compress calls (the load, the domain choice and basis fit, the project
 control and inside it the packagings that measure what the asset adds, the fallback fits, the
 shipped-bytes probes, the final encode, the evaluations) wrapped by timers.  Prints per step:
 calls, wall seconds, CPU seconds of this process (all threads) and of reaped child processes
-(decode and encode workers); nested steps' time is also in their caller's.  Then the totals and
+(decode and encode workers), and the process's peak RSS so far at the step's exit; nested
+steps' time is also in their caller's.  Then the totals and
 the peak RSS.  The output folder is removed.
 
     nice -n 10 .venv/bin/python benchmarks/probes/issue42_modes_steps.py INPUT --max-bytes 3418164
@@ -53,10 +54,16 @@ def _kids() -> float:
     return k.ru_utime + k.ru_stime
 
 
+def _peak_mb() -> float:
+    """This process's peak RSS so far (MiB): per step, at its last exit (the step that first
+    shows the run's peak is where it happened)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     inp, args = argv[0], argv[1:]
-    calls, wall, cpu, kids = (collections.Counter() for _ in range(4))
+    calls, wall, cpu, kids, peak = (collections.Counter() for _ in range(5))
 
     def wrap(module, name):
         fn = getattr(module, name)
@@ -72,6 +79,7 @@ def main(argv=None) -> int:
                 wall[key] += time.perf_counter() - t
                 cpu[key] += time.process_time() - c
                 kids[key] += _kids() - k
+                peak[key] = max(peak[key], _peak_mb())
 
         setattr(module, name, wrapper)
 
@@ -90,10 +98,10 @@ def main(argv=None) -> int:
         t, c = time.perf_counter(), time.process_time()
         rc = cli(["compress", inp, "-o", str(_Path(tmp) / "out"), "--quiet", *args])
         total_wall, total_cpu = time.perf_counter() - t, time.process_time() - c
-    print(f"{'step':34s} {'calls':>5s} {'wall s':>8s} {'CPU s':>8s} {'child CPU s':>11s}")
+    print(f"{'step':34s} {'calls':>5s} {'wall s':>8s} {'CPU s':>8s} {'child CPU s':>11s} {'peak MB':>8s}")
     for key in wall:
-        print(f"{key:34s} {calls[key]:5d} {wall[key]:8.2f} {cpu[key]:8.2f} {kids[key]:11.2f}")
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        print(f"{key:34s} {calls[key]:5d} {wall[key]:8.2f} {cpu[key]:8.2f} {kids[key]:11.2f} {peak[key]:8.0f}")
+    peak = _peak_mb()
     print(f"total: rc {rc}, wall {total_wall:.2f} s, CPU {total_cpu:.2f} s in process + {_kids():.2f} s in children; "
           f"peak RSS {peak:.0f} MB; load {os.getloadavg()[0]:.2f}")
     return 0

@@ -416,10 +416,7 @@ def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: in
     step = _chunk_texels(max(len(fit), len(ps)), chunk_bytes)
     scale = np.float32(radiance_per_irradiance(white_level))     # value -> f (n.l): usdbtf.photometry
     flat = np.array([0.0, 0.0, 1.0], np.float32)
-
-    def fit_block(t0: int) -> None:
-        # Each block's texels are fitted on their own (and written to their own rows): the
-        # blocks run on threads (:func:`fit_blocks`) with the bits of one after the other.
+    for t0 in track(range(0, texels, step), "fallback fit", -(-texels // step), logger=log):
         block = slice(t0, min(t0 + step, texels))
         values = _block_values(cbtf, block)
         y = np.ascontiguousarray((values(fit_rows) * scale).transpose(2, 0, 1))
@@ -439,9 +436,6 @@ def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: in
             a[tilt], f[tilt], r[tilt], n_ps[tilt] = a1[tilt], f1[tilt], r1[tilt], n_fit[tilt]
         diffuse[block] = np.clip(a / np.maximum(1.0 - f, 1e-6), 0.0, 1.0)
         specular[block], rough[block], normal[block] = f, r, n_ps
-
-    for _ in track(fit_blocks(fit_block, range(0, texels, step)), "fallback fit", -(-texels // step), logger=log):
-        pass
     h, w = cbtf.height, cbtf.width
     maps = SvbrdfMaps(diffuse.reshape(h, w, 3), specular.reshape(h, w, 3), rough.reshape(h, w),
                       normal.reshape(h, w, 3), cbtf.working_space, float(white_level))
@@ -464,37 +458,14 @@ def pole_swatch_sums(cbtf: CompressedBTF, predicts, texel_weights=None, chunk_by
     view, light = cbtf.sampling.view[pole], cbtf.sampling.light[pole]
     rows = cbtf.basis_values()[pole]
     step = int(max(256, chunk_bytes // (len(pole) * 4 * 3 * 8)))
-
-    def block_sums(t0: int) -> list:
-        # One block's (P, 3) sums: the blocks on threads (:func:`fit_blocks`), added below in
-        # block order, so the float64 totals have the bits of one block after the other.
+    for t0 in range(0, texels, step):
         block = slice(t0, min(t0 + step, texels))
         w = wts[block]
-        own = [] if truth is not None else [np.einsum("ptc,t->pc", _reconstruct(cbtf, rows, block), w)]
-        return own + [np.einsum("ptc,t->pc", predict(view, light, block), w) for predict in predicts]
-
-    for parts in fit_blocks(block_sums, range(0, texels, step)):
         if truth is None:
-            y += parts.pop(0)
-        for total, part in zip(sums, parts):
-            total += part
+            y += np.einsum("ptc,t->pc", _reconstruct(cbtf, rows, block), w)
+        for total, predict in zip(sums, predicts):
+            total += np.einsum("ptc,t->pc", predict(view, light, block), w)
     return y, sums
-
-
-#: Threads the fits run their texel blocks on (:func:`fit_blocks`): each holds one block's
-#: working set (``chunk_bytes``), so two, however many CPUs, keep the fallback fits that
-#: ``compress --max-bytes`` runs inside rate control (issue 42) within its peak memory.
-FIT_THREADS = 2
-
-
-def fit_blocks(fn, starts):
-    """``fn(t0)`` for each texel block start of ``starts``, on up to :data:`FIT_THREADS`
-    threads (numpy releases the GIL in the blocks' array work), the results in order as they
-    are done (:func:`usdbtf.compress.parallel.iter_threads`).  Blocks share no output rows and
-    their results are folded in order, so the fits' bits do not depend on the thread count."""
-    from .compress.parallel import cpu_count, iter_threads
-
-    return iter_threads(fn, starts, threads=min(FIT_THREADS, cpu_count()))
 
 
 def pole_ratio(y: np.ndarray, model: np.ndarray) -> np.ndarray:

@@ -27,7 +27,7 @@ from ..atomic import raise_if_interrupted
 from ..lifetime import forked_pool
 from ..numeric import one_blas_thread
 
-__all__ = ["cpu_count", "in_threads", "iter_threads", "in_processes", "iter_processes", "forks_safely", "thread_map",
+__all__ = ["cpu_count", "in_threads", "in_processes", "iter_processes", "forks_safely", "thread_map",
            "one_blas_thread", "rows_gemm", "gemm_row_cuts", "rows_apply"]
 
 
@@ -42,27 +42,6 @@ def in_threads(fn, items, *, threads: int | None = None) -> list:
     items = list(items)
     with thread_map(min(len(items), threads or cpu_count())) as tmap:
         return tmap(fn, items)
-
-
-def iter_threads(fn, items, *, threads: int | None = None):
-    """:func:`in_threads` as an iterator: each result as soon as it and those before it are
-    done (for a progress bar, or to fold results in order), on up to ``threads`` threads; the
-    threads end when it is exhausted or closed."""
-    items = list(items)
-    workers = min(len(items), threads or cpu_count())
-    if workers <= 1:
-        yield from (fn(x) for x in items)
-        return
-    from concurrent.futures import ThreadPoolExecutor
-
-    with ThreadPoolExecutor(workers, thread_name_prefix="usdbtf-compress") as pool:
-        futures = [pool.submit(fn, x) for x in items]
-        try:
-            for future in futures:
-                yield future.result()
-        finally:
-            for future in futures:
-                future.cancel()
 
 
 #: The job a forked pool's workers run, set just before the fork: workers inherit the function
