@@ -241,6 +241,12 @@ def _reconstruct(cbtf: CompressedBTF, rows: np.ndarray, texels: slice) -> np.nda
     return _block_values(cbtf, texels)(rows)
 
 
+def _same_samples(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two sample index arrays are the same samples in the same order (then their
+    reconstructions are one product, the same bits)."""
+    return bool(np.array_equal(a, b))
+
+
 def _block_values(cbtf: CompressedBTF, texels: slice):
     """``values(rows)`` = :func:`_reconstruct` (cbtf, rows, texels), the texels' coefficients
     read and widened once for every set of rows a fit reconstructs them at (the fit, pole,
@@ -408,6 +414,10 @@ def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: in
     bands = np.floor(cbtf.sampling.light[pole, 0] / POLE_BAND_DEG).astype(int)
     basis = cbtf.basis_values()
     fit_rows, ps_rows, val_rows, pole_rows = basis[fit], basis[ps], basis[val], basis[pole]
+    # The photometric-stereo samples are the pole samples where no light lies between their
+    # elevation limits (the paper sampling: 1,728 each): their values are reconstructed once a
+    # block (the same rows into the same product: the same bits; issue 42).
+    ps_is_pole = normals and _same_samples(ps, pole)
     luma = _luminance_weights(cbtf)
     grid = np.asarray(roughness_grid, np.float32)
     texels = cbtf.width * cbtf.height
@@ -421,14 +431,18 @@ def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: in
         values = _block_values(cbtf, block)
         y = np.ascontiguousarray((values(fit_rows) * scale).transpose(2, 0, 1))
         n_flat = np.broadcast_to(flat, (y.shape[2], 3))
-        kept = None
+        kept = shared = None
         if lam > 0:
-            yp = np.ascontiguousarray((values(pole_rows) * scale).transpose(2, 0, 1))
+            pole_values = values(pole_rows)
+            yp = np.ascontiguousarray((pole_values * scale).transpose(2, 0, 1))
             kept = (yp, pv, pl, bands, lam)
+            shared = pole_values if ps_is_pole else None
+            del pole_values
         a, f, r, res = _fit_reflectance(y, n_flat, v, l, grid, kept)
         n_ps = n_flat.copy()
         if normals:
-            n_fit = _photometric_normals(values(ps_rows) @ luma, ps_light)
+            n_fit = _photometric_normals((values(ps_rows) if shared is None else shared) @ luma, ps_light)
+            shared = None
             a1, f1, r1, _ = _fit_reflectance(y, n_fit, v, l, grid, kept)
             yv = np.ascontiguousarray((values(val_rows) * scale).transpose(2, 0, 1))
             tilt = _validation_residual(yv, n_fit, vv, vl, a1, f1, r1) < \
