@@ -90,6 +90,9 @@ def test_smoke_modes_table_puts_every_mode_against_the_floor_and_the_paper(smoke
         assert r["encode_s"] > 0 and r["gemm_k_s"] > 0 and r["cpu_s"] > 0
         assert r["own_floor_s"] > r["encode_s"] + r["gemm_k_s"]      # plus the decode pass
         assert abs(r["x_own_floor"] - r["wall_s"] / r["own_floor_s"]) < 1e-6 * r["x_own_floor"]
+        # The same floor in CPU seconds (decode workers, GEMM threads, codec workers), beside the mode's CPU.
+        assert r["own_floor_cpu_s"] > 0 and abs(r["x_own_floor_cpu"] - r["cpu_s"] / r["own_floor_cpu_s"]) \
+            < 1e-6 * r["x_own_floor_cpu"]
     budget = next(r for m, r in rows.items() if "--max-bytes" in m)
     assert f"--max-bytes {int(paper['stored_bytes'])}" in budget["method"]
     # The asset's budget (the default) where the paper's bytes hold what packaging adds; at this

@@ -77,7 +77,7 @@ from .numeric import single_blas_thread
 from .progress import track
 from .sampling import to_vectors
 from .svbrdf import (BRIGHTNESS_SCALE, POLE_BAND_DEG, SvbrdfMaps, fit_samples, fit_svbrdf, pole_ratio,
-                     pole_samples, pole_swatch_sums, validation_samples, _reconstruct)
+                     pole_samples, pole_swatch_sums, validation_samples, _block_values)
 
 __all__ = ["OpenPbrMaps", "evaluate_openpbr", "evaluate", "fit_openpbr", "keep_brightness", "SPECULAR_IOR",
            "SPECULAR_WEIGHTS", "FUZZ_WEIGHTS", "FUZZ_ROUGHNESS_GRID", "FIT_SAMPLES", "HELD_OUT_SAMPLES"]
@@ -807,12 +807,13 @@ def fit_openpbr(cbtf: CompressedBTF, *, svbrdf: SvbrdfMaps | None = None, white_
     for t0 in track(range(0, texels, step), "OpenPBR fit", -(-texels // step), logger=log):
         block = slice(t0, min(t0 + step, texels))
         n_map = normals[block]
-        y = np.ascontiguousarray((_reconstruct(cbtf, fit_rows, block) * scale).transpose(2, 0, 1))
-        yv = np.ascontiguousarray((_reconstruct(cbtf, val_rows, block) * scale).transpose(2, 0, 1))
+        values = _block_values(cbtf, block)
+        y = np.ascontiguousarray((values(fit_rows) * scale).transpose(2, 0, 1))
+        yv = np.ascontiguousarray((values(val_rows) * scale).transpose(2, 0, 1))
         start = _start(ups_rough[block], ups_f0[block])
         near = None
         if lam > 0:
-            yp = np.ascontiguousarray((_reconstruct(cbtf, pole_rows, block) * scale).transpose(2, 0, 1))
+            yp = np.ascontiguousarray((values(pole_rows) * scale).transpose(2, 0, 1))
             near = (yp, pv, pl, bands, lam)
         # The normal map only where OpenPBR predicts the held-out samples better with it: a
         # normal tilted away from the view is flipped by MaterialX (mx_forward_facing_normal),

@@ -238,12 +238,29 @@ def _chunk_texels(n_samples: int, chunk_bytes: float) -> int:
 
 def _reconstruct(cbtf: CompressedBTF, rows: np.ndarray, texels: slice) -> np.ndarray:
     """(S, T, 3) float32 working-space values of samples with basis rows ``rows`` (S, k)."""
-    c = working_coefficient_texels(cbtf, texels)                      # (k, T, 3)
-    # The product in float64, rounded once: a float32 GEMM rounds a column by where it sits in
-    # the block (the kernels' edge loops), and a quilt's texels are fitted once per source
-    # texel in other blocks than a per-texel fit would put them in: their maps must agree.
-    d = (rows.astype(np.float64) @ c.reshape(cbtf.k, -1).astype(np.float64)).astype(np.float32)
-    return cbtf.domain.inverse(d).reshape(len(rows), -1, 3)
+    return _block_values(cbtf, texels)(rows)
+
+
+def _same_samples(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two sample index arrays are the same samples in the same order (then their
+    reconstructions are one product, the same bits)."""
+    return bool(np.array_equal(a, b))
+
+
+def _block_values(cbtf: CompressedBTF, texels: slice):
+    """``values(rows)`` = :func:`_reconstruct` (cbtf, rows, texels), the texels' coefficients
+    read and widened once for every set of rows a fit reconstructs them at (the fit, pole,
+    normal and validation samples: issue 42)."""
+    c = working_coefficient_texels(cbtf, texels).reshape(cbtf.k, -1).astype(np.float64)    # (k, T 3)
+
+    def values(rows: np.ndarray) -> np.ndarray:
+        # The product in float64, rounded once: a float32 GEMM rounds a column by where it sits
+        # in the block (the kernels' edge loops), and a quilt's texels are fitted once per source
+        # texel in other blocks than a per-texel fit would put them in: their maps must agree.
+        d = (rows.astype(np.float64) @ c).astype(np.float32)
+        return cbtf.domain.inverse(d).reshape(len(rows), -1, 3)
+
+    return values
 
 
 def _photometric_normals(y_lum: np.ndarray, light: np.ndarray) -> np.ndarray:
@@ -397,6 +414,10 @@ def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: in
     bands = np.floor(cbtf.sampling.light[pole, 0] / POLE_BAND_DEG).astype(int)
     basis = cbtf.basis_values()
     fit_rows, ps_rows, val_rows, pole_rows = basis[fit], basis[ps], basis[val], basis[pole]
+    # The photometric-stereo samples are the pole samples where no light lies between their
+    # elevation limits (the paper sampling: 1,728 each): their values are reconstructed once a
+    # block (the same rows into the same product: the same bits; issue 42).
+    ps_is_pole = normals and _same_samples(ps, pole)
     luma = _luminance_weights(cbtf)
     grid = np.asarray(roughness_grid, np.float32)
     texels = cbtf.width * cbtf.height
@@ -407,18 +428,23 @@ def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: in
     flat = np.array([0.0, 0.0, 1.0], np.float32)
     for t0 in track(range(0, texels, step), "fallback fit", -(-texels // step), logger=log):
         block = slice(t0, min(t0 + step, texels))
-        y = np.ascontiguousarray((_reconstruct(cbtf, fit_rows, block) * scale).transpose(2, 0, 1))
+        values = _block_values(cbtf, block)
+        y = np.ascontiguousarray((values(fit_rows) * scale).transpose(2, 0, 1))
         n_flat = np.broadcast_to(flat, (y.shape[2], 3))
-        kept = None
+        kept = shared = None
         if lam > 0:
-            yp = np.ascontiguousarray((_reconstruct(cbtf, pole_rows, block) * scale).transpose(2, 0, 1))
+            pole_values = values(pole_rows)
+            yp = np.ascontiguousarray((pole_values * scale).transpose(2, 0, 1))
             kept = (yp, pv, pl, bands, lam)
+            shared = pole_values if ps_is_pole else None
+            del pole_values
         a, f, r, res = _fit_reflectance(y, n_flat, v, l, grid, kept)
         n_ps = n_flat.copy()
         if normals:
-            n_fit = _photometric_normals(_reconstruct(cbtf, ps_rows, block) @ luma, ps_light)
+            n_fit = _photometric_normals((values(ps_rows) if shared is None else shared) @ luma, ps_light)
+            shared = None
             a1, f1, r1, _ = _fit_reflectance(y, n_fit, v, l, grid, kept)
-            yv = np.ascontiguousarray((_reconstruct(cbtf, val_rows, block) * scale).transpose(2, 0, 1))
+            yv = np.ascontiguousarray((values(val_rows) * scale).transpose(2, 0, 1))
             tilt = _validation_residual(yv, n_fit, vv, vl, a1, f1, r1) < \
                 _validation_residual(yv, n_flat, vv, vl, a, f, r)
             a[tilt], f[tilt], r[tilt], n_ps[tilt] = a1[tilt], f1[tilt], r1[tilt], n_fit[tilt]
