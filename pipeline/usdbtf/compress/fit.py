@@ -19,8 +19,8 @@ from .convert import Scratch
 from .parallel import in_threads, one_blas_thread, rows_gemm
 from .texels import Texels
 
-__all__ = ["BasisFit", "fit_basis", "fit_source", "streamed_fit", "fits_every_texel", "every_texel", "ImagePasses", "fit_weights", "norm_weights", "signal_only", "require_signal",
-           "sampled_coefficients", "HDR_NORM_RANGE"]
+__all__ = ["BasisFit", "fit_basis", "fit_source", "streamed_fit", "fits_every_texel", "every_texel", "ImagePasses",
+           "fit_weights", "norm_weights", "signal_only", "require_signal", "sampled_coefficients", "HDR_NORM_RANGE"]
 
 #: Fitted texels whose norms span more than this get equalising fit weights: an energy-
 #: weighted float32 fit cannot see a region below ~1e-6 of the brightest (its singular
@@ -273,6 +273,7 @@ class ImagePasses(Passes):
         for a, raw in self.source.row_chunks():
             if done is not None:
                 done(a, len(raw), before=True)
+
             def cut_job(c):
                 for r in range(0, len(raw), self.rows):
                     x = raw[r:r + self.rows, self.cuts[c]]
