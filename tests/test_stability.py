@@ -492,6 +492,87 @@ def test_projection_is_within_dot_product_bound_and_independent_of_chunks(small_
     assert not fewer[4:, :, 1].any() and not fewer[:, :, 2].any()
 
 
+@pytest.fixture(scope="module")
+def png_72(tmp_path_factory) -> Path:
+    """169 samples of 72x72 pebbles as 8-bit sRGB PNG: 5184 texels, more than a budget's
+    4096-texel fitting sample (so the budget modes fit the basis on every texel)."""
+    s = preset("small")
+    imgs = synth.render_all(synth.make_material("pebbles", 72, 3), s)
+    return write_manifest(tmp_path_factory.mktemp("stab72") / "png72", s, imgs, color_space=SRGB,
+                          bit_depth="uint8", ext="png", array_space=LIN709)
+
+
+def test_streamed_fit_is_the_full_fit_from_any_source(png_72, small_tiles):
+    """A budget's fit over every texel (fit.streamed_fit: passes over the rows, in cuts of
+    texels) in the sRGB domain: bit-identical in memory and streamed in chunks of one tile,
+    of all tiles and without a spill file; and, within float32 rounding, the randomized SVD of
+    the whole data matrix held at once (the same seeded sketch): the same singular values, the
+    same vectors, and the same coefficients of the fitting sample (its B = R Z^T)."""
+    from usdbtf.compress.domain import parse_domain
+    from usdbtf.compress.fit import fit_basis, fits_every_texel, streamed_fit
+    from usdbtf.compress.texels import sample_texels
+
+    btf = read_manifest(png_72)
+    P = btf.n_pixels
+    opts = CompressOptions(max_bytes=10**6, seed=2)
+    texels = sample_texels(btf, opts)
+    assert len(texels.fit) == 4096 < P
+    tile = tile_samples(btf)
+    assert tile < btf.n_samples
+    per_tile = tile * P * 3
+    sources = {"memory": InMemorySource(btf, workers=1)}
+    for name, kw in {"one tile": dict(chunk_bytes=per_tile), "all": dict(chunk_bytes=1e12),
+                     "no spill": dict(chunk_bytes=per_tile, spill=False)}.items():
+        sources[name] = StreamingSource(btf, [texels.fit], [0], workers=1, **kw)
+    fits = {}
+    for name, src in sources.items():
+        src.set_domain(parse_domain("srgb"))
+        assert fits_every_texel(src, texels.fit, opts)
+        fits[name] = streamed_fit(src, texels.fit, 40, opts)
+        src.close()
+    ref = fits["memory"]
+    assert ref.k == 40 and ref.coefficients.shape == (40, 3 * len(texels.fit)) and not ref.weighted
+    for name, fit in fits.items():
+        assert np.array_equal(fit.basis, ref.basis) and np.array_equal(fit.singular_values, ref.singular_values), name
+        assert np.array_equal(fit.coefficients, ref.coefficients), name
+    whole = InMemorySource(btf, workers=1)
+    whole.set_domain(parse_domain("srgb"))
+    x = whole.columns(np.arange(P))
+    full = fit_basis(x, 40, opts)
+    np.testing.assert_allclose(ref.singular_values, full.singular_values, rtol=1e-5)
+    dots = np.abs(np.einsum("sk,sk->k", ref.basis.astype(np.float64), full.basis))
+    assert dots.min() > 1 - 1e-5, dots
+    cols = (3 * texels.fit[:, None] + np.arange(3)).ravel()
+    # The fit's coefficients are its B = R Z^T (not an exact U^T X on the trailing vectors):
+    # the held-at-once fit's, on the sample's columns.
+    err = np.abs(ref.coefficients - full.coefficients[:, cols])
+    assert err.max() <= 1e-4 * np.abs(full.coefficients).max(), err.max(axis=1)
+    # Under a plain k, or with --fit-texels, the sample is fitted as before.
+    assert not fits_every_texel(whole, texels.fit, CompressOptions(k=40))
+    assert not fits_every_texel(whole, texels.fit, CompressOptions(max_bytes=10**6, fit_texels=4096))
+
+
+def test_streamed_fit_weights_hdr_texels_as_the_full_fit():
+    """An HDR input whose texel norms span more than HDR_NORM_RANGE (a 1e-8 dark half): the
+    fit over every texel weighs the texels as :func:`.fit.fit_basis` on all their columns
+    does (the norms measured in its first pass), and finds the same basis."""
+    from usdbtf.compress.fit import fit_basis, streamed_fit
+    from usdbtf.compress.texels import sample_texels
+
+    s = preset("tiny")
+    x = synth.render_all(synth.make_material("pebbles", 72, 4), s)
+    x[:, :36] *= 1e-8
+    btf = ArrayBTF.from_linear(s, x)
+    opts = CompressOptions(max_bytes=10**6)
+    texels = sample_texels(btf, opts)
+    src = InMemorySource(btf, workers=1)
+    fit = streamed_fit(src, texels.fit, 12, opts)
+    full = fit_basis(src.columns(np.arange(btf.n_pixels)), 12, opts)
+    assert fit.weighted and full.weighted
+    np.testing.assert_allclose(fit.singular_values, full.singular_values, rtol=1e-5)
+    assert np.abs(np.einsum("sk,sk->k", fit.basis.astype(np.float64), full.basis)).min() > 1 - 1e-5
+
+
 # ---------------------------------------------------------------- sign / order convention, determinism
 
 

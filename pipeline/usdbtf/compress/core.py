@@ -34,7 +34,7 @@ from .decorrelate import color_decorrelation, rotate_color
 from .evaluate import error_curve, held_out_errors, held_out_set
 from .domain import parse_domain
 from .domain_choice import choose_domain
-from .fit import HDR_NORM_RANGE, fit_source, require_signal, sampled_coefficients
+from .fit import HDR_NORM_RANGE, fit_source, fits_every_texel, require_signal, sampled_coefficients
 from .format import CompressedBTF, write_metadata, write_textures
 from .options import CompressOptions
 from .parallel import in_threads, one_blas_thread
@@ -100,12 +100,14 @@ def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
             scores = as_full[1]
         else:
             domain, chosen, scores = choose_domain(source, texels, k_fit, opts)
+        every = chosen is None and fits_every_texel(source, texels.fit, opts)
         fit = chosen or fit_source(source, texels.fit, k_fit, opts)
         held = held_out_set(source, texels)
         if fit.weighted:
             log.info(f"texel norms span more than {HDR_NORM_RANGE:g}: basis fitted with weights ||x_t||^-1/2")
         require_signal(fit, btf, texels, opts)
-        log.info(f"basis: {fit.k} vectors from {len(texels.fit)} texels ({opts.solver}, {domain.name} domain) "
+        log.info(f"basis: {fit.k} vectors from {btf.n_pixels if every else len(texels.fit)} texels "
+                 f"({opts.solver}{', streamed' if every else ''}, {domain.name} domain) "
                  f"in {clock.lap('fit'):.2f} s")
         # Colour and (for a plain k) the quantisation step, from the sampled texels' coefficients,
         # before the projection: then the projection can skip what the step would zero out.
@@ -141,6 +143,8 @@ def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
         if as_full is not None:
             choice["domain_scored_on"] = "the full input (a scene-shaped compress keeps the full build's domain)"
         clock.lap("encode")
+        if every:
+            choice["basis_texels"] = int(btf.n_pixels)
         result = _described(cbtf, opts, dict(choice, planes=list(planes)), fit.singular_values, held,
                             *_side_by_side(lambda: held_out_errors(cbtf, held), lambda: error_curve(cbtf, source)),
                             getattr(source, "provenance", None), covered)
@@ -228,7 +232,10 @@ def _described(cbtf: CompressedBTF, opts: CompressOptions, choice: dict, singula
         "estimated_error": {"linear": sums[0].report(), "encoded": sums[1].report(),
                             "texels": int(len(held.texels)),
                             **({"in_sample_texels": int(len(held.in_sample.texels))} if held.in_sample else {}),
-                            "note": ("held-out texels (not used in the fit) and a sample of the fitted ones, "
+                            "note": ("a sample of the texels outside the fitting sample and one of those in it, "
+                                     "weighted by their shares of the image (the basis is fitted on every texel)"
+                                     if held.in_sample and "basis_texels" in choice else
+                                     "held-out texels (not used in the fit) and a sample of the fitted ones, "
                                      "weighted by their shares of the image" if held.in_sample else
                                      "held-out texels (not used in the fit)" if held.disjoint else
                                      "all texels (the image is smaller than the fitting sample: in-sample)")

@@ -13,13 +13,14 @@ import numpy as np
 
 from ..errors import BTFError
 from ..model import BTF
-from .linalg import exact_basis, randomized_basis
+from .linalg import Passes, exact_basis, randomized_basis
 from .options import CompressOptions
-from .parallel import rows_gemm
+from .convert import Scratch
+from .parallel import in_threads, one_blas_thread, rows_gemm
 from .texels import Texels
 
-__all__ = ["BasisFit", "fit_basis", "fit_source", "fit_weights", "norm_weights", "signal_only", "require_signal",
-           "sampled_coefficients", "HDR_NORM_RANGE"]
+__all__ = ["BasisFit", "fit_basis", "fit_source", "streamed_fit", "fits_every_texel", "every_texel", "ImagePasses",
+           "fit_weights", "norm_weights", "signal_only", "require_signal", "sampled_coefficients", "HDR_NORM_RANGE"]
 
 #: Fitted texels whose norms span more than this get equalising fit weights: an energy-
 #: weighted float32 fit cannot see a region below ~1e-6 of the brightest (its singular
@@ -104,9 +105,54 @@ def signal_only(fit: BasisFit) -> BasisFit:
 def fit_source(source, texels: np.ndarray, k: int, options: CompressOptions) -> BasisFit:
     """The fit step on a source: a source that fits from its own structure (one with a
     ``fit(texels, k, options)`` method, e.g. :class:`~.factored.FactoredSource`) does so;
-    any other is fitted by :func:`fit_basis` on the columns of ``texels``."""
+    under a budget (:func:`fits_every_texel`) the basis is fitted on every texel in passes
+    over the source (:func:`streamed_fit`); any other is fitted by :func:`fit_basis` on the
+    columns of ``texels``."""
     own = getattr(source, "fit", None)
-    return own(texels, k, options) if own is not None else fit_basis(source.columns(texels), k, options)
+    if own is not None:
+        return own(texels, k, options)
+    if fits_every_texel(source, texels, options):
+        return streamed_fit(source, texels, k, options)
+    return fit_basis(source.columns(texels), k, options)
+
+
+def fits_every_texel(source, texels: np.ndarray, options: CompressOptions) -> bool:
+    """True when the basis is fitted on every texel rather than on the sample ``texels``: the
+    rsvd solver under a byte budget or an error target, no ``--fit-texels`` given, the sample
+    a strict subset of the image, and a source that passes over its rows (``row_chunks``).
+
+    A basis of the budget modes' 200-300 vectors fitted on a quarter of the texels fits those
+    texels better than the rest (paper-scale metal_flakes at k 288: 6.19 % unquantised L1
+    error over the image from 4096 texels, 5.71 % from all 16384; satin_weave 3.80 -> 3.63 %;
+    ``benchmarks/probes/issue39_fit_texels.py``)."""
+    return every_texel(options, len(texels), source.btf.n_pixels) and hasattr(source, "row_chunks")
+
+
+def every_texel(options: CompressOptions, n_fit: int, n_pixels: int) -> bool:
+    """The options' part of :func:`fits_every_texel` (``n_fit`` sampled texels of ``n_pixels``)."""
+    return options.solver == "rsvd" and options.budgeted and not options.fit_texels and n_fit < n_pixels
+
+
+def streamed_fit(source, texels: np.ndarray, k: int, options: CompressOptions) -> BasisFit:
+    """The rsvd basis of every texel's columns (:func:`fit_basis`'s randomized SVD over the whole
+    data matrix), in passes over the source's rows (:class:`ImagePasses`): the columns are
+    never all decoded at once.  ``BasisFit.coefficients`` are those of the sample ``texels``
+    (sorted), as :func:`fit_basis` on their columns reports them; the HDR weights of
+    :func:`fit_weights` are decided on every texel's norm (one more pass when they apply)."""
+    release = getattr(source, "release", None)
+    if release is not None:          # the sample's columns: the domain choice was their last use
+        release(texels)
+    x = ImagePasses(source)
+    cols = (3 * np.asarray(texels)[:, None] + np.arange(3)).ravel()
+    kw = dict(oversample=options.oversample, power_iterations=options.power_iterations, seed=options.seed,
+              return_coefficients=True, coefficient_columns=cols)
+    u, sv, coeff = randomized_basis(x, min(k, x.shape[1]), **kw)
+    weights = fit_weights(x.energy)
+    if weights is not None:
+        x.weights = weights
+        u, sv, coeff = randomized_basis(x, min(k, x.shape[1]), **kw)
+        coeff /= weights[cols]       # U^T (X W) = (U^T X) W
+    return signal_only(BasisFit(u, sv, coeff, weights is not None))
 
 
 def require_signal(fit: BasisFit, btf: BTF, texels: Texels, options: CompressOptions) -> None:
@@ -121,14 +167,16 @@ def require_signal(fit: BasisFit, btf: BTF, texels: Texels, options: CompressOpt
 
 
 def fit_weights(x: np.ndarray) -> np.ndarray | None:
-    """Column weights (3 n,) float32 for the fit of ``x`` (S, 3 n): ||x_t||^-1/2 per texel
+    """Column weights (3 n,) float32 for the fit of ``x`` (S, 3 n; or (3 n,) float64 its
+    columns' sums of squares, :func:`_column_energy`): ||x_t||^-1/2 per texel
     when the nonzero texel norms span more than HDR_NORM_RANGE, else None.
 
     The square root halves the dynamic range in log terms (1e-4..1e4 data: 1e8 -> 1e4 in
     norm): a dark region with a BRDF of its own then gets basis directions, while bright
     texels still weigh more, as the paper's absolute error metric wants.
     """
-    w = norm_weights(np.sqrt(_column_energy(x).reshape(-1, 3).sum(axis=1)))
+    energy = x if x.ndim == 1 else _column_energy(x)
+    w = norm_weights(np.sqrt(energy.reshape(-1, 3).sum(axis=1)))
     return None if w is None else np.repeat(w, 3).astype(np.float32)
 
 
@@ -181,3 +229,98 @@ def sampled_coefficients(fit: BasisFit, to_working, truth: np.ndarray, n_pixels:
     outside = float(np.einsum("ij,ij->", truth.reshape(S, -1), truth.reshape(S, -1), dtype=np.float64)
                     - np.einsum("kpc,kpc->", c_eval, c_eval, dtype=np.float64))
     return sampled, max(outside, 0.0) * n_pixels / n
+
+
+#: Samples per piece of an :class:`ImagePasses` product (or a tile where tiles are shorter).
+PASS_ROWS = 256
+#: Texels per column cut of an :class:`ImagePasses` product (6144 columns: X^T q's rows of one
+#: cut, 12.7 MB at 516 vectors, stay near the core that adds to them).
+PASS_TEXELS = 2048
+
+
+class ImagePasses(Passes):
+    """The data matrix of every texel of a source, X (S, 3 P) in its current domain (the
+    values ``source.columns`` gives), known by its products over the source's rows.
+
+    ``source.row_chunks()`` yields (first sample, (n, 3 P) stored values) in sample order,
+    chunks of whole tiles (:class:`.projection.WorkPlan`).  Each product cuts the texels into
+    pieces of :data:`PASS_TEXELS` (over the CPUs' threads, each on one BLAS thread) and the
+    samples into pieces of :data:`PASS_ROWS` (or a tile), converts one piece of a cut at a
+    time and multiplies it: the pieces are a function of the data's shape alone and are summed
+    in a fixed order, so any source and any number of CPUs give the same bits.
+
+    Attributes
+    ----------
+    energy : (3 P,) float64 sum of squares of each column, measured by the first
+        :meth:`times` (None before it).
+    weights : (3 P,) float32 column weights W, or None: the products are then those of X W.
+    """
+
+    def __init__(self, source):
+        self.source = source
+        self.shape = (source.btf.n_samples, 3 * source.btf.n_pixels)
+        self.energy: np.ndarray | None = None
+        self.weights: np.ndarray | None = None
+        self.rows = min(PASS_ROWS, source.plan.tile)
+        edges = list(range(0, source.btf.n_pixels, PASS_TEXELS)) + [source.btf.n_pixels]
+        self.cuts = [slice(3 * a, 3 * b) for a, b in zip(edges[:-1], edges[1:])]
+        self._scratch = Scratch()
+
+    def _pass(self, job, done=None) -> None:
+        """One pass: per chunk of n samples a.., ``job(cut index, a, row in the chunk, (r, 3 n)
+        float32 values of the cut's piece)`` for every piece of every cut (each cut's pieces
+        in sample order on one thread, the cuts over the CPUs), then ``done(a, n)``."""
+        for a, raw in self.source.row_chunks():
+            if done is not None:
+                done(a, len(raw), before=True)
+
+            def cut_job(c):
+                for r in range(0, len(raw), self.rows):
+                    x = raw[r:r + self.rows, self.cuts[c]]
+                    job(c, a, r, self.source.curves(x, out=self._scratch.get("x", x.shape)))
+
+            with one_blas_thread():
+                in_threads(cut_job, range(len(self.cuts)))
+            if done is not None:
+                done(a, len(raw), before=False)
+
+    def times(self, p: np.ndarray) -> np.ndarray:
+        """X W p (S, l) float32 (each chunk's cut products summed in cut order); the first call
+        also measures :attr:`energy`."""
+        if self.weights is not None:
+            p = p * self.weights[:, None]
+        out = np.empty((self.shape[0], p.shape[1]), np.float32)
+        parts = np.empty((len(self.cuts), 0, p.shape[1]), np.float32)     # per cut, a chunk's products
+        energy = np.zeros(self.shape[1]) if self.energy is None else None
+
+        def job(c, a, r, x):
+            np.matmul(x, p[self.cuts[c]], out=parts[c, r:r + len(x)])
+            if energy is not None:
+                energy[self.cuts[c]] += _column_energy(x)
+
+        def done(a, n, before):
+            nonlocal parts
+            if before:
+                if parts.shape[1] < n:
+                    parts = np.empty((len(self.cuts), n, p.shape[1]), np.float32)
+                return
+            out[a:a + n] = parts[0, :n]
+            for part in parts[1:]:
+                out[a:a + n] += part[:n]
+
+        self._pass(job, done)
+        if energy is not None:
+            self.energy = energy
+        return out
+
+    def t_times(self, q: np.ndarray) -> np.ndarray:
+        """(X W)^T q (3 P, l) float32: each cut's rows summed over the pieces in sample order."""
+        out = np.zeros((self.shape[1], q.shape[1]), np.float32)
+
+        def job(c, a, r, x):
+            out[self.cuts[c]] += x.T @ q[a + r:a + r + len(x)]
+
+        self._pass(job)
+        if self.weights is not None:
+            out *= self.weights[:, None]
+        return out
