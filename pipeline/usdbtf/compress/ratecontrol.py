@@ -122,7 +122,8 @@ def budget_planes(sampled: np.ndarray, basis: np.ndarray, total: float, n_pixels
     (k_0, k_1, k_2) : components to project per plane.
     """
     k_fit = basis.shape[1]
-    table = ratedist.rd_table(sampled, basis, total, n_texels=n_pixels, seed=options.seed)
+    table = ratedist.rd_table(sampled, basis, total, n_texels=n_pixels, seed=options.seed,
+                              dead_zone=options.dead_zone)
     k, step = ratedist.choose_for_bytes(table, options.max_bytes, 1.0, _BASIS_FACTOR_PRIOR)
     return _plan(sampled, k_fit, k, step, _PLAN_MARGIN, _PLAN_EXTRA)
 
@@ -169,7 +170,8 @@ def error_planes(sampled: np.ndarray, basis: np.ndarray, total: float, n_pixels:
     (k_0, k_1, k_2) : components to project per plane.
     """
     k_fit = basis.shape[1]
-    table = ratedist.rd_table(sampled, basis, total, n_texels=n_pixels, seed=options.seed)
+    table = ratedist.rd_table(sampled, basis, total, n_texels=n_pixels, seed=options.seed,
+                              dead_zone=options.dead_zone)
     N = basis.shape[0] * 3 * n_pixels
     k, step = ratedist.choose_for_error(table, _rms_target(options, truth_mean)**2 * N, 1.0)
     return _plan(sampled, k_fit, k, step, _ERROR_PLAN_MARGIN, _ERROR_PLAN_EXTRA)
@@ -207,7 +209,8 @@ def rate_control(f: Factorisation, options: CompressOptions, held: HeldOut,
         return _by_k_only(f, options, held)
     if f.step is not None:
         return _plain_k(f, options)
-    table = ratedist.rd_table(f.coefficients, f.basis, f.total_energy, seed=options.seed)
+    table = ratedist.rd_table(f.coefficients, f.basis, f.total_energy, seed=options.seed,
+                              dead_zone=options.dead_zone)
     if options.max_bytes is not None:
         if asset and cross_layout(f.btf.sampling) is not None:
             return _asset_max_bytes(f, options, table)
