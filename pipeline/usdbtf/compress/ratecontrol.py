@@ -327,6 +327,11 @@ def _room_after(sizes: dict, coefficient_bytes, basis_bytes: np.ndarray, budget:
 #: spent ~3x the bytes the target needs (issue 39).
 _TARGET_TOLERANCE = 0.03
 
+#: When no attempt has passed and the model repeats a failing choice, its squared-error budget
+#: is scaled by this until the choice changes, at most this many times.
+_REPEAT_SHRINK = 0.9
+_REPEAT_SHRINKS = 16
+
 #: Attempts at most (a lossy codec's attempt encodes every texture; a lossless one's only quantises).
 _TARGET_ATTEMPTS = {True: 6, False: 4}
 
@@ -356,6 +361,15 @@ def _target_error(f: Factorisation, options: CompressOptions, table, held: HeldO
     best, last, tried = None, None, set()
     for attempt in range(1, _TARGET_ATTEMPTS[lossless] + 1):
         k, step = ratedist.choose_for_error(table, rms_target**2 * N * scale, factor)
+        if (k, step) in tried and best is None:
+            # Nothing has passed and the model repeats a failing choice (the scale moved less
+            # than its grid): ask it for less error until the choice changes (64^2
+            # ridged_fabric with the dead zone: 3.006 % for a 3 % target, then the same choice).
+            for _ in range(_REPEAT_SHRINKS):
+                scale *= _REPEAT_SHRINK
+                k, step = ratedist.choose_for_error(table, rms_target**2 * N * scale, factor)
+                if (k, step) not in tried:
+                    break
         if (k, step) in tried:            # the model's grid gives nothing between the bracket's ends
             break
         tried.add((k, step))
