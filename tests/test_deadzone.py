@@ -72,9 +72,9 @@ def test_table_measures_the_stored_codes():
     assert table.coeff_sqerr[3, j] > plain.coeff_sqerr[3, j]
 
 
-def test_only_budgets_of_the_uniform_quantiser_use_the_dead_zone():
+def test_only_byte_budgets_of_the_uniform_quantiser_use_the_dead_zone():
     assert CompressOptions(max_bytes=10**6).dead_zone
-    assert CompressOptions(target_error=5.0).dead_zone
+    assert not CompressOptions(target_error=5.0).dead_zone          # its search needs rint's finer error steps
     assert not CompressOptions(k=8).dead_zone                       # a plain k keeps rint (its bytes unchanged)
     assert not CompressOptions(max_bytes=10**6, codec="exr").dead_zone
     assert not CompressOptions(max_bytes=10**6, solver="paper").dead_zone
