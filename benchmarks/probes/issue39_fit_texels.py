@@ -56,13 +56,15 @@ def main() -> None:
     ap.add_argument("--max-bytes", type=int, default=3_000_000, help="any budget: only makes the options budgeted")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--streamed", action="store_true")
+    ap.add_argument("--power-iterations", type=int, default=1, help="the rsvd's power iterations (compress's default 1)")
     a = ap.parse_args()
     ks = [int(k) for k in a.ks.split(",")]
 
     print(f"machine: {platform.node()} {platform.machine()} {os.cpu_count()} cpus, load {os.getloadavg()[0]:.2f}")
     btf = open_btf(a.input)
     print(f"input: {a.input} ({btf.width}x{btf.height}, {btf.n_samples} samples), domain {a.domain}")
-    opts = CompressOptions(max_bytes=a.max_bytes, fit_texels=a.fit_texels, seed=a.seed)
+    opts = CompressOptions(max_bytes=a.max_bytes, fit_texels=a.fit_texels, seed=a.seed,
+                           power_iterations=a.power_iterations)
     texels = sample_texels(btf, opts)
     k_fit = opts.fit_k(btf.n_samples, btf.n_pixels)
     with one_blas_thread():
