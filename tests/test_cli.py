@@ -355,3 +355,15 @@ def test_console_script_smoke(tmp_path):
     assert r.returncode == 65
     assert r.stderr.strip().splitlines() == [f"usdbtf compress: error: {tmp_path / 'missing'}: no such file or folder"]
     assert not (tmp_path / "x").exists()
+
+
+def test_fit_every_texel_needs_a_budget(src, tmp_path, capsys):
+    """--fit-every-texel (the streamed every-texel basis fit, opt-in) is refused in one usage line
+    without --max-bytes/--target-error or beside --fit-texels, and writes nothing."""
+    from usdbtf.cli import main
+
+    for extra in (["--k", "8"], ["--max-bytes", "100000", "--fit-texels", "256"]):
+        assert main(["compress", str(src), "-o", str(tmp_path / "out"), "--fit-every-texel", *extra]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "--fit-every-texel needs" in err[0], err
+    assert not (tmp_path / "out").exists()

@@ -514,7 +514,7 @@ def test_streamed_fit_is_the_full_fit_from_any_source(png_72, small_tiles):
 
     btf = read_manifest(png_72)
     P = btf.n_pixels
-    opts = CompressOptions(max_bytes=10**6, seed=2)
+    opts = CompressOptions(max_bytes=10**6, seed=2, fit_every_texel=True)
     texels = sample_texels(btf, opts)
     assert len(texels.fit) == 4096 < P
     tile = tile_samples(btf)
@@ -550,6 +550,7 @@ def test_streamed_fit_is_the_full_fit_from_any_source(png_72, small_tiles):
     # Under a plain k, or with --fit-texels, the sample is fitted as before.
     assert not fits_every_texel(whole, texels.fit, CompressOptions(k=40))
     assert not fits_every_texel(whole, texels.fit, CompressOptions(max_bytes=10**6, fit_texels=4096))
+    assert not fits_every_texel(whole, texels.fit, CompressOptions(max_bytes=10**6))   # opt-in: not the default
 
 
 def test_streamed_fit_weights_hdr_texels_as_the_full_fit():
@@ -563,7 +564,7 @@ def test_streamed_fit_weights_hdr_texels_as_the_full_fit():
     x = synth.render_all(synth.make_material("pebbles", 72, 4), s)
     x[:, :36] *= 1e-8
     btf = ArrayBTF.from_linear(s, x)
-    opts = CompressOptions(max_bytes=10**6)
+    opts = CompressOptions(max_bytes=10**6, fit_every_texel=True)
     texels = sample_texels(btf, opts)
     src = InMemorySource(btf, workers=1)
     fit = streamed_fit(src, texels.fit, 12, opts)

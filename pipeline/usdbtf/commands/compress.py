@@ -31,6 +31,7 @@ def run(args) -> int:
         coverage = read_coverage(args.coverage)
     opts = CompressOptions(solver=args.solver, k=args.k, target_error=args.target_error, max_bytes=args.max_bytes,
                           codec=args.codec, seed=args.seed, fit_texels=args.fit_texels,
+                          fit_every_texel=args.fit_every_texel,
                           power_iterations=args.power_iterations, region=args.region, workers=args.workers,
                           memory_budget=args.memory_budget * 1e9, expand_factors=args.expand_factors,
                           factor_rows=args.factor_rows, dask=args.dask, progress=not args.quiet,

@@ -117,20 +117,25 @@ def fit_source(source, texels: np.ndarray, k: int, options: CompressOptions) -> 
 
 
 def fits_every_texel(source, texels: np.ndarray, options: CompressOptions) -> bool:
-    """True when the basis is fitted on every texel rather than on the sample ``texels``: the
-    rsvd solver under a byte budget or an error target, no ``--fit-texels`` given, the sample
-    a strict subset of the image, and a source that passes over its rows (``row_chunks``).
+    """True when the basis is fitted on every texel rather than on the sample ``texels``:
+    ``--fit-every-texel`` (the rsvd solver under a byte budget or an error target, no
+    ``--fit-texels``), the sample a strict subset of the image, and a source that passes over
+    its rows (``row_chunks``).
 
     A basis of the budget modes' 200-300 vectors fitted on a quarter of the texels fits those
     texels better than the rest (paper-scale metal_flakes at k 288: 6.19 % unquantised L1
     error over the image from 4096 texels, 5.71 % from all 16384; satin_weave 3.80 -> 3.63 %;
-    ``benchmarks/probes/issue39_fit_texels.py``)."""
+    ``benchmarks/probes/issue39_fit_texels.py``).  Opt-in, not the default: at the paper's
+    bytes it lowered four presets' error 3-5 % but raised ridged_fabric's 24 % (rate control's
+    pack factor 1.99 against 1.07: its sampled size model no longer matched the pages; see
+    docs/compression-and-rate-control.md)."""
     return every_texel(options, len(texels), source.btf.n_pixels) and hasattr(source, "row_chunks")
 
 
 def every_texel(options: CompressOptions, n_fit: int, n_pixels: int) -> bool:
     """The options' part of :func:`fits_every_texel` (``n_fit`` sampled texels of ``n_pixels``)."""
-    return options.solver == "rsvd" and options.budgeted and not options.fit_texels and n_fit < n_pixels
+    return (options.fit_every_texel and options.solver == "rsvd" and options.budgeted and not options.fit_texels
+            and n_fit < n_pixels)
 
 
 def streamed_fit(source, texels: np.ndarray, k: int, options: CompressOptions) -> BasisFit:
