@@ -1263,3 +1263,59 @@ def test_mix_rgb_matches_matmul(shape):
     want = (x.reshape(-1, 3).astype(np.float64) @ m.T).reshape(shape)
     assert got.shape == shape and got.dtype == np.float32
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-5 * max(1.0, float(np.abs(want).max(initial=0))))
+
+
+def test_asset_budget_chooses_the_step_on_measured_bytes_and_error(monkeypatch):
+    """Issue 39: under an asset budget the step is chosen with k fitted on the measured packs
+    at each step and the held-out error of what that stores (here stand-ins: finer steps fit
+    fewer components, the error is the table's at that k and step): the walk leaves the
+    model's step for the neighbour with the least error, goes on while the error falls,
+    keeps the k the measured bytes allow there, and does not try the coarser side once the
+    finer side has helped."""
+    from usdbtf.compress import ratecontrol, ratedist
+
+    rng = np.random.default_rng(3)
+    scale = (0.8 ** np.arange(40))[:, None, None]
+    coeff = (rng.standard_normal((40, 512, 3)) * scale).astype(np.float32)
+    basis = np.linalg.qr(rng.standard_normal((64, 40)))[0].astype(np.float32)
+    table = ratedist.rd_table(coeff, basis, None)
+    _, err = table.curves(1.0)
+    # measured k per step index: the model's step (10) gets 36 components, finer steps fewer
+    measured_k = {8: 38, 9: 37, 10: 36, 11: 31, 12: 27, 13: 22, 14: 18}
+    step_of_k = {k: j for j, k in measured_k.items()}
+    calls = []
+
+    def fit(f, options, step, k, k_cap, ratio, rest, aim):
+        j = table.column(step)
+        calls.append(j)
+        return measured_k[j], 0.0, None
+
+    monkeypatch.setattr(ratecontrol, "_asset_fit_planned", fit)
+    monkeypatch.setattr(ratecontrol, "_held_out_score", lambda q, held, k: float(err[k, step_of_k[k]]))
+    k, step = ratecontrol._measured_step(None, None, table, None, float(table.steps[10]), 36, 40, 1.0, 0.0, 1.0)
+    walked = sorted(set(calls))
+    errors = {j: err[measured_k[j], j] for j in walked}
+    best = min(errors, key=errors.get)
+    assert (k, step) == (measured_k[best], float(table.steps[best]))
+    # two steps finer (k 27) beat the model's step (k 36); one more (k 22) did not
+    assert best == 12 and walked == [10, 11, 12, 13]
+    assert errors[12] < errors[11] < errors[10] < errors[13] * 3
+
+
+def test_held_out_score_is_the_geometric_mean_of_both_domains(tiny32, tmp_path):
+    """The step search's score: sqrt(encoded % x linear %) of the held-out texels, from the
+    same sums `held_out_errors` gives each domain."""
+    from usdbtf.compress import ratecontrol
+    from usdbtf.compress.evaluate import held_out_errors, held_out_set
+    from usdbtf.compress.select_source import load_source
+    from usdbtf.compress.texels import sample_texels
+
+    btf = read_manifest(tiny32)
+    opts = CompressOptions(k=6)
+    c = compress_into(btf, tmp_path / "c", opts)
+    texels = sample_texels(btf, opts)
+    with load_source(btf, texels, opts) as source:
+        held = held_out_set(source, texels)
+    enc, lin = held_out_errors(c, held, 4, ("encoded", "linear"))
+    assert enc.percent > 0 and lin.percent > 0 and enc.percent != lin.percent
+    assert ratecontrol._held_out_score(c, held, 4) == pytest.approx(np.sqrt(enc.percent * lin.percent), rel=1e-12)
