@@ -358,8 +358,9 @@ def test_console_script_smoke(tmp_path):
 
 
 def test_fit_every_texel_needs_a_budget(src, tmp_path, capsys):
-    """--fit-every-texel (the streamed every-texel basis fit, opt-in) is refused in one usage line
-    without --max-bytes/--target-error or beside --fit-texels, and writes nothing."""
+    """--fit-every-texel (the streamed every-texel basis fit, the budget modes' default) asked
+    for explicitly is refused in one usage line without --max-bytes/--target-error or beside
+    --fit-texels, and writes nothing; the options default to it only where it applies."""
     from usdbtf.cli import main
 
     for extra in (["--k", "8"], ["--max-bytes", "100000", "--fit-texels", "256"]):
@@ -367,3 +368,18 @@ def test_fit_every_texel_needs_a_budget(src, tmp_path, capsys):
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "--fit-every-texel needs" in err[0], err
     assert not (tmp_path / "out").exists()
+    from usdbtf.compress.fit import every_texel
+    from usdbtf.compress.options import CompressOptions
+
+    S = 10800                                        # paper sampling
+    assert every_texel(CompressOptions(max_bytes=10**6), 4096, 128**2, S)
+    assert every_texel(CompressOptions(target_error=5.0), 4096, 128**2, S)
+    assert not every_texel(CompressOptions(max_bytes=10**6, fit_every_texel=False), 4096, 128**2, S)
+    assert not every_texel(CompressOptions(k=8), 4096, 128**2, S)
+    assert not every_texel(CompressOptions(max_bytes=10**6, fit_texels=256), 256, 128**2, S)
+    assert not every_texel(CompressOptions(max_bytes=10**6), 4096, 4096, S)      # the sample is the image
+    # by default only where its panels fit the memory budget (0.61 GB at 128², 2.4 GB at 256²);
+    # asked for, at any size
+    assert not every_texel(CompressOptions(max_bytes=10**6), 4096, 256**2, S)
+    assert every_texel(CompressOptions(max_bytes=10**6, memory_budget=3e9), 4096, 256**2, S)
+    assert every_texel(CompressOptions(max_bytes=10**6, fit_every_texel=True), 4096, 256**2, S)

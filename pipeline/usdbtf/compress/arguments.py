@@ -3,6 +3,7 @@
 :data:`SCENE_OPTIONS`), so a scene can say nothing the command would not accept."""
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 from ..argtypes import SEED, WORKERS, add_outside_paths_flag, float_in, int_in
@@ -57,10 +58,11 @@ def add_arguments(p) -> None:
     p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--fit-texels", type=int_in(1, 1 << 26), help="rsvd: texels sampled to fit the basis "
                    "(default 2048; 4096 with --max-bytes or --target-error)")
-    p.add_argument("--fit-every-texel", action="store_true",
+    p.add_argument("--fit-every-texel", action=argparse.BooleanOptionalAction, default=None,
                    help="rsvd with --max-bytes or --target-error: fit the basis on every texel, in passes "
-                   "over the data (the 4096-texel sample still chooses the domain and feeds the rate model); "
-                   "lower error on most materials for ~15 %% more CPU, but measured worse on one (see the docs)")
+                   "over the data (default where it applies: the budget modes without --fit-texels; the "
+                   "4096-texel sample still chooses the domain and feeds the rate model); "
+                   "--no-fit-every-texel fits the sample only (~15 %% less CPU, more error)")
     p.add_argument("--power-iterations", type=int_in(0, 20), default=1, help="rsvd: power iterations (0..20)")
     p.add_argument("--region", type=int_in(1), help="paper: side of the central fitting region in texels")
     p.add_argument("--workers", type=WORKERS, help="decode processes (default: CPU count; with 2 or more, one more "

@@ -117,25 +117,40 @@ def fit_source(source, texels: np.ndarray, k: int, options: CompressOptions) -> 
 
 
 def fits_every_texel(source, texels: np.ndarray, options: CompressOptions) -> bool:
-    """True when the basis is fitted on every texel rather than on the sample ``texels``:
-    ``--fit-every-texel`` (the rsvd solver under a byte budget or an error target, no
-    ``--fit-texels``), the sample a strict subset of the image, and a source that passes over
-    its rows (``row_chunks``).
+    """True when the basis is fitted on every texel rather than on the sample ``texels``: the
+    rsvd solver under a byte budget or an error target, no ``--fit-texels`` and no
+    ``--no-fit-every-texel``, the sample a strict subset of the image, and a source that passes
+    over its rows (``row_chunks``; a Dask cluster's source fits the sample).
 
     A basis of the budget modes' 200-300 vectors fitted on a quarter of the texels fits those
     texels better than the rest (paper-scale metal_flakes at k 288: 6.19 % unquantised L1
     error over the image from 4096 texels, 5.71 % from all 16384; satin_weave 3.80 -> 3.63 %;
-    ``benchmarks/probes/issue39_fit_texels.py``).  Opt-in, not the default: at the paper's
-    bytes it lowered four presets' error 3-5 % but raised ridged_fabric's 24 % (rate control's
-    pack factor 1.99 against 1.07: its sampled size model no longer matched the pages; see
-    docs/compression-and-rate-control.md)."""
-    return every_texel(options, len(texels), source.btf.n_pixels) and hasattr(source, "row_chunks")
+    ``benchmarks/probes/issue39_fit_texels.py``).  The default since rate control chooses the
+    step on measured bytes and held-out error (``ratecontrol._measured_step``): before that it
+    raised ridged_fabric's error at the paper's bytes 24 % while lowering four presets' 3-5 %
+    (docs/compression-and-rate-control.md)."""
+    btf = source.btf
+    return every_texel(options, len(texels), btf.n_pixels, btf.n_samples) and hasattr(source, "row_chunks")
 
 
-def every_texel(options: CompressOptions, n_fit: int, n_pixels: int) -> bool:
-    """The options' part of :func:`fits_every_texel` (``n_fit`` sampled texels of ``n_pixels``)."""
-    return (options.fit_every_texel and options.solver == "rsvd" and options.budgeted and not options.fit_texels
-            and n_fit < n_pixels)
+def every_texel(options: CompressOptions, n_fit: int, n_pixels: int, n_samples: int) -> bool:
+    """The options' part of :func:`fits_every_texel` (``n_fit`` sampled texels of ``n_pixels``,
+    ``n_samples`` samples).  By default (``fit_every_texel`` None) only where the fit's panels
+    (:func:`every_texel_panel_bytes`) fit ``options.memory_budget``: they grow with the image
+    (paper sampling: 0.61 GB at 128², 2.4 GB at 256²), where the sampled fit's do not; an
+    explicit ``--fit-every-texel`` is taken at any size."""
+    applies = (options.solver == "rsvd" and options.budgeted and not options.fit_texels and n_fit < n_pixels
+               and options.fit_every_texel is not False)
+    if applies and options.fit_every_texel is None:
+        return every_texel_panel_bytes(options, n_samples, n_pixels) <= options.memory_budget
+    return applies
+
+
+def every_texel_panel_bytes(options: CompressOptions, n_samples: int, n_pixels: int) -> int:
+    """Bytes a fit over every texel (:func:`streamed_fit`) holds: panels of every texel, X^T Q and
+    Z (float32) and the float64 pair of orthonormalising them, (3 P) x (k_fit + oversample) each."""
+    panel = options.fit_k(n_samples, n_pixels) + options.oversample
+    return 3 * n_pixels * panel * (4 + 4 + 2 * 8)
 
 
 def streamed_fit(source, texels: np.ndarray, k: int, options: CompressOptions) -> BasisFit:

@@ -48,7 +48,8 @@ class CompressOptions:
     codec: str | None = None              # default: DEFAULT_CODEC[solver]
     seed: int = 0
     fit_texels: int | None = None         # rsvd: texels sampled for the basis fit (default: texels.py)
-    fit_every_texel: bool = False         # rsvd under a budget: fit the basis on every texel (fit.every_texel)
+    fit_every_texel: bool | None = None   # rsvd under a budget: fit the basis on every texel (fit.every_texel);
+                                          # None: yes where it applies, False: never, True: refused where it cannot
     power_iterations: int = 1
     oversample: int = 16
     region: int | None = None             # paper: side of the central square region (texels)
@@ -102,7 +103,7 @@ class CompressOptions:
             raise BTFError(f"unknown codec {self.codec_name!r}; choose from {', '.join(CODEC_NAMES)}")
         from .domain import parse_domain      # numpy: not at import (--help stays light)
         parse_domain(self.domain)
-        if self.fit_every_texel and not (self.solver == "rsvd" and self.budgeted and not self.fit_texels):
+        if self.fit_every_texel is True and not (self.solver == "rsvd" and self.budgeted and not self.fit_texels):
             raise UsageError("--fit-every-texel needs the rsvd solver with --max-bytes or --target-error, "
                              "and no --fit-texels")
         if self.max_texels is not None and self.max_texels < 1:

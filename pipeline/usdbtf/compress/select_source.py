@@ -11,7 +11,7 @@ import logging
 from ..model import BTF
 from .curve import curve_samples
 from .factored import FactoredSource, uses_factors
-from .fit import every_texel
+from .fit import every_texel, every_texel_panel_bytes
 from .options import CompressOptions
 from .source import choose_source
 from .texels import Texels
@@ -60,9 +60,8 @@ def load_source(btf: BTF, texels: Texels, options: CompressOptions):
     S, n = btf.n_samples, len(texels.fit)
     panel = options.fit_k(S, btf.n_pixels) + options.oversample
     fit_columns = S * 3 * n * 4 + 2 * (S + 3 * n) * panel * 8
-    if every_texel(options, n, btf.n_pixels):
-        # A fit over every texel (.fit.streamed_fit) holds no columns, but panels of every
-        # texel: X^T Q and Z (float32) and the float64 pair of orthonormalising them.
-        fit_columns = 3 * btf.n_pixels * panel * (4 + 4 + 2 * 8)
+    if every_texel(options, n, btf.n_pixels, S):
+        # A fit over every texel (.fit.streamed_fit) holds no columns, but panels of every texel.
+        fit_columns = every_texel_panel_bytes(options, S, btf.n_pixels)
     return choose_source(btf, keep, rows, memory_budget=options.memory_budget, workers=options.workers,
                          chunk_bytes=options.chunk_bytes, spill=options.spill, beside=fit_columns)
