@@ -187,3 +187,24 @@ def test_domain_power_is_accurate():
     strided = np.ones((4, 6), np.float32) * 4
     _power(strided[:, ::2], np.float32(0.5))
     assert (strided[:, ::2] == 2).all() and (strided[:, 1::2] == 4).all()
+
+
+def test_platform_names_numpys_blas_through_a_symlinked_environment(tmp_path, monkeypatch):
+    """The BLAS `platform()` records is numpy's own even when the environment is reached
+    through a symlink (a venv linked into a worktree) and another package's OpenBLAS (OpenCV's
+    wheels bring one) is listed first: the real paths are compared."""
+    import numpy as np
+    import threadpoolctl
+
+    real = Path(os.path.realpath(np.__file__)).parent.parent          # site-packages
+    linked = tmp_path / "site-packages"
+    linked.symlink_to(real, target_is_directory=True)
+    foreign = {"user_api": "blas", "internal_api": "openblas", "version": "0.3.15", "architecture": "Haswell",
+               "filepath": str(tmp_path / "cv2" / "libopenblas.so")}
+    ours = {"user_api": "blas", "internal_api": "openblas", "version": "0.3.31", "architecture": "Haswell",
+            "filepath": str(linked / "numpy.libs" / "libscipy_openblas64_.so")}
+    monkeypatch.setattr(threadpoolctl, "threadpool_info", lambda: [foreign, ours])
+    assert numeric._numpy_blas(np)["version"] == "0.3.31"
+    ours["filepath"] = str(real / "numpy.libs" / "libscipy_openblas64_.so")
+    monkeypatch.setattr(np, "__file__", str(linked / "numpy" / "__init__.py"))
+    assert numeric._numpy_blas(np)["version"] == "0.3.31"

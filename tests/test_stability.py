@@ -550,7 +550,8 @@ def test_streamed_fit_is_the_full_fit_from_any_source(png_72, small_tiles):
     # Under a plain k, or with --fit-texels, the sample is fitted as before.
     assert not fits_every_texel(whole, texels.fit, CompressOptions(k=40))
     assert not fits_every_texel(whole, texels.fit, CompressOptions(max_bytes=10**6, fit_texels=4096))
-    assert not fits_every_texel(whole, texels.fit, CompressOptions(max_bytes=10**6))   # opt-in: not the default
+    assert not fits_every_texel(whole, texels.fit, CompressOptions(max_bytes=10**6, fit_every_texel=False))
+    assert fits_every_texel(whole, texels.fit, CompressOptions(max_bytes=10**6))   # the budget modes' default
 
 
 def test_streamed_fit_weights_hdr_texels_as_the_full_fit():

@@ -157,9 +157,15 @@ def _numpy_blas(np) -> dict | None:
         libs = [lib for lib in threadpool_info() if lib.get("user_api") == "blas"]
     except Exception:       # noqa: BLE001 - threadpoolctl is a dependency; say unknown, not fail
         return None
-    home = os.path.dirname(os.path.dirname(os.path.abspath(np.__file__)))
-    mine = [lib for lib in libs if os.path.basename(os.path.dirname(lib.get("filepath", ""))).startswith("numpy")
-            and os.path.dirname(os.path.dirname(lib.get("filepath", ""))) == home]
+    # Real paths on both sides: numpy imported through a symlinked environment (a venv linked
+    # into a worktree) names its files by the link, the loader by the target or the link.
+    home = os.path.dirname(os.path.dirname(os.path.realpath(np.__file__)))
+
+    def folder(lib: dict) -> str:
+        return os.path.dirname(os.path.realpath(lib.get("filepath") or "/"))
+
+    mine = [lib for lib in libs if os.path.basename(folder(lib)).startswith("numpy")
+            and os.path.dirname(folder(lib)) == home]
     return (mine or libs or [None])[0]
 
 
