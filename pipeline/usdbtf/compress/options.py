@@ -146,6 +146,19 @@ class CompressOptions:
         return self.max_bytes is not None or self.target_error is not None
 
     @property
+    def dead_zone(self) -> bool:
+        """Round sparse coefficient planes towards zero (:func:`.codecs.uniform_codes`, issue
+        39): under ``--max-bytes``, where the bytes it saves buy components (paper-scale probes:
+        1-2 % less RMS error at the same shipped bytes; metal_flakes at the paper's bytes 0.772 ->
+        0.721 of the paper's encoded error).  ``--target-error`` keeps round-to-nearest: with the
+        dead zone the error moved in coarser jumps between the search's choices (32^2 pebbles,
+        6 % target: 5.81 % at k 11, 6.03 % at k 10, nothing between), so the search no longer
+        landed within its tolerance under the target, spending bytes the target did not need.
+        A plain k keeps round-to-nearest too: it asked for no size, and its step was chosen for
+        rint's error (:func:`.ratedist.choose_for_k`)."""
+        return self.max_bytes is not None and self.quantiser == "uniform"
+
+    @property
     def target_k(self) -> int:
         """Components to keep when no budget decides: ``k``, else :data:`DEFAULT_K`."""
         return self.k or DEFAULT_K

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .codecs import uniform_codes
 from .parallel import cpu_count, in_threads
 
 __all__ = ["RDTable", "rd_table", "choose_for_bytes", "choose_for_error", "choose_for_k"]
@@ -85,7 +86,7 @@ def _entropy_rows(q: np.ndarray) -> np.ndarray:
 
 
 def _rate_and_error(values: np.ndarray, steps: np.ndarray, rates: bool = True, *,
-                    threads: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+                    threads: int | None = None, dead_zone: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Entropy (bits, whole row) and squared error of quantising each row of ``values``
     (r, n) at each step: two (r, J) arrays.
 
@@ -101,16 +102,21 @@ def _rate_and_error(values: np.ndarray, steps: np.ndarray, rates: bool = True, *
     for bit, on any number of threads.  Where that would count a step's histograms row by
     row (more than ``_MAX_BINS`` bins in all) or a row's symbols leave the exactly
     representable integers, the blocks stop and :func:`_stepwise` measures the rest.
+
+    ``dead_zone``: the rows are quantised as the coefficients are under a budget
+    (:func:`.codecs.uniform_codes`: a row rint leaves mostly zero is rounded towards zero),
+    measured by :func:`_stepwise` alone (the blocks round to nearest).  Rows past
+    ``_HIGH_RATE_BITS`` are dense, rounded to nearest, so the high-rate laws still hold.
     """
     r, n = values.shape
     J = len(steps)
     bits, err = np.zeros((r, J)), np.zeros((r, J))
     last = np.full(r, -1)                                   # each row's last exactly measured step
     start, active = 0, np.arange(r)
-    if (r and n and J and values.dtype == np.float64 and steps.dtype == np.float64 and steps.ndim == 1
+    if (not dead_zone and r and n and J and values.dtype == np.float64 and steps.dtype == np.float64 and steps.ndim == 1
             and np.all(np.isfinite(steps) & (steps > 0))):
         start, active = _blocked(values, steps, rates, bits, err, last, threads)
-    _stepwise(values, steps, rates, bits, err, last, active, start)
+    _stepwise(values, steps, rates, bits, err, last, active, start, dead_zone)
     ref = np.maximum(last, 0)
     finer = np.arange(J)[None, :] > last[:, None]
     if rates:
@@ -122,16 +128,17 @@ def _rate_and_error(values: np.ndarray, steps: np.ndarray, rates: bool = True, *
     return bits, err
 
 
-def _stepwise(values, steps, rates, bits, err, last, active, start):
+def _stepwise(values, steps, rates, bits, err, last, active, start, dead_zone=False):
     """Measure steps ``start``.. of the rows ``active`` (those still measured exactly at step
-    ``start``), all rows at once per step, into ``bits``, ``err`` and ``last``."""
+    ``start``), all rows at once per step, into ``bits``, ``err`` and ``last``; each row
+    quantised as :func:`.codecs.uniform_codes` quantises a channel (``dead_zone``)."""
     n = values.shape[1]
     for j in range(start, len(steps)):
         if active.size == 0:
             break
         d = steps[j]
         v = values[active]
-        q = np.rint(v / d).astype(np.int64)
+        q = (uniform_codes((v / d).T, True).T if dead_zone else np.rint(v / d)).astype(np.int64)
         err[active, j] = ((v - q * d) ** 2).sum(axis=1)
         last[active] = j
         if rates:
@@ -301,7 +308,7 @@ def _energy_and_rows(coeff, sub, threads):
 
 def rd_table(coeff: np.ndarray, basis: np.ndarray, total_energy: float | None, *, n_texels: int | None = None,
              n_steps: int = 40, subsample: int = 2048, seed: int = 0, rates: bool = True,
-             threads: int | None = None) -> RDTable:
+             threads: int | None = None, dead_zone: bool = False) -> RDTable:
     """Build the table.
 
     coeff : (k, n, 3) float32 coefficients (decorrelated channels), energy-ordered, of all
@@ -313,6 +320,9 @@ def rd_table(coeff: np.ndarray, basis: np.ndarray, total_energy: float | None, *
         which (k, step) a byte budget or a fixed k picks).
     rates : estimate bytes (entropies); without, only errors (enough for :func:`choose_for_k`).
     threads : threads measuring the rows (default :func:`cpu_count`); the table does not depend on it.
+    dead_zone : the coefficients' rows quantised with the dead zone of sparse planes
+        (:func:`.codecs.uniform_codes`, as :func:`.quantise.quantise` does under a budget); the
+        basis columns are rounded to nearest either way.
     """
     k, n, _ = coeff.shape
     n_texels = n if n_texels is None else n_texels
@@ -324,7 +334,7 @@ def rd_table(coeff: np.ndarray, basis: np.ndarray, total_energy: float | None, *
     energy = energy * (n_texels / max(n, 1))
     rms0 = np.sqrt(energy[0] / (3 * n_texels)) if k else 1.0
     steps = rms0 * 2.0 ** (-np.arange(n_steps) / 2.0 - 1.0)
-    b, e = _rate_and_error(rows, steps, rates, threads=threads)
+    b, e = _rate_and_error(rows, steps, rates, threads=threads, dead_zone=dead_zone)
     cb = scale * b.reshape(k, 3, n_steps).sum(axis=1) / 8
     ce = scale * e.reshape(k, 3, n_steps).sum(axis=1)
     # Basis column i is quantised with step / sigma_i: the same table, rescaled.
