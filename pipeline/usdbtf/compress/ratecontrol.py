@@ -9,8 +9,9 @@ Four cases, one function each, all returning an encoded :class:`CompressedBTF` (
   (k, step) from the rate-distortion table calibrated on the shipped-bytes probes
   (:mod:`.packs`: RGBA PNG packs, the basis codes as the asset ships them), with what
   packaging adds beside them measured by packaging a near choice for real
-  (``options.asset_overhead``); then k fitted on the packs' and basis's measured bytes
-  (:func:`_asset_max_bytes`);
+  (``options.asset_overhead``); then the step chosen among the model's and its neighbours,
+  each with k fitted on the packs' and basis's measured bytes, by the held-out error of what
+  it stores (:func:`_measured_step`), and k fitted again at that step (:func:`_asset_max_bytes`);
 * ``--max-bytes`` of the compressed folder (``budget_for="folder"``): (k, step) from the rate-distortion table (:mod:`.ratedist`), its entropy
   model calibrated on probe encodes (a dozen coefficient textures, half the basis); the k
   coefficient textures encoded once, the basis once for the components their measured bytes
@@ -564,8 +565,9 @@ def _asset_max_bytes(f: Factorisation, options: CompressOptions, table, held: He
        MaterialX, layers), measured by packaging that choice for real
        (``options.asset_overhead``), and the pages' bytes per probe byte (one PNG stream per
        page against one per pack).
-    3. The model's choice for the bytes left; k then fitted on the measured bytes of every pack
-       and of the basis codes (a partial group of four measured as shipped, zero layers and all).
+    3. The model's choice for the bytes left, its step checked against its neighbours
+       (:func:`_measured_step`); k then fitted on the measured bytes of every pack and of the
+       basis codes (a partial group of four measured as shipped, zero layers and all).
     4. That choice packaged (its codes, no codec encode) and what packaging adds corrected by
        the difference; k refitted (at most three packagings), the largest k within the budget kept.
     """
