@@ -309,3 +309,21 @@ def test_render_bad_input(work, pebbles, capsys):
               names="nowhere")
     assert not out.exists() and not (work / "bad.png").exists()
     assert not [p for p in work.iterdir() if p.name.startswith(".bad")]
+
+
+def test_chunk_size_follows_k_and_changes_no_pixel(renderer):
+    """Pixels per shading task shrink as k grows (a task's (pixels, 3, k) taps stay near
+    CHUNK_BYTES: the 256² thumbnail at k 242 peaked 0.33 GB above rate control's memory with
+    16,384 pixels a task), and the frame is the same bits at any chunk size."""
+    from usdbtf.render.core import CHUNK_BYTES, chunk_pixels
+
+    assert chunk_pixels(8) == 16384 and chunk_pixels(100_000) == 1024
+    assert 5 * 4 * 242 * chunk_pixels(242) <= CHUNK_BYTES < 5 * 4 * 242 * (chunk_pixels(242) + 1)
+    half = PHYSICAL_SIZE / 2
+    cam = Camera(np.array([0.03, -0.04, 0.05]), np.zeros(3), np.array([0, 0, 1.0]), 2 * np.degrees(np.arctan(half / 0.06)),
+                 64, 48)
+    sun = Light("directional", directions_to_vectors([(35.0, 60.0)])[0], capture_irradiance())
+    frames = [Renderer(renderer.cbtf, RenderOptions(threads=2, chunk=chunk)).render(_plane(PHYSICAL_SIZE), cam, [sun])
+              for chunk in (None, 100, 16384)]
+    assert (frames[0][..., 3] > 0).sum() > 1000             # the plane fills much of the frame
+    assert np.array_equal(frames[0], frames[1]) and np.array_equal(frames[0], frames[2])

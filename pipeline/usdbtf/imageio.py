@@ -362,8 +362,10 @@ def _png_chunk(kind: bytes, data: bytes) -> bytes:
     return len(data).to_bytes(4, "big") + kind + data + zlib.crc32(kind + data).to_bytes(4, "big")
 
 
-#: Unfiltered bytes :func:`encode_png_rle` filters at once (bounds its memory on atlas pages).
-_PNG_ROWS_BYTES = 1 << 22
+#: Unfiltered bytes :func:`encode_png_rle` filters at once: bounds its memory (~30 bytes of
+#: int16 temporaries per byte: 4 MiB at once held ~130 MB a call, 1 MiB ~35 MB) on atlas and
+#: basis pages; the file's bytes do not depend on it (one deflate stream, no flush between).
+_PNG_ROWS_BYTES = 1 << 20
 
 
 def encode_png_rle(pixels: np.ndarray, *, row_filter: str | int = "adaptive", strategy: int = zlib.Z_RLE,

@@ -273,10 +273,13 @@ def basis_page(codes: np.ndarray, views: int, lights: int) -> np.ndarray:
         raise BTFError("basis page: codes must lie in 0..65535")
     groups = -(-n // 4)
     per_column = basis_page_column(groups, views)
-    padded = np.zeros((S, groups * 4), np.int64)
+    # uint16 (the codes' range, checked above), not int64: a paper-scale page at k 242 held
+    # ~100 MB of int64 temporaries inside rate control's packagings (issue 42's 1.2 GB).
+    padded = np.zeros((S, groups * 4), np.uint16)
     padded[:, :n] = codes
     planes = padded.reshape(views, lights, groups, 4).transpose(2, 0, 1, 3)            # (G, V, L, 4)
-    stacked = np.concatenate([planes >> 8, planes & 255], axis=1).astype(np.uint8)     # (G, 2V, L, 4)
+    stacked = np.concatenate([(planes >> 8).astype(np.uint8), (planes & 255).astype(np.uint8)],
+                             axis=1)                                                    # (G, 2V, L, 4)
     columns = -(-groups // per_column)
     rows = 2 * views * min(groups, per_column)
     image = np.zeros((rows, columns * lights, 4), np.uint8)

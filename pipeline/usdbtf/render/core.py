@@ -43,7 +43,7 @@ from .texture import CoefficientTexture, merge_needed
 from ..numeric import single_blas_thread
 from ..photometry import radiance_per_irradiance, white_level_of
 
-__all__ = ["RenderOptions", "RenderResult", "Renderer", "render", "render_parts", "render_scene", "render_swatch",
+__all__ = ["CHUNK_BYTES", "chunk_pixels", "RenderOptions", "RenderResult", "Renderer", "render", "render_parts", "render_scene", "render_swatch",
            "front_facing", "point_frames", "perspective_weights"]
 
 
@@ -52,7 +52,7 @@ class RenderOptions:
     """k : basis vectors used (default all); shadows : cast shadows; filter : "mip" (trilinear)
     or "bilinear"; wrap : texture wrap "repeat"/"clamp" (default repeat for a tileable quilt,
     else clamp); shadow_resolution : texels per side (default: the frame's larger side);
-    threads; chunk : pixels per task."""
+    threads; chunk : pixels per task (default None: :func:`chunk_pixels` of the k shaded)."""
 
     k: int | None = None
     shadows: bool = True
@@ -60,7 +60,7 @@ class RenderOptions:
     wrap: str | None = None
     shadow_resolution: int | None = None
     threads: int = 2
-    chunk: int = 16384
+    chunk: int | None = None
 
     def validate(self, cbtf: CompressedBTF) -> None:
         if self.k is not None and not 1 <= self.k <= cbtf.k:
@@ -69,6 +69,24 @@ class RenderOptions:
             raise BTFError(f"filter must be 'mip' or 'bilinear', got {self.filter!r}")
         if self.wrap not in (None, "repeat", "clamp"):
             raise BTFError(f"wrap must be 'repeat' or 'clamp', got {self.wrap!r}")
+
+
+#: What one shading task's arrays may hold (bytes), :func:`chunk_pixels`.
+CHUNK_BYTES = 16 * 2**20
+#: Pixels per task at most (and at least): few tasks for a low k, not one per pixel for a high one.
+_CHUNK_RANGE = (1024, 16384)
+
+
+def chunk_pixels(k: int) -> int:
+    """Pixels per shading task for ``k`` coefficients: each task holds about five float32
+    arrays of (pixels, k) values (a filter tap's (pixels, 3, k) coefficients, the blended
+    rows and their copies), so a fixed pixel count grows with k: 16,384 pixels at k 242 held
+    ~110 MB a task, and the 256² thumbnail that ``compress --max-bytes`` renders for each
+    packaging it measures peaked 0.33-0.38 GB above what rate control held (issue 42's
+    1.2 GB).  Sized so a task's arrays stay near :data:`CHUNK_BYTES`, clipped to
+    :data:`_CHUNK_RANGE`; the pixels a task shades are computed the same at any chunk size."""
+    lo, hi = _CHUNK_RANGE
+    return int(min(hi, max(lo, CHUNK_BYTES // (5 * 4 * max(int(k), 1)))))
 
 
 def default_wrap(cbtf: CompressedBTF) -> str:
@@ -136,7 +154,7 @@ class Renderer:
 
     def _slices(self, n: int) -> list[slice]:
         """The chunks of ``n`` pixels shaded as one task each."""
-        step = self.opts.chunk
+        step = self.opts.chunk or chunk_pixels(self.interp.k)
         return [slice(a, min(a + step, n)) for a in range(0, n, step)]
 
     def _shade_chunks(self, n: int, fn) -> np.ndarray:
