@@ -310,9 +310,9 @@ class _KeptSource(_Source):
             self._row_data[self._rows[i]] = image
 
     def _kept_set(self, texels: np.ndarray, *, hand_over: bool) -> np.ndarray:
-        # Under a lock: compress hands over the fitting and the held-out sets from two
-        # threads at once (core._side_by_side), and a deletion between another thread's
-        # search and its own deletion would remove the wrong set, or none (an IndexError).
+        # Under a lock: the fitting and the held-out sets may be handed over from two
+        # threads at once, and a deletion between another thread's search and its own
+        # deletion would remove the wrong set, or none (an IndexError).
         with self._kept_lock:
             for n, (t, raw) in enumerate(self._kept):
                 if np.array_equal(t, texels):
