@@ -3,10 +3,12 @@
 A least-squares fit over every measured sample is free to trade brightness at the views
 nearest the normal (what a swatch, a thumbnail and most shots show) for grazing ones.  The fit
 also weighs the mean of those samples per band of light elevation (``svbrdf.pole_samples``,
-``POLE_WEIGHT``).  On the sparkly metal_flakes preset (16^2, small sampling) the
-unconstrained fit's swatch mean at the head-on light is 1.75x the BTF's; kept, its worst ring
-moves at least 40 % of the way to 1, the rings' mean deviation drops by 20 % or more, and the
-error over all samples grows by less than 5 %.
+``POLE_WEIGHT``).  On velvet (16^2, small sampling) the unconstrained fit's swatch is 13-15 %
+too bright at every ring of pole lights; kept, the worst ring's and the rings' mean deviation
+drop by 30 % or more, and the error over all samples does not grow by 5 %.  (The guard was
+written on metal_flakes, whose unconstrained fit was 1.75x too bright at the head-on light:
+that came from its flakes' normals, which the specular-peak candidate now places, so its
+unconstrained fit is within 20 % at every ring: :func:`test_flakes_get_their_own_normals`.)
 """
 from __future__ import annotations
 
@@ -43,18 +45,45 @@ def _pole_ratios_and_error(cbtf, maps):
     return ratios, float(np.abs(pred - truth).sum() / truth.sum())
 
 
-def test_fit_keeps_the_brightness_at_near_normal_views(flakes):
+@pytest.fixture(scope="module")
+def velvet():
+    return _synthetic("velvet", 16)
+
+
+def test_fit_keeps_the_brightness_at_near_normal_views(velvet):
     # brightness=False: step 4 (the test below) would hide what the pole weight does.
-    free_ratios, free_err = _pole_ratios_and_error(flakes, svbrdf.fit_svbrdf(flakes, pole_weight=0.0,
+    free_ratios, free_err = _pole_ratios_and_error(velvet, svbrdf.fit_svbrdf(velvet, pole_weight=0.0,
                                                                             brightness=False))
-    ratios, err = _pole_ratios_and_error(flakes, svbrdf.fit_svbrdf(flakes, brightness=False))
-    print(f"metal_flakes 16^2 small: pole-view ratios unconstrained {np.round(free_ratios, 3).tolist()} "
+    ratios, err = _pole_ratios_and_error(velvet, svbrdf.fit_svbrdf(velvet, brightness=False))
+    print(f"velvet 16^2 small: pole-view ratios unconstrained {np.round(free_ratios, 3).tolist()} "
           f"(error {free_err:.4f}), kept {np.round(ratios, 3).tolist()} (error {err:.4f})")
     worst = int(np.argmax(np.abs(free_ratios - 1)))
-    assert abs(free_ratios[worst] - 1) > 0.5                        # the bias this guards against is there
-    assert abs(ratios[worst] - 1) < 0.6 * abs(free_ratios[worst] - 1), (free_ratios, ratios)
-    assert np.abs(ratios - 1).mean() < 0.8 * np.abs(free_ratios - 1).mean(), (free_ratios, ratios)
+    assert abs(free_ratios[worst] - 1) > 0.1                        # the bias this guards against is there
+    assert abs(ratios[worst] - 1) < 0.7 * abs(free_ratios[worst] - 1), (free_ratios, ratios)
+    assert np.abs(ratios - 1).mean() < 0.7 * np.abs(free_ratios - 1).mean(), (free_ratios, ratios)
     assert err < 1.05 * free_err
+
+
+def test_flakes_get_their_own_normals(flakes):
+    """A mirror-like flake's normal is where its highlight peaks (svbrdf._peak_normals), not
+    what photometric stereo makes of its dim diffuse shading: against the synthetic material's
+    own shading normals, metal_flakes' flakes (16^2, small sampling: 169 samples) were 15.9
+    degrees off (median) with roughness 0.6 and the fit's error over every sample 0.70; with
+    the peak candidate 4.9 degrees, roughness 0.3 and 0.23."""
+    material = synth.make_material("metal_flakes", 16, 5)
+    flake = material.specular > 0.5
+    truth = np.dstack([-material.slope[..., 0], -material.slope[..., 1], np.ones((16, 16))])
+    truth /= np.linalg.norm(truth, axis=-1, keepdims=True)
+    maps = svbrdf.fit_svbrdf(flakes, brightness=False)
+    off = np.degrees(np.arccos(np.clip((maps.normal * truth).sum(axis=-1), -1.0, 1.0)))
+    ratios, err = _pole_ratios_and_error(flakes, maps)
+    print(f"metal_flakes 16^2 small: {int(flake.sum())} flake texels, normals {np.median(off[flake]):.1f} deg off "
+          f"(median), roughness {np.median(maps.roughness[flake]):.2f}, error {err:.4f}, pole rings {np.round(ratios, 3).tolist()}")
+    assert flake.sum() > 40
+    assert np.median(off[flake]) < 8.0
+    assert np.median(maps.roughness[flake]) <= 0.4
+    assert err < 0.35
+    assert np.abs(ratios - 1).max() < 0.25
 
 
 def _swatch_ratios(cbtf, maps) -> np.ndarray:

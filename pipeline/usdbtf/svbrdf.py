@@ -34,10 +34,14 @@ samples is all that is held; ``chunk_bytes`` bounds it):
    over all samples is otherwise free to trade brightness at near-normal views for grazing
    ones (measured: 6-32 % too bright at pole views on pebbles, satin_weave, metal_flakes),
    and near-normal views are what a swatch, a thumbnail and most shots show.
-   This is done with the flat normal (0, 0, 1) and with the
-   photometric one; a texel keeps its photometric normal only where that fit predicts
-   :data:`VALIDATION_SAMPLES` other measured samples better (a tilted normal with a sharp
-   lobe can fit the fit samples and still flash at directions they do not cover).
+   This is done with the flat normal (0, 0, 1), with the photometric one and, for texels
+   with a sharp highlight, with the normal at their highlight's peak (:func:`_peak_normals`,
+   roughness down to :data:`PEAK_ROUGHNESS`); a texel keeps a tilted normal only where that
+   fit predicts :data:`VALIDATION_SAMPLES` other measured samples better (a tilted normal with
+   a sharp lobe can fit the fit samples and still flash at directions they do not cover).
+   Why the third: a mirror-like flake's own tilt is invisible to photometric stereo (its
+   diffuse albedo is low, its highlights are discarded as outliers); on metal_flakes its
+   normals were 17 degrees off (median) and 87 % of the fallback's error came from the flakes.
 4. **Brightness** (:func:`keep_brightness`): the pole samples' weight in step 3 pulls the fit
    towards the BTF's brightness there but does not pin it (measured, issue 40: the model's
    swatch 3-13 % brighter than the BTF's at pole lights).  One factor per colour channel for
@@ -289,6 +293,74 @@ def _photometric_normals(y_lum: np.ndarray, light: np.ndarray) -> np.ndarray:
     return n.astype(np.float32)
 
 
+#: Roughness tried with a texel's specular-peak normal (:func:`_peak_normals`): the grid's values
+#: up to 0.5 (a sharp highlight's lobe) and two below it, for mirror-like flakes (alpha = r^2 of
+#: 0.02-0.03) whose lobe the grid's 0.2 is too wide for.
+PEAK_ROUGHNESS = np.array([0.14, 0.17], np.float32)
+PEAK_MAX_ROUGHNESS = 0.5
+#: A texel has a sharp highlight where its brightest fit sample is this many times its
+#: median fit sample (luminance).  metal_flakes, paper sampling: the flakes' ratios are 13-41
+#: (5th-95th percentile) at 32² (k 64) and 9-35 at 128² (k 242), its glossy base coat's
+#: 6-11 and 7-12: the candidate is tried where it can matter and its cost stays off the rest.
+PEAK_RATIO = 12.0
+#: Fit samples within this fraction of the peak's luminance place the peak normal.
+PEAK_FRACTION = 0.5
+PEAK_QUADRATIC = 0.05
+
+
+def _peak_normals(y: np.ndarray, luma: np.ndarray, h: np.ndarray) -> tuple[np.ndarray]:
+    """((T, 3) normals,): per texel with a sharp highlight (:data:`PEAK_RATIO`) the
+    luminance-weighted mean half vector of its fit samples above :data:`PEAK_FRACTION` of its
+    brightest, NaN elsewhere.
+
+    Why: a mirror-like flake's lobe is a few degrees wide and its own tilt (tens of degrees)
+    is not what photometric stereo sees (its diffuse albedo is low and its highlights are
+    discarded as outliers): metal_flakes' flakes got normals 17 degrees off (median) and
+    roughness 0.7, and 87 % of the fallback's error came from them.  A lobe peaks where the
+    half vector meets the normal, and the half vectors of the fit samples lie within about a
+    degree of any normal up to 45 degrees (paper sampling), so the brightest samples' half
+    vectors place it.
+
+    y : (3, S, T) values of the fit samples; luma : (3,) luminance weights; h : (S, 3) unit
+    half vectors of the fit samples.
+    """
+    lum = np.einsum("c,cst->st", luma, y)
+    top = lum.max(axis=0)
+    floor = np.median(lum, axis=0)
+    sharp = top > PEAK_RATIO * np.maximum(floor, 1e-12)
+    w = np.maximum(lum - PEAK_FRACTION * top, 0.0)
+    # einsum, not a GEMM: a texel's sums must not depend on where it sits in the block (a
+    # quilt's source texels are fitted in other blocks than the swatch's, and their maps agree).
+    n = np.einsum("st,si->ti", w.astype(np.float64), h.astype(np.float64))
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    ok = sharp & (norm[:, 0] > 0) & (n[:, 2] > 0)
+    n = np.where(ok[:, None], n / np.maximum(norm, 1e-30), 0.0)
+    if PEAK_QUADRATIC:
+        # GGX near its peak: D ~ a^2 / (pi (a^2 + theta_h^2)^2), so (L - floor)^(-1/2) is a
+        # paraboloid in the half vector's (x, y) whose vertex is the normal's (x, y):
+        # weighted least squares of c0 + c1 x + c2 y + c3 (x^2 + y^2) over the samples above
+        # PEAK_QUADRATIC of the peak (above the floor).
+        spec = lum - floor
+        m = (spec >= PEAK_QUADRATIC * (top - floor)) & ok
+        q = np.where(m, 1.0 / np.sqrt(np.maximum(spec, 1e-30)), 0.0)
+        x, yh = h[:, 0].astype(np.float64), h[:, 1].astype(np.float64)
+        phi = np.stack([np.ones_like(x), x, yh, x * x + yh * yh], axis=1)          # (S, 4)
+        wts = np.where(m, spec, 0.0)                                                # (S, T)
+        A = np.einsum("st,si,sj->tij", wts, phi, phi) + 1e-12 * np.eye(4)
+        b = np.einsum("st,si->ti", wts * q, phi)
+        enough = m.sum(axis=0) >= 6
+        c = np.zeros((len(top), 4))
+        c[enough] = np.linalg.solve(A[enough], b[enough][..., None])[..., 0]
+        good = enough & (c[:, 3] > 0)
+        cx, cy = -c[:, 1] / np.where(good, 2 * c[:, 3], 1.0), -c[:, 2] / np.where(good, 2 * c[:, 3], 1.0)
+        near = good & (np.hypot(cx - n[:, 0], cy - n[:, 1]) < np.sin(np.radians(5.0))) & (cx * cx + cy * cy < 0.9)
+        n[near, 0], n[near, 1] = cx[near], cy[near]
+        n[near, 2] = np.sqrt(1.0 - cx[near] ** 2 - cy[near] ** 2)
+    out = np.full((y.shape[2], 3), np.nan, np.float32)
+    out[ok] = n[ok]
+    return (out,)
+
+
 def _solve_channel(s11, s12, s22, b1, b2):
     """Least squares of (a, F0) from sums, with a >= 0 and 0 <= F0 <= 1 (all (T,) arrays)."""
     det = s11 * s22 - s12 * s12
@@ -418,8 +490,11 @@ def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: in
     # elevation limits (the paper sampling: 1,728 each): their values are reconstructed once a
     # block (the same rows into the same product: the same bits; issue 42).
     ps_is_pole = normals and _same_samples(ps, pole)
+    h_fit = v + l
+    h_fit /= np.maximum(np.linalg.norm(h_fit, axis=1, keepdims=True), 1e-12)
     luma = _luminance_weights(cbtf)
     grid = np.asarray(roughness_grid, np.float32)
+    peak_grid = np.union1d(PEAK_ROUGHNESS, grid[grid <= PEAK_MAX_ROUGHNESS]).astype(np.float32)
     texels = cbtf.width * cbtf.height
     diffuse, specular = np.zeros((texels, 3), np.float32), np.zeros((texels, 3), np.float32)
     rough, normal = np.ones(texels, np.float32), np.zeros((texels, 3), np.float32)
@@ -443,11 +518,24 @@ def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: in
         if normals:
             n_fit = _photometric_normals((values(ps_rows) if shared is None else shared) @ luma, ps_light)
             shared = None
-            a1, f1, r1, _ = _fit_reflectance(y, n_fit, v, l, grid, kept)
             yv = np.ascontiguousarray((values(val_rows) * scale).transpose(2, 0, 1))
-            tilt = _validation_residual(yv, n_fit, vv, vl, a1, f1, r1) < \
-                _validation_residual(yv, n_flat, vv, vl, a, f, r)
-            a[tilt], f[tilt], r[tilt], n_ps[tilt] = a1[tilt], f1[tilt], r1[tilt], n_fit[tilt]
+            best = _validation_residual(yv, n_flat, vv, vl, a, f, r)
+            # Candidates for the normal map: the photometric normal (diffuse shading), and for
+            # texels with a sharp highlight the half vector of their specular peak; a texel
+            # keeps the candidate that predicts the validation samples best.
+            for n_cand, cand_grid, cand in ((n_fit, grid, None),
+                                            (*_peak_normals(y, luma, h_fit), peak_grid, "peak")):
+                sel = slice(None) if cand is None else np.flatnonzero(np.isfinite(n_cand[:, 0]))
+                if cand is not None and not len(sel):
+                    continue
+                n_c = n_cand[sel]
+                kept_c = None if kept is None else (kept[0][:, :, sel], *kept[1:])
+                a1, f1, r1, _ = _fit_reflectance(np.ascontiguousarray(y[:, :, sel]), n_c, v, l, cand_grid, kept_c)
+                res1 = _validation_residual(np.ascontiguousarray(yv[:, :, sel]), n_c, vv, vl, a1, f1, r1)
+                idx = np.arange(len(n_ps))[sel]
+                won = res1 < best[idx]
+                at = idx[won]
+                a[at], f[at], r[at], n_ps[at], best[at] = a1[won], f1[won], r1[won], n_c[won], res1[won]
         diffuse[block] = np.clip(a / np.maximum(1.0 - f, 1e-6), 0.0, 1.0)
         specular[block], rough[block], normal[block] = f, r, n_ps
     h, w = cbtf.height, cbtf.width
