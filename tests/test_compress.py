@@ -864,6 +864,31 @@ def test_error_curve_files(small32, tmp_path):
     assert doc["error_curve"] == {"file": "error_curve.csv", "plot": "error_curve.png"}
 
 
+def test_an_in_memory_source_lets_its_values_go_before_rate_control(small32, monkeypatch):
+    """Issue 42: after the projection compress reads no stored value but the error curve's
+    few samples, so an in-memory source (0.53 GB of a paper-scale run's 1.2 GB) lets them go
+    before rate control; a --target-error run keeps them until the end (a capped plan projects
+    again).  A released source refuses reads in one line."""
+    from usdbtf.compress import core
+    from usdbtf.compress.source import InMemorySource
+
+    events = []
+    release = InMemorySource.release_values
+    choose = core.rate_control
+    monkeypatch.setattr(InMemorySource, "release_values", lambda self: (events.append("release"), release(self))[1])
+    monkeypatch.setattr(core, "rate_control", lambda *a, **kw: (events.append("rate control"), choose(*a, **kw))[1])
+    btf = read_manifest(small32)
+    compress(btf, CompressOptions(k=6))
+    assert events == ["release", "rate control"]
+    events.clear()
+    compress(btf, CompressOptions(target_error=8.0))
+    assert events == ["rate control", "release"]
+    src = InMemorySource(btf, workers=1)
+    release(src)
+    with pytest.raises(BTFError, match="released"):
+        src.working_samples([0])
+
+
 # ---------------------------------------------------------------- failures
 
 

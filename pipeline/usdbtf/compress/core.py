@@ -29,7 +29,7 @@ from ..model import BTF
 from ..outputs import COMPRESSED as COMPRESSED_KIND
 from ..resources import release_free_heap
 from .coverage import shaped_input
-from .curve import write_curve
+from .curve import curve_truth, write_curve
 from .decorrelate import color_decorrelation, rotate_color
 from .evaluate import error_curve, held_out_errors, held_out_set
 from .domain import parse_domain
@@ -124,9 +124,14 @@ def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
         step, planes = step_for_k(rotate_color(sampled, color), fit.basis, outside, btf.n_pixels, opts, truth_mean)
         del sampled
         clock.lap("color")
+        # After the projection no step reads a stored value but the error curve's few samples,
+        # except a --target-error whose plan caps its choice (it projects again): the others let
+        # the values go before rate control (:func:`_let_go`).
+        kept = {}
+        early = kept if opts.target_error is None else None
         try:
             chosen = _project_and_choose(source, btf, fit.basis, color, planes, step, domain, outside, opts, held,
-                                         clock)
+                                         clock, early)
         except PlanCapped as capped:
             chosen, why = None, str(capped)   # (out of the handler: its traceback holds the coefficients)
         if chosen is None:
@@ -147,8 +152,9 @@ def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
             choice["basis_texels"] = int(btf.n_pixels)
         # The held-out error and the error curve one after the other (each on every core):
         # side by side their peaks added up, and --k 150 at paper scale peaked at 1.22-1.26 GB.
+        _let_go(source, btf.n_samples, kept)
         result = _described(cbtf, opts, dict(choice, planes=list(planes)), fit.singular_values, held,
-                            held_out_errors(cbtf, held), error_curve(cbtf, source),
+                            held_out_errors(cbtf, held), error_curve(cbtf, None, truth=kept["curve"]),
                             getattr(source, "provenance", None), covered)
         result.source = dict(result.source, bit_depth=measured_depth)
         clock.lap("evaluate")
@@ -170,11 +176,25 @@ def full_input_domain(btf: BTF, opts: CompressOptions):
     return domain, scores
 
 
+def _let_go(source, n_samples: int, kept: dict) -> None:
+    """Keep the error curve's samples in ``kept["curve"]`` (:func:`.curve.curve_truth`), then
+    release the source's stored values where it can (an in-memory source's: 0.53 GB of a
+    paper-scale run's 1.2 GB, issue 42).  Once per ``kept``."""
+    if "curve" in kept:
+        return
+    kept["curve"] = curve_truth(source, n_samples)
+    release = getattr(source, "release_values", None)
+    if release is not None:
+        release()
+        release_free_heap()
+
+
 def _project_and_choose(source, btf: BTF, fit_basis: np.ndarray, color: np.ndarray, planes: tuple, step, domain,
-                        outside: float, opts: CompressOptions, held, clock: "_Clock") -> tuple[CompressedBTF, dict]:
+                        outside: float, opts: CompressOptions, held, clock: "_Clock",
+                        early: dict | None = None) -> tuple[CompressedBTF, dict]:
     """Project ``planes`` components per colour plane, then rate control (:func:`.ratecontrol.rate_control`,
     which raises :class:`.ratecontrol.PlanCapped` when the plan caps a ``--target-error``
-    choice)."""
+    choice).  ``early``: a dict for :func:`_let_go` between the two (None: keep the source)."""
     # Only the components some plane is projected on (under a budget, what the sampled
     # model could choose: the rest would be zeros for rate control to skip).
     basis = fit_basis[:, :max(planes)]
@@ -184,6 +204,8 @@ def _project_and_choose(source, btf: BTF, fit_basis: np.ndarray, color: np.ndarr
         energy = float(np.einsum("kpc,kpc->", coeff, coeff, dtype=np.float64)) + outside
     f = Factorisation(btf, basis, coeff, color, energy, planes, step, domain)
     del coeff
+    if early is not None:
+        _let_go(source, btf.n_samples, early)
     # What the fit's and the projection's threads freed, back to the system before rate control
     # allocates its own (a budget's packagings, issue 42): glibc would keep it resident.
     release_free_heap()

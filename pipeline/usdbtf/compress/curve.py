@@ -25,7 +25,14 @@ def curve_ks(k: int, count: int = 48) -> np.ndarray:
     return np.unique(np.r_[head, tail, k]).astype(int)
 
 
-def error_curve(cbtf, data, *, texels_per_block: int = 4096) -> dict:
+def curve_truth(data, n_samples: int) -> np.ndarray:
+    """(r, P, 3) the working-domain images :func:`error_curve` measures, read from ``data``
+    (``working_samples``) for ``n_samples`` samples: a caller may take them before it lets
+    the source go."""
+    return data.working_samples(curve_samples(n_samples))
+
+
+def error_curve(cbtf, data, *, texels_per_block: int = 4096, truth: np.ndarray | None = None) -> dict:
     """Percent error vs k, the paper's Fig. 3, of the stored representation.
 
     Measured over all texels of ``curve_samples`` (the paper plots one view/light pair;
@@ -39,6 +46,7 @@ def error_curve(cbtf, data, *, texels_per_block: int = 4096) -> dict:
     cbtf : the stored representation.
     data : the source (``working_samples(rows)`` -> (r, P, 3) truth in the working domain;
         the error is measured after ``cbtf.domain``'s inverse curve, in scene-linear).
+    truth : :func:`curve_truth` of ``data``, read before (``data`` is then not used; None).
     texels_per_block : texels decoded from the coefficient textures at a time (a block holds
         ~8 float32 values per texel, channel and component: 4096 texels at k 150 ~20 MB).
 
@@ -48,7 +56,7 @@ def error_curve(cbtf, data, *, texels_per_block: int = 4096) -> dict:
     units), "samples" (the sample indices measured).
     """
     rows = curve_samples(cbtf.n_samples)
-    truth = data.working_samples(rows)                                   # (r, P, 3), working domain
+    truth = curve_truth(data, cbtf.n_samples) if truth is None else truth    # (r, P, 3), working domain
     basis = cbtf.basis_values()[rows]                                    # (r, k)
     dom = cbtf.domain
     total = float(dom.inverse(truth).sum(dtype=np.float64))
