@@ -25,8 +25,9 @@ def main(argv=None) -> int:
     if peak is not None:                 # an older tree has no peak candidate
         def counted(*args):
             out = peak(*args)
-            count[0] += int(np.isfinite(out[0][:, 0]).sum())
-            count[1] += len(out[0])
+            normals = out[0] if isinstance(out, tuple) else out      # c61beea returned a 1-tuple
+            count[0] += int(np.isfinite(normals[:, 0]).sum())
+            count[1] += len(normals)
             return out
         svbrdf._peak_normals = counted
     t = time.process_time()

@@ -55,7 +55,7 @@ def main(argv=None) -> int:
                 pos[0] += t
                 out = np.full((t, 3), np.nan, np.float32)
                 out[flat_flake[a:a + t]] = flat_truth[a:a + t][flat_flake[a:a + t]]
-                return (out,)
+                return out
 
             svbrdf._peak_normals = oracle
         try:

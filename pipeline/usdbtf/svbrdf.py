@@ -305,11 +305,13 @@ PEAK_MAX_ROUGHNESS = 0.5
 PEAK_RATIO = 12.0
 #: Fit samples within this fraction of the peak's luminance place the peak normal.
 PEAK_FRACTION = 0.5
+#: Samples above this fraction of the peak (over the median) refine it as a paraboloid's vertex
+#: (:func:`_peak_normals`); 0 keeps the weighted mean half vector.
 PEAK_QUADRATIC = 0.05
 
 
-def _peak_normals(y: np.ndarray, luma: np.ndarray, h: np.ndarray) -> tuple[np.ndarray]:
-    """((T, 3) normals,): per texel with a sharp highlight (:data:`PEAK_RATIO`) the
+def _peak_normals(y: np.ndarray, luma: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """(T, 3) normals: per texel with a sharp highlight (:data:`PEAK_RATIO`) the
     luminance-weighted mean half vector of its fit samples above :data:`PEAK_FRACTION` of its
     brightest, NaN elsewhere.
 
@@ -358,7 +360,7 @@ def _peak_normals(y: np.ndarray, luma: np.ndarray, h: np.ndarray) -> tuple[np.nd
         n[near, 2] = np.sqrt(1.0 - cx[near] ** 2 - cy[near] ** 2)
     out = np.full((y.shape[2], 3), np.nan, np.float32)
     out[ok] = n[ok]
-    return (out,)
+    return out
 
 
 def _solve_channel(s11, s12, s22, b1, b2):
@@ -521,13 +523,13 @@ def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: in
             yv = np.ascontiguousarray((values(val_rows) * scale).transpose(2, 0, 1))
             best = _validation_residual(yv, n_flat, vv, vl, a, f, r)
             # Candidates for the normal map: the photometric normal (diffuse shading), and for
-            # texels with a sharp highlight the half vector of their specular peak; a texel
-            # keeps the candidate that predicts the validation samples best.
-            for n_cand, cand_grid, cand in ((n_fit, grid, None),
-                                            (*_peak_normals(y, luma, h_fit), peak_grid, "peak")):
-                sel = slice(None) if cand is None else np.flatnonzero(np.isfinite(n_cand[:, 0]))
-                if cand is not None and not len(sel):
+            # texels with a sharp highlight (the others NaN) the half vector of their specular
+            # peak; a texel keeps the candidate that predicts the validation samples best.
+            for n_cand, cand_grid in ((n_fit, grid), (_peak_normals(y, luma, h_fit), peak_grid)):
+                finite = np.isfinite(n_cand[:, 0])
+                if not finite.any():
                     continue
+                sel = slice(None) if finite.all() else np.flatnonzero(finite)
                 n_c = n_cand[sel]
                 kept_c = None if kept is None else (kept[0][:, :, sel], *kept[1:])
                 a1, f1, r1, _ = _fit_reflectance(np.ascontiguousarray(y[:, :, sel]), n_c, v, l, cand_grid, kept_c)

@@ -150,9 +150,9 @@ def compress(btf: BTF, options: CompressOptions | None = None) -> CompressedBTF:
         clock.lap("encode")
         if every:
             choice["basis_texels"] = int(btf.n_pixels)
+        _let_go(source, btf.n_samples, kept)      # (a --target-error run's values go only now)
         # The held-out error and the error curve one after the other (each on every core):
         # side by side their peaks added up, and --k 150 at paper scale peaked at 1.22-1.26 GB.
-        _let_go(source, btf.n_samples, kept)
         result = _described(cbtf, opts, dict(choice, planes=list(planes)), fit.singular_values, held,
                             held_out_errors(cbtf, held), error_curve(cbtf, None, truth=kept["curve"]),
                             getattr(source, "provenance", None), covered)
