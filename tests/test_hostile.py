@@ -901,6 +901,33 @@ def test_kill_9_during_the_swap_is_finished_by_the_next_run(tmp_path, data):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["C"]
 
 
+@pytest.mark.parametrize("record", ["", '["C"', '["../C"]', '{"C": 1}', None],
+                         ids=["empty", "cut-short", "outside", "not-a-list", "only-the-part"])
+def test_kill_9_while_the_ready_record_is_written_leaves_the_output_as_it_was(tmp_path, data, record):
+    """A staging folder whose READY record is empty or unusable (a kill -9 while it was written,
+    the CI failure of stop 51) or that only has the record's ``.part`` never reached its commit:
+    the next writer removes it, leaves the existing output byte-identical, and then succeeds."""
+    from usdbtf import atomic
+
+    out = tmp_path / "C"
+    cli_ok("compress", data / "src", "-o", out, "--k", 2, "--codec", "png", "-q")
+    before = snapshot(out)
+    staging = tmp_path / f".C{atomic.TMP_TAG}99999-dead"
+    (staging / "new").mkdir(parents=True)
+    cli_ok("compress", data / "src", "-o", staging / "new" / "C", "--k", 3, "--codec", "png", "-q")
+    if record is None:
+        (staging / "READY.part").write_text('["C"]')
+    else:
+        (staging / "READY").write_text(record)
+    with atomic.claim(out, folder=True):
+        pass
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["C"]      # the staging folder is gone
+    assert snapshot(out) == before                                   # and the output untouched
+    cli_ok("compress", data / "src", "-o", out, "--k", 3, "--codec", "png", "-q", "--force")
+    from usdbtf.compress import read_compressed
+    assert read_compressed(out).k == 3
+
+
 def test_a_second_writer_is_told_another_process_is_writing(case, data):
     from usdbtf import atomic
 

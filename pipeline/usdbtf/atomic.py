@@ -288,8 +288,9 @@ def _cleanup_stale(target: Path) -> None:
         rest = name[len(prefix):]
         path = target.parent / name
         if rest.startswith(TMP_TAG):
-            if (path / _READY).is_file():
-                _roll_forward(path, target.parent)
+            names = _ready_names(path)
+            if names is not None:
+                _roll_forward(path, target.parent, names)
             shutil.rmtree(path, ignore_errors=True)
         elif rest.startswith(SCRATCH_TAG + f"{os.getpid()}-"):
             continue                                  # this process's own
@@ -443,8 +444,21 @@ def _move_in(staging: Path, out_dir: Path, name: str) -> None:
     os.rename(new, dst)
 
 
-def _roll_forward(staging: Path, out_dir: Path) -> None:
-    names = json.loads((staging / _READY).read_text())
+def _ready_names(staging: Path) -> list[str] | None:
+    """The output names a staging folder's :data:`_READY` record lists, or None when it has
+    none that can be trusted (absent, unreadable, or not a list of plain names in ``new/``): such
+    a folder never reached its commit and is only removed."""
+    try:
+        names = json.loads((staging / _READY).read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(names, list) or not all(
+            isinstance(n, str) and n not in ("", ".", "..") and "/" not in n and "\0" not in n for n in names):
+        return None
+    return names
+
+
+def _roll_forward(staging: Path, out_dir: Path, names: list[str]) -> None:
     for name in names:
         _move_in(staging, out_dir, name)
 
@@ -454,13 +468,16 @@ def _commit(staging: Path, out_dir: Path, names: list[str]) -> None:
         p = staging / "new" / name
         if p.is_dir() and not p.is_symlink():
             _open_mode(p)
-    ready = staging / _READY
-    with open(ready, "w") as fh:
+    # The record appears whole or not at all (written beside, then renamed): a kill -9 while
+    # it is written must leave a staging folder the next run removes, not an empty READY.
+    part = staging / (_READY + ".part")
+    with open(part, "w") as fh:
         fh.write(json.dumps(names))
         fh.flush()
         os.fsync(fh.fileno())
+    os.rename(part, staging / _READY)
     _fsync_dir(staging)
-    _roll_forward(staging, out_dir)
+    _roll_forward(staging, out_dir, names)
     _fsync_dir(out_dir)
     shutil.rmtree(staging, ignore_errors=True)
     log.debug(f"published {', '.join(names)} in {out_dir}")
