@@ -167,7 +167,9 @@ def score_domains(source, texels, k: int, options, candidates=AUTO_CANDIDATES, *
     scored = np.arange(0, S, sample_stride)
     blocks = [scored[a:a + _SCORE_BLOCK] for a in range(0, len(scored), _SCORE_BLOCK)]
     truth = in_threads(lambda rows: linear(y_raw[rows]), blocks)                # scored rows, working space
-    truth_codes = in_threads(codes, truth)
+    # An integer file's stored values are its codes: the encoded truth as it is (no OpenColorIO
+    # pass to convert them back); other inputs are encoded from the working-space truth.
+    truth_codes = [y_raw[rows] for rows in blocks] if y_raw.dtype == codes.dtype else in_threads(codes, truth)
     lin_total = sum(float(np.abs(t).sum(dtype=np.float64)) for t in truth)
     enc_total = sum(codes.total(c) for c in truth_codes)
     del truth
@@ -215,6 +217,8 @@ class _Codes:
     def __init__(self, to_file, depth: str):
         self.to_file, self.depth = to_file, depth
         self.top = {"uint8": 255.0, "uint16": 65535.0}.get(depth, 1.0)
+        #: The codes' numpy type for integer files (None for float files).
+        self.dtype = {"uint8": np.dtype(np.uint8), "uint16": np.dtype(np.uint16)}.get(depth)
 
     def __call__(self, lin: np.ndarray) -> np.ndarray:
         return encode_for_file(lin.reshape(lin.shape[0], -1, 3), self.to_file, self.depth).reshape(lin.shape)
