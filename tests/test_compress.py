@@ -548,6 +548,18 @@ def test_room_after_takes_what_the_encoded_basis_leaves_room_for():
     assert _room_after(encoded, coefficient_bytes, basis, 100) == 2   # over already: the trim loop's
 
 
+def test_between_reads_k_off_the_packagings_either_side_of_the_budget():
+    """Once a packaged k fits the budget and a larger one did not, the next k tried lies strictly
+    between them where the line through their packaged bytes meets the target (paper-scale
+    fuzzy_moss: 340 at 3,515,140 bytes fits, 344 at 3,561,838 did not)."""
+    from usdbtf.compress.ratecontrol import _between
+
+    assert _between((340, 3_515_140, None), (344, 3_561_838), 3_539_881) == (342, 3_538_489.0)
+    assert _between((340, 3_515_140, None), (344, 3_561_838), 3_400_000)[0] == 341   # never k0 again
+    assert _between((340, 3_515_140, None), (344, 3_561_838), 3_600_000)[0] == 343   # never k1 again
+    assert _between((10, 1_000, None), (20, 1_000), 5_000)[0] == 19      # flat bytes: no division by 0
+
+
 def test_effort_follows_the_mode_same_values_fewer_bytes_at_full(tiny32, tmp_path):
     """A plain k encodes quickly (JPEG XL effort 2/3), --effort full at 7: the same stored
     values, read back from the files, in fewer bytes; budget modes encode at full effort."""
