@@ -74,9 +74,8 @@ import numpy as np
 
 from .compress.format import CompressedBTF
 from .numeric import single_blas_thread
-from .progress import track
 from .sampling import to_vectors
-from .svbrdf import (BRIGHTNESS_SCALE, POLE_BAND_DEG, SvbrdfMaps, fit_samples, fit_svbrdf, pole_ratio,
+from .svbrdf import (BRIGHTNESS_SCALE, POLE_BAND_DEG, SvbrdfMaps, fit_blocks, fit_samples, fit_svbrdf, pole_ratio,
                      pole_samples, pole_swatch_sums, validation_samples, _block_values)
 
 __all__ = ["OpenPbrMaps", "evaluate_openpbr", "evaluate", "fit_openpbr", "keep_brightness", "SPECULAR_IOR",
@@ -801,11 +800,12 @@ def fit_openpbr(cbtf: CompressedBTF, *, svbrdf: SvbrdfMaps | None = None, white_
     out.update({name: np.zeros(texels, np.float32) for name in OpenPbrMaps.SCALARS})
     step = _chunk_texels(max(len(fit), len(val)), chunk_bytes)
     scale = np.float32(1.0 / (np.pi * white_level))
-    kept = tilted = 0
     flat = np.array([0.0, 0.0, 1.0], np.float32)
     out_normal = np.zeros((texels, 3), np.float32)
-    for t0 in track(range(0, texels, step), "OpenPBR fit", -(-texels // step), logger=log):
-        block = slice(t0, min(t0 + step, texels))
+
+    def fit_block(block: slice) -> tuple[int, int]:     # one block, written into the maps;
+        # returns (texels keeping the normal map, texels keeping the richer lobes)
+        tilted = 0
         n_map = normals[block]
         values = _block_values(cbtf, block)
         y = np.ascontiguousarray((values(fit_rows) * scale).transpose(2, 0, 1))
@@ -833,7 +833,7 @@ def fit_openpbr(cbtf: CompressedBTF, *, svbrdf: SvbrdfMaps | None = None, white_
                 use = tilt & (cand_held < held)
                 stage1.take(cand, use)
                 n[use], held[use] = cand_n[use], cand_held[use]
-            tilted += int(np.count_nonzero(n[:, 2] < 0.999999))
+            tilted = int(np.count_nonzero(n[:, 2] < 0.999999))
         search = _Search(y, n, v, l, stage1, near)
         final = _fit_stages(search)
         p1, pf = stage1.params(n), final.params(n)
@@ -847,10 +847,14 @@ def fit_openpbr(cbtf: CompressedBTF, *, svbrdf: SvbrdfMaps | None = None, white_
                 pf[name] = np.where(use[:, None] if np.ndim(pf[name]) == 2 else use, pl1[name], pf[name])
             held_f = np.minimum(held_f, held_l1)
         richer = held_f < held
-        kept += int(np.count_nonzero(richer))
+        kept = int(np.count_nonzero(richer))
         out_normal[block] = n
         for name in out:
             out[name][block] = np.where(richer[:, None] if out[name].ndim == 2 else richer, pf[name], p1[name])
+        return tilted, kept
+
+    counts = fit_blocks(fit_block, texels, step, "OpenPBR fit", log)
+    tilted, kept = (sum(c) for c in zip(*counts)) if counts else (0, 0)
     log.info(f"OpenPBR fit: the normal map kept at {tilted} texels, the richer lobes at {kept} of {texels}")
     h, w = cbtf.height, cbtf.width
     maps = {name: a.reshape(h, w, 3) if a.ndim == 2 else a.reshape(h, w) for name, a in out.items()}

@@ -57,6 +57,7 @@ no normal map), kept as the baseline ``benchmarks/bench_fallback.py`` measures a
 from __future__ import annotations
 
 import logging
+import threading
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -64,7 +65,7 @@ import numpy as np
 from .compress.format import CompressedBTF, working_coefficient_texels
 from .numeric import single_blas_thread
 from .photometry import capture_irradiance, radiance_per_irradiance
-from .progress import track
+from .progress import bar
 from .sampling import to_vectors
 
 __all__ = ["SvbrdfMaps", "fit_svbrdf", "flat_fallback", "median_albedo", "fit_flat_roughness", "evaluate",
@@ -238,6 +239,34 @@ def evaluate(maps: SvbrdfMaps, view_deg: np.ndarray, light_deg: np.ndarray, texe
 def _chunk_texels(n_samples: int, chunk_bytes: float) -> int:
     # ~12 float32 (S, T) arrays live at once in the reflectance fit.
     return int(max(256, chunk_bytes // (n_samples * 4 * 12)))
+
+
+#: Texel blocks fitted at once, at most (each holds about ``chunk_bytes``).  The blocks are cut
+#: by ``chunk_bytes`` alone and each runs on one BLAS thread, so no bit of a fit depends on how
+#: many run beside it or on the machine's CPUs (issue 42: the fits ran on one core, 86 of a
+#: paper-scale ``--max-bytes`` compress's 152 s).
+FIT_THREADS = 2
+
+
+def fit_blocks(fit_block, texels: int, step: int, label: str, logger: logging.Logger) -> list:
+    """``[fit_block(slice of texels) for each block of step texels]``, in block order, on up to
+    :data:`FIT_THREADS` threads (no more than the CPUs), with a progress bar of the blocks done.
+    ``fit_block`` writes its own texels' rows of the caller's maps (disjoint for every block)."""
+    from .compress.parallel import cpu_count, in_threads
+
+    progress = bar(label, -(-texels // step), logger=logger)
+    lock = threading.Lock()
+
+    def one(t0: int):
+        done = fit_block(slice(t0, min(t0 + step, texels)))
+        with lock:
+            progress.update()
+        return done
+
+    try:
+        return in_threads(one, range(0, texels, step), threads=min(FIT_THREADS, cpu_count()))
+    finally:
+        progress.finish()
 
 
 def _reconstruct(cbtf: CompressedBTF, rows: np.ndarray, texels: slice) -> np.ndarray:
@@ -503,8 +532,8 @@ def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: in
     step = _chunk_texels(max(len(fit), len(ps)), chunk_bytes)
     scale = np.float32(radiance_per_irradiance(white_level))     # value -> f (n.l): usdbtf.photometry
     flat = np.array([0.0, 0.0, 1.0], np.float32)
-    for t0 in track(range(0, texels, step), "fallback fit", -(-texels // step), logger=log):
-        block = slice(t0, min(t0 + step, texels))
+
+    def fit_block(block: slice) -> None:        # one block's texels, written into the maps
         values = _block_values(cbtf, block)
         y = np.ascontiguousarray((values(fit_rows) * scale).transpose(2, 0, 1))
         n_flat = np.broadcast_to(flat, (y.shape[2], 3))
@@ -540,6 +569,8 @@ def fit_svbrdf(cbtf: CompressedBTF, *, white_level: float = 1.0, max_samples: in
                 a[at], f[at], r[at], n_ps[at], best[at] = a1[won], f1[won], r1[won], n_c[won], res1[won]
         diffuse[block] = np.clip(a / np.maximum(1.0 - f, 1e-6), 0.0, 1.0)
         specular[block], rough[block], normal[block] = f, r, n_ps
+
+    fit_blocks(fit_block, texels, step, "fallback fit", log)
     h, w = cbtf.height, cbtf.width
     maps = SvbrdfMaps(diffuse.reshape(h, w, 3), specular.reshape(h, w, 3), rough.reshape(h, w),
                       normal.reshape(h, w, 3), cbtf.working_space, float(white_level))
