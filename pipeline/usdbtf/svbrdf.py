@@ -62,6 +62,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .compress import parallel
 from .compress.format import CompressedBTF, working_coefficient_texels
 from .numeric import single_blas_thread
 from .photometry import capture_irradiance, radiance_per_irradiance
@@ -252,8 +253,6 @@ def fit_blocks(fit_block, texels: int, step: int, label: str, logger: logging.Lo
     """``[fit_block(slice of texels) for each block of step texels]``, in block order, on up to
     :data:`FIT_THREADS` threads (no more than the CPUs), with a progress bar of the blocks done.
     ``fit_block`` writes its own texels' rows of the caller's maps (disjoint for every block)."""
-    from .compress.parallel import cpu_count, in_threads
-
     progress = bar(label, -(-texels // step), logger=logger)
     lock = threading.Lock()
 
@@ -264,7 +263,7 @@ def fit_blocks(fit_block, texels: int, step: int, label: str, logger: logging.Lo
         return done
 
     try:
-        return in_threads(one, range(0, texels, step), threads=min(FIT_THREADS, cpu_count()))
+        return parallel.in_threads(one, range(0, texels, step), threads=min(FIT_THREADS, parallel.cpu_count()))
     finally:
         progress.finish()
 

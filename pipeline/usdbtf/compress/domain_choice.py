@@ -38,6 +38,7 @@ import logging
 import numpy as np
 
 from .. import color
+from ..imageio import numpy_dtype
 from ..manifest import encode_for_file
 from .domain import AUTO_CANDIDATES, LINEAR, Domain, parse_domain
 from .fit import BasisFit, fit_basis
@@ -169,7 +170,8 @@ def score_domains(source, texels, k: int, options, candidates=AUTO_CANDIDATES, *
     truth = in_threads(lambda rows: linear(y_raw[rows]), blocks)                # scored rows, working space
     # An integer file's stored values are its codes: the encoded truth as it is (no OpenColorIO
     # pass to convert them back); other inputs are encoded from the working-space truth.
-    truth_codes = [y_raw[rows] for rows in blocks] if y_raw.dtype == codes.dtype else in_threads(codes, truth)
+    integer_codes = codes.dtype.kind == "u" and y_raw.dtype == codes.dtype
+    truth_codes = [y_raw[rows] for rows in blocks] if integer_codes else in_threads(codes, truth)
     lin_total = sum(float(np.abs(t).sum(dtype=np.float64)) for t in truth)
     enc_total = sum(codes.total(c) for c in truth_codes)
     del truth
@@ -217,8 +219,8 @@ class _Codes:
     def __init__(self, to_file, depth: str):
         self.to_file, self.depth = to_file, depth
         self.top = {"uint8": 255.0, "uint16": 65535.0}.get(depth, 1.0)
-        #: The codes' numpy type for integer files (None for float files).
-        self.dtype = {"uint8": np.dtype(np.uint8), "uint16": np.dtype(np.uint16)}.get(depth)
+        #: The file's numpy type (integer codes for uint8/uint16 files).
+        self.dtype = np.dtype(numpy_dtype(depth))
 
     def __call__(self, lin: np.ndarray) -> np.ndarray:
         return encode_for_file(lin.reshape(lin.shape[0], -1, 3), self.to_file, self.depth).reshape(lin.shape)

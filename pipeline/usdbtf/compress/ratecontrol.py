@@ -623,7 +623,7 @@ def _asset_max_bytes(f: Factorisation, options: CompressOptions, table, held: He
         else:
             k, predicted, _ = _asset_fit_planned(f, options, step, min(k, k_cap), k_cap, ratio, rest, aim)
         if k in tried or (best is not None and k <= best[0]):
-            break                        # nothing left that could fit more of the budget
+            break                        # nothing left that could fit more (k0 + 1 = k1: _between gives k0)
         tried.add(k)
         full = _packaged(quantise(f, k, step, options), options, fits)["full"]
         log.info(f"  asset try {attempt}: k = {k}, step = {step:.4g}: "
@@ -637,8 +637,6 @@ def _asset_max_bytes(f: Factorisation, options: CompressOptions, table, held: He
             rest += full - predicted
         if best is not None and best[0] == k and full >= limit - _ASSET_SLACK * budget:
             break
-        if best is not None and over is not None and over[0] - best[0] <= 1:
-            break                        # the largest k that fits is found
     if best is None:
         raise BTFError(f"cannot meet --max-bytes {budget}: the asset came out at {full:,} bytes at k = {k}")
     k, full, predicted = best
