@@ -131,3 +131,33 @@ def test_openpbr_fit_keeps_the_mean_brightness_at_the_pole_lights(satin):
           f"after {np.round(ratios[1], 4).tolist()}")
     assert np.all(np.abs(ratios[0] - 1) > 0.03)
     assert np.all(np.abs(ratios[1] - 1) < 0.005)
+
+
+@pytest.mark.parametrize("weighted", [False, True])
+def test_openpbr_brightness_weights_give_the_full_evaluations_ratio(satin, weighted):
+    """openpbr.keep_brightness reads every refinement's ratio off colour weights summed once
+    (issue 42).  For maps with every lobe in use -- fuzz, anisotropy, a diffuse roughness, colours
+    that the scale clips -- and for a quilt's texel weights, that ratio is the one a full
+    evaluation of the surface at the pole lights gives (svbrdf.pole_ratio), to 1e-9."""
+    from dataclasses import replace
+
+    from usdbtf import openpbr
+
+    maps = openpbr.fit_openpbr(satin, svbrdf=svbrdf.fit_svbrdf(satin), brightness=False)
+    rng = np.random.default_rng(3)
+    shape = maps.fuzz_weight.shape
+    maps = replace(maps, fuzz_weight=rng.uniform(0.0, 1.0, shape).astype(np.float32),
+                   fuzz_roughness=rng.uniform(0.2, 0.9, shape).astype(np.float32),
+                   fuzz_color=rng.uniform(0.0, 1.0, shape + (3,)).astype(np.float32),
+                   specular_anisotropy=rng.uniform(0.0, 0.8, shape).astype(np.float32),
+                   specular_rotation=rng.uniform(0.0, np.pi, shape).astype(np.float32),
+                   base_diffuse_roughness=rng.uniform(0.0, 1.0, shape).astype(np.float32))
+    weights = rng.integers(1, 5, shape[0] * shape[1]).astype(np.float64) if weighted else None
+    y, _ = svbrdf.pole_swatch_sums(satin, [], weights)
+    colour_weights = openpbr._colour_weights(maps, satin, svbrdf.pole_ratio_weights(y), weights, 64e6)
+    for s in ([1.0, 1.0, 1.0], [1.7, 0.6, 1.2]):        # 1.7: some colours clip at 1
+        scaled = openpbr._scaled_colours(maps, np.float32(s))
+        _, (model,) = svbrdf.pole_swatch_sums(satin, [lambda v, l, t: openpbr.evaluate(scaled, v, l, t)], weights,
+                                              truth=y)
+        np.testing.assert_allclose(openpbr._weighted_ratio(colour_weights, scaled), svbrdf.pole_ratio(y, model),
+                                   rtol=1e-6)

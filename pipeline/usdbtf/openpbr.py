@@ -75,8 +75,9 @@ import numpy as np
 from .compress.format import CompressedBTF
 from .numeric import single_blas_thread
 from .sampling import to_vectors
-from .svbrdf import (BRIGHTNESS_SCALE, POLE_BAND_DEG, SvbrdfMaps, fit_blocks, fit_samples, fit_svbrdf, pole_ratio,
-                     pole_samples, pole_swatch_sums, validation_samples, _block_values)
+from .svbrdf import (BRIGHTNESS_SCALE, POLE_BAND_DEG, SvbrdfMaps, fit_blocks, fit_samples, fit_svbrdf, pole_block_texels,
+                     pole_ratio_weights, pole_samples, pole_swatch_sums, texel_weights_of,
+                     validation_samples, _block_values)
 
 __all__ = ["OpenPbrMaps", "evaluate_openpbr", "evaluate", "fit_openpbr", "keep_brightness", "SPECULAR_IOR",
            "SPECULAR_WEIGHTS", "FUZZ_WEIGHTS", "FUZZ_ROUGHNESS_GRID", "FIT_SAMPLES", "HELD_OUT_SAMPLES"]
@@ -404,11 +405,13 @@ def _multi_colour(c, avg):
     return c * c * avg / (1.0 - c * np.maximum(0.0, 1.0 - avg))
 
 
-def evaluate_openpbr(params: dict, view: np.ndarray, light: np.ndarray, dtype=np.float32) -> np.ndarray:
-    """(S, T, 3) radiance of ``open_pbr_surface`` under a directional light of irradiance 1
-    from unit ``light`` (S, 3), seen from unit ``view`` (S, 3), for per-texel inputs
-    ``params`` ({input: (T,) or (T, 3)}, :meth:`OpenPbrMaps.params`; missing inputs take the
-    fit's neutral values).  This is ``f(v, l) (n . l)`` as MaterialX's GLSL computes it."""
+def _lobes(params: dict, view: np.ndarray, light: np.ndarray, dtype=np.float32) -> tuple:
+    """The terms of :func:`evaluate_openpbr` that no colour enters, for per-texel ``params``
+    at unit ``view`` and ``light`` (S, 3): (fuzz, fuzz throughput, specular without tint, its
+    throughput, the base's single- and multiple-scattering factors), each (S, T) or a scalar,
+    and the base's E_avg, (T,) or a scalar.  The radiance of channel c is
+    ``fuzz f_c + t_fuzz (spec s_c + t_spec (b_c single + ms(b_c) multi))`` with f, s, b the
+    fuzz, specular and base colours and ``ms(b) = b^2 E_avg / (1 - b (1 - E_avg))``."""
     t = len(params["normal"])
     get = lambda name, default: np.asarray(params.get(name, np.full(t, default)), dtype)  # noqa: E731
     fr = _Frame(params["normal"], view, light, dtype)
@@ -422,6 +425,16 @@ def evaluate_openpbr(params: dict, view: np.ndarray, light: np.ndarray, dtype=np
     else:                                       # weight 0: the lobe is 0, its throughput 1
         fuzz, t_fuzz = np.float32(0.0), np.float32(1.0)
     single, multi, avg = fr.diffuse(get("base_diffuse_roughness", 0.0))
+    return fuzz, t_fuzz, spec, t_spec, single, multi, avg
+
+
+def evaluate_openpbr(params: dict, view: np.ndarray, light: np.ndarray, dtype=np.float32) -> np.ndarray:
+    """(S, T, 3) radiance of ``open_pbr_surface`` under a directional light of irradiance 1
+    from unit ``light`` (S, 3), seen from unit ``view`` (S, 3), for per-texel inputs
+    ``params`` ({input: (T,) or (T, 3)}, :meth:`OpenPbrMaps.params`; missing inputs take the
+    fit's neutral values).  This is ``f(v, l) (n . l)`` as MaterialX's GLSL computes it."""
+    t = len(params["normal"])
+    fuzz, t_fuzz, spec, t_spec, single, multi, avg = _lobes(params, view, light, dtype)
     base = np.maximum(np.asarray(params["base_color"], dtype), 0.0)
     out = np.empty((len(view), t, 3), dtype)
     for c in range(3):
@@ -880,15 +893,54 @@ def keep_brightness(maps: OpenPbrMaps, cbtf: CompressedBTF, texel_weights=None, 
     channel, the same for every texel, so that averaged over the pole lights the swatch is as
     bright as ``cbtf``'s (:func:`usdbtf.svbrdf.pole_ratio`, the UsdPreviewSurface fit's step 4).
     The base's multiple-scattering lobe is not linear in its colour: the factor is refined
-    ``iterations`` times (s <- s / ratio), within :data:`usdbtf.svbrdf.BRIGHTNESS_SCALE`."""
+    ``iterations`` times (s <- s / ratio), within :data:`usdbtf.svbrdf.BRIGHTNESS_SCALE`.
+
+    The ratio is linear in each texel's colour terms (:func:`_lobes`), whose weights do not
+    depend on the colours: they are summed over the pole lights once (:func:`_colour_weights`,
+    one pass over the texels) and every refinement reads its ratio off them (issue 42: four
+    passes evaluating the whole surface were a quarter of the fallback fits' CPU)."""
     lo, hi = BRIGHTNESS_SCALE
-    s, y, out = np.ones(3), None, maps
+    y, _ = pole_swatch_sums(cbtf, [], texel_weights, chunk_bytes)
+    weights = _colour_weights(maps, cbtf, pole_ratio_weights(y), texel_weights, chunk_bytes)
+    s, out = np.ones(3), maps
     for _ in range(iterations):
-        y, (total,) = pole_swatch_sums(cbtf, [lambda v, l, t: evaluate(out, v, l, t)], texel_weights,
-                                       chunk_bytes, truth=y)
-        ratio = pole_ratio(y, total)
+        ratio = _weighted_ratio(weights, out)
         if np.all(np.abs(ratio - 1.0) < 1e-4) or not np.all(ratio > 0):
             break
         s = np.clip(s / ratio, lo, hi)
         out = _scaled_colours(maps, s.astype(np.float32))
     return out
+
+
+def _colour_weights(maps: OpenPbrMaps, cbtf: CompressedBTF, q: np.ndarray, texel_weights,
+                    chunk_bytes: float) -> tuple[np.ndarray, np.ndarray]:
+    """(weights (4, 3, T) float64, E_avg (T,) float32): for each colour term of :func:`_lobes`
+    (fuzz, specular, base single, base multiple scattering) and channel, texel t's factor on its
+    colour in the pole ratio: sum_p q[p, c] term[p, t] (q from
+    :func:`usdbtf.svbrdf.pole_ratio_weights`) times the texel's weight and the values' pi W.
+    The terms are :func:`evaluate`'s own; texel blocks on the fits' threads."""
+    pole = pole_samples(cbtf)
+    texels = cbtf.width * cbtf.height
+    v, l = (to_vectors(np.asarray(d[pole], float)) for d in (cbtf.sampling.view, cbtf.sampling.light))
+    scale = texel_weights_of(cbtf, texel_weights) * float(np.float32(np.pi * maps.white_level))
+    weights, avg = np.zeros((4, 3, texels)), np.zeros(texels, np.float32)
+
+    def block_weights(block: slice) -> None:
+        fuzz, t_fuzz, spec, t_spec, single, multi, e_avg = _lobes(maps.params(block), v, l)
+        shape = (len(pole), block.stop - block.start)
+        for j, term in enumerate((fuzz, t_fuzz * spec, t_fuzz * t_spec * single, t_fuzz * t_spec * multi)):
+            weights[j, :, block] = (q.T @ np.broadcast_to(term, shape).astype(np.float64)) * scale[block]
+        avg[block] = e_avg
+
+    fit_blocks(block_weights, texels, pole_block_texels(len(pole), chunk_bytes), "OpenPBR brightness", log)
+    return weights, avg
+
+
+def _weighted_ratio(weights: tuple[np.ndarray, np.ndarray], maps: OpenPbrMaps) -> np.ndarray:
+    """(3,) the pole ratio (:func:`usdbtf.svbrdf.pole_ratio`) of ``maps``' colours from
+    :func:`_colour_weights`: the colours as :func:`evaluate_openpbr` takes them."""
+    w, avg = weights
+    p = maps.params()
+    base = np.maximum(p["base_color"], 0.0)
+    colours = (p["fuzz_color"], np.maximum(p["specular_color"], 0.0), base, _multi_colour(base, avg[:, None]))
+    return sum(np.sum(w[j] * c.T.astype(np.float64), axis=1) for j, c in enumerate(colours))

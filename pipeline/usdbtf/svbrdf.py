@@ -71,7 +71,8 @@ from .sampling import to_vectors
 
 __all__ = ["SvbrdfMaps", "fit_svbrdf", "flat_fallback", "median_albedo", "fit_flat_roughness", "evaluate",
            "fit_samples", "normal_samples", "validation_samples", "keep_brightness", "brightness_scale",
-           "pole_swatch_sums", "pole_ratio", "BRIGHTNESS_SCALE",
+           "pole_swatch_sums", "pole_ratio", "pole_ratio_weights", "pole_block_texels", "texel_weights_of",
+           "BRIGHTNESS_SCALE",
            "ROUGHNESS_GRID", "MIN_ROUGHNESS",
            "VALIDATION_SAMPLES"]
 
@@ -586,27 +587,55 @@ def pole_swatch_sums(cbtf: CompressedBTF, predicts, texel_weights=None, chunk_by
     for (a quilt fitted once per source texel); default one each."""
     pole = pole_samples(cbtf)
     texels = cbtf.width * cbtf.height
-    wts = np.ones(texels) if texel_weights is None else np.asarray(texel_weights, np.float64).reshape(-1)
+    wts = texel_weights_of(cbtf, texel_weights)
     y = np.zeros((len(pole), 3)) if truth is None else truth
     sums = [np.zeros((len(pole), 3)) for _ in predicts]
     view, light = cbtf.sampling.view[pole], cbtf.sampling.light[pole]
     rows = cbtf.basis_values()[pole]
-    step = int(max(256, chunk_bytes // (len(pole) * 4 * 3 * 8)))
-    for t0 in range(0, texels, step):
-        block = slice(t0, min(t0 + step, texels))
+
+    def block_sums(block: slice) -> list:
         w = wts[block]
-        if truth is None:
-            y += np.einsum("ptc,t->pc", _reconstruct(cbtf, rows, block), w)
-        for total, predict in zip(sums, predicts):
-            total += np.einsum("ptc,t->pc", predict(view, light, block), w)
+        own = [] if truth is not None else [np.einsum("ptc,t->pc", _reconstruct(cbtf, rows, block), w)]
+        return own + [np.einsum("ptc,t->pc", predict(view, light, block), w) for predict in predicts]
+
+    # The blocks on the fits' threads, their sums added in block order: the bits of one thread.
+    for part in fit_blocks(block_sums, texels, pole_block_texels(len(pole), chunk_bytes), "pole sums", log):
+        for total, value in zip(([] if truth is not None else [y]) + sums, part):
+            total += value
     return y, sums
+
+
+def texel_weights_of(cbtf: CompressedBTF, texel_weights=None) -> np.ndarray:
+    """(H*W,) float64: ``texel_weights`` (how many texels of the material each texel stands
+    for, :func:`pole_swatch_sums`), one each by default."""
+    texels = cbtf.width * cbtf.height
+    return np.ones(texels) if texel_weights is None else np.asarray(texel_weights, np.float64).reshape(-1)
+
+
+def pole_block_texels(pole: int, chunk_bytes: float) -> int:
+    """Texels a block of the pole sums holds: a model's (P, T, 3) values within about
+    ``chunk_bytes`` in float64, at least 256."""
+    return int(max(256, chunk_bytes // (pole * 4 * 3 * 8)))
 
 
 def pole_ratio(y: np.ndarray, model: np.ndarray) -> np.ndarray:
     """(3,) per channel: the mean over the pole lights of the model's swatch over the BTF's
     (sums from :func:`pole_swatch_sums`; a light the BTF is black at has no ratio)."""
-    ok = y > 1e-12 * max(float(y.max()), 1e-30)
+    ok = _pole_lit(y)
     return np.where(ok, model / np.where(ok, y, 1.0), 0.0).sum(axis=0) / np.maximum(ok.sum(axis=0), 1)
+
+
+def pole_ratio_weights(y: np.ndarray) -> np.ndarray:
+    """(P, 3) float64 q with ``pole_ratio(y, M)`` = sum_p q[p] M[p] (to rounding): the ratio is
+    linear in the model's swatch sums, so a model whose sums are linear in its parameters can
+    be weighed once and its ratio read for any of them (``openpbr.keep_brightness``)."""
+    ok = _pole_lit(y)
+    return np.where(ok, 1.0 / np.where(ok, y, 1.0), 0.0) / np.maximum(ok.sum(axis=0), 1)
+
+
+def _pole_lit(y: np.ndarray) -> np.ndarray:
+    """(P, 3) bool: the pole lights the BTF is not black at, per channel."""
+    return y > 1e-12 * max(float(y.max()), 1e-30)
 
 
 def brightness_scale(maps: SvbrdfMaps, cbtf: CompressedBTF, texel_weights=None,
