@@ -918,7 +918,8 @@ def _colour_weights(maps: OpenPbrMaps, cbtf: CompressedBTF, q: np.ndarray, texel
     (fuzz, specular, base single, base multiple scattering) and channel, texel t's factor on its
     colour in the pole ratio: sum_p q[p, c] term[p, t] (q from
     :func:`usdbtf.svbrdf.pole_ratio_weights`) times the texel's weight and the values' pi W.
-    The terms are :func:`evaluate`'s own; texel blocks on the fits' threads."""
+    The terms are :func:`evaluate`'s own; texel blocks on the fits' threads.  Holds 100 bytes a
+    texel (1.6 MB at 128^2, 105 MB at 1024^2), besides the blocks in flight (chunk_bytes each)."""
     pole = pole_samples(cbtf)
     texels = cbtf.width * cbtf.height
     v, l = (to_vectors(np.asarray(d[pole], float)) for d in (cbtf.sampling.view, cbtf.sampling.light))
