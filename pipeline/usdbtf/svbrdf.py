@@ -592,15 +592,17 @@ def pole_swatch_sums(cbtf: CompressedBTF, predicts, texel_weights=None, chunk_by
     sums = [np.zeros((len(pole), 3)) for _ in predicts]
     view, light = cbtf.sampling.view[pole], cbtf.sampling.light[pole]
     rows = cbtf.basis_values()[pole]
+    # What each block adds to: the BTF's sums (unless given) and each model's.
+    models = ([] if truth is not None else [lambda v, l, block: _reconstruct(cbtf, rows, block)]) + list(predicts)
+    totals = ([] if truth is not None else [y]) + sums
 
     def block_sums(block: slice) -> list:
         w = wts[block]
-        own = [] if truth is not None else [np.einsum("ptc,t->pc", _reconstruct(cbtf, rows, block), w)]
-        return own + [np.einsum("ptc,t->pc", predict(view, light, block), w) for predict in predicts]
+        return [np.einsum("ptc,t->pc", model(view, light, block), w) for model in models]
 
     # The blocks on the fits' threads, their sums added in block order: the bits of one thread.
     for part in fit_blocks(block_sums, texels, pole_block_texels(len(pole), chunk_bytes), "pole sums", log):
-        for total, value in zip(([] if truth is not None else [y]) + sums, part):
+        for total, value in zip(totals, part):
             total += value
     return y, sums
 
