@@ -177,7 +177,7 @@ def score_domains(source, texels, k: int, options, candidates=AUTO_CANDIDATES, *
     del truth
     scores, fits = {}, {}
     # The candidates are fitted on the scored samples only and a subsample of the fitting
-    # texels (fine: a quarter of the columns the compress fits, so the four candidates cost
+    # texels (fine: a quarter of the columns the compress fits, so four candidates cost
     # about one fit; coarse: a sixteenth); the compress then fits the winner's basis on all of
     # them.  One buffer holds the candidate's columns (fine: 0.14 GB at UBO2014's size).
     half = x_raw[scored].reshape(len(scored), -1, 3)[:, ::texel_stride]
