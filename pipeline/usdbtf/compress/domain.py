@@ -188,7 +188,7 @@ LINEAR = Domain()
 #: x^(1/3) was added for issue 39: metal_flakes' scores still fell past sRGB (paper scale, fine
 #: pass: sRGB 4.676, x^(1/2.6) 4.642, x^(1/3) 4.596, x^(1/3.5) 4.584, x^(1/4) 4.608), and in its
 #: packaged asset at the paper's bytes x^(1/3) lowers the error to 0.643 / 0.704 of the paper's
-#: (encoded / linear) from sRGB's 0.688 / 0.721; every other preset scores it 0.26-1.0 behind
+#: (encoded / linear) from sRGB's 0.688 / 0.721; every other preset scores it 0.12-1.03 behind
 #: its choice (benchmarks/RESULTS.md, "What the packaged asset ships").  One more candidate costs
 #: the coarse pass ~0.6 s at paper scale.
 AUTO_CANDIDATES = (LINEAR, Domain("power", 1.6), Domain("power", 2.2), Domain("srgb"), Domain("power", 3.0))
