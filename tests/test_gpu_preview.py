@@ -352,7 +352,7 @@ def test_lod_and_half_float_packs_match_cpu_renderer(egl, src, work):
     assert value >= PSNR_MIN
 
 
-@pytest.mark.parametrize("domain", ["srgb", "linear"])
+@pytest.mark.parametrize("domain", ["srgb", "linear", "gamma:3"])
 def test_working_domain_curve_matches_cpu_renderer(egl, src, work, domain):
     """The shader's inverse curve (tables texel 2) equals the CPU renderer's, with two lights
     (each light's radiance after the curve) on a sphere."""
