@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
 import pytest
 
 from usdbtf.compress import CompressOptions, compress, core, ratecontrol
@@ -97,20 +98,33 @@ def test_attempts_are_measured_unencoded_and_encoded_once(pebbles, monkeypatch):
     measured = []
     real_error = ratecontrol.held_out_error
 
-    def held_out_error(cbtf, held, *a, **kw):
-        e = real_error(cbtf, held, *a, **kw)
+    def held_out_error(cbtf, held, k=None, *a, **kw):
+        e = real_error(cbtf, held, k, *a, **kw)
         assert cbtf.encoded is None                      # the quantised textures, not an encode
-        measured.append((e.percent, real_error(real_encode(cbtf), held, *a, **kw).percent))
+        measured.append((k, e.percent, real_error(real_encode(cbtf), held, k, *a, **kw).percent))
         return e
 
     with monkeypatch.context() as m:
         m.setattr(ratecontrol, "held_out_error", held_out_error)
         run = _run(pebbles, monkeypatch, **LINEAR3)
     choice = run.result.info["choice"]
-    assert choice["attempts"] == 4 and len(measured) == 4
-    assert all(unencoded == encoded for unencoded, encoded in measured)   # bit for bit
-    assert measured[-1][1] == choice["estimated_percent"] <= 3.0
-    assert all(m > 3.0 for m, _ in measured[:-1])
+    assert all(unencoded == encoded for _, unencoded, encoded in measured)   # bit for bit
+    # The four attempts (whole quantisations), met at the 4th; then the trim's evaluations of
+    # fewer components (k given), and, when it kept fewer, the trimmed quantisation's own.
+    attempts = [m for _, m, _ in measured[:4]]
+    assert choice["attempts"] == 4 and measured[3][0] is None and all(m[0] is None for m in measured[:4])
+    assert all(m > 3.0 for m in attempts[:3]) and attempts[3] <= 3.0
+    # Then the trim's evaluations of fewer components (k given); the choice is the fewest seen
+    # to meet the target (the 4th attempt's k when none did), with the error measured there.
+    trims = [(k, m) for k, m, _ in measured[4:]]
+    assert trims and all(k is not None for k, _ in trims)
+    met = {k: m for k, m in trims if m <= 3.0}
+    if met:
+        assert choice["k"] == min(met) and choice["estimated_percent"] == met[min(met)]
+        assert all(m > 3.0 for k, m in trims if k < choice["k"])
+    else:
+        assert choice["estimated_percent"] == attempts[3]
+    assert choice["estimated_percent"] <= 3.0
     assert run.encodes == [choice["k"]]                  # one encode: the chosen attempt's
     assert choice["model"]["measured_bytes"] == choice["bytes"] == run.result.info["bytes"]["payload"]
 
@@ -229,3 +243,46 @@ def test_in_sample_stratum_streamed_as_in_memory(pebbles):
     assert mem.info["estimated_error"]["in_sample_texels"] == 256
     assert streamed.info["estimated_error"] == mem.info["estimated_error"]
     _same_output(streamed, mem)
+
+
+@pytest.mark.parametrize("answer", [1, 37, 99, 100])
+def test_fewest_components_finds_the_fewest_that_meet_the_target(answer):
+    """A smoothly falling error, 3 (answer / n)^0.3 %, that meets a 3 % target from ``answer`` on
+    (n <= 100): within _TRIM_TRIES evaluations the trim returns exactly that n and its error from
+    a model guess 20 components too optimistic, one a quarter of the way short each time, or
+    one as the model reads it (the error's ratio to the target, 5 % pessimistic); bisection
+    (no guess) needs up to 8.  A guess that never sees room below its reference still returns a
+    measured pass within the cap, and the fewest within 12."""
+    errors = 3.0 * (answer / np.maximum(np.arange(101), 1)) ** 0.3
+    guesses = {"optimistic": lambda n, e: max(1, answer - 20),
+               "pessimistic": lambda n, e: answer + (n - answer) // 4,
+               "model": lambda n, e: max(1, int(n * (3.0 / e) ** (-1 / 0.3) * 1.05)),
+               "bisection": None, "no room": lambda n, e: n}
+    for name, guess in guesses.items():
+        for tries in (ratecontrol._TRIM_TRIES, 12):
+            seen = []
+
+            def error_at(n):
+                seen.append(n)
+                return float(errors[n])
+
+            n, e = ratecontrol._fewest_components(error_at, 100, float(errors[100]), 3.0, guess, tries=tries)
+            assert len(seen) <= tries and e == float(errors[n]) <= 3.0 and n >= answer, name
+            if name not in ("bisection", "no room") or tries == 12:
+                assert n == answer, (name, tries, seen)
+
+
+def test_fewest_components_returns_a_measured_pass_whatever_the_error():
+    """Error that does not fall with n (noise around the target): the answer is one that was
+    measured to meet it, never an unmeasured n, and the tries are capped."""
+    rng = np.random.default_rng(1)
+    errors = 3.0 + rng.normal(0, 0.2, 101)
+    errors[100] = 2.9
+    seen = {}
+
+    def error_at(n):
+        seen[n] = float(errors[n])
+        return seen[n]
+
+    n, e = ratecontrol._fewest_components(error_at, 100, 2.9, 3.0, lambda n, e: n // 2)
+    assert e <= 3.0 and (n == 100 or seen[n] == e) and len(seen) <= ratecontrol._TRIM_TRIES
