@@ -453,11 +453,12 @@ def _fewest_components(error_at, k: int, error_k: float, target: float, guess=No
     meets ``target``, given that the first ``k`` do (``error_k`` <= target).
 
     The error falls as components are added, so the answer is bracketed between the most
-    components seen to miss and the fewest seen to meet it.  The next n is ``guess(n_met,
-    error)`` (:func:`_model_guess`) until something misses, then read off the line between the
-    bracket's ends, or its midpoint when that line would not halve it (where the model sees no
-    room below a measured pass, steps down of k / 16, doubling); at most ``tries`` evaluations.  Without ``guess``, plain bisection from the start.  Whatever the error's
-    shape, the result was measured to meet the target.
+    components seen to miss and the fewest seen to meet it.  Until something misses, the next n
+    is ``guess(n_met, error)`` (:func:`_model_guess`; where it sees no room below a measured
+    pass, steps down of k / 16, doubling), or the midpoint of 1..n_met without a guess; then it
+    is read off the line between the bracket's ends, or the bracket's midpoint when the last
+    step did not halve it.  At most ``tries`` evaluations.  Whatever the error's shape, the
+    result was measured to meet the target.
     """
     met, missed = {k: error_k}, {}
     width = None                               # the bracket's width before the last evaluation
