@@ -117,7 +117,7 @@ def test_attempts_are_measured_unencoded_and_encoded_once(pebbles, monkeypatch):
     # Then the trim's evaluations of fewer components (k given); the choice is the fewest seen
     # to meet the target (the 4th attempt's k when none did), with the error measured there.
     trims = [(k, m) for k, m, _ in measured[4:]]
-    assert trims and all(k is not None for k, _ in trims)
+    assert all(k is not None for k, _ in trims)
     met = {k: m for k, m in trims if m <= 3.0}
     if met:
         assert choice["k"] == min(met) and choice["estimated_percent"] == met[min(met)]
@@ -286,3 +286,22 @@ def test_fewest_components_returns_a_measured_pass_whatever_the_error():
 
     n, e = ratecontrol._fewest_components(error_at, 100, 2.9, 3.0, lambda n, e: n // 2)
     assert e <= 3.0 and (n == 100 or seen[n] == e) and len(seen) <= ratecontrol._TRIM_TRIES
+
+
+def test_fewest_components_starts_from_the_attempts_at_its_step():
+    """Errors already measured at the chosen step (the search's attempts with fewer components)
+    bracket the answer from the start: with a miss one below the choice nothing is evaluated,
+    and with a miss 10 below only the bracket between is searched."""
+    errors = 3.0 * (37 / np.maximum(np.arange(101), 1)) ** 0.3
+    seen = []
+
+    def error_at(n):
+        seen.append(n)
+        return float(errors[n])
+
+    assert ratecontrol._fewest_components(error_at, 37, float(errors[37]), 3.0, lambda n, e: 1,
+                                          known={36: float(errors[36]), 20: float(errors[20])}) == (37, 3.0)
+    assert seen == []
+    n, _ = ratecontrol._fewest_components(error_at, 47, float(errors[47]), 3.0, lambda n, e: 1,
+                                          known={37 - 10: float(errors[27])})
+    assert n == 37 and seen and all(27 < m < 47 for m in seen)

@@ -366,6 +366,7 @@ def _target_error(f: Factorisation, options: CompressOptions, table, held: HeldO
     scale, factor = 1.0, 1.0
     passing, failing = 0.0, np.inf        # the largest scale seen to pass, the smallest to fail
     best, last, tried = None, None, set()
+    measured = {}                         # (k, step) -> held-out % of every attempt
     for attempt in range(1, _TARGET_ATTEMPTS[lossless] + 1):
         k, step = ratedist.choose_for_error(table, rms_target**2 * N * scale, factor)
         if (k, step) in tried and best is None:
@@ -389,6 +390,7 @@ def _target_error(f: Factorisation, options: CompressOptions, table, held: HeldO
         if lossless:
             log.info(f"  try {attempt}: k = {k}, step = {step:.4g}, {err:.3f} % held-out")
         last = (attempt, k, step, cbtf, err, predicted)
+        measured[(k, step)] = err
         if err <= target:
             passing = max(passing, scale)
             if best is None or predicted["bytes"] < best[5]["bytes"]:
@@ -412,10 +414,12 @@ def _target_error(f: Factorisation, options: CompressOptions, table, held: HeldO
         # tolerance (paper-scale metal_flakes: k 123 at 10.91 % for an 11.396 % target); at the
         # chosen step, fewer components may meet the target too (there k 104, 11 % fewer bytes).
         # (The first n components of a quantisation are the quantisation of n: every step is
-        # per component.)
+        # per component, so the attempts at this step with fewer components are measurements of
+        # the same curve and start the search.)
         fewest, fewest_err = _fewest_components(
             lambda n: held_out_error(cbtf, held, n, options.error_domain).percent,
-            k, err, target, _model_guess(table, step, factor, target))
+            k, err, target, _model_guess(table, step, factor, target),
+            known={n: e for (n, s), e in measured.items() if s == step and n < k})
         if fewest < k:
             log.info(f"  trimmed to k = {fewest} at step {step:.4g}: {fewest_err:.3f} % held-out")
             k, cbtf, err = fewest, truncate(cbtf, fewest), fewest_err
@@ -448,9 +452,10 @@ def _model_guess(table, step: float, factor: float, target: float):
 
 
 def _fewest_components(error_at, k: int, error_k: float, target: float, guess=None,
-                       tries: int = _TRIM_TRIES) -> tuple[int, float]:
+                       tries: int = _TRIM_TRIES, known: dict | None = None) -> tuple[int, float]:
     """(n, its error): the fewest components n <= ``k`` whose measured error ``error_at(n)``
-    meets ``target``, given that the first ``k`` do (``error_k`` <= target).
+    meets ``target``, given that the first ``k`` do (``error_k`` <= target) and the errors
+    ``known`` ({n: %}) already measured.
 
     The error falls as components are added, so the answer is bracketed between the most
     components seen to miss and the fewest seen to meet it.  Until something misses, the next n
@@ -461,6 +466,8 @@ def _fewest_components(error_at, k: int, error_k: float, target: float, guess=No
     result was measured to meet the target.
     """
     met, missed = {k: error_k}, {}
+    for n, e in (known or {}).items():
+        (met if e <= target else missed)[n] = e
     width = None                               # the bracket's width before the last evaluation
     drop = max(1, k // 16)                     # the step down when the model sees no room (doubles)
     for _ in range(tries):
