@@ -51,7 +51,8 @@ def add_arguments(p) -> None:
     p.add_argument("--domain", type=_domain, default="auto", metavar="auto|linear|srgb|gamma:G",
                    help="working-domain curve the basis is fitted and quantised in; every reader applies its "
                         "inverse after the dot product.  auto (default): chosen per material from linear, "
-                        "x^(1/1.6), x^(1/2.2), the sRGB curve and x^(1/3) by the unquantised held-out error of each one's basis, "
+                        "x^(1/1.6), x^(1/2.2), the sRGB curve and x^(1/3) by the unquantised held-out error of "
+                        "each one's basis, "
                         "encoded and scene-linear together (rsvd); the input's own encoding curve for --solver "
                         "paper (sRGB for 8-bit sRGB files: the paper fitted the camera's values); linear for a "
                         "factorised input.  gamma:G is x^(1/G), G in 1..4")

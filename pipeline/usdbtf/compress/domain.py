@@ -190,7 +190,7 @@ LINEAR = Domain()
 #: packaged asset at the paper's bytes x^(1/3) lowers the error to 0.643 / 0.704 of the paper's
 #: (encoded / linear) from sRGB's 0.688 / 0.721; every other preset scores it 0.12-1.03 behind
 #: its choice (benchmarks/RESULTS.md, "What the packaged asset ships").  One more candidate costs
-#: the coarse pass ~0.6 s at paper scale.
+#: the coarse pass ~0.7 s at paper scale (benchmarks/probes/domain_curves.py: 0.74 s a curve).
 AUTO_CANDIDATES = (LINEAR, Domain("power", 1.6), Domain("power", 2.2), Domain("srgb"), Domain("power", 3.0))
 
 
