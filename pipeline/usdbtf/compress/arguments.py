@@ -39,9 +39,10 @@ def add_arguments(p) -> None:
     p.add_argument("--max-bytes", type=int_in(1), metavar="B",
                    help="byte budget: every file the packaged asset's full lod loads (see --budget-for)")
     p.add_argument("--budget-for", choices=BUDGET_FOR, default="asset",
-                   help="what --max-bytes and the bytes --target-error reports count: asset (default: the files "
-                        "`usdbtf package` writes that the full lod loads -- coefficient pages, tables, fallback "
-                        "maps, thumbnail, layers) or folder (the compressed folder's basis + coefficient textures)")
+                   help="what --max-bytes counts: asset (default: the files `usdbtf package` writes that the "
+                        "full lod loads -- coefficient pages, tables, fallback maps, thumbnail, layers) or folder "
+                        "(the compressed folder's basis + coefficient textures); --target-error's error is the "
+                        "asset's either way, and `usdbtf package` prints the asset's bytes")
     p.add_argument("--codec", choices=sorted(CODEC_NAMES), help=f"texture storage (default {DEFAULT_CODEC['rsvd']}; "
                    f"paper solver: {DEFAULT_CODEC['paper']})")
     p.add_argument("--effort", choices=EFFORTS, default="auto",

@@ -221,7 +221,12 @@ def rate_control(f: Factorisation, options: CompressOptions, held: HeldOut,
     restricted = k_fit is not None and tuple(f.planes) != (k_fit,) * 3
     cbtf, choice = _target_error(f, options, table, held, restricted)
     if asset:
-        choice = _asset_bytes_of(cbtf, choice, options)
+        # The error is the asset's whatever it weighs (its pages and tables hold the folder's
+        # codes), and no byte count moves the choice: compress does not package the choice only
+        # to count it.  That packaging fitted both fallbacks, about half of the mode's CPU time
+        # (issue 42), and `usdbtf package` fits them again and prints the asset's bytes.
+        log.info(f"  asset: counted by `usdbtf package` (the folder holds {cbtf.info['bytes']['payload']:,} bytes)")
+        choice = dict(choice, folder_bytes=choice["bytes"], asset={"counted_by": "usdbtf package"})
     return cbtf, _with_budget_for(cbtf, choice, options.budget_for)[1]
 
 
@@ -882,11 +887,3 @@ def _files_asset_max_bytes(f: Factorisation, options: CompressOptions, table) ->
     cbtf, choice = _max_bytes(f, dataclasses.replace(options, max_bytes=int(budget - rest)), table)
     return cbtf, dict(choice, budget_for="asset", bytes=choice["bytes"] + rest, folder_bytes=choice["bytes"],
                       asset={"overhead": rest, "overhead_measured_at_k": measured["k"]})
-
-
-def _asset_bytes_of(cbtf: CompressedBTF, choice: dict, options: CompressOptions) -> dict:
-    """``choice`` with "bytes" the packaged asset's full lod (``cbtf`` packaged for real) and
-    "folder_bytes" the compressed folder's textures."""
-    full = _packaged(cbtf, options)["full"]
-    log.info(f"  asset: packaged, the full lod loads {full:,} bytes (folder {cbtf.info['bytes']['payload']:,})")
-    return dict(choice, bytes=full, folder_bytes=cbtf.info["bytes"]["payload"])
