@@ -457,6 +457,49 @@ def test_a_stop_that_surfaces_as_a_librarys_error_is_still_a_stop():
         pass
 
 
+#: A command's code that leaves a generator over a worker pool suspended, held by a reference
+#: cycle (as a traceback can hold one when SIGTERM lands outside the generator, in a progress
+#: bar), then stops: 20 queued items of 1 s each on 2 workers.
+_LINGERING = """import os, sys, time
+from usdbtf import cli
+from usdbtf.compress.parallel import iter_processes
+
+def slow(i):
+    time.sleep(1.0)
+    return os.getpid()
+
+class Cycle:
+    pass
+
+try:
+    with cli._pools_stopped_on_exception():
+        results = iter_processes(slow, range(20), processes=2)
+        print(next(results), flush=True)
+        held = Cycle()
+        held.me, held.results = held, results
+        del held, results
+        raise cli.Terminated()
+except cli.Terminated:
+    sys.exit(143)
+"""
+
+
+def test_a_stopped_command_stops_the_pool_a_suspended_generator_holds():
+    """A pool whose generator an exception left suspended (held by a reference cycle, so not
+    closed until a collection) is stopped as the command ends: without that, Python's exit
+    waited for every item still queued, with the CLI and a worker alive 5 s after SIGTERM (the
+    flaky package-quilt-SIGTERM-mid case)."""
+    started = time.monotonic()
+    proc = subprocess.Popen([sys.executable, "-c", _LINGERING], env=_env(), stdin=subprocess.DEVNULL,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    worker = int(proc.stdout.readline())
+    code = proc.wait(timeout=30)
+    took = time.monotonic() - started
+    assert code == 143, proc.stderr.read()
+    assert not _alive(worker) and not _session(proc.pid)
+    assert took < 6.0, f"the command took {took:.1f} s to end: it waited for the queued items (10 s)"
+
+
 def test_a_stale_lock_beside_an_unchanged_build_file_is_cleaned(tmp_path):
     """A build killed (SIGKILL) just after it swapped its SConstruct in leaves the lock file
     beside it; the next build finds the text unchanged and writes nothing, yet still cleans the

@@ -172,6 +172,21 @@ def _outputs_claimed(args):
         yield
 
 
+@contextlib.contextmanager
+def _pools_stopped_on_exception():
+    """A command that ends by an exception (an error, SIGTERM, Ctrl-C) stops every worker pool
+    still open (:func:`usdbtf.lifetime.stop_live_pools`) before its outputs' locks go: a pool
+    held by a generator the exception left suspended would otherwise keep its workers running
+    and Python's exit waiting for the items still queued."""
+    try:
+        yield
+    except BaseException:
+        from .lifetime import stop_live_pools
+
+        stop_live_pools()
+        raise
+
+
 class Terminated(KeyboardInterrupt):
     """SIGTERM, raised so that every ``with`` block cleans up as on Ctrl-C."""
 
@@ -258,7 +273,7 @@ def main(argv=None) -> int:
     logging.getLogger("usdbtf.cli").debug("usdbtf %s: %s", __version__, " ".join(map(str, argv or sys.argv[1:])))
     try:
         # Every command's products on one BLAS thread: no byte depends on thread counts.
-        with _signals_raise(), _outputs_claimed(args), one_blas_thread():
+        with _signals_raise(), _outputs_claimed(args), _pools_stopped_on_exception(), one_blas_thread():
             status = args.func(args)
             from .atomic import raise_if_interrupted
 

@@ -13,7 +13,12 @@ work nobody waits for.  So:
   ``with`` blocks) could otherwise send it on through the parent's code.
 * **A pool that ends by an exception** (SIGTERM and SIGINT are exceptions in a command,
   :mod:`usdbtf.cli`) kills its workers at once (:func:`forked_pool`, :func:`stop_pool`)
-  instead of waiting for the items they run: a stopped command stops now.
+  instead of waiting for the items they run: a stopped command stops now.  A pool whose
+  ``with`` block never ends -- a generator over it (:func:`usdbtf.compress.parallel.iter_processes`)
+  left suspended when the exception was raised outside it, held by a reference cycle through
+  the exception's traceback -- is stopped by the command on its way out
+  (:func:`stop_live_pools`): else the interpreter's exit waits for every item still queued
+  (a quilt's package went on encoding with its CLI and a worker alive 5 s after SIGTERM).
 * **Other programs** (a Storm or Cycles frame render in a bpy Python, glslang, a rig's
   camera command, a benchmark's ffmpeg): :func:`dying_with_parent` sets the same kernel
   signal between the fork and the exec.
@@ -34,9 +39,11 @@ import contextlib
 import os
 import signal
 import sys
+import weakref
 
 __all__ = ["PARENT_ENV", "die_with_parent", "adopt_parent_from_environment", "child_environment",
-           "guarded_module_argv", "dying_with_parent", "running", "forked_pool", "stop_pool", "dask_setup"]
+           "guarded_module_argv", "dying_with_parent", "running", "forked_pool", "stop_pool", "stop_live_pools",
+           "dask_setup"]
 
 #: The environment variable through which a parent names itself to a program it starts.
 PARENT_ENV = "USDBTF_PARENT_PID"
@@ -178,12 +185,32 @@ def forked_pool(workers: int, *, initializer=None, initargs=()):
 
     pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"), initializer=initializer,
                                initargs=initargs)
+    _LIVE_POOLS.add(pool)
     try:
         yield pool
     except BaseException:
         stop_pool(pool)
         raise
+    finally:
+        _LIVE_POOLS.discard(pool)
     pool.shutdown(wait=True)
+
+
+#: The :func:`forked_pool` pools whose ``with`` block has not ended (weak: a pool nothing holds
+#: any more has no block left to end).
+_LIVE_POOLS: "weakref.WeakSet" = weakref.WeakSet()
+
+
+def stop_live_pools() -> int:
+    """Stop every :func:`forked_pool` pool whose block has not ended (:func:`stop_pool`: workers
+    killed, queued items dropped); returns how many.  A command calls it when it ends by an
+    exception: a pool's block can outlive the exception when a generator holding it is left
+    suspended in a reference cycle, and Python's exit then waits for the pool's queued items."""
+    pools = list(_LIVE_POOLS)
+    for pool in pools:
+        _LIVE_POOLS.discard(pool)
+        stop_pool(pool)
+    return len(pools)
 
 
 def stop_pool(pool) -> None:

@@ -110,7 +110,12 @@ def encode_in_workers(encode, items, label: str, *, forkable: bool = True) -> li
         results = iter_processes(encode, items)
     else:
         results = _threads_in_order(encode, items)
-    return list(track(results, label, len(items), logger=log))
+    try:
+        return list(track(results, label, len(items), logger=log))
+    finally:
+        # An exception raised outside the generator (a SIGTERM in the progress bar) leaves it
+        # suspended inside its pool: closing it stops the pool now, not when it is collected.
+        results.close()
 
 
 def _threads_in_order(fn, items):
