@@ -74,6 +74,7 @@ from ...svbrdf import SvbrdfMaps
 from . import fallback, lod, storm, thumbnail
 from . import openpbr as openpbr_fallback
 from .arkit import AR_SUFFIX
+from .fallback_count import BandFits, fit_bands
 from .finite import non_finite_in_stage, non_finite_values
 from .layers import MATERIAL, make_usdz, stage_metadata, usd_write, valid_name
 from .lod import FULL_LOD, default_lods
@@ -286,7 +287,9 @@ def asset_overhead(cbtf: CompressedBTF, fallback_fits: tuple | None = None) -> d
     ``fallback_fits`` : the "fallback_fits" of an earlier call on the same material (another
     k): its fallback fits are reused instead of fitted again (:func:`package`'s ``fallback_fits``).  The
     fits are most of a packaging's time (issue 42: 39 of 43 s, metal_flakes 64², paper
-    sampling) and their maps' bytes barely move with k, which is all this count needs.
+    sampling) and their maps' bytes barely move with k, which is all this count needs.  An
+    image of 64 texel rows or more is fitted on half of them (:mod:`.fallback_count`: bands of
+    16 rows in every 32) and its fallback maps' bytes scaled by the rows left out.
 
     Returns
     -------
@@ -309,7 +312,12 @@ def asset_overhead(cbtf: CompressedBTF, fallback_fits: tuple | None = None) -> d
     level = quiet.level
     quiet.setLevel(max(level, logging.WARNING))      # the probe's own "packaged ..." lines are noise here
     try:
-        result = package(cbtf, PackageOptions(physical_size=size, validate=False), fallback_fits=fallback_fits)
+        bands = fallback_fits
+        if bands is None:
+            bands = fit_bands(cbtf, white_level_of(cbtf.info, "compressed BTF: source_metadata.white_level"))
+            release_free_heap()    # the fit threads' freed heaps, before the package peaks on top of them
+        fits = bands.fits if isinstance(bands, BandFits) else fallback_fits
+        result = package(cbtf, PackageOptions(physical_size=size, validate=False), fallback_fits=fits)
         with tempfile.TemporaryDirectory(prefix="usdbtf-overhead-") as tmp:
             summary = write_package(result, Path(tmp) / "probe.usda")
             full = int(summary["bytes"][FULL_LOD])
@@ -319,16 +327,21 @@ def asset_overhead(cbtf: CompressedBTF, fallback_fits: tuple | None = None) -> d
             names = (set(result.gpu.pages) if paged else set(result.coefficients) | {result.basis})
             folder = Path(summary["textures"])
             pages = int(sum((folder / n).stat().st_size for n in names))
+            if isinstance(bands, BandFits):
+                # The maps of half the rows, as shipped: the rest of the rows' bytes added.
+                maps = {*result.fallback.values(), *(result.openpbr or {}).values()}
+                full += round(sum((folder / n).stat().st_size for n in maps) * (bands.scale - 1.0))
     finally:
         quiet.setLevel(level)
-    fits = (result.svbrdf_fit, result.openpbr_maps, result.fit_errors)
+    if not isinstance(bands, BandFits):
+        bands = (result.svbrdf_fit, result.openpbr_maps, result.fit_errors)
     # The package (its textures' bytes, GPU pages, thumbnail) is only counted: drop it and hand
     # what its threads freed back to the system, else compress's next step (another packaging,
     # the encode, the evaluation) peaks on top of it (issue 42; :func:`release_free_heap`).
     del result
     release_free_heap()
     return {"full": full, "pages": pages, "paged": paged, "overhead": full - pages, "k": cbtf.k,
-            "fallback_fits": fits}
+            "fallback_fits": bands}
 
 
 def check_root_layer(out) -> None:
