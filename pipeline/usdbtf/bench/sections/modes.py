@@ -111,21 +111,21 @@ def encode_floor(out) -> dict:
     asset = None
     if choice.get("budget_for") == "asset":
         # --target-error leaves the asset's count to `usdbtf package` (issue 42): packaged here.
-        asset = packaged_bytes(out) if (choice.get("asset") or {}).get("counted_by") else choice.get("bytes")
+        asset = packaged_bytes(out, cbtf) if (choice.get("asset") or {}).get("counted_by") else choice.get("bytes")
     return {"encode_s": encode_s, "encode_cpu_s": encode_cpu_s, "asset_bytes": asset}
 
 
-def packaged_bytes(out) -> int:
+def packaged_bytes(out, cbtf) -> int:
     """Bytes of every file the full lod loads of the asset ``usdbtf package`` writes from the
-    compressed folder ``out`` (default options, no validation; a 1 m swatch where no physical
-    size is recorded: the size changes no texture), written to a temporary folder."""
+    compressed folder ``out`` (``cbtf``: it, as read; default options, no validation; a 1 m
+    swatch where no physical size is recorded: the size changes no texture), written to a
+    temporary folder."""
     import tempfile
     from pathlib import Path
 
     from ...usd.asset.package import PackageOptions, package, physical_size_of, write_package
-    from ...compress.format import read_compressed
 
-    size = physical_size_of(read_compressed(out)) or (1.0, 1.0)
+    size = physical_size_of(cbtf) or (1.0, 1.0)
     result = package(Path(out), PackageOptions(physical_size=size, validate=False))
     with tempfile.TemporaryDirectory(prefix="usdbtf-bench-asset-") as tmp:
         return int(write_package(result, Path(tmp) / "asset.usda")["bytes"]["full"])
