@@ -40,6 +40,7 @@ import numpy as np
 from .. import color
 from ..imageio import numpy_dtype
 from ..manifest import encode_for_file
+from .code_table import file_code_table
 from .domain import AUTO_CANDIDATES, LINEAR, Domain, parse_domain
 from .fit import BasisFit, fit_basis
 from .parallel import in_threads, rows_apply
@@ -164,7 +165,7 @@ def score_domains(source, texels, k: int, options, candidates=AUTO_CANDIDATES, *
         y_raw = np.ascontiguousarray(y_raw.reshape(S, -1, 3)[:, ::eval_stride]).reshape(S, -1)
     linear = source.curves_in(LINEAR)
     to_file = color.processor(btf.working_space, btf.color_space, btf.ocio_config)
-    codes = _Codes(to_file, btf.bit_depth)
+    codes = _Codes(to_file, btf.bit_depth, file_code_table(btf))
     scored = np.arange(0, S, sample_stride)
     blocks = [scored[a:a + _SCORE_BLOCK] for a in range(0, len(scored), _SCORE_BLOCK)]
     truth = in_threads(lambda rows: linear(y_raw[rows]), blocks)                # scored rows, working space
@@ -213,16 +214,19 @@ def score_domains(source, texels, k: int, options, candidates=AUTO_CANDIDATES, *
 
 class _Codes:
     """Working-space values (rows, 3 m) -> the file's codes (rows, 3 m) in its own dtype
-    (uint8/uint16 codes clipped and rounded as a file holds them; float files as floats),
-    and L1 sums of codes normalised to [0, 1]."""
+    (uint8/uint16 codes clipped and rounded as a file holds them, by ``table`` where one
+    serves: :mod:`.code_table`; float files as floats), and L1 sums of codes normalised to
+    [0, 1]."""
 
-    def __init__(self, to_file, depth: str):
-        self.to_file, self.depth = to_file, depth
+    def __init__(self, to_file, depth: str, table=None):
+        self.to_file, self.depth, self.table = to_file, depth, table
         self.top = {"uint8": 255.0, "uint16": 65535.0}.get(depth, 1.0)
         #: The file's numpy type (integer codes for uint8/uint16 files).
         self.dtype = np.dtype(numpy_dtype(depth))
 
     def __call__(self, lin: np.ndarray) -> np.ndarray:
+        if self.table is not None:
+            return self.table(lin)
         return encode_for_file(lin.reshape(lin.shape[0], -1, 3), self.to_file, self.depth).reshape(lin.shape)
 
     def total(self, codes: np.ndarray) -> float:

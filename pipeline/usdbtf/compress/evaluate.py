@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .code_table import file_code_table
 from .curve import error_curve
 from .format import CompressedBTF, working_coefficient_texels
 from .metrics import ErrorSums
@@ -39,6 +40,10 @@ class HeldOut:
     in_sample : a sample of the fitted texels (a :class:`HeldOut` of its own, not disjoint),
         or None when ``texels`` are every texel.
     weights : (held-out, in-sample) texels of the image each sampled texel stands for.
+    codes : (S, n, 3) uint8 or uint16, the input files' own codes there, when the source
+        stores them (integer files): the encoded truth as the files hold it, with no
+        conversion back from :attr:`truth` (issue 42: that conversion was a third of a plain
+        compress's evaluation).  None: the encoded truth is converted from :attr:`truth`.
     """
 
     texels: np.ndarray
@@ -48,6 +53,7 @@ class HeldOut:
     _codes: dict = field(default_factory=dict, repr=False)
     in_sample: "HeldOut | None" = None
     weights: tuple = (1.0, 0.0)
+    codes: np.ndarray | None = None
 
     def encoded(self, linear: np.ndarray) -> np.ndarray:
         """Scene-linear working-space values -> the input file's values, normalised to [0, 1]
@@ -61,8 +67,10 @@ class HeldOut:
         again)."""
         if error_domain != "encoded":
             return domain.inverse(self.truth[samples])
-        key = (domain, samples.start, samples.stop)
         top, dtype = getattr(self.encode, "top", None), getattr(self.encode, "code_dtype", None)
+        if self.codes is not None:
+            return self.codes[samples].astype(np.float32) / np.float32(top)
+        key = (domain, samples.start, samples.stop)
         if key in self._codes:
             kept = self._codes[key]
             return kept if dtype is None else kept.astype(np.float32) / np.float32(top)
@@ -88,17 +96,32 @@ def held_out_set(source, texels: Texels) -> HeldOut:
     same of ``texels.in_sample``, and the two strata's weights.
     """
     encode = file_encoder(source.btf)
+    shape = lambda ev: (source.btf.n_samples, len(ev), 3)
 
-    def truth(ev: np.ndarray) -> np.ndarray:
-        return source.to_working(source.columns(ev)).reshape(source.btf.n_samples, len(ev), 3)
+    def truth(ev: np.ndarray) -> dict:
+        # The codes first: a source that keeps only some texels' columns hands them over
+        # (forgets them) when they are decoded.
+        codes = _file_codes(source, ev, encode)
+        return {"truth": source.to_working(source.columns(ev)).reshape(shape(ev)),
+                "codes": None if codes is None else codes.reshape(shape(ev))}
 
     ev = texels.evaluation
     if not texels.held_out or texels.in_sample is None:
-        return HeldOut(ev, truth(ev), texels.held_out, encode)
-    inner = HeldOut(texels.in_sample, truth(texels.in_sample), False, encode)
+        return HeldOut(ev, disjoint=texels.held_out, encode=encode, **truth(ev))
+    inner = HeldOut(texels.in_sample, disjoint=False, encode=encode, **truth(texels.in_sample))
     n_fit = len(texels.fit)
-    return HeldOut(ev, truth(ev), True, encode, in_sample=inner,
-                   weights=((source.btf.n_pixels - n_fit) / len(ev), n_fit / len(texels.in_sample)))
+    return HeldOut(ev, disjoint=True, encode=encode, in_sample=inner,
+                   weights=((source.btf.n_pixels - n_fit) / len(ev), n_fit / len(texels.in_sample)), **truth(ev))
+
+
+def _file_codes(source, texels: np.ndarray, encode) -> np.ndarray | None:
+    """(S, 3 n) the input files' integer codes of ``texels`` as the source stores them, or
+    None when it stores something else (floats, a shaped input's filtered values, factors)."""
+    raw_columns = getattr(source, "raw_columns", None)
+    if encode.code_dtype is None or raw_columns is None:
+        return None
+    raw = raw_columns(texels)
+    return raw if raw.dtype == encode.code_dtype else None
 
 
 def file_encoder(btf):
@@ -109,9 +132,12 @@ def file_encoder(btf):
 
     to_file = color.processor(btf.working_space, btf.color_space, btf.ocio_config)
     top = np.float32({"uint8": 255.0, "uint16": 65535.0}.get(btf.bit_depth, 1.0))
+    # 8-bit files' codes by table where it matches OpenColorIO (.code_table: half the cost).
+    table = file_code_table(btf)
+    to_codes = (lambda block: encode_for_file(block, to_file, btf.bit_depth)) if table is None else table
+
     def encode(lin: np.ndarray) -> np.ndarray:
-        return rows_apply(lambda block: encode_for_file(block, to_file, btf.bit_depth).astype(np.float32) / top,
-                          lin, np.empty(lin.shape, np.float32))
+        return rows_apply(lambda block: to_codes(block).astype(np.float32) / top, lin, np.empty(lin.shape, np.float32))
 
     encode.top = float(top)
     encode.code_dtype = {"uint8": np.uint8, "uint16": np.uint16}.get(btf.bit_depth)

@@ -126,6 +126,11 @@ class TileProjector:
         # Every plane on all k vectors: one GEMM per tile on the interleaved data, whose
         # (k, 3 n) result is already the coefficients' layout.  Otherwise one per plane.
         self.interleaved = len(set(self.ks)) == 1
+        #: Interleaved without energy, the colour mix acts on the coefficients once, after the
+        #: sums (:meth:`ProjectionTotal.result`): U^T (X mix^T) = (U^T X) mix^T per texel, so
+        #: a 3 x 3 product per texel and component (k P) replaces one per texel and sample
+        #: (S P, 72x as many at paper scale: a tenth of the projection, issue 42).
+        self.mix_after = self.interleaved and not energy
         widths = self.ks[:1] if self.interleaved else self.ks
         # Per-tile basis panels (k_j, t), contiguous: the same GEMM operands in every source.
         self.panels = [[np.ascontiguousarray(u[s0:s0 + tile, :kj].T) for s0 in range(0, S, tile)]
@@ -163,8 +168,9 @@ class TileProjector:
         # faults, see .convert); each product is added before the thread's next one.
         x = self.curves(raw, out=self._scratch.get("x", raw.shape))
         if self.interleaved:
-            # Per texel y = mix @ x; OpenCV's SIMD transform is 4x faster than a K = 3 GEMM.
-            y = color.mix_rgb(x, self.mix, out=self._scratch.get("y", raw.shape))
+            # Per texel y = mix @ x (OpenCV's SIMD transform is 4x faster than a K = 3 GEMM),
+            # or x as it is when the mix comes after the sums.
+            y = x if self.mix_after else color.mix_rgb(x, self.mix, out=self._scratch.get("y", raw.shape))
             if self.ks[0]:
                 accs[0] += np.matmul(self.panels[0][tile], y, out=self._scratch.get("p", (self.ks[0], 3 * n)))
         else:
@@ -277,13 +283,16 @@ class ProjectionTotal:
         n_shards = len(self.plan.shards())
         if any(n != n_shards for n in self._next):
             raise RuntimeError("projection: not every shard was added")
+        coeff = self.coeff
+        if self.projector.mix_after:       # (a new array: OpenCV documents no in-place transform)
+            coeff = color.mix_rgb(coeff, self.projector.mix)
         energy = None
         if self._energy is not None:
             energy = 0.0
             for n in range(self._energy.shape[1]):
                 for shard in range(n_shards):
                     energy += float(self._energy[shard, n])
-        return self.coeff, energy
+        return coeff, energy
 
 
 def project(source, basis: np.ndarray, color_matrix: np.ndarray, planes, *, energy: bool = False):
