@@ -305,3 +305,25 @@ def test_fewest_components_starts_from_the_attempts_at_its_step():
     n, _ = ratecontrol._fewest_components(error_at, 47, float(errors[47]), 3.0, lambda n, e: 1,
                                           known={37 - 10: float(errors[27])})
     assert n == 37 and seen and all(27 < m < 47 for m in seen)
+
+
+def test_a_plain_k_samples_the_fitted_stratum_in_proportion_a_budget_in_full():
+    """Issue 42: a plain k's estimate is a report, its fitted stratum (2048 of 16384 texels at
+    128^2) sampled in proportion to the texels it stands for (4 runs of 64, not 16); under a
+    target the estimate steers the choice and keeps the held-out sample's size."""
+    from types import SimpleNamespace
+
+    from usdbtf.compress.texels import MIN_IN_SAMPLE_RUNS, RUN, sample_texels
+
+    image = SimpleNamespace(width=128, height=128)
+    plain = sample_texels(image, CompressOptions(k=150))
+    assert (len(plain.fit), len(plain.evaluation), len(plain.in_sample)) == (2048, 1024, MIN_IN_SAMPLE_RUNS * RUN)
+    assert np.isin(plain.in_sample, plain.fit).all() and not np.isin(plain.evaluation, plain.fit).any()
+    for budget in (CompressOptions(target_error=5.0), CompressOptions(max_bytes=10**6)):
+        texels = sample_texels(image, budget)
+        assert (len(texels.fit), len(texels.in_sample)) == (4096, 1024)
+    # A larger image's fitted share is smaller still, but never below four runs; a larger
+    # held-out sample gets a proportionally larger fitted one.
+    assert len(sample_texels(SimpleNamespace(width=512, height=512), CompressOptions(k=150)).in_sample) == 4 * RUN
+    wide = sample_texels(image, CompressOptions(k=150, eval_texels=8192))
+    assert len(wide.in_sample) == 19 * RUN          # ceil(128 runs x 2048 / 14336)
