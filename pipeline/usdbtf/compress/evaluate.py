@@ -62,9 +62,9 @@ class HeldOut:
 
     def truth_block(self, domain, error_domain: str, samples: slice) -> np.ndarray:
         """The truth of ``samples`` in scene-linear (``error_domain`` "linear") or as the
-        file's values ("encoded", normalised), from :attr:`truth` in the working ``domain``.
-        The encoded truth is computed once per block and kept (rate control asks again and
-        again)."""
+        file's values ("encoded", normalised): the files' own :attr:`codes` where kept, else
+        converted from :attr:`truth` in the working ``domain`` once per block and kept (rate
+        control asks again and again)."""
         if error_domain != "encoded":
             return domain.inverse(self.truth[samples])
         top, dtype = getattr(self.encode, "top", None), getattr(self.encode, "code_dtype", None)
