@@ -36,7 +36,7 @@ import numpy as np
 from .. import color
 from ..manifest import encode_for_file
 
-__all__ = ["CodeTable", "code_table", "file_code_table"]
+__all__ = ["CodeTable", "code_table", "file_code_table", "file_codes"]
 
 #: Bucket = float32 bits >> shift; tried from the coarsest until no bucket holds two steps.
 _SHIFTS = (15, 14, 13, 12)
@@ -96,18 +96,17 @@ class CodeTable:
         unmix = None
         curve_codes = codes
         if matrix is not None:
-            matrix = np.asarray(matrix, np.float64)
-            unmix = np.linalg.inv(matrix).astype(np.float32)
+            unmix = np.linalg.inv(np.asarray(matrix, np.float64)).astype(np.float32)
+            matrix = np.asarray(matrix, np.float32)
             # The steps of the curves alone: OpenColorIO given colours the matrix made.
-            curve_codes = lambda v: codes(color.mix_rgb(np.ascontiguousarray(v, np.float32).reshape(-1, 3),
-                                                        matrix.astype(np.float32)))
+            curve_codes = lambda v: codes(color.mix_rgb(np.ascontiguousarray(v, np.float32).reshape(-1, 3), matrix))
         steps = _steps(curve_codes)
         if steps is None:
             return None
         steps = _shared_curve(steps)
         for shift in _SHIFTS:
             table = cls._tabulated(steps, shift, unmix)
-            if table is not None and table._agrees(codes, steps):
+            if table is not None and table._agrees(codes, steps, matrix):
                 return table
         return None
 
@@ -148,14 +147,15 @@ class CodeTable:
         out += x >= step.take(bucket)
         return out
 
-    def _agrees(self, codes, steps: np.ndarray) -> bool:
+    def _agrees(self, codes, steps: np.ndarray, matrix: np.ndarray | None) -> bool:
         """True when the table gives OpenColorIO's codes (``codes``: working space -> codes)
-        to within one on both sides of every step and on :data:`_CHECKS` values per channel
-        spread over [-0.1, 2], with the channels on different values, and exactly on all
-        but :data:`_TOLERANCE` of those."""
+        to within one on both sides of every step (curve values, taken through ``matrix``
+        into the working space) and on :data:`_CHECKS` values per channel spread over
+        [-0.1, 2], with the channels on different values, and exactly on all but
+        :data:`_TOLERANCE` of those."""
         sides = np.concatenate([steps.T, np.nextafter(steps, np.float32(-np.inf)).T])     # (510, 3) curve values
-        if self.unmix is not None:
-            sides = color.mix_rgb(sides, np.linalg.inv(self.unmix.astype(np.float64)).astype(np.float32))
+        if matrix is not None:
+            sides = color.mix_rgb(sides, matrix)
         ramp = np.concatenate([np.linspace(-0.1, 0.0, 64), np.geomspace(1e-6, 2.0, _CHECKS - 64)]).astype(np.float32)
         spread = np.concatenate([np.stack([ramp, ramp[::-1], np.roll(ramp, _CHECKS // 3)], axis=-1),
                                  [[0, 0, 0], [1, 1, 1], [1e4, 1e4, 1e4]]]).astype(np.float32)
@@ -210,3 +210,15 @@ def file_code_table(btf) -> "CodeTable | None":
         return None
     matrix = None if dec.matrix is None else tuple(map(tuple, np.asarray(dec.matrix, np.float64).tolist()))
     return code_table(btf.working_space, btf.color_space, btf.ocio_config, btf.bit_depth, matrix)
+
+
+def file_codes(btf):
+    """callable(working-space float32 (..., 3), or rows of interleaved RGB) -> ``btf``'s file
+    values as its files hold them, in the files' own dtype (codes for integer depths), in the
+    same shape: by the files' :class:`CodeTable` where one serves, else through OpenColorIO
+    (:func:`usdbtf.manifest.encode_for_file`)."""
+    table = file_code_table(btf)
+    if table is not None:
+        return table
+    to_file = color.processor(btf.working_space, btf.color_space, btf.ocio_config)
+    return lambda lin: encode_for_file(lin.reshape(-1, 3), to_file, btf.bit_depth).reshape(lin.shape)

@@ -37,10 +37,8 @@ import logging
 
 import numpy as np
 
-from .. import color
 from ..imageio import numpy_dtype
-from ..manifest import encode_for_file
-from .code_table import file_code_table
+from .code_table import file_codes
 from .domain import AUTO_CANDIDATES, LINEAR, Domain, parse_domain
 from .fit import BasisFit, fit_basis
 from .parallel import in_threads, rows_apply
@@ -164,8 +162,7 @@ def score_domains(source, texels, k: int, options, candidates=AUTO_CANDIDATES, *
     if eval_stride > 1:
         y_raw = np.ascontiguousarray(y_raw.reshape(S, -1, 3)[:, ::eval_stride]).reshape(S, -1)
     linear = source.curves_in(LINEAR)
-    to_file = color.processor(btf.working_space, btf.color_space, btf.ocio_config)
-    codes = _Codes(to_file, btf.bit_depth, file_code_table(btf))
+    codes = _Codes(btf)
     scored = np.arange(0, S, sample_stride)
     blocks = [scored[a:a + _SCORE_BLOCK] for a in range(0, len(scored), _SCORE_BLOCK)]
     truth = in_threads(lambda rows: linear(y_raw[rows]), blocks)                # scored rows, working space
@@ -213,21 +210,19 @@ def score_domains(source, texels, k: int, options, candidates=AUTO_CANDIDATES, *
 
 
 class _Codes:
-    """Working-space values (rows, 3 m) -> the file's codes (rows, 3 m) in its own dtype
-    (uint8/uint16 codes clipped and rounded as a file holds them, by ``table`` where one
-    serves: :mod:`.code_table`; float files as floats), and L1 sums of codes normalised to
+    """Working-space values (rows, 3 m) -> ``btf``'s file codes (rows, 3 m) in their own dtype
+    (uint8/uint16 codes clipped and rounded as a file holds them, by table where one serves:
+    :func:`.code_table.file_codes`; float files as floats), and L1 sums of codes normalised to
     [0, 1]."""
 
-    def __init__(self, to_file, depth: str, table=None):
-        self.to_file, self.depth, self.table = to_file, depth, table
-        self.top = {"uint8": 255.0, "uint16": 65535.0}.get(depth, 1.0)
+    def __init__(self, btf):
+        self.encode = file_codes(btf)
+        self.top = {"uint8": 255.0, "uint16": 65535.0}.get(btf.bit_depth, 1.0)
         #: The file's numpy type (integer codes for uint8/uint16 files).
-        self.dtype = np.dtype(numpy_dtype(depth))
+        self.dtype = np.dtype(numpy_dtype(btf.bit_depth))
 
     def __call__(self, lin: np.ndarray) -> np.ndarray:
-        if self.table is not None:
-            return self.table(lin)
-        return encode_for_file(lin.reshape(lin.shape[0], -1, 3), self.to_file, self.depth).reshape(lin.shape)
+        return self.encode(lin)
 
     def total(self, codes: np.ndarray) -> float:
         return float(np.abs(codes).sum(dtype=np.float64)) / self.top

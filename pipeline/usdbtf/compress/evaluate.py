@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .code_table import file_code_table
+from .code_table import file_codes
 from .curve import error_curve
 from .format import CompressedBTF, working_coefficient_texels
 from .metrics import ErrorSums
@@ -127,14 +127,8 @@ def _file_codes(source, texels: np.ndarray, encode) -> np.ndarray | None:
 def file_encoder(btf):
     """callable(working-space float (..., 3)) -> ``btf``'s file values as float32, normalised
     to [0, 1] for integer depths: what "error on the encoded values" compares."""
-    from .. import color
-    from ..manifest import encode_for_file
-
-    to_file = color.processor(btf.working_space, btf.color_space, btf.ocio_config)
     top = np.float32({"uint8": 255.0, "uint16": 65535.0}.get(btf.bit_depth, 1.0))
-    # 8-bit files' codes by table where it matches OpenColorIO (.code_table: half the cost).
-    table = file_code_table(btf)
-    to_codes = (lambda block: encode_for_file(block, to_file, btf.bit_depth)) if table is None else table
+    to_codes = file_codes(btf)        # 8-bit files by table where one serves (.code_table: half the cost)
 
     def encode(lin: np.ndarray) -> np.ndarray:
         return rows_apply(lambda block: to_codes(block).astype(np.float32) / top, lin, np.empty(lin.shape, np.float32))
