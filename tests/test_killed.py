@@ -500,6 +500,48 @@ def test_a_stopped_command_stops_the_pool_a_suspended_generator_holds():
     assert took < 6.0, f"the command took {took:.1f} s to end: it waited for the queued items (10 s)"
 
 
+#: A SIGTERM that lands just after a pool forks its first worker, before the pool records it:
+#: the interruption the CLI's handler delivers, raised right after the fork returns.
+_SIGNAL_AT_FORK = """
+import multiprocessing.process as mpp, sys
+from usdbtf import atomic, lifetime
+from usdbtf.cli import Terminated
+real = mpp.BaseProcess.start
+def start(self):
+    real(self)
+    if not getattr(mpp, "_fired", False):
+        mpp._fired = True
+        print(self.pid, flush=True)
+        atomic.interrupt(Terminated())
+mpp.BaseProcess.start = start
+try:
+    with lifetime.forked_pool(2) as pool:
+        pool.submit(int).result()
+except Terminated:
+    sys.exit(143)
+"""
+
+
+def test_a_signal_while_a_pool_forks_stops_every_worker():
+    """A SIGTERM raised between a worker's fork and the pool's record of it left a worker no
+    stop_pool killed, which multiprocessing's exit then joined for ever (the flaky
+    compress-zip-SIGTERM-mid case: the command and a worker alive 5 s after SIGTERM).  The pool
+    forks its workers in a critical section: the signal is raised once every one is recorded."""
+    proc = subprocess.Popen([sys.executable, "-c", _SIGNAL_AT_FORK], env=_env(), stdin=subprocess.DEVNULL,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    worker = int(proc.stdout.readline())
+    try:
+        code = proc.wait(timeout=20)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        pytest.fail("the command did not end within 20 s of the signal: it waited for an unrecorded worker")
+    assert code == 143, proc.stderr.read()
+    deadline = time.monotonic() + 5
+    while (_alive(worker) or _session(proc.pid)) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not _alive(worker) and not _session(proc.pid)
+
+
 def test_a_stale_lock_beside_an_unchanged_build_file_is_cleaned(tmp_path):
     """A build killed (SIGKILL) just after it swapped its SConstruct in leaves the lock file
     beside it; the next build finds the text unchanged and writes nothing, yet still cleans the

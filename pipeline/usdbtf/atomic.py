@@ -57,7 +57,7 @@ from . import lifetime, outputs
 from .errors import BTFError, IOFailure, OutputRefused, os_error_message
 
 __all__ = ["Policy", "output_policy", "current_policy", "check_output", "claim", "atomic_dir", "atomic_file",
-           "atomic_group", "scratch_dir", "tidy_owned", "umask", "interrupt", "raise_if_interrupted",
+           "atomic_group", "scratch_dir", "tidy_owned", "umask", "interrupt", "raise_if_interrupted", "signals_deferred",
            "interruption_forgotten", "related", "TMP_TAG", "LOCK_TAG"]
 
 log = logging.getLogger(__name__)
@@ -338,7 +338,7 @@ def claim(target, *, folder: bool, kind: str | None = None, what: str = "output"
     try:
         # SIGTERM/SIGINT wait while the lock and the registry change, so that every lock
         # file taken is released by the finally below.
-        with _signals_deferred():
+        with signals_deferred():
             held = _HELD.get(real)
             if held is None:
                 try:
@@ -363,7 +363,7 @@ def claim(target, *, folder: bool, kind: str | None = None, what: str = "output"
         made = []                      # kept: the output is in them
     finally:
         if held is not None:
-            with _signals_deferred():
+            with signals_deferred():
                 held.count -= 1
                 if held.count == 0:
                     del _HELD[real]
@@ -375,10 +375,11 @@ _CRITICAL = {"depth": 0, "pending": None, "signalled": None}
 
 
 @contextlib.contextmanager
-def _signals_deferred():
-    """A short critical section (taking or releasing a lock, committing an output): an
-    interruption that :func:`interrupt` is asked to deliver meanwhile is raised when the
-    outermost section ends, so no lock or half-moved output is left behind."""
+def signals_deferred():
+    """A short critical section (taking or releasing a lock, committing an output, forking a
+    pool's workers): an interruption that :func:`interrupt` is asked to deliver meanwhile is
+    raised when the outermost section ends, so no lock, half-moved output or unrecorded
+    worker is left behind."""
     _CRITICAL["depth"] += 1
     try:
         yield
@@ -531,7 +532,7 @@ def _staged(real_dir: Path, names: list[str], shown_dir: Path, check=None):
     main = shown_dir / names[0]
     staging, owner = None, os.getpid()
     try:
-        with _signals_deferred():
+        with signals_deferred():
             try:
                 staging = _new_staging(real_dir, names[0])
             except OSError as exc:
@@ -541,7 +542,7 @@ def _staged(real_dir: Path, names: list[str], shown_dir: Path, check=None):
             check(staging / "new")
         _only_in(owner)
         raise_if_interrupted()           # a stopped command publishes nothing
-        with _signals_deferred():        # a commit, once started, is finished
+        with signals_deferred():        # a commit, once started, is finished
             _commit(staging, real_dir, [n for n in names if os.path.lexists(staging / "new" / n)])
     except BaseException as exc:
         if staging is None:

@@ -13,7 +13,9 @@ work nobody waits for.  So:
   ``with`` blocks) could otherwise send it on through the parent's code.
 * **A pool that ends by an exception** (SIGTERM and SIGINT are exceptions in a command,
   :mod:`usdbtf.cli`) kills its workers at once (:func:`forked_pool`, :func:`stop_pool`)
-  instead of waiting for the items they run: a stopped command stops now.  A pool whose
+  instead of waiting for the items they run: a stopped command stops now.  Its workers are
+  forked together when it starts, in a critical section (:func:`usdbtf.atomic.signals_deferred`),
+  so a signal never lands between a fork and the pool's record of the child.  A pool whose
   ``with`` block never ends -- a generator over it (:func:`usdbtf.compress.parallel.iter_processes`)
   left suspended when the exception was raised outside it, held by a reference cycle through
   the exception's traceback -- is stopped by the command on its way out
@@ -183,10 +185,20 @@ def forked_pool(workers: int, *, initializer=None, initargs=()):
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
+    from .atomic import signals_deferred
+
     pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"), initializer=initializer,
                                initargs=initargs)
     _LIVE_POOLS.add(pool)
     try:
+        # Every worker forked now (a forking pool starts them all at its first item), in a
+        # critical section: a SIGTERM raised between a fork and the pool's record of the child
+        # left a worker that no stop_pool kills and that multiprocessing's exit then joins for
+        # ever (compress of a zip, SIGTERM at its first child: the command and one worker alive
+        # 5 s later, once in a full test run on a busy machine).  The signal is raised when the
+        # section ends, with every worker recorded.
+        with signals_deferred():
+            pool.submit(int)
         yield pool
     except BaseException:
         stop_pool(pool)
