@@ -54,6 +54,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from . import lifetime, outputs
+from .lifetime import interrupt, interruption_forgotten, raise_if_interrupted, signals_deferred
 from .errors import BTFError, IOFailure, OutputRefused, os_error_message
 
 __all__ = ["Policy", "output_policy", "current_policy", "check_output", "claim", "atomic_dir", "atomic_file",
@@ -369,54 +370,6 @@ def claim(target, *, folder: bool, kind: str | None = None, what: str = "output"
                     del _HELD[real]
                     held.release()
         _remove_made(made)             # after the lock file is gone, so they can be empty
-
-
-_CRITICAL = {"depth": 0, "pending": None, "signalled": None}
-
-
-@contextlib.contextmanager
-def signals_deferred():
-    """A short critical section (taking or releasing a lock, committing an output, forking a
-    pool's workers): an interruption that :func:`interrupt` is asked to deliver meanwhile is
-    raised when the outermost section ends, so no lock, half-moved output or unrecorded
-    worker is left behind."""
-    _CRITICAL["depth"] += 1
-    try:
-        yield
-    finally:
-        _CRITICAL["depth"] -= 1
-        pending = _CRITICAL["pending"]
-        if _CRITICAL["depth"] == 0 and pending is not None:
-            _CRITICAL["pending"] = None
-            raise pending
-
-
-def interrupt(exc: BaseException) -> None:
-    """Raise ``exc`` now, or when the current critical section ends (for signal handlers:
-    the CLI turns SIGTERM and SIGINT into exceptions through this).
-
-    ``exc`` is also kept until :func:`interruption_forgotten`: Python drops an exception
-    raised where it cannot propagate (a signal that arrives while an ``os.fork`` hook of
-    ``logging`` or ``concurrent.futures`` runs is printed and ignored), so
-    :func:`raise_if_interrupted` raises it again where the work can stop: before an output
-    is published, between a pool's results, when a command returns."""
-    _CRITICAL["signalled"] = _CRITICAL.get("signalled") or exc
-    if _CRITICAL["depth"]:
-        _CRITICAL["pending"] = _CRITICAL["pending"] or exc
-        return
-    raise exc
-
-
-def raise_if_interrupted() -> None:
-    """Raise the interruption :func:`interrupt` was given, if any (outside a critical section)."""
-    exc = _CRITICAL.get("signalled")
-    if exc is not None and not _CRITICAL["depth"]:
-        raise exc
-
-
-def interruption_forgotten() -> None:
-    """Start afresh (a command's start and end: :func:`usdbtf.cli.main` runs in tests many times)."""
-    _CRITICAL["signalled"] = None
 
 
 # ----------------------------------------------------------------------------- staging

@@ -14,7 +14,7 @@ work nobody waits for.  So:
 * **A pool that ends by an exception** (SIGTERM and SIGINT are exceptions in a command,
   :mod:`usdbtf.cli`) kills its workers at once (:func:`forked_pool`, :func:`stop_pool`)
   instead of waiting for the items they run: a stopped command stops now.  Its workers are
-  forked together when it starts, in a critical section (:func:`usdbtf.atomic.signals_deferred`),
+  forked together when it starts, in a critical section (:func:`signals_deferred`),
   so a signal never lands between a fork and the pool's record of the child.  A pool whose
   ``with`` block never ends -- a generator over it (:func:`usdbtf.compress.parallel.iter_processes`)
   left suspended when the exception was raised outside it, held by a reference cycle through
@@ -45,7 +45,7 @@ import weakref
 
 __all__ = ["PARENT_ENV", "die_with_parent", "adopt_parent_from_environment", "child_environment",
            "guarded_module_argv", "dying_with_parent", "running", "forked_pool", "stop_pool", "stop_live_pools",
-           "dask_setup"]
+           "dask_setup", "signals_deferred", "interrupt", "raise_if_interrupted", "interruption_forgotten"]
 
 #: The environment variable through which a parent names itself to a program it starts.
 PARENT_ENV = "USDBTF_PARENT_PID"
@@ -185,8 +185,6 @@ def forked_pool(workers: int, *, initializer=None, initargs=()):
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
-    from .atomic import signals_deferred
-
     pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"), initializer=initializer,
                                initargs=initargs)
     _LIVE_POOLS.add(pool)
@@ -236,6 +234,58 @@ def stop_pool(pool) -> None:
     for proc in processes:
         with contextlib.suppress(Exception):
             proc.join(1.0)
+
+
+# ----------------------------------------------------------------------------- interruptions
+# A command's signals as exceptions, held back through short critical sections (usdbtf.atomic
+# takes and releases locks and commits outputs in them; forked_pool forks its workers in one).
+
+_CRITICAL = {"depth": 0, "pending": None, "signalled": None}
+
+
+@contextlib.contextmanager
+def signals_deferred():
+    """A short critical section (taking or releasing a lock, committing an output, forking a
+    pool's workers): an interruption that :func:`interrupt` is asked to deliver meanwhile is
+    raised when the outermost section ends, so no lock, half-moved output or unrecorded
+    worker is left behind."""
+    _CRITICAL["depth"] += 1
+    try:
+        yield
+    finally:
+        _CRITICAL["depth"] -= 1
+        pending = _CRITICAL["pending"]
+        if _CRITICAL["depth"] == 0 and pending is not None:
+            _CRITICAL["pending"] = None
+            raise pending
+
+
+def interrupt(exc: BaseException) -> None:
+    """Raise ``exc`` now, or when the current critical section ends (for signal handlers:
+    the CLI turns SIGTERM and SIGINT into exceptions through this).
+
+    ``exc`` is also kept until :func:`interruption_forgotten`: Python drops an exception
+    raised where it cannot propagate (a signal that arrives while an ``os.fork`` hook of
+    ``logging`` or ``concurrent.futures`` runs is printed and ignored), so
+    :func:`raise_if_interrupted` raises it again where the work can stop: before an output
+    is published, between a pool's results, when a command returns."""
+    _CRITICAL["signalled"] = _CRITICAL.get("signalled") or exc
+    if _CRITICAL["depth"]:
+        _CRITICAL["pending"] = _CRITICAL["pending"] or exc
+        return
+    raise exc
+
+
+def raise_if_interrupted() -> None:
+    """Raise the interruption :func:`interrupt` was given, if any (outside a critical section)."""
+    exc = _CRITICAL.get("signalled")
+    if exc is not None and not _CRITICAL["depth"]:
+        raise exc
+
+
+def interruption_forgotten() -> None:
+    """Start afresh (a command's start and end: :func:`usdbtf.cli.main` runs in tests many times)."""
+    _CRITICAL["signalled"] = None
 
 
 def dask_setup(worker) -> None:
