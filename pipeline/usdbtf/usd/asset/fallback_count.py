@@ -27,7 +27,7 @@ import numpy as np
 
 from ...compress.format import CompressedBTF, Stored
 
-__all__ = ["BAND_ROWS", "BAND_PERIOD", "BandFits", "band_rows", "banded", "fit_bands"]
+__all__ = ["BAND_ROWS", "BAND_PERIOD", "BandFits", "band_rows", "banded", "fit_bands", "fit_fallbacks"]
 
 #: Texel rows fitted in every :data:`BAND_PERIOD`, from the band's first.
 BAND_ROWS = 16
@@ -62,17 +62,26 @@ def banded(cbtf: CompressedBTF, rows: np.ndarray) -> CompressedBTF:
     return replace(cbtf, height=len(rows), coefficients=coefficients, encoded=None, curve=None)
 
 
-def fit_bands(cbtf: CompressedBTF, white_level: float) -> BandFits | None:
-    """Both fallback fits of ``cbtf``'s bands (:func:`band_rows`) and their fit errors, as
-    ``package`` computes them for a whole image; None when the image is fitted whole."""
+def fit_fallbacks(cbtf: CompressedBTF, white_level: float, texel_weights=None) -> tuple:
+    """(UsdPreviewSurface fit, OpenPBR fit, both fits' errors) of ``cbtf``: ``package``'s
+    ``fallback_fits``, fitted as every asset fits them (the OpenPBR fit starts from the
+    UsdPreviewSurface's normals; the errors at held-out samples,
+    :func:`usdbtf.usd.asset.openpbr.fit_errors`).  ``texel_weights`` (P,): how many texels
+    each of ``cbtf``'s stands for (a quilt's compact source texels), else None."""
     from ...openpbr import fit_openpbr
     from ...svbrdf import fit_svbrdf
     from .openpbr import fit_errors
 
+    preview = fit_svbrdf(cbtf, white_level=white_level, texel_weights=texel_weights)
+    open_pbr = fit_openpbr(cbtf, svbrdf=preview, white_level=white_level, texel_weights=texel_weights)
+    return preview, open_pbr, fit_errors(cbtf, preview, open_pbr)
+
+
+def fit_bands(cbtf: CompressedBTF, white_level: float) -> BandFits | None:
+    """Both fallback fits of ``cbtf``'s bands (:func:`band_rows`) and their fit errors, as
+    ``package`` computes them for a whole image (:func:`fit_fallbacks`); None when the image is
+    fitted whole."""
     rows = band_rows(cbtf.height)
     if rows is None:
         return None
-    part = banded(cbtf, rows)
-    preview = fit_svbrdf(part, white_level=white_level)
-    open_pbr = fit_openpbr(part, svbrdf=preview, white_level=white_level)
-    return BandFits((preview, open_pbr, fit_errors(part, preview, open_pbr)), cbtf.height / len(rows))
+    return BandFits(fit_fallbacks(banded(cbtf, rows), white_level), cbtf.height / len(rows))

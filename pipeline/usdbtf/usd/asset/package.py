@@ -74,7 +74,7 @@ from ...svbrdf import SvbrdfMaps
 from . import fallback, lod, storm, thumbnail
 from . import openpbr as openpbr_fallback
 from .arkit import AR_SUFFIX
-from .fallback_count import BandFits, fit_bands
+from .fallback_count import BandFits, fit_bands, fit_fallbacks
 from .finite import non_finite_in_stage, non_finite_values
 from .layers import MATERIAL, make_usdz, stage_metadata, usd_write, valid_name
 from .lod import FULL_LOD, default_lods
@@ -386,7 +386,6 @@ def package(compressed, options: PackageOptions | None = None, *,
     source = str((cbtf.info.get("provenance") or {}).get("source") or cbtf.source.get("path") or "")
 
     from ...quilt.texels import quilt_texels
-    from ...svbrdf import fit_svbrdf
 
     textures = TextureSet(options.texture_format)
     # Per-texel work (the fallback fit, the GPU packs, the thumbnail's texture) on a quilt
@@ -401,12 +400,14 @@ def package(compressed, options: PackageOptions | None = None, *,
         basis, coefficients = gpu.tables, list(gpu.pages) + ([gpu.basis] if gpu.basis else [])
     else:
         basis, coefficients = package_textures(cbtf, textures)
-    fitted = (fallback_fits[0] if fallback_fits is not None else fit_svbrdf(cbtf, white_level=white)
-              if texels is None else fit_svbrdf(texels.compact, white_level=white,
-                                                texel_weights=texels.multiplicity()))
+    if fallback_fits is None:
+        fallback_fits = fit_fallbacks(cbtf if texels is None else texels.compact, white,
+                                      None if texels is None else texels.multiplicity())
+        log.info(f"fallbacks against the BTF at held-out samples: UsdPreviewSurface "
+                 f"{fallback_fits[2]['preview_surface']:.2f} %, OpenPBR {fallback_fits[2]['open_pbr']:.2f} %")
+    fitted, op_fitted, errors = fallback_fits
     maps_added = fallback.add_maps(fitted, textures, cbtf.ocio_config, texels=texels)
-    op_fitted, op_added, errors = _openpbr_fallback(cbtf if texels is None else texels.compact, fitted, white,
-                                                    textures, texels, fallback_fits)
+    op_added = openpbr_fallback.add_maps(op_fitted, textures, cbtf.ocio_config, texels=texels)
     thumb = None
     if options.thumbnail:
         thumb = textures.add_file(thumbnail.THUMBNAIL_FILE, thumbnail.thumbnail_jpeg(cbtf, shape, texels=texels))
@@ -422,24 +423,6 @@ def package(compressed, options: PackageOptions | None = None, *,
         ar = ar_textures(fitted, cbtf.ocio_config, texels)
     return PackageResult(cbtf, options, shape, tuple(size), levels, curve, source, textures, basis, coefficients,
                          maps_added, gpu, thumb, maps, ar, name, op_added, op_fitted, errors, fitted)
-
-
-def _openpbr_fallback(cbtf: CompressedBTF, preview: SvbrdfMaps, white: float, textures: TextureSet, texels,
-                      reused: tuple | None = None):
-    """The OpenPBR fallback of ``cbtf`` (a quilt's source texels when ``texels``): (its fit,
-    its maps added to ``textures``, both fallbacks' errors); ``reused`` (:func:`package`'s
-    ``fallback_fits``) gives the fit and errors instead."""
-    from ...openpbr import fit_openpbr
-
-    if reused is not None:
-        return reused[1], openpbr_fallback.add_maps(reused[1], textures, cbtf.ocio_config, texels=texels), reused[2]
-    fitted = fit_openpbr(cbtf, svbrdf=preview, white_level=white,
-                         texel_weights=None if texels is None else texels.multiplicity())
-    added = openpbr_fallback.add_maps(fitted, textures, cbtf.ocio_config, texels=texels)
-    errors = openpbr_fallback.fit_errors(cbtf, preview, fitted)
-    log.info(f"fallbacks against the BTF at held-out samples: UsdPreviewSurface {errors['preview_surface']:.2f} %, "
-             f"OpenPBR {errors['open_pbr']:.2f} %")
-    return fitted, added, errors
 
 
 @dataclass
