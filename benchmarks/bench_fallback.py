@@ -50,7 +50,7 @@ from pathlib import Path
 import usdbtf  # noqa: F401,E402  (before numpy: pins the numeric platform, usdbtf.numeric)
 import numpy as np
 
-from common import OUT, cli_command, format_machine, machine_info, timestamp, write_json
+from common import OUT, cli_command, dataset_arguments, format_machine, machine_info, timestamp, write_json
 
 PRESETS = ("pebbles", "ridged_fabric", "fuzzy_moss", "metal_flakes", "satin_weave", "crevice_stones", "velvet")
 
@@ -171,12 +171,7 @@ def errors(orig, cbtf, fallbacks: dict, chunk: int = 128) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--presets", default=",".join(PRESETS))
-    ap.add_argument("--sampling", default="paper")
-    ap.add_argument("--size", type=int, default=128)
-    ap.add_argument("--k", type=int, default=64)
-    ap.add_argument("--seed", type=int, default=0)
+    ap = dataset_arguments(argparse.ArgumentParser(description=__doc__.split("\n\n")[0]), ",".join(PRESETS))
     ap.add_argument("--quick", action="store_true", help="small sampling, 64^2 (a check, not a measurement)")
     ap.add_argument("--ablation", action="store_true", help="also fit without the normal map and with 512 fit "
                     "samples (the choices fit_svbrdf makes by default)")

@@ -15,5 +15,30 @@ from usdbtf.bench.measure import (REPO, RunResult, cli_command, default_out, fmt
 
 OUT = default_out()
 
+
+def print_header(title: str) -> None:
+    """Print a probe's report header: ``title``, the machine (:func:`format_machine`) and the
+    command line it was run with."""
+    import sys
+    from pathlib import Path
+
+    print(title)
+    print(format_machine(machine_info()))
+    print(f"- command: {' '.join([Path(sys.executable).name, *sys.argv])}")
+
+
+def dataset_arguments(parser, presets: str, *, size: int = 128, k: int = 64):
+    """Add the synthetic-data options the fallback benchmarks share to ``parser`` (an
+    ``argparse.ArgumentParser``): ``--presets`` (comma-separated, default ``presets``),
+    ``--sampling`` (paper), ``--size`` (texels a side), ``--k`` (the compressed folder's
+    components), ``--seed``.  Returns ``parser``."""
+    parser.add_argument("--presets", default=presets)
+    parser.add_argument("--sampling", default="paper")
+    parser.add_argument("--size", type=int, default=size)
+    parser.add_argument("--k", type=int, default=k)
+    parser.add_argument("--seed", type=int, default=0)
+    return parser
+
 __all__ = ["REPO", "OUT", "median", "time_call", "run_measured", "run_repeated", "RunResult", "machine_info",
-           "format_machine", "warm_page_cache", "folder_bytes", "timestamp", "write_json", "fmt_bytes", "cli_command"]
+           "format_machine", "warm_page_cache", "folder_bytes", "timestamp", "write_json", "fmt_bytes", "cli_command",
+           "dataset_arguments", "print_header"]

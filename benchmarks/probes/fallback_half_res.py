@@ -31,7 +31,7 @@ import usdbtf  # noqa: F401,E402  (before numpy: pins the numeric platform)
 import numpy as np  # noqa: E402
 
 from bench_fallback import PRESETS, errors  # noqa: E402
-from common import OUT, cli_command, format_machine, machine_info  # noqa: E402
+from common import OUT, cli_command, dataset_arguments, print_header  # noqa: E402
 
 
 def half_then_magnified(pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -52,13 +52,8 @@ def half_then_magnified(pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--presets", default=",".join(PRESETS))
-    ap.add_argument("--sampling", default="paper")
-    ap.add_argument("--size", type=int, default=128)
-    ap.add_argument("--k", type=int, default=64)
-    ap.add_argument("--seed", type=int, default=0)
-    args = ap.parse_args(argv)
+    args = dataset_arguments(argparse.ArgumentParser(description=__doc__.split("\n\n")[0]), ",".join(PRESETS)
+                             ).parse_args(argv)
 
     from usdbtf import openpbr, svbrdf
     from usdbtf.bench.datasets import compressed, ensure_dataset
@@ -66,9 +61,7 @@ def main(argv=None) -> int:
     from usdbtf.io import open_btf
     from usdbtf.usd.asset import fallback as ups, openpbr as op
 
-    print("# fallback maps at half resolution: bytes freed, error added")
-    print(format_machine(machine_info()))
-    print(f"- command: {' '.join([Path(sys.executable).name, *sys.argv])}")
+    print_header("# fallback maps at half resolution: bytes freed, error added")
     cli = cli_command()
     rows = []
     for preset in args.presets.split(","):

@@ -37,7 +37,7 @@ REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO / "benchmarks"))
 
 from bench_fallback import errors, shipped_fallbacks  # noqa: E402
-from common import OUT, cli_command, format_machine, machine_info  # noqa: E402
+from common import OUT, cli_command, dataset_arguments, print_header  # noqa: E402
 
 
 def synthesised(preset: str, sampling: str, size: int, seed: int, flat: bool) -> Path:
@@ -56,19 +56,13 @@ def synthesised(preset: str, sampling: str, size: int, seed: int, flat: bool) ->
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--presets", default="satin_weave,metal_flakes,fuzzy_moss,pebbles")
-    ap.add_argument("--sampling", default="paper")
-    ap.add_argument("--size", type=int, default=32)
-    ap.add_argument("--k", type=int, default=64)
-    ap.add_argument("--seed", type=int, default=0)
+    ap = dataset_arguments(argparse.ArgumentParser(description=__doc__.split("\n\n")[0]),
+                           "satin_weave,metal_flakes,fuzzy_moss,pebbles", size=32)
     args = ap.parse_args(argv)
     from usdbtf.bench.datasets import compressed
     from usdbtf.io import open_btf
 
-    print("# issue 40: fallback error as is and on the flat (no mesostructure) variant")
-    print(format_machine(machine_info()))
-    print(f"- command: {' '.join([Path(sys.executable).name, *sys.argv])}")
+    print_header("# issue 40: fallback error as is and on the flat (no mesostructure) variant")
     cli = cli_command()
     rows = []
     for preset in args.presets.split(","):
