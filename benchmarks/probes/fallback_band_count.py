@@ -5,7 +5,8 @@
 ``--maps ASSET.usda ...``: each asset's fallback maps (UsdPreviewSurface and OpenPBR, as
 shipped) re-encoded from a part of their rows, the bytes scaled by the rows left out, against
 the whole maps' bytes.  Parts: one contiguous block in the middle (a quarter, a half); bands of
-16 rows in every 32 (half) and of 8 in every 32 (a quarter), stacked into one image; 2 or 4
+16 rows in every 32 (half, shipped), of 8 in every 32 and 16 in every 64 (a quarter), of 32
+in every 64 (half), stacked into one image; 2 or 4
 evenly spaced blocks, each a file of its own.
 
 ``--count FOLDER ...``: ``asset_overhead`` of each compressed folder as rate control runs it
@@ -29,7 +30,8 @@ import numpy as np
 #: name -> ("block", fraction) | ("files", fraction, blocks) | ("bands", rows, period)
 PARTS = {"quarter block": ("block", 4), "half block": ("block", 2), "4 files (quarter)": ("files", 4, 4),
          "2 files (quarter)": ("files", 4, 2), "2 files (half)": ("files", 2, 2),
-         "bands 8/32 (quarter)": ("bands", 8, 32), "bands 16/32 (half, shipped)": ("bands", 16, 32)}
+         "bands 8/32 (quarter)": ("bands", 8, 32), "bands 16/64 (quarter)": ("bands", 16, 64),
+         "bands 32/64 (half)": ("bands", 32, 64), "bands 16/32 (half, shipped)": ("bands", 16, 32)}
 
 
 def _encoded_bytes(pixels: np.ndarray) -> int:
