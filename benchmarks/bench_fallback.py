@@ -185,10 +185,9 @@ def main(argv=None) -> int:
     if args.quick:
         args.sampling, args.size = "small", 64
 
-    from usdbtf.bench.datasets import compressed, ensure_dataset
+    from usdbtf.bench.datasets import compressed, ensure_dataset, preset_split
     from usdbtf.io import open_btf
-
-    from usdbtf.bench.datasets import preset_split
+    from usdbtf.photometry import white_level_of
 
     info = machine_info()
     say("# bench_fallback: flat / fitted UsdPreviewSurface / fitted OpenPBR, against the BTF")
@@ -209,7 +208,7 @@ def main(argv=None) -> int:
         folder = OUT / "fallback" / f"{preset}-{args.sampling}-{args.size}-seed{args.seed}-k{args.k}"
         cbtf = compressed(cli, Path(data["folder"]), folder, args.k)
         orig = open_btf(data["folder"])
-        white = float((cbtf.info.get("source_metadata") or {}).get("white_level", 1.0))
+        white = white_level_of(cbtf.info)
         shipped, fit_s, op_s = shipped_fallbacks(cbtf, white, args.ablation, args.before_brightness, storages)
         say(f"  fits: UsdPreviewSurface {fit_s:.1f} s, OpenPBR {op_s:.1f} s for {cbtf.width}x{cbtf.height} texels, "
             f"{cbtf.n_samples} samples, k {cbtf.k}")

@@ -8,6 +8,9 @@ folder on ``sys.path``).  Definitions (wall time, peak RSS, tree PSS, MB/GB) are
 """
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 from usdbtf.bench.machine import format_machine, machine_info
 from usdbtf.compress.format import folder_bytes
 from usdbtf.bench.measure import (REPO, RunResult, cli_command, default_out, fmt_bytes, median,
@@ -19,9 +22,6 @@ OUT = default_out()
 def print_header(title: str) -> None:
     """Print a probe's report header: ``title``, the machine (:func:`format_machine`) and the
     command line it was run with."""
-    import sys
-    from pathlib import Path
-
     print(title)
     print(format_machine(machine_info()))
     print(f"- command: {' '.join([Path(sys.executable).name, *sys.argv])}")

@@ -55,11 +55,12 @@ def main(argv=None) -> int:
     args = dataset_arguments(argparse.ArgumentParser(description=__doc__.split("\n\n")[0]), ",".join(PRESETS)
                              ).parse_args(argv)
 
-    from usdbtf import openpbr, svbrdf
     from usdbtf.bench.datasets import compressed, ensure_dataset
     from usdbtf.imageio import encode_png_smallest
     from usdbtf.io import open_btf
+    from usdbtf.photometry import white_level_of
     from usdbtf.usd.asset import fallback as ups, openpbr as op
+    from usdbtf.usd.asset.fallback_count import fit_fallbacks
 
     print_header("# fallback maps at half resolution: bytes freed, error added")
     cli = cli_command()
@@ -68,18 +69,16 @@ def main(argv=None) -> int:
         data = ensure_dataset(OUT / "data", preset, args.sampling, args.size, args.seed, say=print)
         folder = OUT / "fallback" / f"{preset}-{args.sampling}-{args.size}-seed{args.seed}-k{args.k}"
         cbtf = compressed(cli, Path(data["folder"]), folder, args.k)
-        white = float((cbtf.info.get("source_metadata") or {}).get("white_level", 1.0))
-        fitted = svbrdf.fit_svbrdf(cbtf, white_level=white)
-        fitted_op = openpbr.fit_openpbr(cbtf, svbrdf=fitted, white_level=white)
-        shipped, read, full_bytes, half_bytes = {}, {}, 0, 0
+        white = white_level_of(cbtf.info)
+        fitted, fitted_op, _ = fit_fallbacks(cbtf, white)          # the fits every asset ships
+        shipped, full_bytes, half_bytes = {}, 0, 0
         for name, module, maps in (("UsdPreviewSurface", ups, fitted), ("OpenPBR", op, fitted_op)):
             pixels = module.encode_maps(maps, cbtf.ocio_config)
             magnified = {}
             for key, px in pixels.items():
-                space = "data"
-                full_bytes += len(encode_png_smallest(np.ascontiguousarray(px), color_space=space, level=9))
+                full_bytes += len(encode_png_smallest(np.ascontiguousarray(px), color_space="data", level=9))
                 half, magnified[key] = half_then_magnified(px)
-                half_bytes += len(encode_png_smallest(np.ascontiguousarray(half), color_space=space, level=9))
+                half_bytes += len(encode_png_smallest(np.ascontiguousarray(half), color_space="data", level=9))
             decode = lambda p: module.decode_maps(p, cbtf.working_space, ocio_config=cbtf.ocio_config,  # noqa: E731
                                                   white_level=white)
             shipped[name] = decode(pixels)

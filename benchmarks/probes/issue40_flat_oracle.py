@@ -61,6 +61,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     from usdbtf.bench.datasets import compressed
     from usdbtf.io import open_btf
+    from usdbtf.photometry import white_level_of
 
     print_header("# issue 40: fallback error as is and on the flat (no mesostructure) variant")
     cli = cli_command()
@@ -71,7 +72,7 @@ def main(argv=None) -> int:
             data = synthesised(preset, args.sampling, args.size, args.seed, flat)
             cbtf = compressed(cli, data, data.with_name(data.name + f"-k{args.k}"), args.k)
             orig = open_btf(data)
-            white = float((cbtf.info.get("source_metadata") or {}).get("white_level", 1.0))
+            white = white_level_of(cbtf.info)
             shipped, _, _ = shipped_fallbacks(cbtf, white)
             res = errors(orig, cbtf, shipped)
             cells[flat] = {name: (res[name]["linear"]["percent"], res[name]["encoded"]["percent"])
