@@ -83,15 +83,41 @@ def uniform_codes(t: np.ndarray, dead_zone: bool = False) -> np.ndarray:
     return np.where(sparse, np.copysign(np.floor(np.abs(t) + DEAD_ZONE_OFFSET), t), q)
 
 
-def quantize_uniform(values: np.ndarray, step, dead_zone: bool = False) -> Stored:
+def _eight_bit_steps(values: np.ndarray, step: np.ndarray, q: np.ndarray, dead_zone: bool,
+                     factor: float) -> tuple[np.ndarray, np.ndarray]:
+    """(step, codes) with each channel of ``q`` (codes of ``values`` at ``step``) whose codes
+    span more than 255 and at most 255 ``factor`` re-rounded at the smallest coarser step of its
+    own (growing by 1/256 from span / 255 x the step) whose codes span at most 255 (8 bits);
+    the other channels as they are."""
+    flat = q.reshape(-1, q.shape[-1])
+    span = flat.max(axis=0) - flat.min(axis=0)
+    step, q = step.copy(), q.copy()
+    for c in np.flatnonzero((span > 255) & (span <= 255 * factor)):
+        grow = span[c] / 255.0
+        while True:
+            trial = step[c] * grow
+            codes = uniform_codes(values[..., c:c + 1] / np.float32(trial), dead_zone)[..., 0].astype(np.int64)
+            if int(codes.max()) - int(codes.min()) <= 255:
+                break
+            grow *= 1.0 + 1.0 / 256.0
+        step[c], q[..., c] = trial, codes
+    return step, q
+
+
+def quantize_uniform(values: np.ndarray, step, dead_zone: bool = False, eight_bit_factor: float = 1.0) -> Stored:
     """Round ``values`` (H, W, C) to multiples of ``step`` (scalar or (C,)), stored as unsigned ints.
 
     ``dead_zone``: round sparse channels towards zero (:func:`uniform_codes`; rate control's
-    budgets, issue 39).  The integer range decides the bit depth: 8-bit when every channel
-    fits in 256 levels, else 16-bit.  Raises BTFError if a channel needs more than 16 bits.
+    budgets, issue 39).  ``eight_bit_factor`` > 1: a channel that needs more than 256 levels
+    but no more than ``256 * eight_bit_factor`` gets a coarser step of its own that fits 8
+    bits (:data:`.options.EIGHT_BIT_STEP_FACTOR`, byte budgets); the stored scale is each channel's
+    step.  The integer range decides the bit depth: 8-bit when every channel fits in 256
+    levels, else 16-bit.  Raises BTFError if a channel needs more than 16 bits.
     """
-    step = np.broadcast_to(np.asarray(step, np.float64), (values.shape[-1],))
+    step = np.array(np.broadcast_to(np.asarray(step, np.float64), (values.shape[-1],)))
     q = uniform_codes(values / step.astype(np.float32), dead_zone).astype(np.int64)
+    if eight_bit_factor > 1.0:
+        step, q = _eight_bit_steps(values, step, q, dead_zone, eight_bit_factor)
     lo = q.reshape(-1, q.shape[-1]).min(axis=0)
     hi = q.reshape(-1, q.shape[-1]).max(axis=0)
     span = int((hi - lo).max())

@@ -27,12 +27,21 @@ DEFAULT_CODEC = {"rsvd": "jxlp", "paper": "jpeg"}
 DEFAULT_K = 150
 #: With a byte or error target, rate-distortion may keep more components than the paper's
 #: 150: low-energy coefficients cost few bits once entropy coded (measured: at the paper's
-#: With a byte or error target, rate-distortion may keep more components than the paper's
-#: 150: low-energy coefficients cost few bits once entropy coded (measured: at the paper's
 #: bytes, pebbles 9.1 % error at k <= 150, 8.0 % at k <= 300).  With a working-domain curve and
 #: planar files (issue 16) k <= 300 binds on velvet and metallic flakes with bytes to spare at
 #: the paper's budget, hence 500 (the research's k_max).
 BUDGET_K = 500
+#: Under a byte budget, a coefficient channel that needs a few more than 256 levels at the
+#: step is stored at a coarser step of its own, up to this factor, so that it fits 8 bits
+#: (:func:`.codecs.quantize_uniform`'s ``eight_bit_factor``).  One 16-bit layer makes its
+#: whole level of detail's pages 16-bit, which the asset ships as float32 OpenEXR (Storm
+#: reads PNG as 8 bits): paper-scale pebbles at the paper's bytes had layer 0 at 264 levels
+#: and layer 2 at 261, and its first pages (layers 0..28) weighed 650,606 bytes as EXR
+#: against 306,412 as PNG with those two channels' steps 1.031x and 1.020x coarser (0.12 of
+#: the budget, for two of 711 planes' quantisation noise up by 6 % and 4 %; issue 43, bench
+#: history "Issue 43, eleventh session").  At 2x a channel's noise grows 4x: one plane among
+#: the hundreds a budget keeps, against a level's pages at about twice their bytes.
+EIGHT_BIT_STEP_FACTOR = 2.0
 
 
 @dataclass
@@ -157,6 +166,14 @@ class CompressOptions:
         A plain k keeps round-to-nearest too: it asked for no size, and its step was chosen for
         rint's error (:func:`.ratedist.choose_for_k`)."""
         return self.max_bytes is not None and self.quantiser == "uniform"
+
+    @property
+    def eight_bit_factor(self) -> float:
+        """How much coarser than the step a coefficient channel may be stored so that it fits 8
+        bits (:data:`EIGHT_BIT_STEP_FACTOR`, issue 43): under ``--max-bytes``, where one
+        16-bit layer turns a level's pages into float32 OpenEXR; 1 (never) otherwise: a plain k
+        and ``--target-error`` store every channel at the step they chose it for."""
+        return EIGHT_BIT_STEP_FACTOR if self.dead_zone else 1.0
 
     @property
     def target_k(self) -> int:

@@ -55,32 +55,38 @@ class Factorisation:
         return self.basis.shape[1]
 
 
-def _uniform(basis: np.ndarray, coeff: np.ndarray, textures: list, step: float, dead_zone: bool):
+def _uniform(basis: np.ndarray, coeff: np.ndarray, textures: list, step: float, dead_zone: bool,
+             eight_bit_factor: float = 1.0):
     """One uniform step for every coefficient (sparse colour planes rounded with a dead zone
-    when ``dead_zone``, :func:`.codecs.uniform_codes`); basis column i gets step / sigma_i
+    when ``dead_zone``, :func:`.codecs.uniform_codes`; a channel a little over 8 bits at the
+    step coarser on its own up to ``eight_bit_factor``, :func:`.codecs.quantize_uniform`);
+    basis column i gets step / sigma_i
     (reverse water-filling, see :mod:`.ratedist`), rounded to nearest (a dead zone on the
     basis columns measured no gain: ``benchmarks/probes/issue39_deadzone.py``)."""
     energy = np.einsum("kpc,kpc->k", coeff, coeff, dtype=np.float64)
     return _quantize_basis_columns(basis, basis_steps(step, energy, basis)), in_threads(
-        lambda t: quantize_uniform(t, step, dead_zone), textures)
+        lambda t: quantize_uniform(t, step, dead_zone, eight_bit_factor), textures)
 
 
-def _minmax(basis: np.ndarray, coeff: np.ndarray, textures: list, step: float, dead_zone: bool):
+def _minmax(basis: np.ndarray, coeff: np.ndarray, textures: list, step: float, dead_zone: bool,
+            eight_bit_factor: float = 1.0):
     """The paper's storage: each texture min-max scaled to 8 bits, each basis vector too."""
     st = quantize_minmax(basis[None, :, :], per_channel=True)      # channels = columns
     return Stored(st.pixels[0][:, :, None], st.scale, st.bias), in_threads(
         lambda t: quantize_minmax(t, per_channel=False), textures)
 
 
-def _half(basis: np.ndarray, coeff: np.ndarray, textures: list, step: float, dead_zone: bool):
+def _half(basis: np.ndarray, coeff: np.ndarray, textures: list, step: float, dead_zone: bool,
+          eight_bit_factor: float = 1.0):
     """Half floats with a power-of-two scale per channel: no quantisation step at all."""
     st = quantize_half(basis[None, :, :])                              # channels = basis columns
     return Stored(st.pixels[0][:, :, None], st.scale, st.bias), in_threads(quantize_half, textures)
 
 
-#: name -> quantiser(basis (S, k), coefficients (k, P, 3), k textures (H, W, 3), step, dead_zone)
-#:         -> (basis Stored (S, k, 1), k coefficient Stored).  Only "uniform" has a step and a
-#:         dead zone (:attr:`.options.CompressOptions.dead_zone`); the others ignore both.
+#: name -> quantiser(basis (S, k), coefficients (k, P, 3), k textures (H, W, 3), step, dead_zone,
+#:         eight_bit_factor) -> (basis Stored (S, k, 1), k coefficient Stored).  Only "uniform"
+#:         has a step, a dead zone and the 8-bit fit (:attr:`.options.CompressOptions.dead_zone`,
+#:         ``eight_bit_factor``); the others ignore them.
 QUANTISERS = {"uniform": _uniform, "minmax": _minmax, "half": _half}
 
 
@@ -103,7 +109,7 @@ def quantise(f: Factorisation, k: int, step: float, options: CompressOptions) ->
     btf = f.btf
     textures = [f.coefficients[i].reshape(btf.height, btf.width, 3) for i in range(k)]
     basis, coeffs = QUANTISERS[options.quantiser](f.basis[:, :k], f.coefficients[:k], textures, step,
-                                                   options.dead_zone)
+                                                   options.dead_zone, options.eight_bit_factor)
     return CompressedBTF(
         sampling=btf.sampling, width=btf.width, height=btf.height, basis=basis, coefficients=coeffs,
         color_matrix=f.color_matrix, codec=options.codec_name, quick_encode=options.quick_encode,
