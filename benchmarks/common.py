@@ -39,6 +39,15 @@ def dataset_arguments(parser, presets: str, *, size: int = 128, k: int = 64):
     parser.add_argument("--seed", type=int, default=0)
     return parser
 
+
+def print_table(columns: list[str], rows: list[str]) -> None:
+    """Print a Markdown table after a blank line: the ``columns`` header, its rule, then
+    ``rows`` (each already a ``| a | b |`` line, as the probes print them while they run)."""
+    print("\n| " + " | ".join(columns) + " |")
+    print("|" + "---|" * len(columns))
+    for row in rows:
+        print(row)
+
 __all__ = ["REPO", "OUT", "median", "time_call", "run_measured", "run_repeated", "RunResult", "machine_info",
            "format_machine", "warm_page_cache", "folder_bytes", "timestamp", "write_json", "fmt_bytes", "cli_command",
-           "dataset_arguments", "print_header"]
+           "dataset_arguments", "print_header", "print_table"]

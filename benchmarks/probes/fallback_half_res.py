@@ -31,7 +31,7 @@ import usdbtf  # noqa: F401,E402  (before numpy: pins the numeric platform)
 import numpy as np  # noqa: E402
 
 from bench_fallback import PRESETS, errors  # noqa: E402
-from common import OUT, cli_command, dataset_arguments, print_header  # noqa: E402
+from common import OUT, cli_command, dataset_arguments, print_header, print_table  # noqa: E402
 
 
 def half_then_magnified(pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -91,10 +91,8 @@ def main(argv=None) -> int:
             row += f" {fl:.2f} -> {hl:.2f} ({hl / fl - 1:+.1%}) | {fe:.2f} -> {he:.2f} ({he / fe - 1:+.1%}) |"
         print(row, flush=True)
         rows.append(row)
-    print("\n| preset | maps' bytes | at half resolution | UPS % lin | UPS % enc | OpenPBR % lin | OpenPBR % enc |")
-    print("|---|---|---|---|---|---|---|")
-    for row in rows:
-        print(row)
+    print_table(["preset", "maps' bytes", "at half resolution", "UPS % lin", "UPS % enc", "OpenPBR % lin",
+                 "OpenPBR % enc"], rows)
     return 0
 
 

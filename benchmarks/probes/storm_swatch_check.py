@@ -29,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import usdbtf  # noqa: F401,E402  (before numpy: pins the numeric platform; registers the schema)
 import numpy as np  # noqa: E402
 
-from common import print_header  # noqa: E402
+from common import print_header, print_table  # noqa: E402
 
 SIZE = 160          # pixels a side
 DISTANCE_M = 1.0    # camera above the swatch
@@ -112,11 +112,8 @@ def main(argv=None) -> int:
                        f"{min(psnrs):.2f} | {min(controls):.1f} | {min(covered)} | {len(result.problems)} | {seconds:.0f} |")
                 print(row, flush=True)
                 rows.append(row)
-    print("\n| asset | k | Storm | mean sRGB value (8-bit) | max mean abs diff (8-bit steps) | min PSNR dB | "
-          "control: against half exposure, min mean abs diff | pixels compared | problems | Storm s |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    for row in rows:
-        print(row)
+    print_table(["asset", "k", "Storm", "mean sRGB value (8-bit)", "max mean abs diff (8-bit steps)", "min PSNR dB",
+                 "control: against half exposure, min mean abs diff", "pixels compared", "problems", "Storm s"], rows)
     return 0
 
 
