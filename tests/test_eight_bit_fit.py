@@ -6,8 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from usdbtf.compress.codecs import quantize_uniform
-from usdbtf.compress.options import EIGHT_BIT_STEP_FACTOR
-from usdbtf.compress.options import CompressOptions
+from usdbtf.compress.options import EIGHT_BIT_STEP_FACTOR, CompressOptions
 
 
 def _values(spans, step, seed=7):

@@ -46,7 +46,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "research"))
 import usdbtf  # noqa: F401,E402  (before numpy: pins the numeric platform)
 import numpy as np  # noqa: E402
 
-from common import print_header  # noqa: E402
+from common import print_header, print_table  # noqa: E402
 from rlib import domain, evaluate, load  # noqa: E402
 
 
@@ -112,16 +112,12 @@ def main(argv=None) -> int:
     report("fallback alone", 0, evaluate(data, lambda sel: model[sel].reshape(len(sel), P, 3), rows))
     del model
     results = {}
-    for name, target in (("plain", x), ("model", None)):
+    for name, offset in (("plain", None), ("model", fm)):
         t0 = time.perf_counter()
-        if target is None:
-            x -= fm                                            # the residual f(X) - f(M), in place
-            target = x
-            offset = fm
-        else:
-            offset = None
-        u, sv, coeff = randomized_basis(target, k0, return_coefficients=True)
-        energy = sum(float(np.einsum("ij,ij->", target[a:a + 512], target[a:a + 512], dtype=np.float64))
+        if offset is not None:
+            x -= offset                                        # the residual f(X) - f(M), in place
+        u, sv, coeff = randomized_basis(x, k0, return_coefficients=True)
+        energy = sum(float(np.einsum("ij,ij->", x[a:a + 512], x[a:a + 512], dtype=np.float64))
                      for a in range(0, S, 512))
         print(f"- {name}: fit {time.perf_counter() - t0:.1f} s; energy {energy:.4g}, captured by {k0}: "
               f"{float(np.square(sv).sum()) / energy:.5f}")
@@ -135,11 +131,11 @@ def main(argv=None) -> int:
             results[(name, k)] = errs
             report(name, k, errs)
         del u, coeff
-    print("\n| k | plain enc / lin | model + residual enc / lin |")
-    print("|---|---|---|")
+    table = []
     for k in ks:
         p, m = results[("plain", k)], results[("model", k)]
-        print(f"| {k} | {p.encoded:.3f} / {p.linear:.3f} | {m.encoded:.3f} / {m.linear:.3f} |")
+        table.append(f"| {k} | {p.encoded:.3f} / {p.linear:.3f} | {m.encoded:.3f} / {m.linear:.3f} |")
+    print_table(["k", "plain enc / lin", "model + residual enc / lin"], table)
     return 0
 
 

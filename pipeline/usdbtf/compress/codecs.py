@@ -108,10 +108,10 @@ def quantize_uniform(values: np.ndarray, step, dead_zone: bool = False, eight_bi
     """Round ``values`` (H, W, C) to multiples of ``step`` (scalar or (C,)), stored as unsigned ints.
 
     ``dead_zone``: round sparse channels towards zero (:func:`uniform_codes`; rate control's
-    budgets, issue 39).  ``eight_bit_factor`` > 1: a channel that needs more than 256 levels
-    but no more than ``256 * eight_bit_factor`` gets a coarser step of its own that fits 8
-    bits (:data:`.options.EIGHT_BIT_STEP_FACTOR`, byte budgets); the stored scale is each channel's
-    step.  The integer range decides the bit depth: 8-bit when every channel fits in 256
+    budgets, issue 39).  ``eight_bit_factor`` > 1: a channel whose codes span more than 255
+    but at most ``255 * eight_bit_factor`` (257 to 511 levels at the default 2) gets a coarser
+    step of its own that fits 8 bits (:data:`.options.EIGHT_BIT_STEP_FACTOR`, byte budgets);
+    the stored scale is each channel's step.  The integer range decides the bit depth: 8-bit when every channel fits in 256
     levels, else 16-bit.  Raises BTFError if a channel needs more than 16 bits.
     """
     step = np.array(np.broadcast_to(np.asarray(step, np.float64), (values.shape[-1],)))
